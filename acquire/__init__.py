@@ -1,0 +1,1 @@
+"""Acquisition: the HDF5 session format, the synchronizing recorder, its reader and tools."""

@@ -1,0 +1,1 @@
+"""Calibration of the stereo endoscope and projector; owns the calibration file format."""

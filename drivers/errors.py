@@ -1,0 +1,7 @@
+"""Expected device failures."""
+
+from vbfe.errors import VbfeError
+
+
+class DeviceError(VbfeError):
+    """A device is missing, vanished, timed out or answered nonsense; the message names it."""

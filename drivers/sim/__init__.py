@@ -1,0 +1,1 @@
+"""The simulated bench: stereo endoscope, projector, deforming tissue and trocar with ground truth."""

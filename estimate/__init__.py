@@ -1,0 +1,1 @@
+"""Force estimation from point clouds: PointNet regressor, baselines, training, evaluation."""

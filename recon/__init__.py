@@ -1,0 +1,1 @@
+"""Structured-light stereo reconstruction: pattern, colour correction, matching, point clouds."""

@@ -1,0 +1,28 @@
+"""Pieces shared by the subcommands: the --config option and progress bars."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from tqdm import tqdm
+
+from vbfe.config import load_config
+
+
+def add_config_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--config rig.toml`` (defaults run the simulated bench)."""
+    parser.add_argument("--config", metavar="RIG.toml", default=None,
+                        help="rig configuration (default: the simulated bench)")
+
+
+def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """The rig configuration the user chose."""
+    return load_config(getattr(args, "config", None))
+
+
+def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm:
+    """A progress bar on stderr; quiet when stderr is not a terminal and CI is set."""
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True,
+                mininterval=0.5)

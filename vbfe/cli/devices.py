@@ -1,0 +1,18 @@
+"""`vbfe devices`: not yet available."""
+
+from __future__ import annotations
+
+import argparse
+
+from vbfe.errors import VbfeError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `devices` subcommand."""
+    parser = sub.add_parser("devices", help="(not yet available)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Not yet available."""
+    raise VbfeError("'devices' is not yet available")

@@ -1,0 +1,45 @@
+"""The ``vbfe`` command: parses arguments, hands work to the packages, prints one-line errors."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from vbfe import __version__
+from vbfe.cli import (calibrate, demo, devices, evaluate, inspect, reconstruct, record, train,
+                      verify_sync, view)
+from vbfe.errors import VbfeError
+
+COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, reconstruct, train, evaluate,
+            demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered."""
+    parser = argparse.ArgumentParser(
+        prog="vbfe", description="Vision-based force estimation: record, calibrate, reconstruct, "
+        "train and evaluate with a structured-light stereo endoscope and a force trocar.")
+    parser.add_argument("--version", action="version", version=f"vbfe {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in COMMANDS:
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except VbfeError as exc:
+        print(f"vbfe {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"vbfe {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

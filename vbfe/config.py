@@ -1,0 +1,68 @@
+"""Rig configuration: one TOML file per rig, one table per component.
+
+Each package parses its own table (``[camera]``, ``[trocar]``, ``[projector]``, ``[record]``,
+``[sgbm]``, ``[calib]``, ``[train]``, ``[bench]``) into its own settings; this module only
+loads the file and merges it over the defaults, which run the simulated bench.
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from vbfe.errors import VbfeError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised only on 3.10
+    import tomli as tomllib
+
+
+class ConfigError(VbfeError):
+    """The rig configuration file is missing, unreadable or has a wrong value."""
+
+
+def default_config() -> dict[str, dict[str, Any]]:
+    """The built-in configuration: every device on the simulated bench."""
+    text = resources.files("vbfe").joinpath("default_rig.toml").read_text(encoding="utf-8")
+    return tomllib.loads(text)
+
+
+def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
+    """Load a rig TOML file over the defaults; ``None`` gives the defaults (simulated bench)."""
+    config = default_config()
+    if path is None:
+        return config
+    path = Path(path)
+    try:
+        user = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"rig config {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"rig config {path} is not valid TOML: {exc}") from None
+    unknown = set(user) - set(config)
+    if unknown:
+        raise ConfigError(
+            f"rig config {path} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
+        )
+    return _merge(config, user)
+
+
+def section(config: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
+    """One table of the configuration, as a fresh dict (callers may pop from it)."""
+    if name not in config:
+        raise ConfigError(f"rig config has no [{name}] table")
+    return copy.deepcopy(config[name])
