@@ -1,1 +1,12 @@
 """Acquisition: the HDF5 session format, the synchronizing recorder, its reader and tools."""
+
+from vbfe.acquire.clock import ClockFit, fit_clock
+from vbfe.acquire.errors import SessionError
+from vbfe.acquire.reader import SessionReader, store_analysis, store_calibration
+from vbfe.acquire.record import record_session
+from vbfe.acquire.recorder import Recorder, RecorderStats
+from vbfe.acquire.writer import SessionWriter, finalize_session
+
+__all__ = ["ClockFit", "Recorder", "RecorderStats", "SessionError", "SessionReader",
+           "SessionWriter", "finalize_session", "fit_clock", "record_session", "store_analysis",
+           "store_calibration"]

@@ -99,8 +99,35 @@ def default_rig(width: int = 640, height: int = 360, baseline_m: float = 0.004,
         right = pinhole(width, height, 70.0, (-0.07, 0.015, -0.0004, 0.0002, 0.0), (-2.5, 1.5))
     else:
         left = right = pinhole(width, height, 70.0)
-    projector = pinhole(1024, 768, 40.0)
+    projector = pinhole(1024, 768, 62.0)
     R_proj, T_proj = look_at(np.array([-0.012, -0.006, -0.004]),
                              np.array([0.0, 0.0, working_distance_m]))
     return StereoRig(left=left, right=right, R=np.eye(3), T=np.array([-baseline_m, 0.0, 0.0]),
                      projector=projector, R_proj=R_proj, T_proj=T_proj)
+
+
+def _camera_to_dict(camera: PinholeCamera) -> dict[str, object]:
+    return {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "width": camera.width,
+            "height": camera.height}
+
+
+def _camera_from_dict(d: dict) -> PinholeCamera:
+    return PinholeCamera(K=np.asarray(d["K"], np.float64), dist=np.asarray(d["dist"], np.float64),
+                         width=int(d["width"]), height=int(d["height"]))
+
+
+def rig_to_dict(rig: StereoRig) -> dict[str, object]:
+    """JSON-able description of a rig (inverse: :func:`rig_from_dict`)."""
+    return {"left": _camera_to_dict(rig.left), "right": _camera_to_dict(rig.right),
+            "projector": _camera_to_dict(rig.projector), "R": np.asarray(rig.R).tolist(),
+            "T": np.asarray(rig.T).tolist(), "R_proj": np.asarray(rig.R_proj).tolist(),
+            "T_proj": np.asarray(rig.T_proj).tolist()}
+
+
+def rig_from_dict(d: dict) -> StereoRig:
+    """The rig a :func:`rig_to_dict` description holds."""
+    return StereoRig(left=_camera_from_dict(d["left"]), right=_camera_from_dict(d["right"]),
+                     R=np.asarray(d["R"], np.float64), T=np.asarray(d["T"], np.float64),
+                     projector=_camera_from_dict(d["projector"]),
+                     R_proj=np.asarray(d["R_proj"], np.float64),
+                     T_proj=np.asarray(d["T_proj"], np.float64))

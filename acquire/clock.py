@@ -1,0 +1,110 @@
+"""Clock synchronization: map each device's clock onto the host clock (kept apart from data).
+
+Transport delay only ever adds latency, so the host time of a sample is the device time mapped
+through a line plus a non-negative delay. :func:`fit_clock` fits the *lower envelope* of the
+(device, host) pairs: a first Theil–Sen line, then repeated least-squares fits through the
+lowest-residual pair of each time segment. What remains above the line is transport jitter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+_SEGMENTS = 32  # at most this many lower-envelope support points per fit
+_POINTS_PER_SEGMENT = 16  # enough samples that each segment's minimum is near the true delay
+NO_CLOCK_NS = -1  # t_device_ns of devices without a clock
+_THEIL_SEN_PAIRS = 2000
+
+
+@dataclass(frozen=True)
+class ClockFit:
+    """``t_host = ref_host_ns + intercept_ns + slope * (t_device - ref_device_ns)``."""
+
+    ref_device_ns: int
+    ref_host_ns: int
+    intercept_ns: float
+    slope: float
+    jitter_ns: float  # robust spread (1.4826·MAD) of the host-time residuals about the envelope
+    latency_ns: float  # median residual above the envelope (transport delay beyond the minimum)
+    n_pairs: int
+
+    @property
+    def drift_ppm(self) -> float:
+        """How much faster the device clock runs than the host clock, in parts per million."""
+        return (1.0 / self.slope - 1.0) * 1e6 if self.slope else 0.0
+
+    @property
+    def offset_ns(self) -> int:
+        """Host time minus device time at the reference point."""
+        return int(self.ref_host_ns + round(self.intercept_ns) - self.ref_device_ns)
+
+    def to_host(self, t_device_ns: np.ndarray) -> np.ndarray:
+        """Device timestamps (int64 ns) mapped onto the host clock (int64 ns)."""
+        dt = (np.asarray(t_device_ns, dtype=np.int64) - self.ref_device_ns).astype(np.float64)
+        return self.ref_host_ns + np.round(self.intercept_ns + self.slope * dt).astype(np.int64)
+
+    def to_attrs(self) -> dict[str, float | int]:
+        """Plain values to store as HDF5 attributes (plus the derived drift and offset)."""
+        return {**asdict(self), "drift_ppm": self.drift_ppm, "offset_ns": self.offset_ns}
+
+    @classmethod
+    def from_attrs(cls, attrs: dict) -> "ClockFit":
+        """Rebuild a fit from :meth:`to_attrs` output (extra keys are ignored)."""
+        return cls(int(attrs["ref_device_ns"]), int(attrs["ref_host_ns"]),
+                   float(attrs["intercept_ns"]), float(attrs["slope"]), float(attrs["jitter_ns"]),
+                   float(attrs["latency_ns"]), int(attrs["n_pairs"]))
+
+
+def identity_fit(t_host_ns: np.ndarray) -> ClockFit:
+    """The fit of a device without its own clock: its samples carry host time already."""
+    ref = int(t_host_ns[0]) if len(t_host_ns) else 0
+    return ClockFit(ref, ref, 0.0, 1.0, 0.0, 0.0, int(len(t_host_ns)))
+
+
+def _theil_sen(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
+    n = len(x)
+    i = rng.integers(0, n, _THEIL_SEN_PAIRS)
+    j = rng.integers(0, n, _THEIL_SEN_PAIRS)
+    keep = np.abs(x[j] - x[i]) > (x[-1] - x[0]) / 4  # well-separated pairs only
+    if not keep.any():
+        keep = x[j] != x[i]
+    slope = float(np.median((y[j] - y[i])[keep] / (x[j] - x[i])[keep])) if keep.any() else 1.0
+    return float(np.median(y - slope * x)), slope
+
+
+def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float, b: float) -> tuple[float, float]:
+    n_segments = int(np.clip(len(x) // _POINTS_PER_SEGMENT, 2, _SEGMENTS))
+    segments = np.array_split(np.arange(len(x)), min(n_segments, len(x)))
+    residual = y - (a + b * x)
+    lowest = np.array([seg[np.argmin(residual[seg])] for seg in segments if len(seg)])
+    if len(lowest) < 2 or np.ptp(x[lowest]) == 0:
+        return float(np.min(residual) + a), b
+    b, a = np.polyfit(x[lowest], y[lowest], 1)
+    return float(a), float(b)
+
+
+def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
+    """Fit host time against device time (offset + drift) along the lower envelope of the pairs.
+
+    A stream without a device clock (all ``t_device_ns == -1``) gets the identity on host time.
+    """
+    dev = np.asarray(t_device_ns, dtype=np.int64)
+    host = np.asarray(t_host_ns, dtype=np.int64)
+    if len(dev) == 0 or np.all(dev == NO_CLOCK_NS):
+        return identity_fit(host)
+    if len(dev) == 1:
+        return ClockFit(int(dev[0]), int(host[0]), 0.0, 1.0, 0.0, 0.0, 1)
+    order = np.argsort(dev, kind="stable")
+    dev, host = dev[order], host[order]
+    ref_dev, ref_host = int(dev[0]), int(host[0])
+    x = (dev - ref_dev).astype(np.float64)
+    y = (host - ref_host).astype(np.float64)
+    a, b = _theil_sen(x, y, np.random.default_rng(0))
+    for _ in range(3):
+        a, b = _envelope_fit(x, y, a, b)
+    residual = y - (a + b * x)
+    med = float(np.median(residual))
+    jitter = 1.4826 * float(np.median(np.abs(residual - med)))
+    return ClockFit(ref_dev, ref_host, a, b, jitter, med, int(len(dev)))

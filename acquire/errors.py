@@ -1,0 +1,7 @@
+"""Expected failures of the session recorder and reader."""
+
+from vbfe.errors import VbfeError
+
+
+class SessionError(VbfeError):
+    """A session file is missing, unwritable, truncated, corrupt or not a vbfe session."""

@@ -1,0 +1,284 @@
+"""Reading sessions: the only way other packages see the HDF5 layout."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import cv2
+import h5py
+import numpy as np
+
+from vbfe.acquire.clock import ClockFit, fit_clock
+from vbfe.acquire.errors import SessionError
+from vbfe.acquire.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
+from vbfe.drivers.samples import ProjectorEvent, StereoFrame
+
+FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
+
+
+def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, bool]:
+    """Open a session's HDF5 file; returns ``(file, closed_cleanly)``.
+
+    A file whose recorder died keeps its SWMR write flag; it is opened read-only in SWMR mode
+    (everything up to the last flush is there). Anything else that fails is a SessionError.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SessionError(f"session file {path} does not exist")
+    try:
+        return h5py.File(path, mode), True
+    except OSError as exc:
+        if "already open for write" not in str(exc) and "open for read-only" not in str(exc):
+            raise SessionError(f"{path} is not a readable HDF5 file (truncated or corrupt?): "
+                               f"{exc}") from None
+    if mode != "r":
+        raise SessionError(f"{path} was not closed cleanly (the recorder stopped mid-recording); "
+                           "it can be read but not changed: run `vbfe inspect --repair` on it "
+                           "first")
+    try:
+        return h5py.File(path, "r", swmr=True), False
+    except OSError as exc:
+        raise SessionError(f"{path} was not closed cleanly and cannot be read: {exc}") from None
+
+
+def _check_session(f: h5py.File, path: Path) -> None:
+    if f.attrs.get("format") != FORMAT_NAME:
+        f.close()
+        raise SessionError(f"{path} is an HDF5 file but not a vbfe session (no "
+                           f"format={FORMAT_NAME!r} attribute)")
+    version = int(f.attrs.get("schema_version", -1))
+    if version > SCHEMA_VERSION:
+        f.close()
+        raise SessionError(f"{path} has session schema {version}, newer than this vbfe "
+                           f"understands ({SCHEMA_VERSION}); update vbfe")
+
+
+class SessionReader:
+    """Read-only access to a recorded session (frames, forces, events, clock fits, metadata)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file, self.closed_cleanly = open_session_file(self.path)
+        _check_session(self._file, self.path)
+        f = self._file
+        self.complete = bool(f.attrs.get("complete", False)) and self.closed_cleanly
+        self.encoding = str(f["camera"].attrs.get("encoding", "raw"))
+        cam = f["camera"]
+        image_keys = (("left_jpeg_index", "right_jpeg_index") if self.encoding == "jpeg"
+                      else ("left", "right"))
+        self._lengths = {s: min(f[s][k].shape[0] for k in ("t_device_ns", "t_host_ns", "seq"))
+                         for s in STREAMS}
+        self._lengths["camera"] = min([self._lengths["camera"]]
+                                      + [cam[k].shape[0] for k in image_keys])
+        self._lengths["force"] = min(self._lengths["force"], f["force/force_n"].shape[0])
+        self._lengths["projector"] = min(self._lengths["projector"], f["projector/pattern"].shape[0],
+                                         f["projector/frame_id"].shape[0])
+        self._fits: dict[str, ClockFit] = {}
+
+    # -- container protocol -------------------------------------------------------------
+    def close(self) -> None:
+        """Close the file."""
+        self._file.close()
+
+    def __enter__(self) -> "SessionReader":
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def _read(self, name: str, n: int | None = None) -> np.ndarray:
+        try:
+            ds = self._file[name]
+            return ds[:n] if n is not None else ds[()]
+        except (OSError, KeyError) as exc:
+            raise SessionError(f"cannot read {name} from {self.path} (corrupt?): {exc}") from None
+
+    # -- frames -------------------------------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        """Number of complete stereo frames."""
+        return self._lengths["camera"]
+
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """``(width, height)`` of one eye."""
+        cam = self._file["camera"]
+        return int(cam.attrs["width"]), int(cam.attrs["height"])
+
+    def _image(self, eye: str, i: int) -> np.ndarray:
+        cam = self._file["camera"]
+        try:
+            if self.encoding == "jpeg":
+                offset, length = cam[f"{eye}_jpeg_index"][i]
+                image = cv2.imdecode(cam[f"{eye}_jpeg"][offset:offset + length], cv2.IMREAD_COLOR)
+                if image is None:
+                    raise OSError("JPEG data does not decode")
+                return image
+            return cam[eye][i]
+        except OSError as exc:
+            raise SessionError(f"frame {i} ({eye}) of {self.path} cannot be read (corrupt?): "
+                               f"{exc}") from None
+
+    def frame(self, i: int) -> StereoFrame:
+        """Frame ``i`` with its recorded device and host timestamps (not clock-corrected)."""
+        if not -self.n_frames <= i < self.n_frames:
+            raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
+        i %= self.n_frames
+        cam = self._file["camera"]
+        return StereoFrame(left=self._image("left", i), right=self._image("right", i),
+                           seq=int(cam["seq"][i]), t_device_ns=int(cam["t_device_ns"][i]),
+                           t_host_ns=int(cam["t_host_ns"][i]))
+
+    def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[StereoFrame]:
+        """Frames ``start`` … ``stop - 1`` in order."""
+        stop = self.n_frames if stop is None else min(stop, self.n_frames)
+        for i in range(start, stop):
+            yield self.frame(i)
+
+    # -- raw streams ----------------------------------------------------------------------
+    def stream_times(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Recorded ``(t_device_ns, t_host_ns, seq)`` of one stream (camera, force, projector)."""
+        n = self._lengths[stream]
+        return tuple(self._read(f"{stream}/{k}", n) for k in ("t_device_ns", "t_host_ns", "seq"))
+
+    def clock_fit(self, stream: str) -> ClockFit:
+        """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""
+        if stream not in self._fits:
+            stored = self._file.get(f"clock/{stream}")
+            if stored is not None and "slope" in stored.attrs:
+                self._fits[stream] = ClockFit.from_attrs(dict(stored.attrs))
+            else:
+                t_dev, t_host, _ = self.stream_times(stream)
+                self._fits[stream] = fit_clock(t_dev, t_host)
+        return self._fits[stream]
+
+    # -- synchronized times and force -----------------------------------------------------
+    def frame_times_ns(self) -> np.ndarray:
+        """Per-frame capture time on the host clock (clock fit, minus any stored correction)."""
+        t_dev = self.stream_times("camera")[0]
+        correction = int(self.analysis().get(FRAME_CORRECTION_ATTR, 0))
+        return self.clock_fit("camera").to_host(t_dev) - correction
+
+    def force_times_ns(self) -> np.ndarray:
+        """Per-sample force time on the host clock (after the clock fit)."""
+        return self.clock_fit("force").to_host(self.stream_times("force")[0])
+
+    def forces_n(self) -> np.ndarray:
+        """All force samples, ``(n, 3)`` newtons."""
+        return self._read("force/force_n", self._lengths["force"])
+
+    @property
+    def force_axes(self) -> list[str]:
+        """Names of the force columns."""
+        return [str(a) for a in self._file["force/force_n"].attrs.get("axes", ["x", "y", "z"])]
+
+    def force_at_frames(self, max_gap_s: float = 0.05) -> np.ndarray:
+        """Force (``(n_frames, 3)`` N) interpolated at each frame's synchronized time.
+
+        Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
+        get NaN rather than an invented value.
+        """
+        t_frames = self.frame_times_ns()
+        t_force, forces = self.force_times_ns(), self.forces_n()
+        out = np.full((len(t_frames), forces.shape[1] if forces.ndim == 2 else 3), np.nan)
+        if len(t_force) < 2 or len(t_frames) == 0:
+            return out
+        order = np.argsort(t_force, kind="stable")
+        t_force, forces = t_force[order], forces[order]
+        x = (t_frames - t_force[0]).astype(np.float64)
+        xp = (t_force - t_force[0]).astype(np.float64)
+        for axis in range(forces.shape[1]):
+            out[:, axis] = np.interp(x, xp, forces[:, axis], left=np.nan, right=np.nan)
+        right = np.clip(np.searchsorted(xp, x), 1, len(xp) - 1)
+        too_wide = (xp[right] - xp[right - 1]) > max_gap_s * 1e9
+        out[too_wide] = np.nan
+        return out
+
+    # -- events, gaps, metadata ---------------------------------------------------------
+    def projector_events(self) -> list[ProjectorEvent]:
+        """Projector events in recording order."""
+        n = self._lengths["projector"]
+        t_dev, t_host, seq = self.stream_times("projector")
+        names = self._read("projector/pattern", n)
+        ids = self._read("projector/frame_id", n)
+        return [ProjectorEvent(pattern=names[i].decode(), frame_id=int(ids[i]), seq=int(seq[i]),
+                               t_host_ns=int(t_host[i]), t_device_ns=int(t_dev[i]))
+                for i in range(n)]
+
+    def gaps(self) -> list[dict[str, Any]]:
+        """Gaps the recorder marked (queue overflow, device disconnected), as dicts."""
+        rows = self._read("gaps")
+        out = []
+        for row in rows:
+            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row)))
+            gap["stream"] = STREAMS[gap["stream"]]
+            gap["reason"] = GAP_REASONS[gap["reason"]]
+            out.append(gap)
+        return out
+
+    def clock_pairs(self) -> np.ndarray:
+        """``(n, 2)`` pairs of (UTC ns, host monotonic ns) taken at every flush."""
+        return self._read("clock_pairs")
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        """The root attributes (schema and software version, start time, drop counters …)."""
+        return {k: (v.item() if isinstance(v, np.generic) else v)
+                for k, v in self._file.attrs.items()}
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        """Operator, notes, devices, conditions, bench, … as given when recording started."""
+        attrs = self.attrs
+        meta = json.loads(attrs.get("metadata_json", "{}"))
+        for key in ("operator", "notes", "schema_version", "software_version", "compression",
+                    "start_utc_ns"):
+            meta.setdefault(key, attrs.get(key))
+        return meta
+
+    def calibration_yaml(self) -> str | None:
+        """The calibration stored with the session (OpenCV YAML text), if any."""
+        if "calibration_yaml" not in self._file:
+            return None
+        value = self._read("calibration_yaml")
+        return value.decode() if isinstance(value, bytes) else str(value)
+
+    def truth(self, name: str) -> np.ndarray | None:
+        """A ground-truth array of a simulated session (e.g. per-frame true force), or None."""
+        key = f"truth/{name}"
+        return self._read(key) if key in self._file else None
+
+    def truth_names(self) -> list[str]:
+        """Names of the stored ground-truth arrays."""
+        return sorted(self._file["truth"]) if "truth" in self._file else []
+
+    def analysis(self) -> dict[str, Any]:
+        """Results stored by analyses such as verify-sync (``/analysis`` attributes)."""
+        group = self._file.get("analysis")
+        if group is None:
+            return {}
+        return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in group.attrs.items()}
+
+
+def store_calibration(session_path: str | Path, yaml_text: str) -> None:
+    """Put (or replace) the calibration YAML text of an existing session."""
+    store_analysis(session_path, {}, calibration_yaml=yaml_text)
+
+
+def store_analysis(session_path: str | Path, values: dict[str, Any],
+                   calibration_yaml: str | None = None) -> None:
+    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session."""
+    f, _ = open_session_file(session_path, "r+")
+    with f:
+        _check_session(f, Path(session_path))
+        if calibration_yaml is not None:
+            if "calibration_yaml" in f:
+                del f["calibration_yaml"]
+            f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
+        if values:
+            f.require_group("analysis").attrs.update(values)

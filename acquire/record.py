@@ -1,0 +1,40 @@
+"""``record_session``: record a session from the rig a configuration describes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from vbfe.acquire.recorder import Recorder, RecorderStats
+from vbfe.config import section
+from vbfe.drivers.registry import open_devices
+
+
+def record_session(config: dict[str, dict[str, Any]], path: str | Path,
+                   duration_s: float | None = None, operator: str = "", notes: str = "",
+                   conditions: dict[str, Any] | None = None, compression: str | None = None,
+                   calibration_yaml: str | None = None,
+                   on_progress: Callable[[RecorderStats], None] | None = None) -> RecorderStats:
+    """Record stereo video, force and projector events into ``path`` until ``duration_s``
+    seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
+    conditions, description and per-frame ground truth to the session."""
+    from vbfe.recon.pattern import make_pattern
+
+    settings = section(config, "record")
+    devices = open_devices(config)
+    metadata: dict[str, Any] = {"operator": operator, "notes": notes,
+                                "conditions": dict(conditions or {})}
+    if devices.bench is not None:
+        metadata["conditions"] = {**devices.bench.conditions(), **metadata["conditions"]}
+        metadata["bench"] = devices.bench.describe()
+    projector = devices.projector
+    recorder = Recorder(devices, path, compression=compression or settings["compression"],
+                        flush_interval_s=float(settings["flush_interval_s"]),
+                        metadata=metadata, calibration_yaml=calibration_yaml,
+                        queue_size=int(settings["queue_size"]),
+                        min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
+                        pattern=make_pattern(projector.width, projector.height),
+                        pattern_name="debruijn-hsv")
+    recorder.start()
+    return recorder.run(duration_s, on_progress)

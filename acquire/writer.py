@@ -1,0 +1,219 @@
+"""Low-level session writer: creates the HDF5 layout, appends samples, flushes in SWMR mode.
+
+Every dataset is resizable and chunked and the file is switched to SWMR mode once the layout
+exists, so a flushed file stays readable whatever happens to the writing process afterwards.
+:func:`finalize_session` runs after a clean close: it adds the clock fits, end attributes and
+(for simulated sessions) the ground truth, which SWMR mode does not allow adding earlier.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import h5py
+import numpy as np
+
+import vbfe
+from vbfe.acquire.clock import fit_clock
+from vbfe.acquire.errors import SessionError
+from vbfe.acquire.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
+                                 JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
+                                 image_filter)
+from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+
+_TIME_CHUNK = 4096
+_JPEG_CHUNK = 1 << 20
+
+
+def _series(group: h5py.Group, name: str, dtype: Any, width: int | None = None,
+            chunk: int = _TIME_CHUNK, **kwargs: Any) -> h5py.Dataset:
+    shape, maxshape, chunks = (0,), (None,), (chunk,)
+    if width is not None:
+        shape, maxshape, chunks = (0, width), (None, width), (chunk, width)
+    return group.create_dataset(name, shape=shape, maxshape=maxshape, chunks=chunks, dtype=dtype,
+                                **kwargs)
+
+
+def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
+    n = ds.shape[0]
+    ds.resize(n + len(values), axis=0)
+    ds[n:] = values
+
+
+def _encode_jpeg(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise SessionError("OpenCV could not JPEG-encode a frame for the mjpeg compression")
+    return buf.tobytes()
+
+
+class SessionWriter:
+    """Writes one session file; call the ``append_*`` methods from a single thread."""
+
+    def __init__(self, path: str | Path, frame_size: tuple[int, int], compression: str = "lzf",
+                 metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
+                 force_axes: Sequence[str] = ("x", "y", "z")) -> None:
+        if compression not in COMPRESSIONS:
+            raise SessionError(f"unknown compression {compression!r} for {path}; choose one of "
+                               f"{COMPRESSIONS}")
+        self.path = Path(path)
+        self.compression = compression
+        self.bytes_written = 0  # uncompressed payload bytes
+        width, height = frame_size
+        metadata = dict(metadata or {})
+        try:
+            self._file = h5py.File(self.path, "w", libver="latest")
+        except OSError as exc:
+            raise SessionError(f"cannot create session file {self.path}: {exc}") from None
+        f = self._file
+        f.attrs.update({
+            "format": FORMAT_NAME, "schema_version": SCHEMA_VERSION,
+            "software_version": vbfe.__version__, "compression": compression,
+            "operator": str(metadata.get("operator", "")), "notes": str(metadata.get("notes", "")),
+            "start_utc_ns": time.time_ns(), "start_host_ns": time.monotonic_ns(),
+            "metadata_json": json.dumps(metadata, default=str), "complete": False,
+        })
+        cam = f.create_group("camera")
+        cam.attrs.update({"width": width, "height": height, "encoding":
+                          "jpeg" if compression == "mjpeg" else "raw", "color": "BGR"})
+        self._images: dict[str, h5py.Dataset] = {}
+        self._jpeg: dict[str, tuple[h5py.Dataset, h5py.Dataset]] = {}
+        for eye in ("left", "right"):
+            if compression == "mjpeg":
+                self._jpeg[eye] = (_series(cam, f"{eye}_jpeg", np.uint8, chunk=_JPEG_CHUNK),
+                                   _series(cam, f"{eye}_jpeg_index", np.int64, width=2, chunk=256))
+            else:
+                self._images[eye] = cam.create_dataset(
+                    eye, shape=(0, height, width, 3), maxshape=(None, height, width, 3),
+                    chunks=(1, height, width, 3), dtype=np.uint8, **image_filter(compression))
+        force = f.create_group("force")
+        self._force_n = _series(force, "force_n", np.float64, width=len(force_axes))
+        self._force_n.attrs.update({"units": "N", "axes": list(force_axes)})
+        proj = f.create_group("projector")
+        self._pattern = _series(proj, "pattern", PATTERN_NAME_DTYPE, chunk=64)
+        self._frame_id = _series(proj, "frame_id", np.int64, chunk=64)
+        self._times = {}
+        for name, group, chunk in (("camera", cam, 256), ("force", force, _TIME_CHUNK),
+                                   ("projector", proj, 64)):
+            self._times[name] = tuple(_series(group, key, np.int64, chunk=chunk)
+                                      for key in ("t_device_ns", "t_host_ns", "seq"))
+            for key in ("t_device_ns", "t_host_ns"):
+                group[key].attrs["units"] = "ns"
+        self._gaps = _series(f, "gaps", np.int64, width=len(GAP_COLUMNS), chunk=64)
+        self._gaps.attrs.update({"columns": list(GAP_COLUMNS), "streams": list(STREAMS),
+                                 "reasons": list(GAP_REASONS)})
+        self._wall = _series(f, "clock_pairs", np.int64, width=2, chunk=64)
+        self._wall.attrs["columns"] = ["t_utc_ns", "t_host_ns"]
+        if calibration_yaml is not None:
+            f.create_dataset("calibration_yaml", data=calibration_yaml,
+                             dtype=h5py.string_dtype())
+        f.swmr_mode = True
+        self.counts = {name: 0 for name in STREAMS}
+        self.flushed_counts = dict(self.counts)
+
+    def _append_times(self, stream: str, samples: Sequence[Any]) -> None:
+        t_dev, t_host, seq = self._times[stream]
+        _append(t_dev, np.array([s.t_device_ns for s in samples], dtype=np.int64))
+        _append(t_host, np.array([s.t_host_ns for s in samples], dtype=np.int64))
+        _append(seq, np.array([s.seq for s in samples], dtype=np.int64))
+        self.counts[stream] += len(samples)
+
+    def append_frames(self, frames: Sequence[StereoFrame]) -> None:
+        """Append stereo frames (image data first, timestamps last, so a reader never sees a
+        timestamp whose image is missing)."""
+        if not frames:
+            return
+        if self.compression == "mjpeg":
+            for i, eye in enumerate(("left", "right")):
+                blobs = [fr.encoded[i] if fr.encoded is not None
+                         else _encode_jpeg(getattr(fr, eye)) for fr in frames]
+                data, index = self._jpeg[eye]
+                start = data.shape[0]
+                lengths = np.array([len(b) for b in blobs], dtype=np.int64)
+                offsets = start + np.concatenate([[0], np.cumsum(lengths)[:-1]])
+                _append(data, np.frombuffer(b"".join(blobs), dtype=np.uint8))
+                _append(index, np.stack([offsets, lengths], axis=1))
+                self.bytes_written += int(lengths.sum())
+        else:
+            expected = self._images["left"].shape[1:]
+            for fr in frames:
+                if fr.left.shape != expected or fr.right.shape != expected:
+                    raise SessionError(f"frame {fr.seq} for {self.path} is {fr.left.shape}, "
+                                       f"expected {expected} (did the camera change size?)")
+            for eye, ds in self._images.items():
+                n = ds.shape[0]
+                ds.resize(n + len(frames), axis=0)
+                for k, fr in enumerate(frames):
+                    ds[n + k] = getattr(fr, eye)
+                self.bytes_written += len(frames) * fr.left.nbytes
+        self._append_times("camera", frames)
+
+    def append_forces(self, samples: Sequence[ForceSample]) -> None:
+        """Append a batch of force samples."""
+        if not samples:
+            return
+        _append(self._force_n, np.array([s.force_n for s in samples], dtype=np.float64))
+        self.bytes_written += len(samples) * (self._force_n.shape[1] * 8 + 24)
+        self._append_times("force", samples)
+
+    def append_events(self, events: Sequence[ProjectorEvent]) -> None:
+        """Append projector events (pattern shown, frame ID)."""
+        if not events:
+            return
+        _append(self._pattern, np.array([e.pattern.encode()[:64] for e in events],
+                                        dtype=PATTERN_NAME_DTYPE))
+        _append(self._frame_id, np.array([e.frame_id for e in events], dtype=np.int64))
+        self._append_times("projector", events)
+
+    def add_gap(self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int,
+                count: int) -> None:
+        """Mark a gap in a stream: samples lost between ``last_seq`` and ``next_seq``."""
+        _append(self._gaps, np.array([[STREAMS.index(stream), GAP_REASONS.index(reason),
+                                       last_seq, next_seq, t_host_ns, count]], dtype=np.int64))
+
+    def flush(self) -> dict[str, int]:
+        """Make everything appended so far durable and visible to readers; returns the counts."""
+        _append(self._wall, np.array([[time.time_ns(), time.monotonic_ns()]], dtype=np.int64))
+        self._file.flush()
+        self.flushed_counts = dict(self.counts)
+        return self.flushed_counts
+
+    def abort(self) -> None:
+        """Close after a write failure without another flush (what was flushed stays)."""
+        with contextlib.suppress(OSError):
+            self._file.close()
+
+    def close(self) -> None:
+        """Flush and close the file (idempotent)."""
+        if self._file.id.valid:
+            self.flush()
+            self._file.close()
+
+
+def finalize_session(path: str | Path, attrs: dict[str, Any],
+                     truth: dict[str, np.ndarray] | None = None) -> None:
+    """After a clean close: store clock fits per stream, end attributes and optional truth."""
+    try:
+        f = h5py.File(path, "r+")
+    except OSError as exc:
+        raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
+    with f:
+        clock = f.require_group("clock")
+        for stream in STREAMS:
+            t_dev, t_host = f[stream]["t_device_ns"][:], f[stream]["t_host_ns"][:]
+            n = min(len(t_dev), len(t_host))
+            clock.require_group(stream).attrs.update(fit_clock(t_dev[:n], t_host[:n]).to_attrs())
+        if truth:
+            group = f.require_group("truth")
+            for name, values in truth.items():
+                if name in group:
+                    del group[name]
+                group.create_dataset(name, data=np.asarray(values))
+        f.attrs.update({"end_utc_ns": time.time_ns(), "end_host_ns": time.monotonic_ns(),
+                        "complete": True, **attrs})

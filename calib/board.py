@@ -1,0 +1,133 @@
+"""The ChArUco board: its description, the OpenCV board object, detection and printable images."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vbfe.calib.errors import CalibrationError
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A ChArUco board: squares along x and y, square and marker side (metres), dictionary."""
+
+    squares_x: int = 9
+    squares_y: int = 7
+    square_m: float = 0.003
+    marker_m: float = 0.0022
+    dictionary: str = "DICT_5X5_100"
+    legacy: bool = False  # boards generated before OpenCV 4.6
+
+    @classmethod
+    def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
+        """The board of a rig config's ``[calib]`` table (sizes there are in mm)."""
+        return cls(squares_x=int(calib_table.get("squares_x", cls.squares_x)),
+                   squares_y=int(calib_table.get("squares_y", cls.squares_y)),
+                   square_m=float(calib_table.get("square_mm", cls.square_m * 1e3)) / 1e3,
+                   marker_m=float(calib_table.get("marker_mm", cls.marker_m * 1e3)) / 1e3,
+                   dictionary=str(calib_table.get("dictionary", cls.dictionary)),
+                   legacy=bool(calib_table.get("legacy", False)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description (stored in the calibration's info)."""
+        return asdict(self)
+
+    @property
+    def n_corners(self) -> int:
+        """Number of inner chessboard corners."""
+        return (self.squares_x - 1) * (self.squares_y - 1)
+
+    def board(self) -> cv2.aruco.CharucoBoard:
+        """The OpenCV board object."""
+        if self.marker_m >= self.square_m:
+            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm must be smaller than "
+                                   f"the square size {self.square_m * 1e3:g} mm")
+        dict_id = getattr(cv2.aruco, self.dictionary, None)
+        if not self.dictionary.startswith("DICT_") or dict_id is None:
+            known = [n for n in dir(cv2.aruco) if n.startswith("DICT_")]
+            raise CalibrationError(f"unknown ArUco dictionary {self.dictionary!r}; known: "
+                                   f"{', '.join(known)}")
+        dictionary = cv2.aruco.getPredefinedDictionary(dict_id)
+        n_markers = (self.squares_x * self.squares_y) // 2
+        if n_markers > dictionary.bytesList.shape[0]:
+            raise CalibrationError(f"a {self.squares_x}x{self.squares_y} board needs {n_markers} "
+                                   f"markers but {self.dictionary} has only "
+                                   f"{dictionary.bytesList.shape[0]}")
+        board = cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m,
+                                       self.marker_m, dictionary)
+        board.setLegacyPattern(self.legacy)
+        return board
+
+    def object_points(self) -> np.ndarray:
+        """Board-frame coordinates (n_corners×3, metres) indexed by ChArUco corner id."""
+        return np.asarray(self.board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """ChArUco corners found in one image: ids (n,) and pixel positions (n×2)."""
+
+    ids: np.ndarray
+    corners: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+class BoardDetector:
+    """Finds ChArUco corners in images (sub-pixel refined by OpenCV)."""
+
+    def __init__(self, spec: BoardSpec) -> None:
+        self.spec = spec
+        self._detector = cv2.aruco.CharucoDetector(spec.board())
+
+    def detect(self, image: np.ndarray) -> Detection:
+        """Corners in one BGR or grey image; empty when the board is not seen."""
+        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        corners, ids, _, _ = self._detector.detectBoard(grey)
+        if ids is None or len(ids) == 0:
+            return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
+        ids = ids.reshape(-1).astype(np.int32)
+        order = np.argsort(ids)
+        return Detection(ids[order], corners.reshape(-1, 2).astype(np.float64)[order])
+
+
+def board_image(spec: BoardSpec, px_per_mm: float = 20.0, margin_mm: float = 2.0) -> np.ndarray:
+    """A grey image of the board with a white margin, ``px_per_mm`` pixels per millimetre."""
+    width_mm = spec.squares_x * spec.square_m * 1e3 + 2 * margin_mm
+    height_mm = spec.squares_y * spec.square_m * 1e3 + 2 * margin_mm
+    size = (int(round(width_mm * px_per_mm)), int(round(height_mm * px_per_mm)))
+    return spec.board().generateImage(size, marginSize=int(round(margin_mm * px_per_mm)),
+                                      borderBits=1)
+
+
+def write_board(spec: BoardSpec, out_stem: str | Path, px_per_mm: float = 40.0,
+                margin_mm: float = 2.0) -> tuple[Path, Path]:
+    """Write ``<stem>.png`` and a true-scale ``<stem>.pdf`` of the board; returns both paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    out_stem = Path(out_stem)
+    out_stem.parent.mkdir(parents=True, exist_ok=True)
+    image = board_image(spec, px_per_mm, margin_mm)
+    png = out_stem.with_suffix(".png")
+    dpi = px_per_mm * 25.4
+    if not cv2.imwrite(str(png), image):
+        raise CalibrationError(f"cannot write {png}; check the folder is writable")
+    # PDF page exactly the board's physical size (inches = mm / 25.4)
+    height_px, width_px = image.shape
+    fig = plt.figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.imshow(image, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+    ax.set_axis_off()
+    pdf = out_stem.with_suffix(".pdf")
+    fig.savefig(pdf, dpi=dpi)
+    plt.close(fig)
+    return png, pdf

@@ -1,0 +1,269 @@
+"""The calibration record and its file format (OpenCV FileStorage YAML, see
+docs/calibration-format.md).
+
+Lengths are metres (the board's square size is given in metres), pixels are of the full-size
+image. ``f, B, cx, cy`` are those of the rectified pair: ``f = P1[0,0]``, ``cx = P1[0,2]``,
+``cy = P1[1,2]``, ``B = -P2[0,3] / P2[0,0]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vbfe.calib.errors import CalibrationError
+
+FORMAT_VERSION = 1
+
+# name -> allowed shapes (None: any length vector)
+_MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
+    "K1": ((3, 3),), "K2": ((3, 3),), "R": ((3, 3),), "T": ((3,),),
+    "R1": ((3, 3),), "R2": ((3, 3),), "P1": ((3, 4),), "P2": ((3, 4),), "Q": ((4, 4),),
+    "D1": ((4,), (5,), (8,), (12,), (14,)), "D2": ((4,), (5,), (8,), (12,), (14,)),
+}
+_OPTIONAL_MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
+    "K_proj": ((3, 3),), "D_proj": ((4,), (5,), (8,), (12,), (14,)), "R_proj": ((3, 3),),
+    "T_proj": ((3,),), "color_mixing": ((3, 3),), "color_offset": ((3,),),
+    "per_view_rms_px": ((-1, 3),),
+}
+_VECTORS = {"T", "D1", "D2", "D_proj", "T_proj", "color_offset"}
+
+
+@dataclass
+class Calibration:
+    """Stereo endoscope calibration (plus optional projector and colour correction).
+
+    ``R, T`` map left-camera coordinates to right-camera coordinates (OpenCV ``stereoCalibrate``
+    convention); ``R_proj, T_proj`` map left-camera coordinates to projector coordinates.
+    ``info`` holds JSON-able extras (board, per-view RMS, standard deviations, depth uncertainty,
+    rejected corners, desynchronised views, ...).
+    """
+
+    K1: np.ndarray
+    D1: np.ndarray
+    K2: np.ndarray
+    D2: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    R1: np.ndarray
+    R2: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+    image_size: tuple[int, int]  # (width, height) of one eye
+    rms_left_px: float = float("nan")
+    rms_right_px: float = float("nan")
+    rms_stereo_px: float = float("nan")
+    per_view_rms_px: np.ndarray | None = None  # (n_views, 3): left, right, stereo
+    K_proj: np.ndarray | None = None
+    D_proj: np.ndarray | None = None
+    R_proj: np.ndarray | None = None
+    T_proj: np.ndarray | None = None
+    projector_size: tuple[int, int] | None = None
+    rms_projector_px: float = float("nan")
+    color_mixing: np.ndarray | None = None
+    color_offset: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, shapes in {**_MATRICES, **_OPTIONAL_MATRICES}.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=np.float64)
+            if name in _VECTORS:
+                arr = arr.reshape(-1)
+            if not any(_shape_ok(arr.shape, s) for s in shapes):
+                raise CalibrationError(
+                    f"calibration field {name} has shape {arr.shape}, expected "
+                    f"{' or '.join(str(s).replace('-1', 'n') for s in shapes)}")
+            setattr(self, name, arr)
+        self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
+        if self.projector_size is not None:
+            self.projector_size = (int(self.projector_size[0]), int(self.projector_size[1]))
+
+    # --- the rectified pair -------------------------------------------------------------
+    @property
+    def f(self) -> float:
+        """Focal length of the rectified pair (pixels)."""
+        return float(self.P1[0, 0])
+
+    @property
+    def B(self) -> float:
+        """Baseline of the rectified pair (metres)."""
+        return float(-self.P2[0, 3] / self.P2[0, 0])
+
+    @property
+    def cx(self) -> float:
+        """Principal point x of the rectified left image (pixels)."""
+        return float(self.P1[0, 2])
+
+    @property
+    def cy(self) -> float:
+        """Principal point y of the rectified left image (pixels)."""
+        return float(self.P1[1, 2])
+
+    @property
+    def has_projector(self) -> bool:
+        """Whether projector intrinsics and pose are present."""
+        return self.K_proj is not None
+
+    def rectification_maps(self) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """``((map1x, map1y), (map2x, map2y))`` for ``cv2.remap`` of left and right images."""
+        left = cv2.initUndistortRectifyMap(self.K1, self.D1, self.R1, self.P1, self.image_size,
+                                           cv2.CV_32FC1)
+        right = cv2.initUndistortRectifyMap(self.K2, self.D2, self.R2, self.P2, self.image_size,
+                                            cv2.CV_32FC1)
+        return left, right
+
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rectified pair (rows of the two images are epipolar lines)."""
+        for name, img in (("left", left), ("right", right)):
+            if (img.shape[1], img.shape[0]) != self.image_size:
+                raise CalibrationError(
+                    f"{name} image is {img.shape[1]}x{img.shape[0]} but the calibration is for "
+                    f"{self.image_size[0]}x{self.image_size[1]}; recalibrate at this resolution")
+        (l1, l2), (r1, r2) = self.rectification_maps()
+        return (cv2.remap(left, l1, l2, cv2.INTER_LINEAR),
+                cv2.remap(right, r1, r2, cv2.INTER_LINEAR))
+
+    def rectify_points(self, left_px: np.ndarray,
+                       right_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raw left and right pixel positions (n×2 each) mapped into the rectified images."""
+        def one(points: np.ndarray, K: np.ndarray, D: np.ndarray, R: np.ndarray,
+                P: np.ndarray) -> np.ndarray:
+            points = np.asarray(points, np.float64).reshape(-1, 1, 2)
+            return cv2.undistortPoints(points, K, D, R=R, P=P).reshape(-1, 2)
+
+        return (one(left_px, self.K1, self.D1, self.R1, self.P1),
+                one(right_px, self.K2, self.D2, self.R2, self.P2))
+
+    # --- file format --------------------------------------------------------------------
+    def to_yaml_text(self) -> str:
+        """The calibration as OpenCV FileStorage YAML text."""
+        fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
+                             | cv2.FILE_STORAGE_FORMAT_YAML)
+        fs.write("format", "vbfe-calibration")
+        fs.write("format_version", FORMAT_VERSION)
+        fs.write("image_width", self.image_size[0])
+        fs.write("image_height", self.image_size[1])
+        for name in (*_MATRICES, *_OPTIONAL_MATRICES):
+            value = getattr(self, name)
+            if value is not None:
+                fs.write(name, value.reshape(-1, 1) if name in _VECTORS else value)
+        for name in ("f", "B", "cx", "cy"):
+            fs.write(name, getattr(self, name))
+        for name in ("rms_left_px", "rms_right_px", "rms_stereo_px", "rms_projector_px"):
+            value = getattr(self, name)
+            if np.isfinite(value):
+                fs.write(name, float(value))
+        if self.projector_size is not None:
+            fs.write("projector_width", self.projector_size[0])
+            fs.write("projector_height", self.projector_size[1])
+        fs.write("info_json", json.dumps(self.info, sort_keys=True))
+        return fs.releaseAndGetString()
+
+    @classmethod
+    def from_yaml_text(cls, text: str, source: str = "<text>") -> "Calibration":
+        """Parse calibration YAML text; ``source`` names it in error messages."""
+        try:
+            fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        except cv2.error as exc:
+            raise CalibrationError(f"{source} is not OpenCV FileStorage YAML: "
+                                   f"{str(exc).strip().splitlines()[-1]}") from None
+        try:
+            return cls._from_storage(fs, source)
+        finally:
+            fs.release()
+
+    @classmethod
+    def _from_storage(cls, fs: cv2.FileStorage, source: str) -> "Calibration":
+        def node(name: str) -> cv2.FileNode | None:
+            n = fs.getNode(name)
+            return None if n.empty() else n
+
+        if node("format") is None or node("format").string() != "vbfe-calibration":
+            raise CalibrationError(f"{source} is not a vbfe calibration file (no 'format: "
+                                   "vbfe-calibration'); write one with 'vbfe calibrate stereo'")
+        kwargs: dict[str, Any] = {}
+        for name in (*_MATRICES, *_OPTIONAL_MATRICES):
+            n = node(name)
+            if n is None:
+                if name in _MATRICES:
+                    raise CalibrationError(f"{source} has no {name}; the file is incomplete, "
+                                           "recalibrate with 'vbfe calibrate stereo'")
+                continue
+            mat = n.mat()
+            if mat is None:
+                raise CalibrationError(f"{source}: {name} is not a matrix")
+            kwargs[name] = mat
+        for name in ("image_width", "image_height"):
+            if node(name) is None:
+                raise CalibrationError(f"{source} has no {name}")
+        kwargs["image_size"] = (int(node("image_width").real()), int(node("image_height").real()))
+        for name in ("rms_left_px", "rms_right_px", "rms_stereo_px", "rms_projector_px"):
+            if node(name) is not None:
+                kwargs[name] = node(name).real()
+        if node("projector_width") is not None:
+            kwargs["projector_size"] = (int(node("projector_width").real()),
+                                        int(node("projector_height").real()))
+        if node("info_json") is not None:
+            kwargs["info"] = json.loads(node("info_json").string())
+        try:
+            return cls(**kwargs)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{source}: {exc}") from None
+
+    def save(self, path: str | Path) -> Path:
+        """Write the YAML file atomically (a crash leaves the old file intact)."""
+        path = Path(path)
+        text = self.to_yaml_text()
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Calibration":
+        """Read a calibration YAML file."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise CalibrationError(f"calibration file {path} does not exist; create one with "
+                                   "'vbfe calibrate stereo'") from None
+        except UnicodeDecodeError:
+            raise CalibrationError(f"{path} is not a text (YAML) calibration file") from None
+        return cls.from_yaml_text(text, source=str(path))
+
+    def replace(self, **changes: Any) -> "Calibration":
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+
+def _shape_ok(shape: tuple[int, ...], expected: tuple[int, ...]) -> bool:
+    return len(shape) == len(expected) and all(e in (-1, s) for s, e in zip(shape, expected))
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """A calibration from a YAML file or from a recorded session (``.h5``) that stores one."""
+    path = Path(path)
+    if path.suffix.lower() in (".h5", ".hdf5"):
+        from vbfe.acquire import SessionReader
+
+        with SessionReader(path) as reader:
+            text = reader.calibration_yaml()
+        if text is None:
+            raise CalibrationError(f"session {path} holds no calibration; add one with "
+                                   "'vbfe calibrate stereo ... --session' or pass a YAML file")
+        return Calibration.from_yaml_text(text, source=f"calibration in {path}")
+    return Calibration.load(path)

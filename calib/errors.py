@@ -1,0 +1,7 @@
+"""Expected calibration failures."""
+
+from vbfe.errors import VbfeError
+
+
+class CalibrationError(VbfeError):
+    """Views or calibration files that cannot give (or are not) a usable calibration."""

@@ -1,0 +1,331 @@
+"""ChArUco stereo calibration: detection, per-camera calibration with outlier rejection,
+stereo calibration with desynchronisation detection, rectification and uncertainty."""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from vbfe.calib.board import BoardDetector, BoardSpec, Detection
+from vbfe.calib.calibration import Calibration
+from vbfe.calib.errors import CalibrationError
+from vbfe.calib.views import ViewSet, check_sizes
+
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+_MIN_SIGMA_PX = 0.1  # floor of the robust residual spread: sub-pixel corner noise of real boards
+
+
+@dataclass
+class StereoOptions:
+    """Knobs of :func:`calibrate_stereo` (defaults match the ``[calib]`` table)."""
+
+    min_corners: int = 12
+    min_views: int = 6
+    outlier_sigma: float = 4.0
+    desync_min_px: float = 0.5
+    reject_desync: bool = True
+    rectify_alpha: float = 0.0
+    working_distance_m: float = 0.06
+
+    @classmethod
+    def from_config(cls, calib_table: dict) -> "StereoOptions":
+        """Options from a rig config's ``[calib]`` table."""
+        return cls(min_corners=int(calib_table.get("min_corners", cls.min_corners)),
+                   min_views=int(calib_table.get("min_views", cls.min_views)),
+                   outlier_sigma=float(calib_table.get("outlier_sigma", cls.outlier_sigma)),
+                   desync_min_px=float(calib_table.get("desync_min_px", cls.desync_min_px)),
+                   rectify_alpha=float(calib_table.get("rectify_alpha", cls.rectify_alpha)),
+                   working_distance_m=float(calib_table.get("working_distance_mm", 60.0)) / 1e3)
+
+
+@dataclass
+class RejectedCorner:
+    """A corner dropped as an outlier: view, camera, ChArUco id, residual (px)."""
+
+    view: str
+    camera: str
+    corner_id: int
+    residual_px: float
+
+
+@dataclass
+class CameraFit:
+    """One camera's calibration over the kept corners."""
+
+    K: np.ndarray
+    D: np.ndarray
+    rms_px: float
+    std_intrinsics: np.ndarray  # fx, fy, cx, cy, k1, k2, p1, p2, k3
+    per_view_rms_px: np.ndarray
+    rvecs: list[np.ndarray]
+    tvecs: list[np.ndarray]
+    detections: list[Detection]  # after outlier removal
+    rejected: list[RejectedCorner]
+
+
+@dataclass
+class StereoResult:
+    """A calibration plus everything the report shows."""
+
+    calibration: Calibration
+    names: list[str]  # views used in the final stereo solve
+    left: CameraFit
+    right: CameraFit
+    stereo_detections: list[tuple[Detection, Detection]]
+    dropped: dict[str, str] = field(default_factory=dict)  # view -> why
+    desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
+    image_size: tuple[int, int] = (0, 0)
+
+
+def detect_views(views: ViewSet, spec: BoardSpec,
+                 step: Callable[[], None] | None = None) -> list[tuple[Detection, Detection]]:
+    """ChArUco corners in the left and right image of every view."""
+    detector = BoardDetector(spec)
+    out = []
+    for left, right in views.pairs:
+        out.append((detector.detect(left), detector.detect(right)))
+        if step:
+            step()
+    return out
+
+
+def _select(det: Detection, ids: np.ndarray) -> Detection:
+    keep = np.isin(det.ids, ids)
+    return Detection(det.ids[keep], det.corners[keep])
+
+
+def _points(spec_points: np.ndarray, dets: list[Detection]) -> tuple[list, list]:
+    obj = [spec_points[d.ids].astype(np.float32).reshape(-1, 1, 3) for d in dets]
+    img = [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in dets]
+    return obj, img
+
+
+def _residuals(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+               K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    proj, _ = cv2.projectPoints(obj.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, D)
+    return proj.reshape(-1, 2) - img.reshape(-1, 2)
+
+
+def robust_sigma(residuals: np.ndarray) -> float:
+    """Per-axis residual spread (1.4826 × median absolute residual component), floored."""
+    if residuals.size == 0:
+        return _MIN_SIGMA_PX
+    return max(1.4826 * float(np.median(np.abs(residuals))), _MIN_SIGMA_PX)
+
+
+def calibrate_camera(spec: BoardSpec, detections: list[Detection], names: list[str],
+                     image_size: tuple[int, int], camera: str,
+                     outlier_sigma: float = 4.0, max_rounds: int = 5) -> CameraFit:
+    """Calibrate one camera, dropping corners whose residual exceeds ``outlier_sigma`` σ (the
+    robust spread of the first solve) and re-solving until none is left."""
+    object_points = spec.object_points()
+    dets = list(detections)
+    rejected: list[RejectedCorner] = []
+    limit = None
+    for _ in range(max_rounds):
+        obj, img = _points(object_points, dets)
+        try:
+            (rms, K, D, rvecs, tvecs, std_int, _, per_view) = cv2.calibrateCameraExtended(
+                obj, img, image_size, None, None, criteria=_CRITERIA)
+        except cv2.error as exc:
+            raise CalibrationError(f"{camera} camera calibration failed in OpenCV "
+                                   f"({str(exc).strip().splitlines()[-1]}); capture more varied "
+                                   "views (tilted, at several distances)") from None
+        res = [_residuals(o, i, r, t, K, D) for o, i, r, t in zip(obj, img, rvecs, tvecs)]
+        if limit is None:
+            limit = outlier_sigma * robust_sigma(np.concatenate(res))
+        changed = False
+        for v, (det, r) in enumerate(zip(dets, res)):
+            err = np.linalg.norm(r, axis=1)
+            bad = err > limit
+            if bad.any():
+                changed = True
+                rejected += [RejectedCorner(names[v], camera, int(i), float(e))
+                             for i, e in zip(det.ids[bad], err[bad])]
+                dets[v] = Detection(det.ids[~bad], det.corners[~bad])
+        if not changed:
+            break
+    return CameraFit(K=K, D=D.reshape(-1), rms_px=float(rms),
+                     std_intrinsics=std_int.reshape(-1)[:9], per_view_rms_px=per_view.reshape(-1),
+                     rvecs=list(rvecs), tvecs=list(tvecs), detections=dets, rejected=rejected)
+
+
+def _stereo_solve(spec: BoardSpec, pairs: list[tuple[Detection, Detection]], left: CameraFit,
+                  right: CameraFit, image_size: tuple[int, int]):
+    obj, img_l = _points(spec.object_points(), [p[0] for p in pairs])
+    _, img_r = _points(spec.object_points(), [p[1] for p in pairs])
+    try:
+        (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(
+            obj, img_l, img_r, left.K.copy(), left.D.copy(), right.K.copy(), right.D.copy(),
+            image_size, None, None, flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=_CRITERIA)
+    except cv2.error as exc:
+        raise CalibrationError(f"stereo calibration failed in OpenCV "
+                               f"({str(exc).strip().splitlines()[-1]})") from None
+    return rms, K1, D1.reshape(-1), K2, D2.reshape(-1), R, T.reshape(3), rvecs, tvecs, per_view
+
+
+def _relative_poses(left: CameraFit, right: CameraFit) -> tuple[np.ndarray, np.ndarray]:
+    """Left→right rotation vectors and translations (m) implied by each view's independent
+    left and right board poses (n×3 each)."""
+    rvecs, tvecs = [], []
+    for rl, tl, rr, tr in zip(left.rvecs, left.tvecs, right.rvecs, right.tvecs):
+        Rl, _ = cv2.Rodrigues(rl)
+        Rr, _ = cv2.Rodrigues(rr)
+        Rrel = Rr @ Rl.T
+        rvecs.append(cv2.Rodrigues(Rrel)[0].reshape(3))
+        tvecs.append(tr.reshape(3) - Rrel @ tl.reshape(3))
+    return np.asarray(rvecs), np.asarray(tvecs)
+
+
+def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndarray:
+    """Per view, how far (px, n×2) the right image's corners sit from where the left image's
+    board pose and the consensus (median) left→right transform put them.
+
+    Left and right taken at the same instant leave zero-mean noise; a board that moved between
+    the two exposures leaves a shift common to all corners of the view.
+    """
+    rel_r, rel_t = _relative_poses(left, right)
+    R, _ = cv2.Rodrigues(np.median(rel_r, axis=0))
+    T = np.median(rel_t, axis=0)
+    obj_all = spec.object_points()
+    out = np.zeros((len(left.rvecs), 2))
+    for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs)):
+        Rl, _ = cv2.Rodrigues(rvec)
+        rr, _ = cv2.Rodrigues(R @ Rl)
+        out[v] = -_residuals(obj_all[dr.ids], dr.corners, rr, R @ tvec.reshape(3) + T,
+                             right.K, right.D).mean(axis=0)
+    return out
+
+
+def _flag_desync(shifts: np.ndarray, min_px: float) -> np.ndarray:
+    mag = np.linalg.norm(shifts, axis=1)
+    spread = 1.4826 * np.median(np.abs(mag - np.median(mag)))
+    return mag > max(min_px, np.median(mag) + 6 * spread)
+
+
+def epipolar_errors(calibration: Calibration, left: Detection, right: Detection) -> np.ndarray:
+    """Row differences (px) of common corners after rectification (0 for a perfect calibration)."""
+    common = np.intersect1d(left.ids, right.ids)
+    if len(common) == 0:
+        return np.zeros(0)
+    pl, pr = calibration.rectify_points(_select(left, common).corners,
+                                        _select(right, common).corners)
+    return pr[:, 1] - pl[:, 1]
+
+
+def _keep_views(fit: CameraFit, keep: np.ndarray) -> CameraFit:
+    return dataclasses.replace(
+        fit, per_view_rms_px=fit.per_view_rms_px[keep],
+        rvecs=[r for r, k in zip(fit.rvecs, keep) if k],
+        tvecs=[t for t, k in zip(fit.tvecs, keep) if k],
+        detections=[d for d, k in zip(fit.detections, keep) if k])
+
+
+def calibrate_stereo(views: ViewSet, spec: BoardSpec, options: StereoOptions | None = None,
+                     step: Callable[[], None] | None = None) -> StereoResult:
+    """Calibrate the stereo pair from ChArUco views; see the module docstring for the steps."""
+    options = options or StereoOptions()
+    image_size = check_sizes(views)
+    detections = detect_views(views, spec, step)
+    if all(len(l) == 0 and len(r) == 0 for l, r in detections):
+        raise CalibrationError(
+            f"no ChArUco board found in any of the {len(views)} views of {views.source}; check the "
+            f"board options ({spec.squares_x}x{spec.squares_y} squares, {spec.dictionary}"
+            f"{', legacy pattern' if spec.legacy else ''}) match the printed board")
+    return calibrate_detections(detections, views.names, image_size, spec, options,
+                                views.source)
+
+
+def calibrate_detections(detections: list[tuple[Detection, Detection]], view_names: list[str],
+                         image_size: tuple[int, int], spec: BoardSpec,
+                         options: StereoOptions | None = None,
+                         source: str = "views") -> StereoResult:
+    """Calibrate from corners already detected (one ``(left, right)`` pair per view)."""
+    options = options or StereoOptions()
+    names, pairs, dropped = [], [], {}
+    for name, (dl, dr) in zip(view_names, detections):
+        common = np.intersect1d(dl.ids, dr.ids)
+        if len(common) < options.min_corners:
+            dropped[name] = (f"too few corners (left {len(dl)}, right {len(dr)}, in both "
+                             f"{len(common)}; need {options.min_corners})")
+            continue
+        names.append(name)
+        pairs.append((dl, dr))
+    if len(pairs) < options.min_views:
+        detail = "; ".join(f"{n}: {why}" for n, why in dropped.items())
+        raise CalibrationError(f"{source}: only {len(pairs)} usable views, need at least "
+                               f"{options.min_views}; capture more views"
+                               + (f" (dropped {detail})" if detail else ""))
+    left = calibrate_camera(spec, [p[0] for p in pairs], names, image_size, "left",
+                            options.outlier_sigma)
+    right = calibrate_camera(spec, [p[1] for p in pairs], names, image_size, "right",
+                             options.outlier_sigma)
+    stereo_pairs = []
+    for dl, dr in zip(left.detections, right.detections):
+        common = np.intersect1d(dl.ids, dr.ids)
+        stereo_pairs.append((_select(dl, common), _select(dr, common)))
+    shifts = desync_shifts(spec, left, right)
+    flagged = _flag_desync(shifts, options.desync_min_px)
+    desync = {names[i]: (float(shifts[i, 0]), float(shifts[i, 1])) for i in np.flatnonzero(flagged)}
+    keep = np.ones(len(names), bool)
+    if options.reject_desync and flagged.any():
+        keep = ~flagged
+        if keep.sum() < options.min_views:
+            raise CalibrationError(f"{source}: {int(flagged.sum())} views look "
+                                   f"desynchronised ({', '.join(desync)}); only {int(keep.sum())} "
+                                   f"left, need {options.min_views}; check the camera's frame sync")
+        for n in desync:
+            dropped[n] = "left/right captured at different instants (desynchronised)"
+        left, right = _keep_views(left, keep), _keep_views(right, keep)
+        stereo_pairs = [p for p, k in zip(stereo_pairs, keep) if k]
+        names = [n for n, k in zip(names, keep) if k]
+    rms, K1, D1, K2, D2, R, T, _, _, per_view = _stereo_solve(spec, stereo_pairs, left, right,
+                                                              image_size)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, image_size, R,
+                                                T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
+                                                alpha=options.rectify_alpha)
+    per_view_rms = np.column_stack([left.per_view_rms_px, right.per_view_rms_px,
+                                    np.sqrt((per_view[:, 0] ** 2 + per_view[:, 1] ** 2) / 2)])
+    calibration = Calibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, R1=R1, R2=R2, P1=P1, P2=P2,
+                              Q=Q, image_size=image_size, rms_left_px=left.rms_px,
+                              rms_right_px=right.rms_px, rms_stereo_px=float(rms),
+                              per_view_rms_px=per_view_rms)
+    calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
+                             dropped, desync)
+    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, image_size)
+
+
+def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],
+          left: CameraFit, right: CameraFit, pairs: list[tuple[Detection, Detection]],
+          dropped: dict[str, str], desync: dict[str, tuple[float, float]]) -> dict:
+    """Uncertainties and provenance stored with the calibration."""
+    baselines = np.linalg.norm(_relative_poses(left, right)[1], axis=1)
+    sigma_B = float(np.std(baselines, ddof=1) / np.sqrt(len(baselines)))
+    sigma_f = float(np.hypot(left.std_intrinsics[0], left.std_intrinsics[1]) / 2)
+    f_K = float((cal.K1[0, 0] + cal.K1[1, 1]) / 2)
+    z = options.working_distance_m
+    depth_sigma = z * float(np.hypot(sigma_f / f_K, sigma_B / cal.B))
+    epi = np.concatenate([epipolar_errors(cal, dl, dr) for dl, dr in pairs])
+    names_std = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    return {
+        "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "opencv_version": cv2.__version__,
+        "board": spec.to_dict(),
+        "views": names,
+        "dropped_views": dropped,
+        "rejected_corners": [[r.view, r.camera, r.corner_id, round(r.residual_px, 3)]
+                             for r in left.rejected + right.rejected],
+        "desynchronised_views": {k: [round(v[0], 3), round(v[1], 3)] for k, v in desync.items()},
+        "std_left": dict(zip(names_std, map(float, left.std_intrinsics))),
+        "std_right": dict(zip(names_std, map(float, right.std_intrinsics))),
+        "sigma_B_m": sigma_B,
+        "working_distance_m": z,
+        "depth_sigma_at_working_distance_m": depth_sigma,
+        "depth_per_px_disparity_at_working_distance_m": z * z / (cal.f * cal.B),
+        "epipolar_rms_px": float(np.sqrt(np.mean(epi ** 2))) if epi.size else float("nan"),
+    }

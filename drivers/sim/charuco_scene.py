@@ -1,0 +1,149 @@
+"""A ChArUco board in front of the simulated stereo endoscope, for calibration.
+
+Images are made by inverse mapping: each output pixel (with the rig's lens distortion) is
+undistorted into a ray, the ray is intersected with the board plane, and the board texture is
+sampled there with ``cv2.remap``. Rendering is supersampled and block-averaged, so edges and
+corners are anti-aliased and land where the true projection puts them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.sim.rays import camera_rays, intersect_plane
+from vbfe.drivers.sim.rig import PinholeCamera, StereoRig
+
+Pose = tuple[np.ndarray, np.ndarray]  # (rvec, tvec): board frame → left-camera frame, metres
+
+BACKGROUND = 110  # grey level around the board
+WHITE = 225
+BLACK = 25
+
+
+def board_size_m(board: cv2.aruco.CharucoBoard) -> tuple[float, float]:
+    """Board width and height in metres; raises if the board was not built in metres."""
+    square = float(board.getSquareLength())
+    if not 0 < square < 0.1:
+        raise DeviceError(f"ChArUco board square length {square} does not look like metres; "
+                          "build the board with lengths in metres (e.g. 0.003 for 3 mm)")
+    nx, ny = board.getChessboardSize()
+    return nx * square, ny * square
+
+
+def board_texture(board: cv2.aruco.CharucoBoard, px_per_m: float) -> np.ndarray:
+    """The board image (grey uint8) with ``px_per_m`` texture pixels per metre, no margin."""
+    w_m, h_m = board_size_m(board)
+    size = (int(round(w_m * px_per_m)), int(round(h_m * px_per_m)))
+    image = board.generateImage(size, marginSize=0, borderBits=1)
+    return (BLACK + (WHITE - BLACK) * (image.astype(np.float32) / 255.0)).astype(np.float32)
+
+
+def _render_view(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | None,
+                 texture: np.ndarray, px_per_m: float, pose: Pose, supersample: int) -> np.ndarray:
+    origin, dirs = camera_rays(camera, R, T, supersample)
+    R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
+    x, y, _, valid = intersect_plane(origin, dirs, R_board, np.asarray(pose[1], np.float64))
+    map_x = x * np.float32(px_per_m) - np.float32(0.5)
+    map_y = y * np.float32(px_per_m) - np.float32(0.5)
+    map_x[~valid] = -1e6
+    image = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=BACKGROUND)
+    if supersample > 1:
+        image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return image
+
+
+def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard, poses: list[Pose],
+                       board_px_per_m: float = 40000.0, noise_sigma: float = 1.5,
+                       blur_sigma_px: float = 0.5, supersample: int = 3,
+                       rng: np.random.Generator | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Left/right BGR ``uint8`` views of ``board`` at each pose (board → left camera).
+
+    The board must be built with lengths in metres. ``noise_sigma`` is Gaussian sensor noise in
+    grey levels, ``blur_sigma_px`` a mild optical blur; distortion is the rig's, applied exactly.
+    """
+    rng = np.random.default_rng() if rng is None else rng
+    texture = board_texture(board, board_px_per_m)
+    views = []
+    for pose in poses:
+        pair = []
+        for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T)):
+            grey = _render_view(camera, R, T, texture, board_px_per_m, pose, supersample)
+            if blur_sigma_px > 0:
+                grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma_px)
+            grey = grey + rng.normal(0.0, noise_sigma, grey.shape).astype(np.float32)
+            grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+            pair.append(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+        views.append((pair[0], pair[1]))
+    return views
+
+
+def _rotation(tilt_x_deg: float, tilt_y_deg: float, roll_deg: float) -> np.ndarray:
+    rx, _ = cv2.Rodrigues(np.array([math.radians(tilt_x_deg), 0.0, 0.0]))
+    ry, _ = cv2.Rodrigues(np.array([0.0, math.radians(tilt_y_deg), 0.0]))
+    rz, _ = cv2.Rodrigues(np.array([0.0, 0.0, math.radians(roll_deg)]))
+    return rx @ ry @ rz
+
+
+def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard, pose: Pose,
+                     margin_px: float = 4.0) -> float:
+    """Fraction of chessboard corners inside both views (with a margin), board facing the camera."""
+    corners = np.asarray(board.getChessboardCorners(), np.float64)
+    R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
+    points = corners @ R_board.T + np.asarray(pose[1], np.float64).reshape(3)
+    if np.any(points[:, 2] <= 0):
+        return 0.0
+    inside = np.ones(len(points), dtype=bool)
+    for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T)):
+        uv = camera.project(points, R, T)
+        inside &= ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
+                   & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px))
+    return float(inside.mean())
+
+
+def random_board_poses(n: int, rng: np.random.Generator, distance_m: tuple[float, float] = (0.04, 0.09),
+                       max_tilt_deg: float = 35.0, max_roll_deg: float = 25.0,
+                       rig: StereoRig | None = None, board: cv2.aruco.CharucoBoard | None = None,
+                       min_visible: float = 0.85, max_tries: int = 2000) -> list[Pose]:
+    """``n`` varied board poses (rvec, tvec; board → left camera) facing the endoscope.
+
+    The board centre is placed on a random line of sight at a random distance, tilted up to
+    ``max_tilt_deg`` about x and y and rolled up to ``max_roll_deg``. With ``rig`` and ``board``
+    given, poses are kept only when at least ``min_visible`` of the chessboard corners are in
+    both views; without them the board centre is kept within ±20° of the optical axis.
+    """
+    if (rig is None) != (board is None):
+        raise ValueError("give both rig and board, or neither")
+    half = np.zeros(3)
+    if board is not None:
+        w_m, h_m = board_size_m(board)
+        half = np.array([w_m / 2, h_m / 2, 0.0])
+    poses: list[Pose] = []
+    for _ in range(max_tries):
+        if len(poses) == n:
+            break
+        R_board = _rotation(rng.uniform(-max_tilt_deg, max_tilt_deg),
+                            rng.uniform(-max_tilt_deg, max_tilt_deg),
+                            rng.uniform(-max_roll_deg, max_roll_deg))
+        distance = rng.uniform(*distance_m)
+        if rig is not None:
+            hx = math.atan((rig.left.width / 2) / rig.left.K[0, 0])
+            hy = math.atan((rig.left.height / 2) / rig.left.K[1, 1])
+        else:
+            hx = hy = math.radians(20.0)
+        direction = np.array([math.tan(rng.uniform(-0.6, 0.6) * hx),
+                              math.tan(rng.uniform(-0.6, 0.6) * hy), 1.0])
+        centre = direction / np.linalg.norm(direction) * distance
+        tvec = centre - R_board @ half
+        rvec, _ = cv2.Rodrigues(R_board)
+        pose = (rvec.reshape(3), tvec)
+        if rig is None or visible_fraction(rig, board, pose) >= min_visible:
+            poses.append(pose)
+    if len(poses) < n:
+        raise DeviceError(f"could only place {len(poses)} of {n} board poses in view; widen "
+                          "distance_m or lower max_tilt_deg / min_visible")
+    return poses

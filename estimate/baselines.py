@@ -1,0 +1,83 @@
+"""Baselines that PointNet must beat, all fitted on the training sessions only.
+
+Every baseline maps a frame's peak surface displacement ``d`` (metres, vs the session's first
+frame, see ``displacement.py``) to force as ``slope·d + intercept`` per output:
+
+- ``mean``: the training mean force (slope 0);
+- ``linear_displacement``: least-squares line of force on displacement;
+- ``hooke``: ``F = k̂·d`` with one stiffness ``k̂`` (N/m) fitted by least squares over all
+  training sessions; the per-condition stiffness is *not* given to it.
+
+Frames without a displacement (NaN) are left out of fitting and predicted with ``d = 0``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.errors import EstimateError
+
+
+@dataclass(frozen=True)
+class AffineBaseline:
+    """Force = slope·displacement + intercept, one (slope, intercept) per output (newtons)."""
+
+    name: str
+    slope: np.ndarray
+    intercept: np.ndarray
+
+    def predict(self, displacement_m: np.ndarray) -> np.ndarray:
+        """Predicted force (frames × outputs) from peak displacements (frames)."""
+        d = np.nan_to_num(np.asarray(displacement_m, dtype=np.float64), nan=0.0)
+        return d[:, None] * self.slope + self.intercept
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "slope": self.slope.tolist(),
+                "intercept": self.intercept.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "AffineBaseline":
+        return cls(d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float))
+
+
+def _fit_mean(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros(y.shape[1]), y.mean(axis=0)
+
+
+def _finite(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    usable = np.isfinite(d)
+    return d[usable], y[usable]
+
+
+def _fit_linear(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d, y = _finite(d, y)
+    design = np.column_stack([d, np.ones_like(d)])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    return coef[0], coef[1]
+
+
+def _fit_hooke(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d, y = _finite(d, y)
+    denominator = float(d @ d)
+    slope = (d @ y) / denominator if denominator > 0 else np.zeros(y.shape[1])
+    return slope, np.zeros(y.shape[1])
+
+
+FITTERS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
+    "mean": _fit_mean, "linear_displacement": _fit_linear, "hooke": _fit_hooke}
+
+
+def fit_baselines(sessions: Sequence[PreparedSession]) -> dict[str, AffineBaseline]:
+    """Fit every baseline on the given (training) sessions."""
+    d = np.concatenate([s.displacement_m for s in sessions])
+    y = np.concatenate([s.targets_n for s in sessions])
+    if not np.isfinite(d).any():
+        raise EstimateError("no training frame has a surface displacement; baselines cannot be "
+                            "fitted (are the clouds empty outside the first frame?)")
+    return {name: AffineBaseline(name, *fit(d, y))
+            for name, fit in FITTERS.items()}

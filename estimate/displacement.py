@@ -1,0 +1,45 @@
+"""Peak surface displacement of a frame relative to the session's first frame.
+
+The first usable frame fixes a grid over x, y (2nd–98th percentile of its points); every frame's
+depth map on that grid is the per-cell median z. The peak displacement is the largest absolute
+depth change over cells that have at least ``MIN_CELL_POINTS`` points in both frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MIN_CELL_POINTS = 3
+
+
+class DisplacementGrid:
+    """Depth-change measurement against a reference cloud (the session's first frame)."""
+
+    def __init__(self, reference: np.ndarray, cells: int = 16) -> None:
+        lo = np.percentile(reference[:, :2], 2, axis=0)
+        hi = np.percentile(reference[:, :2], 98, axis=0)
+        self.cells = cells
+        self._lo = lo
+        self._size = np.maximum(hi - lo, 1e-9) / cells
+        self.reference_depth_m = self.depth_map(reference)
+
+    def depth_map(self, points: np.ndarray) -> np.ndarray:
+        """Per-cell median z (cells × cells, metres); NaN where a cell has too few points."""
+        ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
+        inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
+        cell = ij[inside, 0] * self.cells + ij[inside, 1]
+        z = points[inside, 2]
+        order = np.lexsort((z, cell))
+        cell, z = cell[order], z[order]
+        ids, start, count = np.unique(cell, return_index=True, return_counts=True)
+        depth = np.full(self.cells * self.cells, np.nan)
+        keep = count >= MIN_CELL_POINTS
+        mid = start[keep] + count[keep] // 2
+        lower = start[keep] + (count[keep] - 1) // 2
+        depth[ids[keep]] = (z[mid] + z[lower]) / 2
+        return depth.reshape(self.cells, self.cells)
+
+    def peak_displacement_m(self, points: np.ndarray) -> float:
+        """Largest |depth change| vs the reference over cells seen in both (NaN if none)."""
+        change = np.abs(self.depth_map(points) - self.reference_depth_m)
+        return float(np.nanmax(change)) if np.isfinite(change).any() else float("nan")

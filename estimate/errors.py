@@ -1,0 +1,7 @@
+"""Expected failures of force estimation (missing clouds, bad model file, empty dataset)."""
+
+from vbfe.errors import VbfeError
+
+
+class EstimateError(VbfeError):
+    """Training or evaluation cannot proceed; the message names the file and what to do."""

@@ -1,0 +1,120 @@
+"""The trained-model file: network weights plus everything needed to use and audit them.
+
+A model file is ``torch.save`` of a plain dict (loadable with ``weights_only=True``): format
+name and version, architecture name and version, network hyper-parameters and weights (force
+scaling and global-feature standardisation are buffers of the network), the training config,
+the session split, the fitted baselines, training history, skipped-frame counts and the vbfe
+version that wrote it.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from vbfe import __version__
+from vbfe.estimate.baselines import AffineBaseline
+from vbfe.estimate.dataset import FrameBatches, PreparedSession, crop_roi, sample_points
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.pointnet import ARCHITECTURE, ARCHITECTURE_VERSION, PointNetRegressor
+from vbfe.estimate.train_config import TrainConfig
+
+FORMAT = "vbfe-force-model"
+FORMAT_VERSION = 1
+
+
+@dataclass
+class ForceModel:
+    """A trained regressor with its config, baselines and training record."""
+
+    network: PointNetRegressor
+    config: TrainConfig
+    baselines: dict[str, AffineBaseline]
+    record: dict[str, Any] = field(default_factory=dict)  # split, sessions, history, versions
+
+    def predict_points(self, points: np.ndarray | torch.Tensor) -> np.ndarray:
+        """Force (B×outputs, N) for clouds already cropped and sampled (B×n_points×3, metres)."""
+        self.network.eval()
+        with torch.no_grad():
+            return self.network(torch.as_tensor(points, dtype=torch.float32)).numpy()
+
+    def predict_cloud(self, points: np.ndarray, seed: int = 0) -> np.ndarray:
+        """Force (outputs,) for one raw cloud (N×3, may hold NaN); applies the training ROI."""
+        cropped = crop_roi(points, self.config)
+        if len(cropped) == 0:
+            raise EstimateError("the cloud has no finite point inside the model's region of "
+                                "interest; check the reconstruction or the [train] roi")
+        sampled = sample_points(cropped, self.config.n_points, np.random.default_rng(seed))
+        return self.predict_points(sampled[None])[0]
+
+    def predict_session(self, session: PreparedSession, batch_size: int = 64) -> np.ndarray:
+        """Force (frames×outputs) for every used frame of a prepared session."""
+        frames = FrameBatches([session], self.config.n_points)
+        return np.concatenate([self.predict_points(points)
+                               for points, _ in frames.batches(batch_size, rng=None)])
+
+
+def save_model(path: str | Path, model: ForceModel) -> Path:
+    """Write the model file atomically (a temporary file renamed into place)."""
+    path = Path(path)
+    payload = {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "architecture": ARCHITECTURE, "architecture_version": ARCHITECTURE_VERSION,
+        "vbfe_version": __version__, "created_unix_ns": time.time_ns(),
+        "hparams": model.network.hparams, "state_dict": model.network.state_dict(),
+        "config": model.config.to_dict(),
+        "baselines": {name: b.to_dict() for name, b in model.baselines.items()},
+        "record": model.record,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def _check(payload: Any, path: Path, key: str, expected: Any, what: str) -> None:
+    if payload.get(key) != expected:
+        raise EstimateError(f"{path} is a {what} {payload.get(key)!r} model, this vbfe "
+                            f"{__version__} reads {what} {expected!r}: retrain with `vbfe train`")
+
+
+def load_model(path: str | Path) -> ForceModel:
+    """Read a model file written by ``save_model``; other files raise ``EstimateError``."""
+    path = Path(path)
+    if not path.is_file():
+        raise EstimateError(f"model file {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
+        raise EstimateError(f"{path} is not a vbfe model file ({type(exc).__name__}); "
+                            "give the .pt file written by `vbfe train`") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise EstimateError(f"{path} is not a vbfe model file; give the .pt file written by "
+                            "`vbfe train`")
+    _check(payload, path, "format_version", FORMAT_VERSION, "format version")
+    _check(payload, path, "architecture", ARCHITECTURE, "architecture")
+    _check(payload, path, "architecture_version", ARCHITECTURE_VERSION, "architecture version")
+    network = PointNetRegressor(**payload["hparams"])
+    network.load_state_dict(payload["state_dict"])
+    network.eval()
+    record = dict(payload["record"])
+    record["vbfe_version"] = payload["vbfe_version"]
+    return ForceModel(network=network, config=TrainConfig(**payload["config"]),
+                      baselines={name: AffineBaseline.from_dict(b)
+                                 for name, b in payload["baselines"].items()},
+                      record=record)
+
+
+def training_sessions(model: ForceModel) -> Sequence[str]:
+    """Names of the sessions the network or its baselines were fitted or validated on."""
+    split = model.record.get("split", {})
+    return [*split.get("train", []), *split.get("val", [])]

@@ -1,0 +1,111 @@
+"""The modified PointNet force regressor of the paper (section III-B).
+
+Each cloud is centred on its (weighted) centroid and divided by D_max, its largest pairwise
+point distance, so it fits in the unit sphere. D_max is computed exactly (all O(N²) pairs with
+``torch.cdist``, in chunks that keep memory below ~64 MB). A shared per-point MLP (1×1
+``Conv1d`` + batch norm + ELU), global max pooling and a fully connected head (batch norm, ELU,
+dropout) end in a linear output in newtons.
+
+Normalisation removes the cloud's position and size, which on a pulled tissue carry much of the
+force signal; with ``global_features=True`` the removed centroid (x, y, z) and D_max are fed to
+the head as four extra, standardised inputs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+ARCHITECTURE = "pointnet-regressor"
+ARCHITECTURE_VERSION = 1
+N_GLOBAL_FEATURES = 4  # centroid x, y, z and D_max, metres
+
+_CDIST_BUDGET = 2**24  # distances per chunk (64 MB of float32)
+
+
+def weighted_centroid(points: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
+    """Centroid (B×3) of clouds (B×N×3) with per-point weights (B×N, default 1)."""
+    if weights is None:
+        return points.mean(dim=1)
+    w = weights.unsqueeze(-1)
+    return (points * w).sum(dim=1) / w.sum(dim=1)
+
+
+def diameter(points: torch.Tensor) -> torch.Tensor:
+    """Exact largest pairwise distance D_max (B) of clouds (B×N×3)."""
+    n = points.shape[1]
+    chunk = max(1, _CDIST_BUDGET // max(1, n * n))
+    with torch.no_grad():
+        return torch.cat([torch.cdist(part, part).amax(dim=(1, 2))
+                          for part in points.split(chunk)])
+
+
+def normalize_clouds(points: torch.Tensor, weights: torch.Tensor | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Centre clouds (B×N×3) on their weighted centroid and scale by D_max into the unit sphere.
+
+    Returns (normalised clouds, removed features B×4 = centroid x, y, z and D_max in metres);
+    a cloud of identical points has D_max 0 and is only centred.
+    """
+    centroid = weighted_centroid(points, weights)
+    d_max = diameter(points)
+    scale = torch.where(d_max > 0, d_max, torch.ones_like(d_max))
+    normalized = (points - centroid.unsqueeze(1)) / scale.view(-1, 1, 1)
+    return normalized, torch.cat([centroid, d_max.unsqueeze(1)], dim=1)
+
+
+def _shared_mlp(channels: Sequence[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for c_in, c_out in zip([3, *channels[:-1]], channels):
+        layers += [nn.Conv1d(c_in, c_out, kernel_size=1), nn.BatchNorm1d(c_out), nn.ELU()]
+    return nn.Sequential(*layers)
+
+
+def _head(n_in: int, channels: Sequence[int], dropout: float, n_outputs: int) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for c_in, c_out in zip([n_in, *channels[:-1]], channels):
+        layers += [nn.Linear(c_in, c_out), nn.BatchNorm1d(c_out), nn.ELU(), nn.Dropout(dropout)]
+    layers.append(nn.Linear(channels[-1] if channels else n_in, n_outputs))
+    return nn.Sequential(*layers)
+
+
+class PointNetRegressor(nn.Module):
+    """Point clouds (B×N×3, metres, any point order) → force (B×n_outputs, newtons)."""
+
+    def __init__(self, n_outputs: int = 1, conv_channels: Sequence[int] = (64, 128, 1024),
+                 head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
+                 global_features: bool = True) -> None:
+        super().__init__()
+        self.hparams = {"n_outputs": n_outputs, "conv_channels": list(conv_channels),
+                        "head_channels": list(head_channels), "dropout": dropout,
+                        "global_features": global_features}
+        self.global_features = global_features
+        self.features = _shared_mlp(conv_channels)
+        n_head_in = conv_channels[-1] + (N_GLOBAL_FEATURES if global_features else 0)
+        self.head = _head(n_head_in, head_channels, dropout, n_outputs)
+        self.register_buffer("target_mean", torch.zeros(n_outputs))
+        self.register_buffer("target_std", torch.ones(n_outputs))
+        self.register_buffer("feature_mean", torch.zeros(N_GLOBAL_FEATURES))
+        self.register_buffer("feature_std", torch.ones(N_GLOBAL_FEATURES))
+
+    def set_normalization(self, target_mean: torch.Tensor, target_std: torch.Tensor,
+                          feature_mean: torch.Tensor, feature_std: torch.Tensor) -> None:
+        """Set the force scaling and the global-feature standardisation (from training data)."""
+        self.target_mean.copy_(target_mean)
+        self.target_std.copy_(torch.clamp(target_std, min=1e-6))
+        self.feature_mean.copy_(feature_mean)
+        self.feature_std.copy_(torch.clamp(feature_std, min=1e-9))
+
+    @staticmethod
+    def cloud_features(points: torch.Tensor) -> torch.Tensor:
+        """The global features removed by normalisation: centroid and D_max (B×4, metres)."""
+        return normalize_clouds(points)[1]
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        normalized, features = normalize_clouds(points)
+        pooled = self.features(normalized.transpose(1, 2)).amax(dim=2)
+        if self.global_features:
+            pooled = torch.cat([pooled, (features - self.feature_mean) / self.feature_std], dim=1)
+        return self.head(pooled) * self.target_std + self.target_mean

@@ -1,0 +1,125 @@
+"""Where training data comes from: a recorded session with its clouds sidecar, or clouds in memory.
+
+Both kinds answer the same questions (name, conditions, frame times, force at each frame, the
+point cloud of frame ``i``), so dataset building never cares which one it reads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, Union
+
+import numpy as np
+
+from vbfe.errors import VbfeError
+from vbfe.estimate.errors import EstimateError
+
+
+class CloudSource(Protocol):
+    """One session's frames as point clouds, labelled with the trocar force."""
+
+    name: str
+    conditions: dict[str, Any]
+    n_frames: int
+
+    def frame_times_ns(self) -> np.ndarray: ...
+    def force_at_frames(self) -> np.ndarray: ...
+    def cloud(self, i: int) -> np.ndarray: ...
+    def close(self) -> None: ...
+
+
+@dataclass
+class SessionClouds:
+    """A session held in memory: ``clouds[i]`` is an N_i×3 array in metres (may be empty/NaN)."""
+
+    name: str
+    clouds: list[np.ndarray]
+    forces_n: np.ndarray  # n_frames × 3, newtons, at each frame's time
+    times_ns: np.ndarray  # n_frames, int64
+    conditions: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.clouds)
+
+    def frame_times_ns(self) -> np.ndarray:
+        return np.asarray(self.times_ns, dtype=np.int64)
+
+    def force_at_frames(self) -> np.ndarray:
+        return np.asarray(self.forces_n, dtype=np.float64)
+
+    def cloud(self, i: int) -> np.ndarray:
+        return np.asarray(self.clouds[i], dtype=np.float64)
+
+    def close(self) -> None:
+        pass
+
+
+def clouds_path_for(session_path: str | Path) -> Path:
+    """The ``<session>.clouds.h5`` sidecar that ``vbfe reconstruct`` wrote next to a session."""
+    session_path = Path(session_path)
+    candidates = [session_path.with_suffix(".clouds.h5"),
+                  session_path.with_name(session_path.name + ".clouds.h5")]
+    for candidate in candidates:
+        if candidate.exists():
+            return candidate
+    raise EstimateError(f"session {session_path} has no point clouds ({candidates[0].name} not "
+                        f"found): run `vbfe reconstruct {session_path}` first")
+
+
+class RecordedSession:
+    """A recorded session file read through ``acquire.SessionReader`` and ``recon.CloudReader``."""
+
+    def __init__(self, session_path: str | Path) -> None:
+        self.path = Path(session_path)
+        if not self.path.exists():
+            raise EstimateError(f"session {self.path} does not exist")
+        clouds = clouds_path_for(self.path)
+        from vbfe.acquire import SessionReader
+        from vbfe.recon import CloudReader
+
+        try:
+            self._session = SessionReader(self.path)
+            self._clouds = CloudReader(clouds)
+        except VbfeError as exc:
+            raise EstimateError(f"cannot read {self.path} / {clouds.name}: {exc}") from exc
+        if self._clouds.n_frames != self._session.n_frames:
+            self.close()
+            raise EstimateError(f"{clouds} has {self._clouds.n_frames} clouds but {self.path} has "
+                                f"{self._session.n_frames} frames: run `vbfe reconstruct` again")
+        self.name = str(self.path)
+        self.n_frames = int(self._session.n_frames)
+        self.conditions = dict(self._session.metadata.get("conditions") or {})
+
+    def frame_times_ns(self) -> np.ndarray:
+        return np.asarray(self._session.frame_times_ns(), dtype=np.int64)
+
+    def force_at_frames(self) -> np.ndarray:
+        return np.asarray(self._session.force_at_frames(), dtype=np.float64)
+
+    def cloud(self, i: int) -> np.ndarray:
+        points, _colours = self._clouds.cloud(i)
+        return np.asarray(points, dtype=np.float64)
+
+    def close(self) -> None:
+        for reader in (getattr(self, "_clouds", None), getattr(self, "_session", None)):
+            if reader is not None and hasattr(reader, "close"):
+                reader.close()
+
+
+SessionLike = Union[str, Path, SessionClouds]
+
+
+def open_source(item: SessionLike) -> CloudSource:
+    """A session path (with its clouds sidecar) or an in-memory ``SessionClouds`` as a source."""
+    if isinstance(item, SessionClouds):
+        return item
+    return RecordedSession(item)
+
+
+def condition_label(conditions: dict[str, Any]) -> str:
+    """``"80 N/m @ 0.005 m/s"``-style label of a session's stiffness × pull speed."""
+    parts = [f"{conditions[key]:g} {unit}" for key, unit in
+             (("stiffness_n_per_m", "N/m"), ("pull_speed_m_per_s", "m/s")) if key in conditions]
+    return " @ ".join(parts) if parts else "unknown"

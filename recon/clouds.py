@@ -1,0 +1,224 @@
+"""The point-cloud sidecar ``<session>.clouds.h5`` (owned by recon) and PLY export.
+
+Layout (all per-frame arrays share the frame order of the session):
+
+- attrs: ``format = "vbfe-clouds"``, ``format_version``, ``session_path``,
+  ``session_fingerprint`` (SHA-256 of the session's start time and camera timestamps),
+  ``complete``, ``verify``, ``sgbm_json``, ``software_version``
+- ``calibration_yaml``: the calibration used (OpenCV YAML text)
+- ``points`` (N×3 float32, ``units = "m"``, rectified left-camera frame) and ``colors`` (N×3
+  uint8, ``channel_order = "RGB"``): all frames concatenated
+- ``offsets`` (n_frames + 1, int64): frame ``i`` is rows ``offsets[i]:offsets[i+1]``
+- ``frame_index`` (int64, session frame number), ``t_host_ns`` (int64, synchronized frame time)
+- ``valid_fraction`` (float32), ``disparity_px`` (n_frames × 4 float32: min, median, max,
+  mean of the valid disparities), ``match_counts`` (n_frames × 4 int64: SGBM matches, kept,
+  corrected, rejected by the De Bruijn verification)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from types import TracebackType
+
+import h5py
+import numpy as np
+
+from vbfe.recon.errors import ReconError
+
+FORMAT_NAME = "vbfe-clouds"
+FORMAT_VERSION = 1
+DISPARITY_COLUMNS = ["min", "median", "max", "mean"]
+COUNT_COLUMNS = ["sgbm_matches", "kept", "corrected", "rejected"]
+
+
+def sidecar_path(session_path: str | Path) -> Path:
+    """Default sidecar next to a session: ``run.h5`` → ``run.clouds.h5``."""
+    path = Path(session_path)
+    return path.with_name(path.stem + ".clouds.h5")
+
+
+def session_fingerprint(start_utc_ns: int, camera_times: tuple[np.ndarray, ...]) -> str:
+    """SHA-256 (hex) identifying a recording by its start time and camera timestamps."""
+    digest = hashlib.sha256(str(int(start_utc_ns)).encode())
+    for array in camera_times:
+        digest.update(np.ascontiguousarray(array, np.int64).tobytes())
+    return digest.hexdigest()
+
+
+class CloudWriter:
+    """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
+
+    def __init__(self, path: str | Path, attrs: dict[str, object], calibration_yaml: str) -> None:
+        self.path = Path(path)
+        try:
+            self._file = h5py.File(self.path, "w")
+        except OSError as exc:
+            raise ReconError(f"cannot create cloud file {self.path}: {exc}") from None
+        f = self._file
+        f.attrs.update({"format": FORMAT_NAME, "format_version": FORMAT_VERSION,
+                        "complete": False, **attrs})
+        f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
+        f.create_dataset("points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3),
+                         compression="lzf").attrs["units"] = "m"
+        f.create_dataset("colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3),
+                         compression="lzf").attrs["channel_order"] = "RGB"
+        self._frames: dict[str, list] = {name: [] for name in
+                                         ("frame_index", "t_host_ns", "valid_fraction",
+                                          "disparity_px", "match_counts")}
+        self._offsets = [0]
+
+    def append(self, frame_index: int, t_host_ns: int, points: np.ndarray, colors: np.ndarray,
+               valid_fraction: float, disparity_px: np.ndarray, match_counts: np.ndarray) -> None:
+        """Add the next frame's cloud and statistics."""
+        start, n = self._offsets[-1], len(points)
+        for name, data in (("points", points), ("colors", colors)):
+            ds = self._file[name]
+            ds.resize(start + n, axis=0)
+            ds[start:start + n] = data
+        self._offsets.append(start + n)
+        for name, value in (("frame_index", frame_index), ("t_host_ns", t_host_ns),
+                            ("valid_fraction", valid_fraction), ("disparity_px", disparity_px),
+                            ("match_counts", match_counts)):
+            self._frames[name].append(value)
+
+    def finish(self) -> Path:
+        """Write the per-frame tables, mark the file complete and close it."""
+        f = self._file
+        f.create_dataset("offsets", data=np.asarray(self._offsets, np.int64))
+        f.create_dataset("frame_index", data=np.asarray(self._frames["frame_index"], np.int64))
+        f.create_dataset("t_host_ns", data=np.asarray(self._frames["t_host_ns"], np.int64)
+                         ).attrs["units"] = "ns"
+        f.create_dataset("valid_fraction",
+                         data=np.asarray(self._frames["valid_fraction"], np.float32))
+        disparity = f.create_dataset("disparity_px", data=np.asarray(
+            self._frames["disparity_px"], np.float32).reshape(-1, len(DISPARITY_COLUMNS)))
+        disparity.attrs.update({"units": "px", "columns": DISPARITY_COLUMNS})
+        f.create_dataset("match_counts", data=np.asarray(
+            self._frames["match_counts"], np.int64).reshape(-1, len(COUNT_COLUMNS))
+                         ).attrs["columns"] = COUNT_COLUMNS
+        f.attrs["n_frames"] = len(self._offsets) - 1
+        f.attrs["complete"] = True
+        f.close()
+        return self.path
+
+    def abort(self) -> None:
+        """Close without marking complete (the caller removes the file)."""
+        self._file.close()
+
+
+class CloudReader:
+    """Read a sidecar written by :func:`vbfe.recon.reconstruct_session` (context manager)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ReconError(f"cloud file {self.path} does not exist; create it with "
+                             f"'vbfe reconstruct SESSION.h5'")
+        try:
+            self._file = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise ReconError(f"{self.path} is not a readable HDF5 file: {exc}") from None
+        attrs = self._file.attrs
+        if attrs.get("format") != FORMAT_NAME or not attrs.get("complete", False):
+            self._file.close()
+            raise ReconError(f"{self.path} is not a complete vbfe cloud file (interrupted "
+                             f"reconstruction?); run 'vbfe reconstruct' again")
+        self._offsets = self._file["offsets"][()]
+
+    def close(self) -> None:
+        """Close the file."""
+        self._file.close()
+
+    def __enter__(self) -> "CloudReader":
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames (same as the session's)."""
+        return len(self._offsets) - 1
+
+    @property
+    def session_path(self) -> Path:
+        """The session these clouds were computed from."""
+        return Path(self._file.attrs["session_path"])
+
+    @property
+    def session_fingerprint(self) -> str:
+        """Fingerprint of that session (compare with :func:`session_fingerprint`)."""
+        return str(self._file.attrs["session_fingerprint"])
+
+    @property
+    def attrs(self) -> dict[str, object]:
+        """Root attributes (format, verify, SGBM settings, software version, …)."""
+        out = {k: (v.item() if isinstance(v, np.generic) else v)
+               for k, v in self._file.attrs.items()}
+        out["sgbm"] = json.loads(str(out.get("sgbm_json", "{}")))
+        return out
+
+    def cloud(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``i``: points (N×3 float32, m) and colours (N×3 uint8, RGB)."""
+        if not -self.n_frames <= i < self.n_frames:
+            raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
+        i %= self.n_frames
+        start, stop = int(self._offsets[i]), int(self._offsets[i + 1])
+        return self._file["points"][start:stop], self._file["colors"][start:stop]
+
+    def frame_table(self, name: str) -> np.ndarray:
+        """A per-frame array: ``frame_index``, ``t_host_ns``, ``valid_fraction``,
+        ``disparity_px`` or ``match_counts``."""
+        if name not in ("frame_index", "t_host_ns", "valid_fraction", "disparity_px",
+                        "match_counts"):
+            raise ReconError(f"{self.path} has no per-frame table {name!r}")
+        return self._file[name][()]
+
+    def calibration_yaml(self) -> str:
+        """The calibration the clouds were computed with."""
+        value = self._file["calibration_yaml"][()]
+        return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None = None) -> Path:
+    """Write a binary little-endian PLY (float x, y, z in metres; uchar red, green, blue)."""
+    path = Path(path)
+    points = np.asarray(points, np.float32).reshape(-1, 3)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colours is not None:
+        colours = np.asarray(colours, np.uint8).reshape(-1, 3)
+        if len(colours) != len(points):
+            raise ReconError(f"{len(points)} points but {len(colours)} colours for {path}")
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    vertices = np.empty(len(points), dtype=fields)
+    for k, axis in enumerate("xyz"):
+        vertices[axis] = points[:, k]
+    if colours is not None:
+        for k, channel in enumerate(("red", "green", "blue")):
+            vertices[channel] = colours[:, k]
+    types = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", "comment units m",
+              f"element vertex {len(points)}",
+              *(f"property {types[t]} {name}" for name, t in fields), "end_header"]
+    try:
+        with open(path, "wb") as fh:
+            fh.write(("\n".join(header) + "\n").encode("ascii"))
+            fh.write(vertices.tobytes())
+    except OSError as exc:
+        raise ReconError(f"cannot write PLY file {path}: {exc}") from None
+    return path
+
+
+def export_ply(clouds_path: str | Path, out_dir: str | Path,
+               frames: list[int] | None = None) -> list[Path]:
+    """Write ``frame_000123.ply`` files for the given (default: all) frames of a sidecar."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with CloudReader(clouds_path) as reader:
+        indices = reader.frame_table("frame_index")
+        chosen = range(reader.n_frames) if frames is None else frames
+        return [write_ply(out_dir / f"frame_{int(indices[i]):06d}.ply", *reader.cloud(i))
+                for i in chosen]

@@ -1,0 +1,105 @@
+"""Colour crosstalk correction after Caspi, Kiryati & Shamir (1998): ``C = A·K·P + C0``.
+
+``P`` is the projected colour (projector primaries), ``K`` the 3×3 camera/projector mixing
+matrix, ``A`` the diagonal, per-pixel albedo of the surface and ``C0`` the ambient offset. ``K``
+is estimated (rows normalised to sum 1, which fixes the scale shared with ``A``) from captures of
+flat red, green, blue, black and white projections; per pixel the albedo cancels in
+``(C_j - C_black) / (C_white - C_black)``. In one-shot frames the albedo is removed locally: each
+camera channel is divided by its maximum over a few fringes, where a fringe of each primary is
+seen at full brightness. All images and vectors are in OpenCV's B, G, R channel order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vbfe.recon.errors import ReconError
+
+CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
+MIN_SIGNAL = 8.0  # grey levels above black for a pixel to take part in the estimate
+DARK_FRACTION = 0.25  # local contrast below this share of the image's contrast stays dark
+
+
+@dataclass(frozen=True)
+class ColorModel:
+    """Mixing matrix ``mixing`` (camera BGR ← projector BGR) and offset ``offset`` (grey levels)."""
+
+    mixing: np.ndarray
+    offset: np.ndarray
+
+    @classmethod
+    def identity(cls) -> "ColorModel":
+        """No crosstalk, no ambient light."""
+        return cls(np.eye(3), np.zeros(3))
+
+    @classmethod
+    def from_calibration(cls, calibration: object) -> "ColorModel":
+        """The calibration's ``color_mixing``/``color_offset``, or identity when it has none."""
+        mixing = getattr(calibration, "color_mixing", None)
+        offset = getattr(calibration, "color_offset", None)
+        if mixing is None:
+            return cls.identity()
+        return cls(np.asarray(mixing, float).reshape(3, 3),
+                   np.zeros(3) if offset is None else np.asarray(offset, float).reshape(3))
+
+    def correct(self, image: np.ndarray, albedo_window_px: int | None = None) -> np.ndarray:
+        """Projected colour per pixel (float32 H×W×3, BGR, ~0..1 where a fringe is brightest).
+
+        With ``albedo_window_px`` the surface colour is removed by normalising each camera
+        channel by its local range over that many pixels along the row (~3–4 fringe widths);
+        without it the result is in grey levels.
+        """
+        offset = tuple(float(v) for v in self.offset) + (0.0,)
+        unmix = np.linalg.inv(self.mixing)
+        if not albedo_window_px:
+            signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
+            return cv2.transform(np.maximum(signal, 0.0), unmix.astype(np.float32))
+        signal = cv2.subtract(image, offset)  # saturates at 0 for uint8 images
+        normalised = remove_base_color(signal, int(albedo_window_px))
+        return cv2.transform(normalised, (unmix * np.diag(self.mixing)).astype(np.float32))
+
+
+def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
+    """Fit ``K`` and ``C0`` from captures named ``blue``, ``green``, ``red``, ``black``, ``white``."""
+    missing = [name for name in CAPTURE_NAMES if name not in captures]
+    if missing:
+        raise ReconError(f"colour calibration needs captures of flat {missing} projections; "
+                         f"project each colour full-screen and capture it")
+    black = np.asarray(captures["black"], np.float64).reshape(-1, 3)
+    white = np.asarray(captures["white"], np.float64).reshape(-1, 3) - black
+    bright = np.all(white > MIN_SIGNAL, axis=1)
+    if bright.sum() < 100:
+        raise ReconError("colour calibration: the white capture is not brighter than the black "
+                         "one; check the projector is on and lights the scene")
+    columns = []
+    for name in CAPTURE_NAMES[:3]:
+        response = np.asarray(captures[name], np.float64).reshape(-1, 3) - black
+        columns.append(np.median(response[bright] / white[bright], axis=0))
+    mixing = np.stack(columns, axis=1)
+    mixing /= mixing.sum(axis=1, keepdims=True)
+    if abs(np.linalg.det(mixing)) < 1e-3:
+        raise ReconError("colour calibration: the red, green and blue captures are not distinct "
+                         "(mixing matrix is singular); check the projections and exposure")
+    return ColorModel(mixing=mixing, offset=np.median(black, axis=0))
+
+
+def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
+    """Per-channel local contrast normalisation along rows: ``(C - min) / (max - min)``, float32.
+
+    Over ``window_px`` (a few fringe widths) every channel sees both a fringe of its own colour
+    at full brightness and a dark fringe boundary, so the local range is the surface's albedo
+    times the projector's brightness and the local minimum is the ambient light. Regions whose
+    range is small compared with the image's (unlit background, shadows) stay dark.
+    """
+    kernel = np.ones((1, window_px | 1), np.uint8)
+    smooth = (window_px | 1, 3)
+    low = cv2.blur(cv2.erode(signal, kernel), smooth)
+    span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
+    floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
+                       MIN_SIGNAL).astype(np.float32)
+    np.maximum(span, floor, out=span)
+    return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)

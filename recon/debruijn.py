@@ -1,0 +1,52 @@
+"""De Bruijn sequences and window codes: every window of ``order`` symbols occurs once."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def de_bruijn(n_symbols: int = 3, order: int = 4) -> np.ndarray:
+    """The lexicographically least De Bruijn sequence B(n, m) (length n**m), as int8 symbols.
+
+    Built with the Fredricksen–Kessler–Maiorana algorithm (concatenated Lyndon words).
+    """
+    a = [0] * (n_symbols * order)
+    out: list[int] = []
+
+    def db(t: int, p: int) -> None:
+        if t > order:
+            if order % p == 0:
+                out.extend(a[1:p + 1])
+            return
+        a[t] = a[t - p]
+        db(t + 1, p)
+        for j in range(a[t - p] + 1, n_symbols):
+            a[t] = j
+            db(t + 1, t)
+
+    db(1, 1)
+    return np.asarray(out, dtype=np.int8)
+
+
+def window_codes(symbols: np.ndarray, n_symbols: int = 3, order: int = 4) -> np.ndarray:
+    """Code of each full (non-wrapping) window: ``sum(s[i+k] * n**k)``; length ``len - order + 1``."""
+    s = np.asarray(symbols, dtype=np.int64)
+    n_windows = len(s) - order + 1
+    if n_windows <= 0:
+        return np.zeros(0, dtype=np.int64)
+    weights = n_symbols ** np.arange(order, dtype=np.int64)
+    windows = np.lib.stride_tricks.sliding_window_view(s, order)
+    return windows @ weights
+
+
+def code_lookup(symbols: np.ndarray, n_symbols: int = 3, order: int = 4) -> np.ndarray:
+    """Table ``code -> index of the window's first symbol`` (``-1`` for codes not in ``symbols``).
+
+    Raises ``ValueError`` if a code occurs twice, i.e. ``symbols`` is not window-unique.
+    """
+    codes = window_codes(symbols, n_symbols, order)
+    if len(np.unique(codes)) != len(codes):
+        raise ValueError(f"sequence is not unique in windows of {order}")
+    table = np.full(n_symbols ** order, -1, dtype=np.int32)
+    table[codes] = np.arange(len(codes), dtype=np.int32)
+    return table

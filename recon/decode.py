@@ -1,0 +1,139 @@
+"""Decode the De Bruijn fringe code along image rows.
+
+Per row, fringes are the runs between minima of the value (brightness) profile; each fringe's
+symbol is its dominant colour after crosstalk correction, and its absolute index in the pattern
+follows from the window-4 codes of the fringes around it (up to four windows vote). The result is
+a per-pixel fringe index map (``-1`` where the code cannot be read: shadows, dark or ambiguous
+fringes, row ends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vbfe.recon.color import ColorModel
+from vbfe.recon.debruijn import code_lookup
+from vbfe.recon.pattern import DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR, WINDOW, fringe_symbols
+
+MIN_VOTES = 2  # windows that must agree on a fringe's index
+BOUNDARY_DEPTH = 0.6  # a minimum is a fringe boundary if below this fraction of the local maximum
+MIN_FRINGE_VALUE = 0.2  # mean corrected brightness below which a fringe is unreadable (shadow)
+MIN_PURITY = 0.25  # (top - second) / top colour share for a readable symbol
+MAX_PERIOD_PX = 64.0
+
+
+@dataclass(frozen=True)
+class FringeCode:
+    """Decoded code of one image: per-pixel fringe index and corrected colour (descriptor)."""
+
+    index: np.ndarray  # int16 H×W, absolute fringe index in the pattern, -1 unreadable
+    colour: np.ndarray  # float32 H×W×3, crosstalk-corrected projected colour (BGR)
+    period_px: float  # fringe width along the rows
+
+
+def fringe_period_px(image: np.ndarray) -> float:
+    """Dominant fringe width (pixels) along the rows of an image, from the mean row spectrum."""
+    rows = image[:: max(1, image.shape[0] // 64)]
+    if rows.ndim == 3:
+        rows = rows.max(axis=2)
+    rows = rows.astype(np.float32)
+    rows -= rows.mean(axis=1, keepdims=True)
+    spectrum = np.abs(np.fft.rfft(rows, axis=1)).mean(axis=0)
+    width = image.shape[1]
+    lowest = int(np.ceil(width / MAX_PERIOD_PX))
+    peak = lowest + int(np.argmax(spectrum[lowest:]))
+    return width / max(peak, 1)
+
+
+class FringeDecoder:
+    """Decodes fringe indices of rectified images for one pattern and colour model."""
+
+    def __init__(self, color_model: ColorModel | None = None,
+                 n_fringes: int = DEFAULT_FRINGES, row_step: int = 2) -> None:
+        """``row_step`` > 1 decodes every n-th row and copies its code to the rows below it
+        (fringes run nearly vertically, so this halves the cost at little loss)."""
+        self.color_model = color_model or ColorModel.identity()
+        self.row_step = max(1, int(row_step))
+        self.lookup = code_lookup(fringe_symbols(n_fringes), N_SYMBOLS, WINDOW)
+        self._channel_symbol = np.empty(3, np.int8)
+        self._channel_symbol[list(SYMBOL_CHANNEL_BGR)] = np.arange(3)
+
+    def decode(self, image: np.ndarray, period_px: float | None = None) -> FringeCode:
+        """Fringe index of every pixel of a (rectified) BGR image."""
+        height = image.shape[0]
+        image = image[::self.row_step]
+        period = period_px or fringe_period_px(image)
+        window = max(3, int(round(3.5 * period)))
+        colour = cv2.max(self.color_model.correct(image, albedo_window_px=window), 0.0)
+        value = cv2.GaussianBlur(_channel_max(colour), (5, 1), sigmaX=max(0.5, period / 8))
+        starts = self._run_starts(value, period)
+        symbols = self._symbols(colour, value, starts)
+        is_start = np.zeros(value.size, np.int32)
+        is_start[starts] = 1
+        labels = np.cumsum(is_start, dtype=np.int32) - 1
+        index = self._vote(symbols, starts, image.shape[1])
+        index = index[labels].reshape(value.shape)
+        if self.row_step > 1:
+            index = np.repeat(index, self.row_step, axis=0)[:height]
+            colour = np.repeat(colour, self.row_step, axis=0)[:height]
+        return FringeCode(index=index, colour=colour, period_px=period)
+
+    @staticmethod
+    def _run_starts(value: np.ndarray, period: float) -> np.ndarray:
+        """Flat indices where runs start: each row start and each deep brightness minimum."""
+        kernel = np.ones((1, max(3, int(round(period)) | 1)), np.uint8)
+        local_max = cv2.dilate(value, kernel)
+        starts = np.zeros(value.shape, bool)
+        centre = value[:, 1:-1]
+        starts[:, 1:-1] = ((centre < value[:, :-2]) & (centre <= value[:, 2:])
+                           & (centre < BOUNDARY_DEPTH * local_max[:, 1:-1]))
+        starts[:, 0] = True
+        return np.flatnonzero(starts)
+
+    def _symbols(self, colour: np.ndarray, value: np.ndarray, starts: np.ndarray) -> np.ndarray:
+        """Colour symbol of each run (-1 when dark or of no clear colour)."""
+        counts = np.diff(np.append(starts, value.size))
+        sums = np.add.reduceat(colour.reshape(-1, 3), starts, axis=0)
+        brightness = np.add.reduceat(value.ravel(), starts) / counts
+        ordered = np.sort(sums, axis=1)
+        purity = (ordered[:, 2] - ordered[:, 1]) / np.maximum(ordered[:, 2], 1e-6)
+        symbols = self._channel_symbol[np.argmax(sums, axis=1)].astype(np.int16)
+        symbols[(brightness < MIN_FRINGE_VALUE) | (purity < MIN_PURITY) | (counts < 2)] = -1
+        return symbols
+
+    def _vote(self, symbols: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
+        """Absolute fringe index of each run from the windows of ``WINDOW`` runs containing it."""
+        n_segments = len(starts)
+        starts_at_row = starts % width == 0
+        n_windows = n_segments - WINDOW + 1
+        code = np.zeros(max(n_windows, 0), np.int64)
+        ok = np.ones(max(n_windows, 0), bool)
+        for k in range(WINDOW):
+            part = symbols[k:k + n_windows]
+            ok &= part >= 0
+            if k > 0:  # the window must not run into the next row
+                ok &= ~starts_at_row[k:k + n_windows]
+            code += np.maximum(part, 0).astype(np.int64) * N_SYMBOLS ** k
+        first = np.where(ok, self.lookup[code], -1)
+        candidates = np.full((WINDOW, n_segments), -1, np.int32)
+        for offset in range(WINDOW):
+            candidates[offset, offset:offset + n_windows] = np.where(
+                first >= 0, first + offset, -1)
+        best = np.full(n_segments, -1, np.int16)
+        best_votes = np.zeros(n_segments, np.int8)
+        for offset in range(WINDOW):
+            votes = (candidates == candidates[offset]).sum(axis=0)
+            better = (candidates[offset] >= 0) & (votes > best_votes)
+            best[better] = candidates[offset, better]
+            best_votes[better] = votes[better]
+        best[best_votes < MIN_VOTES] = -1
+        return best
+
+
+def _channel_max(image: np.ndarray) -> np.ndarray:
+    """Per-pixel maximum over the colour channels (faster than ``ndarray.max(axis=2)``)."""
+    b, g, r = cv2.split(image)
+    return cv2.max(cv2.max(b, g), r)

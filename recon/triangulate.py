@@ -1,0 +1,104 @@
+"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, z = fB/d point cloud."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from vbfe.recon.color import ColorModel
+from vbfe.recon.decode import FringeDecoder
+from vbfe.recon.errors import ReconError
+from vbfe.recon.matching import SgbmParams, sgbm_disparity
+from vbfe.recon.pattern import DEFAULT_FRINGES
+from vbfe.recon.verify import verify_disparity
+
+
+@dataclass(frozen=True)
+class FrameCloud:
+    """One frame's reconstruction, all in the rectified left camera frame.
+
+    ``disparity`` (H×W float32 px, NaN where invalid), ``valid`` (H×W bool), ``points`` (N×3
+    float32, metres; row-major order of the valid pixels), ``colors`` (N×3 uint8, **RGB**).
+    """
+
+    disparity: np.ndarray
+    valid: np.ndarray
+    points: np.ndarray
+    colors: np.ndarray
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def disparity_to_points(disparity: np.ndarray, valid: np.ndarray, f_px: float, baseline_m: float,
+                        cx: float, cy: float, doffs_px: float = 0.0) -> np.ndarray:
+    """Points (N×3 float32, m) of the valid pixels in row-major order: ``z = fB/(d - doffs)``,
+    ``x = (u-cx)z/f``, ``y = (v-cy)z/f``.
+
+    ``doffs_px`` is the difference of the rectified principal points (left minus right), zero
+    for the usual zero-disparity rectification.
+    """
+    flat = np.flatnonzero(valid)
+    v, u = np.divmod(flat, valid.shape[1])
+    points = np.empty((len(flat), 3), np.float32)
+    z = np.float32(f_px * baseline_m) / (disparity.ravel()[flat] - np.float32(doffs_px))
+    points[:, 2] = z
+    z_over_f = z / np.float32(f_px)
+    points[:, 0] = (u.astype(np.float32) - np.float32(cx)) * z_over_f
+    points[:, 1] = (v.astype(np.float32) - np.float32(cy)) * z_over_f
+    return points
+
+
+class Reconstructor:
+    """Reconstructs stereo frames with one calibration and one set of SGBM settings."""
+
+    def __init__(self, calibration: object, sgbm_params: SgbmParams | None = None,
+                 verify: bool = True, n_fringes: int = DEFAULT_FRINGES) -> None:
+        self.calibration = calibration
+        self.params = sgbm_params or SgbmParams()
+        self.verify = verify
+        self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes)
+        self._matcher = self.params.create(3)
+        p1 = getattr(calibration, "P1", None)
+        p2 = getattr(calibration, "P2", None)
+        self._doffs = 0.0 if p1 is None or p2 is None else float(p1[0][2] - p2[0][2])
+        # computed once, in OpenCV's fast fixed-point form, reused for every frame
+        self._maps = [cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
+                      for map_x, map_y in calibration.rectification_maps()]
+
+    def _check_size(self, left: np.ndarray, right: np.ndarray) -> None:
+        width, height = (int(v) for v in self.calibration.image_size)
+        for name, image in (("left", left), ("right", right)):
+            if image.ndim != 3 or image.shape[:2] != (height, width):
+                raise ReconError(
+                    f"{name} image is {image.shape[1]}x{image.shape[0]} (shape {image.shape}) but "
+                    f"the calibration is for {width}x{height} BGR images; use the calibration of "
+                    f"this camera and resolution")
+
+    def rectified_disparity(self, left: np.ndarray, right: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, int]]:
+        """Rectified left image, disparity (px, NaN invalid), valid mask and verification counts."""
+        self._check_size(left, right)
+        rect_left, rect_right = (cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
+                                 for image, (map_x, map_y) in zip((left, right), self._maps))
+        disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
+        if not self.verify:
+            return rect_left, disparity, np.isfinite(disparity), {}
+        left_code = self.decoder.decode(rect_left)
+        right_code = self.decoder.decode(rect_right, period_px=left_code.period_px)
+        disparity, valid, counts = verify_disparity(disparity, left_code, right_code,
+                                                    self.params.verify_search_px)
+        return rect_left, disparity, valid, counts
+
+    def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
+        """Point cloud of one raw (unrectified) BGR stereo pair."""
+        rect_left, disparity, valid, counts = self.rectified_disparity(left, right)
+        valid &= disparity > self._doffs  # at or beyond infinity: no depth
+        disparity = np.where(valid, disparity, np.float32(np.nan))
+        cal = self.calibration
+        points = disparity_to_points(disparity, valid, float(cal.f), float(cal.B), float(cal.cx),
+                                     float(cal.cy), self._doffs)
+        colors = cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB).reshape(-1, 3).take(
+            np.flatnonzero(valid), axis=0)
+        return FrameCloud(disparity=disparity, valid=valid, points=points, colors=colors,
+                          counts=counts)

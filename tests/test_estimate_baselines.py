@@ -1,0 +1,44 @@
+"""Baselines: each recovers the relation it models from training data."""
+
+import numpy as np
+
+from vbfe.estimate.baselines import AffineBaseline, fit_baselines
+from vbfe.estimate.dataset import PreparedSession
+
+
+def prepared(name, displacement_m, force_n, condition):
+    n = len(displacement_m)
+    return PreparedSession(name=name, conditions=condition, times_ns=np.arange(n, dtype=np.int64),
+                           targets_n=np.asarray(force_n, float).reshape(n, -1),
+                           pools=np.zeros((n, 4, 3), np.float32),
+                           displacement_m=np.asarray(displacement_m, float),
+                           n_frames_total=n, n_skipped=0)
+
+
+def test_fitted_baselines_recover_known_relations():
+    d = np.linspace(0, 0.01, 50)
+    sessions = [prepared("a", d, 120.0 * d, {"stiffness_n_per_m": 40.0}),
+                prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
+    sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
+    fitted = fit_baselines(sessions)
+    np.testing.assert_allclose(fitted["hooke"].slope, [120.0], rtol=1e-9)
+    np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
+    np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
+    np.testing.assert_allclose(fitted["linear_displacement"].intercept, [0.0], atol=1e-9)
+    np.testing.assert_allclose(fitted["mean"].predict(np.array([0.0, 1.0])),
+                               [[np.mean(np.concatenate([s.targets_n for s in sessions]))]] * 2)
+
+
+def test_linear_and_hooke_differ_when_force_has_an_offset():
+    d = np.linspace(0.001, 0.01, 40)
+    fitted = fit_baselines([prepared("a", d, 1.0 + 100.0 * d, {})])
+    np.testing.assert_allclose(fitted["linear_displacement"].predict(np.array([0.02]))[0], [3.0])
+    assert fitted["hooke"].intercept[0] == 0.0
+    assert abs(fitted["hooke"].predict(np.array([0.02]))[0, 0] - 3.0) > 0.1
+
+
+def test_baseline_round_trips_through_a_dict():
+    b = AffineBaseline("hooke", np.array([1.0, 2.0, 3.0]), np.zeros(3))
+    again = AffineBaseline.from_dict(b.to_dict())
+    np.testing.assert_array_equal(again.predict(np.array([0.5, np.nan])),
+                                  [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]])

@@ -1,0 +1,123 @@
+"""Dataset building: ROI, sampling, skipped frames, displacement, session split."""
+
+import numpy as np
+import pytest
+
+from vbfe.estimate.dataset import (FrameBatches, crop_roi, force_target, prepare_session,
+                                   prepare_sessions, sample_points, split_by_session)
+from vbfe.estimate.displacement import DisplacementGrid
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.sources import SessionClouds
+from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
+from vbfe.estimate.train_config import TrainConfig
+
+
+def small_config(**kw):
+    return TrainConfig(n_points=64, pool_factor=2, **kw)
+
+
+def test_roi_keeps_finite_points_inside_the_region():
+    points = np.array([[0, 0, 0.08], [0.05, 0, 0.08], [np.nan, 0, 0.08], [0, np.inf, 0.08],
+                       [0.001, 0.001, 0.081]])
+    assert len(crop_roi(points, small_config())) == 3
+    radius = crop_roi(points, small_config(roi="radius", roi_radius_m=0.01))
+    assert len(radius) == 2 and np.all(radius[:, 0] < 0.01)
+    box = crop_roi(points, small_config(roi="box", roi_box_m=[0.01, -1, 0, 1, 1, 1]))
+    np.testing.assert_array_equal(box, [[0.05, 0, 0.08]])
+
+
+def test_sampling_is_without_replacement_unless_the_cloud_is_too_small():
+    rng = np.random.default_rng(0)
+    points = np.arange(30.0).reshape(10, 3)
+    few = sample_points(points, 6, rng)
+    assert len(np.unique(few[:, 0])) == 6
+    padded = sample_points(points, 25, rng)
+    assert padded.shape == (25, 3) and set(padded[:, 0]) <= set(points[:, 0])
+
+
+def test_force_target_magnitude_or_axes():
+    forces = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, -2.0]])
+    np.testing.assert_allclose(force_target(forces, "magnitude"), [[5.0], [2.0]])
+    np.testing.assert_allclose(force_target(forces, "xyz"), forces)
+
+
+def test_empty_and_nan_clouds_are_skipped_and_counted():
+    session = synthetic_session("s", 80.0, 0.005, np.random.default_rng(1), fps=4,
+                                points_per_side=12)
+    session.clouds[2] = np.zeros((0, 3))
+    session.clouds[5] = np.full((100, 3), np.nan)
+    session.forces_n[7] = np.nan
+    prepared = prepare_session(session, small_config())
+    assert prepared.n_skipped == 3
+    assert prepared.n_used == session.n_frames - 3 == len(prepared.pools)
+    assert prepared.pools.shape[1:] == (128, 3) and np.isfinite(prepared.pools).all()
+    kept_times = set(prepared.times_ns.tolist())
+    assert not kept_times & {int(session.times_ns[i]) for i in (2, 5, 7)}
+
+
+def test_a_session_without_any_usable_cloud_is_an_error_naming_it():
+    empty = SessionClouds("broken-run", [np.full((5, 3), np.nan)] * 3, np.ones((3, 3)),
+                          np.arange(3, dtype=np.int64))
+    with pytest.raises(EstimateError, match="broken-run"):
+        prepare_sessions([empty], small_config())
+
+
+def test_displacement_grid_measures_a_known_bump():
+    side = np.linspace(-0.01, 0.01, 60)
+    gx, gy = [g.ravel() for g in np.meshgrid(side, side)]
+    flat = np.column_stack([gx, gy, np.full_like(gx, 0.08)])
+    bumped = flat.copy()
+    bumped[:, 2] -= 0.003 * np.exp(-(gx**2 + gy**2) / (2 * 0.003**2))
+    grid = DisplacementGrid(flat, cells=10)
+    assert grid.peak_displacement_m(flat) == 0.0
+    assert 0.0025 < grid.peak_displacement_m(bumped) <= 0.003
+
+
+def test_displacement_grows_with_force_in_prepared_sessions():
+    session = synthetic_session("s", 40.0, 0.01, np.random.default_rng(2), fps=3, noise_m=0)
+    prepared = prepare_session(session, small_config())
+    force = prepared.targets_n[:, 0]
+    assert np.corrcoef(force, prepared.displacement_m)[0, 1] > 0.95
+
+
+def test_frame_stride_uses_every_kth_frame():
+    session = synthetic_session("s", 200.0, 0.002, np.random.default_rng(3), fps=4,
+                                points_per_side=10)
+    prepared = prepare_session(session, small_config(frame_stride=3))
+    np.testing.assert_array_equal(prepared.times_ns, session.times_ns[::3])
+
+
+def test_split_is_by_session_without_leakage_and_stratified():
+    sessions = prepare_sessions(synthetic_sessions(repeats=4, fps=1, points_per_side=10),
+                                small_config())
+    split = split_by_session(sessions, val_fraction=0.25, test_fraction=0.25, seed=5)
+    parts = [set(split.train), set(split.val), set(split.test)]
+    assert sum(len(p) for p in parts) == len(sessions) == len(set.union(*parts))
+    assert not (parts[0] & parts[1] or parts[0] & parts[2] or parts[1] & parts[2])
+    assert len(split.val) == len(split.test) == 3
+    by_name = {s.name: s.condition for s in sessions}
+    for part in (split.val, split.test):  # one repeat of each of the three conditions
+        assert len({by_name[n] for n in part}) == 3
+    # frames of one session never end up on both sides
+    train_times = FrameBatches([s for s in sessions if s.name in parts[0]], 8)
+    assert len(train_times) == sum(s.n_used for s in sessions if s.name in parts[0])
+    assert split_by_session(sessions, 0.25, 0.25, seed=5) == split
+
+
+def test_split_keeps_one_training_session():
+    sessions = prepare_sessions(synthetic_sessions(repeats=1, fps=1, points_per_side=10)[:2],
+                                small_config())
+    split = split_by_session(sessions, val_fraction=0.5, test_fraction=0.5, seed=0)
+    assert len(split.train) == 1 and len(split.train) + len(split.val) + len(split.test) == 2
+
+
+def test_batches_redraw_points_from_the_pool():
+    sessions = prepare_sessions(synthetic_sessions(repeats=1, fps=2, points_per_side=12),
+                                small_config())
+    batches = FrameBatches(sessions, 64)
+    rng = np.random.default_rng(0)
+    (a, ya), = list(batches.batches(10_000, rng))
+    (b, yb), = list(batches.batches(10_000, None))
+    assert a.shape == b.shape == (len(batches), 64, 3) and ya.shape == (len(batches), 1)
+    np.testing.assert_array_equal(b.numpy(), batches.pools[:, :64])
+    np.testing.assert_array_equal(np.sort(yb.numpy(), 0), np.sort(ya.numpy(), 0))

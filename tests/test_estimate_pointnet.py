@@ -1,0 +1,58 @@
+"""PointNet normalisation and network: centred, in the unit sphere, blind to point order."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.distance import pdist
+
+from vbfe.estimate.pointnet import (PointNetRegressor, diameter, normalize_clouds,
+                                    weighted_centroid)
+
+
+@pytest.fixture
+def clouds():
+    rng = np.random.default_rng(3)
+    raw = rng.normal(size=(4, 300, 3)) * [0.01, 0.02, 0.005] + [0.0, 0.01, 0.08]
+    return torch.tensor(raw, dtype=torch.float32)
+
+
+def test_diameter_is_the_exact_largest_pairwise_distance(clouds):
+    expected = [pdist(c.double().numpy()).max() for c in clouds]
+    np.testing.assert_allclose(diameter(clouds).numpy(), expected, rtol=1e-5)
+
+
+def test_normalised_clouds_are_centred_and_inside_the_unit_sphere(clouds):
+    normalized, features = normalize_clouds(clouds)
+    np.testing.assert_allclose(normalized.mean(dim=1).numpy(), 0, atol=1e-6)
+    assert float(normalized.norm(dim=2).max()) <= 1.0
+    np.testing.assert_allclose(features[:, :3].numpy(), clouds.mean(dim=1).numpy(), atol=1e-7)
+    np.testing.assert_allclose(features[:, 3].numpy(), diameter(clouds).numpy())
+    # scaling is by D_max, so the normalised diameter is exactly one
+    np.testing.assert_allclose(diameter(normalized).numpy(), 1.0, rtol=1e-5)
+
+
+def test_weighted_centroid_follows_the_weights(clouds):
+    weights = torch.zeros(clouds.shape[:2])
+    weights[:, 7] = 2.0
+    np.testing.assert_allclose(weighted_centroid(clouds, weights).numpy(), clouds[:, 7].numpy())
+    normalized, _ = normalize_clouds(clouds, weights)
+    np.testing.assert_allclose(normalized[:, 7].numpy(), 0, atol=1e-6)
+
+
+def test_network_output_does_not_depend_on_point_order(clouds):
+    torch.manual_seed(0)
+    net = PointNetRegressor(n_outputs=3, conv_channels=(16, 32), head_channels=(16,))
+    net.eval()
+    shuffled = clouds[:, torch.randperm(clouds.shape[1])]
+    out = net(clouds)
+    assert out.shape == (4, 3)
+    torch.testing.assert_close(out, net(shuffled), rtol=1e-5, atol=1e-5)
+
+
+def test_global_features_carry_the_size_that_normalisation_removes(clouds):
+    torch.manual_seed(0)
+    for with_features in (False, True):
+        net = PointNetRegressor(conv_channels=(16,), head_channels=(8,),
+                                global_features=with_features).eval()
+        same = torch.allclose(net(clouds), net(clouds * 2.0), atol=1e-5)
+        assert same is not with_features

@@ -1,0 +1,71 @@
+"""Caspi colour model: crosstalk matrix and offset from flat captures, albedo-free decoding."""
+
+import numpy as np
+import pytest
+
+from vbfe.recon import ColorModel, ReconError, estimate_color_model, make_pattern
+from vbfe.recon.decode import FringeDecoder
+from vbfe.recon.pattern import fringe_coordinates
+
+K_TRUE = np.array([[0.80, 0.15, 0.05],   # camera B <- projector B, G, R
+                   [0.10, 0.75, 0.15],
+                   [0.05, 0.20, 0.75]])
+OFFSET = np.array([14.0, 10.0, 12.0])
+
+
+def _capture(projected_bgr: np.ndarray, albedo: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Camera image of a projected BGR image (0..255) through crosstalk, albedo, ambient, noise."""
+    image = (projected_bgr.astype(np.float64) @ K_TRUE.T) * 0.85 * albedo + OFFSET
+    return np.clip(np.rint(image + rng.normal(0, 1.0, image.shape)), 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def albedo():
+    y, x = np.mgrid[0:120, 0:640]
+    return np.stack([0.55 + 0.1 * np.sin(x / 40.0), 0.7 + 0.1 * np.cos(y / 25.0),
+                     np.full(x.shape, 0.95)], axis=-1)
+
+
+def test_mixing_matrix_and_offset_are_recovered_despite_albedo(albedo):
+    rng = np.random.default_rng(1)
+    flat = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "black": (0, 0, 0),
+            "white": (255, 255, 255)}
+    captures = {name: _capture(np.broadcast_to(np.array(bgr, np.float64), albedo.shape), albedo,
+                               rng) for name, bgr in flat.items()}
+    model = estimate_color_model(captures)
+    expected = K_TRUE / K_TRUE.sum(axis=1, keepdims=True)
+    assert np.abs(model.mixing - expected).max() < 0.02
+    assert np.abs(model.offset - OFFSET).max() < 1.0
+
+
+def test_correct_undoes_crosstalk_of_a_flat_colour():
+    model = ColorModel(K_TRUE, OFFSET)
+    projected = np.array([30.0, 200.0, 90.0])
+    image = np.clip(np.rint(K_TRUE @ projected + OFFSET), 0, 255).astype(np.uint8)
+    corrected = model.correct(np.broadcast_to(image, (4, 4, 3)).copy())
+    assert np.abs(corrected[2, 2] - projected).max() < 1.5
+
+
+def test_strong_crosstalk_breaks_decoding_unless_corrected(albedo):
+    rng = np.random.default_rng(2)
+    pattern = make_pattern(640, 120)
+    image = _capture(pattern, albedo, rng)
+    index, _ = fringe_coordinates(640)
+    truth = np.broadcast_to(index, (120, 640))
+
+    def accuracy(model: ColorModel) -> float:
+        decoded = FringeDecoder(model).decode(image).index
+        readable = decoded >= 0
+        return float(np.mean(np.abs(decoded[readable] - truth[readable]) <= 1) * readable.mean())
+
+    corrected = accuracy(ColorModel(K_TRUE / K_TRUE.sum(axis=1, keepdims=True), OFFSET))
+    assert corrected > 0.9
+    assert corrected > accuracy(ColorModel.identity()) + 0.05
+
+
+def test_missing_or_dark_captures_are_reported():
+    black = np.zeros((20, 20, 3), np.uint8)
+    with pytest.raises(ReconError, match="red"):
+        estimate_color_model({"blue": black, "green": black, "black": black, "white": black})
+    with pytest.raises(ReconError, match="white capture"):
+        estimate_color_model({n: black for n in ("blue", "green", "red", "black", "white")})
