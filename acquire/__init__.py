@@ -5,8 +5,8 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import SessionReader, store_analysis, store_calibration
 from vbfe.acquire.record import record_session
 from vbfe.acquire.recorder import Recorder, RecorderStats
-from vbfe.acquire.writer import SessionWriter, finalize_session
+from vbfe.acquire.writer import SessionWriter, finalize_session, recover_session
 
 __all__ = ["ClockFit", "Recorder", "RecorderStats", "SessionError", "SessionReader",
-           "SessionWriter", "finalize_session", "fit_clock", "record_session", "store_analysis",
+           "SessionWriter", "finalize_session", "fit_clock", "record_session", "recover_session", "store_analysis",
            "store_calibration"]

@@ -29,6 +29,15 @@ class ClockFit:
     jitter_ns: float  # robust spread (1.4826·MAD) of the host-time residuals about the envelope
     latency_ns: float  # median residual above the envelope (transport delay beyond the minimum)
     n_pairs: int
+    span_ns: int = 0  # device-time span of the pairs
+    envelope_ns: float = 0.0  # scatter of the envelope's support points about the line
+
+    @property
+    def drift_uncertainty_ppm(self) -> float:
+        """Standard error of :attr:`drift_ppm` from the envelope points' scatter and span."""
+        if self.span_ns <= 0:
+            return float("inf") if self.n_pairs > 1 else 0.0
+        return 1e6 * self.envelope_ns * np.sqrt(12.0 / _n_segments(self.n_pairs)) / self.span_ns
 
     @property
     def drift_ppm(self) -> float:
@@ -54,7 +63,8 @@ class ClockFit:
         """Rebuild a fit from :meth:`to_attrs` output (extra keys are ignored)."""
         return cls(int(attrs["ref_device_ns"]), int(attrs["ref_host_ns"]),
                    float(attrs["intercept_ns"]), float(attrs["slope"]), float(attrs["jitter_ns"]),
-                   float(attrs["latency_ns"]), int(attrs["n_pairs"]))
+                   float(attrs["latency_ns"]), int(attrs["n_pairs"]), int(attrs.get("span_ns", 0)),
+                   float(attrs.get("envelope_ns", 0.0)))
 
 
 def identity_fit(t_host_ns: np.ndarray) -> ClockFit:
@@ -74,15 +84,21 @@ def _theil_sen(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> tuple[
     return float(np.median(y - slope * x)), slope
 
 
-def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float, b: float) -> tuple[float, float]:
-    n_segments = int(np.clip(len(x) // _POINTS_PER_SEGMENT, 2, _SEGMENTS))
-    segments = np.array_split(np.arange(len(x)), min(n_segments, len(x)))
+def _n_segments(n_pairs: int) -> int:
+    return int(min(np.clip(n_pairs // _POINTS_PER_SEGMENT, 2, _SEGMENTS), max(n_pairs, 1)))
+
+
+def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float,
+                  b: float) -> tuple[float, float, float]:
+    """Line through the lowest point of each segment: ``(intercept, slope, scatter)``."""
+    segments = np.array_split(np.arange(len(x)), _n_segments(len(x)))
     residual = y - (a + b * x)
     lowest = np.array([seg[np.argmin(residual[seg])] for seg in segments if len(seg)])
-    if len(lowest) < 2 or np.ptp(x[lowest]) == 0:
-        return float(np.min(residual) + a), b
+    if len(lowest) < 3 or np.ptp(x[lowest]) == 0:
+        return float(np.min(residual) + a), b, float(np.std(residual))
     b, a = np.polyfit(x[lowest], y[lowest], 1)
-    return float(a), float(b)
+    scatter = float(np.std(y[lowest] - (a + b * x[lowest]), ddof=2))
+    return float(a), float(b), scatter
 
 
 def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
@@ -103,8 +119,9 @@ def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
     y = (host - ref_host).astype(np.float64)
     a, b = _theil_sen(x, y, np.random.default_rng(0))
     for _ in range(3):
-        a, b = _envelope_fit(x, y, a, b)
+        a, b, scatter = _envelope_fit(x, y, a, b)
     residual = y - (a + b * x)
     med = float(np.median(residual))
     jitter = 1.4826 * float(np.median(np.abs(residual - med)))
-    return ClockFit(ref_dev, ref_host, a, b, jitter, med, int(len(dev)))
+    return ClockFit(ref_dev, ref_host, a, b, jitter, med, int(len(dev)), int(dev[-1] - dev[0]),
+                    scatter)

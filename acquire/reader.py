@@ -37,8 +37,8 @@ def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, boo
                                f"{exc}") from None
     if mode != "r":
         raise SessionError(f"{path} was not closed cleanly (the recorder stopped mid-recording); "
-                           "it can be read but not changed: run `vbfe inspect --repair` on it "
-                           "first")
+                           "it can be read but not changed: copy it into a clean file with "
+                           "`vbfe inspect --recover OUT.h5`")
     try:
         return h5py.File(path, "r", swmr=True), False
     except OSError as exc:
@@ -78,6 +78,11 @@ class SessionReader:
         self._lengths["projector"] = min(self._lengths["projector"], f["projector/pattern"].shape[0],
                                          f["projector/frame_id"].shape[0])
         self._fits: dict[str, ClockFit] = {}
+        self._times: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._image_data = {eye: cam[f"{eye}_jpeg" if self.encoding == "jpeg" else eye]
+                            for eye in ("left", "right")}
+        self._jpeg_index = ({eye: cam[f"{eye}_jpeg_index"][:self.n_frames]
+                             for eye in ("left", "right")} if self.encoding == "jpeg" else {})
 
     # -- container protocol -------------------------------------------------------------
     def close(self) -> None:
@@ -111,15 +116,15 @@ class SessionReader:
         return int(cam.attrs["width"]), int(cam.attrs["height"])
 
     def _image(self, eye: str, i: int) -> np.ndarray:
-        cam = self._file["camera"]
+        data = self._image_data[eye]
         try:
             if self.encoding == "jpeg":
-                offset, length = cam[f"{eye}_jpeg_index"][i]
-                image = cv2.imdecode(cam[f"{eye}_jpeg"][offset:offset + length], cv2.IMREAD_COLOR)
+                offset, length = self._jpeg_index[eye][i]
+                image = cv2.imdecode(data[offset:offset + length], cv2.IMREAD_COLOR)
                 if image is None:
                     raise OSError("JPEG data does not decode")
                 return image
-            return cam[eye][i]
+            return data[i]
         except OSError as exc:
             raise SessionError(f"frame {i} ({eye}) of {self.path} cannot be read (corrupt?): "
                                f"{exc}") from None
@@ -129,10 +134,9 @@ class SessionReader:
         if not -self.n_frames <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
-        cam = self._file["camera"]
+        t_dev, t_host, seq = self.stream_times("camera")
         return StereoFrame(left=self._image("left", i), right=self._image("right", i),
-                           seq=int(cam["seq"][i]), t_device_ns=int(cam["t_device_ns"][i]),
-                           t_host_ns=int(cam["t_host_ns"][i]))
+                           seq=int(seq[i]), t_device_ns=int(t_dev[i]), t_host_ns=int(t_host[i]))
 
     def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[StereoFrame]:
         """Frames ``start`` … ``stop - 1`` in order."""
@@ -143,8 +147,11 @@ class SessionReader:
     # -- raw streams ----------------------------------------------------------------------
     def stream_times(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Recorded ``(t_device_ns, t_host_ns, seq)`` of one stream (camera, force, projector)."""
-        n = self._lengths[stream]
-        return tuple(self._read(f"{stream}/{k}", n) for k in ("t_device_ns", "t_host_ns", "seq"))
+        if stream not in self._times:
+            n = self._lengths[stream]
+            self._times[stream] = tuple(self._read(f"{stream}/{k}", n)
+                                        for k in ("t_device_ns", "t_host_ns", "seq"))
+        return self._times[stream]
 
     def clock_fit(self, stream: str) -> ClockFit:
         """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""

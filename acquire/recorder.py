@@ -23,6 +23,7 @@ from vbfe.acquire.storage import check_destination, free_bytes
 from vbfe.acquire.writer import SessionWriter, finalize_session
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
+from vbfe.drivers.samples import StereoFrame
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 4
@@ -68,7 +69,7 @@ class _Pump(threading.Thread):
                 self.error = str(exc)
                 self._control.put(("gap", self.stream, "device disconnected", self.last_seq, -1,
                                    time.monotonic_ns(), 0))
-                return
+                break
             if item is None:
                 continue
             try:
@@ -82,6 +83,9 @@ class _Pump(threading.Thread):
                                    item.t_host_ns, burst))
                 burst = 0
             self.last_seq = item.seq
+        if burst:  # samples lost at the very end: no next sequence number
+            self._control.put(("gap", self.stream, "queue full", self.last_seq, -1,
+                               time.monotonic_ns(), burst))
 
 
 class Recorder:
@@ -116,6 +120,8 @@ class Recorder:
         self._error: BaseException | None = None
         self._frame_t_device: list[int] = []
         self._frame_t_host = [0, 0]  # first, last
+        self._span_limit_ns: int | None = None  # frames later than this after the first are not kept
+        self._span_reached = threading.Event()
         self._t_start = 0.0
         self.stats = RecorderStats()
 
@@ -151,6 +157,8 @@ class Recorder:
         """Record until ``duration_s`` of frames (host clock) are in, a device is gone, or
         Ctrl-C; then stop cleanly. Returns the final statistics."""
         last_progress = 0.0
+        if duration_s is not None:
+            self._span_limit_ns = int(duration_s * 1e9)
         try:
             while not self._stop.is_set():
                 time.sleep(0.05)
@@ -158,7 +166,7 @@ class Recorder:
                 if on_progress is not None and stats.wall_s - last_progress >= progress_interval_s:
                     on_progress(stats)
                     last_progress = stats.wall_s
-                if duration_s is not None and stats.elapsed_s >= duration_s:
+                if self._span_reached.is_set():
                     stats.end_reason = "duration reached"
                     break
                 dead = [p for p in self._pumps if p.error is not None]
@@ -237,9 +245,8 @@ class Recorder:
                 frames = self._drain(self._frames, _FRAME_BATCH, 0.0 if pumps_done else 0.02)
                 forces = self._drain(self._forces, 1 << 20)
                 control = self._drain(self._control, 1 << 20)
+                frames = self._within_duration(frames)
                 if frames:
-                    if not self._frame_t_device:
-                        self._frame_t_host[0] = frames[0].t_host_ns
                     self._frame_t_host[1] = frames[-1].t_host_ns
                     self._frame_t_device.extend(fr.t_device_ns for fr in frames)
                 writer.append_frames(frames)
@@ -259,6 +266,19 @@ class Recorder:
             self._error = exc
             self._stop.set()
             writer.abort()
+
+    def _within_duration(self, frames: list[StereoFrame]) -> list[StereoFrame]:
+        """The frames that fall inside the requested duration (a faster-than-real-time
+        simulation may deliver many frames per progress tick)."""
+        if frames and not self._frame_t_device:
+            self._frame_t_host[0] = frames[0].t_host_ns
+        if self._span_limit_ns is None:
+            return frames
+        end = self._frame_t_host[0] + self._span_limit_ns
+        kept = [fr for fr in frames if fr.t_host_ns < end]
+        if len(kept) < len(frames):
+            self._span_reached.set()
+        return kept
 
     def _flush(self) -> None:
         self._writer.flush()

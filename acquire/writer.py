@@ -217,3 +217,24 @@ def finalize_session(path: str | Path, attrs: dict[str, Any],
                 group.create_dataset(name, data=np.asarray(values))
         f.attrs.update({"end_utc_ns": time.time_ns(), "end_host_ns": time.monotonic_ns(),
                         "complete": True, **attrs})
+
+
+def recover_session(path: str | Path, out_path: str | Path) -> Path:
+    """Copy a session whose recorder died (SWMR write flag still set) into a clean, finalized
+    file ``out_path``: everything up to the last flush, plus clock fits."""
+    out_path = Path(out_path)
+    if out_path.exists():
+        raise SessionError(f"{out_path} already exists; choose a new file for the recovered copy")
+    try:
+        src = h5py.File(path, "r", swmr=True)
+    except OSError as exc:
+        raise SessionError(f"{path} cannot be opened for recovery: {exc}") from None
+    with src, h5py.File(out_path, "w", libver="latest") as dst:
+        if src.attrs.get("format") != FORMAT_NAME:
+            raise SessionError(f"{path} is not a vbfe session; nothing to recover")
+        dst.attrs.update(dict(src.attrs))
+        for name in src:
+            src.copy(src[name], dst, name=name)
+    finalize_session(out_path, {"end_reason": "recovered: the recording was interrupted",
+                                "recovered_from": str(Path(path).absolute())})
+    return out_path

@@ -12,6 +12,7 @@ import argparse
 import time
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 
 from vbfe.config import default_config, section
@@ -24,15 +25,33 @@ from vbfe.recon import (Reconstructor, SgbmParams, calibration_from_rig, evaluat
 WORKING_DISTANCE_M = 0.06
 
 
-def median_time_s(fn: Callable[[], object], repeats: int) -> float:
-    """Median wall time of ``fn`` over ``repeats`` calls (after one warm-up call)."""
+def elapsed_s(fn: Callable[[], object], clock: Callable[[], float] = time.perf_counter) -> float:
+    """Time of one call of ``fn`` on ``clock`` (wall time by default)."""
+    start = clock()
     fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
+    return clock() - start
+
+
+def timings_s(runs: dict[str, Callable[[], object]], repeats: int,
+              clock: Callable[[], float]) -> dict[str, float]:
+    """Median time of each run, the runs interleaved so machine load affects all alike."""
+    for fn in runs.values():  # warm-up
         fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for _ in range(repeats):
+        for name, fn in runs.items():
+            times[name].append(elapsed_s(fn, clock))
+    return {name: float(np.median(t)) for name, t in times.items()}
+
+
+def print_ratios(title: str, t: dict[str, float]) -> None:
+    """The three timings and their ratios to bare SGBM."""
+    print(title)
+    for name, label in (("sgbm", "bare cv2.StereoSGBM.compute"),
+                        ("bare", "pipeline without verification"),
+                        ("full", "pipeline with verification")):
+        goal = "   (goal <= 1.30x)" if name == "full" else ""
+        print(f"  {label:32s} {t[name] * 1e3:8.1f} ms   {t[name] / t['sgbm']:.2f}x{goal}")
 
 
 def main() -> None:
@@ -53,18 +72,17 @@ def main() -> None:
     verified = Reconstructor(calibration, params, verify=True)
     bare = Reconstructor(calibration, params, verify=False)
 
-    # interleave the measurements so machine load affects both alike
-    t_sgbm, t_full, t_bare = [], [], []
-    for _ in range(args.repeats):
-        t_sgbm.append(median_time_s(lambda: matcher.compute(pair.left, pair.right), 1))
-        t_full.append(median_time_s(lambda: verified.process(pair.left, pair.right), 1))
-        t_bare.append(median_time_s(lambda: bare.process(pair.left, pair.right), 1))
-    sgbm_s, full_s, bare_s = (float(np.median(t)) for t in (t_sgbm, t_full, t_bare))
+    runs = {"sgbm": lambda: matcher.compute(pair.left, pair.right),
+            "full": lambda: verified.process(pair.left, pair.right),
+            "bare": lambda: bare.process(pair.left, pair.right)}
     print(f"frame {args.width}x{args.height}, {args.repeats} repeats (median)")
-    print(f"  bare cv2.StereoSGBM.compute     {sgbm_s * 1e3:8.1f} ms   1.00x")
-    print(f"  pipeline without verification   {bare_s * 1e3:8.1f} ms   {bare_s / sgbm_s:.2f}x")
-    print(f"  pipeline with verification      {full_s * 1e3:8.1f} ms   {full_s / sgbm_s:.2f}x"
-          f"   (goal <= 1.30x)")
+    print_ratios("wall time, OpenCV threads as configured:",
+                 timings_s(runs, args.repeats, time.perf_counter))
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # everything in this thread: its CPU time ignores other processes' load
+    print_ratios("CPU time of one thread (OpenCV single-threaded, as in session workers):",
+                 timings_s(runs, args.repeats, time.thread_time))
+    cv2.setNumThreads(threads)
 
     truth = (pair.disparity_left_px, pair.depth_left_m, pair.valid_left)
     print("accuracy against the rendered truth (working distance "

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.options import from_table
 
 
 @dataclass(frozen=True)
@@ -26,12 +27,8 @@ class BoardSpec:
     @classmethod
     def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
         """The board of a rig config's ``[calib]`` table (sizes there are in mm)."""
-        return cls(squares_x=int(calib_table.get("squares_x", cls.squares_x)),
-                   squares_y=int(calib_table.get("squares_y", cls.squares_y)),
-                   square_m=float(calib_table.get("square_mm", cls.square_m * 1e3)) / 1e3,
-                   marker_m=float(calib_table.get("marker_mm", cls.marker_m * 1e3)) / 1e3,
-                   dictionary=str(calib_table.get("dictionary", cls.dictionary)),
-                   legacy=bool(calib_table.get("legacy", False)))
+        return from_table(cls, calib_table, keys={"square_m": "square_mm", "marker_m": "marker_mm"},
+                          scales={"square_m": 1e-3, "marker_m": 1e-3})
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (stored in the calibration's info)."""

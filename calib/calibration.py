@@ -37,6 +37,9 @@ _OPTIONAL_MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
 _VECTORS = {"T", "D1", "D2", "D_proj", "T_proj", "color_offset"}
 
 
+_INFO_PIECE_CHARS = 1000
+
+
 @dataclass
 class Calibration:
     """Stereo endoscope calibration (plus optional projector and colour correction).
@@ -116,7 +119,8 @@ class Calibration:
         """Whether projector intrinsics and pose are present."""
         return self.K_proj is not None
 
-    def rectification_maps(self) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    def rectification_maps(self) -> tuple[tuple[np.ndarray, np.ndarray],
+                                          tuple[np.ndarray, np.ndarray]]:
         """``((map1x, map1y), (map2x, map2y))`` for ``cv2.remap`` of left and right images."""
         left = cv2.initUndistortRectifyMap(self.K1, self.D1, self.R1, self.P1, self.image_size,
                                            cv2.CV_32FC1)
@@ -168,7 +172,12 @@ class Calibration:
         if self.projector_size is not None:
             fs.write("projector_width", self.projector_size[0])
             fs.write("projector_height", self.projector_size[1])
-        fs.write("info_json", json.dumps(self.info, sort_keys=True))
+        # FileStorage caps one string at a few kB: the JSON goes in as a sequence of pieces.
+        text = json.dumps(self.info, sort_keys=True)
+        fs.startWriteStruct("info_json", cv2.FileNode_SEQ)
+        for start in range(0, max(len(text), 1), _INFO_PIECE_CHARS):
+            fs.write("", text[start:start + _INFO_PIECE_CHARS])
+        fs.endWriteStruct()
         return fs.releaseAndGetString()
 
     @classmethod
@@ -176,9 +185,10 @@ class Calibration:
         """Parse calibration YAML text; ``source`` names it in error messages."""
         try:
             fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-        except cv2.error as exc:
-            raise CalibrationError(f"{source} is not OpenCV FileStorage YAML: "
-                                   f"{str(exc).strip().splitlines()[-1]}") from None
+        except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser error, wrapped
+            cause = exc.__cause__ or exc
+            raise CalibrationError(f"{source} is not OpenCV FileStorage YAML "
+                                   f"({str(cause).strip().splitlines()[-1]})") from None
         try:
             return cls._from_storage(fs, source)
         finally:
@@ -215,8 +225,11 @@ class Calibration:
         if node("projector_width") is not None:
             kwargs["projector_size"] = (int(node("projector_width").real()),
                                         int(node("projector_height").real()))
-        if node("info_json") is not None:
-            kwargs["info"] = json.loads(node("info_json").string())
+        info = node("info_json")
+        if info is not None:
+            pieces = [info.at(i).string() for i in range(info.size())] if info.isSeq() \
+                else [info.string()]
+            kwargs["info"] = json.loads("".join(pieces))
         try:
             return cls(**kwargs)
         except CalibrationError as exc:

@@ -15,11 +15,12 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
+from vbfe.calib.options import from_table
 from vbfe.calib.views import load_views, save_views
 
 # The spread each coverage parameter must reach for a full bar (ROS camera_calibration's, with
-# size relaxed from 0.4: an endoscope's working range rarely lets the board fill the image).
-PARAM_RANGES = {"x": 0.7, "y": 0.7, "size": 0.3, "skew": 0.5}
+# size relaxed from 0.4 to 0.25: an endoscope's working range rarely lets the board fill the image).
+PARAM_RANGES = {"x": 0.7, "y": 0.7, "size": 0.25, "skew": 0.5}
 
 
 @dataclass
@@ -35,12 +36,8 @@ class CaptureOptions:
     @classmethod
     def from_config(cls, calib_table: dict) -> "CaptureOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return cls(min_corners=int(calib_table.get("min_corners", cls.min_corners)),
-                   min_views=int(calib_table.get("capture_views", cls.min_views)),
-                   max_views=int(calib_table.get("capture_max_views", cls.max_views)),
-                   min_sharpness=float(calib_table.get("min_sharpness", cls.min_sharpness)),
-                   min_pose_distance=float(calib_table.get("min_pose_distance",
-                                                           cls.min_pose_distance)))
+        return from_table(cls, calib_table, keys={"min_views": "capture_views",
+                                                  "max_views": "capture_max_views"})
 
 
 @dataclass
@@ -182,9 +179,11 @@ class CaptureResult:
 
 def capture_views(frames: Iterable[tuple[np.ndarray, np.ndarray]], spec: BoardSpec,
                   folder: str | Path, options: CaptureOptions | None = None,
-                  on_view: Callable[[Verdict, ViewCollector], None] | None = None) -> CaptureResult:
+                  on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None
+                  ) -> CaptureResult:
     """Offer ``frames`` to a :class:`ViewCollector` until it has enough views; save the kept
     views as PNG pairs ``view_NNN_left.png`` / ``view_NNN_right.png`` in ``folder``.
+    ``on_view(verdict, collector, left_image)`` is called after each offered view.
 
     Views already in ``folder`` count towards coverage, so capture can be resumed.
     """
@@ -207,7 +206,7 @@ def capture_views(frames: Iterable[tuple[np.ndarray, np.ndarray]], spec: BoardSp
             key = verdict.reason.split(" (")[0].split(";")[0]
             rejections[key] = rejections.get(key, 0) + 1
         if on_view:
-            on_view(verdict, collector)
+            on_view(verdict, collector, left)
     names = [f"view_{i:03d}" for i in range(first_new, len(collector.pairs))]
     return CaptureResult(folder, names, seen, collector.coverage(), collector.enough, rejections)
 

@@ -56,7 +56,8 @@ class CheckResult:
                     ("depth error (views)", f"{self.depth_error_views_m * 1e3:.3f} mm")]
         out.append((f"verdict at {self.working_distance_m * 1e3:.0f} mm",
                     ("GO" if self.passed else "NO-GO") + f": depth error "
-                    f"{self.depth_error_m * 1e3:.3f} mm, limit {self.max_depth_error_m * 1e3:.3f} mm"))
+                    f"{self.depth_error_m * 1e3:.3f} mm, "
+                    f"limit {self.max_depth_error_m * 1e3:.3f} mm"))
         return out
 
 

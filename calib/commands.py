@@ -46,7 +46,7 @@ def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[
 
 
 def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int | None = None,
-            on_view: Callable[[Verdict, ViewCollector], None] | None = None,
+            on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
             **overrides: Any) -> CaptureResult:
     """Collect calibration views from the rig's camera into ``folder`` (PNG pairs).
 

@@ -19,8 +19,12 @@ import numpy as np
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.options import from_table
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+# Radial distortion k1, k2 only: a projector lens has little tangential distortion, and the few
+# board poses a projector calibration gets cannot separate it from the principal point.
+_PROJECTOR_FLAGS = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 
 
 @dataclass
@@ -55,7 +59,7 @@ def projector_images(projector_size: tuple[int, int]) -> tuple[np.ndarray, np.nd
 class ProjectorOptions:
     """Knobs of :func:`calibrate_projector` (defaults match the ``[calib]`` table)."""
 
-    window_px: int = 10  # half size of the camera window around each corner
+    window_px: int = 8  # half size of the camera window around each corner
     min_contrast: float = 10.0  # white − black grey levels for a pixel to be decoded
     min_corners: int = 12
     min_poses: int = 4
@@ -64,9 +68,8 @@ class ProjectorOptions:
     @classmethod
     def from_config(cls, calib_table: dict) -> "ProjectorOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return cls(window_px=int(calib_table.get("projector_window_px", cls.window_px)),
-                   min_contrast=float(calib_table.get("projector_min_contrast", cls.min_contrast)),
-                   min_corners=int(calib_table.get("min_corners", cls.min_corners)))
+        return from_table(cls, calib_table, keys={"window_px": "projector_window_px",
+                                                  "min_contrast": "projector_min_contrast"})
 
 
 def corner_projector_points(capture: GrayCodeCapture, corners: np.ndarray,
@@ -153,7 +156,7 @@ def calibrate_projector(captures: list[GrayCodeCapture], spec: BoardSpec,
                                f"{options.min_poses}. Keep the board inside the projected area")
     try:
         rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(
-            obj, proj_pts, projector_size, None, None, flags=cv2.CALIB_FIX_K3,
+            obj, proj_pts, projector_size, None, None, flags=_PROJECTOR_FLAGS,
             criteria=_CRITERIA)
         rms_st, *_, R, T, _, _ = cv2.stereoCalibrate(
             obj, cam_pts, proj_pts, camera.K1, camera.D1, K, D, camera.image_size,

@@ -57,7 +57,7 @@ def _projector_sees(rig: StereoRig, board_points: np.ndarray, pose, margin_px: f
 
 
 def simulated_gray_code_captures(rig: StereoRig, spec: BoardSpec, n_poses: int,
-                                 rng: np.random.Generator) -> list:
+                                 rng: np.random.Generator, max_tilt_deg: float = 45.0) -> list:
     """Left-camera Gray-code captures of the board at ``n_poses`` random poses inside the
     projector's field, rendered with the bench's ray caster."""
     from vbfe.calib.projector import GrayCodeCapture, projector_images
@@ -70,7 +70,8 @@ def simulated_gray_code_captures(rig: StereoRig, spec: BoardSpec, n_poses: int,
     px_per_m = 40000.0
     texture = ImageTexture(board_texture(board, px_per_m) / 255.0, px_per_m,
                            (0.5 / px_per_m, 0.5 / px_per_m))
-    candidates = random_board_poses(8 * n_poses, rng, distance_m=DISTANCE_M, rig=rig, board=board)
+    candidates = random_board_poses(8 * n_poses, rng, distance_m=DISTANCE_M,
+                                    max_tilt_deg=max_tilt_deg, rig=rig, board=board)
     poses = [p for p in candidates if _projector_sees(rig, board_points, p)][:n_poses]
     renderer = StereoRenderer(rig, rng=rng)
     white, black, patterns = projector_images((rig.projector.width, rig.projector.height))
@@ -87,9 +88,7 @@ def simulated_gray_code_captures(rig: StereoRig, spec: BoardSpec, n_poses: int,
 
 
 def bench_rig(bench_table: dict) -> StereoRig:
-    """The simulated bench's rig from the ``[bench]`` table (size, baseline, distortion)."""
-    from vbfe.drivers.sim.rig import default_rig
+    """The true rig of the simulated bench the ``[bench]`` table describes."""
+    from vbfe.drivers.sim import SimBench
 
-    return default_rig(int(bench_table.get("width", 640)), int(bench_table.get("height", 360)),
-                       baseline_m=float(bench_table.get("baseline_mm", 4.0)) / 1e3,
-                       distortion=bool(bench_table.get("distortion", True)))
+    return SimBench.from_config(bench_table).rig

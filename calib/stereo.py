@@ -14,6 +14,7 @@ import numpy as np
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.options import from_table
 from vbfe.calib.views import ViewSet, check_sizes
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
@@ -35,12 +36,8 @@ class StereoOptions:
     @classmethod
     def from_config(cls, calib_table: dict) -> "StereoOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return cls(min_corners=int(calib_table.get("min_corners", cls.min_corners)),
-                   min_views=int(calib_table.get("min_views", cls.min_views)),
-                   outlier_sigma=float(calib_table.get("outlier_sigma", cls.outlier_sigma)),
-                   desync_min_px=float(calib_table.get("desync_min_px", cls.desync_min_px)),
-                   rectify_alpha=float(calib_table.get("rectify_alpha", cls.rectify_alpha)),
-                   working_distance_m=float(calib_table.get("working_distance_mm", 60.0)) / 1e3)
+        return from_table(cls, calib_table, keys={"working_distance_m": "working_distance_mm"},
+                          scales={"working_distance_m": 1e-3})
 
 
 @dataclass
@@ -79,7 +76,6 @@ class StereoResult:
     stereo_detections: list[tuple[Detection, Detection]]
     dropped: dict[str, str] = field(default_factory=dict)  # view -> why
     desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
-    image_size: tuple[int, int] = (0, 0)
 
 
 def detect_views(views: ViewSet, spec: BoardSpec,
@@ -228,7 +224,9 @@ def _keep_views(fit: CameraFit, keep: np.ndarray) -> CameraFit:
 
 def calibrate_stereo(views: ViewSet, spec: BoardSpec, options: StereoOptions | None = None,
                      step: Callable[[], None] | None = None) -> StereoResult:
-    """Calibrate the stereo pair from ChArUco views; see the module docstring for the steps."""
+    """Calibrate the stereo pair from ChArUco views: detect corners, drop views with too few,
+    calibrate each camera with outlier rejection, leave out desynchronised views, then
+    ``stereoCalibrateExtended`` and ``stereoRectify``. ``step`` is called per detected view."""
     options = options or StereoOptions()
     image_size = check_sizes(views)
     detections = detect_views(views, spec, step)
@@ -297,7 +295,7 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
                               per_view_rms_px=per_view_rms)
     calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
                              dropped, desync)
-    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, image_size)
+    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync)
 
 
 def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],

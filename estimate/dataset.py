@@ -94,13 +94,15 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
             if i % config.frame_stride and grid is not None:
                 continue
             points = crop_roi(source.cloud(i), config)
-            if len(points) < MIN_FRAME_POINTS or not np.isfinite(targets[i]).all():
-                skipped += i % config.frame_stride == 0
-                continue
-            if grid is None:
+            cloud_ok = len(points) >= MIN_FRAME_POINTS
+            if cloud_ok and grid is None:
                 grid = DisplacementGrid(points)
             if i % config.frame_stride:
                 continue
+            if not cloud_ok or not np.isfinite(targets[i]).all():
+                skipped += 1
+                continue
+            assert grid is not None
             kept.append(i)
             pools.append(sample_points(points, pool_size, rng).astype(np.float32))
             displacement.append(grid.peak_displacement_m(points))

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from vbfe.estimate.dataset import ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.errors import EstimateError
@@ -53,6 +54,7 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
     With ``sessions=None`` the sessions in the model's recorded test split are used.
     """
     model = load_model(model_path)
+    torch.set_num_threads(model.config.threads)
     if not sessions:
         sessions = model.record.get("split", {}).get("test", [])
         if not sessions:

@@ -10,7 +10,6 @@ version that wrote it.
 from __future__ import annotations
 
 import os
-import pickle
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -94,7 +93,7 @@ def load_model(path: str | Path) -> ForceModel:
         raise EstimateError(f"model file {path} does not exist")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
+    except Exception as exc:  # torch raises many types for foreign files; all mean "not a model"
         raise EstimateError(f"{path} is not a vbfe model file ({type(exc).__name__}); "
                             "give the .pt file written by `vbfe train`") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:

@@ -1,8 +1,9 @@
 """The modified PointNet force regressor of the paper (section III-B).
 
 Each cloud is centred on its (weighted) centroid and divided by D_max, its largest pairwise
-point distance, so it fits in the unit sphere. D_max is computed exactly (all O(N²) pairs with
-``torch.cdist``, in chunks that keep memory below ~64 MB). A shared per-point MLP (1×1
+point distance, so it fits in the unit sphere. D_max is computed exactly: ``torch.cdist`` over
+the points that can be diameter ends (O(N²) in the worst case, the rim of a patch in
+practice), see ``diameter``. A shared per-point MLP (1×1
 ``Conv1d`` + batch norm + ELU), global max pooling and a fully connected head (batch norm, ELU,
 dropout) end in a linear output in newtons.
 
@@ -22,8 +23,6 @@ ARCHITECTURE = "pointnet-regressor"
 ARCHITECTURE_VERSION = 1
 N_GLOBAL_FEATURES = 4  # centroid x, y, z and D_max, metres
 
-_CDIST_BUDGET = 2**24  # distances per chunk (64 MB of float32)
-
 
 def weighted_centroid(points: torch.Tensor, weights: torch.Tensor | None = None) -> torch.Tensor:
     """Centroid (B×3) of clouds (B×N×3) with per-point weights (B×N, default 1)."""
@@ -34,12 +33,22 @@ def weighted_centroid(points: torch.Tensor, weights: torch.Tensor | None = None)
 
 
 def diameter(points: torch.Tensor) -> torch.Tensor:
-    """Exact largest pairwise distance D_max (B) of clouds (B×N×3)."""
-    n = points.shape[1]
-    chunk = max(1, _CDIST_BUDGET // max(1, n * n))
+    """Exact largest pairwise distance D_max (B) of clouds (B×N×3).
+
+    Both ends of a diameter lie at least ``D_lower - r_max`` from the mean (``r_max``: farthest
+    point from the mean, ``D_lower``: farthest point from that one, a lower bound of D_max), so
+    only those points are compared pairwise; the result is exact, and a flat tissue patch
+    leaves only its rim to compare.
+    """
     with torch.no_grad():
-        return torch.cat([torch.cdist(part, part).amax(dim=(1, 2))
-                          for part in points.split(chunk)])
+        out = []
+        for cloud in points:
+            radius = (cloud - cloud.mean(dim=0)).norm(dim=1)
+            farthest = cloud[radius.argmax()]
+            lower = (cloud - farthest).norm(dim=1).max()
+            rim = cloud[radius >= lower - radius.max()]
+            out.append(torch.cdist(rim, rim).max())
+        return torch.stack(out)
 
 
 def normalize_clouds(points: torch.Tensor, weights: torch.Tensor | None = None

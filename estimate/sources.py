@@ -12,8 +12,10 @@ from typing import Any, Protocol, Union
 
 import numpy as np
 
+from vbfe.acquire import SessionReader
 from vbfe.errors import VbfeError
 from vbfe.estimate.errors import EstimateError
+from vbfe.recon import CloudReader, sidecar_path
 
 
 class CloudSource(Protocol):
@@ -58,14 +60,11 @@ class SessionClouds:
 
 def clouds_path_for(session_path: str | Path) -> Path:
     """The ``<session>.clouds.h5`` sidecar that ``vbfe reconstruct`` wrote next to a session."""
-    session_path = Path(session_path)
-    candidates = [session_path.with_suffix(".clouds.h5"),
-                  session_path.with_name(session_path.name + ".clouds.h5")]
-    for candidate in candidates:
-        if candidate.exists():
-            return candidate
-    raise EstimateError(f"session {session_path} has no point clouds ({candidates[0].name} not "
-                        f"found): run `vbfe reconstruct {session_path}` first")
+    clouds = sidecar_path(session_path)
+    if not clouds.exists():
+        raise EstimateError(f"session {session_path} has no point clouds ({clouds.name} not "
+                            f"found): run `vbfe reconstruct {session_path}` first")
+    return clouds
 
 
 class RecordedSession:
@@ -76,9 +75,6 @@ class RecordedSession:
         if not self.path.exists():
             raise EstimateError(f"session {self.path} does not exist")
         clouds = clouds_path_for(self.path)
-        from vbfe.acquire import SessionReader
-        from vbfe.recon import CloudReader
-
         try:
             self._session = SessionReader(self.path)
             self._clouds = CloudReader(clouds)

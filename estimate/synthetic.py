@@ -28,7 +28,7 @@ def synthetic_session(name: str, stiffness_n_per_m: float, pull_speed_m_per_s: f
                       rng: np.random.Generator, fps: float = 30.0, hold_s: float = 2.0,
                       force_max_n: float = 3.0, points_per_side: int = 40,
                       lift_ratio: float = 0.1, noise_m: float = 1e-4,
-                      dropout: float = 0.05) -> SessionClouds:
+                      dropout: float = 0.05, offset_m: float = 3e-4) -> SessionClouds:
     """One simulated session (clouds in metres, trocar force in newtons at each frame)."""
     ramp_s = force_max_n / (stiffness_n_per_m * pull_speed_m_per_s)
     t_s = np.arange(0.0, ramp_s + hold_s, 1.0 / fps)
@@ -39,7 +39,7 @@ def synthetic_session(name: str, stiffness_n_per_m: float, pull_speed_m_per_s: f
 
     side = np.linspace(-0.015, 0.015, points_per_side)
     gx, gy = [g.ravel() for g in np.meshgrid(side, side)]
-    offset = rng.normal(0, 1e-3, 3)
+    offset = rng.normal(0, offset_m, 3)  # where the patch sits differs a little per session
     width_m = 0.004 * np.sqrt(stiffness_n_per_m / 40.0)
     bump = np.exp(-(gx**2 + gy**2) / (2 * width_m**2))
     clouds = []

@@ -40,6 +40,7 @@ class TrainConfig:
     dropout: float = 0.3
     global_features: bool = True  # feed the removed centroid and D_max to the head
     time_limit_s: float = 0.0  # stop training after this wall time (0 = no limit)
+    threads: int = 2  # torch CPU threads (1 is faster when other jobs share the cores)
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:

@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import copy
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
 import numpy as np
 import torch
 
@@ -26,8 +24,6 @@ from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.sources import SessionLike
 from vbfe.estimate.train_config import TrainConfig
-
-TORCH_THREADS = 2
 
 
 @dataclass
@@ -72,7 +68,8 @@ def _mean_loss(network: PointNetRegressor, batches: FrameBatches, batch_size: in
     return squared / n, absolute / n
 
 
-def _session_mae(baseline_predict: Any, sessions: Sequence[PreparedSession]) -> float:
+def _session_mae(baseline_predict: Callable[[np.ndarray], np.ndarray],
+                 sessions: Sequence[PreparedSession]) -> float:
     errors = [np.linalg.norm(baseline_predict(s.displacement_m) - s.targets_n, axis=1)
               for s in sessions]
     return float(np.concatenate(errors).mean())
@@ -87,7 +84,7 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     """
     config = config or TrainConfig()
     started = time.monotonic()
-    torch.set_num_threads(TORCH_THREADS)
+    torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
 
@@ -104,6 +101,7 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     check_batches = FrameBatches(check_sets, config.n_points)
     network = _build_network(config, train_batches)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.epochs)
 
     history: list[dict[str, float]] = []
     best_loss, best_epoch, best_state = float("inf"), 0, copy.deepcopy(network.state_dict())
@@ -119,6 +117,7 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
             optimizer.step()
             total += loss.item() * len(y)
             count += len(y)
+        schedule.step()
         check_loss, check_mae = _mean_loss(network, check_batches, 4 * config.batch_size)
         history.append({"epoch": epoch, "train_loss": total / max(count, 1),
                         "val_loss": check_loss, "val_mae_n": check_mae})

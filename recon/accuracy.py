@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from vbfe.calib.calibration import Calibration
 from vbfe.recon.errors import ReconError
 from vbfe.recon.triangulate import FrameCloud
+
+if TYPE_CHECKING:  # the simulated bench is only needed by callers that have a rig
+    from vbfe.drivers.sim.rig import StereoRig
 
 BAD_PIXEL_PX = 1.0
 
@@ -62,15 +67,42 @@ def evaluate_against_truth(estimate: FrameCloud | np.ndarray, truth_disparity_px
         bad_pixel_rate=float(np.mean(disparity_error > bad_threshold_px)))
 
 
-def calibration_from_rig(rig: object) -> object:
+def rectified_truth(calibration: Calibration, depth_left_m: np.ndarray,
+                    valid_left: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Truth disparity (px), depth (m) and validity of the raw left view, moved onto the
+    rectified left pixel grid the reconstruction reports in (the argument order of
+    :func:`evaluate_against_truth`).
+
+    A rectified pixel's ray ``r = ((u-cx)/f, (v-cy)/f, 1)`` is ``R1ᵀ r`` in the raw camera
+    frame and meets the raw image where the rectification map points; with the raw depth
+    ``z`` sampled there, the rectified depth is ``z / (R1ᵀ r)_z``.
+    """
+    (map_x, map_y), _ = calibration.rectification_maps()
+    height, width = depth_left_m.shape
+    valid = np.ones(depth_left_m.shape, bool) if valid_left is None else valid_left
+    depth = np.where(valid, depth_left_m, 0).astype(np.float32)
+    raw_depth = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST, borderValue=0)
+    v, u = np.mgrid[0:height, 0:width]
+    f, cx, cy = calibration.f, calibration.cx, calibration.cy
+    ray_z = (calibration.R1.T @ np.stack([(u.ravel() - cx) / f, (v.ravel() - cy) / f,
+                                            np.ones(u.size)]))[2].reshape(height, width)
+    depth_rect = raw_depth / ray_z
+    valid_rect = raw_depth > 0
+    doffs = calibration.P1[0, 2] - calibration.P2[0, 2]
+    disparity = np.where(valid_rect, calibration.f * calibration.B
+                         / np.where(valid_rect, depth_rect, 1.0) + doffs, 0)
+    return (disparity.astype(np.float32),
+            np.where(valid_rect, depth_rect, 0).astype(np.float32), valid_rect)
+
+
+def calibration_from_rig(rig: StereoRig) -> Calibration:
     """The exact calibration of a simulated :class:`~vbfe.drivers.sim.rig.StereoRig`.
 
     Rectification comes from ``cv2.stereoRectify`` on the true intrinsics and pose (zero
     disparity at infinity, no cropping), so a distortion-free parallel rig rectifies to itself
     and its rendered truth maps share the rectified pixel grid.
     """
-    from vbfe.calib.calibration import Calibration
-
     size = (rig.left.width, rig.left.height)
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
         rig.left.K, rig.left.dist, rig.right.K, rig.right.dist, size, np.asarray(rig.R, np.float64),

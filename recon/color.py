@@ -17,9 +17,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vbfe.calib.calibration import Calibration
 from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
+FLAT_BGR = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "black": (0, 0, 0),
+            "white": (255, 255, 255)}
 MIN_SIGNAL = 8.0  # grey levels above black for a pixel to take part in the estimate
 DARK_FRACTION = 0.25  # local contrast below this share of the image's contrast stays dark
 
@@ -37,14 +40,17 @@ class ColorModel:
         return cls(np.eye(3), np.zeros(3))
 
     @classmethod
-    def from_calibration(cls, calibration: object) -> "ColorModel":
+    def from_calibration(cls, calibration: Calibration) -> "ColorModel":
         """The calibration's ``color_mixing``/``color_offset``, or identity when it has none."""
-        mixing = getattr(calibration, "color_mixing", None)
-        offset = getattr(calibration, "color_offset", None)
-        if mixing is None:
+        if calibration.color_mixing is None:
             return cls.identity()
-        return cls(np.asarray(mixing, float).reshape(3, 3),
+        offset = calibration.color_offset
+        return cls(np.asarray(calibration.color_mixing, float).reshape(3, 3),
                    np.zeros(3) if offset is None else np.asarray(offset, float).reshape(3))
+
+    def apply_to(self, calibration: Calibration) -> Calibration:
+        """A copy of a :class:`vbfe.calib.Calibration` that carries this colour model."""
+        return calibration.replace(color_mixing=self.mixing, color_offset=self.offset)
 
     def correct(self, image: np.ndarray, albedo_window_px: int | None = None) -> np.ndarray:
         """Projected colour per pixel (float32 H×W×3, BGR, ~0..1 where a fringe is brightest).
@@ -63,8 +69,13 @@ class ColorModel:
         return cv2.transform(normalised, (unmix * np.diag(self.mixing)).astype(np.float32))
 
 
+def color_calibration_patterns(width: int, height: int) -> dict[str, np.ndarray]:
+    """The flat projector images to capture for :func:`estimate_color_model` (BGR uint8)."""
+    return {name: np.full((height, width, 3), bgr, np.uint8) for name, bgr in FLAT_BGR.items()}
+
+
 def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
-    """Fit ``K`` and ``C0`` from captures named ``blue``, ``green``, ``red``, ``black``, ``white``."""
+    """Fit ``K`` and ``C0`` from captures named blue, green, red, black and white (BGR images)."""
     missing = [name for name in CAPTURE_NAMES if name not in captures]
     if missing:
         raise ReconError(f"colour calibration needs captures of flat {missing} projections; "

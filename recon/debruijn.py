@@ -29,7 +29,7 @@ def de_bruijn(n_symbols: int = 3, order: int = 4) -> np.ndarray:
 
 
 def window_codes(symbols: np.ndarray, n_symbols: int = 3, order: int = 4) -> np.ndarray:
-    """Code of each full (non-wrapping) window: ``sum(s[i+k] * n**k)``; length ``len - order + 1``."""
+    """Codes ``sum(s[i+k] * n**k)`` of the ``len - order + 1`` full (non-wrapping) windows."""
     s = np.asarray(symbols, dtype=np.int64)
     n_windows = len(s) - order + 1
     if n_windows <= 0:

@@ -4,4 +4,4 @@ from vbfe.errors import VbfeError
 
 
 class ReconError(VbfeError):
-    """Reconstruction cannot run: missing or mismatched calibration, unreadable session or sidecar."""
+    """Reconstruction cannot run: missing or mismatched calibration, unreadable session/sidecar."""

@@ -1,4 +1,4 @@
-"""Initial matching: OpenCV StereoSGBM on rectified pairs, parameters from the rig's [sgbm] table."""
+"""Initial matching: OpenCV StereoSGBM on rectified pairs, settings from the rig's [sgbm] table."""
 
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ class SgbmParams:
     pre_filter_cap: int = 63
     mode: str = "sgbm_3way"
     verify_search_px: int = 3  # ± pixels searched along the row when verification rejects a match
+    decode_row_step: int = 3  # De Bruijn codes are decoded on every n-th row and copied below
 
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SgbmParams":
@@ -46,6 +47,8 @@ class SgbmParams:
                              f"{params.num_disparities}")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
+        if params.decode_row_step < 1:
+            raise ReconError(f"[sgbm] decode_row_step must be >= 1, got {params.decode_row_step}")
         if params.mode not in MODES:
             raise ReconError(f"[sgbm] mode must be one of {sorted(MODES)}, got {params.mode!r}")
         return params

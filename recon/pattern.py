@@ -30,7 +30,8 @@ def fringe_symbols(n_fringes: int = DEFAULT_FRINGES) -> np.ndarray:
     return sequence[:n_fringes]
 
 
-def fringe_coordinates(width: int, n_fringes: int = DEFAULT_FRINGES) -> tuple[np.ndarray, np.ndarray]:
+def fringe_coordinates(width: int, n_fringes: int = DEFAULT_FRINGES
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """For each projector column: fringe index (int) and phase within the fringe in [0, 1)."""
     position = (np.arange(width) + 0.5) * n_fringes / width
     index = np.minimum(np.floor(position).astype(np.int32), n_fringes - 1)

@@ -6,6 +6,7 @@ import dataclasses
 import json
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -27,8 +28,11 @@ _worker: dict[str, object] = {}  # per-process state: the session reader and rec
 
 
 def _init_worker(session_path: str, calibration_yaml: str, params: dict, verify: bool,
-                 threads: int) -> None:
-    """Open the session and build the reconstructor once per worker process."""
+                 threads: int, ignore_interrupt: bool = False) -> None:
+    """Open the session and build the reconstructor once per worker process (child processes
+    leave Ctrl-C to the parent, which stops the pool)."""
+    if ignore_interrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(threads)
     _worker["reader"] = SessionReader(session_path)
     _worker["reconstructor"] = Reconstructor(Calibration.from_yaml_text(calibration_yaml),
@@ -73,9 +77,12 @@ def _results(session_path: Path, calibration: Calibration, params: SgbmParams, v
         finally:
             _worker.pop("reader").close()
         return
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_init_worker, initargs=(*init_args, 1)) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(*init_args, 1, True))
+    try:
         yield from pool.map(_process_frame, range(n_frames), chunksize=2)
+    finally:  # on Ctrl-C or an error, drop the frames not started yet
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def reconstruct_session(session_path: str | Path,

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from vbfe.calib.calibration import Calibration
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
@@ -52,22 +53,21 @@ def disparity_to_points(disparity: np.ndarray, valid: np.ndarray, f_px: float, b
 class Reconstructor:
     """Reconstructs stereo frames with one calibration and one set of SGBM settings."""
 
-    def __init__(self, calibration: object, sgbm_params: SgbmParams | None = None,
+    def __init__(self, calibration: Calibration, sgbm_params: SgbmParams | None = None,
                  verify: bool = True, n_fringes: int = DEFAULT_FRINGES) -> None:
         self.calibration = calibration
         self.params = sgbm_params or SgbmParams()
         self.verify = verify
-        self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes)
+        self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
+                                     row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
-        p1 = getattr(calibration, "P1", None)
-        p2 = getattr(calibration, "P2", None)
-        self._doffs = 0.0 if p1 is None or p2 is None else float(p1[0][2] - p2[0][2])
+        self._doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
         # computed once, in OpenCV's fast fixed-point form, reused for every frame
         self._maps = [cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
                       for map_x, map_y in calibration.rectification_maps()]
 
     def _check_size(self, left: np.ndarray, right: np.ndarray) -> None:
-        width, height = (int(v) for v in self.calibration.image_size)
+        width, height = self.calibration.image_size
         for name, image in (("left", left), ("right", right)):
             if image.ndim != 3 or image.shape[:2] != (height, width):
                 raise ReconError(
@@ -96,8 +96,7 @@ class Reconstructor:
         valid &= disparity > self._doffs  # at or beyond infinity: no depth
         disparity = np.where(valid, disparity, np.float32(np.nan))
         cal = self.calibration
-        points = disparity_to_points(disparity, valid, float(cal.f), float(cal.B), float(cal.cx),
-                                     float(cal.cy), self._doffs)
+        points = disparity_to_points(disparity, valid, cal.f, cal.B, cal.cx, cal.cy, self._doffs)
         colors = cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB).reshape(-1, 3).take(
             np.flatnonzero(valid), axis=0)
         return FrameCloud(disparity=disparity, valid=valid, points=points, colors=colors,

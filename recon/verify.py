@@ -31,13 +31,14 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
     map_x = np.arange(width, dtype=np.float32) - disparity
     map_x[~matched] = -10.0
     map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
-    right_codes = cv2.remap(_neighbour_codes(right.index), map_x, map_y, cv2.INTER_NEAREST,
-                            borderMode=cv2.BORDER_CONSTANT, borderValue=(-2, -2, -2, -2))
+    right_index = right.index.astype(np.int16)
     kept = np.zeros((height, width), bool)
-    for k in range(right_codes.shape[2]):
-        kept |= right_codes[..., k] == left.index
+    for shift in range(-BOUNDARY_TOLERANCE_PX, BOUNDARY_TOLERANCE_PX + 1):
+        code = cv2.remap(right_index, map_x + np.float32(shift), map_y, cv2.INTER_NEAREST,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=-2)
+        kept |= code == left.index
     kept &= readable
-    out = np.where(kept, disparity, np.nan).astype(np.float32)
+    out = np.where(kept, disparity, np.float32(np.nan))
     rows, cols = np.nonzero(readable & ~kept)
     new_d = _search(disparity, left, right, rows, cols, disparity[rows, cols],
                     left.index[rows, cols], search_px)
@@ -47,15 +48,6 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
               "corrected": int(np.isfinite(new_d).sum()),
               "rejected": int(matched.sum() - valid.sum())}
     return out, valid, counts
-
-
-def _neighbour_codes(index: np.ndarray) -> np.ndarray:
-    """H×W×(2t+1) int16: the code at x-t … x+t (t = boundary tolerance), -2 beyond the edges."""
-    t = BOUNDARY_TOLERANCE_PX
-    padded = np.pad(index.astype(np.int16), ((0, 0), (t, t)), constant_values=-2)
-    width = index.shape[1]
-    return np.ascontiguousarray(np.stack([padded[:, k:k + width] for k in range(2 * t + 1)],
-                                         axis=2))
 
 
 def _right_code(index: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -73,7 +65,8 @@ def _search(disparity: np.ndarray, left: FringeCode, right: FringeCode, rows: np
     height, width = disparity.shape
     shifts = [d + k for k in range(-search_px, search_px + 1) if k]
     for dy, dx in NEIGHBOUR_OFFSETS:
-        shifts.append(disparity[np.clip(rows + dy, 0, height - 1), np.clip(cols + dx, 0, width - 1)])
+        shifts.append(disparity[np.clip(rows + dy, 0, height - 1),
+                                np.clip(cols + dx, 0, width - 1)])
     candidates = np.stack(shifts, axis=1)  # (n, k)
     n, k = candidates.shape
     rr = np.repeat(rows, k)
@@ -82,7 +75,7 @@ def _search(disparity: np.ndarray, left: FringeCode, right: FringeCode, rows: np
     xr = np.where(finite, xr, -1.0)
     same = (_right_code(right.index, rr, xr) == np.repeat(code, k)) & finite
     cost = np.full(n * k, np.inf)
-    cost[same] = _colour_cost(left.colour, right.colour, rr[same], np.repeat(cols, k)[same],
+    cost[same] = _colour_cost(left, right, rr[same], np.repeat(cols, k)[same],
                               xr[same])
     cost = cost.reshape(n, k) + 1e-3 * np.abs(np.nan_to_num(candidates - d[:, None], nan=0.0))
     best = np.argmin(cost, axis=1)
@@ -90,14 +83,15 @@ def _search(disparity: np.ndarray, left: FringeCode, right: FringeCode, rows: np
     return np.where(found, candidates[np.arange(n), best], np.nan).astype(np.float32)
 
 
-def _colour_cost(left: np.ndarray, right: np.ndarray, rows: np.ndarray, xl: np.ndarray,
+def _colour_cost(left: FringeCode, right: FringeCode, rows: np.ndarray, xl: np.ndarray,
                  xr: np.ndarray) -> np.ndarray:
-    """Sum of absolute colour differences over a 1×3 window around left (xl) and right (xr)."""
-    width = left.shape[1]
+    """Sum of absolute corrected-colour differences over 1×3 windows around xl (left) and xr."""
+    width = left.colour.shape[1]
     xr = np.rint(xr).astype(np.int64)
+    left_rows, right_rows = rows // left.row_step, rows // right.row_step
     total = np.zeros(len(rows), np.float32)
     for dx in (-1, 0, 1):
-        a = left[rows, np.clip(xl + dx, 0, width - 1)]
-        b = right[rows, np.clip(xr + dx, 0, width - 1)]
+        a = left.colour[left_rows, np.clip(xl + dx, 0, width - 1)]
+        b = right.colour[right_rows, np.clip(xr + dx, 0, width - 1)]
         total += np.abs(a - b).sum(axis=1)
     return total

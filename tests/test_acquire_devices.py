@@ -69,7 +69,23 @@ class _Pacer:
         return True
 
 
-class BarCamera(StereoCamera):
+class _PacedDevice:
+    """Open/close of a synthetic device: a real-time pacer and the host clock's zero."""
+
+    speed: float | None
+    clock: _Clock
+    _pacer: _Pacer | None = None
+
+    def open(self) -> None:
+        if self._pacer is None:
+            self._pacer = _Pacer(self.speed)
+            self.clock.t0_host_ns = time.monotonic_ns()
+
+    def close(self) -> None:
+        self._pacer = None
+
+
+class BarCamera(_PacedDevice, StereoCamera):
     """Stereo camera filming the bar; ``left[0, 0, 0]`` holds ``seq % 256`` for checking."""
 
     def __init__(self, width: int = 64, height: int = 48, fps: float = 30.0, speed: float | None = 4.0,
@@ -84,12 +100,6 @@ class BarCamera(StereoCamera):
         self.clock = _Clock(offset_ns, drift_ppm, latency_s, jitter_s, seed)
         self.pixels_per_newton = pixels_per_newton
         self._seq = 0
-        self._pacer: _Pacer | None = None
-
-    def open(self) -> None:
-        if self._pacer is None:
-            self._pacer = _Pacer(self.speed)
-            self.clock.t0_host_ns = time.monotonic_ns()
 
     def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
         if self.disconnect_after is not None and self._seq >= self.disconnect_after:
@@ -113,11 +123,8 @@ class BarCamera(StereoCamera):
         self.stats.received += 1
         return StereoFrame(left, right, seq, t_dev, t_host)
 
-    def close(self) -> None:
-        self._pacer = None
 
-
-class ProfileForce(ForceSensor):
+class ProfileForce(_PacedDevice, ForceSensor):
     """Force sensor reading :func:`force_profile` plus noise at ``rate_hz``."""
 
     def __init__(self, rate_hz: float = 200.0, speed: float | None = 4.0, noise_n: float = 0.005,
@@ -129,12 +136,6 @@ class ProfileForce(ForceSensor):
         self.clock = _Clock(offset_ns, drift_ppm, latency_s, jitter_s, seed)
         self.rng = np.random.default_rng(seed)
         self._seq = 0
-        self._pacer: _Pacer | None = None
-
-    def open(self) -> None:
-        if self._pacer is None:
-            self._pacer = _Pacer(self.speed)
-            self.clock.t0_host_ns = time.monotonic_ns()
 
     def read(self, timeout_s: float = 1.0) -> ForceSample | None:
         if self.disconnect_after is not None and self._seq >= self.disconnect_after:
@@ -148,9 +149,6 @@ class ProfileForce(ForceSensor):
         self._seq += 1
         self.stats.received += 1
         return sample
-
-    def close(self) -> None:
-        self._pacer = None
 
 
 class RecordingProjector(Projector):
@@ -176,6 +174,29 @@ def bar_devices(**camera_options) -> Devices:
     """A camera, trocar and projector sharing the bar scene."""
     force_options = {k[6:]: camera_options.pop(k) for k in list(camera_options)
                      if k.startswith("force_")}
-    speed = camera_options.get("speed", 4.0)
-    return Devices(BarCamera(**camera_options), ProfileForce(speed=speed, **force_options),
+    force_options.setdefault("speed", camera_options.get("speed", 4.0))
+    return Devices(BarCamera(**camera_options), ProfileForce(**force_options),
                    RecordingProjector())
+
+
+def write_bar_session(path, seconds: float = 7.0, compression: str = "lzf", **options) -> None:
+    """Write a session straight through SessionWriter from unpaced bar devices (no threads)."""
+    from vbfe.acquire import SessionWriter, finalize_session
+
+    options.setdefault("speed", None)
+    devices = bar_devices(**options)
+    cam, trocar = devices.camera, devices.trocar
+    cam.open()
+    trocar.open()
+    writer = SessionWriter(path, (cam.width, cam.height), compression,
+                           {"operator": "synthetic", "devices": {}})
+    frames = []
+    while len(frames) == 0 or frames[-1].seq / cam.fps < seconds:
+        frame = cam.read(0.0)
+        if frame is not None:
+            frames.append(frame)
+    writer.append_frames(frames)
+    samples = [trocar.read(0.0) for _ in range(int(seconds * trocar.rate_hz))]
+    writer.append_forces(samples)
+    writer.close()
+    finalize_session(path, {"end_reason": "synthetic"})

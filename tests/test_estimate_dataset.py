@@ -70,7 +70,14 @@ def test_displacement_grid_measures_a_known_bump():
     bumped[:, 2] -= 0.003 * np.exp(-(gx**2 + gy**2) / (2 * 0.003**2))
     grid = DisplacementGrid(flat, cells=10)
     assert grid.peak_displacement_m(flat) == 0.0
-    assert 0.0025 < grid.peak_displacement_m(bumped) <= 0.003
+    peak = grid.peak_displacement_m(bumped)
+    assert 0.0015 < peak <= 0.003
+    twice = flat.copy()
+    twice[:, 2] = 2 * bumped[:, 2] - flat[:, 2]
+    assert grid.peak_displacement_m(twice) == pytest.approx(2 * peak, rel=1e-3)
+    spiked = flat.copy()  # one outlier cell (e.g. an occlusion edge) is not a displacement
+    spiked[(gx > 0.008) & (gy > 0.008), 2] -= 0.005
+    assert grid.peak_displacement_m(spiked) == 0.0
 
 
 def test_displacement_grows_with_force_in_prepared_sessions():

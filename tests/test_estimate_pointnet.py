@@ -17,8 +17,15 @@ def clouds():
 
 
 def test_diameter_is_the_exact_largest_pairwise_distance(clouds):
-    expected = [pdist(c.double().numpy()).max() for c in clouds]
-    np.testing.assert_allclose(diameter(clouds).numpy(), expected, rtol=1e-5)
+    rng = np.random.default_rng(4)
+    ball = rng.normal(size=(1, 300, 3))
+    ball /= np.linalg.norm(ball, axis=2, keepdims=True)  # every point could be a diameter end
+    patch = np.concatenate([rng.uniform(-1, 1, (1, 300, 2)), rng.normal(0, 0.01, (1, 300, 1))], 2)
+    for batch in (clouds, torch.tensor(ball), torch.tensor(patch)):
+        expected = [pdist(c.double().numpy()).max() for c in batch]
+        np.testing.assert_allclose(diameter(batch).numpy(), expected, rtol=1e-6)
+    pair_and_point = torch.tensor([[[0.0, 0, 0], [3, 4, 0]], [[1.0, 1, 1], [1, 1, 1]]])
+    np.testing.assert_allclose(diameter(pair_and_point).numpy(), [5.0, 0.0])
 
 
 def test_normalised_clouds_are_centred_and_inside_the_unit_sphere(clouds):

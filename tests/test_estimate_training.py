@@ -15,13 +15,13 @@ from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 
-SMALL = dict(fps=5, points_per_side=20)
+SMALL = dict(fps=4, points_per_side=20)
 
 
 def tiny_config(**kw):
-    values = dict(epochs=40, batch_size=16, n_points=96, patience=10, learning_rate=3e-3,
+    values = dict(epochs=30, batch_size=16, n_points=64, patience=10, learning_rate=3e-3,
                   conv_channels=[16, 32, 64], head_channels=[32], dropout=0.1,
-                  val_fraction=1 / 3, seed=0)
+                  val_fraction=1 / 3, seed=0, threads=1)
     values.update(kw)
     return TrainConfig(**values)
 
@@ -37,7 +37,7 @@ def trained(tmp_path_factory):
 def test_training_writes_a_model_with_its_record(trained):
     path, result = trained
     assert result.model_path == path and path.is_file()
-    assert 1 <= result.best_epoch <= result.epochs_run <= 40
+    assert 1 <= result.best_epoch <= result.epochs_run <= 30
     model = load_model(path)
     assert model.config == tiny_config()
     split = model.record["split"]

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from vbfe.recon import ColorModel, ReconError, estimate_color_model, make_pattern
+from vbfe.recon import (ColorModel, ReconError, calibration_from_rig, estimate_color_model,
+                        make_pattern)
+from vbfe.recon.color import color_calibration_patterns
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.pattern import fringe_coordinates
 
@@ -28,14 +30,23 @@ def albedo():
 
 def test_mixing_matrix_and_offset_are_recovered_despite_albedo(albedo):
     rng = np.random.default_rng(1)
-    flat = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "black": (0, 0, 0),
-            "white": (255, 255, 255)}
-    captures = {name: _capture(np.broadcast_to(np.array(bgr, np.float64), albedo.shape), albedo,
-                               rng) for name, bgr in flat.items()}
+    projections = color_calibration_patterns(albedo.shape[1], albedo.shape[0])
+    captures = {name: _capture(image, albedo, rng) for name, image in projections.items()}
     model = estimate_color_model(captures)
     expected = K_TRUE / K_TRUE.sum(axis=1, keepdims=True)
     assert np.abs(model.mixing - expected).max() < 0.02
     assert np.abs(model.offset - OFFSET).max() < 1.0
+
+
+def test_colour_model_travels_with_the_calibration_file(tmp_path):
+    from vbfe.calib.calibration import Calibration
+    from vbfe.drivers.sim.rig import default_rig
+
+    model = ColorModel(K_TRUE, OFFSET)
+    path = model.apply_to(calibration_from_rig(default_rig(320, 180))).save(tmp_path / "c.yaml")
+    loaded = ColorModel.from_calibration(Calibration.load(path))
+    np.testing.assert_allclose(loaded.mixing, K_TRUE)
+    np.testing.assert_allclose(loaded.offset, OFFSET)
 
 
 def test_correct_undoes_crosstalk_of_a_flat_colour():

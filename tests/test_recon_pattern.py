@@ -40,7 +40,7 @@ def test_pattern_colours_follow_the_code_and_value_peaks_at_fringe_centres(width
         assert np.argmax(pattern[0, centre]) == SYMBOL_CHANNEL_BGR[symbols[k]]
         assert pattern[0, centre].max() >= 200  # V ~ 1 in the middle (sampled)
         assert hsv[centre, 1] >= 250  # S = 1
-    inner_edges = np.rint(edges[1:-1]).astype(int)
+    inner_edges = np.rint(edges[1:-1] - 0.5).astype(int)  # pixel whose centre is nearest
     assert pattern[0, inner_edges].max(axis=1).max() <= 60  # dark between fringes
 
 

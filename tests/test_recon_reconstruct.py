@@ -8,6 +8,7 @@ from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.recon import (FrameCloud, ReconError, Reconstructor, SgbmParams, calibration_from_rig,
                         evaluate_against_truth, make_pattern)
+from vbfe.recon.accuracy import rectified_truth
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.triangulate import disparity_to_points
@@ -57,6 +58,21 @@ def test_verification_lowers_bad_pixels_and_depth_error_is_below_one_percent(sce
     assert verified.valid_fraction > 0.3  # the pattern covers about half of the view
     assert len(cloud.points) == verified.n_valid == int(cloud.valid.sum())
     assert cloud.colors.shape == cloud.points.shape and cloud.colors.dtype == np.uint8
+
+
+def test_distorted_rig_is_rectified_before_matching():
+    rig = default_rig(640, 360, working_distance_m=WORKING_DISTANCE_M, distortion=True)
+    rng = np.random.default_rng(4)
+    surface = TissueSurface(distance_m=WORKING_DISTANCE_M, texture=tissue_texture(rng))
+    pair = render_scene(rig, surface, make_pattern(rig.projector.width, rig.projector.height),
+                        rng=rng)
+    calibration = calibration_from_rig(rig)
+    truth = rectified_truth(calibration, pair.depth_left_m, pair.valid_left)
+    report = evaluate_against_truth(
+        Reconstructor(calibration, SgbmParams()).process(pair.left, pair.right), *truth)
+    assert report.valid_fraction > 0.3
+    assert report.median_abs_depth_error_m <= 0.01 * WORKING_DISTANCE_M
+    assert report.bad_pixel_rate < 0.001
 
 
 def test_injected_whole_fringe_errors_are_corrected_or_rejected(scene):

@@ -121,3 +121,15 @@ def test_reader_refuses_missing_or_foreign_files(tmp_path):
         CloudReader(tmp_path / "nothing.clouds.h5")
     with pytest.raises(ReconError, match="points but"):
         write_ply(tmp_path / "x.ply", np.zeros((3, 3)), np.zeros((2, 3)))
+
+
+def test_interrupted_reconstruction_leaves_no_file(recording, tmp_path):
+    path, _, _ = recording
+    out = tmp_path / "stopped.clouds.h5"
+
+    def stop(_n):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        reconstruct_session(path, out_path=out, workers=2, progress=stop)
+    assert list(tmp_path.iterdir()) == []

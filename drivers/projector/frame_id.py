@@ -49,8 +49,8 @@ def decode_frame_id(image_region: np.ndarray, n_bits: int = N_BITS) -> int | Non
     values = []
     for left, right in zip(edges[:-1], edges[1:]):
         margin = (right - left) / 4  # sample the cell's centre, away from blurred edges
-        values.append(grey[h // 4: h - h // 4 or h, int(left + margin): int(np.ceil(right - margin))]
-                      .mean())
+        rows = slice(h // 4, h - h // 4 or h)
+        values.append(grey[rows, int(left + margin): int(np.ceil(right - margin))].mean())
     white, black = values[0], values[1]
     if white - black < 16:
         return None

@@ -54,6 +54,9 @@ class SimBench:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
         if fps <= 0 or trocar_rate_hz <= 0:
             raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
+        if image_latency_ms < 3 * image_jitter_ms or force_latency_ms < 3 * force_jitter_ms:
+            raise DeviceError("[bench] each latency must be at least 3x its jitter "
+                              "(image_latency_ms/image_jitter_ms, force_latency_ms/force_jitter_ms)")
         self._params = {name: value for name, value in locals().items()
                         if name not in ("self", "rig")}
         self.rig = rig if rig is not None else default_rig(width, height, baseline_m,
@@ -89,7 +92,7 @@ class SimBench:
                                        rng=rngs["render"])
         self._pattern_shown = False
         self._time = threading.Condition()
-        self._now_true_ns = 0
+        self._now_host_ns = 0  # newest frame's host arrival, relative to host_epoch_ns
         self._open_devices: set[int] = set()
         self._camera_open = False
         self.host_epoch_ns = 0
@@ -161,16 +164,19 @@ class SimBench:
         """The host clock: real monotonic time, or the simulated one when not in real time."""
         if self.realtime:
             return time.monotonic_ns()
-        return self.host_epoch_ns + self._now_true_ns
+        return self.host_epoch_ns + self._now_host_ns
 
-    def advance_to(self, true_ns: int) -> None:
-        """Move simulated time forward (the camera does this with every frame)."""
+    def advance_to(self, host_ns: int) -> None:
+        """Move the simulated host clock forward (relative ns; the camera does this per frame)."""
         with self._time:
-            self._now_true_ns = max(self._now_true_ns, int(true_ns))
+            self._now_host_ns = max(self._now_host_ns, int(host_ns))
             self._time.notify_all()
 
-    def wait_until(self, true_ns: int, host_ns: int, timeout_s: float, driver: object) -> bool:
-        """Block until a sample taken at ``true_ns`` (arriving at relative ``host_ns``) is due."""
+    def wait_until(self, host_ns: int, timeout_s: float) -> bool:
+        """Block until the host clock reaches ``host_ns`` (relative), the arrival of a sample.
+
+        Not in real time, the camera's frames drive the host clock; with no camera open the
+        reader's own samples do."""
         if self.realtime:
             wait_s = (self.host_epoch_ns + host_ns - time.monotonic_ns()) / 1e9
             if wait_s > timeout_s:
@@ -180,9 +186,9 @@ class SimBench:
             return True
         with self._time:
             if not self._camera_open:  # nobody drives time: the reader does
-                self._now_true_ns = max(self._now_true_ns, true_ns)
+                self._now_host_ns = max(self._now_host_ns, host_ns)
                 return True
-            return self._time.wait_for(lambda: self._now_true_ns >= true_ns
+            return self._time.wait_for(lambda: self._now_host_ns >= host_ns
                                        or not self._camera_open, timeout_s)
 
     def frames_due(self) -> int:

@@ -9,7 +9,7 @@ the two latencies.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,7 +42,7 @@ class Transport:
     latency_ns: int
     jitter_ns: float
     rng: np.random.Generator
-    _last_host_ns: int = -(2**62)
+    _last_host_ns: int = field(default=-(2**62), init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.latency_ns < 3 * self.jitter_ns:

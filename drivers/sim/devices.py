@@ -1,8 +1,9 @@
 """Driver-interface devices backed by a :class:`~vbfe.drivers.sim.bench.SimBench`.
 
 They share the bench's simulated time. With ``realtime=False`` the camera is the master: each
-read renders the next frame and advances true time by ``1/fps``; the trocar delivers samples up
-to the camera's time and waits (up to its timeout) for the camera otherwise. With
+read renders the next frame, advances true time by ``1/fps`` and the host clock to the frame's
+arrival; the trocar delivers the samples that have arrived by then and waits (up to its
+timeout) for the camera otherwise. With
 ``realtime=True`` samples are delivered when the host clock reaches their arrival time, and a
 camera read too late skips (and counts) the frames it missed, like a real capture queue.
 """
@@ -70,14 +71,14 @@ class SimCamera(StereoCamera):
                 k = latest
         t_true_ns = k * bench.frame_period_ns
         left, right = bench.render_frame(t_true_ns)
-        t_host_ns = int(bench.camera_transport.host_ns(np.array([t_true_ns]))[0]) + bench.host_epoch_ns
+        host_ns = int(bench.camera_transport.host_ns(np.array([t_true_ns]))[0])
         self._next = k + 1
         if not bench.realtime:
-            bench.advance_to(t_true_ns)
+            bench.advance_to(host_ns)
         self.stats.received += 1
         return StereoFrame(left=left, right=right, seq=k,
                            t_device_ns=int(bench.camera_clock.device_ns(t_true_ns)),
-                           t_host_ns=t_host_ns)
+                           t_host_ns=host_ns + bench.host_epoch_ns)
 
     def close(self) -> None:
         """Stop the stream."""
@@ -110,21 +111,21 @@ class SimTrocar(ForceSensor):
             self.bench.device_opened(self)
             self._open = True
 
-    def _sample(self, j: int) -> tuple[int, int, int, np.ndarray]:
-        """(true, device, host) ns and measured force of sample ``j`` (generated in blocks)."""
+    def _sample(self, j: int) -> tuple[int, int, np.ndarray]:
+        """Device and host (relative) ns and measured force of sample ``j`` (made in blocks)."""
         offset = j - self._block_start
         if not self._block or offset >= len(self._block["true"]):
             self._block = self.bench.trocar_block(j, SAMPLE_BLOCK)
             self._block_start, offset = j, 0
         b = self._block
-        return int(b["true"][offset]), int(b["device"][offset]), int(b["host"][offset]), b["force"][offset]
+        return int(b["device"][offset]), int(b["host"][offset]), b["force"][offset]
 
     def read(self, timeout_s: float = 1.0) -> ForceSample | None:
-        """The next sample once the simulated (or real) time has reached it."""
+        """The next sample once the simulated (or real) host clock has reached its arrival."""
         if not self._open:
             raise DeviceError("simulated trocar read before open()")
-        true_ns, device_ns, host_ns, force = self._sample(self._next)
-        if not self.bench.wait_until(true_ns, host_ns, timeout_s, driver=self):
+        device_ns, host_ns, force = self._sample(self._next)
+        if not self.bench.wait_until(host_ns, timeout_s):
             return None
         self.stats.received += 1
         sample = ForceSample(force_n=force - self.offset_n, seq=self._next, t_device_ns=device_ns,

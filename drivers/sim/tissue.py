@@ -17,6 +17,8 @@ import numpy as np
 
 from vbfe.drivers.sim.rays import intersect_plane
 
+NEWTON_TOL_M = 3e-8  # ray-surface residual at which Newton stops (float32 resolution ≈ 4e-9 m)
+
 
 @dataclass
 class Hit:
@@ -161,7 +163,7 @@ class TissueSurface:
     texture: Texture | None = None
     half_extent_m: tuple[float, float] = (0.075, 0.05)
     grid_spacing_m: float = 0.0005
-    newton_iterations: int = 6
+    newton_iterations: int = 10  # at most; stops at NEWTON_TOL_M
     _grid: tuple | None = field(default=None, init=False, repr=False)
 
     def with_load(self, load: MembraneLoad | None) -> "TissueSurface":
@@ -214,26 +216,36 @@ class TissueSurface:
             self._grid = (geometry, material, (float(xs[0]), float(ys[0]), h))
         return self._grid
 
-    def hit(self, origin: np.ndarray, dirs: np.ndarray, s0: np.ndarray | None = None) -> Hit:
-        """Newton iterations on ``o_z + s d_z = z(o_xy + s d_xy)`` over the grid, from ``s0``."""
-        geometry, material, (x0, y0, h) = self.grid()
-        inv_h = np.float32(1.0 / h)
-        bx, by, dz = dirs[..., 0] * inv_h, dirs[..., 1] * inv_h, dirs[..., 2]
-        ax, ay = np.float32((origin[0] - x0) / h), np.float32((origin[1] - y0) / h)
-        oz = np.float32(origin[2])
-        s = (np.float32(self.distance_m) - oz) / dz if s0 is None else s0
-        for _ in range(self.newton_iterations if s0 is None else 2):
+    def _newton(self, s: np.ndarray, bx: np.ndarray, by: np.ndarray, dz: np.ndarray,
+                ax: np.float32, ay: np.float32, oz: np.float32) -> tuple:
+        """Newton iterations from ``s``: (s, geometry sample, map_x, map_y, residual)."""
+        geometry, _, (_, _, h) = self.grid()
+        for iteration in range(self.newton_iterations + 1):
             map_x, map_y = s * bx + ax, s * by + ay
             g = cv2.remap(geometry, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             residual = oz + s * dz - g[..., 0]
+            if iteration == self.newton_iterations or np.abs(residual).max() < NEWTON_TOL_M:
+                break
             slope = dz - (g[..., 1] * bx + g[..., 2] * by) * np.float32(h)
             s = s - residual / slope
-        map_x, map_y = s * bx + ax, s * by + ay
-        g = cv2.remap(geometry, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return s, g, map_x, map_y, residual
+
+    def hit(self, origin: np.ndarray, dirs: np.ndarray, s0: np.ndarray | None = None) -> Hit:
+        """Newton iterations on ``o_z + s d_z = z(o_xy + s d_xy)`` over the grid, from ``s0``
+        (e.g. the previous frame's solution) or from the rest distance."""
+        geometry, material, (x0, y0, h) = self.grid()
+        inv_h = np.float32(1.0 / h)
+        args = (dirs[..., 0] * inv_h, dirs[..., 1] * inv_h, dirs[..., 2],
+                np.float32((origin[0] - x0) / h), np.float32((origin[1] - y0) / h),
+                np.float32(origin[2]))
+        cold = (np.float32(self.distance_m) - args[5]) / args[2]
+        s, g, map_x, map_y, residual = self._newton(cold if s0 is None else s0, *args)
+        if s0 is not None and np.abs(residual).max() >= NEWTON_TOL_M:
+            s, g, map_x, map_y, residual = self._newton(cold, *args)
         m = cv2.remap(material, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rows, cols = geometry.shape[:2]
         valid = ((map_x >= 0) & (map_x <= cols - 1) & (map_y >= 0) & (map_y <= rows - 1) & (s > 0)
-                 & (np.abs(oz + s * dz - g[..., 0]) < 1e-7))
+                 & (np.abs(residual) < 1e-7))
         normal = np.empty(dirs.shape, np.float32)
         normal[..., 0], normal[..., 1], normal[..., 2] = g[..., 1], g[..., 2], -1.0
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)

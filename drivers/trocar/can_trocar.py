@@ -97,7 +97,7 @@ class CanTrocar(ForceSensor):
                 return sample
 
     def tare(self, n_samples: int = 500, timeout_s: float = 1.0) -> np.ndarray:
-        """Make the mean of the next ``n_samples`` (sensor unloaded) the zero; returns the offset."""
+        """Make the mean of the next ``n_samples`` (unloaded) the zero; return the offset."""
         raw = []
         while len(raw) < n_samples:
             sample = self.read(timeout_s)

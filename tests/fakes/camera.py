@@ -135,7 +135,7 @@ class FakeStereoCapture:
 
 
 class FakeStereoCamera(V4L2StereoCamera):
-    """The real V4L2 driver reading a :class:`FakeStereoCapture` side-by-side device in real time."""
+    """The real V4L2 driver reading a side-by-side :class:`FakeStereoCapture` in real time."""
 
     def __init__(self, width: int = 64, height: int = 48, fps: float = 30.0,
                  n_frames: int | None = None, drop_seqs: Iterable[int] = (),

@@ -1,4 +1,4 @@
-"""`vbfe calibrate board|capture|stereo|projector|check`: ChArUco stereo and projector calibration."""
+"""`vbfe calibrate board|capture|stereo|projector|check`: stereo and projector calibration."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("folder", help="folder for view_NNN_left.png / view_NNN_right.png")
     p.add_argument("--max-frames", type=int, default=200, help="stop after this many frames")
     p.add_argument("--headless", action="store_true",
-                   help="no preview window: print the coverage bars as text")
+                   help="no preview window (corners and coverage): print coverage bars as text")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
     _board_options(p)
     add_config_option(p)
@@ -96,15 +96,26 @@ def run_board(args: argparse.Namespace) -> int:
 
 def run_capture(args: argparse.Namespace) -> int:
     """Collect views, showing coverage."""
+    preview = None
+    if not args.headless:
+        from vbfe.calib.preview import CapturePreview
+
+        preview = CapturePreview()
     with progress(total=args.max_frames, desc="frames", unit="frame") as bar:
-        def on_view(verdict, collector) -> None:
+        def on_view(verdict, collector, left) -> None:
             bar.update(1)
-            if args.headless:
+            if preview is not None:
+                preview.update_view(verdict, collector, left)
+            else:
                 bar.write(f"{verdict.reason[:60]:<60} | "
                           f"{coverage_text(collector.coverage(), len(collector.pairs))}")
 
-        result = commands.capture(config_from(args), args.folder, args.max_frames, args.seed,
-                                  on_view, **_board(args))
+        try:
+            result = commands.capture(config_from(args), args.folder, args.max_frames,
+                                      args.seed, on_view, **_board(args))
+        finally:
+            if preview is not None:
+                preview.dispose()
     print(f"kept {len(result.names)} views of {result.frames_seen} frames in {result.folder}; "
           f"refused: {result.rejections or 'none'}")
     print("enough views for calibration" if result.enough else

@@ -1,0 +1,101 @@
+"""``inspect_session``: a summary of a session file for the operator."""
+
+from __future__ import annotations
+
+import datetime
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vbfe.acquire.audit import StreamAudit, audit_sequence
+from vbfe.acquire.clock import ClockFit
+from vbfe.acquire.reader import SessionReader
+
+
+@dataclass
+class SessionSummary:
+    """Counts, timing, drops, gaps and clock fits of one session."""
+
+    path: Path
+    truncated: bool  # the recorder did not close the file (crash, power loss, SIGKILL)
+    attrs: dict[str, Any]
+    metadata: dict[str, Any]
+    duration_s: float
+    frame_size: tuple[int, int]
+    audits: dict[str, StreamAudit]
+    rates_hz: dict[str, float]
+    clocks: dict[str, ClockFit]
+    gaps: list[dict[str, Any]]
+    patterns: list[str]
+    has_calibration: bool
+    truth_names: list[str]
+    analysis: dict[str, Any] = field(default_factory=dict)
+
+    def text(self) -> str:
+        """The summary as lines of text."""
+        a = self.attrs
+        start = datetime.datetime.fromtimestamp(int(a.get("start_utc_ns", 0)) / 1e9,
+                                                datetime.timezone.utc)
+        status = (f"complete ({a.get('end_reason', 'closed')})" if not self.truncated else
+                  "NOT CLOSED CLEANLY: the recorder stopped mid-recording; everything up to its "
+                  "last flush is readable")
+        lines = [f"session   {self.path}",
+                 f"format    schema {a.get('schema_version')}, written by vbfe "
+                 f"{a.get('software_version')}, compression {a.get('compression')}",
+                 f"status    {status}",
+                 f"started   {start:%Y-%m-%d %H:%M:%S} UTC, operator {a.get('operator') or '-'}"
+                 f", notes {a.get('notes') or '-'}",
+                 f"duration  {self.duration_s:.3f} s"]
+        w, h = self.frame_size
+        for stream, unit in (("camera", "frames"), ("force", "samples")):
+            au = self.audits[stream]
+            extra = f" {w}x{h}" if stream == "camera" else ""
+            queue = a.get(f"{stream}_queue_dropped")
+            lines.append(f"{stream:<9} {au.stored} {unit}{extra} at {self.rates_hz[stream]:.2f} Hz;"
+                         f" dropped {au.dropped} ({100 * au.drop_fraction:.2f}%)"
+                         + (f", of which {queue} by a full queue" if queue else "")
+                         + f", duplicated {au.duplicated}, out of order {au.reordered}")
+        lines.append(f"projector {len(self.patterns)} events: {', '.join(self.patterns) or '-'}")
+        for stream, fit in self.clocks.items():
+            if stream != "projector":
+                lines.append(f"clock     {stream}: host - device offset {fit.offset_ns / 1e9:.6f} s,"
+                             f" drift {fit.drift_ppm:+.1f} ± {fit.drift_uncertainty_ppm:.1f} ppm,"
+                             f" jitter {fit.jitter_ns / 1e6:.3f} ms"
+                             f" ({fit.n_pairs} pairs)")
+        for gap in self.gaps:
+            after = "end" if gap["next_seq"] < 0 else f"seq {gap['next_seq']}"
+            lines.append(f"gap       {gap['stream']}: {gap['reason']} after seq {gap['last_seq']}"
+                         f" until {after} ({gap['count']} lost)")
+        for stream in ("camera", "force"):
+            for last, nxt in self.audits[stream].gaps[:10]:
+                lines.append(f"gap       {stream}: sequence jumps {last} -> {nxt}")
+        lines.append(f"calib     {'stored' if self.has_calibration else 'none'}")
+        if self.truth_names:
+            lines.append(f"truth     {', '.join(self.truth_names)}")
+        if self.metadata.get("conditions"):
+            lines.append(f"conditions {self.metadata['conditions']}")
+        if "sync_verdict" in self.analysis:
+            lines.append(f"sync      {self.analysis['sync_verdict']}: image - force offset "
+                         f"{1e3 * self.analysis['sync_offset_s']:+.2f} ms")
+        return "\n".join(lines)
+
+
+def inspect_session(path: str | Path) -> SessionSummary:
+    """Summarize a session; raises SessionError when it is not a readable session."""
+    with SessionReader(path) as s:
+        audits = {stream: audit_sequence(s.stream_times(stream)[2]) for stream in ("camera", "force")}
+        frame_t = s.frame_times_ns()
+        force_t = s.force_times_ns()
+        spans = [t[-1] - t[0] for t in (frame_t, force_t) if len(t) > 1]
+        rates = {name: (len(t) - 1) / ((t[-1] - t[0]) / 1e9) if len(t) > 1 and t[-1] > t[0]
+                 else 0.0 for name, t in (("camera", frame_t), ("force", force_t))}
+        return SessionSummary(
+            path=Path(path), truncated=not s.closed_cleanly or not s.complete, attrs=s.attrs,
+            metadata=s.metadata, duration_s=float(max(spans, default=0)) / 1e9,
+            frame_size=s.frame_size, audits=audits, rates_hz=rates,
+            clocks={stream: s.clock_fit(stream) for stream in ("camera", "force", "projector")},
+            gaps=s.gaps(), patterns=[e.pattern for e in s.projector_events()],
+            has_calibration=s.calibration_yaml() is not None, truth_names=s.truth_names(),
+            analysis=s.analysis())

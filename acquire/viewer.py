@@ -1,0 +1,194 @@
+"""pyqtgraph viewer: left/right images, force plot and drop counters — replay or live.
+
+``ReplayViewer(reader)`` scrubs a recorded session with a time slider; ``LiveViewer(devices)``
+polls open devices and scrolls the force plot. ``view_session(path)`` / ``view_live(config)``
+run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
+"""
+
+from __future__ import annotations
+
+import gc
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyqtgraph as pg
+from pyqtgraph.Qt import QtCore, QtWidgets
+
+from vbfe.acquire.reader import SessionReader
+from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.registry import Devices
+
+FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
+LIVE_WINDOW_S = 10.0
+
+
+def _app() -> QtWidgets.QApplication:
+    return QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+
+
+def _rgb(bgr: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(bgr[..., ::-1])
+
+
+class ViewerWindow(QtWidgets.QWidget):
+    """Two image panes over a force plot, with a status line for counters."""
+
+    def __init__(self, title: str, axes: list[str]) -> None:
+        _app()  # widgets need the application object first
+        super().__init__()
+        self.setWindowTitle(title)
+        self.resize(1000, 650)
+        layout = QtWidgets.QVBoxLayout(self)
+        images = pg.GraphicsLayoutWidget()
+        self.image_items = []
+        for name in ("left", "right"):
+            view = images.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
+            item = pg.ImageItem(axisOrder="row-major")
+            view.addItem(item)
+            self.image_items.append(item)
+        layout.addWidget(images, stretch=3)
+        self.plot = pg.PlotWidget(background="w")
+        self.plot.setLabel("left", "force", units="N")
+        self.plot.setLabel("bottom", "time", units="s")
+        self.plot.addLegend(offset=(5, 5))
+        self.curves = [self.plot.plot(pen=pg.mkPen(FORCE_PENS[i % 3], width=2), name=f"F{a}")
+                       for i, a in enumerate(axes)]
+        self.cursor = pg.InfiniteLine(angle=90, pen=pg.mkPen("k", width=1))
+        self.plot.addItem(self.cursor)
+        layout.addWidget(self.plot, stretch=2)
+        self.slider = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
+        layout.addWidget(self.slider)
+        self.status = QtWidgets.QLabel()
+        layout.addWidget(self.status)
+
+    def dispose(self) -> None:
+        """Close and delete the window now (PySide6 + pyqtgraph may crash when plot items
+        are left for the interpreter's final garbage collection)."""
+        self.close()
+        self.deleteLater()
+        QtWidgets.QApplication.sendPostedEvents(None, 0)
+        gc.collect()
+
+    def show_images(self, left: np.ndarray, right: np.ndarray) -> None:
+        """Display a BGR stereo pair."""
+        for item, image in zip(self.image_items, (left, right)):
+            item.setImage(_rgb(image), autoLevels=False, levels=(0, 255))
+
+    def show_force(self, t_s: np.ndarray, forces_n: np.ndarray) -> None:
+        """Plot force columns against time (s)."""
+        for axis, curve in enumerate(self.curves):
+            curve.setData(t_s, forces_n[:, axis])
+
+
+class ReplayViewer(ViewerWindow):
+    """Replay a session: the slider picks a frame; the cursor marks its time on the force plot."""
+
+    def __init__(self, reader: SessionReader) -> None:
+        super().__init__(f"vbfe view — {reader.path.name}", reader.force_axes)
+        self.reader = reader
+        self.frame_times_s = (reader.frame_times_ns() - self._t0()) / 1e9
+        forces = reader.forces_n()
+        if len(forces):
+            self.show_force((reader.force_times_ns() - self._t0()) / 1e9, forces)
+        self.slider.setRange(0, max(reader.n_frames - 1, 0))
+        self.slider.valueChanged.connect(self.show_frame)
+        gaps = len(reader.gaps())
+        self._counters = (f"{reader.n_frames} frames, {len(forces)} force samples, {gaps} gaps"
+                          + ("" if reader.complete else " — NOT CLOSED CLEANLY"))
+        if reader.n_frames:
+            self.show_frame(0)
+
+    def _t0(self) -> int:
+        times = [t[0] for t in (self.reader.frame_times_ns(), self.reader.force_times_ns())
+                 if len(t)]
+        return int(min(times)) if times else 0
+
+    def show_frame(self, i: int) -> None:
+        """Show frame ``i`` and move the force cursor to its time."""
+        frame = self.reader.frame(i)
+        self.show_images(frame.left, frame.right)
+        self.cursor.setValue(float(self.frame_times_s[i]))
+        self.status.setText(f"frame {i} (seq {frame.seq}) at {self.frame_times_s[i]:.3f} s — "
+                            + self._counters)
+
+
+class LiveViewer(ViewerWindow):
+    """Show open devices live: newest frame pair, the last seconds of force, drop counters."""
+
+    def __init__(self, devices: Devices, window_s: float = LIVE_WINDOW_S) -> None:
+        super().__init__("vbfe view — live", list(getattr(devices.trocar, "axes", ("x", "y", "z"))))
+        self.devices = devices
+        self.slider.hide()
+        n = int(window_s * max(getattr(devices.trocar, "rate_hz", 1000.0), 1.0))
+        self._t: deque[int] = deque(maxlen=n)
+        self._f: deque[np.ndarray] = deque(maxlen=n)
+        self.error: str | None = None
+        self.timer = QtCore.QTimer(self)
+        self.timer.timeout.connect(self.poll)
+
+    def poll(self) -> None:
+        """Read what the devices have now and refresh the display."""
+        try:
+            frame = self.devices.camera.read(0.0)
+            while (sample := self.devices.trocar.read(0.0)) is not None:
+                self._t.append(sample.t_host_ns)
+                self._f.append(sample.force_n)
+                if len(self._t) == self._t.maxlen:
+                    break
+        except DeviceError as exc:
+            self.error = str(exc)
+            self.timer.stop()
+            self.status.setText(f"device gone: {exc}")
+            return
+        if frame is not None:
+            self.show_images(frame.left, frame.right)
+        if self._t:
+            t = np.array(self._t)
+            self.show_force((t - t[-1]) / 1e9, np.array(self._f))
+            self.cursor.setValue(0.0)
+        cam, tro = self.devices.camera.stats, self.devices.trocar.stats
+        self.status.setText(f"camera: {cam.received} frames, {cam.dropped} dropped — trocar: "
+                            f"{tro.received} samples, {tro.dropped} dropped, "
+                            f"{tro.malformed} malformed")
+
+
+def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
+    """Render a viewer window into a PNG (works offscreen)."""
+    _app().processEvents()
+    if not widget.grab().save(str(path)):
+        raise OSError(f"could not write {path}")
+    return Path(path)
+
+
+def view_session(path: str | Path) -> int:
+    """Open the replay viewer on a session and run until the window closes."""
+    app = _app()
+    with SessionReader(path) as reader:
+        window = ReplayViewer(reader)
+        window.show()
+        code = app.exec()
+        window.dispose()
+        return code
+
+
+def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
+    """Open the devices of a rig and show them live until the window closes."""
+    from vbfe.drivers.registry import open_devices
+
+    app = _app()
+    devices = open_devices(config)
+    for device in (devices.camera, devices.trocar):
+        device.open()
+    try:
+        window = LiveViewer(devices)
+        window.show()
+        window.timer.start(interval_ms)
+        code = app.exec()
+        window.timer.stop()
+        window.dispose()
+        return code
+    finally:
+        for device in (devices.camera, devices.trocar):
+            device.close()

@@ -1,0 +1,35 @@
+"""Recording through the real V4L2 and CAN drivers, driven by the shared fakes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tests.fakes.camera import FakeStereoCamera, frame_seq
+from tests.fakes.trocar import FakeTrocar
+from tests.test_acquire_devices import RecordingProjector, force_profile
+from vbfe.acquire import Recorder, SessionReader
+from vbfe.drivers.registry import Devices
+
+
+def test_v4l2_camera_vanishing_ends_session_with_gap_and_can_forces(tmp_path):
+    path = tmp_path / "s.h5"
+    with FakeTrocar("acquire-test", force_profile, rate_hz=500.0, noise_n=0.01) as fake:
+        devices = Devices(FakeStereoCamera(disconnect_after=25, drop_seqs=(7, 8)),
+                          fake.trocar(), RecordingProjector())
+        with Recorder(devices, path, compression="lzf", flush_interval_s=0.2,
+                      min_free_bytes=0) as rec:
+            stats = rec.run(10.0)
+    assert "camera disconnected" in stats.end_reason
+    with SessionReader(path) as s:
+        assert s.complete
+        seqs = s.stream_times("camera")[2]
+        assert 7 not in seqs and 8 not in seqs
+        for i in range(s.n_frames):
+            assert frame_seq(s.frame(i).left) == seqs[i]
+        assert [g["reason"] for g in s.gaps() if g["stream"] == "camera"] == ["device disconnected"]
+        forces = s.forces_n()
+        assert len(forces) > 100
+        force_seqs = s.stream_times("force")[2]
+        expected = np.array([fake.sent_forces_n[int(n)] for n in force_seqs])
+        np.testing.assert_allclose(forces, expected, atol=0.02)  # trocar resolution
+        assert np.isfinite(s.force_at_frames()[2:-2]).all()

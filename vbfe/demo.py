@@ -1,0 +1,255 @@
+"""``vbfe demo``: the whole pipeline on the simulated bench, scored against the bench's truth.
+
+Print a board → capture calibration views → calibrate the endoscope and the projector →
+record traction sessions over the paper's conditions → verify sync → reconstruct → train →
+evaluate → one ``index.html`` with every number next to its truth and the paper's figures.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vbfe.config import load_config
+
+# The paper's Table I: MAE (σ) of the force estimate per stiffness, newtons.
+PAPER_MAE_N = {40.0: 0.4055, 80.0: 0.4748, 200.0: 0.8044}
+# The paper's conditions: stiffness (N/m) pulled at speed (m/s).
+PAPER_CONDITIONS = ((40.0, 0.01), (80.0, 0.005), (200.0, 0.002))
+
+StageFn = Callable[[str, int], Callable[[int], None]]  # (stage name, total) -> step(n)
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """How much work the demo does: the full run or ``--quick``."""
+
+    width: int
+    height: int
+    fps: float
+    hold_s: float
+    calibration_frames: int  # frames offered to the capture (it keeps the good ones)
+    projector_poses: int
+    repeats: int  # sessions per paper condition
+    epochs: int
+    n_points: int
+    frame_stride: int
+    recon_check_frames: int  # frames per session scored against the true depth
+
+    @classmethod
+    def full(cls) -> "DemoPlan":
+        """The full demo (about ten minutes on two cores)."""
+        return cls(width=640, height=360, fps=30.0, hold_s=3.0, calibration_frames=120,
+                   projector_poses=8, repeats=4, epochs=40, n_points=1024, frame_stride=1,
+                   recon_check_frames=3)
+
+    @classmethod
+    def quick(cls) -> "DemoPlan":
+        """A small run for tests (under two minutes)."""
+        return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
+                   projector_poses=6, repeats=2, epochs=12, n_points=512, frame_stride=1,
+                   recon_check_frames=1)
+
+
+@dataclass
+class DemoResult:
+    """Every number of the demo, by stage (also written as ``results.json``)."""
+
+    out_dir: Path
+    numbers: dict[str, Any] = field(default_factory=dict)
+    report_path: Path | None = None
+
+
+def _quiet(stage: str, total: int) -> Callable[[int], None]:
+    return lambda n=1: None
+
+
+def demo_config(plan: DemoPlan) -> dict[str, dict[str, Any]]:
+    """The default (simulated) rig configuration sized for ``plan``."""
+    config = load_config(None)
+    config["bench"].update(width=plan.width, height=plan.height, fps=plan.fps, hold_s=plan.hold_s)
+    return config
+
+
+def _relative_error(estimate: float, truth: float) -> float:
+    return float(abs(estimate - truth) / abs(truth))
+
+
+def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
+    """Board, capture, stereo and projector calibration; errors against the bench's true rig."""
+    from vbfe.calib import commands
+    from vbfe.drivers.sim import SimBench
+
+    folder = out / "calibration"
+    folder.mkdir(parents=True, exist_ok=True)
+    board_png, board_pdf = commands.make_board(config, folder / "board")
+    step = stage("capture calibration views", plan.calibration_frames)
+    captured = commands.capture(config, folder / "views", max_frames=plan.calibration_frames,
+                                on_view=lambda *_: step(1))
+    outcome = commands.stereo(config, folder / "views", folder / "endoscope.yaml")
+    step = stage("calibrate projector", 1)
+    calibration = commands.projector(config, folder / "projector-captures",
+                                     folder / "endoscope.yaml", simulate_poses=plan.projector_poses)
+    step(1)
+    rig = SimBench.from_config(config["bench"]).rig
+    cal = calibration
+    numbers = {
+        "views_kept": len(outcome.result.names), "frames_seen": captured.frames_seen,
+        "rms_px": float(cal.rms_stereo_px), "projector_rms_px": float(cal.rms_projector_px),
+        "f_error": _relative_error(cal.K1[0, 0], rig.left.K[0, 0]),
+        "cx_error": _relative_error(cal.K1[0, 2], rig.left.K[0, 2]),
+        "cy_error": _relative_error(cal.K1[1, 2], rig.left.K[1, 2]),
+        "B_error": _relative_error(cal.B, rig.baseline_m),
+        "projector_f_error": _relative_error(cal.K_proj[0, 0], rig.projector.K[0, 0]),
+        "f_px": float(cal.K1[0, 0]), "f_true_px": float(rig.left.K[0, 0]),
+        "B_m": float(cal.B), "B_true_m": rig.baseline_m,
+        "files": {"board_png": str(board_png), "board_pdf": str(board_pdf),
+                  "calibration": str(folder / "endoscope.yaml"),
+                  "report": [str(p) for p in (outcome.report_paths or ())]},
+    }
+    return numbers
+
+
+def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
+                 stage: StageFn) -> list[Path]:
+    """One session per paper condition and repeat, each a new trial (seed)."""
+    from vbfe.acquire import record_session
+    from vbfe.drivers.sim import SimBench
+
+    sessions = []
+    folder = out / "sessions"
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = [(k, v, r) for k, v in PAPER_CONDITIONS for r in range(plan.repeats)]
+    step = stage("record sessions", len(runs))
+    for seed, (stiffness, speed, repeat) in enumerate(runs, start=1):
+        run_config = copy.deepcopy(config)
+        run_config["bench"].update(stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed,
+                                   seed=seed)
+        path = folder / f"k{stiffness:g}_v{speed:g}_r{repeat}.h5"
+        path.unlink(missing_ok=True)
+        duration_s = SimBench.from_config(run_config["bench"]).duration_s()
+        record_session(run_config, path, duration_s=duration_s, operator="vbfe demo",
+                       notes=f"simulated traction trial {repeat} at {stiffness:g} N/m, "
+                             f"{speed:g} m/s", calibration_yaml=calibration_yaml)
+        sessions.append(path)
+        step(1)
+    return sessions
+
+
+def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any]:
+    """verify-sync on every session; measured offset against the bench's true offset."""
+    from vbfe.acquire import SessionReader
+    from vbfe.acquire.sync_check import verify_sync
+
+    rows = []
+    (out / "sync").mkdir(exist_ok=True)
+    step = stage("verify sync", len(sessions))
+    for path in sessions:
+        report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png")
+        with SessionReader(path) as reader:
+            truth = reader.truth("image_minus_force_host_offset_ns")
+        true_s = float(np.median(truth)) / 1e9
+        e = report.estimate
+        rows.append({"session": path.stem, "offset_s": e.offset_s, "true_offset_s": true_s,
+                     "error_s": e.offset_s - true_s, "ci95_s": list(e.ci95_s),
+                     "drift_ppm": report.drift_ppm, "passed": report.passed,
+                     "plot": str(report.plot_path) if report.plot_path else None})
+        step(1)
+    errors = np.abs([r["error_s"] for r in rows])
+    return {"sessions": rows, "max_abs_error_s": float(errors.max()),
+            "median_abs_error_s": float(np.median(errors))}
+
+
+def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
+                      stage: StageFn) -> dict[str, Any]:
+    """Point clouds for every session; a few frames per session scored against true depth."""
+    from vbfe.acquire import SessionReader
+    from vbfe.calib import Calibration
+    from vbfe.drivers.sim import SimBench
+    from vbfe.recon import Reconstructor, SgbmParams, reconstruct_session
+    from vbfe.recon.accuracy import evaluate_against_truth, rectified_truth
+
+    total = 0
+    for path in sessions:
+        with SessionReader(path) as reader:
+            total += reader.n_frames
+    params = SgbmParams.from_config(config["sgbm"])
+    step = stage("reconstruct", total)
+    for path in sessions:
+        reconstruct_session(path, progress=step, sgbm_params=params)
+
+    scores: dict[str, list[dict[str, float]]] = {"verified": [], "unverified": []}
+    for path in sessions:
+        with SessionReader(path) as reader:
+            calibration = Calibration.from_yaml_text(reader.calibration_yaml())
+            bench = SimBench.from_description(reader.metadata["bench"])
+            picks = np.linspace(0, reader.n_frames - 1, plan.recon_check_frames + 2)[1:-1]
+            for i in picks.astype(int):
+                frame = reader.frame(int(i))
+                truth = bench.render_truth(frame.t_device_ns)
+                truth_maps = rectified_truth(calibration, truth["depth_left_m"],
+                                             truth["valid_left"])
+                for key, verify in (("verified", True), ("unverified", False)):
+                    cloud = Reconstructor(calibration, params, verify=verify).process(
+                        frame.left, frame.right)
+                    scores[key].append(evaluate_against_truth(cloud, *truth_maps).as_dict())
+    summary = {key: {name: float(np.nanmedian([s[name] for s in rows])) for name in rows[0]}
+               for key, rows in scores.items()}
+    return summary
+
+
+def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict,
+                   stage: StageFn) -> dict[str, Any]:
+    """Train PointNet on most sessions, evaluate it and the baselines on held-out sessions."""
+    from vbfe.estimate.evaluation import evaluate
+    from vbfe.estimate.train_config import TrainConfig
+    from vbfe.estimate.training import train
+
+    held_out = [s for s in sessions if s.stem.endswith(f"_r{plan.repeats - 1}")]
+    training = [s for s in sessions if s not in held_out]
+    train_config = TrainConfig.from_table(config["train"], epochs=plan.epochs,
+                                          n_points=plan.n_points, frame_stride=plan.frame_stride)
+    bars: dict[str, Callable[[int], None]] = {}
+
+    def progress(name: str, done: int, total: int) -> None:
+        if name not in bars:
+            bars[name] = stage(f"train: {name}", total)
+        bars[name](1)
+
+    model_path = out / "model.pt"
+    result = train(training, model_path, train_config, progress)
+    report = evaluate(model_path, held_out, out / "evaluation", progress)
+    return {"train_sessions": [s.stem for s in training],
+            "test_sessions": [s.stem for s in held_out],
+            "train_seconds": result.duration_s, "epochs_run": result.epochs_run,
+            "metrics": report.metrics,
+            "plots": [str(p) for p in report.files if str(p).endswith(".png")]}
+
+
+def run_demo(out_dir: str | Path = "vbfe-demo", quick: bool = False,
+             stage: StageFn = _quiet) -> DemoResult:
+    """Run the whole pipeline on the simulated bench into ``out_dir`` and write its report."""
+    from vbfe.calib import load_calibration
+    from vbfe.demo_report import write_report
+
+    plan = DemoPlan.quick() if quick else DemoPlan.full()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    config = demo_config(plan)
+    result = DemoResult(out_dir=out)
+    result.numbers["plan"] = plan.__dict__
+    result.numbers["calibration"] = calibrate_stage(config, out, plan, stage)
+    yaml_text = load_calibration(result.numbers["calibration"]["files"]["calibration"]).to_yaml_text()
+    sessions = record_stage(config, out, plan, yaml_text, stage)
+    result.numbers["sync"] = sync_stage(sessions, out, stage)
+    result.numbers["reconstruction"] = reconstruct_stage(sessions, plan, config, stage)
+    result.numbers["force"] = estimate_stage(sessions, out, plan, config, stage)
+    (out / "results.json").write_text(json.dumps(result.numbers, indent=2, default=str))
+    result.report_path = write_report(result.numbers, out)
+    return result
