@@ -1,9 +1,16 @@
 """Clock synchronization: map each device's clock onto the host clock (kept apart from data).
 
 Transport delay only ever adds latency, so the host time of a sample is the device time mapped
-through a line plus a non-negative delay. :func:`fit_clock` fits the *lower envelope* of the
-(device, host) pairs: a first Theil–Sen line, then repeated least-squares fits through the
-lowest-residual pair of each time segment. What remains above the line is transport jitter.
+through a line plus a non-negative delay. :func:`fit_clock` takes the slope (drift) from the
+*lower envelope* of the (device, host) pairs: a first Theil–Sen line, then repeated least-squares
+fits through the lowest-residual pair of each time segment — or, when the delays scatter
+symmetrically so that a least-squares line through all pairs is better determined, from that
+line (the standard errors decide). The mapping then runs through the
+*median* arrival (the envelope shifted by the median residual above it): every stream is mapped to
+its typical arrival time, so the offset left between two mapped streams is the difference of
+their median transport delays, whatever the number of samples (the envelope's own level, the
+minimum of each segment's delays, sinks as segments get longer). What remains about the line is
+transport jitter.
 """
 
 from __future__ import annotations
@@ -20,21 +27,25 @@ _THEIL_SEN_PAIRS = 2000
 
 @dataclass(frozen=True)
 class ClockFit:
-    """``t_host = ref_host_ns + intercept_ns + slope * (t_device - ref_device_ns)``."""
+    """``t_host = ref_host_ns + intercept_ns + slope * (t_device - ref_device_ns)``: the median
+    host arrival of a sample stamped ``t_device``."""
 
     ref_device_ns: int
     ref_host_ns: int
     intercept_ns: float
     slope: float
     jitter_ns: float  # robust spread (1.4826·MAD) of the host-time residuals about the envelope
-    latency_ns: float  # median residual above the envelope (transport delay beyond the minimum)
+    latency_ns: float  # median delay above the envelope (included in intercept_ns)
     n_pairs: int
     span_ns: int = 0  # device-time span of the pairs
     envelope_ns: float = 0.0  # scatter of the envelope's support points about the line
+    drift_std_ppm: float = -1.0  # standard error of the drift (negative: from envelope_ns)
 
     @property
     def drift_uncertainty_ppm(self) -> float:
-        """Standard error of :attr:`drift_ppm` from the envelope points' scatter and span."""
+        """Standard error of :attr:`drift_ppm` (of the fit that set the slope)."""
+        if self.drift_std_ppm >= 0:
+            return self.drift_std_ppm
         if self.span_ns <= 0:
             return float("inf") if self.n_pairs > 1 else 0.0
         return 1e6 * self.envelope_ns * np.sqrt(12.0 / _n_segments(self.n_pairs)) / self.span_ns
@@ -64,7 +75,7 @@ class ClockFit:
         return cls(int(attrs["ref_device_ns"]), int(attrs["ref_host_ns"]),
                    float(attrs["intercept_ns"]), float(attrs["slope"]), float(attrs["jitter_ns"]),
                    float(attrs["latency_ns"]), int(attrs["n_pairs"]), int(attrs.get("span_ns", 0)),
-                   float(attrs.get("envelope_ns", 0.0)))
+                   float(attrs.get("envelope_ns", 0.0)), float(attrs.get("drift_std_ppm", -1.0)))
 
 
 def identity_fit(t_host_ns: np.ndarray) -> ClockFit:
@@ -102,7 +113,8 @@ def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float,
 
 
 def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
-    """Fit host time against device time (offset + drift) along the lower envelope of the pairs.
+    """Fit host time against device time: drift from the lower envelope of the pairs, offset
+    through their median arrival.
 
     A stream without a device clock (all ``t_device_ns == -1``) gets the identity on host time.
     """
@@ -120,8 +132,30 @@ def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
     a, b = _theil_sen(x, y, np.random.default_rng(0))
     for _ in range(3):
         a, b, scatter = _envelope_fit(x, y, a, b)
-    residual = y - (a + b * x)
+    span = float(x[-1] - x[0])
+    slope_std = scatter * np.sqrt(12.0 / _n_segments(len(x))) / span if span > 0 else np.inf
+    b_all, all_std = _trimmed_line(x, y, b)
+    if all_std < slope_std:  # symmetric jitter: every pair says more than the envelope's minima
+        b, slope_std = b_all, all_std
+    residual = y - b * x
+    segments = np.array_split(residual, _n_segments(len(x)))
+    level = float(np.mean([seg.min() for seg in segments if len(seg)]))  # the envelope
     med = float(np.median(residual))
     jitter = 1.4826 * float(np.median(np.abs(residual - med)))
-    return ClockFit(ref_dev, ref_host, a, b, jitter, med, int(len(dev)), int(dev[-1] - dev[0]),
-                    scatter)
+    return ClockFit(ref_dev, ref_host, med, b, jitter, med - level, int(len(dev)),
+                    int(dev[-1] - dev[0]), scatter,
+                    float(1e6 * slope_std / b ** 2) if np.isfinite(slope_std) else -1.0)
+
+
+def _trimmed_line(x: np.ndarray, y: np.ndarray, slope: float) -> tuple[float, float]:
+    """Least-squares slope through all pairs within 5 robust sigmas of the line of ``slope``
+    (host stalls left out), and its standard error."""
+    residual = y - slope * x
+    centre = float(np.median(residual))
+    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) or 1.0
+    keep = np.abs(residual - centre) <= 5 * sigma
+    if keep.sum() < 3 or np.ptp(x[keep]) == 0:
+        return slope, np.inf
+    b, a = np.polyfit(x[keep], y[keep], 1)
+    spread = float(np.std(y[keep] - (a + b * x[keep]), ddof=2))
+    return float(b), spread / np.sqrt(np.sum((x[keep] - x[keep].mean()) ** 2))

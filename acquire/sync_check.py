@@ -1,11 +1,10 @@
-"""``verify_sync``: measure the offset between image motion and force change in a session.
+"""``verify_sync``: measure the offset between image motion and force in a session, audit drops,
+judge against limits.
 
-Both streams are mapped onto the host clock (clock fits), turned into "how much is changing"
-signals — mean absolute difference of consecutive (downscaled, grey) left frames, and the norm
-of the force change over one frame period centred on the same instant — resampled onto a 1 ms
-grid and cross-correlated. The peak, refined by a parabola through its neighbours, is the
-offset (positive: images are stamped later than the forces of the same instant). A bootstrap
-over time segments gives its uncertainty and 95% confidence interval.
+Two measurements of the same offset (:func:`measure_offset` picks one):
+:mod:`~vbfe.acquire.sync_corners` aligns the kinks the image and the force share where a pull
+starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync_changes`
+cross-correlates change signals (any profile with distinct force-change events).
 """
 
 from __future__ import annotations
@@ -15,19 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-from scipy.signal import find_peaks
 
 from vbfe.acquire.audit import StreamAudit, audit_sequence
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
-
-_MOTION_WIDTH = 160  # frames are downscaled to this width before differencing
-_EVENT_FRACTION = 0.25  # a segment is an event when its force change is this share of the most
-_MIN_EVENTS = 3  # fewer force-change events than this: bootstrap over fixed segments
-_EVENT_SPACING_S = 0.3
-_MAX_STEP_PERIODS = 1.5  # frame pairs further apart than this (in periods) straddle a drop
+from vbfe.acquire.sync_changes import change_offset, motion_energy
+from vbfe.acquire.sync_corners import OffsetEstimate, corner_offset, frame_components
 
 
 @dataclass(frozen=True)
@@ -48,18 +41,6 @@ class SyncLimits:
                    float(table.get("sync_max_ci_halfwidth_s", default.max_ci_halfwidth_s)),
                    float(table.get("sync_max_frame_drop", default.max_frame_drop)),
                    float(table.get("sync_max_force_drop", default.max_force_drop)))
-
-
-@dataclass
-class OffsetEstimate:
-    """Result of the cross-correlation of two change signals."""
-
-    offset_s: float
-    std_s: float
-    ci95_s: tuple[float, float]
-    peak_correlation: float
-    lags_s: np.ndarray
-    correlation: np.ndarray
 
 
 @dataclass
@@ -84,8 +65,8 @@ class SyncReport:
         e = self.estimate
         lines = [f"session    {self.path}",
                  f"offset     image - force = {1e3 * e.offset_s:+.2f} ms ± {1e3 * e.std_s:.2f} ms"
-                 f" (95% CI {1e3 * e.ci95_s[0]:+.2f} … {1e3 * e.ci95_s[1]:+.2f} ms, peak "
-                 f"correlation {e.peak_correlation:.2f})",
+                 f" (95% CI {1e3 * e.ci95_s[0]:+.2f} … {1e3 * e.ci95_s[1]:+.2f} ms, "
+                 f"{e.method})",
                  f"correction {1e3 * self.correction_s:+.2f} ms applied to frame times; residual "
                  f"{1e3 * self.residual_offset_s:+.2f} ms"]
         for stream, ppm in self.drift_ppm.items():
@@ -116,97 +97,6 @@ class SyncReport:
                 FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9))}
 
 
-def motion_energy(reader: SessionReader) -> tuple[np.ndarray, np.ndarray]:
-    """Mean |difference| of consecutive left frames, at the midpoints of their host times."""
-    times = reader.frame_times_ns()
-    previous = None
-    energy = np.zeros(max(reader.n_frames - 1, 0))
-    for i, frame in enumerate(reader.iter_frames()):
-        grey = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
-        scale = min(1.0, _MOTION_WIDTH / grey.shape[1])
-        if scale < 1.0:
-            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        grey = grey.astype(np.float32)
-        if previous is not None:
-            energy[i - 1] = float(np.mean(np.abs(grey - previous)))
-        previous = grey
-    step = np.diff(times)
-    consecutive = step <= _MAX_STEP_PERIODS * np.median(step)  # not across dropped frames
-    return ((times[:-1] + times[1:]) // 2)[consecutive], energy[consecutive]
-
-
-def _peak(correlation: np.ndarray) -> float:
-    """Index of the maximum, refined by a parabola through it and its neighbours."""
-    k = int(np.argmax(correlation))
-    if 0 < k < len(correlation) - 1:
-        ym, y0, yp = correlation[k - 1:k + 2]
-        denom = ym - 2 * y0 + yp
-        if denom < 0:
-            return k + 0.5 * (ym - yp) / denom
-    return float(k)
-
-
-def _event_bounds(change: np.ndarray, grid_s: float, segment_s: float) -> np.ndarray:
-    """Cut points splitting the record into one segment per force-change event (cut at the
-    quietest instant between events), or into ``segment_s`` pieces when there are few events."""
-    peaks, _ = find_peaks(change, prominence=_EVENT_FRACTION * float(change.max() or 1.0),
-                          distance=max(1, int(_EVENT_SPACING_S / grid_s)))
-    if len(peaks) >= _MIN_EVENTS:
-        cuts = [a + int(np.argmin(change[a:b])) for a, b in zip(peaks[:-1], peaks[1:])]
-        return np.array([0, *cuts, len(change)])
-    n_seg = max(2, int(len(change) * grid_s / segment_s))
-    return np.linspace(0, len(change), n_seg + 1).astype(int)
-
-
-def estimate_offset(t_motion_ns: np.ndarray, motion: np.ndarray, t_force_ns: np.ndarray,
-                    forces: np.ndarray, frame_period_s: float, max_lag_s: float = 0.25,
-                    grid_s: float = 0.001, segment_s: float = 1.0, n_boot: int = 1000,
-                    seed: int = 0) -> OffsetEstimate:
-    """Offset (s) by which motion follows force change, with a bootstrap over events."""
-    t0 = max(t_motion_ns[0], t_force_ns[0])
-    t1 = min(t_motion_ns[-1], t_force_ns[-1])
-    lag = int(round(max_lag_s / grid_s))
-    grid = np.arange(0.0, (t1 - t0) / 1e9, grid_s)
-    if len(grid) < 4 * lag:
-        raise SessionError("the camera and force records overlap for only "
-                           f"{(t1 - t0) / 1e9:.2f} s; need at least {4 * max_lag_s:.1f} s")
-    tm = (t_motion_ns - t0) / 1e9
-    m = np.interp(grid, tm, motion)
-    right = np.clip(np.searchsorted(tm, grid), 1, len(tm) - 1)
-    nearest = np.minimum(np.abs(grid - tm[right - 1]), np.abs(tm[right] - grid))
-    covered = nearest <= frame_period_s  # grid points inside a frame gap carry no motion data
-    half = frame_period_s / 2
-    tf = (t_force_ns - t0) / 1e9
-    width = max(1, int(round(frame_period_s / grid_s)))
-    box = np.ones(width) / width
-    wide = np.arange(-half, grid[-1] + half + grid_s, grid_s)  # the grid plus half a period
-    shift = int(round(half / grid_s))
-    change = []
-    for f in np.atleast_2d(forces.T):
-        smooth = np.convolve(np.interp(wide, tf, f), box, "same")  # symmetric: no lag added
-        change.append(smooth[2 * shift:2 * shift + len(grid)] - smooth[:len(grid)])
-    g = np.linalg.norm(np.stack(change, axis=1), axis=1)
-    bounds = _event_bounds(g[lag:len(g) - lag], grid_s, segment_s)
-    m, g = [(x - x.mean()) / (x.std() or 1.0) for x in (m, g)]
-    m[~covered] = 0.0
-    centre = m[lag:len(m) - lag]
-    events = np.array([np.correlate(g[a:b + 2 * lag], centre[a:b], "valid")
-                       for a, b in zip(bounds[:-1], bounds[1:])])
-    total = events.sum(axis=0)
-    lags_s = (lag - np.arange(2 * lag + 1)) * grid_s  # c[k] pairs m(t) with g(t - lag_k)
-    to_offset = lambda k: (lag - k) * grid_s  # noqa: E731 - index → seconds
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, len(events), size=(n_boot, len(events)))
-    boot = np.array([to_offset(_peak(events[p].sum(axis=0))) for p in picks])
-    floor = grid_s / 2  # resolution of the grid: the bootstrap cannot see below it
-    return OffsetEstimate(offset_s=to_offset(_peak(total)),
-                          std_s=float(np.hypot(boot.std(), grid_s / np.sqrt(12))),
-                          ci95_s=(float(np.percentile(boot, 2.5)) - floor,
-                                  float(np.percentile(boot, 97.5)) + floor),
-                          peak_correlation=float(total.max() / len(centre)), lags_s=lags_s,
-                          correlation=total / len(centre))
-
-
 def _plot(path: Path, report: SyncReport) -> None:
     import matplotlib
 
@@ -215,16 +105,53 @@ def _plot(path: Path, report: SyncReport) -> None:
 
     e = report.estimate
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    ax.plot(e.lags_s * 1e3, e.correlation, color="tab:blue", label="correlation")
-    ax.axvline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
-    ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2, label="95% CI")
-    ax.set_xlabel("image time - force time (ms)")
-    ax.set_ylabel("normalized cross-correlation")
+    if e.method == "force corners":
+        ax.errorbar(e.corner_times_s, e.corner_lags_s * 1e3, yerr=1.96e3 * e.corner_std_s,
+                    fmt="o", color="tab:blue", capsize=3, label="lag at each force corner (95%)")
+        ax.axhline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
+        ax.axhspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2,
+                   label="95% CI")
+        ax.set_xlabel("time in the session (s)")
+        ax.set_ylabel("image time - force time (ms)")
+    else:
+        ax.plot(e.lags_s * 1e3, e.correlation, color="tab:blue", label="correlation")
+        ax.axvline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
+        ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2,
+                   label="95% CI")
+        ax.set_xlabel("image time - force time (ms)")
+        ax.set_ylabel("normalized cross-correlation")
     ax.set_title(f"{report.path.name}: {'PASS' if report.passed else 'FAIL'}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEstimate:
+    """The offset from the force corners when they pin it to within a frame period (95%
+    interval), else the better determined of the corner and the change-correlation measurement."""
+    t_force, forces = reader.force_times_ns(), reader.forces_n()
+    t_frames = reader.frame_times_ns()
+    found, errors = [], []
+    try:
+        found.append(corner_offset(t_frames, frame_components(reader), t_force, forces,
+                                   max_lag_s=max_lag_s))
+    except SessionError as err:
+        errors.append(str(err))
+    period_s = float(np.median(np.diff(t_frames))) / 1e9
+    try:
+        t_motion, motion = motion_energy(reader)
+        found.append(change_offset(t_motion, motion, t_force, forces, period_s,
+                                   max_lag_s=max_lag_s))
+    except SessionError as err:
+        errors.append(str(err))
+    if not found:
+        raise SessionError(f"{reader.path}: cannot measure the image-force offset: "
+                           + "; ".join(errors))
+    corners = [e for e in found if e.method == "force corners"]
+    if corners and corners[0].ci95_s[1] - corners[0].ci95_s[0] <= 2 * period_s:
+        return corners[0]  # sub-frame alignment on the force's kinks: the sharper measurement
+    return min(found, key=lambda e: e.ci95_s[1] - e.ci95_s[0])
 
 
 def verify_sync(path: str | Path, limits: SyncLimits | None = None,
@@ -240,10 +167,7 @@ def verify_sync(path: str | Path, limits: SyncLimits | None = None,
     with SessionReader(path) as reader:
         if reader.n_frames < 3 or len(reader.forces_n()) < 3:
             raise SessionError(f"{path} has too few frames or force samples to check sync")
-        t_motion, motion = motion_energy(reader)
-        frame_period_s = float(np.median(np.diff(reader.frame_times_ns()))) / 1e9
-        estimate = estimate_offset(t_motion, motion, reader.force_times_ns(), reader.forces_n(),
-                                   frame_period_s, max_lag_s=max_lag_s)
+        estimate = measure_offset(reader, max_lag_s)
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}

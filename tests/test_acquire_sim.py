@@ -16,7 +16,6 @@ width = 320
 height = 180
 stiffness_n_per_m = 200.0
 pull_speed_m_per_s = 0.01
-deformation_scale = 1.0   # visible motion at 320x180, so image motion stands above render noise
 [record]
 min_free_gb = 0.0
 """

@@ -41,18 +41,24 @@ def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def read_toml(path: str | Path, what: str,
+              error: type[VbfeError] = ConfigError) -> dict[str, Any]:
+    """Parse a TOML file; ``error`` names ``what`` and the file when it is missing or invalid."""
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise error(f"{what} {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{what} {path} is not valid TOML: {exc}") from None
+
+
 def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
     """Load a rig TOML file over the defaults; ``None`` gives the defaults (simulated bench)."""
     config = default_config()
     if path is None:
         return config
-    path = Path(path)
-    try:
-        user = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"rig config {path} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"rig config {path} is not valid TOML: {exc}") from None
+    user = read_toml(path, "rig config")
     unknown = set(user) - set(config)
     if unknown:
         raise ConfigError(

@@ -40,21 +40,23 @@ class DemoPlan:
     epochs: int
     n_points: int
     frame_stride: int
+    conv_channels: list[int]  # PointNet's shared per-point MLP
+    time_limit_s: float  # training wall-time cap
     recon_check_frames: int  # frames per session scored against the true depth
 
     @classmethod
     def full(cls) -> "DemoPlan":
         """The full demo (about ten minutes on two cores)."""
         return cls(width=640, height=360, fps=30.0, hold_s=3.0, calibration_frames=120,
-                   projector_poses=8, repeats=4, epochs=40, n_points=1024, frame_stride=1,
-                   recon_check_frames=3)
+                   projector_poses=8, repeats=4, epochs=40, n_points=1024, frame_stride=3,
+                   conv_channels=[64, 128, 1024], time_limit_s=300.0, recon_check_frames=3)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
         """A small run for tests (under two minutes)."""
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
-                   projector_poses=6, repeats=2, epochs=12, n_points=512, frame_stride=1,
-                   recon_check_frames=1)
+                   projector_poses=6, repeats=2, epochs=10, n_points=256, frame_stride=1,
+                   conv_channels=[32, 64, 256], time_limit_s=30.0, recon_check_frames=1)
 
 
 @dataclass
@@ -98,21 +100,22 @@ def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> 
                                      folder / "endoscope.yaml", simulate_poses=plan.projector_poses)
     step(1)
     rig = SimBench.from_config(config["bench"]).rig
-    cal = calibration
-    numbers = {
+    estimated = {"f": calibration.K1[0, 0], "cx": calibration.K1[0, 2], "cy": calibration.K1[1, 2],
+                 "B": calibration.B, "projector_f": calibration.K_proj[0, 0]}
+    truth = {"f": rig.left.K[0, 0], "cx": rig.left.K[0, 2], "cy": rig.left.K[1, 2],
+             "B": rig.baseline_m, "projector_f": rig.projector.K[0, 0]}
+    numbers: dict[str, Any] = {
         "views_kept": len(outcome.result.names), "frames_seen": captured.frames_seen,
-        "rms_px": float(cal.rms_stereo_px), "projector_rms_px": float(cal.rms_projector_px),
-        "f_error": _relative_error(cal.K1[0, 0], rig.left.K[0, 0]),
-        "cx_error": _relative_error(cal.K1[0, 2], rig.left.K[0, 2]),
-        "cy_error": _relative_error(cal.K1[1, 2], rig.left.K[1, 2]),
-        "B_error": _relative_error(cal.B, rig.baseline_m),
-        "projector_f_error": _relative_error(cal.K_proj[0, 0], rig.projector.K[0, 0]),
-        "f_px": float(cal.K1[0, 0]), "f_true_px": float(rig.left.K[0, 0]),
-        "B_m": float(cal.B), "B_true_m": rig.baseline_m,
+        "rms_px": float(calibration.rms_stereo_px),
+        "projector_rms_px": float(calibration.rms_projector_px),
         "files": {"board_png": str(board_png), "board_pdf": str(board_pdf),
                   "calibration": str(folder / "endoscope.yaml"),
                   "report": [str(p) for p in (outcome.report_paths or ())]},
     }
+    for name in estimated:
+        numbers[f"{name}_estimated"] = float(estimated[name])
+        numbers[f"{name}_true"] = float(truth[name])
+        numbers[f"{name}_error"] = _relative_error(estimated[name], truth[name])
     return numbers
 
 
@@ -213,14 +216,18 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
 
     held_out = [s for s in sessions if s.stem.endswith(f"_r{plan.repeats - 1}")]
     training = [s for s in sessions if s not in held_out]
-    train_config = TrainConfig.from_table(config["train"], epochs=plan.epochs,
-                                          n_points=plan.n_points, frame_stride=plan.frame_stride)
-    bars: dict[str, Callable[[int], None]] = {}
+    train_config = TrainConfig.from_table(
+        config["train"], epochs=plan.epochs, n_points=plan.n_points,
+        frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
+        time_limit_s=plan.time_limit_s)
+    bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
     def progress(name: str, done: int, total: int) -> None:
         if name not in bars:
-            bars[name] = stage(f"train: {name}", total)
-        bars[name](1)
+            bars[name] = stage(f"force model: {name}", total), [0]
+        step, last = bars[name]
+        step(done - last[0])
+        last[0] = done
 
     model_path = out / "model.pt"
     result = train(training, model_path, train_config, progress)

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import abc
-from types import TracebackType
 
+from vbfe.drivers.device import Device
 from vbfe.drivers.samples import StereoFrame, StreamStats
 
 
-class StereoCamera(abc.ABC):
+class StereoCamera(Device):
     """A stereo endoscope: open, read timestamped frame pairs, close.
 
     ``read`` blocks for at most ``timeout_s`` and returns ``None`` when no frame arrived in time;
@@ -23,25 +23,9 @@ class StereoCamera(abc.ABC):
         self.stats = StreamStats()
 
     @abc.abstractmethod
-    def open(self) -> None:
-        """Acquire the device; idempotent."""
-
-    @abc.abstractmethod
     def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
         """The next frame pair, or ``None`` on timeout."""
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Release the device; idempotent."""
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""
         return {"kind": type(self).__name__, "width": self.width, "height": self.height, "fps": self.fps}
-
-    def __enter__(self) -> "StereoCamera":
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()

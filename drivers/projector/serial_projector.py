@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import re
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,14 +20,10 @@ from typing import Any
 import numpy as np
 import serial
 
+from vbfe.config import read_toml
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import ProjectorEvent
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised only on 3.10
-    import tomli as tomllib
 
 log = logging.getLogger(__name__)
 _LINE_END = re.compile(r"\r\n|\r|\n")
@@ -65,12 +60,7 @@ class CommandTable:
     def load(cls, path: str | Path | None = None) -> "CommandTable":
         """Read and check a command table; DeviceError naming the file when it is wrong."""
         path = Path(path) if path is not None else default_commands_path()
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise DeviceError(f"projector command table {path} does not exist") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise DeviceError(f"projector command table {path} is not valid TOML: {exc}") from None
+        data = read_toml(path, "projector command table", DeviceError)
         try:
             proto = data.get("protocol", {})
             ack, error = proto.get("ack", r"^OK\b"), proto.get("error", r"^ERR\s*(?P<reason>.*)$")

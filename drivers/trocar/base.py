@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import abc
-from types import TracebackType
 
 import numpy as np
 
+from vbfe.drivers.device import Device
 from vbfe.drivers.samples import ForceSample, StreamStats
 
 
-class ForceSensor(abc.ABC):
+class ForceSensor(Device):
     """A force sensor (the TRF85D trocar): open, read timestamped samples, tare, close.
 
     ``read`` returns ``None`` on timeout, raises :class:`~vbfe.drivers.errors.DeviceError` when
@@ -26,25 +26,9 @@ class ForceSensor(abc.ABC):
         self.offset_n = np.zeros(len(self.axes))
 
     @abc.abstractmethod
-    def open(self) -> None:
-        """Acquire the interface; idempotent."""
-
-    @abc.abstractmethod
     def read(self, timeout_s: float = 1.0) -> ForceSample | None:
         """The next tared force sample, or ``None`` on timeout."""
-
-    @abc.abstractmethod
-    def close(self) -> None:
-        """Release the interface; idempotent."""
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""
         return {"kind": type(self).__name__, "rate_hz": self.rate_hz, "axes": list(self.axes)}
-
-    def __enter__(self) -> "ForceSensor":
-        self.open()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()

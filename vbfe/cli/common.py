@@ -26,3 +26,28 @@ def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm
     """A progress bar on stderr; quiet when stderr is not a terminal and CI is set."""
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True,
                 mininterval=0.5)
+
+
+STAGE_UNITS = {"sessions": "session", "epochs": "epoch", "predict": "session"}
+
+
+class StageProgress:
+    """One progress bar per stage of a ``(stage, done, total)`` progress callback."""
+
+    def __init__(self) -> None:
+        self._stage: str | None = None
+        self._bar: tqdm | None = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage != self._stage:
+            self.close()
+            self._stage = stage
+            self._bar = progress(total=total, desc=stage, unit=STAGE_UNITS.get(stage, "it"))
+        assert self._bar is not None
+        self._bar.update(done - self._bar.n)
+
+    def close(self) -> None:
+        """Close the current bar."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.train import StageProgress
-from vbfe.estimate.evaluation import evaluate
+from vbfe.cli.common import StageProgress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,6 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
+    from vbfe.estimate import evaluate  # torch loads only when a command needs it
+
     bars = StageProgress()
     try:
         report = evaluate(args.model, args.sessions or None, args.out, progress=bars)

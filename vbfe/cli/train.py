@@ -4,37 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from tqdm import tqdm
-
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.config import section
-from vbfe.estimate.train_config import TrainConfig
-from vbfe.estimate.training import train
-
-STAGE_UNITS = {"sessions": "session", "epochs": "epoch", "predict": "session"}
-
-
-class StageProgress:
-    """One progress bar per stage of a ``(stage, done, total)`` progress callback."""
-
-    def __init__(self) -> None:
-        self._stage: str | None = None
-        self._bar: tqdm | None = None
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if stage != self._stage:
-            self.close()
-            self._stage = stage
-            self._bar = progress(total=total, desc=stage, unit=STAGE_UNITS.get(stage, "it"))
-        assert self._bar is not None
-        self._bar.update(done - self._bar.n)
-
-    def close(self) -> None:
-        """Close the current bar."""
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `train` subcommand."""
@@ -59,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Train and print where the model went and how it compares with the mean predictor."""
+    from vbfe.estimate import TrainConfig, train  # torch loads only when a command needs it
+
     overrides = {key: getattr(args, key) for key in
                  ("epochs", "n_points", "batch_size", "learning_rate", "target", "val_fraction",
                   "test_fraction", "time_limit_s", "seed")}

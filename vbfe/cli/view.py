@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.acquire.viewer import view_live, view_session
 from vbfe.cli.common import add_config_option, config_from
 from vbfe.errors import VbfeError
 
@@ -21,6 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the viewer until its window closes."""
+    from vbfe.acquire.viewer import view_live, view_session  # Qt loads only for this command
+
     if args.live:
         return view_live(config_from(args))
     if args.session is None:

@@ -1,0 +1,66 @@
+"""`vbfe demo --quick`: the whole pipeline on the simulated bench, scored against its truth."""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from vbfe.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def demo_out(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def numbers(demo_out) -> dict:
+    return json.loads((demo_out / "results.json").read_text())
+
+
+def test_calibration_matches_the_bench_truth(numbers):
+    cal = numbers["calibration"]
+    for name in ("f", "cx", "cy"):
+        assert cal[f"{name}_error"] < 0.005, name
+    assert cal["B_error"] < 0.01
+    assert cal["rms_px"] < 0.5
+    assert cal["projector_f_error"] < 0.05  # quick: six projector poses at 480x270
+    assert abs(cal["f_estimated"] - cal["f_true"]) / cal["f_true"] == pytest.approx(cal["f_error"])
+
+
+def test_reconstruction_depth_error_is_within_one_percent_of_working_distance(numbers):
+    recon = numbers["reconstruction"]
+    assert recon["verified"]["median_abs_depth_error_m"] <= 0.01 * 0.06
+    assert recon["verified"]["valid_fraction"] > 0.5
+    assert recon["verified"]["bad_pixel_rate"] <= recon["unverified"]["bad_pixel_rate"]
+
+
+def test_sync_offset_is_measured_against_the_true_offset(numbers):
+    rows = numbers["sync"]["sessions"]
+    assert len(rows) == 6
+    for row in rows:
+        assert row["true_offset_s"] == pytest.approx(0.037, abs=0.005)
+        assert abs(row["error_s"]) == pytest.approx(abs(row["offset_s"] - row["true_offset_s"]))
+
+
+def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numbers):
+    force = numbers["force"]
+    assert not set(force["train_sessions"]) & set(force["test_sessions"])
+    metrics = force["metrics"]
+    assert set(metrics) == {"pointnet", "mean", "linear_displacement", "hooke"}
+    assert len(metrics["pointnet"]["per_condition"]) == 3
+    assert metrics["pointnet"]["overall"]["mae_n"] < metrics["mean"]["overall"]["mae_n"]
+
+
+def test_report_links_every_plot_and_shows_the_verdicts(demo_out):
+    html = (demo_out / "index.html").read_text()
+    images = re.findall(r'<img src="([^"]+)"', html)
+    assert len(images) >= 5
+    for src in images:
+        assert (demo_out / src).is_file(), src
+    assert html.count("PASS") + html.count("FAIL") >= 10
+    for heading in ("calibration", "Synchronisation", "reconstruction", "Force estimation"):
+        assert heading in html
