@@ -87,7 +87,7 @@ class SyncReport:
         e = self.estimate
         return {"sync_offset_s": e.offset_s, "sync_offset_std_s": e.std_s,
                 "sync_offset_ci95_low_s": e.ci95_s[0], "sync_offset_ci95_high_s": e.ci95_s[1],
-                "sync_residual_offset_s": self.residual_offset_s,
+                "sync_residual_offset_s": self.residual_offset_s, "sync_method": e.method,
                 "sync_verdict": "pass" if self.passed else "fail",
                 "sync_reasons": json.dumps(self.reasons),
                 "sync_drift_ppm": json.dumps(self.drift_ppm),
@@ -179,7 +179,8 @@ def verify_sync(path: str | Path, limits: SyncLimits | None = None,
         reasons.append(f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms")
     if half_ci > limits.max_ci_halfwidth_s:
         reasons.append(f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
-                       f"{1e3 * limits.max_ci_halfwidth_s:g} ms (too little motion?)")
+                       f"{1e3 * limits.max_ci_halfwidth_s:g} ms (too little motion, or too few "
+                       "sharp force changes, to align on?)")
     for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
         if audits[stream].drop_fraction > limit:
             reasons.append(f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "

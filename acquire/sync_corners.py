@@ -35,8 +35,7 @@ _FORCE_SEARCH_S = 0.1  # the force knot is searched this far around the detected
 _IMAGE_WINDOW_S = 0.5  # frames within this of the image knot's search range are fitted
 _MIN_FRAMES = 10  # fewer frames around a corner: the corner is skipped
 _CHI2_95 = 3.841  # 95% quantile of χ² with one degree of freedom
-_SEARCH_STEP_S = 0.0005
-
+_SEARCH_STEP_S = 0.0005  # knot positions are tried on this grid
 
 
 @dataclass
@@ -137,17 +136,18 @@ def force_corners(t_s: np.ndarray, force: np.ndarray) -> list[Corner]:
     return corners
 
 
-def _spline_design(t_s: np.ndarray, knot_s: float, scale_s: float, flat: str = "") -> np.ndarray:
-    """Columns of a continuous quadratic spline with one knot: slope and curvature may change at
-    the knot; on a ``flat`` side ("before"/"after") the spline is constant."""
-    s = (t_s - knot_s) / scale_s
+def _spline_designs(t_s: np.ndarray, knots_s: np.ndarray, scale_s: float,
+                    flat: str = "") -> np.ndarray:
+    """Columns (knots × samples × p) of continuous quadratic splines with one knot each: slope
+    and curvature may change at the knot; on a ``flat`` side ("before"/"after") it is constant."""
+    s = (t_s[None, :] - knots_s[:, None]) / scale_s
     h, n = np.maximum(s, 0.0), np.minimum(s, 0.0)
     one = np.ones_like(s)
     if flat == "before":
-        return np.stack([one, h, h ** 2], axis=1)
+        return np.stack([one, h, h ** 2], axis=2)
     if flat == "after":
-        return np.stack([one, n, n ** 2], axis=1)
-    return np.stack([one, s, s ** 2, h, h ** 2], axis=1)
+        return np.stack([one, n, n ** 2], axis=2)
+    return np.stack([one, s, s ** 2, h, h ** 2], axis=2)
 
 
 def _knot_profile(t_s: np.ndarray, values: np.ndarray, knots_s: np.ndarray, scale_s: float,
@@ -156,11 +156,11 @@ def _knot_profile(t_s: np.ndarray, values: np.ndarray, knots_s: np.ndarray, scal
     with their own noise levels) among ``knots_s``: position (s) and standard error from the 95%
     profile-likelihood interval."""
     values = values.reshape(len(t_s), -1)
-    rss = np.empty((len(knots_s), values.shape[1]))
-    for i, knot in enumerate(knots_s):
-        design = _spline_design(t_s, knot, scale_s, flat)
-        coef, *_ = np.linalg.lstsq(design, values, rcond=None)
-        rss[i] = np.sum((values - design @ coef) ** 2, axis=0)
+    design = _spline_designs(t_s, knots_s, scale_s, flat)
+    normal = np.einsum("knp,knq->kpq", design, design)
+    coef = np.linalg.solve(normal + 1e-12 * np.eye(design.shape[2]),
+                           np.einsum("knp,nc->kpc", design, values))
+    rss = np.sum((values[None] - design @ coef) ** 2, axis=1)
     deviance = len(t_s) * np.sum(np.log(np.maximum(rss, 1e-300)), axis=1)  # −2·log-likelihood
     k = int(np.argmin(deviance))
     inside = np.flatnonzero(deviance - deviance[k] <= _CHI2_95)

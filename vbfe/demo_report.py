@@ -92,8 +92,10 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
                  [(r["session"], 1e3 * r["offset_s"], 1e3 * r["true_offset_s"],
                    1e3 * r["error_s"], f"{1e3 * r['ci95_s'][0]:.1f} … {1e3 * r['ci95_s'][1]:.1f}",
                    "PASS" if r["passed"] else "FAIL") for r in sync["sessions"]])
-    report.paragraph("The verdict is verify-sync's own: it fails while the measured offset is "
-                     "larger than its limit, i.e. until the correction is applied.")
+    report.paragraph("The verdict is verify-sync's own against the [record] sync limits: it "
+                     "fails while the offset is larger than its limit (until the measured "
+                     "correction is applied with --apply) or is known less precisely than the "
+                     "confidence-interval limit; the trocar's force noise limits that precision.")
     _images(report, [r["plot"] for r in sync["sessions"][:1] if r["plot"]], "sync", out)
 
     recon = numbers["reconstruction"]

@@ -33,8 +33,9 @@ class SimBench:
 
     ``scene`` is ``"tissue"`` (the deforming hose) or ``"plane"`` (a flat white plane at the
     working distance, e.g. for pattern checks; the trocar still follows the protocol). Latencies
-    are the mean host arrival delays of each stream; ``image_latency_ms − force_latency_ms`` is
-    the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
+    are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
+    reader's clock fits map each stream to its median arrival, so
+    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
     when the first device is opened.
     """
 
@@ -236,9 +237,11 @@ class SimBench:
         """Per-frame truth for camera frames stamped ``frame_t_device_ns`` (camera clock).
 
         ``force_n`` (n×3, left-camera axes) and ``force_magnitude_n`` at the frame's true time;
-        ``frame_t_true_ns``; ``frame_t_host_nominal_ns`` (true + mean image latency, what a
-        perfect clock fit gives); ``trocar_t_device_ns`` (the trocar clock at that instant);
-        ``image_minus_force_host_offset_ns`` (the latency difference a sync tool must find);
+        ``frame_t_true_ns``; ``frame_t_host_nominal_ns`` (true + median image latency: the
+        reader's clock fit maps each stream to its median arrival); ``trocar_t_device_ns`` (the
+        trocar clock at that instant); ``image_minus_force_host_offset_ns`` (difference of the
+        median latencies — the jitter is symmetric, so of the nominal ones: the offset left
+        between the clock-fitted streams, which a sync tool must find);
         ``grasper_displacement_m``; ``phase`` (0 rest, 1 pull, 2 hold).
         """
         true_ns = self.camera_clock.true_ns(np.asarray(frame_t_device_ns, np.int64))

@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "drift and drops of a session; pass/fail against the rig's limits")
     parser.add_argument("session", metavar="SESSION.h5")
     parser.add_argument("--plot", metavar="PNG", default=None,
-                        help="cross-correlation plot (default: SESSION.sync.png)")
+                        help="plot of the offset measurement (default: SESSION.sync.png)")
     parser.add_argument("--apply", action="store_true",
                         help="store the measured offset as a frame-time correction")
     parser.add_argument("--no-store", action="store_true",
