@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from vbfe.acquire.audit import StreamAudit, audit_sequence
 from vbfe.acquire.clock import ClockFit

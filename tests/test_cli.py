@@ -3,6 +3,10 @@
 import subprocess
 import sys
 
+import pytest
+
+from vbfe.config import ConfigError, load_config
+
 from vbfe.cli.main import build_parser, main
 
 SUBCOMMANDS = ["devices", "record", "view", "inspect", "verify-sync", "calibrate", "reconstruct",
@@ -21,10 +25,16 @@ def test_console_script_runs():
     assert out.stdout.startswith("vbfe ")
 
 
-def test_unknown_config_table_is_a_one_line_error(tmp_path, capsys):
+def test_unknown_config_table_is_named(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text("[camra]\nbackend='v4l2'\n")
-    from vbfe.config import ConfigError, load_config
-    import pytest
     with pytest.raises(ConfigError, match="camra"):
         load_config(rig)
+
+
+def test_bad_config_is_a_one_line_error_with_exit_status_2(tmp_path, capsys):
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[camera\n")
+    assert main(["record", str(tmp_path / "s.h5"), "--duration", "1", "--config", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert "not valid TOML" in err and str(rig) in err and "Traceback" not in err

@@ -18,11 +18,6 @@ import numpy as np
 
 from vbfe.config import load_config
 
-# The paper's Table I: MAE (σ) of the force estimate per stiffness, newtons.
-PAPER_MAE_N = {40.0: 0.4055, 80.0: 0.4748, 200.0: 0.8044}
-# The paper's conditions: stiffness (N/m) pulled at speed (m/s).
-PAPER_CONDITIONS = ((40.0, 0.01), (80.0, 0.005), (200.0, 0.002))
-
 StageFn = Callable[[str, int], Callable[[int], None]]  # (stage name, total) -> step(n)
 
 
@@ -130,11 +125,12 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
     """One session per paper condition and repeat, each a new trial (seed)."""
     from vbfe.acquire import record_session
     from vbfe.drivers.sim import SimBench
+    from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 
     sessions = []
     folder = out / "sessions"
     folder.mkdir(parents=True, exist_ok=True)
-    runs = [(k, v, r) for k, v in PAPER_CONDITIONS for r in range(plan.repeats)]
+    runs = [(k, v, r) for k, v in PAPER_CONDITIONS.items() for r in range(plan.repeats)]
     step = stage("record sessions", len(runs))
     for seed, (stiffness, speed, repeat) in enumerate(runs, start=1):
         run_config = copy.deepcopy(config)
@@ -198,15 +194,16 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
         with SessionReader(path) as reader:
             calibration = Calibration.from_yaml_text(reader.calibration_yaml())
             bench = SimBench.from_description(reader.metadata["bench"])
+            reconstructors = {key: Reconstructor(calibration, params, verify=verify)
+                              for key, verify in (("verified", True), ("unverified", False))}
             picks = np.linspace(0, reader.n_frames - 1, plan.recon_check_frames + 2)[1:-1]
             for i in picks.astype(int):
                 frame = reader.frame(int(i))
                 truth = bench.render_truth(frame.t_device_ns)
                 truth_maps = rectified_truth(calibration, truth["depth_left_m"],
                                              truth["valid_left"])
-                for key, verify in (("verified", True), ("unverified", False)):
-                    cloud = Reconstructor(calibration, params, verify=verify).process(
-                        frame.left, frame.right)
+                for key, reconstructor in reconstructors.items():
+                    cloud = reconstructor.process(frame.left, frame.right)
                     scores[key].append(evaluate_against_truth(cloud, *truth_maps).as_dict())
     summary = {key: {name: float(np.nanmedian([s[name] for s in rows])) for name in rows[0]}
                for key, rows in scores.items()}
