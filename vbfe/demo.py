@@ -37,6 +37,7 @@ class DemoPlan:
     frame_stride: int
     conv_channels: list[int]  # PointNet's shared per-point MLP
     time_limit_s: float  # training wall-time cap
+    threads: int  # torch CPU threads (one thread trains reproducibly)
     recon_check_frames: int  # frames per session scored against the true depth
 
     @classmethod
@@ -50,14 +51,16 @@ class DemoPlan:
         """
         return cls(width=640, height=360, fps=10.0, hold_s=3.0, calibration_frames=120,
                    projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
-                   conv_channels=[32, 64, 256], time_limit_s=240.0, recon_check_frames=3)
+                   conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
+                   recon_check_frames=3)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
         """A small run for tests (under two minutes)."""
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
                    projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
-                   conv_channels=[32, 64, 256], time_limit_s=0.0, recon_check_frames=1)
+                   conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
+                   recon_check_frames=1)
 
 
 @dataclass
@@ -222,7 +225,7 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
     train_config = TrainConfig.from_table(
         config["train"], epochs=plan.epochs, n_points=plan.n_points,
         frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
-        time_limit_s=plan.time_limit_s)
+        time_limit_s=plan.time_limit_s, threads=plan.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
     def progress(name: str, done: int, total: int) -> None:
