@@ -59,8 +59,9 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     # training sessions) clearly beats the mean predictor on sessions it never saw.
     assert mae["linear_displacement"] < 0.8 * mae["mean"]
     # --quick trains PointNet on three sessions for seconds, which is too little to require
-    # it to beat the mean (the full demo does: 0.45x); it must still be a working regressor.
-    assert mae["pointnet"] < 1.25 * mae["mean"]
+    # it to beat the mean (the full demo does: 0.45x) and varies from run to run (0.58-1.13x
+    # seen); it must still be a working regressor, not a constant or a broken network.
+    assert mae["pointnet"] < 1.5 * mae["mean"]
 
 
 def test_report_links_every_plot_and_shows_the_verdicts(demo_out):

@@ -37,7 +37,7 @@ class DemoPlan:
     frame_stride: int
     conv_channels: list[int]  # PointNet's shared per-point MLP
     time_limit_s: float  # training wall-time cap
-    threads: int  # torch CPU threads (one thread trains reproducibly)
+    threads: int  # torch CPU threads
     recon_check_frames: int  # frames per session scored against the true depth
 
     @classmethod
