@@ -34,7 +34,26 @@ def _check_no_options(family: str, options: dict) -> None:
                           f"remove them from [{family}] or set its backend")
 
 
-class SimCamera(StereoCamera):
+class _BenchStream:
+    """Open/close register the device with its bench (the bench's time starts at the first open)."""
+
+    bench: "SimBench"
+    _open = False
+
+    def open(self) -> None:
+        """Start the stream; idempotent."""
+        if not self._open:
+            self.bench.device_opened(self)
+            self._open = True
+
+    def close(self) -> None:
+        """Stop the stream; idempotent."""
+        if self._open:
+            self.bench.device_closed(self)
+            self._open = False
+
+
+class SimCamera(_BenchStream, StereoCamera):
     """The bench's stereo endoscope: renders the deforming tissue under the current pattern."""
 
     def __init__(self, bench: "SimBench", **options: object) -> None:
@@ -44,12 +63,6 @@ class SimCamera(StereoCamera):
         self.width, self.height, self.fps = bench.rig.left.width, bench.rig.left.height, bench.fps
         self._next = 0
         self._open = False
-
-    def open(self) -> None:
-        """Start the stream (at frame 0 of the trial)."""
-        if not self._open:
-            self.bench.device_opened(self)
-            self._open = True
 
     def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
         """Render the next frame; in real time, wait for it (``None`` after ``timeout_s``)."""
@@ -80,19 +93,13 @@ class SimCamera(StereoCamera):
                            t_device_ns=int(bench.camera_clock.device_ns(t_true_ns)),
                            t_host_ns=host_ns + bench.host_epoch_ns)
 
-    def close(self) -> None:
-        """Stop the stream."""
-        if self._open:
-            self.bench.device_closed(self)
-            self._open = False
-
     def describe(self) -> dict[str, object]:
         """Size, rate and the simulated clock's nominal parameters."""
         return {**super().describe(), "simulated": True,
                 "drift_ppm": self.bench.camera_clock.drift_ppm}
 
 
-class SimTrocar(ForceSensor):
+class SimTrocar(_BenchStream, ForceSensor):
     """The bench's TRF85D: true force + Gaussian noise, quantized, at ``trocar_rate_hz``."""
 
     def __init__(self, bench: "SimBench", **options: object) -> None:
@@ -104,12 +111,6 @@ class SimTrocar(ForceSensor):
         self._block: dict[str, np.ndarray] = {}
         self._block_start = 0
         self._open = False
-
-    def open(self) -> None:
-        """Start sampling."""
-        if not self._open:
-            self.bench.device_opened(self)
-            self._open = True
 
     def _sample(self, j: int) -> tuple[int, int, np.ndarray]:
         """Device and host (relative) ns and measured force of sample ``j`` (made in blocks)."""
@@ -132,12 +133,6 @@ class SimTrocar(ForceSensor):
                              t_host_ns=host_ns + self.bench.host_epoch_ns)
         self._next += 1
         return sample
-
-    def close(self) -> None:
-        """Stop sampling."""
-        if self._open:
-            self.bench.device_closed(self)
-            self._open = False
 
     def describe(self) -> dict[str, object]:
         """Rate, axes, noise model and the simulated clock's nominal parameters."""
