@@ -8,6 +8,7 @@ from typing import Any
 
 from vbfe.acquire.recorder import Recorder, RecorderStats
 from vbfe.config import section
+from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_devices
 
 
@@ -19,8 +20,6 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
     conditions, description and per-frame ground truth to the session."""
-    from vbfe.recon.pattern import make_pattern
-
     settings = section(config, "record")
     devices = open_devices(config)
     metadata: dict[str, Any] = {"operator": operator, "notes": notes,

@@ -28,7 +28,7 @@ from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
-from vbfe.recon.pattern import make_pattern
+from vbfe.drivers.projector.pattern import make_pattern
 
 WIDTH, HEIGHT, FPS, FORCE_HZ = 1920, 1080, 30.0, 1000.0
 

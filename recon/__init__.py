@@ -1,15 +1,13 @@
 """Structured-light stereo reconstruction: pattern, colour correction, matching, point clouds."""
 
-from vbfe.recon.accuracy import AccuracyReport, calibration_from_rig, evaluate_against_truth
+from vbfe.drivers.projector.pattern import make_pattern, save_pattern
 from vbfe.recon.clouds import CloudReader, export_ply, sidecar_path, write_ply
 from vbfe.recon.color import ColorModel, estimate_color_model
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
-from vbfe.recon.pattern import make_pattern, save_pattern
 from vbfe.recon.session_recon import reconstruct_session
 from vbfe.recon.triangulate import FrameCloud, Reconstructor
 
-__all__ = ["AccuracyReport", "CloudReader", "ColorModel", "FrameCloud", "ReconError",
-           "Reconstructor", "SgbmParams", "calibration_from_rig", "estimate_color_model",
-           "evaluate_against_truth", "export_ply", "make_pattern", "reconstruct_session",
-           "save_pattern", "sidecar_path", "write_ply"]
+__all__ = ["CloudReader", "ColorModel", "FrameCloud", "ReconError", "Reconstructor",
+           "SgbmParams", "estimate_color_model", "export_ply", "make_pattern",
+           "reconstruct_session", "save_pattern", "sidecar_path", "write_ply"]

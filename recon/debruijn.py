@@ -1,31 +1,9 @@
-"""De Bruijn sequences and window codes: every window of ``order`` symbols occurs once."""
+"""Window codes of De Bruijn sequences (every window of ``order`` symbols occurs once), for
+decoding; the sequence itself is :func:`vbfe.drivers.projector.pattern.de_bruijn`."""
 
 from __future__ import annotations
 
 import numpy as np
-
-
-def de_bruijn(n_symbols: int = 3, order: int = 4) -> np.ndarray:
-    """The lexicographically least De Bruijn sequence B(n, m) (length n**m), as int8 symbols.
-
-    Built with the Fredricksen–Kessler–Maiorana algorithm (concatenated Lyndon words).
-    """
-    a = [0] * (n_symbols * order)
-    out: list[int] = []
-
-    def db(t: int, p: int) -> None:
-        if t > order:
-            if order % p == 0:
-                out.extend(a[1:p + 1])
-            return
-        a[t] = a[t - p]
-        db(t + 1, p)
-        for j in range(a[t - p] + 1, n_symbols):
-            a[t] = j
-            db(t + 1, t)
-
-    db(1, 1)
-    return np.asarray(out, dtype=np.int8)
 
 
 def window_codes(symbols: np.ndarray, n_symbols: int = 3, order: int = 4) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 
 from vbfe.recon.color import ColorModel
 from vbfe.recon.debruijn import code_lookup
-from vbfe.recon.pattern import (DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR, WINDOW,
+from vbfe.drivers.projector.pattern import (DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR, WINDOW,
                                 fringe_symbols)
 
 MIN_VOTES = 2  # windows that must agree on a fringe's index

@@ -12,7 +12,7 @@ from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
-from vbfe.recon.pattern import DEFAULT_FRINGES
+from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon.verify import verify_disparity
 
 

@@ -7,7 +7,7 @@ from vbfe.recon import (ColorModel, ReconError, calibration_from_rig, estimate_c
                         make_pattern)
 from vbfe.recon.color import color_calibration_patterns
 from vbfe.recon.decode import FringeDecoder
-from vbfe.recon.pattern import fringe_coordinates
+from vbfe.drivers.projector.pattern import fringe_coordinates
 
 K_TRUE = np.array([[0.80, 0.15, 0.05],   # camera B <- projector B, G, R
                    [0.10, 0.75, 0.15],

@@ -4,9 +4,10 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.recon import ReconError, make_pattern, save_pattern
-from vbfe.recon.debruijn import code_lookup, de_bruijn, window_codes
-from vbfe.recon.pattern import SYMBOL_CHANNEL_BGR, fringe_symbols
+from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.projector.pattern import SYMBOL_CHANNEL_BGR, de_bruijn, fringe_symbols
+from vbfe.recon import make_pattern, save_pattern
+from vbfe.recon.debruijn import code_lookup, window_codes
 
 
 def test_de_bruijn_3_4_has_every_window_of_four_exactly_once():
@@ -47,7 +48,7 @@ def test_pattern_colours_follow_the_code_and_value_peaks_at_fringe_centres(width
 def test_save_pattern_writes_a_png_with_the_same_pixels(tmp_path):
     path = save_pattern(tmp_path / "pattern.png", 640, 480)
     assert np.array_equal(cv2.imread(str(path)), make_pattern(640, 480))
-    with pytest.raises(ReconError, match="too small"):
+    with pytest.raises(DeviceError, match="too small"):
         make_pattern(100, 10)
-    with pytest.raises(ReconError, match="could not write"):
+    with pytest.raises(DeviceError, match="could not write"):
         save_pattern(tmp_path / "missing" / "pattern.png", 640, 480)

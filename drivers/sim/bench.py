@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
 from vbfe.drivers.sim.devices import FORCE_RANGE_N, SimCamera, SimProjector, SimTrocar
 from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
@@ -217,8 +218,6 @@ class SimBench:
     def render_frame(self, true_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """Left and right images at true time ``true_ns``."""
         if not self._pattern_shown:
-            from vbfe.recon.pattern import make_pattern
-
             self.show_pattern(make_pattern(self.rig.projector.width, self.rig.projector.height))
         return self.renderer.render(self.surface_at(true_ns))
 

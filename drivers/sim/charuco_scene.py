@@ -9,6 +9,8 @@ corners are anti-aliased and land where the true projection puts them.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -42,6 +44,35 @@ def board_texture(board: cv2.aruco.CharucoBoard, px_per_m: float) -> np.ndarray:
     return (BLACK + (WHITE - BLACK) * (image.astype(np.float32) / 255.0)).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class BoardTarget:
+    """Any planar calibration target as the bench renders it: a grey texture whose pixel
+    ``(0, 0)`` corner is the board origin, and the board-frame points a detector finds."""
+
+    texture: np.ndarray  # float32 grey levels
+    px_per_m: float
+    object_points: np.ndarray  # n×3, metres, z = 0
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Width and height of the textured area in metres."""
+        return self.texture.shape[1] / self.px_per_m, self.texture.shape[0] / self.px_per_m
+
+
+def charuco_target(board: cv2.aruco.CharucoBoard, px_per_m: float = 40000.0) -> BoardTarget:
+    """The ChArUco ``board`` (built in metres) as a :class:`BoardTarget`."""
+    return BoardTarget(board_texture(board, px_per_m), px_per_m,
+                       np.asarray(board.getChessboardCorners(), np.float64).reshape(-1, 3))
+
+
+def _geometry(board: cv2.aruco.CharucoBoard | BoardTarget) -> tuple[tuple[float, float],
+                                                                      np.ndarray]:
+    """Size (m) and object points of a ChArUco board or a target."""
+    if isinstance(board, BoardTarget):
+        return board.size_m, board.object_points
+    return board_size_m(board), np.asarray(board.getChessboardCorners(), np.float64)
+
+
 def _render_view(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | None,
                  texture: np.ndarray, px_per_m: float, pose: Pose, supersample: int) -> np.ndarray:
     origin, dirs = camera_rays(camera, R, T, supersample)
@@ -57,17 +88,22 @@ def _render_view(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | No
     return image
 
 
-def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard, poses: list[Pose],
-                       board_px_per_m: float = 40000.0, noise_sigma: float = 1.5,
-                       blur_sigma_px: float = 0.5, supersample: int = 3,
+def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget,
+                       poses: list[Pose], board_px_per_m: float = 40000.0,
+                       noise_sigma: float = 1.5, blur_sigma_px: float = 0.5, supersample: int = 3,
                        rng: np.random.Generator | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Left/right BGR ``uint8`` views of ``board`` at each pose (board → left camera).
+    """Left/right BGR ``uint8`` views of ``board`` at each pose (board → left camera), in
+    even room light.
 
-    The board must be built with lengths in metres. ``noise_sigma`` is Gaussian sensor noise in
-    grey levels, ``blur_sigma_px`` a mild optical blur; distortion is the rig's, applied exactly.
+    A ChArUco board must be built with lengths in metres (it is textured at
+    ``board_px_per_m``); a :class:`BoardTarget` brings its own texture. ``noise_sigma`` is
+    Gaussian sensor noise in grey levels, ``blur_sigma_px`` a mild optical blur; distortion is
+    the rig's, applied exactly.
     """
     rng = np.random.default_rng() if rng is None else rng
-    texture = board_texture(board, board_px_per_m)
+    if not isinstance(board, BoardTarget):
+        board = charuco_target(board, board_px_per_m)
+    texture, board_px_per_m = board.texture, board.px_per_m
     views = []
     for pose in poses:
         pair = []
@@ -89,10 +125,10 @@ def _rotation(tilt_x_deg: float, tilt_y_deg: float, roll_deg: float) -> np.ndarr
     return rx @ ry @ rz
 
 
-def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard, pose: Pose,
+def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget, pose: Pose,
                      margin_px: float = 4.0) -> float:
     """Fraction of chessboard corners inside both views (with a margin), board facing the camera."""
-    corners = np.asarray(board.getChessboardCorners(), np.float64)
+    _, corners = _geometry(board)
     R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
     points = corners @ R_board.T + np.asarray(pose[1], np.float64).reshape(3)
     if np.any(points[:, 2] <= 0):
@@ -107,20 +143,23 @@ def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard, pose: Pose,
 
 def random_board_poses(n: int, rng: np.random.Generator, distance_m: tuple[float, float] = (0.04, 0.09),
                        max_tilt_deg: float = 35.0, max_roll_deg: float = 25.0,
-                       rig: StereoRig | None = None, board: cv2.aruco.CharucoBoard | None = None,
-                       min_visible: float = 0.85, max_tries: int = 2000) -> list[Pose]:
+                       rig: StereoRig | None = None,
+                       board: cv2.aruco.CharucoBoard | BoardTarget | None = None,
+                       min_visible: float = 0.85, max_tries: int = 2000,
+                       accept: Callable[[Pose], bool] | None = None) -> list[Pose]:
     """``n`` varied board poses (rvec, tvec; board → left camera) facing the endoscope.
 
     The board centre is placed on a random line of sight at a random distance, tilted up to
     ``max_tilt_deg`` about x and y and rolled up to ``max_roll_deg``. With ``rig`` and ``board``
     given, poses are kept only when at least ``min_visible`` of the chessboard corners are in
     both views; without them the board centre is kept within ±20° of the optical axis.
+    ``accept(pose)`` may refuse more poses (e.g. those outside the projector's field).
     """
     if (rig is None) != (board is None):
         raise ValueError("give both rig and board, or neither")
     half = np.zeros(3)
     if board is not None:
-        w_m, h_m = board_size_m(board)
+        (w_m, h_m), _ = _geometry(board)
         half = np.array([w_m / 2, h_m / 2, 0.0])
     poses: list[Pose] = []
     for _ in range(max_tries):
@@ -141,7 +180,8 @@ def random_board_poses(n: int, rng: np.random.Generator, distance_m: tuple[float
         tvec = centre - R_board @ half
         rvec, _ = cv2.Rodrigues(R_board)
         pose = (rvec.reshape(3), tvec)
-        if rig is None or visible_fraction(rig, board, pose) >= min_visible:
+        if ((rig is None or visible_fraction(rig, board, pose) >= min_visible)
+                and (accept is None or accept(pose))):
             poses.append(pose)
     if len(poses) < n:
         raise DeviceError(f"could only place {len(poses)} of {n} board poses in view; widen "
