@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import copy
+
 import numpy as np
 
 from vbfe.calib.board import BoardSpec, write_board
@@ -19,13 +21,13 @@ from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewColl
                                 camera_frames, capture_views)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
-                                  save_captures, with_projector)
+from vbfe.calib.projector import ProjectorOptions, calibrate_projector, load_captures, with_projector
+from vbfe.calib.projector_capture import GrayCaptureOptions, capture_gray_code, captured_projector_size
 from vbfe.calib.report import write_report
-from vbfe.calib.sim_source import bench_rig, simulated_board_frames, simulated_gray_code_captures
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_views
 from vbfe.config import section
+from vbfe.drivers.registry import open_devices
 
 Config = dict[str, dict[str, Any]]
 
@@ -45,26 +47,38 @@ def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[
     return write_board(spec, out_stem)
 
 
+def _with_seed(config: Config, seed: int | None) -> Config:
+    """``config`` with the simulated bench's ``seed`` replaced (when ``seed`` is given)."""
+    if seed is None:
+        return config
+    config = copy.deepcopy(config)
+    config.setdefault("bench", {})["seed"] = int(seed)
+    return config
+
+
 def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int | None = None,
             on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
             **overrides: Any) -> CaptureResult:
     """Collect calibration views from the rig's camera into ``folder`` (PNG pairs).
 
-    With the simulated camera the board is rendered at random hand-held poses on the bench's
-    rig (some held still, some blurred); a real camera is read through its driver.
+    The camera is read through its driver; on the simulated bench choose ``scene = "board"`` in
+    ``[bench]`` (``seed`` replaces the bench's seed, i.e. the board's poses).
     """
     spec = board_spec(config, **overrides)
     options = CaptureOptions.from_config(section(config, "calib"))
-    camera_table = section(config, "camera")
-    if camera_table.get("backend", "sim") == "sim":
-        bench = section(config, "bench")
-        rng = np.random.default_rng(bench.get("seed", 0) if seed is None else seed)
-        frames = simulated_board_frames(bench_rig(bench), spec, max_frames, rng)
-        return capture_views(frames, spec, folder, options, on_view)
-    from vbfe.drivers.registry import open_device
-
-    with open_device("camera", camera_table) as camera:
+    devices = open_devices(_with_seed(config, seed), ("camera",))
+    with devices.camera as camera:
         return capture_views(camera_frames(camera, max_frames), spec, folder, options, on_view)
+
+
+def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: int | None = None,
+                      on_event: Callable[[str], None] | None = None) -> list[Path]:
+    """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
+    write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
+    options = GrayCaptureOptions.from_config(section(config, "calib"))
+    devices = open_devices(_with_seed(config, seed), ("camera", "projector"))
+    with devices.camera as camera, devices.projector as projector:
+        return capture_gray_code(camera, projector, folder, n_poses, options, on_event)
 
 
 @dataclass
@@ -98,16 +112,13 @@ def projector(config: Config, captures_folder: str | Path, calibration_path: str
               out_path: str | Path | None = None, simulate_poses: int = 0,
               seed: int | None = None, **overrides: Any) -> Calibration:
     """Calibrate the projector from Gray-code captures (``pose_NNN/`` folders) and add it to the
-    calibration. ``simulate_poses`` > 0 first renders that many poses on the simulated bench."""
+    calibration. ``simulate_poses`` > 0 first captures that many poses with the rig's camera and
+    projector (see :func:`projector_capture`)."""
     spec = board_spec(config, **overrides)
     calibration = load_calibration(calibration_path)
-    bench = section(config, "bench")
-    rig = bench_rig(bench)
-    projector_size = _projector_size(config, rig)
     if simulate_poses:
-        rng = np.random.default_rng(bench.get("seed", 0) if seed is None else seed)
-        save_captures(captures_folder, simulated_gray_code_captures(rig, spec, simulate_poses,
-                                                                    rng))
+        projector_capture(config, captures_folder, simulate_poses, seed)
+    projector_size = _projector_size(config, captures_folder)
     result = calibrate_projector(load_captures(captures_folder), spec, calibration,
                                  projector_size, ProjectorOptions.from_config(section(config,
                                                                                       "calib")))
@@ -116,11 +127,21 @@ def projector(config: Config, captures_folder: str | Path, calibration_path: str
     return updated
 
 
-def _projector_size(config: Config, rig) -> tuple[int, int]:
+def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, int]:
+    """``[calib] projector_width/height``, else the size the captures were made for, else the
+    configured projector's."""
     table = section(config, "calib")
     if "projector_width" in table:
         return int(table["projector_width"]), int(table["projector_height"])
-    return rig.projector.width, rig.projector.height
+    size = captured_projector_size(captures_folder)
+    if size is not None:
+        return size
+    projector = open_devices(config, ("projector",)).projector
+    if not (projector.width and projector.height):
+        raise CalibrationError(f"the projector size is unknown ({captures_folder} has no "
+                               "projector.json); set [calib] projector_width and "
+                               "projector_height")
+    return int(projector.width), int(projector.height)
 
 
 def check(config: Config, stored_path: str | Path, new_path: str | Path | None = None,

@@ -182,9 +182,10 @@ def with_projector(calibration: Calibration, result: ProjectorResult,
                                rms_projector_px=result.rms_px, info=info)
 
 
-def save_captures(folder: str | Path, captures: list[GrayCodeCapture]) -> None:
-    """Write ``pose_NNN/white.png``, ``black.png``, ``gray_NN.png`` for every pose."""
-    for i, capture in enumerate(captures):
+def save_captures(folder: str | Path, captures: list[GrayCodeCapture], start: int = 0) -> None:
+    """Write ``pose_NNN/white.png``, ``black.png``, ``gray_NN.png`` for every pose (numbered
+    from ``start``)."""
+    for i, capture in enumerate(captures, start=start):
         pose = Path(folder) / f"pose_{i:03d}"
         pose.mkdir(parents=True, exist_ok=True)
         images = {"white": capture.white, "black": capture.black,

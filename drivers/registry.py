@@ -26,13 +26,16 @@ BACKENDS: dict[str, dict[str, str]] = {
 }
 
 
+FAMILIES = ("camera", "trocar", "projector")
+
+
 @dataclass
 class Devices:
-    """The three devices of a rig, plus the simulated bench when any of them is simulated."""
+    """The devices of a rig, plus the simulated bench when any of them is simulated."""
 
-    camera: StereoCamera
-    trocar: ForceSensor
-    projector: Projector
+    camera: StereoCamera | None
+    trocar: ForceSensor | None
+    projector: Projector | None
     bench: Any | None = None  # vbfe.drivers.sim.SimBench
 
 
@@ -57,16 +60,17 @@ def open_device(family: str, options: dict[str, Any], bench: Any | None = None) 
     return _load(family, backend)(**options)
 
 
-def open_devices(config: dict[str, dict[str, Any]]) -> Devices:
-    """Construct the camera, trocar and projector a rig config names (they still need opening)."""
+def open_devices(config: dict[str, dict[str, Any]],
+                 families: tuple[str, ...] = FAMILIES) -> Devices:
+    """Construct the devices of ``families`` a rig config names (they still need opening); the
+    others are ``None``. Simulated ones share one bench built from the ``[bench]`` table."""
+    unknown = sorted(set(families) - set(FAMILIES))
+    if unknown:
+        raise DeviceError(f"unknown device families {unknown}; known: {list(FAMILIES)}")
     bench = None
-    if any(config[f].get("backend", "sim") == "sim" for f in ("camera", "trocar", "projector")):
+    if any(config[f].get("backend", "sim") == "sim" for f in families):
         from vbfe.drivers.sim import SimBench
 
         bench = SimBench.from_config(config.get("bench", {}))
-    return Devices(
-        camera=open_device("camera", config["camera"], bench),
-        trocar=open_device("trocar", config["trocar"], bench),
-        projector=open_device("projector", config["projector"], bench),
-        bench=bench,
-    )
+    built = {f: open_device(f, config[f], bench) if f in families else None for f in FAMILIES}
+    return Devices(**built, bench=bench)

@@ -17,23 +17,28 @@ import numpy as np
 
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
+from vbfe.drivers.sim.board_scene import BoardScene, board_target
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
-from vbfe.drivers.sim.devices import FORCE_RANGE_N, SimCamera, SimProjector, SimTrocar
+from vbfe.drivers.sim.devices import SimCamera, SimProjector, SimTrocar
 from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
 
-SCENES = ("tissue", "plane")
+SCENES = ("tissue", "plane", "board")
+FORCE_RANGE_N = 5.0  # TRF85D measuring range
 _STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport", "force_noise",
-            "texture")
+            "texture", "board")
 
 
 class SimBench:
     """A simulated rig: stereo endoscope, projector, trocar and a hose pulled once.
 
-    ``scene`` is ``"tissue"`` (the deforming hose) or ``"plane"`` (a flat white plane at the
-    working distance, e.g. for pattern checks; the trocar still follows the protocol). Latencies
+    ``scene`` is ``"tissue"`` (the deforming hose), ``"plane"`` (a flat white plane at the
+    working distance, e.g. for pattern checks) or ``"board"`` (a calibration board moved in front
+    of the endoscope, see :mod:`vbfe.drivers.sim.board_scene`: ``board_*`` arguments; the
+    ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
+    translation in m, board → left camera; empty: random). The trocar always follows the protocol. Latencies
     are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
     reader's clock fits map each stream to its median arrival, so
     ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
@@ -51,7 +56,14 @@ class SimBench:
                  force_resolution_n: float = 0.01, noise_sigma: float = 1.0,
                  ambient: float = 0.15, textured: bool = False, distortion: bool = False,
                  baseline_m: float = 0.004, working_distance_m: float = 0.06,
-                 deformation_scale: float = 0.15, realtime: bool = False) -> None:
+                 deformation_scale: float = 0.15, realtime: bool = False,
+                 board: str = "charuco", board_squares_x: int = 9, board_squares_y: int = 7,
+                 board_square_mm: float = 3.0, board_marker_mm: float = 2.2,
+                 board_dictionary: str = "DICT_5X5_100", board_legacy: bool = False,
+                 board_poses: list[list[float]] | None = None, board_hold_s: float = 0.0,
+                 board_p_still: float = 0.25, board_p_blur: float = 0.15, board_blur_px: int = 5,
+                 board_distance_mm: tuple[float, float] = (30.0, 70.0),
+                 board_max_tilt_deg: float = 35.0, board_in_projector: bool = False) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
         if fps <= 0 or trocar_rate_hz <= 0:
@@ -67,6 +79,7 @@ class SimBench:
         self.seed, self.fps, self.scene, self.realtime = seed, float(fps), scene, realtime
         self.trocar_rate_hz = float(trocar_rate_hz)
         self.force_noise_n, self.force_resolution_n = force_noise_n, force_resolution_n
+        self.force_range_n = FORCE_RANGE_N
         self.frame_period_ns = int(round(1e9 / fps))
         self.sample_period_ns = int(round(1e9 / trocar_rate_hz))
         rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in
@@ -74,6 +87,19 @@ class SimBench:
         self._force_rng = rngs["force_noise"]
         protocol = TractionProtocol(stiffness_n_per_m, pull_speed_m_per_s, target_force_n,
                                     rest_s, hold_s)
+        self._board = None
+        if scene == "board":
+            target = board_target(board, board_squares_x, board_squares_y, board_square_mm,
+                                  board_marker_mm, board_dictionary, board_legacy)
+            poses = [(np.asarray(p[:3], np.float64), np.asarray(p[3:], np.float64))
+                     for p in (board_poses or [])]
+            if any(len(p) != 6 for p in (board_poses or [])):
+                raise DeviceError("[bench] board_poses must be rows [rx, ry, rz, tx, ty, tz]")
+            self._board = BoardScene(
+                self.rig, target, rngs["board"], self.frame_period_ns, poses, board_hold_s,
+                board_p_still, board_p_blur, board_blur_px,
+                (board_distance_mm[0] * 1e-3, board_distance_mm[1] * 1e-3), board_max_tilt_deg,
+                board_in_projector)
         self.trial = Trial(protocol, TissueSample.random(rngs["sample"], working_distance_m),
                            deformation_scale)
         albedo = tissue_texture(rngs["texture"]) if textured else UniformAlbedo()
@@ -120,6 +146,13 @@ class SimBench:
         rig = rig_from_dict(description["rig"]) if "rig" in description else None
         return cls(rig=rig, **params)
 
+    @classmethod
+    def protocol_from_config(cls, table: dict[str, Any]) -> TractionProtocol:
+        """The traction protocol a ``[bench]`` table sets, without building the bench."""
+        defaults = inspect.signature(cls.__init__).parameters
+        return TractionProtocol(*(table.get(k, defaults[k].default) for k in (
+            "stiffness_n_per_m", "pull_speed_m_per_s", "target_force_n", "rest_s", "hold_s")))
+
     def conditions(self) -> dict[str, Any]:
         """Experimental conditions of the trial, for session metadata."""
         p, s = self.trial.protocol, self.trial.sample
@@ -145,19 +178,20 @@ class SimBench:
         """The simulated projector."""
         return SimProjector(self, **options)
 
-    def device_opened(self, device: object) -> None:
-        """Called by devices on open; the first open starts the clock."""
+    def device_opened(self, device: object, drives_time: bool = False) -> None:
+        """Called by devices on open; the first open starts the clock. The camera
+        ``drives_time`` (its frames move the simulated host clock)."""
         with self._time:
             if not self._open_devices:
                 self.host_epoch_ns = time.monotonic_ns()
             self._open_devices.add(id(device))
-            self._camera_open |= isinstance(device, SimCamera)
+            self._camera_open |= drives_time
 
-    def device_closed(self, device: object) -> None:
+    def device_closed(self, device: object, drives_time: bool = False) -> None:
         """Called by devices on close; wakes readers waiting for the camera."""
         with self._time:
             self._open_devices.discard(id(device))
-            if isinstance(device, SimCamera):
+            if drives_time:
                 self._camera_open = False
             self._time.notify_all()
 
@@ -212,11 +246,18 @@ class SimBench:
         """The scene's surface at true time ``true_ns``."""
         if self.scene == "plane":
             return self._plane
+        if self._board is not None:
+            return self._board.surface_at(true_ns)
         load, _, _ = self.trial.at(true_ns / 1e9)
         return self._tissue.with_load(load)
 
     def render_frame(self, true_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right images at true time ``true_ns``."""
+        """Left and right images at true time ``true_ns``.
+
+        Until the projector shows something, the tissue is lit by the structured-light pattern
+        and the board by room light."""
+        if self._board is not None:
+            return self._board.render(true_ns, self.renderer if self._pattern_shown else None)
         if not self._pattern_shown:
             self.show_pattern(make_pattern(self.rig.projector.width, self.rig.projector.height))
         return self.renderer.render(self.surface_at(true_ns))
@@ -227,7 +268,7 @@ class SimBench:
         force = self.trial.forces(true / 1e9)
         force = force + self._force_rng.normal(0.0, self.force_noise_n, force.shape)
         force = np.clip(np.round(force / self.force_resolution_n) * self.force_resolution_n,
-                        -FORCE_RANGE_N, FORCE_RANGE_N)
+                        -self.force_range_n, self.force_range_n)
         return {"true": true, "device": self.trocar_clock.device_ns(true),
                 "host": self.force_transport.host_ns(true), "force": force}
 

@@ -25,7 +25,6 @@ if TYPE_CHECKING:
     from vbfe.drivers.sim.bench import SimBench
 
 SAMPLE_BLOCK = 256  # trocar samples generated at once
-FORCE_RANGE_N = 5.0  # TRF85D measuring range
 
 
 def _check_no_options(family: str, options: dict) -> None:
@@ -38,23 +37,26 @@ class _BenchStream:
     """Open/close register the device with its bench (the bench's time starts at the first open)."""
 
     bench: "SimBench"
+    drives_time = False  # the camera's frames move the bench's simulated host clock
     _open = False
 
     def open(self) -> None:
         """Start the stream; idempotent."""
         if not self._open:
-            self.bench.device_opened(self)
+            self.bench.device_opened(self, self.drives_time)
             self._open = True
 
     def close(self) -> None:
         """Stop the stream; idempotent."""
         if self._open:
-            self.bench.device_closed(self)
+            self.bench.device_closed(self, self.drives_time)
             self._open = False
 
 
 class SimCamera(_BenchStream, StereoCamera):
-    """The bench's stereo endoscope: renders the deforming tissue under the current pattern."""
+    """The bench's stereo endoscope: renders the bench's scene under the current pattern."""
+
+    drives_time = True
 
     def __init__(self, bench: "SimBench", **options: object) -> None:
         super().__init__()
@@ -138,7 +140,7 @@ class SimTrocar(_BenchStream, ForceSensor):
         """Rate, axes, noise model and the simulated clock's nominal parameters."""
         return {**super().describe(), "simulated": True, "axes_frame": "left camera",
                 "noise_n": self.bench.force_noise_n, "resolution_n": self.bench.force_resolution_n,
-                "range_n": FORCE_RANGE_N, "drift_ppm": self.bench.trocar_clock.drift_ppm}
+                "range_n": self.bench.force_range_n, "drift_ppm": self.bench.trocar_clock.drift_ppm}
 
 
 class SimProjector(Projector):

@@ -1,4 +1,5 @@
-"""`vbfe calibrate board|capture|stereo|projector|check`: stereo and projector calibration."""
+"""`vbfe calibrate board|capture|stereo|projector-capture|projector|check`: stereo and projector
+calibration."""
 
 from __future__ import annotations
 
@@ -55,6 +56,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_option(p)
     p.set_defaults(func=run_capture)
 
+    p = actions.add_parser("projector-capture",
+                           help="show the Gray-code sequence at board poses, keep the camera's "
+                           "images (pose_NNN/ folders for 'projector')")
+    p.add_argument("out", help="folder for pose_NNN/ (new poses go after those already there)")
+    p.add_argument("--poses", type=int, default=8, help="board poses to capture (default 8)")
+    p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
+    add_config_option(p)
+    p.set_defaults(func=run_projector_capture)
+
     p = actions.add_parser("stereo", help="calibrate the stereo pair from views")
     p.add_argument("source", help="folder of view pairs or a session .h5")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
@@ -70,7 +80,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", required=True, help="stereo calibration YAML (or session)")
     p.add_argument("-o", "--out", help="YAML to write (default: update --calibration)")
     p.add_argument("--simulate", type=int, default=0, metavar="N",
-                   help="first render N poses on the simulated bench into CAPTURES")
+                   help="first capture N poses into CAPTURES with the rig's camera and projector "
+                   "(as projector-capture; rendered on the simulated bench)")
     p.add_argument("--seed", type=int, default=None)
     _board_options(p)
     add_config_option(p)
@@ -138,6 +149,21 @@ def run_stereo(args: argparse.Namespace) -> int:
     rejected = result.calibration.info["rejected_corners"]
     if rejected:
         print(f"  rejected {len(rejected)} outlier corners (listed in the report)")
+    return 0
+
+
+def run_projector_capture(args: argparse.Namespace) -> int:
+    """Capture Gray-code poses, saying what the capture waits for."""
+    with progress(total=args.poses, desc="poses", unit="pose") as bar:
+        def on_event(message: str) -> None:
+            bar.write(message)
+            if message.startswith("kept"):
+                bar.update(1)
+
+        written = commands.projector_capture(config_from(args), args.out, args.poses, args.seed,
+                                             on_event)
+    print(f"wrote {len(written)} poses into {args.out}; calibrate with "
+          f"'vbfe calibrate projector {args.out} --calibration CALIBRATION.yaml'")
     return 0
 
 

@@ -1,0 +1,179 @@
+"""Gray-code captures for projector calibration, through the camera and projector drivers.
+
+For each board pose the projector shows white, black and the Gray-code sequence
+(:func:`~vbfe.calib.projector.projector_images`), and the left camera image of each is kept once
+it can show it: the first frame that arrived at least ``settle_s`` after the projector reported
+the pattern shown (both stamps on the host clock). Between poses the board is moved: a pose is
+captured when the camera sees a new scene that has come to rest (frame-to-frame change below
+``still_level``), and discarded when the white image after the sequence shows that the board
+moved during it. Each pose is written as it is done (``pose_NNN/``, the folder
+:func:`~vbfe.calib.projector.load_captures` reads), so an interrupted capture loses nothing.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from vbfe.calib.errors import CalibrationError
+from vbfe.calib.options import from_table
+from vbfe.calib.projector import GrayCodeCapture, projector_images, save_captures
+from vbfe.drivers.camera.base import StereoCamera
+from vbfe.drivers.projector.base import Projector
+from vbfe.drivers.samples import StereoFrame
+
+SIZE_FILE = "projector.json"  # the projector size the captures were made for
+
+
+@dataclass
+class GrayCaptureOptions:
+    """How the capture waits for patterns and poses (defaults match the ``[calib]`` table)."""
+
+    settle_s: float = 0.15  # projector latency + one camera exposure
+    still_level: float = 2.0  # mean |grey change| between frames of a board at rest
+    change_level: float = 6.0  # mean |grey change| from the last pose that means a new pose
+    still_frames: int = 2  # consecutive frames at rest before a pose is captured
+    pose_timeout_s: float = 60.0  # longest wait for the board to come to rest at a new pose
+    read_timeout_s: float = 2.0  # longest wait for one camera frame
+
+    @classmethod
+    def from_config(cls, calib_table: dict) -> "GrayCaptureOptions":
+        """Options from a rig config's ``[calib]`` table."""
+        return from_table(cls, calib_table, keys={
+            "settle_s": "projector_settle_s", "still_level": "projector_still_level",
+            "change_level": "projector_change_level", "still_frames": "projector_still_frames",
+            "pose_timeout_s": "projector_pose_timeout_s"})
+
+
+def _grey(frame: StereoFrame) -> np.ndarray:
+    left = frame.left
+    return left if left.ndim == 2 else cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+
+
+def _change(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute grey-level difference of two images at quarter resolution."""
+    small = [cv2.resize(x, (max(x.shape[1] // 4, 1), max(x.shape[0] // 4, 1)),
+                        interpolation=cv2.INTER_AREA).astype(np.int16) for x in (a, b)]
+    return float(np.abs(small[0] - small[1]).mean())
+
+
+class GrayCodeCapturer:
+    """Shows patterns on ``projector`` and keeps what ``camera`` sees (both open)."""
+
+    def __init__(self, camera: StereoCamera, projector: Projector,
+                 options: GrayCaptureOptions | None = None) -> None:
+        self.camera, self.projector = camera, projector
+        self.options = options or GrayCaptureOptions()
+        self.white, self.black, self.patterns = projector_images(self.projector_size)
+
+    @property
+    def projector_size(self) -> tuple[int, int]:
+        """Width and height of the projector in pixels."""
+        return int(self.projector.width), int(self.projector.height)
+
+    def _read(self) -> StereoFrame:
+        frame = self.camera.read(self.options.read_timeout_s)
+        if frame is None:
+            raise CalibrationError(f"the camera gave no frame within "
+                                   f"{self.options.read_timeout_s} s; check it is streaming")
+        return frame
+
+    def shoot(self, image: np.ndarray, name: str) -> StereoFrame:
+        """Show ``image`` and return the first frame that arrived ``settle_s`` after it."""
+        event = self.projector.show(image, name)
+        due_ns = event.t_host_ns + int(round(self.options.settle_s * 1e9))
+        while True:
+            frame = self._read()
+            if frame.t_host_ns >= due_ns:
+                return frame
+
+    def wait_for_pose(self, previous: np.ndarray | None) -> np.ndarray:
+        """Under white light, wait until the board rests at a pose unlike ``previous`` (the last
+        pose's white image; ``None``: any pose); returns the white image there."""
+        o = self.options
+        last = _grey(self.shoot(self.white, "white"))
+        start_ns = None
+        moved, still = previous is None, 0
+        while True:
+            frame = self._read()
+            start_ns = frame.t_host_ns if start_ns is None else start_ns
+            grey = _grey(frame)
+            moved = moved or _change(grey, previous) >= o.change_level
+            still = still + 1 if _change(grey, last) < o.still_level else 0
+            last = grey
+            if moved and still >= o.still_frames:
+                return grey
+            if frame.t_host_ns - start_ns > o.pose_timeout_s * 1e9:
+                raise CalibrationError(
+                    f"the board did not come to rest at a new pose within {o.pose_timeout_s} s "
+                    "(set [calib] projector_pose_timeout_s to wait longer); the poses captured "
+                    "so far are kept")
+
+    def capture_pose(self) -> GrayCodeCapture | None:
+        """White, black and the Gray-code sequence at the current pose; ``None`` when the white
+        image after the sequence shows the board moved."""
+        shots = [_grey(self.shoot(self.white, "white")), _grey(self.shoot(self.black, "black"))]
+        shots += [_grey(self.shoot(p, f"gray_{k:02d}")) for k, p in enumerate(self.patterns)]
+        after = _grey(self.shoot(self.white, "white"))
+        if _change(after, shots[0]) >= self.options.still_level:
+            return None
+        return GrayCodeCapture(shots[0], shots[1], shots[2:])
+
+
+def existing_poses(folder: Path) -> int:
+    """Number of ``pose_NNN`` folders already in ``folder``."""
+    return len([p for p in folder.glob("pose_*") if p.is_dir()]) if folder.is_dir() else 0
+
+
+def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | Path,
+                      n_poses: int, options: GrayCaptureOptions | None = None,
+                      on_event: Callable[[str], None] | None = None) -> list[Path]:
+    """Capture ``n_poses`` new poses into ``folder`` (after any already there) through an open
+    camera and projector; returns the pose folders written. ``on_event(message)`` is told what
+    the capture waits for and what it kept."""
+    if n_poses < 1:
+        raise CalibrationError(f"--poses must be at least 1, got {n_poses}")
+    folder = Path(folder)
+    tell = on_event or (lambda message: None)
+    capturer = GrayCodeCapturer(camera, projector, options)
+    size = capturer.projector_size
+    size_file = folder / SIZE_FILE
+    if size_file.is_file() and tuple(json.loads(size_file.read_text())["size"]) != size:
+        raise CalibrationError(f"{folder} holds captures for a {size_file.read_text().strip()} "
+                               f"projector but this one is {size[0]}x{size[1]}; use a new folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    size_file.write_text(json.dumps({"size": list(size)}))
+    first = existing_poses(folder)
+    written: list[Path] = []
+    previous = None
+    while len(written) < n_poses:
+        tell(f"pose {len(written) + 1}/{n_poses}: move the board to a new pose inside the "
+             "projected area and hold it still")
+        previous = capturer.wait_for_pose(previous)
+        capture = capturer.capture_pose()
+        if capture is None:
+            tell("the board moved during the sequence: pose discarded, hold it still")
+            continue
+        index = first + len(written)
+        save_captures(folder, [capture], start=index)
+        written.append(folder / f"pose_{index:03d}")
+        tell(f"kept {written[-1]}")
+    return written
+
+
+def captured_projector_size(folder: str | Path) -> tuple[int, int] | None:
+    """The projector size :func:`capture_gray_code` recorded in ``folder`` (``None``: none)."""
+    path = Path(folder) / SIZE_FILE
+    if not path.is_file():
+        return None
+    try:
+        width, height = json.loads(path.read_text())["size"]
+        return int(width), int(height)
+    except (ValueError, KeyError, TypeError):
+        raise CalibrationError(f"{path} is not a projector size file; delete it or set "
+                               "[calib] projector_width and projector_height") from None

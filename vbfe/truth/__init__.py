@@ -1,0 +1,12 @@
+"""Ground truth of the simulated bench, above the pipeline: for the demo, benchmarks and tests.
+
+Nothing in ``drivers``' consumers (``acquire``, ``calib``, ``recon``, ``estimate``) imports this
+package or ``vbfe.drivers.sim``; they see the bench only through the driver interfaces.
+"""
+
+from vbfe.truth.accuracy import AccuracyReport, evaluate_against_truth, rectified_truth
+from vbfe.truth.bench import TruthError, session_bench, trial_duration_s, true_rig
+from vbfe.truth.calibration import calibration_from_rig
+
+__all__ = ["AccuracyReport", "TruthError", "calibration_from_rig", "evaluate_against_truth",
+           "rectified_truth", "session_bench", "trial_duration_s", "true_rig"]

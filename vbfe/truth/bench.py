@@ -1,0 +1,33 @@
+"""The simulated bench behind a configuration or a recorded session, where its truth is needed."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from vbfe.acquire import SessionReader
+from vbfe.drivers.sim import SimBench
+from vbfe.drivers.sim.rig import StereoRig
+from vbfe.errors import VbfeError
+
+
+class TruthError(VbfeError):
+    """Ground truth was asked of something that has none (e.g. a session from a real rig)."""
+
+
+def true_rig(config: dict[str, dict[str, Any]]) -> StereoRig:
+    """The true rig of the bench a rig configuration's ``[bench]`` table describes."""
+    return SimBench.from_config(config.get("bench", {})).rig
+
+
+def trial_duration_s(config: dict[str, dict[str, Any]]) -> float:
+    """How long the traction trial of the configuration's bench lasts (no bench is built)."""
+    return SimBench.protocol_from_config(config.get("bench", {})).duration_s()
+
+
+def session_bench(reader: SessionReader) -> SimBench:
+    """The bench that recorded an open session, rebuilt from the description stored in it."""
+    description = reader.metadata.get("bench")
+    if description is None:
+        raise TruthError(f"{reader.path} was not recorded on the simulated bench; it has no "
+                         "ground truth")
+    return SimBench.from_description(description)
