@@ -7,7 +7,8 @@ the pattern shown (both stamps on the host clock). Between poses the board is mo
 captured when the camera sees a new scene that has come to rest (frame-to-frame change below
 ``still_level``), and discarded when the white image after the sequence shows that the board
 moved during it. Each pose is written as it is done (``pose_NNN/``, the folder
-:func:`~vbfe.calib.projector.load_captures` reads), so an interrupted capture loses nothing.
+:func:`~vbfe.calib.projector.load_captures` reads, plus ``frames.json``: which camera frame was
+kept for each pattern and when it was shown), so an interrupted capture loses nothing.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import StereoFrame
 
 SIZE_FILE = "projector.json"  # the projector size the captures were made for
+FRAMES_FILE = "frames.json"  # per pose: the frame kept for each pattern
 
 
 @dataclass
@@ -70,6 +72,7 @@ class GrayCodeCapturer:
         self.camera, self.projector = camera, projector
         self.options = options or GrayCaptureOptions()
         self.white, self.black, self.patterns = projector_images(self.projector_size)
+        self.log: list[dict[str, int | str]] = []  # the frames shoot() kept
 
     @property
     def projector_size(self) -> tuple[int, int]:
@@ -90,6 +93,8 @@ class GrayCodeCapturer:
         while True:
             frame = self._read()
             if frame.t_host_ns >= due_ns:
+                self.log.append({"pattern": name, "shown_t_host_ns": event.t_host_ns,
+                                 "frame_seq": frame.seq, "frame_t_host_ns": frame.t_host_ns})
                 return frame
 
     def wait_for_pose(self, previous: np.ndarray | None) -> np.ndarray:
@@ -116,7 +121,8 @@ class GrayCodeCapturer:
 
     def capture_pose(self) -> GrayCodeCapture | None:
         """White, black and the Gray-code sequence at the current pose; ``None`` when the white
-        image after the sequence shows the board moved."""
+        image after the sequence shows the board moved. :attr:`log` holds its frames."""
+        self.log = []
         shots = [_grey(self.shoot(self.white, "white")), _grey(self.shoot(self.black, "black"))]
         shots += [_grey(self.shoot(p, f"gray_{k:02d}")) for k, p in enumerate(self.patterns)]
         after = _grey(self.shoot(self.white, "white"))
@@ -142,12 +148,12 @@ def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | 
     tell = on_event or (lambda message: None)
     capturer = GrayCodeCapturer(camera, projector, options)
     size = capturer.projector_size
-    size_file = folder / SIZE_FILE
-    if size_file.is_file() and tuple(json.loads(size_file.read_text())["size"]) != size:
-        raise CalibrationError(f"{folder} holds captures for a {size_file.read_text().strip()} "
-                               f"projector but this one is {size[0]}x{size[1]}; use a new folder")
+    stored = captured_projector_size(folder)
+    if stored is not None and stored != size:
+        raise CalibrationError(f"{folder} holds captures for a {stored[0]}x{stored[1]} projector "
+                               f"but this one is {size[0]}x{size[1]}; use a new folder")
     folder.mkdir(parents=True, exist_ok=True)
-    size_file.write_text(json.dumps({"size": list(size)}))
+    (folder / SIZE_FILE).write_text(json.dumps({"size": list(size)}))
     first = existing_poses(folder)
     written: list[Path] = []
     previous = None
@@ -162,6 +168,7 @@ def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | 
         index = first + len(written)
         save_captures(folder, [capture], start=index)
         written.append(folder / f"pose_{index:03d}")
+        (written[-1] / FRAMES_FILE).write_text(json.dumps(capturer.log, indent=1))
         tell(f"kept {written[-1]}")
     return written
 

@@ -1,20 +1,25 @@
-"""`calibrate capture` on the simulated bench: only sharp views at new poses are kept, coverage
-is tracked, the kept views calibrate."""
+"""`calibrate capture` on the simulated bench (its camera showing the board scene, read through
+the camera driver): only sharp views at new poses are kept, coverage is tracked, the kept views
+calibrate."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from vbfe.calib import commands
 from vbfe.calib.board import BoardSpec
-from vbfe.calib.capture import CaptureOptions, ViewCollector, capture_views, coverage_text
-from vbfe.calib.sim_source import motion_blur, simulated_board_frames
+from vbfe.calib.capture import ViewCollector, coverage_text
 from vbfe.calib.views import load_views
 from vbfe.cli.main import main
+from vbfe.config import load_config
+from vbfe.drivers.sim.board_scene import motion_blur
 from vbfe.drivers.sim.charuco_scene import render_board_views
 from vbfe.drivers.sim.rig import default_rig
+from vbfe.truth import board_config, true_rig
 
 SPEC = BoardSpec()
 RIG = default_rig(640, 360, distortion=True)
+BOARD_RIG = '[bench]\nscene = "board"\n'
 
 
 def _facing_pose(x_m: float, y_m: float, z_m: float, tilt_deg: float = 0.0):
@@ -46,30 +51,33 @@ def test_blurred_and_repeated_views_are_refused_and_new_ones_kept():
 
 
 def test_capture_from_the_simulated_bench_saves_pairs_that_calibrate(tmp_path):
-    frames = simulated_board_frames(RIG, SPEC, 24, np.random.default_rng(4), p_blur=0.2)
-    options = CaptureOptions(min_views=8, max_views=8)
+    config = board_config(load_config(None), seed=4, board_p_blur=0.2)
+    config["calib"].update(capture_views=8, capture_max_views=8)
     updates = []
-    result = capture_views(frames, SPEC, tmp_path / "views", options,
-                           on_view=lambda verdict, collector, left: updates.append(verdict.kept))
+    result = commands.capture(config, tmp_path / "views", max_frames=24,
+                              on_view=lambda verdict, collector, left: updates.append(verdict.kept))
     assert result.enough and len(result.names) == 8 and sum(updates) == 8
     assert result.frames_seen == len(updates) <= 24
     assert sum(result.rejections.values()) == result.frames_seen - 8
+    assert set(result.rejections) <= {"blurred", "pose too close to a kept view",
+                                      "board not seen in both eyes"}
     views = load_views(tmp_path / "views")
     assert views.names == result.names
     from vbfe.calib.stereo import calibrate_stereo
 
     cal = calibrate_stereo(views, SPEC).calibration
-    assert abs(cal.B / RIG.baseline_m - 1) < 0.02
+    assert abs(cal.B / true_rig(config).baseline_m - 1) < 0.02
     # resuming into the same folder keeps the old views and numbers new ones after them
-    more = capture_views(simulated_board_frames(RIG, SPEC, 6, np.random.default_rng(9)), SPEC,
-                         tmp_path / "views", CaptureOptions(min_views=10, max_views=10))
+    config["calib"].update(capture_views=10, capture_max_views=10)
+    more = commands.capture(config, tmp_path / "views", max_frames=6, seed=9)
     assert all(int(n.split("_")[1]) >= 8 for n in more.names)
     assert len(load_views(tmp_path / "views")) == 8 + len(more.names)
 
 
 def test_cli_capture_headless_prints_coverage_bars(tmp_path, capsys):
+    (tmp_path / "rig.toml").write_text(BOARD_RIG)
     assert main(["calibrate", "capture", str(tmp_path / "v"), "--headless", "--max-frames", "4",
-                 "--seed", "2"]) == 0
+                 "--seed", "2", "--config", str(tmp_path / "rig.toml")]) == 0
     captured = capsys.readouterr()
     assert "X [" in captured.out and "skew [" in captured.out
     assert "not enough views yet" in captured.out
@@ -93,6 +101,7 @@ def test_preview_window_shows_corners_and_coverage(tmp_path, capsys):
     finally:
         preview.dispose()
     # the CLI opens the same window unless --headless
+    (tmp_path / "rig.toml").write_text(BOARD_RIG)
     assert main(["calibrate", "capture", str(tmp_path / "v"), "--max-frames", "2",
-                 "--seed", "3"]) == 0
+                 "--seed", "3", "--config", str(tmp_path / "rig.toml")]) == 0
     assert "kept" in capsys.readouterr().out

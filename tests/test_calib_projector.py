@@ -1,8 +1,7 @@
-"""Projector calibration from Gray code on the board, rendered by the bench's ray caster."""
+"""Projector calibration from Gray code on the board, captured on the simulated bench through the
+camera and projector drivers (``calibrate projector-capture``'s code)."""
 
 from __future__ import annotations
-
-import functools
 
 import cv2
 import numpy as np
@@ -13,25 +12,30 @@ from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.projector import (GrayCodeCapture, calibrate_projector, load_captures,
                                   save_captures, with_projector)
-from vbfe.calib.sim_source import simulated_gray_code_captures
-from vbfe.drivers.sim.rig import default_rig
-from vbfe.recon import calibration_from_rig
+from vbfe.calib.commands import projector_capture
+from vbfe.config import load_config
+from vbfe.truth import board_config, calibration_from_rig, true_rig
 
 SPEC = BoardSpec()
-RIG = default_rig(640, 360, distortion=True)
+CONFIG = board_config(load_config(None), on_a_stand=True, fps=10.0, seed=0)
+RIG = true_rig(CONFIG)
 N_POSES = 8
 
 
-@functools.lru_cache(maxsize=None)
-def captures() -> tuple[GrayCodeCapture, ...]:
-    return tuple(simulated_gray_code_captures(RIG, SPEC, N_POSES, np.random.default_rng(0)))
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory) -> list[GrayCodeCapture]:
+    """Captures of the board at N_POSES poses, through the bench's camera and projector."""
+    folder = tmp_path_factory.mktemp("gray")
+    written = projector_capture(CONFIG, folder, N_POSES)
+    assert [p.name for p in written] == [f"pose_{i:03d}" for i in range(N_POSES)]
+    return load_captures(folder)
 
 
-def test_projector_intrinsics_and_pose_match_the_bench(tmp_path):
+def test_projector_intrinsics_and_pose_match_the_bench(tmp_path, captures):
     camera = calibration_from_rig(RIG).replace(K_proj=None, D_proj=None, R_proj=None,
                                                T_proj=None, projector_size=None)
     size = (RIG.projector.width, RIG.projector.height)
-    result = calibrate_projector(list(captures()), SPEC, camera, size)
+    result = calibrate_projector(list(captures), SPEC, camera, size)
     K, K_true = result.K, RIG.projector.K
     for (i, j) in ((0, 0), (1, 1), (0, 2), (1, 2)):
         assert abs(K[i, j] / K_true[i, j] - 1) < 0.02, (i, j, K[i, j], K_true[i, j])
@@ -46,18 +50,18 @@ def test_projector_intrinsics_and_pose_match_the_bench(tmp_path):
     assert np.allclose(back.P1, camera.P1)
 
 
-def test_captures_round_trip_through_a_folder(tmp_path):
-    save_captures(tmp_path, list(captures()[:1]))
+def test_captures_round_trip_through_a_folder(tmp_path, captures):
+    save_captures(tmp_path, list(captures[:1]))
     (back,) = load_captures(tmp_path)
-    assert len(back.patterns) == len(captures()[0].patterns) == 40
-    assert np.array_equal(back.white, captures()[0].white)
+    assert len(back.patterns) == len(captures[0].patterns) == 40
+    assert np.array_equal(back.white, captures[0].white)
 
 
-def test_board_outside_the_projected_area_is_a_clear_error():
+def test_board_outside_the_projected_area_is_a_clear_error(captures):
     camera = calibration_from_rig(RIG)
-    dark = [GrayCodeCapture(c.black, c.black, c.patterns) for c in captures()[:4]]
+    dark = [GrayCodeCapture(c.black, c.black, c.patterns) for c in captures[:4]]
     with pytest.raises(CalibrationError, match="only 0 of 4 poses.*lit by the projector"):
         calibrate_projector(dark, SPEC, camera, (1024, 768))
     with pytest.raises(CalibrationError, match="needs 40 Gray-code images per pose, got 39"):
         calibrate_projector([GrayCodeCapture(c.white, c.black, c.patterns[:39])
-                             for c in captures()[:4]], SPEC, camera, (1024, 768))
+                             for c in captures[:4]], SPEC, camera, (1024, 768))

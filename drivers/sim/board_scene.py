@@ -27,6 +27,7 @@ from vbfe.drivers.sim.rig import StereoRig
 from vbfe.drivers.sim.tissue import ImageTexture, Plane
 
 BOARDS = ("charuco",)
+DISTANCE_M = (0.03, 0.07)  # default range of random poses: keeps a 3 mm board readable at 640×360
 
 
 def motion_blur(image: np.ndarray, length_px: int, angle_deg: float) -> np.ndarray:
@@ -70,7 +71,7 @@ class BoardScene:
     def __init__(self, rig: StereoRig, target: BoardTarget, rng: np.random.Generator,
                  frame_period_ns: int, poses: list[Pose] | None = None, hold_s: float = 0.0,
                  p_still: float = 0.25, p_blur: float = 0.15, blur_px: int = 5,
-                 distance_m: tuple[float, float] = (0.03, 0.07), max_tilt_deg: float = 35.0,
+                 distance_m: tuple[float, float] = DISTANCE_M, max_tilt_deg: float = 35.0,
                  in_projector: bool = False) -> None:
         if hold_s < 0 or not (0 <= p_still <= 1 and 0 <= p_blur <= 1) or blur_px < 2:
             raise DeviceError("[bench] board_hold_s must be >= 0, board_p_still and board_p_blur "

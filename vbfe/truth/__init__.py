@@ -7,6 +7,8 @@ package or ``vbfe.drivers.sim``; they see the bench only through the driver inte
 from vbfe.truth.accuracy import AccuracyReport, evaluate_against_truth, rectified_truth
 from vbfe.truth.bench import TruthError, session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
+from vbfe.truth.scenes import board_config
 
-__all__ = ["AccuracyReport", "TruthError", "calibration_from_rig", "evaluate_against_truth",
-           "rectified_truth", "session_bench", "trial_duration_s", "true_rig"]
+__all__ = ["AccuracyReport", "TruthError", "board_config", "calibration_from_rig",
+           "evaluate_against_truth", "rectified_truth", "session_bench", "trial_duration_s",
+           "true_rig"]

@@ -1,0 +1,26 @@
+"""Rig configurations that put the simulated bench's calibration board in front of the endoscope."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+Config = dict[str, dict[str, Any]]
+
+# The board moved by hand: a new pose every frame, some held still, some blurred.
+HAND_HELD = {"scene": "board", "board_hold_s": 0.0}
+# The board on a stand inside the projected area, moved every 10 s (longer than a Gray-code
+# sequence at 10 fps), tilted more so that the projector's pose is well determined.
+ON_A_STAND = {"scene": "board", "board_hold_s": 10.0, "board_in_projector": True,
+              "board_max_tilt_deg": 45.0}
+
+
+def board_config(config: Config, on_a_stand: bool = False, **bench: Any) -> Config:
+    """``config`` with the bench showing the board (hand-held, or ``on_a_stand`` for projector
+    calibration) and ``bench`` keys set. The simulated camera shows a new pattern from the next
+    frame on, so the Gray-code capture needs no settle time there."""
+    config = copy.deepcopy(config)
+    config["bench"].update(ON_A_STAND if on_a_stand else HAND_HELD, **bench)
+    if on_a_stand:
+        config["calib"]["projector_settle_s"] = 0.0
+    return config
