@@ -14,6 +14,7 @@ import numpy as np
 
 from vbfe.acquire.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.h5attrs import plain_attrs, text
 from vbfe.acquire.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
@@ -235,8 +236,7 @@ class SessionReader:
     @property
     def attrs(self) -> dict[str, Any]:
         """The root attributes (schema and software version, start time, drop counters …)."""
-        return {k: (v.item() if isinstance(v, np.generic) else v)
-                for k, v in self._file.attrs.items()}
+        return plain_attrs(self._file.attrs)
 
     @property
     def metadata(self) -> dict[str, Any]:
@@ -252,8 +252,7 @@ class SessionReader:
         """The calibration stored with the session (OpenCV YAML text), if any."""
         if "calibration_yaml" not in self._file:
             return None
-        value = self._read("calibration_yaml")
-        return value.decode() if isinstance(value, bytes) else str(value)
+        return text(self._read("calibration_yaml"))
 
     def truth(self, name: str) -> np.ndarray | None:
         """A ground-truth array of a simulated session (e.g. per-frame true force), or None."""
@@ -269,7 +268,7 @@ class SessionReader:
         group = self._file.get("analysis")
         if group is None:
             return {}
-        return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in group.attrs.items()}
+        return plain_attrs(group.attrs)
 
 
 def store_calibration(session_path: str | Path, yaml_text: str) -> None:

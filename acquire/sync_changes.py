@@ -8,13 +8,12 @@ force-change events (or fixed segments) gives its uncertainty and 95% confidence
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from scipy.signal import find_peaks
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import SessionReader
-from vbfe.acquire.sync_corners import OffsetEstimate, _vertex
+from vbfe.acquire.sync_corners import OffsetEstimate, _vertex, grey_left_frames
 
 _MOTION_WIDTH = 160  # frames are downscaled to this width before differencing
 _EVENT_FRACTION = 0.25  # a segment is an event when its force change is this share of the most
@@ -29,11 +28,7 @@ def motion_energy(reader: SessionReader) -> tuple[np.ndarray, np.ndarray]:
     times = reader.frame_times_ns()
     previous = None
     energy = np.zeros(max(reader.n_frames - 1, 0))
-    for i, frame in enumerate(reader.iter_frames()):
-        grey = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
-        scale = min(1.0, _MOTION_WIDTH / grey.shape[1])
-        if scale < 1.0:
-            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    for i, grey in enumerate(grey_left_frames(reader, _MOTION_WIDTH)):
         grey = grey.astype(np.float32)
         if previous is not None:
             energy[i - 1] = float(np.mean(np.abs(grey - previous)))

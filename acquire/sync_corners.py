@@ -14,6 +14,7 @@ the forces of the same instant), its spread inflated when the corners disagree.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import cv2
@@ -59,16 +60,20 @@ class OffsetEstimate:
         return len(self.corner_lags_s)
 
 
+def grey_left_frames(reader: SessionReader, max_width: int) -> Iterator[np.ndarray]:
+    """Every left frame of the session in grey, area-downscaled to at most ``max_width``."""
+    for frame in reader.iter_frames():
+        grey = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
+        scale = min(1.0, max_width / grey.shape[1])
+        if scale < 1.0:
+            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        yield grey
+
+
 def frame_components(reader: SessionReader) -> np.ndarray:
     """Leading principal components (frames × 3, ``U·S``) of the downscaled grey left
     frames: the image's main ways of changing, with most pixel noise left out."""
-    rows = []
-    for frame in reader.iter_frames():
-        grey = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
-        scale = min(1.0, _MOTION_WIDTH / grey.shape[1])
-        if scale < 1.0:
-            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        rows.append(grey.ravel())
+    rows = [grey.ravel() for grey in grey_left_frames(reader, _MOTION_WIDTH)]
     pixels = np.asarray(rows, np.float32)
     pixels -= pixels.mean(axis=0)
     return _leading_components(pixels, _COMPONENTS)

@@ -7,7 +7,6 @@ run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
 
 from __future__ import annotations
 
-import gc
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -18,14 +17,11 @@ from pyqtgraph.Qt import QtCore, QtWidgets
 
 from vbfe.acquire.reader import SessionReader
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.qt_app import dispose_widget, qt_application
 from vbfe.drivers.registry import Devices
 
 FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
 LIVE_WINDOW_S = 10.0
-
-
-def _app() -> QtWidgets.QApplication:
-    return QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
 
 
 def _rgb(bgr: np.ndarray) -> np.ndarray:
@@ -36,7 +32,7 @@ class ViewerWindow(QtWidgets.QWidget):
     """Two image panes over a force plot, with a status line for counters."""
 
     def __init__(self, title: str, axes: list[str]) -> None:
-        _app()  # widgets need the application object first
+        qt_application()  # widgets need the application object first
         super().__init__()
         self.setWindowTitle(title)
         self.resize(1000, 650)
@@ -64,12 +60,8 @@ class ViewerWindow(QtWidgets.QWidget):
         layout.addWidget(self.status)
 
     def dispose(self) -> None:
-        """Close and delete the window now (PySide6 + pyqtgraph may crash when plot items
-        are left for the interpreter's final garbage collection)."""
-        self.close()
-        self.deleteLater()
-        QtWidgets.QApplication.sendPostedEvents(None, 0)
-        gc.collect()
+        """Close and delete the window now (see :func:`dispose_widget`)."""
+        dispose_widget(self)
 
     def show_images(self, left: np.ndarray, right: np.ndarray) -> None:
         """Display a BGR stereo pair."""
@@ -156,7 +148,7 @@ class LiveViewer(ViewerWindow):
 
 def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
     """Render a viewer window into a PNG (works offscreen)."""
-    _app().processEvents()
+    qt_application().processEvents()
     if not widget.grab().save(str(path)):
         raise OSError(f"could not write {path}")
     return Path(path)
@@ -164,7 +156,7 @@ def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
 
 def view_session(path: str | Path) -> int:
     """Open the replay viewer on a session and run until the window closes."""
-    app = _app()
+    app = qt_application()
     with SessionReader(path) as reader:
         window = ReplayViewer(reader)
         window.show()
@@ -177,7 +169,7 @@ def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
     """Open the devices of a rig and show them live until the window closes."""
     from vbfe.drivers.registry import open_devices
 
-    app = _app()
+    app = qt_application()
     devices = open_devices(config)
     for device in (devices.camera, devices.trocar):
         device.open()

@@ -11,18 +11,21 @@ Run: ``python -m benchmarks.bench_calib [--views 10 20 30] [--seeds 3] [--poses 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec
-from vbfe.calib.projector import calibrate_projector
-from vbfe.calib.sim_source import DISTANCE_M, simulated_gray_code_captures
+from vbfe.calib.commands import projector_capture
+from vbfe.calib.projector import calibrate_projector, load_captures
 from vbfe.calib.stereo import calibrate_stereo
 from vbfe.calib.views import ViewSet
+from vbfe.config import load_config
+from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
 from vbfe.drivers.sim.rig import default_rig
-from vbfe.recon import calibration_from_rig
+from vbfe.truth import board_config, calibration_from_rig
 
 
 def intrinsic_errors(K: np.ndarray, K_true: np.ndarray) -> np.ndarray:
@@ -84,8 +87,10 @@ def main() -> None:
         size = (rig.projector.width, rig.projector.height)
         for seed in range(args.seeds):
             start = time.perf_counter()
-            captures = simulated_gray_code_captures(rig, spec, args.poses,
-                                                    np.random.default_rng(200 + seed))
+            config = board_config(load_config(None), on_a_stand=True, fps=10.0, seed=200 + seed)
+            with tempfile.TemporaryDirectory() as folder:
+                projector_capture(config, folder, args.poses)
+                captures = load_captures(folder)
             render_s = time.perf_counter() - start
             start = time.perf_counter()
             result = calibrate_projector(captures, spec, camera, size)

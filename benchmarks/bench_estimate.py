@@ -59,7 +59,8 @@ def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: in
     from vbfe.acquire import record_session
     from vbfe.config import default_config
     from vbfe.drivers.sim import SimBench
-    from vbfe.recon import calibration_from_rig, reconstruct_session
+    from vbfe.recon import reconstruct_session
+    from vbfe.truth import calibration_from_rig
 
     paths = []
     for k in STIFFNESSES_N_PER_M:

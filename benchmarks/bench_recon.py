@@ -19,8 +19,8 @@ from vbfe.config import default_config, section
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import (Reconstructor, SgbmParams, calibration_from_rig, evaluate_against_truth,
-                        make_pattern)
+from vbfe.recon import Reconstructor, SgbmParams, make_pattern
+from vbfe.truth import calibration_from_rig, evaluate_against_truth
 
 WORKING_DISTANCE_M = 0.06
 

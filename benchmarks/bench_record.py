@@ -25,10 +25,11 @@ from vbfe.acquire import Recorder, SessionWriter
 from vbfe.acquire.layout import COMPRESSIONS
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
+from vbfe.drivers.pacing import sleep_until
+from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
-from vbfe.drivers.projector.pattern import make_pattern
 
 WIDTH, HEIGHT, FPS, FORCE_HZ = 1920, 1080, 30.0, 1000.0
 
@@ -55,13 +56,7 @@ def wait_due(t0_ns: int, seq: int, rate_hz: float, timeout_s: float) -> int | No
     """Sleep until sample ``seq`` of a ``rate_hz`` stream started at ``t0_ns`` is due; returns
     its due time, or None when that is more than ``timeout_s`` away."""
     due = t0_ns + int(seq * 1e9 / rate_hz)
-    wait = (due - time.monotonic_ns()) / 1e9
-    if wait > timeout_s:
-        time.sleep(timeout_s)
-        return None
-    if wait > 0:
-        time.sleep(wait)
-    return due
+    return due if sleep_until(due, timeout_s) else None
 
 
 class PregeneratedCamera(StereoCamera):

@@ -15,12 +15,12 @@ import time
 import cv2
 import numpy as np
 
+from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, UniformAlbedo
-from vbfe.drivers.projector.pattern import make_pattern
 
 
 def seconds_per_call(fn, repeats: int) -> float:

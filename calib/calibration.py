@@ -276,7 +276,8 @@ def load_calibration(path: str | Path) -> Calibration:
         with SessionReader(path) as reader:
             text = reader.calibration_yaml()
         if text is None:
-            raise CalibrationError(f"session {path} holds no calibration; add one with "
-                                   "'vbfe calibrate stereo ... --session' or pass a YAML file")
+            raise CalibrationError(f"session {path} holds no calibration; store one with "
+                                   "'vbfe calibrate stereo ... --store-in SESSION' or pass a "
+                                   "calibration YAML file (--calib FILE.yaml)")
         return Calibration.from_yaml_text(text, source=f"calibration in {path}")
     return Calibration.load(path)

@@ -21,8 +21,10 @@ from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewColl
                                 camera_frames, capture_views)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.projector import ProjectorOptions, calibrate_projector, load_captures, with_projector
-from vbfe.calib.projector_capture import GrayCaptureOptions, capture_gray_code, captured_projector_size
+from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
+                                  with_projector)
+from vbfe.calib.projector_capture import (GrayCaptureOptions, capture_gray_code,
+                                          captured_projector_size)
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_views

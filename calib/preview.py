@@ -5,20 +5,19 @@ Works headless with ``QT_QPA_PLATFORM=offscreen``.
 
 from __future__ import annotations
 
-import gc
-
 import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.calib.capture import Verdict, ViewCollector, annotate, coverage_text
+from vbfe.drivers.qt_app import dispose_widget, qt_application
 
 
 class CapturePreview(QtWidgets.QWidget):
     """A window showing each offered view, what happened to it and the coverage so far."""
 
     def __init__(self) -> None:
-        self._app = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+        self._app = qt_application()
         super().__init__()
         self.setWindowTitle("vbfe calibrate capture")
         self.resize(900, 600)
@@ -43,8 +42,5 @@ class CapturePreview(QtWidgets.QWidget):
         self._app.processEvents()
 
     def dispose(self) -> None:
-        """Close and delete the window now (see vbfe.acquire.viewer for why)."""
-        self.close()
-        self.deleteLater()
-        QtWidgets.QApplication.sendPostedEvents(None, 0)
-        gc.collect()
+        """Close and delete the window now (see :func:`dispose_widget`)."""
+        dispose_widget(self)

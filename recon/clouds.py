@@ -25,6 +25,7 @@ from types import TracebackType
 import h5py
 import numpy as np
 
+from vbfe.acquire.h5attrs import plain_attrs, text
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
@@ -156,8 +157,7 @@ class CloudReader:
     @property
     def attrs(self) -> dict[str, object]:
         """Root attributes (format, verify, SGBM settings, software version, …)."""
-        out = {k: (v.item() if isinstance(v, np.generic) else v)
-               for k, v in self._file.attrs.items()}
+        out = plain_attrs(self._file.attrs)
         out["sgbm"] = json.loads(str(out.get("sgbm_json", "{}")))
         return out
 
@@ -179,8 +179,7 @@ class CloudReader:
 
     def calibration_yaml(self) -> str:
         """The calibration the clouds were computed with."""
-        value = self._file["calibration_yaml"][()]
-        return value.decode() if isinstance(value, bytes) else str(value)
+        return text(self._file["calibration_yaml"][()])
 
 
 def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None = None) -> Path:

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vbfe.drivers.projector.pattern import (DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR,
+                                            WINDOW, fringe_symbols)
 from vbfe.recon.color import ColorModel
 from vbfe.recon.debruijn import code_lookup
-from vbfe.drivers.projector.pattern import (DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR, WINDOW,
-                                fringe_symbols)
 
 MIN_VOTES = 2  # windows that must agree on a fringe's index
 BOUNDARY_DEPTH = 0.6  # a minimum is a fringe boundary if below this fraction of the local maximum

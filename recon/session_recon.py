@@ -55,14 +55,7 @@ def resolve_calibration(session_path: str | Path,
     """The calibration to use: the given object, a YAML/session path, or the session's own."""
     if isinstance(calibration, Calibration):
         return calibration
-    if calibration is None:
-        with SessionReader(session_path) as reader:
-            text = reader.calibration_yaml()
-        if text is None:
-            raise ReconError(f"session {session_path} holds no calibration; pass one with "
-                             f"--calib FILE.yaml (calibration=... in Python)")
-        return Calibration.from_yaml_text(text, source=f"calibration in {session_path}")
-    return load_calibration(calibration)
+    return load_calibration(session_path if calibration is None else calibration)
 
 
 def _results(session_path: Path, calibration: Calibration, params: SgbmParams, verify: bool,

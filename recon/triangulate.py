@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
-from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon.verify import verify_disparity
 
 

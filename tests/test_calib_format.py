@@ -13,7 +13,7 @@ from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.cli.main import main
 from vbfe.drivers.sim.rig import default_rig
-from vbfe.recon import calibration_from_rig
+from vbfe.truth import calibration_from_rig
 
 
 @pytest.fixture

@@ -8,11 +8,11 @@ import pytest
 from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
 from vbfe.config import default_config
-from vbfe.drivers.sim import SimBench
 from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.recon import calibration_from_rig, reconstruct_session
+from vbfe.recon import reconstruct_session
+from vbfe.truth import calibration_from_rig, true_rig
 
 CONDITIONS = [(200.0, 0.01, 1), (80.0, 0.02, 2)]  # fast pulls: force rises within a second
 
@@ -25,7 +25,7 @@ def sessions(tmp_path_factory):
         config = default_config()
         config["bench"].update(width=320, height=180, fps=8.0, stiffness_n_per_m=stiffness,
                                pull_speed_m_per_s=speed, rest_s=0.1, hold_s=0.3, seed=seed)
-        calibration = calibration_from_rig(SimBench.from_config(config["bench"]).rig)
+        calibration = calibration_from_rig(true_rig(config))
         path = folder / f"pull_k{stiffness:g}.h5"
         record_session(config, path, duration_s=1.5, calibration_yaml=calibration.to_yaml_text())
         reconstruct_session(path, workers=1)

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from vbfe.recon import (ColorModel, ReconError, calibration_from_rig, estimate_color_model,
-                        make_pattern)
+from vbfe.drivers.projector.pattern import fringe_coordinates
+from vbfe.recon import ColorModel, ReconError, estimate_color_model, make_pattern
 from vbfe.recon.color import color_calibration_patterns
 from vbfe.recon.decode import FringeDecoder
-from vbfe.drivers.projector.pattern import fringe_coordinates
+from vbfe.truth import calibration_from_rig
 
 K_TRUE = np.array([[0.80, 0.15, 0.05],   # camera B <- projector B, G, R
                    [0.10, 0.75, 0.15],

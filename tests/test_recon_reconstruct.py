@@ -6,9 +6,8 @@ import pytest
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import (FrameCloud, ReconError, Reconstructor, SgbmParams, calibration_from_rig,
-                        evaluate_against_truth, make_pattern)
-from vbfe.recon.accuracy import rectified_truth
+from vbfe.recon import FrameCloud, ReconError, Reconstructor, SgbmParams, make_pattern
+from vbfe.truth import calibration_from_rig, evaluate_against_truth, rectified_truth
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.triangulate import disparity_to_points

@@ -9,8 +9,9 @@ from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import MembraneLoad, TissueSurface, tissue_texture
-from vbfe.recon import (CloudReader, ReconError, Reconstructor, SgbmParams, calibration_from_rig,
-                        make_pattern, reconstruct_session, sidecar_path, write_ply)
+from vbfe.recon import (CloudReader, ReconError, Reconstructor, SgbmParams, make_pattern,
+                        reconstruct_session, sidecar_path, write_ply)
+from vbfe.truth import calibration_from_rig
 
 N_FRAMES = 3
 

@@ -90,20 +90,21 @@ def _relative_error(estimate: float, truth: float) -> float:
 def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
     """Board, capture, stereo and projector calibration; errors against the bench's true rig."""
     from vbfe.calib import commands
-    from vbfe.drivers.sim import SimBench
+    from vbfe.truth import board_config, true_rig
 
     folder = out / "calibration"
     folder.mkdir(parents=True, exist_ok=True)
     board_png, board_pdf = commands.make_board(config, folder / "board")
     step = stage("capture calibration views", plan.calibration_frames)
-    captured = commands.capture(config, folder / "views", max_frames=plan.calibration_frames,
-                                on_view=lambda *_: step(1))
+    captured = commands.capture(board_config(config), folder / "views",
+                                max_frames=plan.calibration_frames, on_view=lambda *_: step(1))
     outcome = commands.stereo(config, folder / "views", folder / "endoscope.yaml")
     step = stage("calibrate projector", 1)
-    calibration = commands.projector(config, folder / "projector-captures",
-                                     folder / "endoscope.yaml", simulate_poses=plan.projector_poses)
+    calibration = commands.projector(board_config(config, on_a_stand=True),
+                                     folder / "projector-captures", folder / "endoscope.yaml",
+                                     simulate_poses=plan.projector_poses)
     step(1)
-    rig = SimBench.from_config(config["bench"]).rig
+    rig = true_rig(config)
     estimated = {"f": calibration.K1[0, 0], "cx": calibration.K1[0, 2], "cy": calibration.K1[1, 2],
                  "B": calibration.B, "projector_f": calibration.K_proj[0, 0]}
     truth = {"f": rig.left.K[0, 0], "cx": rig.left.K[0, 2], "cy": rig.left.K[1, 2],
@@ -127,8 +128,8 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
                  stage: StageFn) -> list[Path]:
     """One session per paper condition and repeat, each a new trial (seed)."""
     from vbfe.acquire import record_session
-    from vbfe.drivers.sim import SimBench
     from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
+    from vbfe.truth import trial_duration_s
 
     sessions = []
     folder = out / "sessions"
@@ -141,9 +142,8 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
                                    seed=seed)
         path = folder / f"k{stiffness:g}_v{speed:g}_r{repeat}.h5"
         path.unlink(missing_ok=True)
-        duration_s = SimBench.from_config(run_config["bench"]).duration_s()
-        record_session(run_config, path, duration_s=duration_s, operator="vbfe demo",
-                       notes=f"simulated traction trial {repeat} at {stiffness:g} N/m, "
+        record_session(run_config, path, duration_s=trial_duration_s(run_config),
+                       operator="vbfe demo", notes=f"simulated traction trial {repeat} at {stiffness:g} N/m, "
                              f"{speed:g} m/s", calibration_yaml=calibration_yaml)
         sessions.append(path)
         step(1)
@@ -179,9 +179,8 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
     """Point clouds for every session; a few frames per session scored against true depth."""
     from vbfe.acquire import SessionReader
     from vbfe.calib import Calibration
-    from vbfe.drivers.sim import SimBench
     from vbfe.recon import Reconstructor, SgbmParams, reconstruct_session
-    from vbfe.recon.accuracy import evaluate_against_truth, rectified_truth
+    from vbfe.truth import evaluate_against_truth, rectified_truth, session_bench
 
     total = 0
     for path in sessions:
@@ -196,7 +195,7 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
     for path in sessions:
         with SessionReader(path) as reader:
             calibration = Calibration.from_yaml_text(reader.calibration_yaml())
-            bench = SimBench.from_description(reader.metadata["bench"])
+            bench = session_bench(reader)
             reconstructors = {key: Reconstructor(calibration, params, verify=verify)
                               for key, verify in (("verified", True), ("unverified", False))}
             picks = np.linspace(0, reader.n_frames - 1, plan.recon_check_frames + 2)[1:-1]

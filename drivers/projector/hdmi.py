@@ -17,6 +17,7 @@ from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.projector.frame_id import N_BITS, stamp_frame_id
+from vbfe.drivers.qt_app import qt_application
 from vbfe.drivers.samples import ProjectorEvent
 
 log = logging.getLogger(__name__)
@@ -42,7 +43,7 @@ class HdmiProjector(Projector):
         """Create the full-screen window on the chosen screen."""
         if self._window is not None:
             return
-        self._app = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+        self._app = qt_application()
         screens = QtGui.QGuiApplication.screens()
         if not 0 <= self.screen < len(screens):
             names = [f"{i}: {s.name()} {s.geometry().width()}x{s.geometry().height()}"

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.board_scene import BoardScene, board_target
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
@@ -214,12 +215,7 @@ class SimBench:
         Not in real time, the camera's frames drive the host clock; with no camera open the
         reader's own samples do."""
         if self.realtime:
-            wait_s = (self.host_epoch_ns + host_ns - time.monotonic_ns()) / 1e9
-            if wait_s > timeout_s:
-                time.sleep(timeout_s)
-                return False
-            time.sleep(max(wait_s, 0.0))
-            return True
+            return sleep_until(self.host_epoch_ns + host_ns, timeout_s)
         with self._time:
             if not self._camera_open:  # nobody drives time: the reader does
                 self._now_host_ns = max(self._now_host_ns, host_ns)

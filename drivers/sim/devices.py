@@ -10,13 +10,13 @@ camera read too late skips (and counts) the frames it missed, like a real captur
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
@@ -74,12 +74,8 @@ class SimCamera(_BenchStream, StereoCamera):
         k = self._next
         if bench.realtime:
             latest = bench.frames_due()
-            if latest < k:
-                wait_s = (bench.frame_arrival_host_ns(k) - time.monotonic_ns()) / 1e9
-                if wait_s > timeout_s:
-                    time.sleep(timeout_s)
-                    return None
-                time.sleep(max(wait_s, 0.0))
+            if latest < k and not sleep_until(bench.frame_arrival_host_ns(k), timeout_s):
+                return None
             elif latest > k:
                 self.stats.dropped += latest - k
                 self.stats.gaps.append((k - 1, latest))

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from vbfe.drivers.camera.v4l2 import V4L2StereoCamera
+from vbfe.drivers.pacing import sleep_until
 
 DISPARITY_PX = 4
 DEVICE_CLOCK_BASE_NS = 1_000_000_000_000  # device time of frame 0 when not paced in real time
@@ -97,9 +98,7 @@ class FakeStereoCapture:
                 lost = int(behind) - self.n_buffers
                 self.kernel_dropped.extend(range(self._next_seq, self._next_seq + lost))
                 self._next_seq += lost
-            delay_ns = self._host_due_ns(self._next_seq) - time.monotonic_ns()
-            if delay_ns > 0:
-                time.sleep(delay_ns * 1e-9)
+            sleep_until(self._host_due_ns(self._next_seq))
         self._seq, self._next_seq = self._next_seq, self._next_seq + 1
         self.delivered += 1
         return True

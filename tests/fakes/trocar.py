@@ -17,6 +17,7 @@ import can
 import numpy as np
 
 from tests.fakes.threaded import ThreadedFake
+from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.trocar.can_trocar import CAN_ERR_BUSOFF, CanTrocar
 from vbfe.drivers.trocar.dbc import load_frame_format
 
@@ -94,7 +95,7 @@ class FakeTrocar(ThreadedFake):
         try:
             with can.Bus(interface="virtual", channel=self.channel,
                          preserve_timestamps=True) as bus:
-                start, wall_start, n = time.monotonic(), time.time(), 0
+                start_ns, wall_start, n = time.monotonic_ns(), time.time(), 0
                 while not self._stop.is_set():
                     if self.disconnect_after is not None and n >= self.disconnect_after:
                         bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
@@ -102,9 +103,7 @@ class FakeTrocar(ThreadedFake):
                                              timestamp=wall_start + n * period_s))
                         self._stop.set()
                         break
-                    delay = start + n * period_s - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
+                    sleep_until(start_ns + int(n * period_s * 1e9))
                     message = self._frame(n, timestamp=wall_start + n * period_s)
                     if message is not None:
                         bus.send(message)
