@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionWriter, finalize_session
+from vbfe.calib.errors import CalibrationError
 from vbfe.cli.main import main
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
@@ -74,7 +75,7 @@ def test_parallel_session_reconstruction_matches_frame_by_frame(recording):
 def test_session_without_calibration_needs_one(recording, tmp_path):
     _, calibration, pairs = recording
     bare = _write_session(tmp_path / "bare.h5", pairs[:1])
-    with pytest.raises(ReconError, match="bare.h5.*--calib"):
+    with pytest.raises(CalibrationError, match="bare.h5.*--calib"):
         reconstruct_session(bare, workers=1)
     yaml_path = calibration.save(tmp_path / "calib.yaml")
     out = reconstruct_session(bare, calibration=yaml_path, workers=1,
