@@ -14,6 +14,7 @@ import numpy as np
 
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
@@ -54,19 +55,13 @@ class _Clock:
 class _Pacer:
     def __init__(self, speed: float | None) -> None:
         self.speed = speed
-        self.t0 = time.monotonic()
+        self.t0_ns = time.monotonic_ns()
 
     def wait(self, t_true_s: float, timeout_s: float) -> bool:
         """Sleep until ``t_true_s`` is due; False when that is beyond ``timeout_s``."""
         if self.speed is None:
             return True
-        delay = self.t0 + t_true_s / self.speed - time.monotonic()
-        if delay > timeout_s:
-            time.sleep(timeout_s)
-            return False
-        if delay > 0:
-            time.sleep(delay)
-        return True
+        return sleep_until(self.t0_ns + int(t_true_s / self.speed * 1e9), timeout_s)
 
 
 class _PacedDevice:

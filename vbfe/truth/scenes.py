@@ -9,9 +9,9 @@ Config = dict[str, dict[str, Any]]
 
 # The board moved by hand: a new pose every frame, some held still, some blurred.
 HAND_HELD = {"scene": "board", "board_hold_s": 0.0}
-# The board on a stand inside the projected area, moved every 10 s (longer than a Gray-code
-# sequence at 10 fps), tilted more so that the projector's pose is well determined.
-ON_A_STAND = {"scene": "board", "board_hold_s": 10.0, "board_in_projector": True,
+# The board on a stand inside the projected area, moved every 6 s (longer than the 43 frames of
+# a Gray-code pose at 10 fps), tilted more so that the projector's pose is well determined.
+ON_A_STAND = {"scene": "board", "board_hold_s": 6.0, "board_in_projector": True,
               "board_max_tilt_deg": 45.0}
 
 
