@@ -30,6 +30,7 @@ from vbfe.drivers.samples import StereoFrame
 
 SIZE_FILE = "projector.json"  # the projector size the captures were made for
 FRAMES_FILE = "frames.json"  # per pose: the frame kept for each pattern
+MAX_DISCARDS = 3  # sequences in a row spoilt by a moving board before the capture gives up
 
 
 @dataclass
@@ -156,15 +157,21 @@ def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | 
     (folder / SIZE_FILE).write_text(json.dumps({"size": list(size)}))
     first = existing_poses(folder)
     written: list[Path] = []
-    previous = None
+    previous, discarded = None, 0
     while len(written) < n_poses:
         tell(f"pose {len(written) + 1}/{n_poses}: move the board to a new pose inside the "
              "projected area and hold it still")
         previous = capturer.wait_for_pose(previous)
         capture = capturer.capture_pose()
         if capture is None:
+            discarded += 1
+            if discarded == MAX_DISCARDS:
+                raise CalibrationError(f"the board moved during {MAX_DISCARDS} Gray-code "
+                                       "sequences in a row; fix it on a stand (the poses "
+                                       "captured so far are kept)")
             tell("the board moved during the sequence: pose discarded, hold it still")
             continue
+        discarded = 0
         index = first + len(written)
         save_captures(folder, [capture], start=index)
         written.append(folder / f"pose_{index:03d}")

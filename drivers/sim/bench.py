@@ -39,8 +39,8 @@ class SimBench:
     working distance, e.g. for pattern checks) or ``"board"`` (a calibration board moved in front
     of the endoscope, see :mod:`vbfe.drivers.sim.board_scene`: ``board_*`` arguments; the
     ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
-    translation in m, board → left camera; empty: random). The trocar always follows the protocol. Latencies
-    are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
+    translation in m, board → left camera; empty: random). The trocar always follows the
+    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
     reader's clock fits map each stream to its median arrival, so
     ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
     when the first device is opened.
@@ -92,10 +92,10 @@ class SimBench:
         if scene == "board":
             target = board_target(board, board_squares_x, board_squares_y, board_square_mm,
                                   board_marker_mm, board_dictionary, board_legacy)
-            poses = [(np.asarray(p[:3], np.float64), np.asarray(p[3:], np.float64))
-                     for p in (board_poses or [])]
             if any(len(p) != 6 for p in (board_poses or [])):
                 raise DeviceError("[bench] board_poses must be rows [rx, ry, rz, tx, ty, tz]")
+            poses = [(np.asarray(p[:3], np.float64), np.asarray(p[3:], np.float64))
+                     for p in (board_poses or [])]
             self._board = BoardScene(
                 self.rig, target, rngs["board"], self.frame_period_ns, poses, board_hold_s,
                 board_p_still, board_p_blur, board_blur_px,
