@@ -17,8 +17,9 @@ import numpy as np
 from vbfe import __version__
 from vbfe.acquire import SessionReader
 from vbfe.calib.calibration import Calibration, load_calibration
-from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, session_fingerprint, sidecar_path
+from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
+from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
@@ -99,8 +100,7 @@ def reconstruct_session(session_path: str | Path,
         n_frames = reader.n_frames
         size = reader.frame_size
         times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
-        fingerprint = session_fingerprint(int(reader.attrs.get("start_utc_ns") or 0),
-                                          reader.stream_times("camera"))
+        fingerprint = fingerprint_of(reader)
     if tuple(size) != tuple(calibration.image_size):
         raise ReconError(f"session {session_path} has {size[0]}x{size[1]} images but the "
                          f"calibration is for {calibration.image_size[0]}x"

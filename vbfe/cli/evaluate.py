@@ -14,18 +14,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "and per condition; writes metrics.json, report.md/.html and plots. "
                             "Without sessions, the model's recorded test split is used.")
     parser.add_argument("model", metavar="MODEL.pt")
-    parser.add_argument("sessions", nargs="*", metavar="SESSION.h5")
+    parser.add_argument("sessions", nargs="*", metavar="SESSION.h5|MANIFEST.csv",
+                        help="sessions, or a manifest CSV written by vbfe dataset")
     parser.add_argument("--out", required=True, metavar="DIR", help="report directory")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
+    from vbfe.batch.manifest import expand_sessions
     from vbfe.estimate import evaluate  # torch loads only when a command needs it
 
     bars = StageProgress()
     try:
-        report = evaluate(args.model, args.sessions or None, args.out, progress=bars)
+        sessions = [str(p) for p in expand_sessions(args.sessions)]
+        report = evaluate(args.model, sessions or None, args.out, progress=bars)
     finally:
         bars.close()
     for method, numbers in report.metrics.items():

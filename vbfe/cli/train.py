@@ -13,7 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                             description="Train the PointNet force regressor. Each session needs "
                             "its <session>.clouds.h5 sidecar (run `vbfe reconstruct` first). "
                             "Defaults come from the [train] table of the rig config.")
-    parser.add_argument("sessions", nargs="+", metavar="SESSION.h5")
+    parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv",
+                        help="sessions, or a manifest CSV written by vbfe dataset")
     parser.add_argument("--out", required=True, metavar="MODEL.pt", help="model file to write")
     parser.add_argument("--epochs", type=int, help="maximum epochs (early stopping may end sooner)")
     parser.add_argument("--points", type=int, dest="n_points", help="points per cloud")
@@ -30,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Train and print where the model went and how it compares with the mean predictor."""
+    from vbfe.batch.manifest import expand_sessions
     from vbfe.estimate import TrainConfig, train  # torch loads only when a command needs it
 
     overrides = {key: getattr(args, key) for key in
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
     bars = StageProgress()
     try:
-        result = train(args.sessions, args.out, config, progress=bars)
+        result = train([str(p) for p in expand_sessions(args.sessions)], args.out, config, progress=bars)
     finally:
         bars.close()
     print(f"model written to {result.model_path} (best epoch {result.best_epoch} of "

@@ -1,4 +1,4 @@
-"""`vbfe verify-sync`: measure the image/force offset of a session and judge it."""
+"""`vbfe verify-sync`: measure the image/force offset of sessions and judge it."""
 
 from __future__ import annotations
 
@@ -6,28 +6,51 @@ import argparse
 from pathlib import Path
 
 from vbfe.acquire.sync_check import SyncLimits, verify_sync
+from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `verify-sync` subcommand."""
     parser = sub.add_parser("verify-sync", help="estimate the image-force time offset, clock "
-                            "drift and drops of a session; pass/fail against the rig's limits")
-    parser.add_argument("session", metavar="SESSION.h5")
+                            "drift and drops of sessions; pass/fail against the rig's limits")
+    parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="plot of the offset measurement (default: SESSION.sync.png)")
     parser.add_argument("--apply", action="store_true",
                         help="store the measured offset as a frame-time correction")
     parser.add_argument("--no-store", action="store_true",
-                        help="do not write the results into the session")
+                        help="do not write the results into the session (single session)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="sessions checked at once (default: one per CPU core)")
+    add_batch_options(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the report; exit code 1 when the verdict is FAIL."""
-    plot = args.plot or str(Path(args.session).with_suffix(".sync.png"))
-    report = verify_sync(args.session, SyncLimits.from_config(config_from(args)), plot_path=plot,
-                         store=not args.no_store, apply_correction=args.apply)
-    print(report.text())
-    return 0 if report.passed else 1
+    """Print the report(s); exit code 1 when a verdict is FAIL."""
+    from vbfe.batch.errors import BatchError
+    from vbfe.batch.manifest import expand_sessions
+
+    config = config_from(args)
+    limits = SyncLimits.from_config(config)
+    sessions = expand_sessions(args.sessions)
+    if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
+        plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
+        report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
+                             apply_correction=args.apply)
+        print(report.text())
+        return 0 if report.passed else 1
+    if args.plot or args.no_store:
+        raise BatchError("--plot and --no-store take a single session; with several, each "
+                         "result is stored in its session and plotted next to it")
+    from vbfe.batch.tasks import VerifySyncTask
+
+    executor, address = batch_settings(args, config.get("batch", {}))
+    task = VerifySyncTask(limits=dict(limits.__dict__), apply=args.apply,
+                          overwrite=args.overwrite)
+    outcomes = run_batch(task, sessions, executor, args.workers, address, "verify-sync",
+                         lambda v: f"{v['verdict']} offset {v['offset_ms']:+.2f} ms"
+                         f" ({v['action']})")
+    return 0 if all(o.value["verdict"] == "PASS" for o in outcomes) else 1

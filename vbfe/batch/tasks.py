@@ -1,0 +1,71 @@
+"""The per-session tasks of a batch: picklable callables that write only their own outputs."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from vbfe.acquire.reader import SessionReader
+from vbfe.acquire.sync_check import SyncLimits, verify_sync
+from vbfe.batch.errors import BatchError
+from vbfe.recon.clouds import CloudReader, sidecar_path
+from vbfe.recon.freshness import clouds_status
+from vbfe.recon.matching import SgbmParams
+from vbfe.recon.session_recon import reconstruct_session
+
+
+@dataclass(frozen=True)
+class ReconstructTask:
+    """Reconstruct one session into its sidecar; skip it when the sidecar is current."""
+
+    sgbm: dict[str, Any] = field(default_factory=dict)
+    verify: bool = True
+    calibration: str | None = None  # a YAML path; None: the one stored in the session
+    overwrite: bool = False  # rebuild even a current sidecar, replace a stale one
+    threads: int = 1  # OpenCV threads in this task's process
+
+    def __call__(self, session: str) -> dict[str, Any]:
+        params = SgbmParams(**self.sgbm)
+        calibration_yaml = Path(self.calibration).read_text() if self.calibration else None
+        status = clouds_status(session, params, self.verify, calibration_yaml)
+        out = sidecar_path(session)
+        if status.state == "current" and not self.overwrite:
+            return {"action": "up to date", "out": str(out)}
+        if status.state == "stale" and not self.overwrite:
+            raise BatchError(f"{out} is {status}; pass --overwrite to rebuild it")
+        cv2.setNumThreads(self.threads)
+        reconstruct_session(session, calibration=self.calibration, workers=1,
+                            sgbm_params=params, verify=self.verify)
+        with CloudReader(out) as clouds:
+            valid = clouds.frame_table("valid_fraction")
+        return {"action": "reconstructed", "out": str(out), "frames": int(len(valid)),
+                "valid_fraction": float(valid.mean()) if len(valid) else 0.0}
+
+
+@dataclass(frozen=True)
+class VerifySyncTask:
+    """Check one session's synchronisation; skip it when it already holds a result for these
+    limits (and no correction is to be applied)."""
+
+    limits: dict[str, float] = field(default_factory=dict)
+    apply: bool = False
+    overwrite: bool = False  # measure again even when a result for these limits is stored
+
+    def __call__(self, session: str) -> dict[str, Any]:
+        limits = SyncLimits(**self.limits)
+        plot = Path(session).with_suffix(".sync.png")
+        with SessionReader(session) as reader:
+            stored = reader.analysis()
+        same_limits = stored.get("sync_limits") and json.loads(stored["sync_limits"]) == \
+            limits.__dict__
+        if same_limits and plot.exists() and not (self.apply or self.overwrite):
+            return {"action": "up to date", "verdict": str(stored["sync_verdict"]).upper(),
+                    "offset_ms": 1e3 * float(stored["sync_offset_s"])}
+        report = verify_sync(session, limits, plot_path=plot, store=True,
+                             apply_correction=self.apply)
+        return {"action": "checked", "verdict": "PASS" if report.passed else "FAIL",
+                "offset_ms": 1e3 * report.estimate.offset_s}

@@ -1,0 +1,63 @@
+"""`vbfe dataset`: the sessions under a folder, one row each, and their manifest CSV."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from vbfe.cli.common import add_config_option, config_from
+from vbfe.config import section
+
+SHOWN = (("path", 28), ("status", 10), ("condition", 44), ("operator", 8), ("date_utc", 19),
+         ("duration_s", 8), ("frames", 6), ("frame_drops", 5), ("force_drops", 5),
+         ("sync_verdict", 6), ("calibration_hash", 12), ("clouds", 10))
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `dataset` subcommand."""
+    parser = sub.add_parser(
+        "dataset", help="list the sessions under a folder; write a manifest",
+        description="One row per session below DIR: condition, operator, date, duration, "
+        "frames, drops, sync verdict, calibration hash, clouds (missing, stale, current). "
+        "With --manifest the rows go to a CSV that train, evaluate, reconstruct and "
+        "verify-sync accept instead of a list of session files.")
+    parser.add_argument("folder", metavar="DIR")
+    parser.add_argument("--manifest", metavar="FILE.csv", default=None,
+                        help="write the rows to this CSV (paths relative to its folder)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing manifest")
+    add_config_option(parser)
+    parser.set_defaults(func=run)
+
+
+def _cell(value: object, width: int) -> str:
+    text = str(value)
+    return text if len(text) <= width else text[:width - 1] + "…"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the table (and write the manifest); exit 1 when a session is unreadable."""
+    from vbfe.batch.errors import BatchError
+    from vbfe.batch.manifest import scan_dataset, write_manifest
+    from vbfe.recon.matching import SgbmParams
+
+    manifest = Path(args.manifest) if args.manifest else None
+    if manifest is not None:
+        if manifest.suffix != ".csv":
+            raise BatchError(f"manifest {manifest} must end in .csv")
+        if manifest.exists() and not args.overwrite:
+            raise BatchError(f"manifest {manifest} exists; pass --overwrite to replace it")
+        if not manifest.parent.is_dir():
+            raise BatchError(f"folder {manifest.parent} of the manifest does not exist")
+    params = SgbmParams.from_config(section(config_from(args), "sgbm"))
+    entries = scan_dataset(args.folder, params,
+                           relative_to=manifest.parent if manifest else args.folder)
+    print("  ".join(f"{name:<{width}}" for name, width in SHOWN))
+    for entry in entries:
+        print("  ".join(f"{_cell(getattr(entry, name), width):<{width}}"
+                        for name, width in SHOWN).rstrip())
+    unreadable = [e for e in entries if e.status.startswith("unreadable")]
+    print(f"{len(entries)} sessions, {sum(e.clouds == 'current' for e in entries)} with current "
+          f"clouds, {len(unreadable)} unreadable")
+    if manifest is not None:
+        print(f"manifest written to {write_manifest(manifest, entries)}")
+    return 1 if unreadable else 0
