@@ -120,3 +120,11 @@ def test_live_refuses_a_calibration_of_another_camera_mode(rig, tmp_path):
     assert result.returncode == 2
     assert "640x360" in result.stderr and "320x180" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_live_window_runs_offscreen_and_closes_at_the_duration(rig):
+    folder, model, calib, toml = rig
+    result = vbfe("live", "--model", model, "--calib", calib, "--duration", 2, "--config", toml)
+    assert result.returncode == 0, result.stderr
+    estimates = int(result.stdout.split(" estimates from ")[0].split()[-1])
+    assert estimates >= 1 and "Traceback" not in result.stderr
