@@ -7,9 +7,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 
 from vbfe.acquire.audit import StreamAudit, audit_sequence
 from vbfe.acquire.clock import ClockFit
+from vbfe.acquire.estimates import EstimateStream
 from vbfe.acquire.reader import SessionReader
 
 
@@ -31,6 +33,7 @@ class SessionSummary:
     has_calibration: bool
     truth_names: list[str]
     analysis: dict[str, Any] = field(default_factory=dict)
+    estimates: EstimateStream | None = None
 
     def text(self) -> str:
         """The summary as lines of text."""
@@ -75,6 +78,13 @@ class SessionSummary:
             lines.append(f"truth     {', '.join(self.truth_names)}")
         if self.metadata.get("conditions"):
             lines.append(f"conditions {self.metadata['conditions']}")
+        if self.estimates is not None:
+            e = self.estimates
+            latency = e.latency_s * 1e3 if len(e) else [float("nan")]
+            lines.append(f"estimate  {len(e)} live estimates ({e.attrs.get('target')}), "
+                         f"{e.attrs.get('skipped_frames', 0)} frames skipped; latency p50 "
+                         f"{np.percentile(latency, 50):.1f} ms, p95 {np.percentile(latency, 95):.1f}"
+                         f" ms (score: vbfe evaluate --live)")
         if "sync_verdict" in self.analysis:
             lines.append(f"sync      {self.analysis['sync_verdict']}: image - force offset "
                          f"{1e3 * self.analysis['sync_offset_s']:+.2f} ms")
@@ -97,4 +107,4 @@ def inspect_session(path: str | Path) -> SessionSummary:
             clocks={stream: s.clock_fit(stream) for stream in ("camera", "force", "projector")},
             gaps=s.gaps(), patterns=[e.pattern for e in s.projector_events()],
             has_calibration=s.calibration_yaml() is not None, truth_names=s.truth_names(),
-            analysis=s.analysis())
+            analysis=s.analysis(), estimates=s.estimates())

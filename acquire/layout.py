@@ -5,7 +5,7 @@ from __future__ import annotations
 import hdf5plugin
 
 FORMAT_NAME = "vbfe-session"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: optional /estimate stream (vbfe live --record)
 
 COMPRESSIONS = ("none", "lzf", "blosc-lz4", "mjpeg")
 STREAMS = ("camera", "force", "projector")  # also the names of their HDF5 groups

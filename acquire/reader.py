@@ -15,6 +15,7 @@ import numpy as np
 from vbfe.acquire.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.h5attrs import plain_attrs, text
+from vbfe.acquire.estimates import EstimateStream, read_estimates, write_estimates
 from vbfe.acquire.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
@@ -263,6 +264,10 @@ class SessionReader:
         """Names of the stored ground-truth arrays."""
         return sorted(self._file["truth"]) if "truth" in self._file else []
 
+    def estimates(self) -> EstimateStream | None:
+        """The live force estimates stored with the session (schema 2), or ``None``."""
+        return read_estimates(self._file, self.path)
+
     def analysis(self) -> dict[str, Any]:
         """Results stored by analyses such as verify-sync (``/analysis`` attributes)."""
         group = self._file.get("analysis")
@@ -288,3 +293,11 @@ def store_analysis(session_path: str | Path, values: dict[str, Any],
             f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
         if values:
             f.require_group("analysis").attrs.update(values)
+
+
+def store_estimates(session_path: str | Path, stream: EstimateStream) -> None:
+    """Write (or replace) the live estimate stream of a closed session."""
+    f, _ = open_session_file(session_path, "r+")
+    with f:
+        _check_session(f, Path(session_path))
+        write_estimates(f, stream)

@@ -9,7 +9,7 @@ from typing import Any
 from vbfe.acquire.recorder import Recorder, RecorderStats
 from vbfe.config import section
 from vbfe.drivers.projector.pattern import make_pattern
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.registry import Devices, open_devices
 
 
 def record_session(config: dict[str, dict[str, Any]], path: str | Path,
@@ -20,8 +20,19 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
     conditions, description and per-frame ground truth to the session."""
+    recorder = session_recorder(config, path, open_devices(config), operator, notes,
+                                conditions, compression, calibration_yaml)
+    recorder.start()
+    return recorder.run(duration_s, on_progress)
+
+
+def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, devices: Devices,
+                     operator: str = "", notes: str = "",
+                     conditions: dict[str, Any] | None = None, compression: str | None = None,
+                     calibration_yaml: str | None = None) -> Recorder:
+    """The recorder :func:`record_session` uses, over given devices (which may be wrapped,
+    e.g. by a live estimator that sees every frame); not started yet."""
     settings = section(config, "record")
-    devices = open_devices(config)
     metadata: dict[str, Any] = {"operator": operator, "notes": notes,
                                 "conditions": dict(conditions or {})}
     if devices.bench is not None:
@@ -35,5 +46,4 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                         min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
                         pattern=make_pattern(projector.width, projector.height),
                         pattern_name="debruijn-hsv")
-    recorder.start()
-    return recorder.run(duration_s, on_progress)
+    return recorder

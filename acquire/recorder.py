@@ -177,6 +177,11 @@ class Recorder:
             self.stats.end_reason = "stopped by operator"
         return self.stop()
 
+    def request_stop(self, reason: str) -> None:
+        """Ask a running :meth:`run` (e.g. in another thread) to stop cleanly with ``reason``."""
+        self.stats.end_reason = reason
+        self._stop.set()
+
     def stop(self) -> RecorderStats:
         """Stop reading, write what is queued, close and finalize the file, close the devices."""
         self._stop.set()

@@ -128,6 +128,18 @@ class Calibration:
                                             cv2.CV_32FC1)
         return left, right
 
+    def scaled(self, scale: float) -> "Calibration":
+        """The calibration of the same cameras with images resized by ``scale`` (e.g. 0.5 for
+        half resolution); pixel centres stay at integer coordinates, as in OpenCV."""
+        size = (round(self.image_size[0] * scale), round(self.image_size[1] * scale))
+        S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, scale, (scale - 1) / 2], [0, 0, 1]])
+        P1, P2 = S @ self.P1, S @ self.P2
+        tx = P2[0, 3] / P2[0, 0]  # −B, in metres
+        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, 1.0, 0, -P1[1, 2]], [0, 0, 0, P1[0, 0]],
+                      [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx]])
+        return self.replace(K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size,
+                            per_view_rms_px=None)
+
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rectified pair (rows of the two images are epipolar lines)."""
         for name, img in (("left", left), ("right", right)):

@@ -42,16 +42,23 @@ class ForceModel:
     def predict_points(self, points: np.ndarray | torch.Tensor) -> np.ndarray:
         """Force (B×outputs, N) for clouds already cropped and sampled (B×n_points×3, metres)."""
         self.network.eval()
+        device = next(self.network.parameters()).device
         with torch.no_grad():
-            return self.network(torch.as_tensor(points, dtype=torch.float32)).numpy()
+            return self.network(torch.as_tensor(points, dtype=torch.float32,
+                                                device=device)).cpu().numpy()
 
-    def predict_cloud(self, points: np.ndarray, seed: int = 0) -> np.ndarray:
-        """Force (outputs,) for one raw cloud (N×3, may hold NaN); applies the training ROI."""
+    def prepare_cloud(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A raw cloud (N×3, may hold NaN) cropped to the training ROI and sampled to
+        ``n_points`` (n_points×3)."""
         cropped = crop_roi(points, self.config)
         if len(cropped) == 0:
             raise EstimateError("the cloud has no finite point inside the model's region of "
                                 "interest; check the reconstruction or the [train] roi")
-        sampled = sample_points(cropped, self.config.n_points, np.random.default_rng(seed))
+        return sample_points(cropped, self.config.n_points, rng)
+
+    def predict_cloud(self, points: np.ndarray, seed: int = 0) -> np.ndarray:
+        """Force (outputs,) for one raw cloud (N×3, may hold NaN); applies the training ROI."""
+        sampled = self.prepare_cloud(points, np.random.default_rng(seed))
         return self.predict_points(sampled[None])[0]
 
     def predict_session(self, session: PreparedSession, batch_size: int = 64) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""`vbfe evaluate`: errors of a trained model and its baselines, with plots and a report."""
+"""`vbfe evaluate`: errors of a trained model and its baselines, with plots and a report; or
+the score of a live estimate stream recorded by `vbfe live --record`."""
 
 from __future__ import annotations
 
@@ -12,16 +13,46 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("evaluate", help="evaluate a trained model and the baselines",
                             description="MAE, RMSE and σ of the model and baselines, overall "
                             "and per condition; writes metrics.json, report.md/.html and plots. "
-                            "Without sessions, the model's recorded test split is used.")
-    parser.add_argument("model", metavar="MODEL.pt")
+                            "Without sessions, the model's recorded test split is used. With "
+                            "--live SESSION.h5, scores the estimates that `vbfe live --record` "
+                            "stored in the session against its trocar.")
+    parser.add_argument("model", metavar="MODEL.pt", nargs="?")
     parser.add_argument("sessions", nargs="*", metavar="SESSION.h5|MANIFEST.csv",
                         help="sessions, or a manifest CSV written by vbfe dataset")
-    parser.add_argument("--out", required=True, metavar="DIR", help="report directory")
+    parser.add_argument("--live", metavar="SESSION.h5", default=None,
+                        help="score the live estimate stream of this session")
+    parser.add_argument("--out", metavar="DIR", default=None, help="report directory")
     parser.set_defaults(func=run)
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    from vbfe.estimate.live_score import score_live_stream
+
+    score = score_live_stream(args.live, args.out)
+    e = score["error"]
+    print(f"live estimates of {args.live}: MAE {e['mae_n']:.3f} N (σ {e['sd_abs_error_n']:.3f}), "
+          f"RMSE {e['rmse_n']:.3f} N over {score['compared']} of {score['estimates']} estimates "
+          f"(target {score['target']}, synchronised times)")
+    print(f"rate {score['rate_hz']:.1f} estimates/s, latency p50 {score['latency_ms']['p50']:.1f}"
+          f" ms, p95 {score['latency_ms']['p95']:.1f} ms, {score['skipped_frames']} frames "
+          f"skipped; per stage (median): " + ", ".join(
+              f"{k} {v:.1f} ms" for k, v in score["stage_median_ms"].items()))
+    for path in score.get("files", []):
+        print(f"wrote {path}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
+    from vbfe.estimate.errors import EstimateError
+
+    if args.live:
+        if args.model or args.sessions:
+            raise EstimateError("--live scores a recorded estimate stream: give only "
+                                "--live SESSION.h5 [--out DIR], no model or sessions")
+        return _run_live(args)
+    if not args.model or not args.out:
+        raise EstimateError("give MODEL.pt and --out DIR (or --live SESSION.h5)")
     from vbfe.batch.manifest import expand_sessions
     from vbfe.estimate import evaluate  # torch loads only when a command needs it
 

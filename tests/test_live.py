@@ -1,0 +1,131 @@
+"""Live force estimation: the newest-frame mailbox, reduced-resolution reconstruction, and
+`vbfe live` on the bench with a model trained here, recording its estimate stream."""
+
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from vbfe.acquire import SessionReader
+from vbfe.config import load_config
+from vbfe.drivers.sim.render import render_scene
+from vbfe.drivers.sim.rig import default_rig
+from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
+from vbfe.estimate.synthetic import synthetic_sessions
+from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate.training import train
+from vbfe.live.mailbox import Mailbox
+from vbfe.recon import Reconstructor, make_pattern
+from vbfe.truth import calibration_from_rig, true_rig
+
+
+def test_mailbox_gives_the_newest_item_and_counts_the_skipped():
+    box: Mailbox[int] = Mailbox()
+    assert box.take(0.01) is None
+    for i in range(5):
+        box.put(i)
+    assert box.take(0.01) == 4 and box.skipped == 4 and box.put_count == 5
+    got = []
+    consumer = threading.Thread(target=lambda: got.append(box.take(2.0)))
+    consumer.start()
+    box.put(7)
+    consumer.join()
+    assert got == [7] and box.skipped == 4
+
+
+def test_half_resolution_reconstruction_sees_the_same_depth():
+    rig = default_rig(640, 360)
+    tissue = TissueSurface(texture=tissue_texture(np.random.default_rng(3)))
+    pair = render_scene(rig, tissue, make_pattern(rig.projector.width, rig.projector.height),
+                        rng=np.random.default_rng(4))
+    calibration = calibration_from_rig(rig)
+    half = calibration.scaled(0.5)
+    assert half.image_size == (320, 180)
+    assert half.f == pytest.approx(calibration.f / 2) and half.B == pytest.approx(calibration.B)
+    import cv2
+
+    full_cloud = Reconstructor(calibration).process(pair.left, pair.right)
+    small = [cv2.resize(im, half.image_size, interpolation=cv2.INTER_AREA)
+             for im in (pair.left, pair.right)]
+    half_cloud = Reconstructor(half).process(*small)
+    assert len(half_cloud.points) > 0.15 * len(full_cloud.points)
+    z_full, z_half = np.median(full_cloud.points[:, 2]), np.median(half_cloud.points[:, 2])
+    assert z_half == pytest.approx(z_full, rel=0.01)
+    assert z_full == pytest.approx(0.06, rel=0.1)  # the tissue lies at the working distance
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """A trained (tiny) model, the bench's calibration and a 320x180 bench rig config."""
+    folder = tmp_path_factory.mktemp("live")
+    model = folder / "model.pt"
+    train_config = TrainConfig(epochs=8, batch_size=16, n_points=64, conv_channels=[16, 32, 64],
+                               head_channels=[32], val_fraction=1 / 3, seed=0, threads=1)
+    train(synthetic_sessions(repeats=1, seed=1, fps=4, points_per_side=20), model, train_config)
+    bench = {"width": 320, "height": 180, "fps": 15.0, "distortion": False, "seed": 3}
+    toml = folder / "rig.toml"
+    toml.write_text("[bench]\n" + "".join(f"{k} = {str(v).lower() if isinstance(v, bool) else v}\n"
+                                          for k, v in bench.items()))
+    config = load_config()
+    config["bench"].update(bench)
+    calib = calibration_from_rig(true_rig(config)).save(folder / "calib.yaml")
+    return folder, model, calib, toml
+
+
+def vbfe(*args):
+    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
+                          capture_output=True, text=True, timeout=240)
+
+
+def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
+    folder, model, calib, toml = rig
+    session = folder / "live.h5"
+    result = vbfe("live", "--model", model, "--calib", calib, "--record", session,
+                  "--duration", 4, "--headless", "--config", toml)
+    assert result.returncode == 0, result.stderr
+    status_lines = [l for l in result.stdout.splitlines() if l.startswith("live ")]
+    assert len(status_lines) >= 2 and "est/s" in status_lines[-1]
+    with SessionReader(session) as reader:
+        stream = reader.estimates()
+        seqs = set(reader.stream_times("camera")[2].tolist())
+        assert reader.attrs["schema_version"] == 2
+    n, seen, skipped = len(stream), stream.attrs["frames_seen"], stream.attrs["skipped_frames"]
+    assert n >= 10, f"only {n} estimates in 4 s"
+    # every delivered frame was estimated or skipped (the newest may still wait at the stop)
+    assert stream.attrs["estimated"] + skipped in (seen, seen - 1)
+    assert n == stream.attrs["estimated"] - stream.attrs["of_unrecorded_frames"]
+    assert set(stream.frame_seq.tolist()) <= seqs  # each estimate names a recorded frame
+    assert np.all(np.diff(stream.frame_seq) > 0) and np.all(np.diff(stream.t_ready_host_ns) > 0)
+    latency = stream.latency_s
+    assert np.all(latency > 0) and np.all(latency < 2.0)
+    assert stream.stage_s.shape == (n, 3) and np.all(stream.stage_s >= 0)
+    assert np.isfinite(stream.force_n).all()
+    inspect = vbfe("inspect", session)
+    assert f"estimate  {n} live estimates" in inspect.stdout
+    scored = vbfe("evaluate", "--live", session, "--out", folder / "eval")
+    assert scored.returncode == 0, scored.stderr
+    mae = float(scored.stdout.split("MAE ")[1].split(" N")[0])
+    assert np.isfinite(mae) and mae >= 0
+    assert (folder / "eval" / "live_metrics.json").is_file()
+    assert (folder / "eval" / "live_force.png").is_file()
+
+
+def test_live_refuses_a_calibration_of_another_camera_mode(rig, tmp_path):
+    folder, model, calib, _ = rig
+    toml = tmp_path / "rig.toml"
+    toml.write_text("[bench]\nwidth = 640\nheight = 360\n")
+    result = vbfe("live", "--model", model, "--calib", calib, "--duration", 1, "--headless",
+                  "--config", toml)
+    assert result.returncode == 2
+    assert "640x360" in result.stderr and "320x180" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_live_window_runs_offscreen_and_closes_at_the_duration(rig):
+    folder, model, calib, toml = rig
+    result = vbfe("live", "--model", model, "--calib", calib, "--duration", 2, "--config", toml)
+    assert result.returncode == 0, result.stderr
+    estimates = int(result.stdout.split(" estimates from ")[0].split()[-1])
+    assert estimates >= 1 and "Traceback" not in result.stderr

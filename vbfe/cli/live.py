@@ -1,0 +1,95 @@
+"""`vbfe live`: force estimated from the endoscope at frame rate, beside the trocar."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from vbfe.cli.common import add_config_option, config_from
+from vbfe.config import section
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `live` subcommand."""
+    parser = sub.add_parser(
+        "live", help="estimate force live from the endoscope with a trained model",
+        description="Camera frames -> rectify -> SGBM + De Bruijn verification -> cloud -> "
+        "model -> force, continuously; the newest frame wins when the chain is slower than the "
+        "camera (skipped frames are counted). Shows the estimate over the trocar's force, or "
+        "prints a status line with --headless. Defaults come from the [live] table.")
+    parser.add_argument("--model", required=True, metavar="MODEL.pt", help="from vbfe train")
+    parser.add_argument("--calib", required=True, metavar="CALIB.yaml",
+                        help="calibration of this camera mode (or a session that stores one)")
+    parser.add_argument("--record", metavar="SESSION.h5", default=None,
+                        help="also record the session, with the estimate stream")
+    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+                        help="stop after this long (default: until closed or Ctrl-C)")
+    parser.add_argument("--headless", action="store_true", help="status lines instead of a window")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="skip the De Bruijn verification (faster, bare SGBM)")
+    parser.add_argument("--device", choices=DEVICES, default=None,
+                        help="where the model runs (auto: CUDA when torch sees it)")
+    add_config_option(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run live estimation and print the summary."""
+    import torch
+
+    from vbfe.acquire.record import session_recorder
+    from vbfe.calib.calibration import load_calibration
+    from vbfe.drivers.registry import open_devices
+    from vbfe.estimate.model_file import load_model
+    from vbfe.live.estimator import FrameEstimator
+    from vbfe.live.errors import LiveError
+    from vbfe.live.run import LiveRun, run_headless
+    from vbfe.recon.matching import SgbmParams
+
+    config = config_from(args)
+    settings = section(config, "live")
+    if args.duration is not None and args.duration <= 0:
+        raise LiveError(f"--duration must be positive, got {args.duration}")
+    device = args.device or settings["device"]
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and not torch.cuda.is_available():
+        raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
+    torch.set_num_threads(int(settings["torch_threads"]))
+    model = load_model(args.model)
+    calibration = load_calibration(args.calib)
+    estimator = FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
+                               verify=not args.no_verify and bool(settings["verify"]),
+                               scale=args.scale or float(settings["scale"]), device=device)
+    config["bench"]["realtime"] = True  # live means the camera's own pace, on the bench too
+    devices = open_devices(config)
+    width, height = calibration.image_size
+    if (devices.camera.width, devices.camera.height) != (width, height):
+        raise LiveError(f"the camera delivers {devices.camera.width}x{devices.camera.height} but "
+                        f"{args.calib} is for {width}x{height}; use the calibration of this mode")
+    live = LiveRun(devices, estimator, model_name=str(args.model))
+    recorder = (session_recorder(config, args.record, live.devices,
+                                 calibration_yaml=calibration.to_yaml_text())
+                if args.record else None)
+    live.start(recorder, args.duration)
+    if args.headless:
+        status = run_headless(live, args.duration, lambda s: print(s.line(), flush=True),
+                              float(settings["status_interval_s"]))
+    else:
+        from vbfe.live.viewer import show_live
+
+        status = show_live(live, args.duration)
+    if live.error:
+        raise LiveError(f"live estimation stopped: {live.error}")
+    print(f"{status.estimates} estimates from {status.frames} frames ({status.skipped} skipped) "
+          f"in {status.wall_s:.1f} s; latency p50 {status.latency_p50_ms:.1f} ms, p95 "
+          f"{status.latency_p95_ms:.1f} ms; MAE vs trocar {status.mae_n:.3f} N "
+          f"(raw host times, {status.mae_count} estimates)")
+    if args.record:
+        print(f"session with estimate stream: {args.record} (score it: vbfe evaluate --live "
+              f"{args.record})", file=sys.stdout)
+    return 0

@@ -1,0 +1,68 @@
+"""The live estimation window: the estimate over the trocar's force on one time axis, with
+rate, latency and skipped frames in view. Everything Qt runs on the GUI thread (a timer polls
+the run), so the estimator threads never touch a widget."""
+
+from __future__ import annotations
+
+import pyqtgraph as pg
+from pyqtgraph.Qt import QtCore, QtWidgets
+
+from vbfe.live.run import LiveRun, LiveStatus
+
+WINDOW_S = 10.0
+
+
+class LiveEstimateWindow(QtWidgets.QWidget):
+    """Plot of the last ``WINDOW_S`` seconds and a status line; closes at ``duration_s``."""
+
+    def __init__(self, run: LiveRun, duration_s: float | None = None,
+                 interval_ms: int = 100) -> None:
+        QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+        super().__init__()
+        self.run, self.duration_s = run, duration_s
+        self.setWindowTitle("vbfe live — force estimate")
+        self.resize(900, 500)
+        layout = QtWidgets.QVBoxLayout(self)
+        self.plot = pg.PlotWidget(background="w")
+        self.plot.setLabel("left", f"force ({run.target})", units="N")
+        self.plot.setLabel("bottom", "time before now", units="s")
+        self.plot.addLegend(offset=(5, 5))
+        self.trocar = self.plot.plot(pen=pg.mkPen("#4363d8", width=2), name="trocar")
+        self.estimate = self.plot.plot(pen=None, symbol="o", symbolSize=5,
+                                       symbolBrush="#e6194b", name="estimate")
+        self.plot.setXRange(-WINDOW_S, 0.0)
+        layout.addWidget(self.plot)
+        self.status_label = QtWidgets.QLabel()
+        layout.addWidget(self.status_label)
+        self.last_status: LiveStatus | None = None
+        self.timer = QtCore.QTimer(self)
+        self.timer.timeout.connect(self.refresh)
+        self.timer.start(interval_ms)
+
+    def refresh(self) -> None:
+        """Redraw from the run's current state; close when the run has ended."""
+        t_est, est, t_trc, trc = self.run.curves(WINDOW_S)
+        self.trocar.setData(t_trc, trc)
+        self.estimate.setData(t_est, est)
+        self.last_status = self.run.status()
+        self.status_label.setText(self.last_status.line())
+        done = self.duration_s is not None and self.last_status.wall_s >= self.duration_s
+        if done or not self.run.running():
+            self.close()
+
+    def closeEvent(self, event: object) -> None:  # noqa: N802 - Qt's name
+        """Stop polling when the window goes."""
+        self.timer.stop()
+        super().closeEvent(event)
+
+
+def show_live(run: LiveRun, duration_s: float | None) -> LiveStatus:
+    """Run the window until it is closed (or ``duration_s``), then stop the run."""
+    app = QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
+    window = LiveEstimateWindow(run, duration_s)
+    window.show()
+    app.exec()
+    window.deleteLater()
+    QtWidgets.QApplication.sendPostedEvents(None, 0)
+    return run.stop("window closed" if window.last_status is None or duration_s is None
+                    or window.last_status.wall_s < duration_s else "duration reached")
