@@ -26,7 +26,7 @@ from vbfe.acquire.layout import COMPRESSIONS
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.registry import Devices
-from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 from vbfe.recon.pattern import make_pattern
 
@@ -73,10 +73,10 @@ class PregeneratedCamera(StereoCamera):
         self.width, self.height, self.fps = WIDTH, HEIGHT, FPS
         self._seq, self._t0 = 0, 0
 
-    def open(self) -> None:
+    def _open(self) -> None:
         self._t0 = time.monotonic_ns()
 
-    def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
+    def _read_sample(self, timeout_s: float) -> StereoFrame | None:
         due = wait_due(self._t0, self._seq, self.fps, timeout_s)
         if due is None:
             return None
@@ -86,7 +86,7 @@ class PregeneratedCamera(StereoCamera):
         self._seq += 1
         return frame
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
 
@@ -99,10 +99,10 @@ class PacedForce(ForceSensor):
         super().__init__()
         self._seq, self._t0 = 0, 0
 
-    def open(self) -> None:
+    def _open(self) -> None:
         self._t0 = time.monotonic_ns()
 
-    def read(self, timeout_s: float = 1.0) -> ForceSample | None:
+    def _read_sample(self, timeout_s: float) -> ForceSample | None:
         due = wait_due(self._t0, self._seq, self.rate_hz, timeout_s)
         if due is None:
             return None
@@ -110,20 +110,20 @@ class PacedForce(ForceSensor):
         self._seq += 1
         return sample
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
 
 class NullProjector(Projector):
     width, height = 64, 48
 
-    def open(self) -> None:
+    def _open(self) -> None:
         pass
 
-    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
-        return ProjectorEvent(name, 0, 0, time.monotonic_ns())
+    def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
+        return -1
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
 
