@@ -49,6 +49,10 @@ class JpegStereoFrame(StereoFrame):
                 self._decoded[index] = image
             return self._decoded[index]
 
+    def __repr__(self) -> str:
+        return (f"JpegStereoFrame(seq={self.seq}, t_device_ns={self.t_device_ns}, "
+                f"t_host_ns={self.t_host_ns}, jpeg bytes={[len(b) for b in self.encoded]})")
+
     left = property(lambda self: self._eye(0), doc="Left eye, BGR (decoded on first use).")
     right = property(lambda self: self._eye(1), doc="Right eye, BGR (decoded on first use).")
 
