@@ -8,6 +8,7 @@ from typing import Any
 
 from vbfe.acquire.recorder import Recorder, RecorderStats
 from vbfe.config import section
+from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import open_devices
 
 
@@ -15,10 +16,13 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    duration_s: float | None = None, operator: str = "", notes: str = "",
                    conditions: dict[str, Any] | None = None, compression: str | None = None,
                    calibration_yaml: str | None = None,
-                   on_progress: Callable[[RecorderStats], None] | None = None) -> RecorderStats:
+                   on_progress: Callable[[RecorderStats], None] | None = None,
+                   tare: bool = False) -> RecorderStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
-    seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
-    conditions, description and per-frame ground truth to the session."""
+    seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
+    is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
+    stored). Simulated benches add their conditions, description and per-frame ground truth to
+    the session."""
     from vbfe.recon.pattern import make_pattern
 
     settings = section(config, "record")
@@ -36,5 +40,14 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                         min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
                         pattern=make_pattern(projector.width, projector.height),
                         pattern_name="debruijn-hsv")
+    if tare:
+        n = int(settings.get("tare_samples", 500))
+        devices.trocar.open()  # the recorder's open keeps it open
+        try:
+            offset = devices.trocar.tare(n)
+        except DeviceError:
+            devices.trocar.close()
+            raise
+        recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
     recorder.start()
     return recorder.run(duration_s, on_progress)

@@ -1,0 +1,42 @@
+"""`vbfe record --tare`: the unloaded trocar is zeroed from its first N samples."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+
+from vbfe.acquire import SessionReader
+
+RIG = """
+[bench]
+width = 320
+height = 180
+force_noise_n = 0.02
+[record]
+min_free_gb = 0.0
+tare_samples = 300
+"""
+
+
+def test_record_tare_zeroes_the_trocar_and_stores_the_offset(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    out = tmp_path / "tared.h5"
+    run = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "record", str(out),
+                          "--duration", "0.3", "--tare", "--config", str(rig)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    with SessionReader(out) as session:
+        meta = session.metadata
+        forces = session.forces_n()
+    tare = meta["tare"]
+    assert tare["samples"] == 300 and len(tare["offset_n"]) == 3
+    assert meta["devices"]["trocar"]["offset_n"] == tare["offset_n"]
+    # at rest the raw samples are noise about zero: the mean of 300 is within 5 sigma/sqrt(300)
+    assert np.all(np.abs(tare["offset_n"]) < 5 * 0.02 / np.sqrt(300))
+    assert np.any(np.array(tare["offset_n"]) != 0.0)
+    # the recorded samples are the raw ones minus that offset: still noise about zero at rest
+    rest = forces[:200]
+    assert np.all(np.abs(rest.mean(axis=0)) < 5 * 0.02 / np.sqrt(200) + 1e-3)
