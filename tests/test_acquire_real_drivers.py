@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from tests.fakes.camera import FakeStereoCamera, frame_seq
@@ -33,3 +35,8 @@ def test_v4l2_camera_vanishing_ends_session_with_gap_and_can_forces(tmp_path):
         expected = np.array([fake.sent_forces_n[int(n)] for n in force_seqs])
         np.testing.assert_allclose(forces, expected, atol=0.02)  # trocar resolution
         assert np.isfinite(s.force_at_frames()[2:-2]).all()
+        # the trocar's clock: undecided at the start, the sender's stamps once frames came
+        at_start = s.metadata["devices"]["trocar"]["device_clock"]
+        at_end = json.loads(s.attrs["devices_at_end_json"])["trocar"]["device_clock"]
+        assert at_start.startswith("interface timestamp if the first frame carries one")
+        assert at_end.startswith("the sender's time.time()")

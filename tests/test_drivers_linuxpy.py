@@ -60,6 +60,15 @@ def test_drops_are_counted_exactly_from_kernel_sequence_numbers():
     assert np.abs(decoded.astype(int) - render_eye(W, H, frames[3].seq)).mean() < 3
 
 
+def test_buffers_the_driver_flags_as_corrupt_are_malformed_not_dropped():
+    left, right = pair(n_frames=12, error_seqs={3})
+    with stereo(left, right) as camera:
+        frames = read_until_timeout(camera)
+    assert [f.seq for f in frames] == [s for s in range(12) if s != 3]
+    assert camera.stats.malformed == 2  # both eyes' buffer 3
+    assert camera.stats.dropped == 0 and camera.stats.gaps == []
+
+
 def test_kernel_drops_of_a_late_reader_are_exact(tmp_path):
     left, right = pair(n_frames=45, realtime=True)
     camera = stereo(left, right, buffers=2)

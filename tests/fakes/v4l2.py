@@ -5,12 +5,13 @@
 stream on/off, ``buffer.raw_read()``, ``query_buffer``). Frames are linuxpy's own ``Frame``
 objects around real ``v4l2_buffer`` structs carrying the kernel's sequence number, timestamp and
 flags; the data is a JPEG (or YUYV) of :func:`tests.fakes.camera.render_eye`. The node can drop
-sequence numbers, vanish (``ENODEV``) after some frames, and, paced in real time, lose frames the
+sequence numbers, flag buffers as corrupt, vanish (``ENODEV``) after some frames, and, paced in real time, lose frames the
 way the kernel does when all buffers are full. ``delivered`` keeps every byte string handed out.
 """
 
 from __future__ import annotations
 
+import collections
 import errno
 import os
 import threading
@@ -29,6 +30,7 @@ from linuxpy.video.device import (BufferType, Format, Frame, FrameIntervalType, 
 from tests.fakes.camera import DISPARITY_PX, render_eye
 
 MONOTONIC_SOE = 0x2000 | 0x10000  # V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | TSTAMP_SRC_SOE
+BUF_FLAG_ERROR = 0x40
 FOURCC_CODES = {"MJPG": raw.v4l2_fourcc(*"MJPG"), "YUYV": raw.v4l2_fourcc(*"YUYV")}
 
 
@@ -89,11 +91,13 @@ class FakeV4L2Node:
     def __init__(self, path: str, width: int = 64, height: int = 48, fps: float = 30.0,
                  fourcc: str = "MJPG", eye: str = "left", n_frames: int | None = None,
                  drop_seqs: Iterable[int] = (), vanish_after: int | None = None,
-                 realtime: bool = False, timestamp_flags: int = MONOTONIC_SOE,
+                 error_seqs: Iterable[int] = (), realtime: bool = False,
+                 timestamp_flags: int = MONOTONIC_SOE,
                  clock_offset_ns: int = 0, controls: list[FakeControl] | None = None) -> None:
         self.path, self.width, self.height, self.fps = path, width, height, float(fps)
         self.fourcc, self.eye, self.n_frames = fourcc, eye, n_frames
         self.drop_seqs, self.vanish_after = frozenset(drop_seqs), vanish_after
+        self.error_seqs = frozenset(error_seqs)  # delivered with V4L2_BUF_FLAG_ERROR
         self.realtime, self.timestamp_flags, self.clock_offset_ns = realtime, timestamp_flags, clock_offset_ns
         self.controls_by_name = {c.config_name: c for c in (controls or default_controls())}
         for control in self.controls_by_name.values():
@@ -109,7 +113,8 @@ class FakeV4L2Node:
         self.closed = True
         self.format: tuple[int, int, int] | None = None
         self._fds: tuple[int, int] | None = None
-        self._next_seq, self._ready, self._lock = 0, 0, threading.Lock()
+        self._next_seq, self._lock = 0, threading.Lock()
+        self._filled: collections.deque[int] = collections.deque()  # sequence numbers in buffers
         self._streaming = threading.Event()
         self._pacer: threading.Thread | None = None
         self._t0_ns = 0
@@ -142,7 +147,7 @@ class FakeV4L2Node:
             self._pacer = threading.Thread(target=self._pace, daemon=True, name="fake-v4l2")
             self._pacer.start()
         else:
-            self._signal()
+            self._fill_next()
 
     def stream_off(self) -> None:
         self._streaming.clear()
@@ -150,10 +155,19 @@ class FakeV4L2Node:
             self._pacer.join(timeout=2.0)
             self._pacer = None
 
-    def _signal(self) -> None:
+    def _signal(self, seq: int) -> None:
         with self._lock:
-            self._ready += 1
+            self._filled.append(seq)
         os.write(self._fds[1], b"x")
+
+    def _fill_next(self) -> None:
+        """Not paced: the next sequence number not dropped is ready at once."""
+        seq = self._next_seq
+        while seq in self.drop_seqs:
+            seq += 1
+        self._next_seq = seq + 1
+        if self.n_frames is None or seq < self.n_frames:
+            self._signal(seq)
 
     def _pace(self) -> None:
         """Make a frame ready at each period; lose it when all buffers are full (the kernel)."""
@@ -163,11 +177,11 @@ class FakeV4L2Node:
             if delay > 0:
                 time.sleep(delay)
             with self._lock:
-                full = self._ready >= self.buffers
+                full = len(self._filled) >= self.buffers
             if full:
                 self.kernel_dropped.append(k)
             elif self._streaming.is_set():
-                self._signal()
+                self._signal(k)
             k += 1
 
     buffers = 4
@@ -188,32 +202,20 @@ class FakeV4L2Node:
         if self.vanish_after is not None and len(self.delivered) >= self.vanish_after:
             raise OSError(errno.ENODEV, "No such device")
         with self._lock:
-            if self._ready == 0:
+            if not self._filled:
                 raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
-            self._ready -= 1
+            seq = self._filled.popleft()
         os.read(self._fds[0], 1)
-        if self.realtime:
-            seq = self.kernel_dropped_before(self._next_seq)
-        else:
-            seq = self._next_seq
-            while seq in self.drop_seqs:
-                seq += 1
-        self._next_seq = seq + 1
         data = self._image(seq)
         self.delivered[seq] = data
-        if not self.realtime and (self.n_frames is None or self._next_seq < self.n_frames):
-            self._signal()
+        if not self.realtime:
+            self._fill_next()
         buff = raw.v4l2_buffer()
-        buff.sequence, buff.flags, buff.bytesused = seq, self.timestamp_flags, len(data)
+        flags = self.timestamp_flags | (BUF_FLAG_ERROR if seq in self.error_seqs else 0)
+        buff.sequence, buff.flags, buff.bytesused = seq, flags, len(data)
         t_ns = self._time_ns(seq)
         buff.timestamp.secs, buff.timestamp.usecs = t_ns // 10**9, t_ns % 10**9 // 1000
         return Frame(data, buff, self._format())
-
-    def kernel_dropped_before(self, seq: int) -> int:
-        """The next sequence number that was not lost to full buffers."""
-        while seq in self.kernel_dropped:
-            seq += 1
-        return seq
 
     def _format(self) -> Any:
         return Format(self.frame_width, self.height, FOURCC_CODES[self.fourcc], 0, 0)
