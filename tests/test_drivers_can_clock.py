@@ -16,7 +16,10 @@ import can
 import numpy as np
 import pytest
 
+from tests.test_acquire_devices import BarCamera, RecordingProjector
+from vbfe.acquire import Recorder, SessionReader
 from vbfe.acquire.clock import fit_clock
+from vbfe.drivers.registry import Devices
 from vbfe.drivers.trocar.can_clock import HOST_CLOCK
 from vbfe.drivers.trocar.can_trocar import CAN_ERR_CRTL, CanTrocar
 from vbfe.drivers.trocar.dbc import load_frame_format
@@ -134,3 +137,28 @@ def test_trocar_over_socketcan_on_vcan0_uses_kernel_receive_time():
     assert [s.seq for s in samples] == list(range(20))
     assert "kernel receive time" in trocar.describe()["device_clock"]
     assert before <= samples[0].t_device_ns <= samples[-1].t_device_ns <= time.time_ns()
+
+
+def test_recorded_session_stores_bus_errors_as_force_gaps(tmp_path):
+    channel = f"vbfe-clock-{next(_channels)}"
+    devices = Devices(BarCamera(disconnect_after=20), CanTrocar(interface="virtual",
+                                                                channel=channel),
+                      RecordingProjector())
+    rec = Recorder(devices, tmp_path / "s.h5", min_free_bytes=0)
+    rec.start()
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        for k in range(5):
+            bus.send(force_message(k))
+        bus.send(can.Message(arbitration_id=0x08, is_error_frame=True, data=bytes(8)))
+        bus.send(can.Message(arbitration_id=CAN_ERR_CRTL, is_error_frame=True,
+                             data=bytes([0, 0x04, 0, 0, 0, 0, 0, 0])))  # rx error warning
+        for k in range(5, 10):
+            bus.send(force_message(k))
+        stats = rec.run(10.0)
+    assert stats.end_reason.startswith("camera disconnected")
+    with SessionReader(tmp_path / "s.h5") as session:
+        force_gaps = [(g["reason"], g["last_seq"], g["count"]) for g in session.gaps()
+                      if g["stream"] == "force"]
+        assert force_gaps == [("device error", 4, 1), ("bus state change", 4, 1)]
+        assert list(session.stream_times("force")[2]) == list(range(10))
+        assert session.attrs["force_device_errors"] == 2
