@@ -69,8 +69,9 @@ def test_buffers_the_driver_flags_as_corrupt_are_malformed_not_dropped():
     assert camera.stats.dropped == 0 and camera.stats.gaps == []
 
 
-def test_kernel_drops_of_a_late_reader_are_exact(tmp_path):
-    left, right = pair(n_frames=45, realtime=True)
+def test_kernel_drops_of_a_late_reader_are_exact():
+    start_ns = time.monotonic_ns() + 100_000_000  # both sensors triggered together
+    left, right = pair(n_frames=45, realtime=True, start_ns=start_ns)
     camera = stereo(left, right, buffers=2)
     with camera:
         first = camera.read(1.0)
@@ -80,6 +81,21 @@ def test_kernel_drops_of_a_late_reader_are_exact(tmp_path):
     assert len(lost) >= 8
     assert camera.stats.dropped == len(lost) == 45 - len(frames)
     assert sorted(set(range(45)) - {f.seq for f in frames}) == sorted(lost)
+
+
+def test_unsynchronized_eyes_are_paired_by_kernel_time():
+    left, right = pair(n_frames=30, realtime=True)  # each eye starts at its own stream-on
+    camera = stereo(left, right, buffers=2)
+    with camera:
+        frames = [camera.read(1.0)]
+        time.sleep(0.3)
+        frames += read_until_timeout(camera)
+    right_seq = {data: seq for seq, data in right.delivered.items()}
+    for frame in frames:  # each pair: both images within half a period of each other
+        assert frame.t_device_ns == left.times[frame.seq]
+        assert abs(frame.t_device_ns - right.times[right_seq[frame.encoded[1]]]) <= 0.5e9 / 30
+    returned = frames[-1].seq - frames[0].seq + 1
+    assert camera.stats.dropped == returned - len(frames) >= 5
 
 
 def test_clock_controls_and_format_in_describe():
@@ -134,7 +150,8 @@ def _recording(tmp_path, left, right, duration_s=None):
 
 
 def test_recorded_mjpeg_frames_are_the_devices_bytes(tmp_path):
-    left, right = pair(realtime=True, n_frames=200)
+    # a synchronized head: frame k of both eyes is one instant, so the pair holds seq k twice
+    left, right = pair(realtime=True, n_frames=200, start_ns=time.monotonic_ns() + 200_000_000)
     stats, path = _recording(tmp_path, left, right, duration_s=0.6)
     assert stats.end_reason == "duration reached" and stats.frames >= 10
     with h5py.File(path, "r") as f:

@@ -171,8 +171,9 @@ class LinuxpyStereoCamera(StereoCamera):
             raise DeviceError(f"cannot open camera {path}: {exc.strerror or exc}; check it is "
                               "plugged in, that you may read it (group 'video') and "
                               "'v4l2-ctl --list-devices'") from None
-        node = _Node(path, device, self._capture_factory(device, self.buffers))
+        node = _Node(path, device, None)
         self._nodes.append(node)  # closed by _close if what follows fails
+        node.capture = self._capture_factory(device, self.buffers)
         want_w = 2 * self.width if self.side_by_side else self.width
         node.capture.set_format(want_w, self.height, self.fourcc)
         got = node.capture.get_format()
@@ -216,7 +217,9 @@ class LinuxpyStereoCamera(StereoCamera):
     def _close(self) -> None:
         """Stop streaming and release the node(s)."""
         for node in self._nodes:
-            for release in (node.capture.close, node.device.close):
+            releases = [node.device.close] if node.capture is None else [node.capture.close,
+                                                                         node.device.close]
+            for release in releases:
                 try:
                     release()
                 except (OSError, ValueError):  # a vanished device cannot be released cleanly

@@ -4,9 +4,12 @@
 ``select``, ``controls``, ``info``) and :class:`FakeCapture` for ``VideoCapture`` (format, rate,
 stream on/off, ``buffer.raw_read()``, ``query_buffer``). Frames are linuxpy's own ``Frame``
 objects around real ``v4l2_buffer`` structs carrying the kernel's sequence number, timestamp and
-flags; the data is a JPEG (or YUYV) of :func:`tests.fakes.camera.render_eye`. The node can drop
+flags; the data is a JPEG (or YUYV) of :func:`tests.fakes.camera.render_eye` (a JPEG is
+followed by its sequence number, after the end marker, so every frame's bytes differ). The node can drop
 sequence numbers, flag buffers as corrupt, vanish (``ENODEV``) after some frames, and, paced in real time, lose frames the
-way the kernel does when all buffers are full. ``delivered`` keeps every byte string handed out.
+way the kernel does when all buffers are full; nodes given the same ``start_ns`` are a
+hardware-synchronized stereo head (else each starts its frames at its own stream-on).
+``delivered`` keeps every byte string handed out.
 """
 
 from __future__ import annotations
@@ -93,7 +96,8 @@ class FakeV4L2Node:
                  drop_seqs: Iterable[int] = (), vanish_after: int | None = None,
                  error_seqs: Iterable[int] = (), realtime: bool = False,
                  timestamp_flags: int = MONOTONIC_SOE,
-                 clock_offset_ns: int = 0, controls: list[FakeControl] | None = None) -> None:
+                 clock_offset_ns: int = 0, controls: list[FakeControl] | None = None,
+                 start_ns: int | None = None) -> None:
         self.path, self.width, self.height, self.fps = path, width, height, float(fps)
         self.fourcc, self.eye, self.n_frames = fourcc, eye, n_frames
         self.drop_seqs, self.vanish_after = frozenset(drop_seqs), vanish_after
@@ -109,6 +113,7 @@ class FakeV4L2Node:
             FrameType(FrameIntervalType.DISCRETE, FOURCC_CODES[name], self.frame_width, height,
                       rate, rate, rate) for name in ("MJPG", "YUYV") for rate in (30, 15)])
         self.delivered: dict[int, bytes] = {}
+        self.times: dict[int, int] = {}  # kernel timestamp (ns, µs resolution) per delivered seq
         self.kernel_dropped: list[int] = []
         self.closed = True
         self.format: tuple[int, int, int] | None = None
@@ -117,7 +122,7 @@ class FakeV4L2Node:
         self._filled: collections.deque[int] = collections.deque()  # sequence numbers in buffers
         self._streaming = threading.Event()
         self._pacer: threading.Thread | None = None
-        self._t0_ns = 0
+        self._t0_ns, self.start_ns = 0, start_ns  # start_ns: frame 0's time (a shared trigger)
 
     @property
     def frame_width(self) -> int:
@@ -141,7 +146,7 @@ class FakeV4L2Node:
 
     # -- streaming ---------------------------------------------------------------------------
     def stream_on(self) -> None:
-        self._t0_ns = time.monotonic_ns()
+        self._t0_ns = time.monotonic_ns() if self.start_ns is None else self.start_ns
         self._streaming.set()
         if self.realtime:
             self._pacer = threading.Thread(target=self._pace, daemon=True, name="fake-v4l2")
@@ -195,7 +200,8 @@ class FakeV4L2Node:
         image = {"both": np.hstack([left, right]), "left": left, "right": right}[self.eye]
         if self.fourcc == "YUYV":
             return yuyv_bytes(image)
-        return cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
+        jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
+        return jpeg + seq.to_bytes(4, "little")  # after the end marker: unique, ignored by decoders
 
     def raw_read(self) -> Frame:
         """Dequeue the next buffer (``VIDIOC_DQBUF``)."""
@@ -213,7 +219,8 @@ class FakeV4L2Node:
         buff = raw.v4l2_buffer()
         flags = self.timestamp_flags | (BUF_FLAG_ERROR if seq in self.error_seqs else 0)
         buff.sequence, buff.flags, buff.bytesused = seq, flags, len(data)
-        t_ns = self._time_ns(seq)
+        t_ns = self._time_ns(seq) // 1000 * 1000
+        self.times[seq] = t_ns
         buff.timestamp.secs, buff.timestamp.usecs = t_ns // 10**9, t_ns % 10**9 // 1000
         return Frame(data, buff, self._format())
 
