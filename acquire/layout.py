@@ -9,7 +9,7 @@ SCHEMA_VERSION = 2  # 2: optional /estimate stream (vbfe live --record)
 
 COMPRESSIONS = ("none", "lzf", "blosc-lz4", "mjpeg")
 STREAMS = ("camera", "force", "projector")  # also the names of their HDF5 groups
-GAP_REASONS = ("queue full", "device disconnected", "device error")
+GAP_REASONS = ("queue full", "device disconnected", "device error", "bus state change")
 GAP_COLUMNS = ("stream", "reason", "last_seq", "next_seq", "t_host_ns", "count")
 PATTERN_NAME_DTYPE = "S64"
 JPEG_QUALITY = 95

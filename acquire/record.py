@@ -8,6 +8,7 @@ from typing import Any
 
 from vbfe.acquire.recorder import Recorder, RecorderStats
 from vbfe.config import section
+from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import Devices, open_devices
 
@@ -16,12 +17,25 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    duration_s: float | None = None, operator: str = "", notes: str = "",
                    conditions: dict[str, Any] | None = None, compression: str | None = None,
                    calibration_yaml: str | None = None,
-                   on_progress: Callable[[RecorderStats], None] | None = None) -> RecorderStats:
+                   on_progress: Callable[[RecorderStats], None] | None = None,
+                   tare: bool = False) -> RecorderStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
-    seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
-    conditions, description and per-frame ground truth to the session."""
-    recorder = session_recorder(config, path, open_devices(config), operator, notes,
-                                conditions, compression, calibration_yaml)
+    seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
+    is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
+    stored). Simulated benches add their conditions, description and per-frame ground truth to
+    the session."""
+    devices = open_devices(config)
+    recorder = session_recorder(config, path, devices, operator, notes, conditions,
+                                compression, calibration_yaml)
+    if tare:
+        n = int(section(config, "record").get("tare_samples", 500))
+        devices.trocar.open()  # the recorder's open keeps it open
+        try:
+            offset = devices.trocar.tare(n)
+        except DeviceError:
+            devices.trocar.close()
+            raise
+        recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
     recorder.start()
     return recorder.run(duration_s, on_progress)
 
@@ -39,11 +53,10 @@ def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, device
         metadata["conditions"] = {**devices.bench.conditions(), **metadata["conditions"]}
         metadata["bench"] = devices.bench.describe()
     projector = devices.projector
-    recorder = Recorder(devices, path, compression=compression or settings["compression"],
-                        flush_interval_s=float(settings["flush_interval_s"]),
-                        metadata=metadata, calibration_yaml=calibration_yaml,
-                        queue_size=int(settings["queue_size"]),
-                        min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
-                        pattern=make_pattern(projector.width, projector.height),
-                        pattern_name="debruijn-hsv")
-    return recorder
+    return Recorder(devices, path, compression=compression or settings["compression"],
+                    flush_interval_s=float(settings["flush_interval_s"]),
+                    metadata=metadata, calibration_yaml=calibration_yaml,
+                    queue_size=int(settings["queue_size"]),
+                    min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
+                    pattern=make_pattern(projector.width, projector.height),
+                    pattern_name="debruijn-hsv")

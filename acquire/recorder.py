@@ -8,6 +8,7 @@ A device that vanishes ends the session cleanly with what was recorded and a mar
 from __future__ import annotations
 
 import contextlib
+import json
 import queue
 import threading
 import time
@@ -21,9 +22,11 @@ import numpy as np
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.storage import check_destination, free_bytes
 from vbfe.acquire.writer import SessionWriter, finalize_session
+from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers.trocar.base import ForceSensor
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 4
@@ -52,10 +55,11 @@ class RecorderStats:
 class _Pump(threading.Thread):
     """Reads one device into a bounded queue; counts and reports overflow and disconnection."""
 
-    def __init__(self, name: str, read: Callable[[float], Any], out: queue.Queue,
+    def __init__(self, name: str, device: StereoCamera | ForceSensor, out: queue.Queue,
                  control: queue.Queue, stop: threading.Event) -> None:
         super().__init__(name=f"vbfe-read-{name}", daemon=True)
-        self.stream, self._read, self._out, self._control, self._halt = name, read, out, control, stop
+        self.stream, self._device, self._out = name, device, out
+        self._control, self._halt = control, stop
         self.dropped = 0
         self.last_seq = -1
         self.error: str | None = None
@@ -64,12 +68,15 @@ class _Pump(threading.Thread):
         burst = 0
         while not self._halt.is_set():
             try:
-                item = self._read(_READ_TIMEOUT_S)
+                item = self._device.read(_READ_TIMEOUT_S)
             except DeviceError as exc:
                 self.error = str(exc)
                 self._control.put(("gap", self.stream, "device disconnected", self.last_seq, -1,
                                    time.monotonic_ns(), 0))
                 break
+            for mark in self._device.stats.take_marks():  # bus errors the device reported
+                self._control.put(("gap", self.stream, mark.reason, mark.last_seq, mark.next_seq,
+                                   mark.t_host_ns, mark.count))
             if item is None:
                 continue
             try:
@@ -143,8 +150,8 @@ class Recorder:
         self._t_start = time.monotonic()
         if self.pattern is not None:
             self._control.put(("event", projector.show(self.pattern, self.pattern_name)))
-        self._pumps = [_Pump("camera", cam.read, self._frames, self._control, self._stop),
-                       _Pump("force", trocar.read, self._forces, self._control, self._stop)]
+        self._pumps = [_Pump("camera", cam, self._frames, self._control, self._stop),
+                       _Pump("force", trocar, self._forces, self._control, self._stop)]
         self._writer_thread = threading.Thread(target=self._write_loop, name="vbfe-writer",
                                                daemon=True)
         self._writer_thread.start()
@@ -300,6 +307,10 @@ class Recorder:
         for stream, device in (("camera", self.devices.camera), ("force", self.devices.trocar)):
             attrs[f"{stream}_device_dropped"] = int(device.stats.dropped)
             attrs[f"{stream}_device_malformed"] = int(device.stats.malformed)
+            attrs[f"{stream}_device_errors"] = int(device.stats.errors)
+        attrs["devices_at_end_json"] = json.dumps(  # e.g. the trocar's clock, decided at frame 1
+            {"camera": self.devices.camera.describe(), "trocar": self.devices.trocar.describe()},
+            default=str)
         return attrs
 
     def _truth(self) -> dict[str, np.ndarray] | None:

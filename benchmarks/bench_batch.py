@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import os
 import tempfile
 import time
@@ -58,11 +59,7 @@ def main() -> None:
         sessions = record_sessions(Path(tmp), args.sessions, args.seconds)
         serial = timed("local", sessions, 1)
         pool = timed("local", sessions, cores)
-        try:
-            import ray  # noqa: F401
-            ray_s: float | None = timed("ray", sessions, cores)
-        except ImportError:
-            ray_s = None
+        ray_s = timed("ray", sessions, cores) if importlib.util.find_spec("ray") else None
     print(f"{args.sessions} sessions of {args.seconds:.0f} s (320x180, 15 fps), {cores} cores, "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'serial (1 process)':<24} {serial:7.1f} s   speed-up 1.00x")

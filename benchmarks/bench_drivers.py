@@ -2,7 +2,7 @@
 
 Trocar: CanTrocar.read (checksum, cantools decode, counter unwrap, stats) on N queued TRF85D
 frames on a python-can virtual bus, against bare ``bus.recv`` of the same frames, same run.
-Camera: V4L2StereoCamera.read (grab thread, queue, split and copy of the eyes, drop detection)
+Camera: OpenCVStereoCamera.read (grab thread, queue, split and copy of the eyes, drop detection)
 on a fake side-by-side capture returning a pre-rendered image, against calling that capture's
 grab/retrieve directly. Prints throughput and ratios;
 the trocar must keep up with 1 kHz with a wide margin, the camera with 30 fps.
@@ -18,7 +18,7 @@ import can
 import numpy as np
 
 from tests.fakes.camera import FakeStereoCapture, render_eye
-from vbfe.drivers.camera.v4l2 import V4L2StereoCamera
+from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.trocar.can_trocar import CanTrocar
 from vbfe.drivers.trocar.dbc import load_frame_format
 
@@ -61,14 +61,14 @@ class PrerenderedCapture(FakeStereoCapture):
 
 
 def camera_rates(n: int, width: int, height: int) -> tuple[float, float]:
-    """(bare capture grab/retrieve, V4L2StereoCamera.read) frames per second."""
+    """(bare capture grab/retrieve, OpenCVStereoCamera.read) frames per second."""
     capture = PrerenderedCapture(width, height, n)
     start = time.perf_counter()
     while capture.grab():
         capture.retrieve()
     raw = n / (time.perf_counter() - start)
     capture = PrerenderedCapture(width, height, n)
-    with V4L2StereoCamera(device="bench", width=width, height=height,
+    with OpenCVStereoCamera(device="bench", width=width, height=height,
                           capture_factory=lambda dev: capture) as camera:
         start = time.perf_counter()
         for _ in range(n):
@@ -87,7 +87,7 @@ def main() -> None:
     for width, height in ((640, 360), (1920, 1080)):
         raw, driver = camera_rates(300, width, height)
         print(f"camera {width}x{height}/eye: bare capture {raw:7.1f} fps   "
-              f"V4L2StereoCamera.read {driver:7.1f} fps   ratio {raw / driver:5.2f}   "
+              f"OpenCVStereoCamera.read {driver:7.1f} fps   ratio {raw / driver:5.2f}   "
               f"margin over 30 fps: {driver / 30:5.1f}x")
 
 

@@ -17,7 +17,8 @@ from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.trocar.base import ForceSensor
 
 BACKENDS: dict[str, dict[str, str]] = {
-    "camera": {"v4l2": "vbfe.drivers.camera.v4l2:V4L2StereoCamera"},
+    "camera": {"v4l2": "vbfe.drivers.camera.linuxpy_v4l2:LinuxpyStereoCamera",
+               "opencv": "vbfe.drivers.camera.opencv:OpenCVStereoCamera"},
     "trocar": {"can": "vbfe.drivers.trocar.can_trocar:CanTrocar"},
     "projector": {
         "hdmi": "vbfe.drivers.projector.hdmi:HdmiProjector",

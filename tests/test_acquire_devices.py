@@ -17,7 +17,7 @@ from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.registry import Devices
-from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
 
@@ -71,12 +71,11 @@ class _PacedDevice:
     clock: _Clock
     _pacer: _Pacer | None = None
 
-    def open(self) -> None:
-        if self._pacer is None:
-            self._pacer = _Pacer(self.speed)
-            self.clock.t0_host_ns = time.monotonic_ns()
+    def _open(self) -> None:
+        self._pacer = _Pacer(self.speed)
+        self.clock.t0_host_ns = time.monotonic_ns()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self._pacer = None
 
 
@@ -96,7 +95,7 @@ class BarCamera(_PacedDevice, StereoCamera):
         self.pixels_per_newton = pixels_per_newton
         self._seq = 0
 
-    def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
+    def _read_sample(self, timeout_s: float) -> StereoFrame | None:
         if self.disconnect_after is not None and self._seq >= self.disconnect_after:
             raise DeviceError("bar camera unplugged")
         if self.n_frames is not None and self._seq >= self.n_frames:
@@ -107,15 +106,13 @@ class BarCamera(_PacedDevice, StereoCamera):
             return None
         seq = self._seq
         self._seq += 1
-        if seq in self.drop_seqs:
-            self.stats.dropped += 1
+        if seq in self.drop_seqs:  # lost: the base class counts the sequence jump
             return None
         x = self.width / 4 + self.pixels_per_newton * float(force_profile(t)[2])
         left = bar_image(x, self.width, self.height)
         left[0, 0, 0] = seq % 256
         right = bar_image(x - 3, self.width, self.height)
         t_dev, t_host = self.clock.stamps(t)
-        self.stats.received += 1
         return StereoFrame(left, right, seq, t_dev, t_host)
 
 
@@ -132,7 +129,7 @@ class ProfileForce(_PacedDevice, ForceSensor):
         self.rng = np.random.default_rng(seed)
         self._seq = 0
 
-    def read(self, timeout_s: float = 1.0) -> ForceSample | None:
+    def _read_sample(self, timeout_s: float) -> ForceSample | None:
         if self.disconnect_after is not None and self._seq >= self.disconnect_after:
             raise DeviceError("profile trocar: CAN interface vcan-test went bus-off")
         t = self._seq / self.rate_hz
@@ -142,7 +139,6 @@ class ProfileForce(_PacedDevice, ForceSensor):
         t_dev, t_host = self.clock.stamps(t)
         sample = ForceSample(force, self._seq, t_dev, t_host)
         self._seq += 1
-        self.stats.received += 1
         return sample
 
 
@@ -152,16 +148,17 @@ class RecordingProjector(Projector):
     width, height = 64, 48
 
     def __init__(self) -> None:
+        super().__init__()
         self.shown: list[str] = []
 
-    def open(self) -> None:
+    def _open(self) -> None:
         pass
 
-    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
+    def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
         self.shown.append(name)
-        return ProjectorEvent(name, len(self.shown), len(self.shown) - 1, time.monotonic_ns())
+        return len(self.shown)
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
 

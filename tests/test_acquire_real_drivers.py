@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from tests.fakes.camera import FakeStereoCamera, frame_seq
@@ -32,4 +34,14 @@ def test_v4l2_camera_vanishing_ends_session_with_gap_and_can_forces(tmp_path):
         force_seqs = s.stream_times("force")[2]
         expected = np.array([fake.sent_forces_n[int(n)] for n in force_seqs])
         np.testing.assert_allclose(forces, expected, atol=0.02)  # trocar resolution
-        assert np.isfinite(s.force_at_frames()[2:-2]).all()
+        # every frame inside the force record has a force (the trocar's bus may connect a few
+        # frames after the camera started on a loaded machine)
+        t_frames, t_force = s.frame_times_ns(), s.force_times_ns()
+        inside = (t_frames > t_force.min()) & (t_frames < t_force.max())
+        assert inside.sum() >= 15
+        assert np.isfinite(s.force_at_frames()[inside]).all()
+        # the trocar's clock: undecided at the start, the sender's stamps once frames came
+        at_start = s.metadata["devices"]["trocar"]["device_clock"]
+        at_end = json.loads(s.attrs["devices_at_end_json"])["trocar"]["device_clock"]
+        assert at_start.startswith("interface timestamp if the first frame carries one")
+        assert at_end.startswith("the sender's time.time()")

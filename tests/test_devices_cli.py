@@ -64,3 +64,23 @@ def test_devices_command_exits_0_as_a_process():
         assert "none found (no /dev/video* device)" in done.stdout
     if not inventory.can_interfaces:
         assert "CAN interfaces:\n  none found" in done.stdout
+
+
+def test_cameras_list_formats_sizes_rates_and_controls_through_linuxpy(tmp_path):
+    from tests.fakes.v4l2 import FakeV4L2Node, fake_factories
+
+    sysfs = make_sysfs(tmp_path / "sys")
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    (dev / "video0").touch()  # only this node exists: the others are not probed
+    node = FakeV4L2Node(str(dev / "video0"), 64, 48)
+    factory = fake_factories(node)["device_factory"]
+    cams = list_video_devices(sysfs, dev, device_factory=factory)
+    left = cams[0]
+    assert left.formats == ("MJPG", "YUYV")
+    assert left.modes == ("MJPG 64x48 30/15 fps", "YUYV 64x48 30/15 fps")
+    assert "exposure_time_absolute = 156 (3..2047 step 1, default 156)" in left.controls
+    assert node.closed and cams[1].formats == () and cams[1].controls == ()
+    text = format_inventory(list_devices(sysfs, dev, device_factory=factory))
+    assert "    mode     MJPG 64x48 30/15 fps" in text
+    assert "    control  white_balance_automatic = 1 (0..1 step 1, default 1)" in text

@@ -6,22 +6,22 @@ import numpy as np
 import pytest
 
 from tests.fakes.camera import (DISPARITY_PX, FakeStereoCamera, FakeStereoCapture, frame_seq)
-from vbfe.drivers.camera.v4l2 import V4L2StereoCamera
+from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.errors import DeviceError
 
 W, H, FPS = 32, 24, 30.0
 
 
-def camera_on(*captures: FakeStereoCapture, device: str = "fake-sbs", **kwargs) -> V4L2StereoCamera:
+def camera_on(*captures: FakeStereoCapture, device: str = "fake-sbs", **kwargs) -> OpenCVStereoCamera:
     it = iter(captures)
     if len(captures) == 1:
-        return V4L2StereoCamera(device=device, width=W, height=H, fps=FPS,
+        return OpenCVStereoCamera(device=device, width=W, height=H, fps=FPS,
                                 capture_factory=lambda dev: next(it), **kwargs)
-    return V4L2StereoCamera(devices=["fake-left", "fake-right"], width=W, height=H, fps=FPS,
+    return OpenCVStereoCamera(devices=["fake-left", "fake-right"], width=W, height=H, fps=FPS,
                             capture_factory=lambda dev: next(it), **kwargs)
 
 
-def read_all(camera: V4L2StereoCamera, timeout_s: float = 0.3) -> list:
+def read_all(camera: OpenCVStereoCamera, timeout_s: float = 0.3) -> list:
     frames = []
     while (frame := camera.read(timeout_s)) is not None:
         frames.append(frame)
@@ -80,14 +80,14 @@ def test_two_devices_stay_paired_when_one_eye_drops_a_frame():
 def test_unsupported_mode_and_unopenable_device_are_device_errors():
     capture = FakeStereoCapture(W, H, FPS, realtime=False)
     with pytest.raises(DeviceError, match=r"fake-sbs gives 64x24, not the requested 80x24"):
-        V4L2StereoCamera(device="fake-sbs", width=40, height=H, capture_factory=lambda d: capture
+        OpenCVStereoCamera(device="fake-sbs", width=40, height=H, capture_factory=lambda d: capture
                          ).open()
     closed = FakeStereoCapture(W, H, FPS)
     closed.release()
     with pytest.raises(DeviceError, match="cannot open camera fake-sbs"):
         camera_on(closed).open()
     with pytest.raises(DeviceError, match="either device"):
-        V4L2StereoCamera(width=W, height=H)
+        OpenCVStereoCamera(width=W, height=H)
 
 
 def test_fake_stereo_camera_runs_in_real_time_with_moving_content():

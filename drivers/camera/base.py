@@ -2,29 +2,23 @@
 
 from __future__ import annotations
 
-import abc
-
-from vbfe.drivers.device import Device
-from vbfe.drivers.samples import StereoFrame, StreamStats
+from vbfe.drivers.device import SampleStream
+from vbfe.drivers.samples import StereoFrame
 
 
-class StereoCamera(Device):
+class StereoCamera(SampleStream[StereoFrame]):
     """A stereo endoscope: open, read timestamped frame pairs, close.
 
-    ``read`` blocks for at most ``timeout_s`` and returns ``None`` when no frame arrived in time;
-    it raises :class:`~vbfe.drivers.errors.DeviceError` when the device is gone.
+    ``read`` (written once in :class:`~vbfe.drivers.device.SampleStream`) blocks for at most
+    ``timeout_s`` and returns ``None`` when no frame arrived in time; it raises
+    :class:`~vbfe.drivers.errors.DeviceError` when the device is gone. Backends implement
+    ``_open``, ``_close`` and ``_read_sample(timeout_s)`` returning a frame with the device's
+    own sequence number; sequence jumps are counted as dropped frames here.
     """
 
     width: int  # of one eye, pixels
     height: int
     fps: float
-
-    def __init__(self) -> None:
-        self.stats = StreamStats()
-
-    @abc.abstractmethod
-    def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
-        """The next frame pair, or ``None`` on timeout."""
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""

@@ -18,7 +18,6 @@ from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.projector.frame_id import N_BITS, stamp_frame_id
 from vbfe.drivers.qt_app import qt_application
-from vbfe.drivers.samples import ProjectorEvent
 
 log = logging.getLogger(__name__)
 
@@ -32,17 +31,19 @@ class HdmiProjector(Projector):
 
     def __init__(self, screen: int = 1, stamp: bool = True, cell_px: int = 8,
                  host_clock: Callable[[], int] = time.monotonic_ns) -> None:
+        super().__init__(host_clock)
         self.screen, self.stamp, self.cell_px = int(screen), stamp, int(cell_px)
         self.width = self.height = 0
-        self._host_clock = host_clock
         self._app: QtWidgets.QApplication | None = None
         self._window: QtWidgets.QLabel | None = None
-        self._seq = 0
 
-    def open(self) -> None:
+    @property
+    def label(self) -> str:
+        """The projector and its screen."""
+        return f"projector screen {self.screen}"
+
+    def _open(self) -> None:
         """Create the full-screen window on the chosen screen."""
-        if self._window is not None:
-            return
         self._app = qt_application()
         screens = QtGui.QGuiApplication.screens()
         if not 0 <= self.screen < len(screens):
@@ -63,7 +64,7 @@ class HdmiProjector(Projector):
         self._window = window
         self._app.processEvents()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         """Close the window."""
         if self._window is not None:
             self._window.close()
@@ -72,10 +73,8 @@ class HdmiProjector(Projector):
             if self._app is not None:
                 self._app.processEvents()
 
-    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
-        """Show ``pattern`` (BGR ``uint8``) full-screen, stamped with the next frame ID."""
-        if self._window is None:
-            raise DeviceError(f"projector screen {self.screen} is not open; call open() first")
+    def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
+        """Show ``pattern`` (BGR ``uint8``) full-screen, stamped with frame ID ``seq % 2**16``."""
         image = np.ascontiguousarray(pattern, dtype=np.uint8)
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
@@ -83,7 +82,7 @@ class HdmiProjector(Projector):
             log.debug("pattern %s is %dx%d, scaled to screen %dx%d", name, image.shape[1],
                       image.shape[0], self.width, self.height)
             image = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_NEAREST)
-        frame_id = self._seq % (1 << N_BITS)
+        frame_id = seq % (1 << N_BITS)
         if self.stamp:
             image = stamp_frame_id(image, frame_id, self.cell_px)
         qimage = QtGui.QImage(image.data, self.width, self.height, image.strides[0],
@@ -91,15 +90,11 @@ class HdmiProjector(Projector):
         self._window.setPixmap(QtGui.QPixmap.fromImage(qimage))
         self._window.repaint()
         self._app.processEvents()
-        event = ProjectorEvent(pattern=name, frame_id=frame_id, seq=self._seq,
-                               t_host_ns=int(self._host_clock()))
-        self._seq += 1
-        return event
+        return frame_id
 
     def grab(self) -> np.ndarray:
         """What the window shows now, as a BGR image (for checks and tests)."""
-        if self._window is None:
-            raise DeviceError(f"projector screen {self.screen} is not open; call open() first")
+        self.require_open()
         qimage = self._window.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_BGR888)
         rows = np.frombuffer(qimage.constBits(), np.uint8).reshape(qimage.height(), -1)
         return rows[:, :qimage.width() * 3].reshape(qimage.height(), qimage.width(), 3).copy()

@@ -23,7 +23,6 @@ import serial
 from vbfe.config import read_toml
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
-from vbfe.drivers.samples import ProjectorEvent
 
 log = logging.getLogger(__name__)
 _LINE_END = re.compile(r"\r\n|\r|\n")
@@ -93,19 +92,21 @@ class SerialProjector(Projector):
     def __init__(self, port: str, baudrate: int = 115200, commands: str | Path | None = None,
                  timeout_s: float | None = None, width: int = 1280, height: int = 720,
                  host_clock: Callable[[], int] = time.monotonic_ns) -> None:
+        super().__init__(host_clock)
         self.port, self.baudrate = str(port), int(baudrate)
         self.table = CommandTable.load(commands)
         self.timeout_s = float(timeout_s) if timeout_s is not None else self.table.timeout_s
         self.width, self.height = int(width), int(height)
-        self._host_clock = host_clock
         self._serial: Any = None
-        self._seq = 0
         self._pending = ""
 
-    def open(self) -> None:
+    @property
+    def label(self) -> str:
+        """The projector and its port."""
+        return f"projector on {self.port}"
+
+    def _open(self) -> None:
         """Open the port and send the table's ``on_open`` commands (e.g. power on)."""
-        if self._serial is not None:
-            return
         try:
             self._serial = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.02)
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -113,18 +114,16 @@ class SerialProjector(Projector):
                               "is plugged in and that you may use it (group 'dialout')") from None
         try:
             for name in self.table.on_open:
-                self.command(name)
+                self._command(name)
         except DeviceError:
             self._close_port()
             raise
 
-    def close(self) -> None:
+    def _close(self) -> None:
         """Send the ``on_close`` commands (failures are logged) and close the port."""
-        if self._serial is None:
-            return
         for name in self.table.on_close:
             try:
-                self.command(name)
+                self._command(name)
             except DeviceError as exc:
                 log.warning("%s", exc)
         self._close_port()
@@ -139,8 +138,10 @@ class SerialProjector(Projector):
         Raises DeviceError naming the port on an error reply or when no acknowledgement arrives
         within the timeout.
         """
-        if self._serial is None:
-            raise DeviceError(f"projector on {self.port} is not open; call open() first")
+        self.require_open()
+        return self._command(name, **params)
+
+    def _command(self, name: str, **params: Any) -> dict[str, str]:
         try:
             spec = self.table.commands[name]
             line = spec.send.format(**params)
@@ -175,16 +176,13 @@ class SerialProjector(Projector):
                           f"{self.timeout_s} s; check the cable, baud rate ({self.baudrate}) "
                           "and that the projector is on")
 
-    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
+    def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
         """Select the stored pattern ``name`` (``pattern`` is only what it should look like)."""
         if name not in self.table.patterns:
             raise DeviceError(f"projector on {self.port} has no stored pattern {name!r} in "
                               f"{self.table.path}; known: {sorted(self.table.patterns)}")
-        self.command("pattern", index=self.table.patterns[name])
-        event = ProjectorEvent(pattern=name, frame_id=-1, seq=self._seq,
-                               t_host_ns=int(self._host_clock()))
-        self._seq += 1
-        return event
+        self._command("pattern", index=self.table.patterns[name])
+        return -1
 
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: port, baud rate and command table."""

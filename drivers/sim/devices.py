@@ -18,7 +18,7 @@ from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
-from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
 if TYPE_CHECKING:
@@ -38,19 +38,14 @@ class _BenchStream:
 
     bench: "SimBench"
     drives_time = False  # the camera's frames move the bench's simulated host clock
-    _open = False
 
-    def open(self) -> None:
-        """Start the stream; idempotent."""
-        if not self._open:
-            self.bench.device_opened(self, self.drives_time)
-            self._open = True
+    def _open(self) -> None:
+        """Start the stream."""
+        self.bench.device_opened(self, self.drives_time)
 
-    def close(self) -> None:
-        """Stop the stream; idempotent."""
-        if self._open:
-            self.bench.device_closed(self, self.drives_time)
-            self._open = False
+    def _close(self) -> None:
+        """Stop the stream."""
+        self.bench.device_closed(self, self.drives_time)
 
 
 class SimCamera(_BenchStream, StereoCamera):
@@ -64,21 +59,16 @@ class SimCamera(_BenchStream, StereoCamera):
         self.bench = bench
         self.width, self.height, self.fps = bench.rig.left.width, bench.rig.left.height, bench.fps
         self._next = 0
-        self._open = False
 
-    def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
+    def _read_sample(self, timeout_s: float) -> StereoFrame | None:
         """Render the next frame; in real time, wait for it (``None`` after ``timeout_s``)."""
-        if not self._open:
-            raise DeviceError("simulated camera read before open()")
         bench = self.bench
         k = self._next
         if bench.realtime:
             latest = bench.frames_due()
             if latest < k and not sleep_until(bench.frame_arrival_host_ns(k), timeout_s):
                 return None
-            elif latest > k:
-                self.stats.dropped += latest - k
-                self.stats.gaps.append((k - 1, latest))
+            elif latest > k:  # missed frames: the base class counts the sequence jump
                 k = latest
         t_true_ns = k * bench.frame_period_ns
         left, right = bench.render_frame(t_true_ns)
@@ -86,7 +76,6 @@ class SimCamera(_BenchStream, StereoCamera):
         self._next = k + 1
         if not bench.realtime:
             bench.advance_to(host_ns)
-        self.stats.received += 1
         return StereoFrame(left=left, right=right, seq=k,
                            t_device_ns=int(bench.camera_clock.device_ns(t_true_ns)),
                            t_host_ns=host_ns + bench.host_epoch_ns)
@@ -108,7 +97,6 @@ class SimTrocar(_BenchStream, ForceSensor):
         self._next = 0
         self._block: dict[str, np.ndarray] = {}
         self._block_start = 0
-        self._open = False
 
     def _sample(self, j: int) -> tuple[int, int, np.ndarray]:
         """Device and host (relative) ns and measured force of sample ``j`` (made in blocks)."""
@@ -119,15 +107,12 @@ class SimTrocar(_BenchStream, ForceSensor):
         b = self._block
         return int(b["device"][offset]), int(b["host"][offset]), b["force"][offset]
 
-    def read(self, timeout_s: float = 1.0) -> ForceSample | None:
-        """The next sample once the simulated (or real) host clock has reached its arrival."""
-        if not self._open:
-            raise DeviceError("simulated trocar read before open()")
+    def _read_sample(self, timeout_s: float) -> ForceSample | None:
+        """The next raw sample once the simulated (or real) host clock has reached its arrival."""
         device_ns, host_ns, force = self._sample(self._next)
         if not self.bench.wait_until(host_ns, timeout_s):
             return None
-        self.stats.received += 1
-        sample = ForceSample(force_n=force - self.offset_n, seq=self._next, t_device_ns=device_ns,
+        sample = ForceSample(force_n=force, seq=self._next, t_device_ns=device_ns,
                              t_host_ns=host_ns + self.bench.host_epoch_ns)
         self._next += 1
         return sample
@@ -143,29 +128,21 @@ class SimProjector(Projector):
     """The bench's projector: what it shows is what the simulated cameras see."""
 
     def __init__(self, bench: "SimBench", **options: object) -> None:
+        super().__init__(bench.host_now_ns)
         _check_no_options("projector", options)
         self.bench = bench
         self.width, self.height = bench.rig.projector.width, bench.rig.projector.height
-        self._seq = 0
-        self._open = False
 
-    def open(self) -> None:
+    def _open(self) -> None:
         """Switch the projector on."""
-        self._open = True
 
-    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
-        """Project ``pattern`` (must be the projector's size) from now on."""
-        if not self._open:
-            raise DeviceError("simulated projector used before open()")
+    def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
+        """Project ``pattern`` (must be the projector's size) from now on; frame ID = ``seq``."""
         if pattern.shape[:2] != (self.height, self.width):
             raise DeviceError(f"pattern {name!r} is {pattern.shape[1]}x{pattern.shape[0]} but the "
                               f"simulated projector is {self.width}x{self.height}; make it that size")
         self.bench.show_pattern(pattern)
-        event = ProjectorEvent(pattern=name, frame_id=self._seq, seq=self._seq,
-                               t_host_ns=self.bench.host_now_ns())
-        self._seq += 1
-        return event
+        return seq
 
-    def close(self) -> None:
+    def _close(self) -> None:
         """Switch the projector off."""
-        self._open = False

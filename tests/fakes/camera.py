@@ -3,7 +3,7 @@
 It produces synthetic side-by-side frames (a moving bar, the right eye shifted by a fixed
 disparity) stamped with a device clock, and can drop frames, run out, or vanish. Every frame
 carries its sensor sequence number in pixel (0, 0) of each eye: blue = low byte, green = high.
-``FakeStereoCamera`` is the real :class:`V4L2StereoCamera` driving this fake.
+``FakeStereoCamera`` is the real :class:`OpenCVStereoCamera` driving this fake.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from collections.abc import Iterable
 import cv2
 import numpy as np
 
-from vbfe.drivers.camera.v4l2 import V4L2StereoCamera
+from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
 
 DISPARITY_PX = 4
@@ -133,7 +133,7 @@ class FakeStereoCapture:
         self._opened = False
 
 
-class FakeStereoCamera(V4L2StereoCamera):
+class FakeStereoCamera(OpenCVStereoCamera):
     """The real V4L2 driver reading a side-by-side :class:`FakeStereoCapture` in real time."""
 
     def __init__(self, width: int = 64, height: int = 48, fps: float = 30.0,

@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="frame storage (default: [record] compression of the rig config)")
     parser.add_argument("--calib", metavar="CALIB.yaml", default=None,
                         help="calibration file to store with the session")
+    parser.add_argument("--tare", action="store_true",
+                        help="zero the unloaded trocar from its first [record] tare_samples "
+                        "samples before recording (the offset is stored with the session)")
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -64,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
                                operator=args.operator, notes=args.notes,
                                conditions=_conditions(args.condition),
                                compression=args.compression, calibration_yaml=calibration,
-                               on_progress=show)
+                               on_progress=show, tare=args.tare)
         show(stats)
     finally:
         bar.close()

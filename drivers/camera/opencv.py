@@ -1,10 +1,12 @@
-"""Stereo endoscope over V4L2 through OpenCV: two devices, or one side-by-side device split in two.
+"""The OpenCV fallback camera backend (``backend = "opencv"``): two devices, or one
+side-by-side device split in two, read through ``cv2.VideoCapture``.
 
-A background thread grabs frames so ``read(timeout_s)`` can time out; it blocks when the reader
+Use it where linuxpy's V4L2 backend (:mod:`vbfe.drivers.camera.linuxpy_v4l2`) cannot run; it
+has no buffer sequence numbers and never the camera's own JPEG bytes. A background thread grabs frames so ``read(timeout_s)`` can time out; it blocks when the reader
 falls behind, so frames are only ever lost in the kernel, where the device timestamps show it.
 Device time is the V4L2 buffer timestamp (``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, the
 kernel's CLOCK_MONOTONIC at capture); sequence numbers come from the timestamps: an interval of
-more than 1.5 frame periods means frames were dropped, and they are counted in ``stats``.
+more than 1.5 frame periods means frames were dropped, which the base class counts.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def device_node_present(device: Device) -> bool:
     return not device.startswith("/dev/") or os.path.exists(device)
 
 
-class V4L2StereoCamera(StereoCamera):
+class OpenCVStereoCamera(StereoCamera):
     """A stereo endoscope on V4L2: ``devices=[left, right]`` or one side-by-side ``device``.
 
     ``width``/``height`` are per eye; a side-by-side device is asked for ``2*width × height``.
@@ -68,8 +70,7 @@ class V4L2StereoCamera(StereoCamera):
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._error: DeviceError | None = None
-        self._last_seq: int | None = None
+        self._seq: int | None = None
         self._last_t_ns = 0
 
     @property
@@ -82,10 +83,13 @@ class V4L2StereoCamera(StereoCamera):
         """Nominal frame interval in nanoseconds."""
         return 1e9 / self.fps
 
-    def open(self) -> None:
+    @property
+    def label(self) -> str:
+        """The camera and its device node(s)."""
+        return f"camera {self.devices}"
+
+    def _open(self) -> None:
         """Open the device(s), set format, size and rate, and start grabbing."""
-        if self._thread is not None:
-            return
         want_w = 2 * self.width if self.side_by_side else self.width
         for dev in self.devices:
             cap = self._factory(dev)
@@ -108,12 +112,12 @@ class V4L2StereoCamera(StereoCamera):
             if actual_fps > 0:
                 self.fps = actual_fps
         self._stop.clear()
-        self._error = None
+        self._seq = None
         self._thread = threading.Thread(target=self._grab_loop, daemon=True,
                                         name=f"v4l2-{self.devices[0]}")
         self._thread.start()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         """Stop grabbing and release the device(s)."""
         self._stop.set()
         if self._thread is not None:
@@ -125,18 +129,13 @@ class V4L2StereoCamera(StereoCamera):
             self._thread = None
         self._release()
 
-    def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
-        """The next frame pair, ``None`` on timeout; DeviceError when the camera vanished."""
-        if self._error is not None:
-            raise self._error
-        if self._thread is None:
-            raise DeviceError(f"camera {self.devices} is not open; call open() first")
+    def _read_sample(self, timeout_s: float) -> StereoFrame | None:
+        """The next grabbed pair, ``None`` on timeout; DeviceError when the camera vanished."""
         try:
             item = self._queue.get(timeout=timeout_s)
         except queue.Empty:
             return None
         if isinstance(item, DeviceError):
-            self._error = item
             raise item
         return item
 
@@ -221,15 +220,10 @@ class V4L2StereoCamera(StereoCamera):
             left, right = images[0][:, :half], images[0][:, half:2 * half]
         else:
             left, right = images
-        self.stats.received += 1
-        if self._last_seq is None:
+        if self._seq is None:
             seq = 0
         else:
-            step = max(1, round((t_device_ns - self._last_t_ns) / self.period_ns))
-            seq = self._last_seq + step
-            if step > 1:
-                self.stats.dropped += step - 1
-                self.stats.gaps.append((self._last_seq, seq))
-        self._last_seq, self._last_t_ns = seq, t_device_ns
+            seq = self._seq + max(1, round((t_device_ns - self._last_t_ns) / self.period_ns))
+        self._seq, self._last_t_ns = seq, t_device_ns
         return StereoFrame(left=np.ascontiguousarray(left), right=np.ascontiguousarray(right),
                            seq=seq, t_device_ns=int(t_device_ns), t_host_ns=int(t_host_ns))
