@@ -15,10 +15,12 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    duration_s: float | None = None, operator: str = "", notes: str = "",
                    conditions: dict[str, Any] | None = None, compression: str | None = None,
                    calibration_yaml: str | None = None,
-                   on_progress: Callable[[RecorderStats], None] | None = None) -> RecorderStats:
+                   on_progress: Callable[[RecorderStats], None] | None = None,
+                   overwrite: bool = False) -> RecorderStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. Simulated benches add their
-    conditions, description and per-frame ground truth to the session."""
+    conditions, description and per-frame ground truth to the session. An existing ``path``
+    is refused unless ``overwrite``."""
     from vbfe.recon.pattern import make_pattern
 
     settings = section(config, "record")
@@ -28,13 +30,12 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     if devices.bench is not None:
         metadata["conditions"] = {**devices.bench.conditions(), **metadata["conditions"]}
         metadata["bench"] = devices.bench.describe()
-    projector = devices.projector
     recorder = Recorder(devices, path, compression=compression or settings["compression"],
                         flush_interval_s=float(settings["flush_interval_s"]),
                         metadata=metadata, calibration_yaml=calibration_yaml,
                         queue_size=int(settings["queue_size"]),
                         min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
-                        pattern=make_pattern(projector.width, projector.height),
-                        pattern_name="debruijn-hsv")
+                        pattern=make_pattern, pattern_name="debruijn-hsv",
+                        overwrite=overwrite)
     recorder.start()
     return recorder.run(duration_s, on_progress)

@@ -153,16 +153,20 @@ def test_readonly_file_system_is_reported_by_name(tmp_path):
         Recorder(bar_devices(), "/proc/s.h5", min_free_bytes=0)
 
 
-def test_disk_filling_up_stops_recording_keeping_what_was_flushed(tmp_path, monkeypatch):
+def test_disk_filling_up_stops_and_finalizes_between_flushes(tmp_path, monkeypatch):
     path = tmp_path / "s.h5"
     devices = bar_devices()
-    rec = Recorder(devices, path, flush_interval_s=0.1, min_free_bytes=1000)
-    monkeypatch.setattr(recorder_module, "free_bytes", lambda d: 10)
+    rec = Recorder(devices, path, flush_interval_s=10.0, min_free_bytes=1000)
+    start = time.monotonic()
+    monkeypatch.setattr(recorder_module, "free_bytes",
+                        lambda d: 10 if time.monotonic() - start > 1.0 else 10**9)
     rec.start()
-    with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}"):
+    with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}.*finalized with"):
         rec.run(5.0)
+    assert time.monotonic() - start < 3.0  # watched continuously, not at the next flush (10 s)
     with SessionReader(path) as s:
-        assert not s.complete and s.n_frames > 0
+        assert s.complete and s.n_frames > 0
+        assert s.attrs["end_reason"].startswith("disk almost full")
 
 
 def test_not_a_session_truncated_or_missing_files_raise_session_error(tmp_path):

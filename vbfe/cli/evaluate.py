@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.cli.common import StageProgress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,6 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("model", metavar="MODEL.pt")
     parser.add_argument("sessions", nargs="*", metavar="SESSION.h5")
     parser.add_argument("--out", required=True, metavar="DIR", help="report directory")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -23,6 +25,7 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
     from vbfe.estimate import evaluate  # torch loads only when a command needs it
 
+    check_outputs([], [args.model, *args.sessions], args.overwrite, directories=[args.out])
     bars = StageProgress()
     try:
         report = evaluate(args.model, args.sessions or None, args.out, progress=bars)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
 
@@ -25,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="skip the De Bruijn verification (bare SGBM)")
     parser.add_argument("--ply-dir", metavar="DIR", default=None,
                         help="also write one PLY file per frame into DIR")
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -34,8 +36,11 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.acquire import SessionReader
     from vbfe.recon.clouds import CloudReader, export_ply
     from vbfe.recon.matching import SgbmParams
+    from vbfe.recon.clouds import sidecar_path
     from vbfe.recon.session_recon import reconstruct_session, resolve_calibration
 
+    check_outputs([args.out or sidecar_path(args.session)], [args.session, args.calib],
+                  args.overwrite, directories=[args.ply_dir])
     params = SgbmParams.from_config(section(config_from(args), "sgbm"))
     calibration = resolve_calibration(args.session, args.calib)
     with SessionReader(args.session) as reader:
