@@ -118,6 +118,12 @@ class _Pump(threading.Thread):
             return
 
 
+def _is_write_failure(exc: BaseException) -> bool:
+    """An expected failure of the file (h5py raises RuntimeError for some failed flushes)."""
+    return isinstance(exc, (OSError, SessionError)) or (
+        isinstance(exc, RuntimeError) and "errno =" in str(exc))
+
+
 def _failure_reason(exc: BaseException) -> str:
     """A short reason for a failed write (HDF5 messages embed errno and buffer addresses)."""
     errno = getattr(exc, "errno", None)
@@ -163,6 +169,7 @@ class Recorder:
         self._writer: SessionWriter | None = None
         self._error: BaseException | None = None
         self._fault: str | None = None  # a reason to stop that is reported after finalizing
+        self._closed_after_error = False
         self._stop_request: str | None = None  # set by Ctrl-C / SIGTERM during run()
         self._flush_cost_s = 0.0  # longest recent flush
         self.flush_times: list[float] = []  # monotonic start of every flush
@@ -273,15 +280,15 @@ class Recorder:
         self._close_devices()
         stats = self._update_stats()
         if self._error is not None:
-            if not isinstance(self._error, (OSError, SessionError)):
+            if not _is_write_failure(self._error):
                 raise self._error  # a bug: keep its traceback
             reason = _failure_reason(self._error)
-            with contextlib.suppress(SessionError, OSError):
-                if free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
+            if self._closed_after_error and free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
+                with contextlib.suppress(SessionError, OSError, RuntimeError):
                     finalize_session(self.path, self._final_attrs(stats, f"write failed: {reason}"))
             raise SessionError(f"writing {self.path} failed ({reason}); recording stopped, the "
-                               f"file keeps what was flushed ({stats.flushed.get('camera', 0)} "
-                               "frames)") from None
+                               "file keeps what was written before the failure (see `vbfe "
+                               f"inspect {self.path}`)") from None
         if not stats.end_reason:
             stats.end_reason = self._fault or "stopped"
         finalize_session(self.path, self._final_attrs(stats), self._truth())
@@ -372,7 +379,7 @@ class Recorder:
         except Exception as exc:  # handed to stop(), which reports it
             self._error = exc
             self._stop.set()
-            writer.abort()
+            self._closed_after_error = writer.abort()
 
     def _within_duration(self, frames: list[StereoFrame]) -> list[StereoFrame]:
         """The frames that fall inside the requested duration (a faster-than-real-time

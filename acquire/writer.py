@@ -11,9 +11,12 @@ session open (SWMR readers, which never modify it) cannot stop it.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import json
 import os
+import shutil
 import socket
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +37,20 @@ from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _TIME_CHUNK = 4096
 _JPEG_CHUNK = 1 << 20
+_RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
+
+
+def _reserve_space(directory: Path) -> int | None:
+    """Hold free space in an unlinked file (the kernel frees it when the descriptor closes,
+    also on SIGKILL); returns the descriptor, or None where nothing could be reserved."""
+    try:
+        fd, name = tempfile.mkstemp(dir=directory, prefix=".vbfe-reserve-")
+    except OSError:
+        return None
+    os.unlink(name)
+    with contextlib.suppress(OSError):
+        os.posix_fallocate(fd, 0, min(_RESERVE_BYTES, shutil.disk_usage(directory).free // 8))
+    return fd
 
 
 def _series(group: h5py.Group, name: str, dtype: Any, width: int | None = None,
@@ -72,9 +89,11 @@ class SessionWriter:
         self.bytes_written = 0  # uncompressed payload bytes
         width, height = frame_size
         metadata = dict(metadata or {})
+        self._reserve = _reserve_space(self.path.parent)
         try:
             self._file = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
+            self._release_reserve()
             raise SessionError(f"cannot create session file {self.path}: {exc}") from None
         f = self._file
         f.attrs.update({
@@ -192,16 +211,32 @@ class SessionWriter:
         self.flushed_counts = dict(self.counts)
         return self.flushed_counts
 
-    def abort(self) -> None:
-        """Close after a write failure without another flush (what was flushed stays)."""
-        with contextlib.suppress(OSError):
-            self._file.close()
+    def _release_reserve(self) -> None:
+        if self._reserve is not None:
+            os.close(self._reserve)
+            self._reserve = None
+
+    def abort(self) -> bool:
+        """Close after a write failure (full disk, I/O error): release the reserved space so
+        HDF5 can write out its caches, then close. Returns whether the file closed; if not, it
+        is left open for good, since closing a file HDF5 failed to write can crash the
+        process (what the last flush wrote stays readable)."""
+        self._release_reserve()
+        try:
+            if self._file.id.valid:
+                self._file.flush()
+                self._file.close()
+            return True
+        except (OSError, RuntimeError):
+            ctypes.pythonapi.Py_IncRef(ctypes.py_object(self))  # never deallocated, never closed
+            return False
 
     def close(self) -> None:
         """Flush and close the file (idempotent)."""
         if self._file.id.valid:
             self.flush()
             self._file.close()
+        self._release_reserve()
 
 
 def finalize_session(path: str | Path, attrs: dict[str, Any],
