@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
@@ -45,6 +46,10 @@ def run(args: argparse.Namespace) -> int:
     calibration = resolve_calibration(args.session, args.calib)
     with SessionReader(args.session) as reader:
         n_frames = reader.n_frames
+        if reader.growing:
+            print(f"vbfe reconstruct: {args.session} is still being recorded: reconstructing its "
+                  f"{n_frames} frames flushed so far (the output is marked partial)",
+                  file=sys.stderr)
     with progress(total=n_frames, desc="reconstruct", unit="frame") as bar:
         out = reconstruct_session(args.session, calibration=calibration, out_path=args.out,
                                   workers=args.workers, progress=bar.update, sgbm_params=params,
