@@ -3,8 +3,8 @@
 For a real-time device a full queue never blocks it: the sample is dropped, counted and marked
 as a gap. A device that describes itself as not real time (``describe()["realtime"] is False``,
 the simulated bench run as fast as it renders) waits for room instead: the writer paces it.
-Flushes (SWMR) are scheduled on the clock, early enough that the data lost to a crash, flush
-time included, stays within ``flush_interval_s``. Free space is checked continuously; below a
+Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so the data lost
+to a crash (flush time, queued samples and scheduling delays included) stays within it. Free space is checked continuously; below a
 quarter of ``min_free_bytes`` the session stops and is finalized. A write failure (full disk,
 I/O error) stops capture and leaves the file as of its last flush. A device that vanishes ends
 the session cleanly with what was recorded and a marked gap. In :meth:`Recorder.run`, Ctrl-C
@@ -36,10 +36,9 @@ from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import StereoFrame
 
 _READ_TIMEOUT_S = 0.2
-_FRAME_BATCH = 4
+_FRAME_BATCH = 1  # frames appended between two looks at the flush schedule
 _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the queue is full
 _SPACE_CHECK_S = 0.25  # free space is read this often
-_LAG_MARGIN_S = 0.05  # allowance for samples waiting in the queues when a flush starts
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
 
 PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
@@ -338,10 +337,11 @@ class Recorder:
         return items
 
     def _flush_period_s(self) -> float:
-        """Time between flush starts: what a crash may lose is one period plus the flush itself
-        plus the samples still queued, which together stay within ``flush_interval_s``."""
+        """Time between flush starts. A crash loses at most one period plus the flush itself,
+        the samples still queued and any delay of the writer under load: flushes start every
+        half interval (sooner when they are slow), leaving the other half for the rest."""
         interval = self.flush_interval_s
-        return max(interval / 2, interval - self._flush_cost_s - _LAG_MARGIN_S)
+        return max(interval / 4, interval / 2 - self._flush_cost_s)
 
     def _write_loop(self) -> None:
         writer = self._writer

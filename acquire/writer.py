@@ -118,7 +118,9 @@ class SessionWriter:
                 self._images[eye] = cam.create_dataset(
                     eye, shape=(0, height, width, 3), maxshape=(None, height, width, 3),
                     chunks=(1, height, width, 3), dtype=np.uint8, fletcher32=True,
-                    **image_filter(compression))
+                    # no chunk cache: a frame is compressed and written as it is appended, so a
+                    # flush has only metadata and the small time series left to write
+                    rdcc_nbytes=0, rdcc_w0=1.0, **image_filter(compression))
         force = f.create_group("force")
         self._force_n = _series(force, "force_n", np.float64, width=len(force_axes))
         self._force_n.attrs.update({"units": "N", "axes": list(force_axes)})
