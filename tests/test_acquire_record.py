@@ -200,3 +200,21 @@ def test_store_calibration_adds_and_replaces_the_yaml(tmp_path):
     store_calibration(path, "%YAML:1.0\nK1: 2\n")
     with SessionReader(path) as s:
         assert s.calibration_yaml() == "%YAML:1.0\nK1: 2\n"
+
+
+def test_a_camera_that_is_not_real_time_waits_for_the_writer_instead_of_dropping(tmp_path):
+    path = tmp_path / "s.h5"
+    devices = bar_devices(speed=None, force_speed=4.0, n_frames=400, width=320, height=240)
+    described = devices.camera.describe()
+    devices.camera.describe = lambda: {**described, "realtime": False}
+    rec = Recorder(devices, path, compression="lzf", queue_size=1, min_free_bytes=0)
+    rec.start()
+    deadline = time.monotonic() + 60
+    while rec._writer.counts["camera"] < 400 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    stats = rec.stop()
+    assert stats.dropped["camera"] == 0
+    with SessionReader(path) as s:
+        assert s.attrs["camera_queue_dropped"] == 0 and s.n_frames == 400
+        np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(400))
+        assert [g for g in s.gaps() if g["stream"] == "camera"] == []
