@@ -66,13 +66,14 @@ def _writer_alive(attrs: dict[str, Any]) -> bool:
 
 def consistent_rows(group: h5py.Group) -> int:
     """Rows of a stream group whose data and timestamps were all written: the shortest of its
-    datasets, cut before the first row with no host time (a write cut short by a full disk can
-    leave rows that exist but were never filled)."""
+    datasets, cut before the first row without a host time after one with it (a write cut
+    short by a full disk can leave rows that exist but were never filled: zeros)."""
     lengths = [group[k].shape[0] for k in ("t_device_ns", "t_host_ns", "seq")]
     n = min(lengths)
-    t_host = group["t_host_ns"][:n]
-    unset = np.flatnonzero(t_host <= 0)
-    return int(unset[0]) if len(unset) else n
+    is_set = group["t_host_ns"][:n] > 0
+    first = int(np.argmax(is_set)) if is_set.any() else n
+    unset = np.flatnonzero(~is_set[first:])
+    return first + int(unset[0]) if len(unset) else n
 
 
 def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, bool]:

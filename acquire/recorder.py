@@ -4,8 +4,9 @@ For a real-time device a full queue never blocks it: the sample is dropped, coun
 as a gap. A device that describes itself as not real time (``describe()["realtime"] is False``,
 the simulated bench run as fast as it renders) waits for room instead: the writer paces it.
 Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so the data lost
-to a crash (flush time, queued samples and scheduling delays included) stays within it. Free space is checked continuously; below a
-quarter of ``min_free_bytes`` the session stops and is finalized. A write failure (full disk,
+to a crash (flush time, queued samples and scheduling delays included) stays within it. Free
+space is checked continuously; below a quarter of ``min_free_bytes`` the session stops and is
+finalized. A write failure (full disk,
 I/O error) stops capture and leaves the file as of its last flush. A device that vanishes ends
 the session cleanly with what was recorded and a marked gap. In :meth:`Recorder.run`, Ctrl-C
 and SIGTERM stop the recording; further ones while it is being finished are ignored.
@@ -171,7 +172,6 @@ class Recorder:
         self._closed_after_error = False
         self._stop_request: str | None = None  # set by Ctrl-C / SIGTERM during run()
         self._flush_cost_s = 0.0  # longest recent flush
-        self.flush_times: list[float] = []  # monotonic start of every flush
         self._frame_t_device: list[int] = []
         self._frame_t_host = [0, 0]  # first, last
         self._span_limit_ns: int | None = None  # frames later than this after the first are not kept
@@ -195,7 +195,11 @@ class Recorder:
         paced = described["camera"].get("realtime") is False
         pattern = self.pattern
         if callable(pattern):  # sized now that the projector is open (an HDMI screen's size)
-            pattern = pattern(projector.width, projector.height)
+            try:
+                pattern = pattern(projector.width, projector.height)
+            except Exception:
+                self._close_devices()
+                raise
         self._writer = SessionWriter(self.path, (cam.width, cam.height), self.compression,
                                      self.metadata, self.calibration_yaml,
                                      getattr(trocar, "axes", ("x", "y", "z")),
@@ -396,7 +400,6 @@ class Recorder:
 
     def _flush(self) -> None:
         started = time.monotonic()
-        self.flush_times.append(started)
         self._writer.flush()
         cost = time.monotonic() - started
         self._flush_cost_s = max(cost, 0.9 * self._flush_cost_s)  # slow flushes count for a while
