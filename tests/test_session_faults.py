@@ -74,7 +74,8 @@ def test_outputs_never_replace_inputs_or_existing_files(tmp_path, capsys):
                  ["reconstruct", str(session), "--out", str(session), "--overwrite"],
                  ["inspect", str(session), "--recover", str(session), "--overwrite"],
                  ["record", str(session), "--duration", "1"],
-                 ["train", str(session), "--out", str(session), "--overwrite"]):
+                 ["train", str(session), "--out", str(session), "--overwrite"],
+                 ["verify-sync", str(session), "--plot", str(session), "--overwrite"]):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert len(error_lines(err)) == 1 and str(session) in err, err

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from vbfe.acquire.sync_check import SyncLimits, verify_sync
 from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="store the measured offset as a frame-time correction")
     parser.add_argument("--no-store", action="store_true",
                         help="do not write the results into the session")
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -27,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the report; exit code 1 when the verdict is FAIL."""
     plot = args.plot or str(Path(args.session).with_suffix(".sync.png"))
+    # the default plot is this command's own product and is refreshed on every run
+    check_outputs([plot], [args.session], overwrite=args.overwrite or args.plot is None)
     report = verify_sync(args.session, SyncLimits.from_config(config_from(args)), plot_path=plot,
                          store=not args.no_store, apply_correction=args.apply)
     print(report.text())
