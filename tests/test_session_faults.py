@@ -62,6 +62,19 @@ def assert_consistent_times(path: Path) -> SessionReader:
     return reader
 
 
+def _wait_for_frames(path: Path, proc: subprocess.Popen, timeout_s: float = 60) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        try:
+            with SessionReader(path) as s:
+                if s.n_frames > 0:
+                    return
+        except SessionError:
+            pass
+    raise AssertionError("the recording did not start")
+
+
 # -- outputs ----------------------------------------------------------------------------------
 def test_outputs_never_replace_inputs_or_existing_files(tmp_path, capsys):
     session = tmp_path / "run.h5"
@@ -241,19 +254,6 @@ def test_a_changed_byte_range_in_a_frame_is_reported_by_name(tmp_path):
 
 
 # -- signals ------------------------------------------------------------------------------------
-def _wait_for_frames(path: Path, proc: subprocess.Popen, timeout_s: float = 60) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-        try:
-            with SessionReader(path) as s:
-                if s.n_frames > 0:
-                    return
-        except SessionError:
-            pass
-    raise AssertionError("the recording did not start")
-
-
 @pytest.mark.parametrize("signals, reason", [((signal.SIGINT, signal.SIGINT), "stopped by operator"),
                                              ((signal.SIGTERM,), "stopped by SIGTERM")])
 def test_ctrl_c_twice_and_sigterm_stop_and_finalize(tmp_path, signals, reason):
