@@ -21,6 +21,7 @@ class SessionSummary:
 
     path: Path
     truncated: bool  # the recorder did not close the file (crash, power loss, SIGKILL)
+    growing: bool  # ... because it is still recording
     attrs: dict[str, Any]
     metadata: dict[str, Any]
     duration_s: float
@@ -41,6 +42,8 @@ class SessionSummary:
         start = datetime.datetime.fromtimestamp(int(a.get("start_utc_ns", 0)) / 1e9,
                                                 datetime.timezone.utc)
         status = (f"complete ({a.get('end_reason', 'closed')})" if not self.truncated else
+                  "BEING RECORDED: the recorder is still writing; this is what it flushed so far"
+                  if self.growing else
                   "NOT CLOSED CLEANLY: the recorder stopped mid-recording; everything up to its "
                   "last flush is readable")
         lines = [f"session   {self.path}",
@@ -55,8 +58,11 @@ class SessionSummary:
             au = self.audits[stream]
             extra = f" {w}x{h}" if stream == "camera" else ""
             queue = a.get(f"{stream}_queue_dropped")
+            at_end = sum(g["count"] for g in self.gaps if g["stream"] == stream
+                         and g["next_seq"] < 0)  # lost after the last stored sample
+            dropped = au.dropped + at_end
             lines.append(f"{stream:<9} {au.stored} {unit}{extra} at {self.rates_hz[stream]:.2f} Hz;"
-                         f" dropped {au.dropped} ({100 * au.drop_fraction:.2f}%)"
+                         f" dropped {dropped} ({100 * dropped / max(au.expected + at_end, 1):.2f}%)"
                          + (f", of which {queue} by a full queue" if queue else "")
                          + f", duplicated {au.duplicated}, out of order {au.reordered}")
         lines.append(f"projector {len(self.patterns)} events: {', '.join(self.patterns) or '-'}")
@@ -101,7 +107,8 @@ def inspect_session(path: str | Path) -> SessionSummary:
         rates = {name: (len(t) - 1) / ((t[-1] - t[0]) / 1e9) if len(t) > 1 and t[-1] > t[0]
                  else 0.0 for name, t in (("camera", frame_t), ("force", force_t))}
         return SessionSummary(
-            path=Path(path), truncated=not s.closed_cleanly or not s.complete, attrs=s.attrs,
+            path=Path(path), truncated=not s.closed_cleanly or not s.complete,
+            growing=s.growing, attrs=s.attrs,
             metadata=s.metadata, duration_s=float(max(spans, default=0)) / 1e9,
             frame_size=s.frame_size, audits=audits, rates_hz=rates,
             clocks={stream: s.clock_fit(stream) for stream in ("camera", "force", "projector")},

@@ -1,8 +1,17 @@
-"""Reading sessions: the only way other packages see the HDF5 layout."""
+"""Reading sessions: the only way other packages see the HDF5 layout.
+
+Readers open sessions without HDF5's file lock (``locking=False``) and, while the recorder still
+writes, in SWMR mode: they never modify the file, so they can neither block the recorder nor be
+blocked by it.
+"""
 
 from __future__ import annotations
 
 import json
+import os
+import socket
+import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
@@ -20,19 +29,72 @@ from vbfe.acquire.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VE
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_GROWING_FLUSHES = 3  # a session flushed within this many flush intervals is still recorded
+
+
+def _declared_size(path: Path) -> int | None:
+    """End-of-file address the HDF5 superblock declares (None when there is no superblock)."""
+    with open(path, "rb") as fh:
+        offset = 0
+        while True:
+            fh.seek(offset)
+            head = fh.read(64)
+            if len(head) < 16:
+                return None
+            if head[:8] == _HDF5_SIGNATURE:
+                break
+            offset = 512 if offset == 0 else offset * 2
+    version, size = head[8], head[13] if head[8] < 2 else head[9]
+    start = {0: 24, 1: 28}.get(version, 12)
+    if size != 8 or len(head) < start + 24:
+        return None
+    base, _, eof = struct.unpack_from("<QQQ", head, start)
+    return offset + base + eof if base == 0 else base + eof
+
+
+def _writer_alive(attrs: dict[str, Any]) -> bool:
+    """Whether the process that wrote a session may still run (always True on another host)."""
+    if str(attrs.get("writer_host", "")) != socket.gethostname():
+        return True
+    try:
+        os.kill(int(attrs.get("writer_pid", 0)), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        pass
+    return True
+
+
+def consistent_rows(group: h5py.Group) -> int:
+    """Rows of a stream group whose data and timestamps were all written: the shortest of its
+    datasets, cut before the first row without a host time after one with it (a write cut
+    short by a full disk can leave rows that exist but were never filled: zeros)."""
+    lengths = [group[k].shape[0] for k in ("t_device_ns", "t_host_ns", "seq")]
+    n = min(lengths)
+    is_set = group["t_host_ns"][:n] > 0
+    first = int(np.argmax(is_set)) if is_set.any() else n
+    unset = np.flatnonzero(~is_set[first:])
+    return first + int(unset[0]) if len(unset) else n
 
 
 def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, bool]:
     """Open a session's HDF5 file; returns ``(file, closed_cleanly)``.
 
-    A file whose recorder died keeps its SWMR write flag; it is opened read-only in SWMR mode
-    (everything up to the last flush is there). Anything else that fails is a SessionError.
+    A file whose recorder died (or still records) keeps its SWMR write flag; it is opened
+    read-only in SWMR mode (everything up to the last flush is there). A file shorter than its
+    superblock declares is refused at once (HDF5 would retry its reads for minutes). Anything
+    else that fails is a SessionError.
     """
     path = Path(path)
     if not path.is_file():
         raise SessionError(f"session file {path} does not exist")
+    declared, actual = _declared_size(path), path.stat().st_size
+    if declared is not None and actual < declared:
+        raise SessionError(f"{path} is truncated: {actual} bytes of the {declared} its header "
+                           "declares (copied or written only in part); nothing can be read")
     try:
-        return h5py.File(path, mode), True
+        return h5py.File(path, mode, locking=False), True
     except OSError as exc:
         if "already open for write" not in str(exc) and "open for read-only" not in str(exc):
             raise SessionError(f"{path} is not a readable HDF5 file (truncated or corrupt?): "
@@ -42,9 +104,17 @@ def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, boo
                            "it can be read but not changed: copy it into a clean file with "
                            "`vbfe inspect --recover OUT.h5`")
     try:
-        return h5py.File(path, "r", swmr=True), False
+        return h5py.File(path, "r", swmr=True, locking=False), False
     except OSError as exc:
         raise SessionError(f"{path} was not closed cleanly and cannot be read: {exc}") from None
+
+
+def read_failure_reason(exc: BaseException) -> str:
+    """HDF5's reason for a failed read, without the library's call-stack noise."""
+    text = str(exc)
+    if "Fletcher32" in text or "checksum" in text:
+        return "checksum mismatch: the stored bytes changed after writing"
+    return text
 
 
 def _check_session(f: h5py.File, path: Path) -> None:
@@ -72,8 +142,7 @@ class SessionReader:
         cam = f["camera"]
         image_keys = (("left_jpeg_index", "right_jpeg_index") if self.encoding == "jpeg"
                       else ("left", "right"))
-        self._lengths = {s: min(f[s][k].shape[0] for k in ("t_device_ns", "t_host_ns", "seq"))
-                         for s in STREAMS}
+        self._lengths = {s: consistent_rows(f[s]) for s in STREAMS}
         self._lengths["camera"] = min([self._lengths["camera"]]
                                       + [cam[k].shape[0] for k in image_keys])
         self._lengths["force"] = min(self._lengths["force"], f["force/force_n"].shape[0])
@@ -85,6 +154,22 @@ class SessionReader:
                             for eye in ("left", "right")}
         self._jpeg_index = ({eye: cam[f"{eye}_jpeg_index"][:self.n_frames]
                              for eye in ("left", "right")} if self.encoding == "jpeg" else {})
+
+    @property
+    def growing(self) -> bool:
+        """True while a recorder is still writing the session: it flushed within the last few
+        flush intervals and, on this machine, its process is alive. False for finished and
+        for interrupted sessions."""
+        if self.closed_cleanly or not _writer_alive(dict(self._file.attrs)):
+            return False
+        pairs = self._file["clock_pairs"]
+        pairs.refresh()
+        if pairs.shape[0] == 0:
+            last_utc_ns = int(self._file.attrs.get("start_utc_ns", 0))
+        else:
+            last_utc_ns = int(pairs[pairs.shape[0] - 1, 0])
+        interval_s = float(self._file.attrs.get("flush_interval_s", 1.0))
+        return time.time_ns() - last_utc_ns < _GROWING_FLUSHES * max(interval_s, 1.0) * 1e9
 
     # -- container protocol -------------------------------------------------------------
     def close(self) -> None:
@@ -103,7 +188,8 @@ class SessionReader:
             ds = self._file[name]
             return ds[:n] if n is not None else ds[()]
         except (OSError, KeyError) as exc:
-            raise SessionError(f"cannot read {name} from {self.path} (corrupt?): {exc}") from None
+            raise SessionError(f"cannot read {name} from {self.path} (damaged?): "
+                               f"{read_failure_reason(exc)}") from None
 
     # -- frames -------------------------------------------------------------------------
     @property
@@ -128,8 +214,8 @@ class SessionReader:
                 return image
             return data[i]
         except OSError as exc:
-            raise SessionError(f"frame {i} ({eye}) of {self.path} cannot be read (corrupt?): "
-                               f"{exc}") from None
+            raise SessionError(f"frame {i} of {self.path} is damaged: dataset "
+                               f"{data.name} cannot be read ({read_failure_reason(exc)})") from None
 
     def frame(self, i: int) -> StereoFrame:
         """Frame ``i`` with its recorded device and host timestamps (not clock-corrected)."""

@@ -1,15 +1,26 @@
 """The recorder: per-device reader threads → bounded queues → one writer thread → HDF5.
 
-A full queue never blocks a device: the sample is dropped, counted and marked as a gap. The
-writer flushes at least every ``flush_interval_s`` (SWMR), so a crash loses at most that much.
-A device that vanishes ends the session cleanly with what was recorded and a marked gap.
+For a real-time device a full queue never blocks it: the sample is dropped, counted and marked
+as a gap. A device that describes itself as not real time (``describe()["realtime"] is False``,
+the simulated bench run as fast as it renders) waits for room instead: the writer paces it.
+Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so the data lost
+to a crash (flush time, queued samples and scheduling delays included) stays within it. Free
+space is checked continuously; below a quarter of ``min_free_bytes`` the session stops and is
+finalized. A write failure (full disk,
+I/O error) stops capture and leaves the file as of its last flush. A device that vanishes ends
+the session cleanly with what was recorded and a marked gap. In :meth:`Recorder.run`, Ctrl-C
+and SIGTERM stop the recording; further ones while it is being finished are ignored.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
 import queue
+import re
+import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -29,7 +40,12 @@ from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
 _READ_TIMEOUT_S = 0.2
-_FRAME_BATCH = 4
+_FRAME_BATCH = 1  # frames appended between two looks at the flush schedule
+_PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the queue is full
+_SPACE_CHECK_S = 0.25  # free space is read this often
+_FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
+
+PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
 
 
 @dataclass
@@ -56,10 +72,11 @@ class _Pump(threading.Thread):
     """Reads one device into a bounded queue; counts and reports overflow and disconnection."""
 
     def __init__(self, name: str, device: StereoCamera | ForceSensor, out: queue.Queue,
-                 control: queue.Queue, stop: threading.Event) -> None:
+                 control: queue.Queue, stop: threading.Event, paced: bool = False) -> None:
         super().__init__(name=f"vbfe-read-{name}", daemon=True)
         self.stream, self._device, self._out = name, device, out
         self._control, self._halt = control, stop
+        self.paced = paced
         self.dropped = 0
         self.last_seq = -1
         self.error: str | None = None
@@ -80,6 +97,9 @@ class _Pump(threading.Thread):
             if item is None:
                 continue
             try:
+                if self.paced:
+                    self._put_paced(item)
+                    continue
                 self._out.put_nowait(item)
             except queue.Full:
                 self.dropped += 1
@@ -94,22 +114,52 @@ class _Pump(threading.Thread):
             self._control.put(("gap", self.stream, "queue full", self.last_seq, -1,
                                time.monotonic_ns(), burst))
 
+    def _put_paced(self, item: Any) -> None:
+        """Wait for room in the queue (the device is not real time: it waits, nothing drops)."""
+        while not self._halt.is_set():
+            try:
+                self._out.put(item, timeout=_PUT_POLL_S)
+            except queue.Full:
+                continue
+            self.last_seq = item.seq
+            return
+
+
+def _is_write_failure(exc: BaseException) -> bool:
+    """An expected failure of the file (h5py raises RuntimeError for some failed flushes)."""
+    return isinstance(exc, (OSError, SessionError)) or (
+        isinstance(exc, RuntimeError) and "errno =" in str(exc))
+
+
+def _failure_reason(exc: BaseException) -> str:
+    """A short reason for a failed write (HDF5 messages embed errno and buffer addresses)."""
+    errno = getattr(exc, "errno", None)
+    if not errno:
+        found = re.search(r"errno = (\d+)", str(exc))
+        errno = int(found.group(1)) if found else None
+    return os.strerror(errno) if errno else str(exc)[:200]
+
 
 class Recorder:
     """Record a camera, a force sensor and a projector into one session file.
 
     Use as ``with Recorder(devices, path) as rec: rec.run(duration_s)`` or call
     :meth:`start` / :meth:`stop` yourself. Devices are opened and closed by the recorder.
+    ``pattern`` is the image to project, or a function of the opened projector's
+    ``(width, height)`` that makes it.
     """
 
     def __init__(self, devices: Devices, path: str | Path, compression: str = "lzf",
                  flush_interval_s: float = 1.0, metadata: dict[str, Any] | None = None,
                  calibration_yaml: str | None = None, queue_size: int = 256,
-                 min_free_bytes: int = 1 << 30, pattern: np.ndarray | None = None,
+                 min_free_bytes: int = 1 << 30, pattern: PatternSource | None = None,
                  pattern_name: str = "debruijn",
-                 on_flush: Callable[[RecorderStats], None] | None = None) -> None:
+                 on_flush: Callable[[RecorderStats], None] | None = None,
+                 overwrite: bool = False) -> None:
+        if flush_interval_s <= 0:
+            raise SessionError(f"flush_interval_s must be positive, got {flush_interval_s}")
         self.devices = devices
-        self.path = check_destination(path, min_free_bytes)
+        self.path = check_destination(path, min_free_bytes, overwrite)
         self.compression = compression
         self.flush_interval_s = flush_interval_s
         self.metadata = dict(metadata or {})
@@ -125,6 +175,10 @@ class Recorder:
         self._writer_thread: threading.Thread | None = None
         self._writer: SessionWriter | None = None
         self._error: BaseException | None = None
+        self._fault: str | None = None  # a reason to stop that is reported after finalizing
+        self._closed_after_error = False
+        self._stop_request: str | None = None  # set by Ctrl-C / SIGTERM during run()
+        self._flush_cost_s = 0.0  # longest recent flush
         self._frame_t_device: list[int] = []
         self._frame_t_host = [0, 0]  # first, last
         self._span_limit_ns: int | None = None  # frames later than this after the first are not kept
@@ -142,16 +196,31 @@ class Recorder:
         except DeviceError:
             self._close_devices()
             raise
-        self.metadata.setdefault("devices", {"camera": cam.describe(), "trocar": trocar.describe(),
-                                             "projector": projector.describe()})
+        described = {"camera": cam.describe(), "trocar": trocar.describe(),
+                     "projector": projector.describe()}
+        self.metadata.setdefault("devices", described)
+        paced = described["camera"].get("realtime") is False
+        pattern = self.pattern
+        if callable(pattern):  # sized now that the projector is open (an HDMI screen's size)
+            try:
+                pattern = pattern(projector.width, projector.height)
+            except Exception:
+                self._close_devices()
+                raise
         self._writer = SessionWriter(self.path, (cam.width, cam.height), self.compression,
                                      self.metadata, self.calibration_yaml,
-                                     getattr(trocar, "axes", ("x", "y", "z")))
+                                     getattr(trocar, "axes", ("x", "y", "z")),
+                                     self.flush_interval_s)
         self._t_start = time.monotonic()
-        if self.pattern is not None:
-            self._control.put(("event", projector.show(self.pattern, self.pattern_name)))
-        self._pumps = [_Pump("camera", cam, self._frames, self._control, self._stop),
-                       _Pump("force", trocar, self._forces, self._control, self._stop)]
+        if pattern is not None:
+            try:
+                self._control.put(("event", projector.show(pattern, self.pattern_name)))
+            except DeviceError:
+                self._writer.abort()
+                self._close_devices()
+                raise
+        self._pumps = [_Pump("camera", cam, self._frames, self._control, self._stop, paced),
+                       _Pump("force", trocar, self._forces, self._control, self._stop, paced)]
         self._writer_thread = threading.Thread(target=self._write_loop, name="vbfe-writer",
                                                daemon=True)
         self._writer_thread.start()
@@ -161,13 +230,17 @@ class Recorder:
     def run(self, duration_s: float | None = None,
             on_progress: Callable[[RecorderStats], None] | None = None,
             progress_interval_s: float = 0.5) -> RecorderStats:
-        """Record until ``duration_s`` of frames (host clock) are in, a device is gone, or
-        Ctrl-C; then stop cleanly. Returns the final statistics."""
+        """Record until ``duration_s`` of frames (host clock) are in, a device is gone, the
+        disk is almost full, Ctrl-C or SIGTERM; then stop cleanly. Returns the final
+        statistics."""
         last_progress = 0.0
         if duration_s is not None:
+            if not duration_s > 0:
+                self.stop()
+                raise SessionError(f"the duration must be positive, got {duration_s} s")
             self._span_limit_ns = int(duration_s * 1e9)
-        try:
-            while not self._stop.is_set():
+        with self._signals_stop():
+            while not self._stop.is_set() and self._stop_request is None:
                 time.sleep(0.05)
                 stats = self._update_stats()
                 if on_progress is not None and stats.wall_s - last_progress >= progress_interval_s:
@@ -180,14 +253,37 @@ class Recorder:
                 if dead:
                     stats.end_reason = f"{dead[0].stream} disconnected: {dead[0].error}"
                     break
-        except KeyboardInterrupt:
-            self.stats.end_reason = "stopped by operator"
-        return self.stop()
+            if self._stop_request is not None:
+                self.stats.end_reason = self._stop_request
+            return self.stop()
+
+    @contextlib.contextmanager
+    def _signals_stop(self):
+        """While recording, Ctrl-C and SIGTERM ask the loop to stop; once stopping, they are
+        ignored with a message (only in the main thread, where Python handles signals)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def on_signal(signum: int, frame: Any) -> None:
+            if self._stop_request is None and not self._stop.is_set():
+                self._stop_request = ("stopped by operator" if signum == signal.SIGINT
+                                      else f"stopped by {signal.Signals(signum).name}")
+            else:
+                print(f"vbfe: finishing {self.path}, please wait (Ctrl-C is ignored until it "
+                      "is closed)", file=sys.stderr, flush=True)
+
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
     def request_stop(self, reason: str) -> None:
         """Ask a running :meth:`run` (e.g. in another thread) to stop cleanly with ``reason``."""
-        self.stats.end_reason = reason
-        self._stop.set()
+        if self._stop_request is None:
+            self._stop_request = reason
 
     def stop(self) -> RecorderStats:
         """Stop reading, write what is queued, close and finalize the file, close the devices."""
@@ -199,13 +295,21 @@ class Recorder:
         self._close_devices()
         stats = self._update_stats()
         if self._error is not None:
-            if not isinstance(self._error, (OSError, SessionError)):
+            if not _is_write_failure(self._error):
                 raise self._error  # a bug: keep its traceback
-            raise SessionError(f"recording to {self.path} failed: {self._error}; the file holds "
-                               "everything up to the last flush") from self._error
+            reason = _failure_reason(self._error)
+            if self._closed_after_error and free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
+                with contextlib.suppress(SessionError, OSError, RuntimeError):
+                    finalize_session(self.path, self._final_attrs(stats, f"write failed: {reason}"))
+            raise SessionError(f"writing {self.path} failed ({reason}); recording stopped, the "
+                               "file keeps what was written before the failure (see `vbfe "
+                               f"inspect {self.path}`)") from None
         if not stats.end_reason:
-            stats.end_reason = "stopped"
+            stats.end_reason = self._fault or "stopped"
         finalize_session(self.path, self._final_attrs(stats), self._truth())
+        if self._fault is not None:
+            raise SessionError(f"{self._fault}; recording stopped and {self.path} finalized with "
+                               f"{stats.frames} frames")
         return stats
 
     def __enter__(self) -> "Recorder":
@@ -248,9 +352,17 @@ class Recorder:
             pass
         return items
 
+    def _flush_period_s(self) -> float:
+        """Time between flush starts. A crash loses at most one period plus the flush itself,
+        the samples still queued and any delay of the writer under load: flushes start every
+        half interval (sooner when they are slow), leaving the other half for the rest."""
+        interval = self.flush_interval_s
+        return max(interval / 4, interval / 2 - self._flush_cost_s)
+
     def _write_loop(self) -> None:
         writer = self._writer
-        last_flush = time.monotonic()
+        next_flush = time.monotonic() + self._flush_period_s()
+        next_space_check = 0.0
         try:
             while True:
                 pumps_done = self._stop.is_set() and not any(p.is_alive() for p in self._pumps)
@@ -268,16 +380,22 @@ class Recorder:
                         writer.append_events([message[1]])
                     else:
                         writer.add_gap(*message[1:])
-                if time.monotonic() - last_flush >= self.flush_interval_s:
+                now = time.monotonic()
+                if now >= next_flush:  # on the clock: a slow flush does not shift the next one
                     self._flush()
-                    last_flush = time.monotonic()
+                    next_flush += self._flush_period_s()
+                    if next_flush <= time.monotonic():
+                        next_flush = time.monotonic()
+                if now >= next_space_check:
+                    self._check_space()
+                    next_space_check = now + _SPACE_CHECK_S
                 if pumps_done and not (frames or forces or control):
                     break
             writer.close()
         except Exception as exc:  # handed to stop(), which reports it
             self._error = exc
             self._stop.set()
-            writer.abort()
+            self._closed_after_error = writer.abort()
 
     def _within_duration(self, frames: list[StereoFrame]) -> list[StereoFrame]:
         """The frames that fall inside the requested duration (a faster-than-real-time
@@ -293,15 +411,24 @@ class Recorder:
         return kept
 
     def _flush(self) -> None:
+        started = time.monotonic()
         self._writer.flush()
-        free = free_bytes(self.path.parent)
-        if free < self.min_free_bytes // 4:
-            raise SessionError(f"disk almost full: {free / 1e9:.2f} GB left on {self.path.parent}")
+        cost = time.monotonic() - started
+        self._flush_cost_s = max(cost, 0.9 * self._flush_cost_s)  # slow flushes count for a while
         if self.on_flush is not None:
             self.on_flush(self._update_stats())
 
-    def _final_attrs(self, stats: RecorderStats) -> dict[str, Any]:
-        attrs: dict[str, Any] = {"end_reason": stats.end_reason}
+    def _check_space(self) -> None:
+        """Stop (the session is then finalized) when free space falls below a quarter of
+        ``min_free_bytes``."""
+        free = free_bytes(self.path.parent)
+        if free < self.min_free_bytes // 4 and self._fault is None:
+            self._fault = (f"disk almost full: {free / 1e9:.3f} GB left on {self.path.parent} "
+                           f"(limit {self.min_free_bytes / 4e9:.3f} GB, a quarter of min_free_gb)")
+            self._stop.set()
+
+    def _final_attrs(self, stats: RecorderStats, end_reason: str | None = None) -> dict[str, Any]:
+        attrs: dict[str, Any] = {"end_reason": end_reason or stats.end_reason}
         for pump in self._pumps:
             attrs[f"{pump.stream}_queue_dropped"] = pump.dropped
         for stream, device in (("camera", self.devices.camera), ("force", self.devices.trocar)):

@@ -7,6 +7,8 @@ run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
 
 from __future__ import annotations
 
+import signal
+import threading
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -88,7 +90,9 @@ class ReplayViewer(ViewerWindow):
         self.slider.valueChanged.connect(self.show_frame)
         gaps = len(reader.gaps())
         self._counters = (f"{reader.n_frames} frames, {len(forces)} force samples, {gaps} gaps"
-                          + ("" if reader.complete else " — NOT CLOSED CLEANLY"))
+                          + (" — BEING RECORDED: showing what was flushed when opened"
+                             if reader.growing else
+                             "" if reader.complete else " — NOT CLOSED CLEANLY"))
         if reader.n_frames:
             self.show_frame(0)
 
@@ -154,13 +158,31 @@ def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
     return Path(path)
 
 
+def _exec_until_closed(app: QtWidgets.QApplication, window: ViewerWindow) -> int:
+    """Run the event loop until the window closes, Ctrl-C or SIGTERM (which close it; a timer
+    hands control back to Python regularly so that its signal handlers run)."""
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {sig: signal.signal(sig, lambda *_: window.close())
+                    for sig in (signal.SIGINT, signal.SIGTERM)}
+    wake = QtCore.QTimer()
+    wake.timeout.connect(lambda: None)
+    wake.start(200)
+    try:
+        return app.exec()
+    finally:
+        wake.stop()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
 def view_session(path: str | Path) -> int:
     """Open the replay viewer on a session and run until the window closes."""
     app = qt_application()
     with SessionReader(path) as reader:
         window = ReplayViewer(reader)
         window.show()
-        code = app.exec()
+        code = _exec_until_closed(app, window)
         window.dispose()
         return code
 
@@ -177,7 +199,7 @@ def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
         window = LiveViewer(devices)
         window.show()
         window.timer.start(interval_ms)
-        code = app.exec()
+        code = _exec_until_closed(app, window)
         window.timer.stop()
         window.dispose()
         return code

@@ -1,15 +1,22 @@
 """Low-level session writer: creates the HDF5 layout, appends samples, flushes in SWMR mode.
 
-Every dataset is resizable and chunked and the file is switched to SWMR mode once the layout
-exists, so a flushed file stays readable whatever happens to the writing process afterwards.
-:func:`finalize_session` runs after a clean close: it adds the clock fits, end attributes and
-(for simulated sessions) the ground truth, which SWMR mode does not allow adding earlier.
+Every dataset is resizable, chunked and Fletcher-32 checksummed, and the file is switched to
+SWMR mode once the layout exists, so a flushed file stays readable whatever happens to the
+writing process afterwards. :func:`finalize_session` runs after a clean close: it adds the clock
+fits, end attributes and (for simulated sessions) the ground truth, which SWMR mode does not
+allow adding earlier. It reopens the file without HDF5's file lock, so readers that have the
+session open (SWMR readers, which never modify it) cannot stop it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import json
+import os
+import shutil
+import socket
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,10 +32,25 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
                                  JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
                                  image_filter)
+from vbfe.acquire.reader import consistent_rows, open_session_file
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _TIME_CHUNK = 4096
 _JPEG_CHUNK = 1 << 20
+_RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
+
+
+def _reserve_space(directory: Path) -> int | None:
+    """Hold free space in an unlinked file (the kernel frees it when the descriptor closes,
+    also on SIGKILL); returns the descriptor, or None where nothing could be reserved."""
+    try:
+        fd, name = tempfile.mkstemp(dir=directory, prefix=".vbfe-reserve-")
+    except OSError:
+        return None
+    os.unlink(name)
+    with contextlib.suppress(OSError):
+        os.posix_fallocate(fd, 0, min(_RESERVE_BYTES, shutil.disk_usage(directory).free // 8))
+    return fd
 
 
 def _series(group: h5py.Group, name: str, dtype: Any, width: int | None = None,
@@ -37,7 +59,7 @@ def _series(group: h5py.Group, name: str, dtype: Any, width: int | None = None,
     if width is not None:
         shape, maxshape, chunks = (0, width), (None, width), (chunk, width)
     return group.create_dataset(name, shape=shape, maxshape=maxshape, chunks=chunks, dtype=dtype,
-                                **kwargs)
+                                fletcher32=True, **kwargs)
 
 
 def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
@@ -58,7 +80,7 @@ class SessionWriter:
 
     def __init__(self, path: str | Path, frame_size: tuple[int, int], compression: str = "lzf",
                  metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
-                 force_axes: Sequence[str] = ("x", "y", "z")) -> None:
+                 force_axes: Sequence[str] = ("x", "y", "z"), flush_interval_s: float = 1.0) -> None:
         if compression not in COMPRESSIONS:
             raise SessionError(f"unknown compression {compression!r} for {path}; choose one of "
                                f"{COMPRESSIONS}")
@@ -67,9 +89,11 @@ class SessionWriter:
         self.bytes_written = 0  # uncompressed payload bytes
         width, height = frame_size
         metadata = dict(metadata or {})
+        self._reserve = _reserve_space(self.path.parent)
         try:
             self._file = h5py.File(self.path, "w", libver="latest")
         except OSError as exc:
+            self._release_reserve()
             raise SessionError(f"cannot create session file {self.path}: {exc}") from None
         f = self._file
         f.attrs.update({
@@ -78,6 +102,8 @@ class SessionWriter:
             "operator": str(metadata.get("operator", "")), "notes": str(metadata.get("notes", "")),
             "start_utc_ns": time.time_ns(), "start_host_ns": time.monotonic_ns(),
             "metadata_json": json.dumps(metadata, default=str), "complete": False,
+            "flush_interval_s": float(flush_interval_s),
+            "writer_host": socket.gethostname(), "writer_pid": os.getpid(),
         })
         cam = f.create_group("camera")
         cam.attrs.update({"width": width, "height": height, "encoding":
@@ -91,7 +117,10 @@ class SessionWriter:
             else:
                 self._images[eye] = cam.create_dataset(
                     eye, shape=(0, height, width, 3), maxshape=(None, height, width, 3),
-                    chunks=(1, height, width, 3), dtype=np.uint8, **image_filter(compression))
+                    chunks=(1, height, width, 3), dtype=np.uint8, fletcher32=True,
+                    # no chunk cache: a frame is compressed and written as it is appended, so a
+                    # flush has only metadata and the small time series left to write
+                    rdcc_nbytes=0, rdcc_w0=1.0, **image_filter(compression))
         force = f.create_group("force")
         self._force_n = _series(force, "force_n", np.float64, width=len(force_axes))
         self._force_n.attrs.update({"units": "N", "axes": list(force_axes)})
@@ -184,57 +213,127 @@ class SessionWriter:
         self.flushed_counts = dict(self.counts)
         return self.flushed_counts
 
-    def abort(self) -> None:
-        """Close after a write failure without another flush (what was flushed stays)."""
-        with contextlib.suppress(OSError):
-            self._file.close()
+    def _release_reserve(self) -> None:
+        if self._reserve is not None:
+            os.close(self._reserve)
+            self._reserve = None
+
+    def abort(self) -> bool:
+        """Close after a write failure (full disk, I/O error): release the reserved space so
+        HDF5 can write out its caches, then close. Returns whether the file closed; if not, it
+        is left open for good, since closing a file HDF5 failed to write can crash the
+        process (what the last flush wrote stays readable)."""
+        self._release_reserve()
+        try:
+            if self._file.id.valid:
+                self._file.flush()
+                self._file.close()
+            return True
+        except (OSError, RuntimeError):
+            ctypes.pythonapi.Py_IncRef(ctypes.py_object(self))  # never deallocated, never closed
+            return False
 
     def close(self) -> None:
         """Flush and close the file (idempotent)."""
         if self._file.id.valid:
             self.flush()
             self._file.close()
+        self._release_reserve()
 
 
 def finalize_session(path: str | Path, attrs: dict[str, Any],
                      truth: dict[str, np.ndarray] | None = None) -> None:
-    """After a clean close: store clock fits per stream, end attributes and optional truth."""
+    """After a clean close: store clock fits per stream, end attributes and optional truth.
+
+    The file is reopened without HDF5's file lock (``locking=False``): a reader that has the
+    session open holds a shared lock that would otherwise make this fail."""
     try:
-        f = h5py.File(path, "r+")
+        f = h5py.File(path, "r+", locking=False)
     except OSError as exc:
         raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
     with f:
-        clock = f.require_group("clock")
-        for stream in STREAMS:
-            t_dev, t_host = f[stream]["t_device_ns"][:], f[stream]["t_host_ns"][:]
-            n = min(len(t_dev), len(t_host))
-            clock.require_group(stream).attrs.update(fit_clock(t_dev[:n], t_host[:n]).to_attrs())
-        if truth:
-            group = f.require_group("truth")
-            for name, values in truth.items():
-                if name in group:
-                    del group[name]
-                group.create_dataset(name, data=np.asarray(values))
-        f.attrs.update({"end_utc_ns": time.time_ns(), "end_host_ns": time.monotonic_ns(),
-                        "complete": True, **attrs})
+        _finish(f, attrs, truth)
 
 
-def recover_session(path: str | Path, out_path: str | Path) -> Path:
+def _finish(f: h5py.File, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None) -> None:
+    clock = f.require_group("clock")
+    for stream in STREAMS:
+        n = consistent_rows(f[stream])
+        t_dev, t_host = f[stream]["t_device_ns"][:n], f[stream]["t_host_ns"][:n]
+        clock.require_group(stream).attrs.update(fit_clock(t_dev[:n], t_host[:n]).to_attrs())
+    if truth:
+        group = f.require_group("truth")
+        for name, values in truth.items():
+            if name in group:
+                del group[name]
+            group.create_dataset(name, data=np.asarray(values), fletcher32=True)
+    f.attrs.update({"end_utc_ns": time.time_ns(), "end_host_ns": time.monotonic_ns(),
+                    "complete": True, **attrs})
+
+
+def _trim(group: h5py.Group, keys: Sequence[str], n: int) -> int:
+    """Cut the datasets ``keys`` of ``group`` to ``n`` rows; returns the rows removed."""
+    removed = 0
+    for key in keys:
+        if key in group and group[key].shape[0] > n:
+            removed = max(removed, group[key].shape[0] - n)
+            group[key].resize(n, axis=0)
+    return removed
+
+
+def _keep_consistent_rows(f: h5py.File) -> dict[str, int]:
+    """Cut every stream of a copied session to its rows with consistent timestamps (a writer
+    that died mid-write can leave rows that exist but were never filled); returns the rows
+    dropped per stream."""
+    dropped = {}
+    for stream in STREAMS:
+        group = f[stream]
+        n = consistent_rows(group)
+        keys = ["t_device_ns", "t_host_ns", "seq"]
+        keys += {"camera": ["left", "right", "left_jpeg_index", "right_jpeg_index"],
+                 "force": ["force_n"], "projector": ["pattern", "frame_id"]}[stream]
+        dropped[stream] = _trim(group, keys, n)
+        for eye in ("left", "right"):
+            if stream == "camera" and f"{eye}_jpeg_index" in group:
+                index = group[f"{eye}_jpeg_index"]
+                end = int(index[n - 1].sum()) if n else 0
+                _trim(group, [f"{eye}_jpeg"], end)
+    for name in ("gaps", "clock_pairs"):
+        column = 4 if name == "gaps" else 1  # t_host_ns
+        rows = f[name][:]
+        valid = np.flatnonzero(rows[:, column] <= 0) if len(rows) else np.zeros(0, int)
+        _trim(f, [name], int(valid[0]) if len(valid) else len(rows))
+    return dropped
+
+
+def recover_session(path: str | Path, out_path: str | Path,
+                    overwrite: bool = False) -> tuple[Path, dict[str, int]]:
     """Copy a session whose recorder died (SWMR write flag still set) into a clean, finalized
-    file ``out_path``: everything up to the last flush, plus clock fits."""
+    file ``out_path``: every row up to the last flush whose timestamps are consistent, plus
+    clock fits. Returns the new file and the rows dropped per stream. The copy is written under
+    a temporary name and renamed when complete."""
     out_path = Path(out_path)
-    if out_path.exists():
+    if out_path.exists() and not overwrite:
         raise SessionError(f"{out_path} already exists; choose a new file for the recovered copy")
+    src, _ = open_session_file(path)
+    tmp = out_path.with_name(f".{out_path.name}.partial")
     try:
-        src = h5py.File(path, "r", swmr=True)
+        with src, h5py.File(tmp, "w", libver="latest") as dst:
+            if src.attrs.get("format") != FORMAT_NAME:
+                raise SessionError(f"{path} is not a vbfe session; nothing to recover")
+            dst.attrs.update(dict(src.attrs))
+            for name in src:
+                src.copy(src[name], dst, name=name)
+            dropped = _keep_consistent_rows(dst)
+            _finish(dst, {"end_reason": "recovered: the recording was interrupted",
+                          "recovered_from": str(Path(path).absolute()),
+                          **{f"{s}_recovery_dropped": n for s, n in dropped.items()}}, None)
     except OSError as exc:
-        raise SessionError(f"{path} cannot be opened for recovery: {exc}") from None
-    with src, h5py.File(out_path, "w", libver="latest") as dst:
-        if src.attrs.get("format") != FORMAT_NAME:
-            raise SessionError(f"{path} is not a vbfe session; nothing to recover")
-        dst.attrs.update(dict(src.attrs))
-        for name in src:
-            src.copy(src[name], dst, name=name)
-    finalize_session(out_path, {"end_reason": "recovered: the recording was interrupted",
-                                "recovered_from": str(Path(path).absolute())})
-    return out_path
+        tmp.unlink(missing_ok=True)
+        raise SessionError(f"{path} cannot be recovered (damaged beyond its last flush?): "
+                           f"{exc}") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, out_path)
+    return out_path, dropped

@@ -90,7 +90,8 @@ def reconstruct_session(session_path: str | Path,
     stored in the session. ``workers`` processes (default: one per CPU core, at most the
     number of frames) share the frames; ``progress(n)`` is called with each finished frame
     count. The sidecar is written to a temporary name and renamed when complete, so an
-    interrupted run leaves no partial file.
+    interrupted run leaves no partial file. A session still being recorded is reconstructed up
+    to its frames flushed at the start; the sidecar then has ``session_partial = True``.
     """
     session_path = Path(session_path)
     calibration = resolve_calibration(session_path, calibration)
@@ -98,6 +99,7 @@ def reconstruct_session(session_path: str | Path,
     out_path = Path(out_path) if out_path is not None else sidecar_path(session_path)
     with SessionReader(session_path) as reader:
         n_frames = reader.n_frames
+        partial = reader.growing
         size = reader.frame_size
         times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
         fingerprint = fingerprint_of(reader)
@@ -109,7 +111,8 @@ def reconstruct_session(session_path: str | Path,
     tmp_path = out_path.with_name(out_path.name + ".partial")
     writer = CloudWriter(tmp_path, {
         "session_path": str(session_path.resolve()), "session_fingerprint": fingerprint,
-        "verify": verify, "sgbm_json": json.dumps(dataclasses.asdict(params)),
+        "verify": verify, "session_partial": partial,
+        "sgbm_json": json.dumps(dataclasses.asdict(params)),
         "software_version": __version__}, calibration.to_yaml_text())
     try:
         for i, points, colors, valid_fraction, stats, counts in _results(

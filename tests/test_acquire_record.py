@@ -153,16 +153,20 @@ def test_readonly_file_system_is_reported_by_name(tmp_path):
         Recorder(bar_devices(), "/proc/s.h5", min_free_bytes=0)
 
 
-def test_disk_filling_up_stops_recording_keeping_what_was_flushed(tmp_path, monkeypatch):
+def test_disk_filling_up_stops_and_finalizes_between_flushes(tmp_path, monkeypatch):
     path = tmp_path / "s.h5"
     devices = bar_devices()
-    rec = Recorder(devices, path, flush_interval_s=0.1, min_free_bytes=1000)
-    monkeypatch.setattr(recorder_module, "free_bytes", lambda d: 10)
+    rec = Recorder(devices, path, flush_interval_s=10.0, min_free_bytes=1000)
+    start = time.monotonic()
+    monkeypatch.setattr(recorder_module, "free_bytes",
+                        lambda d: 10 if time.monotonic() - start > 1.0 else 10**9)
     rec.start()
-    with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}"):
+    with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}.*finalized with"):
         rec.run(5.0)
+    assert time.monotonic() - start < 3.0  # watched continuously, not at the next flush (10 s)
     with SessionReader(path) as s:
-        assert not s.complete and s.n_frames > 0
+        assert s.complete and s.n_frames > 0
+        assert s.attrs["end_reason"].startswith("disk almost full")
 
 
 def test_not_a_session_truncated_or_missing_files_raise_session_error(tmp_path):
@@ -196,3 +200,21 @@ def test_store_calibration_adds_and_replaces_the_yaml(tmp_path):
     store_calibration(path, "%YAML:1.0\nK1: 2\n")
     with SessionReader(path) as s:
         assert s.calibration_yaml() == "%YAML:1.0\nK1: 2\n"
+
+
+def test_a_camera_that_is_not_real_time_waits_for_the_writer_instead_of_dropping(tmp_path):
+    path = tmp_path / "s.h5"
+    devices = bar_devices(speed=None, force_speed=4.0, n_frames=400, width=320, height=240)
+    described = devices.camera.describe()
+    devices.camera.describe = lambda: {**described, "realtime": False}
+    rec = Recorder(devices, path, compression="lzf", queue_size=1, min_free_bytes=0)
+    rec.start()
+    deadline = time.monotonic() + 60
+    while rec._writer.counts["camera"] < 400 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    stats = rec.stop()
+    assert stats.dropped["camera"] == 0
+    with SessionReader(path) as s:
+        assert s.attrs["camera_queue_dropped"] == 0 and s.n_frames == 400
+        np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(400))
+        assert [g for g in s.gaps() if g["stream"] == "camera"] == []

@@ -81,8 +81,9 @@ class SimCamera(_BenchStream, StereoCamera):
                            t_host_ns=host_ns + bench.host_epoch_ns)
 
     def describe(self) -> dict[str, object]:
-        """Size, rate and the simulated clock's nominal parameters."""
-        return {**super().describe(), "simulated": True,
+        """Size, rate, whether frames come in real time (if not, the consumer paces the
+        camera) and the simulated clock's nominal parameters."""
+        return {**super().describe(), "simulated": True, "realtime": self.bench.realtime,
                 "drift_ppm": self.bench.camera_clock.drift_ppm}
 
 

@@ -14,15 +14,14 @@ from vbfe.cli.common import progress
 
 
 def add_batch_options(parser: argparse.ArgumentParser) -> None:
-    """``--executor``, ``--workers``, ``--ray-address``, ``--overwrite``."""
+    """``--executor`` and ``--ray-address`` (with several sessions, ``--overwrite`` redoes
+    sessions whose outputs are current and replaces stale ones)."""
     group = parser.add_argument_group("many sessions (a list of files or a manifest CSV)")
     group.add_argument("--executor", choices=EXECUTORS, default=None,
                        help="local: a process per session on this machine (default); "
                        "ray: tasks on a Ray cluster (pip install -e '.[cluster]')")
     group.add_argument("--ray-address", default=None, metavar="HOST:PORT",
                        help="Ray cluster to join (default: [batch] ray_address, else a local Ray)")
-    group.add_argument("--overwrite", action="store_true",
-                       help="redo sessions whose outputs exist (current outputs are skipped)")
 
 
 def batch_settings(args: argparse.Namespace, table: dict[str, Any]) -> tuple[str, str | None]:

@@ -4,11 +4,13 @@ calibration."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from vbfe.calib import commands
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.report import summary_rows
 from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def _board_options(parser: argparse.ArgumentParser) -> None:
@@ -43,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = actions.add_parser("board", help="write a printable ChArUco board (PNG + true-scale PDF)")
     p.add_argument("out", help="output path without extension, e.g. board_9x7")
     _board_options(p)
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_board)
 
@@ -72,6 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--store-in", metavar="SESSION.h5",
                    help="also store the calibration inside this session")
     _board_options(p)
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_stereo)
 
@@ -84,6 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "(as projector-capture; rendered on the simulated bench)")
     p.add_argument("--seed", type=int, default=None)
     _board_options(p)
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_projector)
 
@@ -100,6 +105,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_board(args: argparse.Namespace) -> int:
     """Write the board files."""
+    check_outputs([Path(args.out).with_suffix(".png"), Path(args.out).with_suffix(".pdf")],
+                  overwrite=args.overwrite)
     png, pdf = commands.make_board(config_from(args), args.out, **_board(args))
     print(f"wrote {png} and {pdf} (print the PDF at 100% scale, no fitting)")
     return 0
@@ -136,6 +143,7 @@ def run_capture(args: argparse.Namespace) -> int:
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
+    check_outputs([args.out], [args.source, args.store_in], args.overwrite)
     with progress(desc="detecting corners", unit="view") as bar:
         outcome = commands.stereo(config_from(args), args.source, args.out,
                                   report=not args.no_report, store_in_session=args.store_in,
@@ -168,7 +176,8 @@ def run_projector_capture(args: argparse.Namespace) -> int:
 
 
 def run_projector(args: argparse.Namespace) -> int:
-    """Calibrate the projector and print its intrinsics."""
+    """Calibrate the projector and print its intrinsics (without -o: update --calibration)."""
+    check_outputs([args.out], [args.captures, args.calibration], args.overwrite)
     with progress(total=1, desc="projector calibration") as bar:
         calibration = commands.projector(config_from(args), args.captures, args.calibration,
                                          args.out, args.simulate, args.seed, **_board(args))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.cli.common import StageProgress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--live", metavar="SESSION.h5", default=None,
                         help="score the live estimate stream of this session")
     parser.add_argument("--out", metavar="DIR", default=None, help="report directory")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -56,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.estimate import evaluate  # torch loads only when a command needs it
 
+    check_outputs([], [args.model, *args.sessions], args.overwrite, directories=[args.out])
     bars = StageProgress()
     try:
         sessions = [str(p) for p in expand_sessions(args.sessions)]

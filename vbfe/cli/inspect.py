@@ -6,6 +6,8 @@ import argparse
 
 from vbfe.acquire import recover_session
 from vbfe.acquire.inspect import inspect_session
+from vbfe.acquire.verify import verify_session
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -14,15 +16,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("session", metavar="SESSION.h5")
     parser.add_argument("--recover", metavar="OUT.h5", default=None,
                         help="copy an interrupted session into a clean, finalized file")
+    parser.add_argument("--verify", action="store_true",
+                        help="read every chunk and report those whose checksum fails")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the summary; exit code 1 when the file was not closed cleanly."""
+    """Print the summary; exit code 1 when the file was not closed cleanly or is damaged."""
     if args.recover:
-        recover_session(args.session, args.recover)
-        print(f"recovered {args.session} into {args.recover}")
+        check_outputs([args.recover], [args.session], args.overwrite)
+        _, dropped = recover_session(args.session, args.recover, overwrite=args.overwrite)
+        lost = ", ".join(f"{n} {stream}" for stream, n in dropped.items() if n) or "none"
+        print(f"recovered {args.session} into {args.recover}; rows dropped for inconsistent "
+              f"timestamps: {lost}")
         args.session = args.recover
+    damaged = False
+    if args.verify:
+        chunks, damage = verify_session(args.session)
+        for item in damage:
+            print(item.text())
+        print(f"verify    {chunks} chunks read, {len(damage)} damaged")
+        damaged = bool(damage)
     summary = inspect_session(args.session)
     print(summary.text())
-    return 1 if summary.truncated else 0
+    return 1 if summary.truncated or damaged else 0

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
 
@@ -32,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--ply-dir", metavar="DIR", default=None,
                         help="also write one PLY file per frame into DIR (single session)")
     add_batch_options(parser)
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -64,11 +67,18 @@ def run(args: argparse.Namespace) -> int:
 def _run_one(args: argparse.Namespace, session: str, params: object) -> int:
     from vbfe.acquire import SessionReader
     from vbfe.recon.clouds import CloudReader, export_ply
+    from vbfe.recon.clouds import sidecar_path
     from vbfe.recon.session_recon import reconstruct_session, resolve_calibration
 
+    check_outputs([args.out or sidecar_path(session)], [session, args.calib],
+                  args.overwrite, directories=[args.ply_dir])
     calibration = resolve_calibration(session, args.calib)
     with SessionReader(session) as reader:
         n_frames = reader.n_frames
+        if reader.growing:
+            print(f"vbfe reconstruct: {session} is still being recorded: reconstructing its "
+                  f"{n_frames} frames flushed so far (the output is marked partial)",
+                  file=sys.stderr)
     with progress(total=n_frames, desc="reconstruct", unit="frame") as bar:
         out = reconstruct_session(session, calibration=calibration, out_path=args.out,
                                   workers=args.workers, progress=bar.update, sgbm_params=params,

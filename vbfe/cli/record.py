@@ -8,6 +8,7 @@ from pathlib import Path
 from vbfe.acquire import RecorderStats, record_session
 from vbfe.acquire.layout import COMPRESSIONS
 from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.errors import VbfeError
 
 
@@ -16,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("record", help="record a session (stereo video + force + projector) "
                             "until Ctrl-C or --duration")
     parser.add_argument("output", metavar="SESSION.h5", help="new session file")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
                         help="stop after this many seconds of video (default: Ctrl-C)")
     parser.add_argument("--operator", default="", help="who recorded")
     parser.add_argument("--notes", default="", help="free text stored with the session")
@@ -29,8 +30,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--tare", action="store_true",
                         help="zero the unloaded trocar from its first [record] tare_samples "
                         "samples before recording (the offset is stored with the session)")
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
+
+
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
 
 
 def _conditions(pairs: list[str]) -> dict[str, object]:
@@ -48,6 +60,7 @@ def _conditions(pairs: list[str]) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
+    check_outputs([args.output], [args.calib], args.overwrite)
     calibration = None
     if args.calib:
         try:
@@ -67,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                                operator=args.operator, notes=args.notes,
                                conditions=_conditions(args.condition),
                                compression=args.compression, calibration_yaml=calibration,
-                               on_progress=show, tare=args.tare)
+                               on_progress=show, tare=args.tare, overwrite=args.overwrite)
         show(stats)
     finally:
         bar.close()

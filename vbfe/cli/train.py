@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--test-fraction", type=float, help="share of sessions held out for test")
     parser.add_argument("--time-limit", type=float, dest="time_limit_s", metavar="SECONDS")
     parser.add_argument("--seed", type=int)
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -34,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.estimate import TrainConfig, train  # torch loads only when a command needs it
 
+    check_outputs([args.out], args.sessions, args.overwrite)
     overrides = {key: getattr(args, key) for key in
                  ("epochs", "n_points", "batch_size", "learning_rate", "target", "val_fraction",
                   "test_fraction", "time_limit_s", "seed")}

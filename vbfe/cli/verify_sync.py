@@ -8,6 +8,7 @@ from pathlib import Path
 from vbfe.acquire.sync_check import SyncLimits, verify_sync
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="sessions checked at once (default: one per CPU core)")
     add_batch_options(parser)
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -38,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
+        # the default plot is this command's own product and is refreshed on every run
+        check_outputs([plot], [sessions[0]], overwrite=args.overwrite or args.plot is None)
         report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
                              apply_correction=args.apply)
         print(report.text())

@@ -1,0 +1,57 @@
+"""The one check every command runs on its outputs before doing any work.
+
+An output never replaces an existing file unless the user passed ``--overwrite``, and never
+replaces one of the command's own inputs, even with ``--overwrite``. Commands then write each
+output under a temporary name and rename it when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+from vbfe.errors import VbfeError
+
+
+class OutputError(VbfeError):
+    """An output path would overwrite data, or cannot be written."""
+
+
+def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--overwrite`` (replace existing output files)."""
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace existing output files (never the command's own inputs)")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if a.exists() and b.exists():
+        return os.path.samefile(a, b)
+    return a.resolve() == b.resolve()
+
+
+def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
+                  overwrite: bool = False, directories: Iterable[str | Path | None] = ()) -> None:
+    """Refuse, naming the path, an output that is an input, or that exists without
+    ``overwrite``. ``directories`` are output folders: they may exist when empty (or with
+    ``overwrite``)."""
+    sources = [Path(p) for p in inputs if p is not None]
+    for path, is_dir in [(Path(p), False) for p in outputs if p is not None] + \
+                        [(Path(p), True) for p in directories if p is not None]:
+        for source in sources:
+            if _same_file(path, source):
+                raise OutputError(f"output {path} is also an input of this command ({source}); "
+                                  "choose another output name")
+        if is_dir:
+            if path.exists() and not path.is_dir():
+                raise OutputError(f"output folder {path} is a file; choose another folder")
+            if path.is_dir() and any(path.iterdir()) and not overwrite:
+                raise OutputError(f"output folder {path} is not empty; pass --overwrite to write "
+                                  "into it anyway or choose a new folder")
+            continue
+        if path.is_dir():
+            raise OutputError(f"output {path} is a folder; give a file name")
+        if path.exists() and not overwrite:
+            raise OutputError(f"{path} already exists; pass --overwrite to replace it or choose a "
+                              "new name")
