@@ -17,10 +17,12 @@ DISPARITY_SCALE = 16.0  # StereoSGBM returns fixed-point disparities with 4 frac
 
 @dataclass(frozen=True)
 class SgbmParams:
-    """StereoSGBM settings; ``p1``/``p2`` = 0 pick OpenCV's usual 8·3·b² and 32·3·b²."""
+    """StereoSGBM settings; ``p1``/``p2`` = 0 pick OpenCV's usual 8·3·b² and 32·3·b²;
+    ``num_disparities`` = 0 derives ``min_disparity`` and the range from the calibration and
+    the rig's depth range (:func:`vbfe.recon.quality.params_for`)."""
 
     min_disparity: int = 0
-    num_disparities: int = 128
+    num_disparities: int = 0
     block_size: int = 5
     uniqueness_ratio: int = 5
     speckle_window_size: int = 100
@@ -42,8 +44,9 @@ class SgbmParams:
             raise ReconError(f"[sgbm] table has unknown key(s) {sorted(unknown)}; "
                              f"known: {sorted(known)}")
         params = cls(**table)
-        if params.num_disparities <= 0 or params.num_disparities % 16:
-            raise ReconError(f"[sgbm] num_disparities must be a positive multiple of 16, got "
+        if params.num_disparities < 0 or params.num_disparities % 16:
+            raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
+                             f"positive multiple of 16, got "
                              f"{params.num_disparities}")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
@@ -55,6 +58,9 @@ class SgbmParams:
 
     def create(self, channels: int = 3) -> cv2.StereoSGBM:
         """A configured ``cv2.StereoSGBM`` matcher for images with ``channels`` channels."""
+        if self.num_disparities <= 0:
+            raise ReconError("num_disparities is 0 (derive from the geometry): resolve it with "
+                             "vbfe.recon.quality.params_for(calibration, params, settings)")
         area = channels * self.block_size ** 2
         return cv2.StereoSGBM.create(
             minDisparity=self.min_disparity, numDisparities=self.num_disparities,
