@@ -56,6 +56,15 @@ def session_fingerprint(start_utc_ns: int, camera_times: tuple[np.ndarray, ...])
     return digest.hexdigest()
 
 
+def is_cloud_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file in this format (complete or not)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT_NAME
+    except OSError:
+        return False
+
+
 class CloudWriter:
     """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
 

@@ -128,10 +128,10 @@ def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     counts = reader.frame_table("match_counts")
     lines = ["  frame  density  decoded  at-edge    kept  corrected  rejected"]
     for i in picks:
-        kept, corrected, rejected = counts[i, 1:]
+        kept, corrected, rejected = (str(c) if c >= 0 else "-" for c in counts[i, 1:])
         lines.append(f"  {int(index[i]):5d}  {density[i]:7.1%}  "
                      f"{'n/a' if not np.isfinite(decoded[i]) else f'{decoded[i]:.1%}':>7s}  "
-                     f"{edge[i]:7.1%}  {kept:6d}  {corrected:9d}  {rejected:8d}")
+                     f"{edge[i]:7.1%}  {kept:>6s}  {corrected:>9s}  {rejected:>8s}")
     return lines
 
 

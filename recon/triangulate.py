@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -46,14 +48,22 @@ def disparity_to_points(disparity: np.ndarray, valid: np.ndarray, f_px: float, b
     for the usual zero-disparity rectification.
     """
     flat = np.flatnonzero(valid)
-    v, u = np.divmod(flat, valid.shape[1])
+    x_over_z, y_over_z = _ray_slopes(valid.shape, float(f_px), float(cx), float(cy))
     points = np.empty((len(flat), 3), np.float32)
-    z = np.float32(f_px * baseline_m) / (disparity.ravel()[flat] - np.float32(doffs_px))
+    z = np.float32(f_px * baseline_m) / (disparity.ravel().take(flat) - np.float32(doffs_px))
     points[:, 2] = z
-    z_over_f = z / np.float32(f_px)
-    points[:, 0] = (u.astype(np.float32) - np.float32(cx)) * z_over_f
-    points[:, 1] = (v.astype(np.float32) - np.float32(cy)) * z_over_f
+    points[:, 0] = x_over_z.take(flat) * z
+    points[:, 1] = y_over_z.take(flat) * z
     return points
+
+
+@functools.lru_cache(maxsize=4)
+def _ray_slopes(shape: tuple[int, int], f_px: float, cx: float, cy: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """``(u - cx) / f`` and ``(v - cy) / f`` of every pixel, flattened (built once per camera)."""
+    v, u = np.indices(shape, np.float32)
+    return ((u - np.float32(cx)) / np.float32(f_px)).ravel(), \
+        ((v - np.float32(cy)) / np.float32(f_px)).ravel()
 
 
 class Reconstructor:
@@ -73,10 +83,17 @@ class Reconstructor:
         self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
                                      row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
+        self._pool: ThreadPoolExecutor | None = None
         self._doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
         # computed once, in OpenCV's fast fixed-point form, reused for every frame
         self._maps = [cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
                       for map_x, map_y in calibration.rectification_maps()]
+
+    def _overlap(self) -> ThreadPoolExecutor:
+        """The one background thread SGBM runs in while the codes are decoded."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sgbm")
+        return self._pool
 
     def _check_size(self, left: np.ndarray, right: np.ndarray) -> None:
         width, height = self.calibration.image_size
@@ -94,12 +111,19 @@ class Reconstructor:
         self._check_size(left, right)
         rect_left, rect_right = (cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
                                  for image, (map_x, map_y) in zip((left, right), self._maps))
-        disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-        quality: dict[str, float] = {"edge_fraction": edge_fraction(disparity, self.params)}
         if not self.verify:
-            return rect_left, disparity, np.isfinite(disparity), quality
+            disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
+            return rect_left, disparity, np.isfinite(disparity), {
+                "edge_fraction": edge_fraction(disparity, self.params)}
+        # with several OpenCV threads, decode while SGBM runs (both release the GIL): the
+        # single-threaded decoding then shares the cores SGBM leaves idle
+        matching = self._overlap().submit(sgbm_disparity, rect_left, rect_right, self.params,
+                                          self._matcher) if cv2.getNumThreads() > 1 else None
         left_code = self.decoder.decode(rect_left)
         right_code = self.decoder.decode(rect_right, period_px=left_code.period_px)
+        disparity = (matching.result() if matching is not None else
+                     sgbm_disparity(rect_left, rect_right, self.params, self._matcher))
+        quality = {"edge_fraction": edge_fraction(disparity, self.params)}
         disparity, valid, counts = verify_disparity(disparity, left_code, right_code,
                                                     self.params.verify_search_px)
         quality["decoded_fraction"] = decoded_fraction(left_code.index)

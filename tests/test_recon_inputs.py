@@ -125,6 +125,13 @@ def test_near_scene_session_gets_its_range_from_the_geometry(tmp_path):
         points, _ = clouds.cloud(0)
         assert abs(np.median(points[:, 2]) - np.median(pair.depth_left_m[covered])) < 0.0003
 
+    shown = _vbfe("inspect", tmp_path / "near.clouds.h5")
+    assert shown.returncode == 0, shown.stderr
+    lines = shown.stdout.splitlines()
+    assert lines[0].startswith(f"{tmp_path / 'near.clouds.h5'}: 2 frames, density")
+    assert "frame  density  decoded  at-edge    kept  corrected  rejected" in shown.stdout
+    assert len([line for line in lines if line.strip().startswith(("0 ", "1 "))]) == 2
+
     config = tmp_path / "old.toml"
     config.write_text("[sgbm]\nnum_disparities = 64\n")
     result = _vbfe("reconstruct", session, "--workers", 1, "--config", config, "--out",

@@ -10,8 +10,9 @@ from vbfe.acquire.inspect import inspect_session
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `inspect` subcommand."""
-    parser = sub.add_parser("inspect", help="summarize a recorded session")
-    parser.add_argument("session", metavar="SESSION.h5")
+    parser = sub.add_parser("inspect", help="summarize a recorded session or a cloud file")
+    parser.add_argument("session", metavar="SESSION.h5",
+                        help="a session, or a SESSION.clouds.h5 file (per-frame quality)")
     parser.add_argument("--recover", metavar="OUT.h5", default=None,
                         help="copy an interrupted session into a clean, finalized file")
     parser.set_defaults(func=run)
@@ -19,6 +20,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the summary; exit code 1 when the file was not closed cleanly."""
+    from vbfe.recon.clouds import is_cloud_file
+
+    if is_cloud_file(args.session):
+        return _inspect_clouds(args.session)
     if args.recover:
         recover_session(args.session, args.recover)
         print(f"recovered {args.session} into {args.recover}")
@@ -26,3 +31,16 @@ def run(args: argparse.Namespace) -> int:
     summary = inspect_session(args.session)
     print(summary.text())
     return 1 if summary.truncated else 0
+
+
+def _inspect_clouds(path: str) -> int:
+    """Summary line and per-frame quality of a cloud file."""
+    from vbfe.recon.clouds import CloudReader
+    from vbfe.recon.quality import frame_lines, summary_line
+
+    with CloudReader(path) as clouds:
+        print(summary_line(clouds))
+        print(f"  source: {clouds.session_path} ({clouds.attrs.get('source_kind', 'session')}), "
+              f"verify: {bool(clouds.attrs.get('verify'))}")
+        print("\n".join(frame_lines(clouds)))
+    return 0
