@@ -24,8 +24,8 @@ DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 class ReconSettings:
     """The ``[recon]`` table: the rig's working-distance range and the warning thresholds."""
 
-    min_depth_mm: float = 20.0  # nearest surface the disparity range must cover
-    max_depth_mm: float = 150.0  # farthest
+    min_depth_mm: float = 25.0  # nearest surface the disparity range must cover
+    max_depth_mm: float = 120.0  # farthest
     min_decoded_fraction: float = 0.05  # below this share of readable pattern pixels, warn
     max_edge_fraction: float = 0.01  # above this share of matches at the range's edge, warn
 

@@ -118,8 +118,8 @@ def test_near_scene_session_gets_its_range_from_the_geometry(tmp_path):
     with CloudReader(tmp_path / "near.clouds.h5") as clouds:
         sgbm = clouds.attrs["sgbm"]
         cal = calibration_from_rig(rig)
-        assert sgbm["min_disparity"] == int(np.floor(cal.f * cal.B / 0.150))  # [recon] 150 mm
-        assert sgbm["min_disparity"] + sgbm["num_disparities"] > cal.f * cal.B / 0.020
+        assert sgbm["min_disparity"] == int(np.floor(cal.f * cal.B / 0.120))  # [recon] 120 mm
+        assert sgbm["min_disparity"] + sgbm["num_disparities"] > cal.f * cal.B / 0.025
         density = clouds.frame_table("valid_fraction")
         assert np.all(density > 0.7 * covered.mean())
         points, _ = clouds.cloud(0)
