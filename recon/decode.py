@@ -38,13 +38,16 @@ class FringeCode:
 
 
 def fringe_period_px(image: np.ndarray) -> float:
-    """Dominant fringe width (pixels) along the rows of an image, from the mean row spectrum."""
+    """Dominant fringe width (pixels) along the rows of an image, from the mean row spectrum
+    weighted by √frequency (tempering the surface texture's low-frequency energy, so the
+    fringes stand out even when ambient light leaves them little contrast)."""
     rows = image[:: max(1, image.shape[0] // PERIOD_ROWS)]
     if rows.ndim == 3:
         rows = rows.max(axis=2)
     rows = rows.astype(np.float32)
     rows -= rows.mean(axis=1, keepdims=True)
     spectrum = np.abs(np.fft.rfft(rows, axis=1)).mean(axis=0)
+    spectrum *= np.sqrt(np.arange(len(spectrum)))
     width = image.shape[1]
     lowest = int(np.ceil(width / MAX_PERIOD_PX))
     peak = lowest + int(np.argmax(spectrum[lowest:]))
