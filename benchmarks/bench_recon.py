@@ -21,6 +21,7 @@ from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.recon import (Reconstructor, SgbmParams, calibration_from_rig, evaluate_against_truth,
                         make_pattern)
+from vbfe.recon.quality import ReconSettings
 
 WORKING_DISTANCE_M = 0.06
 
@@ -68,8 +69,9 @@ def main() -> None:
                         rng=rng)
     calibration = calibration_from_rig(rig)
     params = SgbmParams.from_config(section(default_config(), "sgbm"))
-    verified = Reconstructor(calibration, params, verify=True)
-    bare = Reconstructor(calibration, params, verify=False)
+    settings = ReconSettings.from_config(section(default_config(), "recon"))
+    verified = Reconstructor(calibration, params, verify=True, settings=settings)
+    bare = Reconstructor(calibration, params, verify=False, settings=settings)
     matcher = verified.params.create(3)  # the same (derived) disparity range
     print(f"disparity range {verified.params.min_disparity}.."
           f"{verified.params.min_disparity + verified.params.num_disparities - 1} px")

@@ -38,11 +38,7 @@ class SgbmParams:
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SgbmParams":
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise ReconError(f"[sgbm] table has unknown key(s) {sorted(unknown)}; "
-                             f"known: {sorted(known)}")
+        check_known_keys("sgbm", table, cls)
         params = cls(**table)
         if params.num_disparities < 0 or params.num_disparities % 16:
             raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
@@ -68,6 +64,15 @@ class SgbmParams:
             disp12MaxDiff=self.disp12_max_diff, preFilterCap=self.pre_filter_cap,
             uniquenessRatio=self.uniqueness_ratio, speckleWindowSize=self.speckle_window_size,
             speckleRange=self.speckle_range, mode=MODES[self.mode])
+
+
+def check_known_keys(name: str, table: dict[str, Any], settings: type) -> None:
+    """Refuse keys of config table ``[name]`` that are not fields of the ``settings`` dataclass."""
+    known = {f.name for f in fields(settings)}
+    unknown = set(table) - known
+    if unknown:
+        raise ReconError(f"[{name}] table has unknown key(s) {sorted(unknown)}; "
+                         f"known: {sorted(known)}")
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,

@@ -7,7 +7,7 @@ Settings come from the rig config's ``[recon]`` table (:class:`ReconSettings`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -15,7 +15,7 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
-from vbfe.recon.matching import SgbmParams
+from vbfe.recon.matching import SgbmParams, check_known_keys
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 
@@ -32,11 +32,7 @@ class ReconSettings:
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "ReconSettings":
         """Settings from the ``[recon]`` table of a rig config (unknown keys are an error)."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise ReconError(f"[recon] table has unknown key(s) {sorted(unknown)}; "
-                             f"known: {sorted(known)}")
+        check_known_keys("recon", table, cls)
         for key, value in table.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ReconError(f"[recon] {key} must be a number, got {value!r}")

@@ -155,3 +155,14 @@ def test_pair_without_the_pattern_warns_once_and_exits_1(tmp_path):
     assert result.returncode == 0 and "warning" not in result.stderr
     with CloudReader(tmp_path / "flat_left.clouds.h5") as clouds:
         assert clouds.frame_table("valid_fraction")[0] > 0.3  # SGBM alone still matches
+
+
+def test_bad_depth_range_in_the_config_is_a_one_line_error(tmp_path):
+    config = tmp_path / "rig.toml"
+    config.write_text("[recon]\nmin_depth_mm = 200.0\n")
+    (tmp_path / "a_left.png").write_bytes(b"")
+    result = _vbfe("reconstruct", tmp_path, "--config", config, "--rectified", "--f", 500,
+                   "--baseline", 4, "--cx", 10, "--cy", 10)
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("vbfe reconstruct: error: [recon] needs 0 < min_depth_mm < "
+                                     "max_depth_mm, got 200.0 and 120.0")
