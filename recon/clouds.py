@@ -10,9 +10,15 @@ Layout (all per-frame arrays share the frame order of the session):
   uint8, ``channel_order = "RGB"``): all frames concatenated
 - ``offsets`` (n_frames + 1, int64): frame ``i`` is rows ``offsets[i]:offsets[i+1]``
 - ``frame_index`` (int64, session frame number), ``t_host_ns`` (int64, synchronized frame time)
-- ``valid_fraction`` (float32), ``disparity_px`` (n_frames × 4 float32: min, median, max,
-  mean of the valid disparities), ``match_counts`` (n_frames × 4 int64: SGBM matches, kept,
-  corrected, rejected by the De Bruijn verification)
+- ``valid_fraction`` (float32: density, share of pixels with a point), ``disparity_px``
+  (n_frames × 4 float32: min, median, max, mean of the valid disparities), ``match_counts``
+  (n_frames × 4 int64: SGBM matches, kept, corrected, rejected by the De Bruijn verification;
+  -1 without verification)
+- since format version 2: ``decoded_fraction`` (float32, share of left pixels with a readable
+  De Bruijn code; NaN without verification), ``edge_fraction`` (float32, share of SGBM matches
+  at either end of the disparity range) and the attribute ``source_kind`` (``"session"`` or
+  ``"images"``; for images ``session_path`` is the first left image and the fingerprint is
+  the SHA-256 of the image files)
 """
 
 from __future__ import annotations
@@ -29,9 +35,12 @@ from vbfe.acquire.h5attrs import plain_attrs, text
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DISPARITY_COLUMNS = ["min", "median", "max", "mean"]
 COUNT_COLUMNS = ["sgbm_matches", "kept", "corrected", "rejected"]
+FRAME_TABLES = {"frame_index": np.int64, "t_host_ns": np.int64, "valid_fraction": np.float32,
+                "disparity_px": np.float32, "match_counts": np.int64,
+                "decoded_fraction": np.float32, "edge_fraction": np.float32}
 
 
 def sidecar_path(session_path: str | Path) -> Path:
@@ -46,6 +55,15 @@ def session_fingerprint(start_utc_ns: int, camera_times: tuple[np.ndarray, ...])
     for array in camera_times:
         digest.update(np.ascontiguousarray(array, np.int64).tobytes())
     return digest.hexdigest()
+
+
+def is_cloud_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file in this format (complete or not)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT_NAME
+    except OSError:
+        return False
 
 
 class CloudWriter:
@@ -65,40 +83,36 @@ class CloudWriter:
                          compression="lzf").attrs["units"] = "m"
         f.create_dataset("colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3),
                          compression="lzf").attrs["channel_order"] = "RGB"
-        self._frames: dict[str, list] = {name: [] for name in
-                                         ("frame_index", "t_host_ns", "valid_fraction",
-                                          "disparity_px", "match_counts")}
+        self._frames: dict[str, list] = {name: [] for name in FRAME_TABLES}
         self._offsets = [0]
 
     def append(self, frame_index: int, t_host_ns: int, points: np.ndarray, colors: np.ndarray,
-               valid_fraction: float, disparity_px: np.ndarray, match_counts: np.ndarray) -> None:
-        """Add the next frame's cloud and statistics."""
+               stats: dict[str, object]) -> None:
+        """Add the next frame's cloud and statistics (``stats``: the other per-frame tables,
+        see :data:`FRAME_TABLES`)."""
         start, n = self._offsets[-1], len(points)
         for name, data in (("points", points), ("colors", colors)):
             ds = self._file[name]
             ds.resize(start + n, axis=0)
             ds[start:start + n] = data
         self._offsets.append(start + n)
-        for name, value in (("frame_index", frame_index), ("t_host_ns", t_host_ns),
-                            ("valid_fraction", valid_fraction), ("disparity_px", disparity_px),
-                            ("match_counts", match_counts)):
+        for name, value in {**stats, "frame_index": frame_index, "t_host_ns": t_host_ns}.items():
             self._frames[name].append(value)
 
     def finish(self) -> Path:
         """Write the per-frame tables, mark the file complete and close it."""
         f = self._file
         f.create_dataset("offsets", data=np.asarray(self._offsets, np.int64))
-        f.create_dataset("frame_index", data=np.asarray(self._frames["frame_index"], np.int64))
-        f.create_dataset("t_host_ns", data=np.asarray(self._frames["t_host_ns"], np.int64)
-                         ).attrs["units"] = "ns"
-        f.create_dataset("valid_fraction",
-                         data=np.asarray(self._frames["valid_fraction"], np.float32))
-        disparity = f.create_dataset("disparity_px", data=np.asarray(
-            self._frames["disparity_px"], np.float32).reshape(-1, len(DISPARITY_COLUMNS)))
-        disparity.attrs.update({"units": "px", "columns": DISPARITY_COLUMNS})
-        f.create_dataset("match_counts", data=np.asarray(
-            self._frames["match_counts"], np.int64).reshape(-1, len(COUNT_COLUMNS))
-                         ).attrs["columns"] = COUNT_COLUMNS
+        columns = {"disparity_px": DISPARITY_COLUMNS, "match_counts": COUNT_COLUMNS}
+        for name, dtype in FRAME_TABLES.items():
+            data = np.asarray(self._frames[name], dtype)
+            if name in columns:
+                data = data.reshape(-1, len(columns[name]))
+            ds = f.create_dataset(name, data=data)
+            if name in columns:
+                ds.attrs["columns"] = columns[name]
+        f["t_host_ns"].attrs["units"] = "ns"
+        f["disparity_px"].attrs["units"] = "px"
         f.attrs["n_frames"] = len(self._offsets) - 1
         f.attrs["complete"] = True
         f.close()
@@ -170,11 +184,13 @@ class CloudReader:
         return self._file["points"][start:stop], self._file["colors"][start:stop]
 
     def frame_table(self, name: str) -> np.ndarray:
-        """A per-frame array: ``frame_index``, ``t_host_ns``, ``valid_fraction``,
-        ``disparity_px`` or ``match_counts``."""
-        if name not in ("frame_index", "t_host_ns", "valid_fraction", "disparity_px",
-                        "match_counts"):
-            raise ReconError(f"{self.path} has no per-frame table {name!r}")
+        """A per-frame array named in :data:`FRAME_TABLES` (quality tables missing from a
+        version-1 file read as NaN)."""
+        if name not in FRAME_TABLES:
+            raise ReconError(f"{self.path} has no per-frame table {name!r}; known: "
+                             f"{sorted(FRAME_TABLES)}")
+        if name not in self._file:
+            return np.full(self.n_frames, np.nan, np.float32)
         return self._file[name][()]
 
     def calibration_yaml(self) -> str:

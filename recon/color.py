@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.drivers.camera.base import StereoCamera
+from vbfe.drivers.projector.base import Projector
 from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
@@ -96,6 +98,26 @@ def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
         raise ReconError("colour calibration: the red, green and blue captures are not distinct "
                          "(mixing matrix is singular); check the projections and exposure")
     return ColorModel(mixing=mixing, offset=np.median(black, axis=0))
+
+
+def capture_color_model(camera: StereoCamera, projector: Projector, frames: int = 3,
+                        settle_frames: int = 2, timeout_s: float = 2.0) -> ColorModel:
+    """Fit the colour model from a calibration capture: each flat projection of
+    :func:`color_calibration_patterns` is shown, ``settle_frames`` frames are dropped (projector
+    latency) and ``frames`` frames of both eyes are averaged. ``camera`` and ``projector`` are
+    open devices aimed at a surface (a white target is best; any albedo cancels)."""
+    captures = {}
+    for name, image in color_calibration_patterns(projector.width, projector.height).items():
+        projector.show(image, f"color-{name}")
+        views = []
+        for _ in range(settle_frames + frames):
+            frame = camera.read(timeout_s)
+            if frame is None:
+                raise ReconError(f"colour calibration: no camera frame within {timeout_s} s "
+                                 f"while projecting flat {name}; check the camera")
+            views.append(np.concatenate([frame.left, frame.right], axis=1))
+        captures[name] = np.mean(views[settle_frames:], axis=0)
+    return estimate_color_model(captures)
 
 
 def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:

@@ -24,6 +24,7 @@ BOUNDARY_DEPTH = 0.6  # a minimum is a fringe boundary if below this fraction of
 MIN_FRINGE_VALUE = 0.2  # mean corrected brightness below which a fringe is unreadable (shadow)
 MIN_PURITY = 0.25  # (top - second) / top colour share for a readable symbol
 MAX_PERIOD_PX = 64.0
+PERIOD_ROWS = 16  # rows whose mean spectrum gives the fringe period
 
 
 @dataclass(frozen=True)
@@ -37,13 +38,16 @@ class FringeCode:
 
 
 def fringe_period_px(image: np.ndarray) -> float:
-    """Dominant fringe width (pixels) along the rows of an image, from the mean row spectrum."""
-    rows = image[:: max(1, image.shape[0] // 64)]
+    """Dominant fringe width (pixels) along the rows of an image, from the mean row spectrum
+    weighted by √frequency (tempering the surface texture's low-frequency energy, so the
+    fringes stand out even when ambient light leaves them little contrast)."""
+    rows = image[:: max(1, image.shape[0] // PERIOD_ROWS)]
     if rows.ndim == 3:
         rows = rows.max(axis=2)
     rows = rows.astype(np.float32)
     rows -= rows.mean(axis=1, keepdims=True)
     spectrum = np.abs(np.fft.rfft(rows, axis=1)).mean(axis=0)
+    spectrum *= np.sqrt(np.arange(len(spectrum)))
     width = image.shape[1]
     lowest = int(np.ceil(width / MAX_PERIOD_PX))
     peak = lowest + int(np.argmax(spectrum[lowest:]))

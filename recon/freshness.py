@@ -8,9 +8,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vbfe.acquire import SessionReader
+from vbfe.calib.calibration import Calibration
 from vbfe.recon.clouds import CloudReader, session_fingerprint, sidecar_path
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
+from vbfe.recon.quality import ReconSettings, params_for
 
 
 @dataclass(frozen=True)
@@ -36,9 +38,11 @@ def fingerprint_of(reader: SessionReader) -> str:
 
 
 def clouds_status(session_path: str | Path, sgbm_params: SgbmParams, verify: bool = True,
-                  calibration_yaml: str | None = None) -> CloudsStatus:
+                  calibration_yaml: str | None = None,
+                  settings: ReconSettings | None = None) -> CloudsStatus:
     """Compare ``<session>.clouds.h5`` with the session, the calibration (default: the one
-    stored in the session) and the matcher settings that would be used now."""
+    stored in the session) and the matcher settings that would be used now (a range derived
+    from the geometry is derived again from ``settings``, the ``[recon]`` table)."""
     out = sidecar_path(session_path)
     if not out.exists():
         return CloudsStatus("missing")
@@ -55,6 +59,8 @@ def clouds_status(session_path: str | Path, sgbm_params: SgbmParams, verify: boo
             calibration_yaml = reader.calibration_yaml()
     if calibration_yaml is not None and text_hash(calibration_yaml) != text_hash(used_calibration):
         return CloudsStatus("stale", "calibration changed")
-    if attrs["sgbm"] != dataclasses.asdict(sgbm_params) or bool(attrs.get("verify")) != verify:
+    calibration = Calibration.from_yaml_text(calibration_yaml or used_calibration)
+    resolved = params_for(calibration, sgbm_params, settings or ReconSettings())
+    if attrs["sgbm"] != dataclasses.asdict(resolved) or bool(attrs.get("verify")) != verify:
         return CloudsStatus("stale", "matcher settings changed")
     return CloudsStatus("current")

@@ -17,10 +17,12 @@ DISPARITY_SCALE = 16.0  # StereoSGBM returns fixed-point disparities with 4 frac
 
 @dataclass(frozen=True)
 class SgbmParams:
-    """StereoSGBM settings; ``p1``/``p2`` = 0 pick OpenCV's usual 8·3·b² and 32·3·b²."""
+    """StereoSGBM settings; ``p1``/``p2`` = 0 pick OpenCV's usual 8·3·b² and 32·3·b²;
+    ``num_disparities`` = 0 derives ``min_disparity`` and the range from the calibration and
+    the rig's depth range (:func:`vbfe.recon.quality.params_for`)."""
 
     min_disparity: int = 0
-    num_disparities: int = 128
+    num_disparities: int = 0
     block_size: int = 5
     uniqueness_ratio: int = 5
     speckle_window_size: int = 100
@@ -36,14 +38,11 @@ class SgbmParams:
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SgbmParams":
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise ReconError(f"[sgbm] table has unknown key(s) {sorted(unknown)}; "
-                             f"known: {sorted(known)}")
+        check_known_keys("sgbm", table, cls)
         params = cls(**table)
-        if params.num_disparities <= 0 or params.num_disparities % 16:
-            raise ReconError(f"[sgbm] num_disparities must be a positive multiple of 16, got "
+        if params.num_disparities < 0 or params.num_disparities % 16:
+            raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
+                             f"positive multiple of 16, got "
                              f"{params.num_disparities}")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
@@ -55,6 +54,9 @@ class SgbmParams:
 
     def create(self, channels: int = 3) -> cv2.StereoSGBM:
         """A configured ``cv2.StereoSGBM`` matcher for images with ``channels`` channels."""
+        if self.num_disparities <= 0:
+            raise ReconError("num_disparities is 0 (derive from the geometry): resolve it with "
+                             "vbfe.recon.quality.params_for(calibration, params, settings)")
         area = channels * self.block_size ** 2
         return cv2.StereoSGBM.create(
             minDisparity=self.min_disparity, numDisparities=self.num_disparities,
@@ -62,6 +64,15 @@ class SgbmParams:
             disp12MaxDiff=self.disp12_max_diff, preFilterCap=self.pre_filter_cap,
             uniquenessRatio=self.uniqueness_ratio, speckleWindowSize=self.speckle_window_size,
             speckleRange=self.speckle_range, mode=MODES[self.mode])
+
+
+def check_known_keys(name: str, table: dict[str, Any], settings: type) -> None:
+    """Refuse keys of config table ``[name]`` that are not fields of the ``settings`` dataclass."""
+    known = {f.name for f in fields(settings)}
+    unknown = set(table) - known
+    if unknown:
+        raise ReconError(f"[{name}] table has unknown key(s) {sorted(unknown)}; "
+                         f"known: {sorted(known)}")
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,

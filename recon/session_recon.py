@@ -1,4 +1,5 @@
-"""Reconstruct every frame of a recorded session into a point-cloud sidecar, in parallel."""
+"""Reconstruct every frame of a recorded session, or a set of image pairs, into a point-cloud
+file, in parallel."""
 
 from __future__ import annotations
 
@@ -21,34 +22,44 @@ from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.matching import SgbmParams
+from vbfe.recon.inputs import ImagePairs
+from vbfe.recon.maps import MapOutput, write_maps
+from vbfe.recon.quality import ReconSettings, params_for
 from vbfe.recon.triangulate import Reconstructor
 
-FrameResult = tuple[int, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]
+FrameResult = tuple[int, np.ndarray, np.ndarray, dict[str, object], np.ndarray | None]
 
-_worker: dict[str, object] = {}  # per-process state: the session reader and reconstructor
+_worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
 
 
-def _init_worker(session_path: str, calibration_yaml: str, params: dict, verify: bool,
-                 threads: int, ignore_interrupt: bool = False) -> None:
-    """Open the session and build the reconstructor once per worker process (child processes
-    leave Ctrl-C to the parent, which stops the pool)."""
+def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, verify: bool,
+                 settings: ReconSettings, keep_maps: bool, threads: int,
+                 ignore_interrupt: bool = False) -> None:
+    """Open the frame source (a session path or image pairs) and build the reconstructor once
+    per worker process (child processes leave Ctrl-C to the parent, which stops the pool)."""
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(threads)
-    _worker["reader"] = SessionReader(session_path)
+    _worker["reader"] = SessionReader(source) if isinstance(source, str) else source
+    _worker["keep_maps"] = keep_maps
     _worker["reconstructor"] = Reconstructor(Calibration.from_yaml_text(calibration_yaml),
-                                             SgbmParams(**params), verify=verify)
+                                             SgbmParams(**params), verify=verify,
+                                             settings=settings)
 
 
 def _process_frame(i: int) -> FrameResult:
-    """Reconstruct frame ``i`` of the worker's session; returns the cloud and its statistics."""
+    """Reconstruct frame ``i`` of the worker's source; returns the cloud, its statistics and
+    (when maps were asked for) the disparity map."""
     frame = _worker["reader"].frame(i)
     cloud = _worker["reconstructor"].process(frame.left, frame.right)
     d = cloud.disparity[cloud.valid]
-    stats = (np.array([d.min(), np.median(d), d.max(), d.mean()], np.float32) if d.size
-             else np.full(4, np.nan, np.float32))
-    counts = np.array([cloud.counts.get(k, -1) for k in COUNT_COLUMNS], np.int64)
-    return i, cloud.points, cloud.colors, float(cloud.valid.mean()), stats, counts
+    stats = {"valid_fraction": float(cloud.valid.mean()),
+             "disparity_px": (np.array([d.min(), np.median(d), d.max(), d.mean()], np.float32)
+                              if d.size else np.full(4, np.nan, np.float32)),
+             "match_counts": np.array([cloud.counts.get(k, -1) for k in COUNT_COLUMNS], np.int64),
+             "decoded_fraction": cloud.decoded_fraction, "edge_fraction": cloud.edge_fraction}
+    return (i, cloud.points, cloud.colors, stats,
+            cloud.disparity if _worker["keep_maps"] else None)
 
 
 def resolve_calibration(session_path: str | Path,
@@ -59,17 +70,20 @@ def resolve_calibration(session_path: str | Path,
     return load_calibration(session_path if calibration is None else calibration)
 
 
-def _results(session_path: Path, calibration: Calibration, params: SgbmParams, verify: bool,
-             n_frames: int, workers: int) -> Iterator[FrameResult]:
+def _results(source: str | ImagePairs, calibration: Calibration, params: SgbmParams,
+             verify: bool, settings: ReconSettings, keep_maps: bool, n_frames: int,
+             workers: int) -> Iterator[FrameResult]:
     """Frame results in frame order, computed in ``workers`` processes (1: in this process)."""
-    init_args = (str(session_path), calibration.to_yaml_text(), dataclasses.asdict(params),
-                 verify)
+    init_args = (source, calibration.to_yaml_text(), dataclasses.asdict(params), verify,
+                 settings, keep_maps)
     if workers <= 1:
         _init_worker(*init_args, threads=cv2.getNumThreads())
         try:
             yield from map(_process_frame, range(n_frames))
         finally:
-            _worker.pop("reader").close()
+            reader = _worker.pop("reader")
+            if isinstance(reader, SessionReader):
+                reader.close()
         return
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker, initargs=(*init_args, 1, True))
@@ -79,45 +93,30 @@ def _results(session_path: Path, calibration: Calibration, params: SgbmParams, v
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def reconstruct_session(session_path: str | Path,
-                        calibration: Calibration | str | Path | None = None,
-                        out_path: str | Path | None = None, workers: int | None = None,
-                        progress: Callable[[int], object] | None = None,
-                        sgbm_params: SgbmParams | None = None, verify: bool = True) -> Path:
-    """Reconstruct all frames of a session into ``<session>.clouds.h5`` (or ``out_path``).
-
-    ``calibration`` is a :class:`Calibration`, a YAML/session path, or ``None`` for the one
-    stored in the session. ``workers`` processes (default: one per CPU core, at most the
-    number of frames) share the frames; ``progress(n)`` is called with each finished frame
-    count. The sidecar is written to a temporary name and renamed when complete, so an
-    interrupted run leaves no partial file. A session still being recorded is reconstructed up
-    to its frames flushed at the start; the sidecar then has ``session_partial = True``.
-    """
-    session_path = Path(session_path)
-    calibration = resolve_calibration(session_path, calibration)
-    params = sgbm_params or SgbmParams()
-    out_path = Path(out_path) if out_path is not None else sidecar_path(session_path)
-    with SessionReader(session_path) as reader:
-        n_frames = reader.n_frames
-        partial = reader.growing
-        size = reader.frame_size
-        times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
-        fingerprint = fingerprint_of(reader)
-    if tuple(size) != tuple(calibration.image_size):
-        raise ReconError(f"session {session_path} has {size[0]}x{size[1]} images but the "
-                         f"calibration is for {calibration.image_size[0]}x"
-                         f"{calibration.image_size[1]}; use the calibration of this camera mode")
+def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames: int,
+                 times: np.ndarray, names: list[str], calibration: Calibration, out_path: Path,
+                 workers: int | None, progress: Callable[[int], object] | None,
+                 params: SgbmParams, verify: bool, settings: ReconSettings,
+                 maps: MapOutput | None, partial: bool = False) -> Path:
+    """Reconstruct ``n_frames`` frames of ``source`` into ``out_path`` (written to a temporary
+    name and renamed when complete, so an interrupted run leaves no partial file); ``partial``
+    marks the clouds of a session that was still being recorded."""
+    params = params_for(calibration, params, settings)
     workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
     tmp_path = out_path.with_name(out_path.name + ".partial")
     writer = CloudWriter(tmp_path, {
-        "session_path": str(session_path.resolve()), "session_fingerprint": fingerprint,
-        "verify": verify, "session_partial": partial,
-        "sgbm_json": json.dumps(dataclasses.asdict(params)),
-        "software_version": __version__}, calibration.to_yaml_text())
+        "session_path": str(Path(source if isinstance(source, str) else source.lefts[0]).resolve()),
+        "session_fingerprint": fingerprint, "source_kind": kind, "verify": verify,
+        "session_partial": partial,
+        "sgbm_json": json.dumps(dataclasses.asdict(params)), "software_version": __version__},
+        calibration.to_yaml_text())
     try:
-        for i, points, colors, valid_fraction, stats, counts in _results(
-                session_path, calibration, params, verify, n_frames, workers):
-            writer.append(i, int(times[i]), points, colors, valid_fraction, stats, counts)
+        for i, points, colors, stats, disparity in _results(
+                source, calibration, params, verify, settings, maps is not None, n_frames,
+                workers):
+            writer.append(i, int(times[i]), points, colors, stats)
+            if maps is not None:
+                write_maps(maps.folder, names[i], disparity, calibration, maps.fmt)
             if progress is not None:
                 progress(1)
         writer.finish()
@@ -127,3 +126,60 @@ def reconstruct_session(session_path: str | Path,
         raise
     os.replace(tmp_path, out_path)
     return out_path
+
+
+def _check_size(what: str, size: tuple[int, int], calibration: Calibration) -> None:
+    if tuple(size) != tuple(calibration.image_size):
+        raise ReconError(f"{what} has {size[0]}x{size[1]} images but the calibration is for "
+                         f"{calibration.image_size[0]}x{calibration.image_size[1]}; use the "
+                         f"calibration of this camera mode")
+
+
+def reconstruct_images(pairs: ImagePairs, calibration: Calibration,
+                       out_path: str | Path | None = None, workers: int | None = 1,
+                       progress: Callable[[int], object] | None = None,
+                       sgbm_params: SgbmParams | None = None, verify: bool = True,
+                       settings: ReconSettings | None = None,
+                       maps: MapOutput | None = None) -> Path:
+    """Reconstruct image pairs (see :mod:`vbfe.recon.inputs`) into a cloud file, by default
+    ``<first left image>.clouds.h5``; frame times are 0."""
+    _check_size(f"{pairs.lefts[0]}", pairs.frame_size(), calibration)
+    out_path = Path(out_path) if out_path is not None else sidecar_path(pairs.lefts[0])
+    return _reconstruct(pairs, "images", pairs.fingerprint(), pairs.n_frames,
+                        np.zeros(pairs.n_frames, np.int64), list(pairs.names), calibration,
+                        out_path, workers, progress, sgbm_params or SgbmParams(), verify,
+                        settings or ReconSettings(), maps)
+
+
+def reconstruct_session(session_path: str | Path,
+                        calibration: Calibration | str | Path | None = None,
+                        out_path: str | Path | None = None, workers: int | None = None,
+                        progress: Callable[[int], object] | None = None,
+                        sgbm_params: SgbmParams | None = None, verify: bool = True,
+                        settings: ReconSettings | None = None,
+                        maps: MapOutput | None = None) -> Path:
+    """Reconstruct all frames of a session into ``<session>.clouds.h5`` (or ``out_path``).
+
+    ``calibration`` is a :class:`Calibration`, a YAML/session path, or ``None`` for the one
+    stored in the session. ``workers`` processes (default: one per CPU core, at most the
+    number of frames) share the frames; ``progress(n)`` is called with each finished frame
+    count. ``settings`` (the ``[recon]`` table) give the depth range a zero
+    ``num_disparities`` is derived from; ``maps`` asks for disparity/depth maps too. The
+    sidecar is written to a temporary name and renamed when complete, so an interrupted run
+    leaves no partial file. A session still being recorded is reconstructed up to its frames
+    flushed at the start; the sidecar then has ``session_partial = True``.
+    """
+    session_path = Path(session_path)
+    calibration = resolve_calibration(session_path, calibration)
+    out_path = Path(out_path) if out_path is not None else sidecar_path(session_path)
+    with SessionReader(session_path) as reader:
+        n_frames = reader.n_frames
+        partial = reader.growing
+        size = reader.frame_size
+        times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
+        fingerprint = fingerprint_of(reader)
+    _check_size(f"session {session_path}", size, calibration)
+    names = [f"frame_{i:06d}" for i in range(n_frames)]
+    return _reconstruct(str(session_path), "session", fingerprint, n_frames, times, names,
+                        calibration, out_path, workers, progress, sgbm_params or SgbmParams(),
+                        verify, settings or ReconSettings(), maps, partial)

@@ -10,6 +10,8 @@ whose own code is unreadable, are invalid.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -30,7 +32,7 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
     readable = matched & (left.index >= 0)
     map_x = np.arange(width, dtype=np.float32) - disparity
     map_x[~matched] = -10.0
-    map_y = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
+    map_y = _row_map(height, width)
     right_index = right.index.astype(np.int16)
     kept = np.zeros((height, width), bool)
     for shift in range(-BOUNDARY_TOLERANCE_PX, BOUNDARY_TOLERANCE_PX + 1):
@@ -44,10 +46,17 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
                     left.index[rows, cols], search_px)
     out[rows, cols] = new_d
     valid = np.isfinite(out)
-    counts = {"sgbm_matches": int(matched.sum()), "kept": int(kept.sum()),
-              "corrected": int(np.isfinite(new_d).sum()),
-              "rejected": int(matched.sum() - valid.sum())}
+    n_matched = np.count_nonzero(matched)
+    counts = {"sgbm_matches": n_matched, "kept": np.count_nonzero(kept),
+              "corrected": np.count_nonzero(np.isfinite(new_d)),
+              "rejected": n_matched - np.count_nonzero(valid)}
     return out, valid, counts
+
+
+@functools.lru_cache(maxsize=4)
+def _row_map(height: int, width: int) -> np.ndarray:
+    """The y map of a row-preserving remap (built once per image size)."""
+    return np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
 
 
 def _right_code(index: np.ndarray, rows: np.ndarray, x: np.ndarray) -> np.ndarray:

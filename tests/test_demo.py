@@ -36,6 +36,9 @@ def test_reconstruction_depth_error_is_within_one_percent_of_working_distance(nu
     assert recon["verified"]["median_abs_depth_error_m"] <= 0.01 * 0.06
     assert recon["verified"]["valid_fraction"] > 0.5
     assert recon["verified"]["bad_pixel_rate"] <= recon["unverified"]["bad_pixel_rate"]
+    for quality in recon["quality"]:  # per-session quality read back from the cloud files
+        assert quality["decoded_fraction"] > 0.5 and quality["density"] > 0.5
+        assert quality["kept"] + quality["corrected"] + quality["rejected"] == pytest.approx(1)
 
 
 def test_sync_offset_is_measured_against_the_true_offset(numbers):
@@ -71,5 +74,6 @@ def test_report_links_every_plot_and_shows_the_verdicts(demo_out):
     for src in images:
         assert (demo_out / src).is_file(), src
     assert html.count("PASS") + html.count("FAIL") >= 10
+    assert "pattern decoded" in html
     for heading in ("calibration", "Synchronisation", "reconstruction", "Force estimation"):
         assert heading in html

@@ -80,3 +80,26 @@ def test_missing_or_dark_captures_are_reported():
         estimate_color_model({"blue": black, "green": black, "black": black, "white": black})
     with pytest.raises(ReconError, match="white capture"):
         estimate_color_model({n: black for n in ("blue", "green", "red", "black", "white")})
+
+
+def test_calibrate_color_fits_the_bench_crosstalk_into_the_calibration(tmp_path):
+    import subprocess
+    import sys
+
+    from vbfe.calib import Calibration
+    from vbfe.drivers.sim.rig import default_rig
+
+    calibration_path = calibration_from_rig(default_rig(640, 360)).save(tmp_path / "cal.yaml")
+    config = tmp_path / "rig.toml"
+    config.write_text('[bench]\nscene = "plane"\ncrosstalk = 0.3\ndistortion = false\n')
+    result = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "color",
+                             str(calibration_path), "--config", str(config)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    stored = Calibration.load(calibration_path)
+    expected = np.full((3, 3), 0.15)
+    np.fill_diagonal(expected, 0.7)  # each channel keeps 1 - 0.3 of its primary
+    np.testing.assert_allclose(stored.color_mixing, expected, atol=0.02)
+    np.testing.assert_allclose(stored.color_offset, 0.15 * 255, atol=3)  # ambient light
+    assert stored.K1 is not None and np.allclose(stored.P2, calibration_from_rig(
+        default_rig(640, 360)).P2)

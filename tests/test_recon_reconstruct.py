@@ -76,7 +76,7 @@ def test_distorted_rig_is_rectified_before_matching():
 
 def test_injected_whole_fringe_errors_are_corrected_or_rejected(scene):
     _, calibration, pair = scene
-    params = SgbmParams()
+    params = Reconstructor(calibration).params  # the range derived from the geometry
     decoder = FringeDecoder()
     left, right = decoder.decode(pair.left), decoder.decode(pair.right)
     disparity = sgbm_disparity(pair.left, pair.right, params)

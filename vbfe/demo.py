@@ -179,7 +179,8 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
     """Point clouds for every session; a few frames per session scored against true depth."""
     from vbfe.acquire import SessionReader
     from vbfe.calib import Calibration
-    from vbfe.recon import Reconstructor, SgbmParams, reconstruct_session
+    from vbfe.recon import CloudReader, Reconstructor, SgbmParams, reconstruct_session
+    from vbfe.recon.quality import ReconSettings, summary_line
     from vbfe.truth import evaluate_against_truth, rectified_truth, session_bench
 
     total = 0
@@ -187,16 +188,27 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
         with SessionReader(path) as reader:
             total += reader.n_frames
     params = SgbmParams.from_config(config["sgbm"])
+    settings = ReconSettings.from_config(config.get("recon", {}))
     step = stage("reconstruct", total)
+    quality = []
     for path in sessions:
-        reconstruct_session(path, progress=step, sgbm_params=params)
+        with CloudReader(reconstruct_session(path, progress=step, sgbm_params=params,
+                                             settings=settings)) as clouds:
+            counts = clouds.frame_table("match_counts").sum(axis=0).astype(float)
+            quality.append({"session": path.name, "summary": summary_line(clouds),
+                            "density": float(clouds.frame_table("valid_fraction").mean()),
+                            "decoded_fraction": float(np.nanmean(
+                                clouds.frame_table("decoded_fraction"))),
+                            **{name: counts[k] / max(counts[0], 1.0) for k, name in
+                               ((1, "kept"), (2, "corrected"), (3, "rejected"))}})
 
     scores: dict[str, list[dict[str, float]]] = {"verified": [], "unverified": []}
     for path in sessions:
         with SessionReader(path) as reader:
             calibration = Calibration.from_yaml_text(reader.calibration_yaml())
             bench = session_bench(reader)
-            reconstructors = {key: Reconstructor(calibration, params, verify=verify)
+            reconstructors = {key: Reconstructor(calibration, params, verify=verify,
+                                                 settings=settings)
                               for key, verify in (("verified", True), ("unverified", False))}
             picks = np.linspace(0, reader.n_frames - 1, plan.recon_check_frames + 2)[1:-1]
             for i in picks.astype(int):
@@ -209,7 +221,7 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
                     scores[key].append(evaluate_against_truth(cloud, *truth_maps).as_dict())
     summary = {key: {name: float(np.nanmedian([s[name] for s in rows])) for name in rows[0]}
                for key, rows in scores.items()}
-    return summary
+    return {**summary, "quality": quality}
 
 
 def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict,

@@ -106,6 +106,13 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
                    1e3 * r["p95_abs_depth_error_m"], r["bad_pixel_rate"])
                   for name, r in (("SGBM + De Bruijn verification", recon["verified"]),
                                   ("SGBM alone", recon["unverified"]))])
+    report.paragraph("Per-session quality stored in each cloud file (`vbfe inspect "
+                     "SESSION.clouds.h5` lists it frame by frame): density is the share of "
+                     "pixels with a point, decoded the share with a readable De Bruijn code, "
+                     "and kept / corrected / rejected what verification did to SGBM's matches.")
+    report.table(["session", "density", "pattern decoded", "kept", "corrected", "rejected"],
+                 [(q["session"], q["density"], q["decoded_fraction"], q["kept"],
+                   q["corrected"], q["rejected"]) for q in recon.get("quality", [])])
 
     force = numbers["force"]
     metrics = force["metrics"]

@@ -22,6 +22,7 @@ from vbfe.drivers.sim.board_scene import BoardScene, board_target
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
 from vbfe.drivers.sim.devices import SimCamera, SimProjector, SimTrocar
 from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
+from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
@@ -64,7 +65,11 @@ class SimBench:
                  board_poses: list[list[float]] | None = None, board_hold_s: float = 0.0,
                  board_p_still: float = 0.25, board_p_blur: float = 0.15, board_blur_px: int = 5,
                  board_distance_mm: tuple[float, float] = (30.0, 70.0),
-                 board_max_tilt_deg: float = 35.0, board_in_projector: bool = False) -> None:
+                 board_max_tilt_deg: float = 35.0, board_in_projector: bool = False,
+                 albedo_bgr: tuple[float, float, float] | None = None,
+                 subsurface_blur_mm: float = 0.0, specular: float = 0.0,
+                 crosstalk: float = 0.0, projector_gamma: float = 1.0, vignetting: float = 0.0,
+                 motion_blur_exposure_ms: float = 0.0) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
         if fps <= 0 or trocar_rate_hz <= 0:
@@ -103,7 +108,8 @@ class SimBench:
                 board_in_projector)
         self.trial = Trial(protocol, TissueSample.random(rngs["sample"], working_distance_m),
                            deformation_scale)
-        albedo = tissue_texture(rngs["texture"]) if textured else UniformAlbedo()
+        tint = tuple(albedo_bgr) if albedo_bgr is not None else UniformAlbedo().bgr
+        albedo = tissue_texture(rngs["texture"], tint_bgr=tint) if textured else UniformAlbedo(tint)
         self._tissue = TissueSurface(distance_m=working_distance_m, texture=albedo)
         self._plane = Plane(np.eye(3), np.array([0.0, 0.0, working_distance_m]),
                             texture=UniformAlbedo((1.0, 1.0, 1.0)))
@@ -118,13 +124,30 @@ class SimBench:
         self.force_transport = Transport(self.force_latency_ns, force_jitter_ms * 1e6,
                                          rngs["force_transport"])
         self.renderer = StereoRenderer(self.rig, ambient=ambient, noise_sigma=noise_sigma,
-                                       rng=rngs["render"])
+                                       rng=rngs["render"], nuisance=self._nuisance(
+            subsurface_blur_mm, specular, crosstalk, projector_gamma, vignetting,
+            pull_speed_m_per_s * motion_blur_exposure_ms * 1e-3, working_distance_m))
         self._pattern_shown = False
         self._time = threading.Condition()
         self._now_host_ns = 0  # newest frame's host arrival, relative to host_epoch_ns
         self._open_devices: set[int] = set()
         self._camera_open = False
         self.host_epoch_ns = 0
+
+    def _nuisance(self, subsurface_blur_mm: float, specular: float, crosstalk: float,
+                  projector_gamma: float, vignetting: float, travel_m: float,
+                  distance_m: float) -> Nuisance:
+        """The tissue/optics nuisances; motion blur is the grasp's travel during one exposure
+        at the pull speed, seen at the working distance (an upper bound for the whole view)."""
+        dx, dy, _ = self.trial.sample.pull_direction
+        try:
+            return Nuisance(subsurface_blur_mm=subsurface_blur_mm, specular=specular,
+                            crosstalk=crosstalk, projector_gamma=projector_gamma,
+                            vignetting=vignetting,
+                            motion_blur_px=travel_m * self.rig.left.f / distance_m,
+                            motion_blur_deg=math.degrees(math.atan2(dy, dx)))
+        except ValueError as exc:
+            raise DeviceError(f"[bench] {exc}") from None
 
     # -- construction ---------------------------------------------------------------------
     @classmethod

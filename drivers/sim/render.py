@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vbfe.drivers.sim.nuisance import Nuisance, specular_gain
 from vbfe.drivers.sim.rays import camera_rays, upsample_strided
 from vbfe.drivers.sim.rig import PinholeCamera, StereoRig
 from vbfe.drivers.sim.tissue import Hit, Surface, Texture, UniformAlbedo
@@ -85,13 +86,16 @@ class StereoRenderer:
     """Renders both eyes of ``rig`` looking at surfaces lit by the current projector pattern.
 
     Keeps the cached rays, the prepared pattern, a bank of sensor noise and the output buffers
-    between frames, so a bench camera can render a stream quickly.
+    between frames, so a bench camera can render a stream quickly. ``nuisance`` adds what real
+    tissue and optics do to the pattern (:mod:`vbfe.drivers.sim.nuisance`).
     """
 
     def __init__(self, rig: StereoRig, ambient: float = 0.15, noise_sigma: float = 1.0,
                  shading: bool = True, stride: int | None = None,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, nuisance: Nuisance | None = None) -> None:
         self.rig = rig
+        self.nuisance = nuisance or Nuisance()
+        self._distance_m = 0.06
         self.ambient = float(ambient)
         self.shading = shading
         self.stride = _default_stride(rig.left) if stride is None else stride
@@ -110,12 +114,16 @@ class StereoRenderer:
             blur_sigma_px = pattern_blur_px(self.rig, distance_m)
         pattern = pattern_bgr if pattern_bgr.ndim == 3 else cv2.cvtColor(pattern_bgr,
                                                                           cv2.COLOR_GRAY2BGR)
+        pattern = self.nuisance.projector_image(pattern)
+        self._distance_m = distance_m
         if blur_sigma_px > 0:
             pattern = cv2.GaussianBlur(pattern, (0, 0), blur_sigma_px)
         self._pattern = np.ascontiguousarray(pattern, np.uint8)
 
-    def _coarse(self, eye: _Eye, surface: Surface) -> tuple[Hit, np.ndarray, np.ndarray]:
-        """Hits, projector coordinates and light gain (uint8 BGR) on the strided grid."""
+    def _coarse(self, eye: _Eye, surface: Surface
+                ) -> tuple[Hit, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Hits, projector coordinates, light gain (uint8 BGR) and specular gain (float32, None
+        without highlights) on the strided grid."""
         origin, dirs = camera_rays(eye.camera, eye.R, eye.T, stride=self.stride)
         hit = surface.hit(origin, dirs, eye.last_s)
         eye.last_s = hit.s
@@ -127,9 +135,18 @@ class StereoRenderer:
             lx, ly, lz = centre[0] - x, centre[1] - y, centre[2] - z
             cos = hit.normal[..., 0] * lx + hit.normal[..., 1] * ly + hit.normal[..., 2] * lz
             gain *= np.maximum(cos / np.sqrt(lx * lx + ly * ly + lz * lz), 0)
+        specular = None
+        if self.shading and self.nuisance.specular > 0:
+            # highlights of the projector (in its pattern's colour) and of the endoscope's white
+            # light at the tip, midway between the eyes (scaled by the ambient level)
+            points = np.stack([x, y, z], axis=-1)
+            to_eye = origin.astype(np.float32) - points
+            tip = (-0.5 * np.asarray(self.rig.R).T @ np.asarray(self.rig.T)).astype(np.float32)
+            specular = np.stack([specular_gain(hit.normal, source - points, to_eye, self.nuisance)
+                                 for source in (centre, tip)], axis=-1) * hit.valid[..., None]
         tint = np.asarray(_uniform_bgr(surface.texture) or (1.0, 1.0, 1.0), np.float32)
         gain_bgr = gain[..., None] * (tint * np.float32(255 * (1 - self.ambient)))
-        return hit, proj_uv, np.clip(gain_bgr + 0.5, 0, 255).astype(np.uint8)
+        return hit, proj_uv, np.clip(gain_bgr + 0.5, 0, 255).astype(np.uint8), specular
 
     def render_eye(self, index: int, surface: Surface) -> np.ndarray:
         """One view (0 = left, 1 = right) as BGR ``uint8``."""
@@ -137,11 +154,12 @@ class StereoRenderer:
             raise ValueError("no projector pattern set; call set_pattern first")
         eye = self._eyes[index]
         k = self.stride
-        hit, proj_uv, gain = self._coarse(eye, surface)
+        hit, proj_uv, gain, specular = self._coarse(eye, surface)
         proj_map = upsample_strided(proj_uv, k, eye.map_buffer)
         eye.map_buffer = proj_map.base if proj_map.base is not None else proj_map
         light = cv2.remap(self._pattern, proj_map, None, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+        light = self.nuisance.surface_light(light, eye.camera.f / (1e3 * self._distance_m))
         gain_full = upsample_strided(gain, k, eye.gain_buffer)
         eye.gain_buffer = gain_full.base if gain_full.base is not None else gain_full
         image = cv2.multiply(light, gain_full, scale=1 / 255)
@@ -155,6 +173,15 @@ class StereoRenderer:
             albedo = surface.texture.sample(material[..., 0], material[..., 1])
             image = np.clip((image.astype(np.float32) + np.float32(ambient)) * albedo + 0.5,
                             0, 255).astype(np.uint8)
+            offset = (0.0, 0.0, 0.0)
+        if specular is not None:  # mirrored light: no albedo, saturates the sensor
+            projector, tip = cv2.split(np.ascontiguousarray(upsample_strided(specular, k)))
+            image = cv2.add(image, cv2.multiply(light, cv2.merge([projector] * 3),
+                                                dtype=cv2.CV_8U))
+            image = cv2.add(image, cv2.merge([tip * np.float32(255 * self.ambient)] * 3),
+                            dtype=cv2.CV_8U)
+        if self.nuisance.affects_camera:
+            image = self.nuisance.camera(cv2.add(image, offset + (0.0,)))
             offset = (0.0, 0.0, 0.0)
         return self._add_offset_and_noise(image, offset)
 
@@ -181,7 +208,7 @@ class StereoRenderer:
     def truth(self, surface: Surface) -> dict[str, np.ndarray]:
         """Exact per-pixel truth of the left view: depth, disparity, projector coordinates."""
         rig = self.rig
-        coarse, _, _ = self._coarse(self._eyes[0], surface)
+        coarse = self._coarse(self._eyes[0], surface)[0]
         origin, dirs = camera_rays(rig.left)
         s0 = np.ascontiguousarray(upsample_strided(coarse.s, self.stride))
         hit = surface.hit(origin, dirs, s0)
@@ -220,17 +247,19 @@ class _Retextured:
 def render_scene(rig: StereoRig, surface: Surface, pattern_bgr: np.ndarray,
                  texture: Texture | None = None, ambient: float = 0.15, noise_sigma: float = 1.0,
                  rng: np.random.Generator | None = None, shading: bool = True,
-                 pattern_blur: float | None = None) -> RenderedPair:
+                 pattern_blur: float | None = None,
+                 nuisance: Nuisance | None = None) -> RenderedPair:
     """Render ``surface`` lit by ``pattern_bgr`` (projector image, ``uint8``) in both cameras.
 
     ``texture`` overrides the surface's albedo; ``ambient`` is the fraction of light not from the
     projector; ``noise_sigma`` Gaussian sensor noise in grey levels; ``pattern_blur`` the
     anti-alias σ in projector pixels (default: a camera pixel's footprint at the surface's
     distance). The truth is for the left view; disparity is ``u_left − u_right`` of the same
-    surface point, i.e. ``f·B/z`` for a parallel rig without distortion.
+    surface point, i.e. ``f·B/z`` for a parallel rig without distortion. ``nuisance`` degrades
+    the images (not the truth) as real tissue and optics do.
     """
     renderer = StereoRenderer(rig, ambient=ambient, noise_sigma=noise_sigma, shading=shading,
-                              rng=rng)
+                              rng=rng, nuisance=nuisance)
     renderer.set_pattern(pattern_bgr, pattern_blur, float(getattr(surface, "distance_m", 0.06)))
     if texture is not None:
         surface = _Retextured(surface, texture)

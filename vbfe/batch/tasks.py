@@ -15,6 +15,7 @@ from vbfe.batch.errors import BatchError
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status
 from vbfe.recon.matching import SgbmParams
+from vbfe.recon.quality import ReconSettings, summary_line
 from vbfe.recon.session_recon import reconstruct_session
 
 
@@ -24,14 +25,15 @@ class ReconstructTask:
 
     sgbm: dict[str, Any] = field(default_factory=dict)
     verify: bool = True
+    settings: dict[str, float] = field(default_factory=dict)  # the [recon] table
     calibration: str | None = None  # a YAML path; None: the one stored in the session
     overwrite: bool = False  # rebuild even a current sidecar, replace a stale one
     threads: int = 1  # OpenCV threads in this task's process
 
     def __call__(self, session: str) -> dict[str, Any]:
-        params = SgbmParams(**self.sgbm)
+        params, settings = SgbmParams(**self.sgbm), ReconSettings(**self.settings)
         calibration_yaml = Path(self.calibration).read_text() if self.calibration else None
-        status = clouds_status(session, params, self.verify, calibration_yaml)
+        status = clouds_status(session, params, self.verify, calibration_yaml, settings)
         out = sidecar_path(session)
         if status.state == "current" and not self.overwrite:
             return {"action": "up to date", "out": str(out)}
@@ -39,11 +41,10 @@ class ReconstructTask:
             raise BatchError(f"{out} is {status}; pass --overwrite to rebuild it")
         cv2.setNumThreads(self.threads)
         reconstruct_session(session, calibration=self.calibration, workers=1,
-                            sgbm_params=params, verify=self.verify)
+                            sgbm_params=params, verify=self.verify, settings=settings)
         with CloudReader(out) as clouds:
-            valid = clouds.frame_table("valid_fraction")
-        return {"action": "reconstructed", "out": str(out), "frames": int(len(valid)),
-                "valid_fraction": float(valid.mean()) if len(valid) else 0.0}
+            return {"action": "reconstructed", "out": str(out), "frames": clouds.n_frames,
+                    "summary": summary_line(clouds)}
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""`vbfe calibrate board|capture|stereo|projector-capture|projector|check`: stereo and projector
+"""`vbfe calibrate board|capture|stereo|projector-capture|projector|check|color`: stereo,
+projector and colour
 calibration."""
 
 from __future__ import annotations
@@ -102,6 +103,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_option(p)
     p.set_defaults(func=run_check)
 
+    p = actions.add_parser("color", help="fit the colour crosstalk model (flat projections)")
+    p.add_argument("calibration", help="calibration YAML to add color_mixing/color_offset to")
+    p.add_argument("-o", "--out", default=None, help="write here instead of in place")
+    p.add_argument("--frames", type=int, default=3, help="frames averaged per projection")
+    add_config_option(p)
+    p.set_defaults(func=run_color)
+
 
 def run_board(args: argparse.Namespace) -> int:
     """Write the board files."""
@@ -198,3 +206,20 @@ def run_check(args: argparse.Namespace) -> int:
         bar.update(1)
     _print_rows(result.rows())
     return 0 if result.passed else 1
+
+
+def run_color(args: argparse.Namespace) -> int:
+    """Project flat colours, fit the crosstalk model and store it in the calibration."""
+    from vbfe.calib.calibration import load_calibration
+    from vbfe.drivers.registry import open_devices
+    from vbfe.recon.color import capture_color_model
+
+    calibration = load_calibration(args.calibration)
+    devices = open_devices(config_from(args))
+    with devices.camera, devices.projector:
+        model = capture_color_model(devices.camera, devices.projector, frames=args.frames)
+    out = model.apply_to(calibration).save(args.out or args.calibration)
+    rows = "; ".join(" ".join(f"{v:.3f}" for v in row) for row in model.mixing)
+    print(f"colour mixing (camera BGR <- projector BGR) [{rows}], offset "
+          f"{' '.join(f'{v:.1f}' for v in model.offset)}; wrote {out}")
+    return 0

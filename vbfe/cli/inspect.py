@@ -12,8 +12,9 @@ from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `inspect` subcommand."""
-    parser = sub.add_parser("inspect", help="summarize a recorded session")
-    parser.add_argument("session", metavar="SESSION.h5")
+    parser = sub.add_parser("inspect", help="summarize a recorded session or a cloud file")
+    parser.add_argument("session", metavar="SESSION.h5",
+                        help="a session, or a SESSION.clouds.h5 file (per-frame quality)")
     parser.add_argument("--recover", metavar="OUT.h5", default=None,
                         help="copy an interrupted session into a clean, finalized file")
     parser.add_argument("--verify", action="store_true",
@@ -24,6 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the summary; exit code 1 when the file was not closed cleanly or is damaged."""
+    from vbfe.recon.clouds import is_cloud_file
+
+    if is_cloud_file(args.session):
+        return _inspect_clouds(args.session)
     if args.recover:
         check_outputs([args.recover], [args.session], args.overwrite)
         _, dropped = recover_session(args.session, args.recover, overwrite=args.overwrite)
@@ -41,3 +46,16 @@ def run(args: argparse.Namespace) -> int:
     summary = inspect_session(args.session)
     print(summary.text())
     return 1 if summary.truncated or damaged else 0
+
+
+def _inspect_clouds(path: str) -> int:
+    """Summary line and per-frame quality of a cloud file."""
+    from vbfe.recon.clouds import CloudReader
+    from vbfe.recon.quality import frame_lines, summary_line
+
+    with CloudReader(path) as clouds:
+        print(summary_line(clouds))
+        print(f"  source: {clouds.session_path} ({clouds.attrs.get('source_kind', 'session')}), "
+              f"verify: {bool(clouds.attrs.get('verify'))}")
+        print("\n".join(frame_lines(clouds)))
+    return 0

@@ -1,0 +1,156 @@
+"""Honest quality signals of a reconstruction: the disparity range the geometry needs, matches
+piled up at its edges, and whether the De Bruijn pattern is visible at all.
+
+Settings come from the rig config's ``[recon]`` table (:class:`ReconSettings`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from vbfe.calib.calibration import Calibration
+from vbfe.recon.clouds import CloudReader
+from vbfe.recon.errors import ReconError
+from vbfe.recon.matching import SgbmParams, check_known_keys
+
+DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
+
+
+@dataclass(frozen=True)
+class ReconSettings:
+    """The ``[recon]`` table: the rig's working-distance range and the warning thresholds."""
+
+    min_depth_mm: float = 25.0  # nearest surface the disparity range must cover
+    max_depth_mm: float = 120.0  # farthest
+    min_decoded_fraction: float = 0.05  # below this share of readable pattern pixels, warn
+    max_edge_fraction: float = 0.01  # above this share of matches at the range's edge, warn
+
+    @classmethod
+    def from_config(cls, table: dict[str, Any]) -> "ReconSettings":
+        """Settings from the ``[recon]`` table of a rig config (unknown keys are an error)."""
+        check_known_keys("recon", table, cls)
+        for key, value in table.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ReconError(f"[recon] {key} must be a number, got {value!r}")
+        settings = cls(**{k: float(v) for k, v in table.items()})
+        if not 0 < settings.min_depth_mm < settings.max_depth_mm:
+            raise ReconError(f"[recon] needs 0 < min_depth_mm < max_depth_mm, got "
+                             f"{settings.min_depth_mm} and {settings.max_depth_mm}")
+        return settings
+
+
+def disparity_range(calibration: Calibration, min_depth_mm: float,
+                    max_depth_mm: float) -> tuple[int, int]:
+    """``(min_disparity, num_disparities)`` covering depths ``min_depth_mm..max_depth_mm``:
+    ``d = f·B/z + doffs``, the count rounded up to a multiple of 16."""
+    if not 0 < min_depth_mm < max_depth_mm:
+        raise ReconError(f"depth range needs 0 < min < max, got {min_depth_mm}..{max_depth_mm} mm")
+    f_b = calibration.f * calibration.B
+    if f_b <= 0:
+        raise ReconError(f"calibration has f·B = {f_b:.3g} px·m; the rectified pair needs a "
+                         f"positive focal length and baseline (left camera on the left)")
+    doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
+    low = math.floor(f_b / (max_depth_mm * 1e-3) + doffs)
+    high = math.ceil(f_b / (min_depth_mm * 1e-3) + doffs)
+    count = DISPARITY_STEP * max(1, math.ceil((high - low + 1) / DISPARITY_STEP))
+    return low, count
+
+
+def params_for(calibration: Calibration, params: SgbmParams,
+               settings: ReconSettings) -> SgbmParams:
+    """``params`` with the range derived from the geometry when ``num_disparities`` is 0."""
+    if params.num_disparities:
+        return params
+    low, count = disparity_range(calibration, settings.min_depth_mm, settings.max_depth_mm)
+    return replace(params, min_disparity=low, num_disparities=count)
+
+
+def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
+    """Share of matched pixels within one pixel of either end of the disparity range: surfaces
+    nearer or farther than the range covers pile up there (or are lost)."""
+    matched = disparity[np.isfinite(disparity)]
+    if not matched.size:
+        return 0.0
+    low = params.min_disparity
+    high = params.min_disparity + params.num_disparities - 1
+    return float(np.mean((matched <= low + 1) | (matched >= high - 1)))
+
+
+def decoded_fraction(index: np.ndarray) -> float:
+    """Share of pixels whose De Bruijn fringe index could be read (``index >= 0``)."""
+    return float(np.count_nonzero(index >= 0) / max(index.size, 1))
+
+
+def _fraction_text(values: np.ndarray) -> str:
+    finite = values[np.isfinite(values)]
+    return f"{np.mean(finite):.1%}" if finite.size else "n/a"
+
+
+def summary_line(reader: CloudReader) -> str:
+    """One line: frames, density, decoded pattern, what verification did, disparity range."""
+    n = reader.n_frames
+    if not n:
+        return f"{reader.path}: no frames"
+    density = reader.frame_table("valid_fraction")
+    counts = reader.frame_table("match_counts").astype(np.float64)
+    sgbm = reader.attrs["sgbm"]
+    low = int(sgbm.get("min_disparity", 0))
+    parts = [f"{reader.path}: {n} frames", f"density {np.mean(density):.1%} "
+             f"(min {np.min(density):.1%})",
+             f"pattern decoded {_fraction_text(reader.frame_table('decoded_fraction'))}"]
+    if np.all(counts[:, 1:] >= 0) and counts[:, 0].sum() > 0:
+        total = counts[:, 0].sum()
+        kept, corrected, rejected = (counts[:, k].sum() / total for k in (1, 2, 3))
+        parts.append(f"matches kept {kept:.1%} / corrected {corrected:.1%} / "
+                     f"rejected {rejected:.1%}")
+    else:
+        parts.append("no verification")
+    parts.append(f"disparities {low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px")
+    return ", ".join(parts)
+
+
+def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
+    """Per-frame quality rows (at most ``limit``, spread over the file) for ``vbfe inspect``."""
+    n = reader.n_frames
+    picks = np.unique(np.linspace(0, n - 1, min(n, limit)).astype(int)) if n else []
+    index = reader.frame_table("frame_index")
+    density = reader.frame_table("valid_fraction")
+    decoded = reader.frame_table("decoded_fraction")
+    edge = reader.frame_table("edge_fraction")
+    counts = reader.frame_table("match_counts")
+    lines = ["  frame  density  decoded  at-edge    kept  corrected  rejected"]
+    for i in picks:
+        kept, corrected, rejected = (str(c) if c >= 0 else "-" for c in counts[i, 1:])
+        lines.append(f"  {int(index[i]):5d}  {density[i]:7.1%}  "
+                     f"{'n/a' if not np.isfinite(decoded[i]) else f'{decoded[i]:.1%}':>7s}  "
+                     f"{edge[i]:7.1%}  {kept:>6s}  {corrected:>9s}  {rejected:>8s}")
+    return lines
+
+
+def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list[str], bool]:
+    """One-line warnings for a cloud file, and whether the pattern was too weak to verify
+    (the cloud is then empty or nearly so)."""
+    warnings = []
+    n = reader.n_frames
+    decoded = reader.frame_table("decoded_fraction")
+    weak = np.isfinite(decoded) & (decoded < settings.min_decoded_fraction)
+    if weak.any():
+        warnings.append(
+            f"the De Bruijn pattern is readable on only {np.nanmedian(decoded[weak]):.2%} of the "
+            f"pixels in {int(weak.sum())} of {n} frames (need {settings.min_decoded_fraction:.0%}"
+            f"), so verification rejected their matches; is the projector on and the pattern "
+            f"in view? For pairs without the pattern use --no-verify")
+    edge = reader.frame_table("edge_fraction")
+    if n and np.nanmax(edge) > settings.max_edge_fraction:
+        sgbm = reader.attrs["sgbm"]
+        low = int(sgbm.get("min_disparity", 0))
+        warnings.append(
+            f"{np.nanmax(edge):.1%} of the matched pixels sit at the edge of the disparity range "
+            f"{low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px (worst frame): the "
+            f"surface is nearer or farther than it covers; widen [recon] min_depth_mm/"
+            f"max_depth_mm or set [sgbm] num_disparities")
+    return warnings, bool(weak.any())
