@@ -21,9 +21,9 @@ from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import Plane, TissueSurface, UniformAlbedo, tissue_texture
-from vbfe.recon import Reconstructor, calibration_from_rig, estimate_color_model, make_pattern
-from vbfe.recon.accuracy import evaluate_against_truth
+from vbfe.recon import Reconstructor, estimate_color_model, make_pattern
 from vbfe.recon.color import color_calibration_patterns
+from vbfe.truth import calibration_from_rig, evaluate_against_truth
 
 DISTANCE_M = 0.06
 PINK = (0.72, 0.74, 0.95)  # the bench's default silicone (BGR)

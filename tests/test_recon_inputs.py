@@ -13,10 +13,11 @@ from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import CloudReader, calibration_from_rig, make_pattern
+from vbfe.recon import CloudReader, make_pattern
 from vbfe.recon.errors import ReconError
 from vbfe.recon.inputs import find_pairs
 from vbfe.recon.maps import read_png_map
+from vbfe.truth import calibration_from_rig
 
 
 def _vbfe(*args, cwd=None):
@@ -151,7 +152,7 @@ def test_pair_without_the_pattern_warns_once_and_exits_1(tmp_path):
     assert warnings[0].startswith("vbfe reconstruct: warning: the De Bruijn pattern is readable "
                                   "on only")
     assert "use --no-verify" in warnings[0]
-    result = _vbfe("reconstruct", tmp_path, *_geometry_args(rig), "--no-verify")
+    result = _vbfe("reconstruct", tmp_path, *_geometry_args(rig), "--no-verify", "--overwrite")
     assert result.returncode == 0 and "warning" not in result.stderr
     with CloudReader(tmp_path / "flat_left.clouds.h5") as clouds:
         assert clouds.frame_table("valid_fraction")[0] > 0.3  # SGBM alone still matches
