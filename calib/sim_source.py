@@ -14,10 +14,18 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardSpec
-from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
+from vbfe.drivers.sim.charuco_scene import (ChessboardPattern, random_board_poses,
+                                            render_board_views)
 from vbfe.drivers.sim.rig import StereoRig
 
 DISTANCE_M = (0.03, 0.07)  # keeps the 3 mm board's markers readable at 640×360
+
+
+def scene_board(spec: BoardSpec) -> cv2.aruco.CharucoBoard | ChessboardPattern:
+    """The board object the bench renders for ``spec`` (ChArUco or plain chessboard)."""
+    if spec.target == "chessboard":
+        return ChessboardPattern(spec.inner_corners, spec.square_m)
+    return spec.board()
 
 
 def motion_blur(image: np.ndarray, length_px: int, angle_deg: float) -> np.ndarray:
@@ -34,7 +42,7 @@ def simulated_board_frames(rig: StereoRig, spec: BoardSpec, n_frames: int,
                            p_blur: float = 0.15, blur_px: int = 5
                            ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """``n_frames`` left/right pairs of the board at random poses (some repeated, some blurred)."""
-    board = spec.board()
+    board = scene_board(spec)
     poses = random_board_poses(n_frames, rng, distance_m=DISTANCE_M, rig=rig, board=board)
     previous = None
     for pose in poses:
