@@ -60,8 +60,10 @@ def rectified_fractions(K: np.ndarray, D: np.ndarray, R: np.ndarray, P: np.ndarr
         return 0.0, 0.0
     rays = np.column_stack([grid, np.ones(len(grid))]) @ np.linalg.inv(K_rect).T @ R
     front = rays[:, 2] > 0
-    raw, _ = cv2.projectPoints(rays[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
-    valid = _inside(raw.reshape(-1, 2), size).sum() / len(grid)
+    valid = 0.0
+    if front.any():
+        raw, _ = cv2.projectPoints(rays[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+        valid = _inside(raw.reshape(-1, 2), size).sum() / len(grid)
     rect = cv2.undistortPoints(grid.reshape(-1, 1, 2), K, D, R=R, P=P).reshape(-1, 2)
     kept = _inside(rect, size).mean()
     return float(valid), float(kept)
