@@ -15,8 +15,20 @@ from vbfe.calib.errors import CalibrationError
 FORMATS = ("ros", "kalibr", "opencv")
 
 
+def _yaml_float(value: float) -> str:
+    """Shortest round-trip text of ``value`` that YAML 1.1 parsers (PyYAML) read as a float:
+    a mantissa with a dot (``1.0e-05``, not ``1e-05``) and ``.nan`` / ``.inf``."""
+    if not np.isfinite(value):
+        return ".nan" if np.isnan(value) else ("-.inf" if value < 0 else ".inf")
+    text = repr(float(value))
+    mantissa, _, exponent = text.partition("e")
+    if "." not in mantissa:
+        mantissa += ".0"
+    return mantissa + ("e" + exponent if exponent else "")
+
+
 def _numbers(values: np.ndarray) -> str:
-    return "[" + ", ".join(repr(float(v)) for v in np.asarray(values, np.float64).ravel()) + "]"
+    return "[" + ", ".join(_yaml_float(v) for v in np.asarray(values, np.float64).ravel()) + "]"
 
 
 def _matrix(name: str, M: np.ndarray) -> str:
@@ -55,7 +67,7 @@ def kalibr_camchain(cal: Calibration, topics: tuple[str, str] = ("/cam0/image_ra
         if D.size > 4 and np.any(D[4:] != 0):
             raise CalibrationError(f"{cam} has k3 = {D[4]:.4g} (or higher terms) but Kalibr's "
                                    "radtan model holds only k1, k2, p1, p2; recalibrate with "
-                                   "k3 fixed to 0 or use --format ros/opencv")
+                                   "--fix-k3 or use --format ros/opencv")
         out.append(f"{cam}:\n  camera_model: pinhole\n"
                    f"  intrinsics: {_numbers([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])}\n"
                    f"  distortion_model: radtan\n  distortion_coeffs: {_numbers(D[:4])}\n"
