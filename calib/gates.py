@@ -86,7 +86,8 @@ def stereo_problems(cal: Calibration, limits: GateLimits) -> list[str]:
             abs(B / limits.nominal_baseline_m - 1) > limits.baseline_tolerance:
         problems.append(f"baseline {B * 1e3:.4f} mm is more than "
                         f"{limits.baseline_tolerance * 100:g} % from the rig's nominal "
-                        f"{limits.nominal_baseline_m * 1e3:g} mm (nominal_baseline_mm)")
+                        f"{limits.nominal_baseline_m * 1e3:g} mm; set the rig's baseline as "
+                        "[calib] nominal_baseline_mm or --nominal-baseline-mm (0 = not checked)")
     w, h = cal.image_size
     for eye, P in (("left", cal.P1), ("right", cal.P2)):
         cx, cy = P[0, 2], P[1, 2]
