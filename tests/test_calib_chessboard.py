@@ -19,6 +19,7 @@ from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.stereo import calibrate_detections, detect_views
 from vbfe.calib.views import ViewSet
+from vbfe.cli.main import main
 from vbfe.drivers.sim.charuco_scene import (ChessboardPattern, random_board_poses,
                                             render_board_views, render_mono_views)
 from vbfe.drivers.sim.rig import default_rig
@@ -33,10 +34,18 @@ PATTERN = ChessboardPattern(INNER, SQUARE_M)
 DISTANCE_M = (0.035, 0.07)
 
 
-def vbfe(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+def vbfe(*args: str) -> subprocess.CompletedProcess:
     """The real CLI in a subprocess."""
     return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True,
-                          text=True, cwd=cwd, timeout=300)
+                          text=True, timeout=300)
+
+
+def vbfe_here(capsys, *args: str) -> subprocess.CompletedProcess:
+    """The CLI's entry point in this process (same parser and error printing, no start-up)."""
+    capsys.readouterr()
+    code = main(list(args))
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 def error_lines(stderr: str) -> list[str]:
@@ -103,13 +112,13 @@ def test_chessboard_stereo_set_through_the_cli_recovers_the_bench(stereo_run):
     assert "σ(f)" in run.stdout and "σ(cx)" in run.stdout
 
 
-def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path):
+def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path, capsys):
     folder = stereo_run[1].parent / "pairs"
     cams = {}
     for eye, camera in (("left", RIG.left), ("right", RIG.right)):
         path = tmp_path / f"{eye}.yaml"
-        run = vbfe("calibrate", "camera", str(folder), "--eye", eye, "-o", str(path),
-                   *BOARD_ARGS)
+        cli = vbfe if eye == "left" else functools.partial(vbfe_here, capsys)
+        run = cli("calibrate", "camera", str(folder), "--eye", eye, "-o", str(path), *BOARD_ARGS)
         assert run.returncode == 0, run.stderr
         cams[eye] = CameraModel.load(path)
         assert_intrinsics_within(cams[eye].K, camera, 0.005)
@@ -117,9 +126,9 @@ def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path):
         assert np.all(cams[eye].std_intrinsics[:4] > 0)
     # the camera files fix the intrinsics of a later stereo solve (CALIB_FIX_INTRINSIC)
     out = tmp_path / "fixed.yaml"
-    run = vbfe("calibrate", "stereo", str(folder), "-o", str(out), "--no-report",
-               "--intrinsics", str(tmp_path / "left.yaml"), str(tmp_path / "right.yaml"),
-               *BOARD_ARGS)
+    run = vbfe_here(capsys, "calibrate", "stereo", str(folder), "-o", str(out), "--no-report",
+                    "--intrinsics", str(tmp_path / "left.yaml"), str(tmp_path / "right.yaml"),
+                    *BOARD_ARGS)
     assert run.returncode == 0, run.stderr
     cal = Calibration.load(out)
     assert np.array_equal(cal.K1, cams["left"].K) and np.array_equal(cal.D2, cams["right"].D)
@@ -127,9 +136,9 @@ def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path):
     # a camera file of another resolution is refused with one line
     small = CameraModel(cams["left"].K, cams["left"].D, (320, 180))
     small.save(tmp_path / "small.yaml")
-    run = vbfe("calibrate", "stereo", str(folder), "-o", str(tmp_path / "x.yaml"),
-               "--intrinsics", str(tmp_path / "small.yaml"), str(tmp_path / "right.yaml"),
-               *BOARD_ARGS)
+    run = vbfe_here(capsys, "calibrate", "stereo", str(folder), "-o", str(tmp_path / "x.yaml"),
+                    "--intrinsics", str(tmp_path / "small.yaml"), str(tmp_path / "right.yaml"),
+                    *BOARD_ARGS)
     assert run.returncode == 2 and "320x180" in error_lines(run.stderr)[-1]
 
 
@@ -205,16 +214,18 @@ def test_identical_left_and_right_images_are_refused_naming_the_baseline(tmp_pat
 
 
 def test_check_says_no_go_for_a_zero_baseline_file_whatever_it_is_compared_with(stereo_run,
-                                                                                tmp_path):
+                                                                                tmp_path,
+                                                                                capsys):
     good = Calibration.load(stereo_run[1])
     P2 = good.P2.copy()
     P2[0, 3] = 0.0
     bad = good.replace(T=np.zeros(3), P2=P2).save(tmp_path / "zero.yaml")
     for stored, against in ((bad, bad), (bad, stereo_run[1]), (stereo_run[1], bad)):
-        run = vbfe("calibrate", "check", str(stored), "--against", str(against))
+        run = vbfe_here(capsys, "calibrate", "check", str(stored), "--against", str(against))
         assert run.returncode == 1, run.stderr
         assert "NO-GO" in run.stdout and "baseline 0.0000 mm is below the minimum" in run.stdout
-    run = vbfe("calibrate", "check", str(stereo_run[1]), "--against", str(stereo_run[1]))
+    run = vbfe_here(capsys, "calibrate", "check", str(stereo_run[1]), "--against",
+                    str(stereo_run[1]))
     assert run.returncode == 0 and "GO" in run.stdout and "NO-GO" not in run.stdout
 
 
@@ -226,12 +237,21 @@ def test_check_says_no_go_for_a_zero_baseline_file_whatever_it_is_compared_with(
     (["--inner-corners", "2x6"], "chessboard with 2x6 inner corners"),
     (["--inner-corners", "nine"], "--inner-corners 'nine': give the inner corners as NXxNY"),
 ])
-def test_bad_board_parameters_are_one_line_and_exit_2(tmp_path, args, names):
-    run = vbfe("calibrate", "stereo", str(tmp_path), "-o", str(tmp_path / "c.yaml"), *args)
+def test_bad_board_parameters_are_one_line_and_exit_2(tmp_path, capsys, args, names):
+    run = vbfe_here(capsys, "calibrate", "stereo", str(tmp_path), "-o", str(tmp_path / "c.yaml"),
+                    *args)
     assert run.returncode == 2
     lines = error_lines(run.stderr)
     assert len(lines) == 1 and lines[0].startswith("vbfe calibrate: error:"), run.stderr
     assert names in lines[0]
+
+
+def test_a_bad_board_parameter_from_the_shell_is_one_line_and_exit_2(tmp_path):
+    run = vbfe("calibrate", "camera", str(tmp_path), "--marker-mm", "0")
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines() == [
+        "vbfe calibrate: error: marker size 0 mm (--marker-mm): must be a positive length, "
+        "e.g. 2.2 for 3 mm squares"]
 
 
 def test_capture_collects_chessboard_views(tmp_path):

@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from vbfe.calib.calibration import Calibration
+from vbfe.cli.main import main
 from vbfe.drivers.sim.rig import default_rig
 
 
@@ -33,9 +34,17 @@ def calibration(k3: float = 0.0) -> Calibration:
 
 
 def export(path, fmt: str) -> subprocess.CompletedProcess:
+    """`vbfe calibrate export` in a subprocess."""
     return subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "export",
                            str(path), "--format", fmt], capture_output=True, text=True,
                           timeout=120)
+
+
+def export_here(capsys, path, fmt: str) -> subprocess.CompletedProcess:
+    """`vbfe calibrate export` through the CLI entry point in this process."""
+    code = main(["calibrate", "export", str(path), "--format", fmt])
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess([], code, out.out, out.err)
 
 
 def matrix(node: dict) -> np.ndarray:
@@ -60,10 +69,10 @@ def test_ros_camera_info_files_hold_k_d_r_p(tmp_path):
     assert P2[0, 3] == pytest.approx(-cal.f * cal.B)  # ROS: Tx = -fx' * B
 
 
-def test_kalibr_camchain_holds_intrinsics_distortion_and_t_cn_cnm1(tmp_path):
+def test_kalibr_camchain_holds_intrinsics_distortion_and_t_cn_cnm1(tmp_path, capsys):
     cal = calibration()
     path = cal.save(tmp_path / "rig.yaml")
-    run = export(path, "kalibr")
+    run = export_here(capsys, path, "kalibr")
     assert run.returncode == 0, run.stderr
     chain = yaml.safe_load((tmp_path / "rig-camchain.yaml").read_text())
     for cam, K, D in (("cam0", cal.K1, cal.D1), ("cam1", cal.K2, cal.D2)):
@@ -77,13 +86,13 @@ def test_kalibr_camchain_holds_intrinsics_distortion_and_t_cn_cnm1(tmp_path):
     assert "T_cn_cnm1" not in chain["cam0"]
 
 
-def test_kalibr_refuses_a_k3_it_cannot_hold_and_opencv_files_read_back(tmp_path):
+def test_kalibr_refuses_a_k3_it_cannot_hold_and_opencv_files_read_back(tmp_path, capsys):
     cal = calibration(k3=0.01)
     path = cal.save(tmp_path / "rig.yaml")
-    run = export(path, "kalibr")
+    run = export_here(capsys, path, "kalibr")
     assert run.returncode == 2 and "k3 = 0.01" in run.stderr and "--fix-k3" in run.stderr
     assert not (tmp_path / "rig-camchain.yaml").exists()
-    run = export(path, "opencv")
+    run = export_here(capsys, path, "opencv")
     assert run.returncode == 0, run.stderr
     fs = cv2.FileStorage(str(tmp_path / "intrinsics.yml"), cv2.FILE_STORAGE_READ)
     assert np.array_equal(fs.getNode("M1").mat(), cal.K1)
