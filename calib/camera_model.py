@@ -4,8 +4,6 @@ vbfe-camera``, see docs/calibration-format.md): what ``vbfe calibrate camera`` w
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,6 +11,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.files import write_text_atomic
 
 CAMERA_FORMAT = "vbfe-camera"
 
@@ -46,7 +45,6 @@ class CameraModel:
 
     def save(self, path: str | Path) -> Path:
         """Write the YAML file atomically."""
-        path = Path(path)
         fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
                              | cv2.FILE_STORAGE_FORMAT_YAML)
         fs.write("format", CAMERA_FORMAT)
@@ -65,12 +63,7 @@ class CameraModel:
             for item in items:
                 fs.write("", item)
             fs.endWriteStruct()
-        text = fs.releaseAndGetString()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-        return path
+        return write_text_atomic(path, fs.releaseAndGetString())
 
     @classmethod
     def load(cls, path: str | Path) -> "CameraModel":

@@ -24,7 +24,8 @@ def write(path: Path, img: np.ndarray) -> None:
 
 
 LAYOUTS = {
-    "suffix": [("view_000_left.png", "view_000_right.png"), ("view_001_left.png", "view_001_right.png")],
+    "suffix": [("view_000_left.png", "view_000_right.png"),
+               ("view_001_left.png", "view_001_right.png")],
     "prefix": [("left01.jpg", "right01.jpg"), ("left02.jpg", "right02.jpg")],
     "dash": [("a-Left.png", "a-Right.png"), ("b-Left.png", "b-Right.png")],
     "letters": [("L01.png", "R01.png"), ("L02.png", "R02.png")],
