@@ -48,6 +48,9 @@ def board_spec(config: Config, **overrides: Any) -> BoardSpec:
 def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[Path, Path]:
     """Write the printable board (PNG and true-scale PDF)."""
     spec = board_spec(config, **overrides)
+    if spec.target != "charuco":
+        raise CalibrationError("'calibrate board' writes ChArUco boards; for a chessboard print "
+                               "any chessboard with a white margin and measure its squares")
     spec.board()  # validates dictionary and sizes before anything is written
     return write_board(spec, out_stem)
 

@@ -245,7 +245,7 @@ def run_stereo(args: argparse.Namespace) -> int:
         print(f"  {eye} " + uncertainty_text(fit.K, fit.std_intrinsics)
               + (" (fixed from --intrinsics)" if intrinsics else ""))
     _print_solve_notes(result.dropped, len(result.calibration.info["rejected_corners"]),
-                       result.weak)
+                       None)  # a weak result is noted in the summary rows
     return 0
 
 
