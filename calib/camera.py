@@ -115,8 +115,9 @@ def _solve(obj: list, img: list, image_size: tuple[int, int], camera: str,
 
 def outlier_views(spec: BoardSpec, detections: list[Detection], names: list[str],
                   image_size: tuple[int, int], camera: str, options: CameraOptions,
-                  fixed: CameraModel | None = None) -> dict[str, str]:
-    """Views whose per-view RMS is an outlier, with the reason (name → why).
+                  fixed: CameraModel | None = None) -> tuple[dict[str, str], CameraFit]:
+    """Views whose per-view RMS is an outlier, with the reason (name → why), and the fit over
+    all views (the final fit when none is an outlier).
 
     The per-view RMS is that of a solve with outlier corners removed, so single wild corners
     neither flag their view nor bias the others; a view is an outlier when its robust z-score
@@ -124,16 +125,16 @@ def outlier_views(spec: BoardSpec, detections: list[Detection], names: list[str]
     ``view_outlier_z`` and its RMS exceeds the median by more than ``view_outlier_min_px``
     (views at different distances differ by a few hundredths of a pixel without being bad).
     """
-    rms = calibrate_camera(spec, detections, names, image_size, camera, options.outlier_sigma,
-                           options.outlier_min_px, fixed=fixed,
-                           flags=solve_flags(options)).per_view_rms_px
+    fit = calibrate_camera(spec, detections, names, image_size, camera, options.outlier_sigma,
+                           options.outlier_min_px, fixed=fixed, flags=solve_flags(options))
+    rms = fit.per_view_rms_px
     median = float(np.median(rms))
     spread = max(1.4826 * float(np.median(np.abs(rms - median))), _MIN_VIEW_SPREAD * median)
     z = (rms - median) / spread
+    bad = np.flatnonzero((z > options.view_outlier_z) & (rms - median > options.view_outlier_min_px))
     return {names[v]: (f"{camera} per-view RMS {rms[v]:.3f} px is an outlier (robust z "
                        f"{z[v]:.1f} > {options.view_outlier_z:g}; median view {median:.3f} px)")
-            for v in np.flatnonzero((z > options.view_outlier_z)
-                                    & (rms - median > options.view_outlier_min_px))}
+            for v in bad}, fit
 
 
 def calibrate_camera(spec: BoardSpec, detections: list[Detection], names: list[str],

@@ -49,15 +49,15 @@ def calibrate_mono(images: ImageSet, spec: BoardSpec, options: CameraOptions | N
                                f"{images.source}; check the board options ({spec.describe()}) "
                                "match the printed board")
     need_views(len(dets), options, images.source, dropped)
-    outliers = outlier_views(spec, dets, names, size, "camera", options)
+    outliers, fit = outlier_views(spec, dets, names, size, "camera", options)
     if outliers:
         keep = [n not in outliers for n in names]
         dets = [d for d, k in zip(dets, keep) if k]
         names = [n for n, k in zip(names, keep) if k]
         dropped.update(outliers)
         need_views(len(dets), options, images.source, dropped)
-    fit = calibrate_camera(spec, dets, names, size, "camera", options.outlier_sigma,
-                           options.outlier_min_px, flags=solve_flags(options))
+        fit = calibrate_camera(spec, dets, names, size, "camera", options.outlier_sigma,
+                               options.outlier_min_px, flags=solve_flags(options))
     problems = camera_problems(fit.K, size, fit.rms_px, limits)
     if problems:
         raise CalibrationError(f"{images.source}: calibration refused, nothing written: "

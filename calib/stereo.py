@@ -23,6 +23,7 @@ from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import from_table
 from vbfe.calib.views import ViewSet, check_sizes
 
+
 @dataclass
 class StereoOptions(CameraOptions):
     """Knobs of :func:`calibrate_stereo` (defaults match the ``[calib]`` table)."""
@@ -195,21 +196,23 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
         names.append(name)
         pairs.append((dl, dr))
     need_views(len(pairs), options, source, dropped)
-    outliers = {}
+    outliers, fits = {}, []
     for k, eye in enumerate(("left", "right")):
-        found = outlier_views(spec, [p[k] for p in pairs], names, image_size, eye, options,
-                              fixed[k])
+        found, fit = outlier_views(spec, [p[k] for p in pairs], names, image_size, eye, options,
+                                   fixed[k])
         outliers.update({n: why for n, why in found.items() if n not in outliers})
+        fits.append(fit)
+    left, right = fits
     if outliers:
         keep = [n not in outliers for n in names]
         pairs = [p for p, k in zip(pairs, keep) if k]
         names = [n for n, k in zip(names, keep) if k]
         dropped.update(outliers)
         need_views(len(pairs), options, source, dropped)
-    left, right = (calibrate_camera(spec, [p[k] for p in pairs], names, image_size, eye,
-                                    options.outlier_sigma, options.outlier_min_px,
-                                    fixed=fixed[k], flags=solve_flags(options))
-                   for k, eye in enumerate(("left", "right")))
+        left, right = (calibrate_camera(spec, [p[k] for p in pairs], names, image_size, eye,
+                                        options.outlier_sigma, options.outlier_min_px,
+                                        fixed=fixed[k], flags=solve_flags(options))
+                       for k, eye in enumerate(("left", "right")))
     stereo_pairs = []
     for dl, dr in zip(left.detections, right.detections):
         common = np.intersect1d(dl.ids, dr.ids)
