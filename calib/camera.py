@@ -131,7 +131,8 @@ def outlier_views(spec: BoardSpec, detections: list[Detection], names: list[str]
     median = float(np.median(rms))
     spread = max(1.4826 * float(np.median(np.abs(rms - median))), _MIN_VIEW_SPREAD * median)
     z = (rms - median) / spread
-    bad = np.flatnonzero((z > options.view_outlier_z) & (rms - median > options.view_outlier_min_px))
+    bad = np.flatnonzero((z > options.view_outlier_z)
+                         & (rms - median > options.view_outlier_min_px))
     return {names[v]: (f"{camera} per-view RMS {rms[v]:.3f} px is an outlier (robust z "
                        f"{z[v]:.1f} > {options.view_outlier_z:g}; median view {median:.3f} px)")
             for v in bad}, fit

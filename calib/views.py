@@ -42,23 +42,25 @@ NAMING_RULES = (
     "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names, or one "
     "side-by-side image per view (left half = left eye); or give --left 'GLOB' --right 'GLOB'")
 
-# (rule, regex): each regex names the eye and the view key of a file stem; tried in order
+# Each regex names the eye and the view key of a file stem; tried in this order:
+# <name>_left / <name>_right, left<name> / right<name>, <name>_L / <name>_R, L<name> / R<name>
 _PAIR_RULES = (
-    ("<name>_left/<name>_right", re.compile(r"^(?P<key>.+?)[_\-. ]?(?P<eye>left|right)$", re.I)),
-    ("left<name>/right<name>", re.compile(r"^(?P<eye>left|right)[_\-. ]?(?P<key>.+)$", re.I)),
-    ("<name>_L/<name>_R", re.compile(r"^(?P<key>.+?)[_\-. ](?P<eye>l|r)$", re.I)),
-    ("L<name>/R<name>", re.compile(r"^(?P<eye>l|r)[_\-. ]?(?P<key>\d.*)$", re.I)),
+    re.compile(r"^(?P<key>.+?)[_\-. ]?(?P<eye>left|right)$", re.I),
+    re.compile(r"^(?P<eye>left|right)[_\-. ]?(?P<key>.+)$", re.I),
+    re.compile(r"^(?P<key>.+?)[_\-. ](?P<eye>l|r)$", re.I),
+    re.compile(r"^(?P<eye>l|r)[_\-. ]?(?P<key>\d.*)$", re.I),
 )
 _PAIR_FOLDERS = (("left", "right"), ("l", "r"), ("cam0", "cam1"))
 
 
 def _images_in(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    return sorted(p for p in folder.iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
 def _named_pairs(files: list[Path]) -> tuple[dict[str, Path], dict[str, Path]] | None:
     """Left and right files by view key under the first naming rule that labels both eyes."""
-    for _, pattern in _PAIR_RULES:
+    for pattern in _PAIR_RULES:
         eyes: dict[str, dict[str, Path]] = {"l": {}, "r": {}}
         for path in files:
             m = pattern.match(path.stem)
