@@ -105,7 +105,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_camera)
 
     p = actions.add_parser("stereo", help="calibrate the stereo pair from views",
-                           description="Calibrate the stereo pair. " + NAMING_RULES + ". "
+                           description="Calibrate the stereo pair; " + NAMING_RULES + ". "
                            "A result with an impossible baseline, a rectified principal point "
                            "outside the image, a rectification keeping less than half the image "
                            "or a high RMS is refused and nothing is written.")
@@ -115,7 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
     p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
                    help="fix the intrinsics to these 'calibrate camera' files")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None,
+    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
                    help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
                    "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
@@ -152,7 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", help="folder of fresh view pairs (or a session)")
     p.add_argument("--max-depth-error-mm", type=float, default=None,
                    help="limit at the working distance (default: [calib] table)")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None,
+    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
                    help="NO-GO for a baseline far from this (default: [calib] table)")
     _board_options(p)
     add_config_option(p)
