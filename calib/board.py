@@ -1,4 +1,5 @@
-"""The ChArUco board: its description, the OpenCV board object, detection and printable images."""
+"""Calibration targets (ChArUco or plain chessboard): their description, detection and
+printable images."""
 
 from __future__ import annotations
 
@@ -13,9 +14,14 @@ from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import from_table
 
 
+TARGETS = ("charuco", "chessboard")
+
+
 @dataclass(frozen=True)
 class BoardSpec:
-    """A ChArUco board: squares along x and y, square and marker side (metres), dictionary."""
+    """A calibration target: squares along x and y, square side (metres) and, for ChArUco, the
+    marker side and dictionary. A chessboard of ``squares_x`` × ``squares_y`` squares has
+    ``(squares_x - 1)`` × ``(squares_y - 1)`` inner corners, all of which must be seen."""
 
     squares_x: int = 9
     squares_y: int = 7
@@ -23,12 +29,59 @@ class BoardSpec:
     marker_m: float = 0.0022
     dictionary: str = "DICT_5X5_100"
     legacy: bool = False  # boards generated before OpenCV 4.6
+    target: str = "charuco"  # or "chessboard"
+
+    def __post_init__(self) -> None:
+        if self.target not in TARGETS:
+            raise CalibrationError(f"unknown calibration target {self.target!r} (--target); "
+                                   f"use one of {', '.join(TARGETS)}")
+        if self.target == "chessboard":
+            if min(self.squares_x, self.squares_y) < 4:
+                raise CalibrationError(
+                    f"chessboard with {self.squares_x - 1}x{self.squares_y - 1} inner corners "
+                    "(--inner-corners): need at least 3 along each side, e.g. 9x6")
+        elif min(self.squares_x, self.squares_y) < 3:
+            raise CalibrationError(
+                f"ChArUco board of {self.squares_x}x{self.squares_y} squares (--squares-x, "
+                "--squares-y): need at least 3 along each side, e.g. 9x7")
+        if not np.isfinite(self.square_m) or self.square_m <= 0:
+            raise CalibrationError(f"square size {self.square_m * 1e3:g} mm (--square-mm): must "
+                                   "be a positive length, e.g. 3")
+        if self.target == "charuco" and not (np.isfinite(self.marker_m) and self.marker_m > 0):
+            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm (--marker-mm): must "
+                                   "be a positive length, e.g. 2.2 for 3 mm squares")
+        if self.target == "charuco" and self.marker_m >= self.square_m:
+            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm (--marker-mm) must be "
+                                   f"smaller than the square size {self.square_m * 1e3:g} mm")
 
     @classmethod
     def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
-        """The board of a rig config's ``[calib]`` table (sizes there are in mm)."""
-        return from_table(cls, calib_table, keys={"square_m": "square_mm", "marker_m": "marker_mm"},
+        """The board of a rig config's ``[calib]`` table (sizes there are in mm; a chessboard
+        may be given as ``inner_corners = [9, 6]`` instead of its squares)."""
+        table = dict(calib_table)
+        if table.get("inner_corners") is not None:
+            nx, ny = table.pop("inner_corners")
+            table.update(squares_x=int(nx) + 1, squares_y=int(ny) + 1)
+        return from_table(cls, table, keys={"square_m": "square_mm", "marker_m": "marker_mm"},
                           scales={"square_m": 1e-3, "marker_m": 1e-3})
+
+    @property
+    def inner_corners(self) -> tuple[int, int]:
+        """Inner chessboard corners along x and y."""
+        return self.squares_x - 1, self.squares_y - 1
+
+    @property
+    def name(self) -> str:
+        """``ChArUco board`` or ``chessboard``."""
+        return "chessboard" if self.target == "chessboard" else "ChArUco board"
+
+    def describe(self) -> str:
+        """The target in words, for messages, e.g. ``chessboard, 9x6 inner corners, 3 mm``."""
+        if self.target == "chessboard":
+            nx, ny = self.inner_corners
+            return f"chessboard, {nx}x{ny} inner corners, {self.square_m * 1e3:g} mm squares"
+        return (f"ChArUco board, {self.squares_x}x{self.squares_y} squares, {self.dictionary}"
+                f"{', legacy pattern' if self.legacy else ''}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (stored in the calibration's info)."""
@@ -40,10 +93,10 @@ class BoardSpec:
         return (self.squares_x - 1) * (self.squares_y - 1)
 
     def board(self) -> cv2.aruco.CharucoBoard:
-        """The OpenCV board object."""
-        if self.marker_m >= self.square_m:
-            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm must be smaller than "
-                                   f"the square size {self.square_m * 1e3:g} mm")
+        """The OpenCV ChArUco board object (ChArUco targets only)."""
+        if self.target != "charuco":
+            raise CalibrationError(f"this needs a ChArUco board, not a {self.describe()}; "
+                                   "use --target charuco")
         dict_id = getattr(cv2.aruco, self.dictionary, None)
         if not self.dictionary.startswith("DICT_") or dict_id is None:
             known = [n for n in dir(cv2.aruco) if n.startswith("DICT_")]
@@ -61,8 +114,14 @@ class BoardSpec:
         return board
 
     def object_points(self) -> np.ndarray:
-        """Board-frame coordinates (n_corners×3, metres) indexed by ChArUco corner id."""
-        return np.asarray(self.board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
+        """Board-frame coordinates (n_corners×3, metres) indexed by corner id (row-major inner
+        corners, x fastest; ChArUco's corner ids for ChArUco boards)."""
+        if self.target == "charuco":
+            return np.asarray(self.board().getChessboardCorners(),
+                              dtype=np.float64).reshape(-1, 3)
+        nx, ny = self.inner_corners
+        col, row = np.meshgrid(np.arange(1, nx + 1), np.arange(1, ny + 1))
+        return np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)]) * self.square_m
 
 
 @dataclass(frozen=True)
@@ -77,15 +136,19 @@ class Detection:
 
 
 class BoardDetector:
-    """Finds ChArUco corners in images (sub-pixel refined by OpenCV)."""
+    """Finds the target's corners in images (sub-pixel refined by OpenCV): ChArUco corners with
+    ``CharucoDetector``, chessboard corners with ``findChessboardCornersSB``."""
 
     def __init__(self, spec: BoardSpec) -> None:
         self.spec = spec
-        self._detector = cv2.aruco.CharucoDetector(spec.board())
+        self._detector = cv2.aruco.CharucoDetector(spec.board()) \
+            if spec.target == "charuco" else None
 
     def detect(self, image: np.ndarray) -> Detection:
         """Corners in one BGR or grey image; empty when the board is not seen."""
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if self._detector is None:
+            return self._detect_chessboard(grey)
         corners, ids, _, _ = self._detector.detectBoard(grey)
         if ids is None or len(ids) == 0:
             return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
@@ -93,9 +156,33 @@ class BoardDetector:
         order = np.argsort(ids)
         return Detection(ids[order], corners.reshape(-1, 2).astype(np.float64)[order])
 
+    def _detect_chessboard(self, grey: np.ndarray) -> Detection:
+        found, corners = cv2.findChessboardCorners(
+            grey, self.spec.inner_corners,
+            flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not found:  # the sector-based detector finds boards the classic one misses
+            found, corners = cv2.findChessboardCornersSB(
+                grey, self.spec.inner_corners,
+                flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+        if not found:
+            return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
+        corners = corners.reshape(-1, 2).astype(np.float32)
+        nx = self.spec.inner_corners[0]
+        spacing = float(np.min(np.linalg.norm(np.diff(corners.reshape(-1, nx, 2), axis=1),
+                                              axis=2)))
+        half = int(np.clip(0.3 * spacing, 2, 11))  # the window must stay inside one square pair
+        corners = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (half, half), (-1, -1),
+                                   (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
+        corners = corners.reshape(-1, 2).astype(np.float64)
+        # A chessboard reads the same turned by 180°: start at the top-left end in every image,
+        # so both eyes of a view number their corners alike.
+        if (corners[-1] - corners[0]) @ np.array([1.0, 1.0]) < 0:
+            corners = corners[::-1].copy()
+        return Detection(np.arange(len(corners), dtype=np.int32), corners)
+
 
 def board_image(spec: BoardSpec, px_per_mm: float = 20.0, margin_mm: float = 2.0) -> np.ndarray:
-    """A grey image of the board with a white margin, ``px_per_mm`` pixels per millimetre."""
+    """A grey image of the ChArUco board with a white margin, ``px_per_mm`` pixels per mm."""
     width_mm = spec.squares_x * spec.square_m * 1e3 + 2 * margin_mm
     height_mm = spec.squares_y * spec.square_m * 1e3 + 2 * margin_mm
     size = (int(round(width_mm * px_per_mm)), int(round(height_mm * px_per_mm)))

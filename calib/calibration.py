@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +18,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.files import write_text_atomic
 
 FORMAT_VERSION = 1
 
@@ -249,13 +248,7 @@ class Calibration:
 
     def save(self, path: str | Path) -> Path:
         """Write the YAML file atomically (a crash leaves the old file intact)."""
-        path = Path(path)
-        text = self.to_yaml_text()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-        return path
+        return write_text_atomic(path, self.to_yaml_text())
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":

@@ -1,4 +1,5 @@
-"""Is the stored calibration still good? Compare it with a new calibration and/or fresh views."""
+"""Is the stored calibration still good? Its own sanity gates, then a comparison with a new
+calibration and/or fresh views."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.views import ViewSet, check_sizes
 
 
@@ -25,6 +27,7 @@ class CheckResult:
     board_scale: float | None = None  # measured / true board size with the stored calibration
     epipolar_rms_px: float | None = None
     views_used: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)  # failed sanity gates: always NO-GO
 
     @property
     def depth_error_m(self) -> float:
@@ -34,7 +37,10 @@ class CheckResult:
 
     @property
     def passed(self) -> bool:
-        """Depth error within the threshold and, with views, epipolar error too."""
+        """No failed sanity gate, depth error within the threshold and, with views, epipolar
+        error too."""
+        if self.problems:
+            return False
         ok = self.depth_error_m <= self.max_depth_error_m
         if self.epipolar_rms_px is not None:
             ok = ok and self.epipolar_rms_px <= self.max_epipolar_px
@@ -42,6 +48,9 @@ class CheckResult:
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) rows for display."""
+        if self.problems:
+            return [("refused", problem) for problem in self.problems] + \
+                [("verdict", "NO-GO: the calibration fails its sanity gates; recalibrate")]
         out = []
         if self.deltas:
             out += [("Δf", f"{self.deltas['f_px']:+.3f} px"),
@@ -84,13 +93,21 @@ def check_calibration(stored: Calibration, new: Calibration | None = None,
                       views: ViewSet | None = None, spec: BoardSpec | None = None,
                       max_depth_error_m: float = 0.0005, max_epipolar_px: float = 0.5,
                       working_distance_m: float | None = None,
-                      min_corners: int = 12) -> CheckResult:
+                      min_corners: int = 12, limits: GateLimits | None = None) -> CheckResult:
     """Compare ``stored`` with a ``new`` calibration (parameter deltas) and/or fresh ``views`` of
-    the board (epipolar error and board scale triangulated with ``stored``)."""
+    the board (epipolar error and board scale triangulated with ``stored``). A stored (or new)
+    calibration failing the sanity gates (:mod:`vbfe.calib.gates`) is a NO-GO whatever it is
+    compared with."""
     if new is None and views is None:
         raise CalibrationError("nothing to check against: give a new calibration or fresh views")
     z = working_distance_m or float(stored.info.get("working_distance_m", 0.06))
     result = CheckResult(z, max_depth_error_m, max_epipolar_px)
+    limits = limits or GateLimits()
+    result.problems = [f"stored: {p}" for p in stereo_problems(stored, limits)]
+    if new is not None:
+        result.problems += [f"new: {p}" for p in stereo_problems(new, limits)]
+    if result.problems:
+        return result
     if new is not None:
         result.deltas = {"f_px": new.f - stored.f, "B_m": new.B - stored.B,
                          "cx_px": new.cx - stored.cx, "cy_px": new.cy - stored.cy}

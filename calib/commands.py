@@ -17,17 +17,22 @@ import numpy as np
 
 from vbfe.calib.board import BoardSpec, write_board
 from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib.camera import CameraOptions
+from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewCollector,
                                 camera_frames, capture_views)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.export import export_calibration
+from vbfe.calib.gates import GateLimits
+from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
                                   with_projector)
 from vbfe.calib.projector_capture import (GrayCaptureOptions, capture_gray_code,
                                           captured_projector_size)
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
-from vbfe.calib.views import load_views
+from vbfe.calib.views import load_images, load_views
 from vbfe.config import section
 from vbfe.drivers.registry import open_devices
 
@@ -35,9 +40,11 @@ Config = dict[str, dict[str, Any]]
 
 
 def board_spec(config: Config, **overrides: Any) -> BoardSpec:
-    """The board of the ``[calib]`` table, with overrides (``squares_x``, ``square_mm``, ...)
-    where they are not ``None``."""
+    """The board of the ``[calib]`` table, with overrides (``target``, ``squares_x``,
+    ``inner_corners``, ``square_mm``, ...) where they are not ``None``."""
     table = section(config, "calib")
+    if overrides.get("inner_corners") is not None and overrides.get("target") is None:
+        overrides = {**overrides, "target": "chessboard"}  # only chessboards count inner corners
     table.update({k: v for k, v in overrides.items() if v is not None})
     return BoardSpec.from_config(table)
 
@@ -45,6 +52,9 @@ def board_spec(config: Config, **overrides: Any) -> BoardSpec:
 def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[Path, Path]:
     """Write the printable board (PNG and true-scale PDF)."""
     spec = board_spec(config, **overrides)
+    if spec.target != "charuco":
+        raise CalibrationError("'calibrate board' writes ChArUco boards; for a chessboard print "
+                               "any chessboard with a white margin and measure its squares")
     spec.board()  # validates dictionary and sizes before anything is written
     return write_board(spec, out_stem)
 
@@ -92,14 +102,32 @@ class StereoOutcome:
     report_paths: tuple[Path, Path] | None
 
 
-def stereo(config: Config, source: str | Path, out_path: str | Path,
+def _calib_table(config: Config, nominal_baseline_mm: float | None = None,
+                 fix_k3: bool | None = None) -> dict[str, Any]:
+    table = section(config, "calib")
+    if nominal_baseline_mm is not None:
+        table["nominal_baseline_mm"] = nominal_baseline_mm
+    if fix_k3:
+        table["fix_k3"] = True
+    return table
+
+
+def stereo(config: Config, source: str | Path | None, out_path: str | Path,
            report: bool = True, store_in_session: str | Path | None = None,
-           step: Callable[[], None] | None = None, **overrides: Any) -> StereoOutcome:
-    """Calibrate from a folder of view pairs or a session; write the YAML (and report)."""
+           step: Callable[[], None] | None = None, left_glob: str | None = None,
+           right_glob: str | None = None,
+           intrinsics: tuple[str | Path, str | Path] | None = None,
+           nominal_baseline_mm: float | None = None, fix_k3: bool | None = None,
+           **overrides: Any) -> StereoOutcome:
+    """Calibrate from a folder of view pairs, ``--left``/``--right`` globs or a session, with
+    the cameras' intrinsics solved or fixed from two camera files; refuse a result failing the
+    sanity gates; write the YAML (and report)."""
     spec = board_spec(config, **overrides)
-    views = load_views(source)
-    result = calibrate_stereo(views, spec, StereoOptions.from_config(section(config, "calib")),
-                              step)
+    views = load_views(source, left_glob=left_glob, right_glob=right_glob)
+    fixed = None if intrinsics is None else \
+        (CameraModel.load(intrinsics[0]), CameraModel.load(intrinsics[1]))
+    options = StereoOptions.from_config(_calib_table(config, nominal_baseline_mm, fix_k3))
+    result = calibrate_stereo(views, spec, options, step, fixed)
     out_path = Path(out_path)
     result.calibration.save(out_path)
     reports = write_report(result, views, out_path.with_suffix("")) if report else None
@@ -108,6 +136,25 @@ def stereo(config: Config, source: str | Path, out_path: str | Path,
 
         store_calibration(store_in_session, result.calibration.to_yaml_text())
     return StereoOutcome(result, out_path, reports)
+
+
+def camera(config: Config, source: str | Path, out_path: str | Path, eye: str | None = None,
+           step: Callable[[], None] | None = None, fix_k3: bool | None = None,
+           **overrides: Any) -> MonoResult:
+    """Calibrate one camera from a folder or glob of images (or one eye of stereo views);
+    write the camera YAML."""
+    spec = board_spec(config, **overrides)
+    table = _calib_table(config, fix_k3=fix_k3)
+    result = calibrate_mono(load_images(source, eye), spec, CameraOptions.from_config(table),
+                            GateLimits.from_config(table), step)
+    result.model.save(out_path)
+    return result
+
+
+def export(calibration_path: str | Path, fmt: str, out_dir: str | Path | None = None) -> list[Path]:
+    """Write the calibration in another tool's format next to it (or into ``out_dir``)."""
+    path = Path(calibration_path)
+    return export_calibration(load_calibration(path), fmt, out_dir or path.parent, path.stem)
 
 
 def projector(config: Config, captures_folder: str | Path, calibration_path: str | Path,
@@ -148,12 +195,13 @@ def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, i
 
 def check(config: Config, stored_path: str | Path, new_path: str | Path | None = None,
           views_path: str | Path | None = None, max_depth_error_mm: float | None = None,
-          **overrides: Any) -> CheckResult:
-    """Go/no-go of the stored calibration against a new one and/or fresh board views."""
+          nominal_baseline_mm: float | None = None, **overrides: Any) -> CheckResult:
+    """Go/no-go of the stored calibration: its sanity gates, then against a new one and/or
+    fresh board views."""
     if new_path is None and views_path is None:
         raise CalibrationError("give a new calibration (--against FILE) or fresh views "
                                "(--views FOLDER) to check the stored calibration")
-    table = section(config, "calib")
+    table = _calib_table(config, nominal_baseline_mm)
     limit_mm = max_depth_error_mm if max_depth_error_mm is not None else \
         float(table.get("check_max_depth_error_mm", 0.5))
     return check_calibration(
@@ -162,4 +210,4 @@ def check(config: Config, stored_path: str | Path, new_path: str | Path | None =
         views=load_views(views_path) if views_path is not None else None,
         spec=board_spec(config, **overrides), max_depth_error_m=limit_mm / 1e3,
         max_epipolar_px=float(table.get("check_max_epipolar_px", 0.5)),
-        min_corners=int(table.get("min_corners", 12)))
+        min_corners=int(table.get("min_corners", 12)), limits=GateLimits.from_config(table))

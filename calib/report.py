@@ -42,6 +42,8 @@ def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
                   f"{info['depth_sigma_at_working_distance_m'] * 1e3:.3f} mm (calibration) + "
                   f"{info['depth_per_px_disparity_at_working_distance_m'] * 1e3:.3f} mm per px "
                   "of disparity error")]
+    if "weakly_determined" in info:
+        rows.append(("note", info["weakly_determined"]))
     if calibration.has_projector:
         rows += [("projector f", f"{calibration.K_proj[0, 0]:.2f} px"),
                  ("projector RMS", f"{calibration.rms_projector_px:.3f} px")]

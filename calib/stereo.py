@@ -1,5 +1,6 @@
-"""ChArUco stereo calibration: detection, per-camera calibration with outlier rejection,
-stereo calibration with desynchronisation detection, rectification and uncertainty."""
+"""Stereo calibration: detection, per-camera calibration with outlier views and corners
+rejected, stereo calibration with desynchronisation detection, rectification, sanity gates and
+uncertainty."""
 
 from __future__ import annotations
 
@@ -13,56 +14,34 @@ import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.camera import (CRITERIA, CameraFit, CameraOptions, calibrate_camera,
+                               need_views, outlier_views, points, residuals, solve_flags,
+                               weak_note)
+from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import from_table
 from vbfe.calib.views import ViewSet, check_sizes
 
-_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
-_MIN_SIGMA_PX = 0.1  # floor of the robust residual spread: sub-pixel corner noise of real boards
-
 
 @dataclass
-class StereoOptions:
+class StereoOptions(CameraOptions):
     """Knobs of :func:`calibrate_stereo` (defaults match the ``[calib]`` table)."""
 
-    min_corners: int = 12
-    min_views: int = 6
-    outlier_sigma: float = 4.0
     desync_min_px: float = 0.5
     reject_desync: bool = True
     rectify_alpha: float = 0.0
     working_distance_m: float = 0.06
+    gates: GateLimits = field(default_factory=GateLimits)
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "StereoOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table, keys={"working_distance_m": "working_distance_mm"},
-                          scales={"working_distance_m": 1e-3})
-
-
-@dataclass
-class RejectedCorner:
-    """A corner dropped as an outlier: view, camera, ChArUco id, residual (px)."""
-
-    view: str
-    camera: str
-    corner_id: int
-    residual_px: float
-
-
-@dataclass
-class CameraFit:
-    """One camera's calibration over the kept corners."""
-
-    K: np.ndarray
-    D: np.ndarray
-    rms_px: float
-    std_intrinsics: np.ndarray  # fx, fy, cx, cy, k1, k2, p1, p2, k3
-    per_view_rms_px: np.ndarray
-    rvecs: list[np.ndarray]
-    tvecs: list[np.ndarray]
-    detections: list[Detection]  # after outlier removal
-    rejected: list[RejectedCorner]
+        options = from_table(cls, calib_table,
+                             keys={"working_distance_m": "working_distance_mm"},
+                             scales={"working_distance_m": 1e-3})
+        options.gates = GateLimits.from_config(calib_table)
+        return options
 
 
 @dataclass
@@ -76,11 +55,12 @@ class StereoResult:
     stereo_detections: list[tuple[Detection, Detection]]
     dropped: dict[str, str] = field(default_factory=dict)  # view -> why
     desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
+    weak: str | None = None  # why the result is weakly determined, if it is
 
 
 def detect_views(views: ViewSet, spec: BoardSpec,
                  step: Callable[[], None] | None = None) -> list[tuple[Detection, Detection]]:
-    """ChArUco corners in the left and right image of every view."""
+    """Board corners in the left and right image of every view."""
     detector = BoardDetector(spec)
     out = []
     for left, right in views.pairs:
@@ -95,70 +75,15 @@ def _select(det: Detection, ids: np.ndarray) -> Detection:
     return Detection(det.ids[keep], det.corners[keep])
 
 
-def _points(spec_points: np.ndarray, dets: list[Detection]) -> tuple[list, list]:
-    obj = [spec_points[d.ids].astype(np.float32).reshape(-1, 1, 3) for d in dets]
-    img = [d.corners.astype(np.float32).reshape(-1, 1, 2) for d in dets]
-    return obj, img
-
-
-def _residuals(obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-               K: np.ndarray, D: np.ndarray) -> np.ndarray:
-    proj, _ = cv2.projectPoints(obj.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, D)
-    return proj.reshape(-1, 2) - img.reshape(-1, 2)
-
-
-def robust_sigma(residuals: np.ndarray) -> float:
-    """Per-axis residual spread (1.4826 × median absolute residual component), floored."""
-    if residuals.size == 0:
-        return _MIN_SIGMA_PX
-    return max(1.4826 * float(np.median(np.abs(residuals))), _MIN_SIGMA_PX)
-
-
-def calibrate_camera(spec: BoardSpec, detections: list[Detection], names: list[str],
-                     image_size: tuple[int, int], camera: str,
-                     outlier_sigma: float = 4.0, max_rounds: int = 5) -> CameraFit:
-    """Calibrate one camera, dropping corners whose residual exceeds ``outlier_sigma`` σ (the
-    robust spread of the first solve) and re-solving until none is left."""
-    object_points = spec.object_points()
-    dets = list(detections)
-    rejected: list[RejectedCorner] = []
-    limit = None
-    for _ in range(max_rounds):
-        obj, img = _points(object_points, dets)
-        try:
-            (rms, K, D, rvecs, tvecs, std_int, _, per_view) = cv2.calibrateCameraExtended(
-                obj, img, image_size, None, None, criteria=_CRITERIA)
-        except cv2.error as exc:
-            raise CalibrationError(f"{camera} camera calibration failed in OpenCV "
-                                   f"({str(exc).strip().splitlines()[-1]}); capture more varied "
-                                   "views (tilted, at several distances)") from None
-        res = [_residuals(o, i, r, t, K, D) for o, i, r, t in zip(obj, img, rvecs, tvecs)]
-        if limit is None:
-            limit = outlier_sigma * robust_sigma(np.concatenate(res))
-        changed = False
-        for v, (det, r) in enumerate(zip(dets, res)):
-            err = np.linalg.norm(r, axis=1)
-            bad = err > limit
-            if bad.any():
-                changed = True
-                rejected += [RejectedCorner(names[v], camera, int(i), float(e))
-                             for i, e in zip(det.ids[bad], err[bad])]
-                dets[v] = Detection(det.ids[~bad], det.corners[~bad])
-        if not changed:
-            break
-    return CameraFit(K=K, D=D.reshape(-1), rms_px=float(rms),
-                     std_intrinsics=std_int.reshape(-1)[:9], per_view_rms_px=per_view.reshape(-1),
-                     rvecs=list(rvecs), tvecs=list(tvecs), detections=dets, rejected=rejected)
-
-
 def _stereo_solve(spec: BoardSpec, pairs: list[tuple[Detection, Detection]], left: CameraFit,
-                  right: CameraFit, image_size: tuple[int, int]):
-    obj, img_l = _points(spec.object_points(), [p[0] for p in pairs])
-    _, img_r = _points(spec.object_points(), [p[1] for p in pairs])
+                  right: CameraFit, image_size: tuple[int, int], fixed: bool, flags: int):
+    obj, img_l = points(spec.object_points(), [p[0] for p in pairs])
+    _, img_r = points(spec.object_points(), [p[1] for p in pairs])
+    flags |= cv2.CALIB_FIX_INTRINSIC if fixed else cv2.CALIB_USE_INTRINSIC_GUESS
     try:
         (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(
             obj, img_l, img_r, left.K.copy(), left.D.copy(), right.K.copy(), right.D.copy(),
-            image_size, None, None, flags=cv2.CALIB_USE_INTRINSIC_GUESS, criteria=_CRITERIA)
+            image_size, None, None, flags=flags, criteria=CRITERIA)
     except cv2.error as exc:
         raise CalibrationError(f"stereo calibration failed in OpenCV "
                                f"({str(exc).strip().splitlines()[-1]})") from None
@@ -193,7 +118,7 @@ def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndar
     for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs)):
         Rl, _ = cv2.Rodrigues(rvec)
         rr, _ = cv2.Rodrigues(R @ Rl)
-        out[v] = -_residuals(obj_all[dr.ids], dr.corners, rr, R @ tvec.reshape(3) + T,
+        out[v] = -residuals(obj_all[dr.ids], dr.corners, rr, R @ tvec.reshape(3) + T,
                              right.K, right.D).mean(axis=0)
     return out
 
@@ -223,28 +148,44 @@ def _keep_views(fit: CameraFit, keep: np.ndarray) -> CameraFit:
 
 
 def calibrate_stereo(views: ViewSet, spec: BoardSpec, options: StereoOptions | None = None,
-                     step: Callable[[], None] | None = None) -> StereoResult:
-    """Calibrate the stereo pair from ChArUco views: detect corners, drop views with too few,
-    calibrate each camera with outlier rejection, leave out desynchronised views, then
-    ``stereoCalibrateExtended`` and ``stereoRectify``. ``step`` is called per detected view."""
+                     step: Callable[[], None] | None = None,
+                     intrinsics: tuple[CameraModel, CameraModel] | None = None) -> StereoResult:
+    """Calibrate the stereo pair from board views: detect corners, drop views with too few,
+    drop outlier views, calibrate each camera with corner rejection (or take fixed
+    ``intrinsics``), leave out desynchronised views, then ``stereoCalibrateExtended`` and
+    ``stereoRectify``; refuse a result that fails the sanity gates. ``step`` is called per
+    detected view."""
     options = options or StereoOptions()
     image_size = check_sizes(views)
     detections = detect_views(views, spec, step)
     if all(len(l) == 0 and len(r) == 0 for l, r in detections):
         raise CalibrationError(
-            f"no ChArUco board found in any of the {len(views)} views of {views.source}; check the "
-            f"board options ({spec.squares_x}x{spec.squares_y} squares, {spec.dictionary}"
-            f"{', legacy pattern' if spec.legacy else ''}) match the printed board")
+            f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
+            f"board options ({spec.describe()}) match the printed board")
     return calibrate_detections(detections, views.names, image_size, spec, options,
-                                views.source)
+                                views.source, intrinsics)
+
+
+def _check_intrinsics(intrinsics: tuple[CameraModel, CameraModel],
+                      image_size: tuple[int, int]) -> None:
+    for eye, model in zip(("left", "right"), intrinsics):
+        if model.image_size != image_size:
+            raise CalibrationError(f"--intrinsics: the {eye} camera file is for "
+                                   f"{model.image_size[0]}x{model.image_size[1]} images but the "
+                                   f"views are {image_size[0]}x{image_size[1]}")
 
 
 def calibrate_detections(detections: list[tuple[Detection, Detection]], view_names: list[str],
                          image_size: tuple[int, int], spec: BoardSpec,
-                         options: StereoOptions | None = None,
-                         source: str = "views") -> StereoResult:
-    """Calibrate from corners already detected (one ``(left, right)`` pair per view)."""
+                         options: StereoOptions | None = None, source: str = "views",
+                         intrinsics: tuple[CameraModel, CameraModel] | None = None
+                         ) -> StereoResult:
+    """Calibrate from corners already detected (one ``(left, right)`` pair per view); with
+    ``intrinsics`` (left, right) the cameras' intrinsics are fixed (``CALIB_FIX_INTRINSIC``)."""
     options = options or StereoOptions()
+    fixed = (None, None) if intrinsics is None else intrinsics
+    if intrinsics is not None:
+        _check_intrinsics(intrinsics, image_size)
     names, pairs, dropped = [], [], {}
     for name, (dl, dr) in zip(view_names, detections):
         common = np.intersect1d(dl.ids, dr.ids)
@@ -254,15 +195,24 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
             continue
         names.append(name)
         pairs.append((dl, dr))
-    if len(pairs) < options.min_views:
-        detail = "; ".join(f"{n}: {why}" for n, why in dropped.items())
-        raise CalibrationError(f"{source}: only {len(pairs)} usable views, need at least "
-                               f"{options.min_views}; capture more views"
-                               + (f" (dropped {detail})" if detail else ""))
-    left = calibrate_camera(spec, [p[0] for p in pairs], names, image_size, "left",
-                            options.outlier_sigma)
-    right = calibrate_camera(spec, [p[1] for p in pairs], names, image_size, "right",
-                             options.outlier_sigma)
+    need_views(len(pairs), options, source, dropped)
+    outliers, fits = {}, []
+    for k, eye in enumerate(("left", "right")):
+        found, fit = outlier_views(spec, [p[k] for p in pairs], names, image_size, eye, options,
+                                   fixed[k])
+        outliers.update({n: why for n, why in found.items() if n not in outliers})
+        fits.append(fit)
+    left, right = fits
+    if outliers:
+        keep = [n not in outliers for n in names]
+        pairs = [p for p, k in zip(pairs, keep) if k]
+        names = [n for n, k in zip(names, keep) if k]
+        dropped.update(outliers)
+        need_views(len(pairs), options, source, dropped)
+        left, right = (calibrate_camera(spec, [p[k] for p in pairs], names, image_size, eye,
+                                        options.outlier_sigma, options.outlier_min_px,
+                                        fixed=fixed[k], flags=solve_flags(options))
+                       for k, eye in enumerate(("left", "right")))
     stereo_pairs = []
     for dl, dr in zip(left.detections, right.detections):
         common = np.intersect1d(dl.ids, dr.ids)
@@ -283,7 +233,9 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
         stereo_pairs = [p for p, k in zip(stereo_pairs, keep) if k]
         names = [n for n, k in zip(names, keep) if k]
     rms, K1, D1, K2, D2, R, T, _, _, per_view = _stereo_solve(spec, stereo_pairs, left, right,
-                                                              image_size)
+                                                              image_size,
+                                                              intrinsics is not None,
+                                                              solve_flags(options))
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, image_size, R,
                                                 T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
                                                 alpha=options.rectify_alpha)
@@ -293,9 +245,16 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
                               Q=Q, image_size=image_size, rms_left_px=left.rms_px,
                               rms_right_px=right.rms_px, rms_stereo_px=float(rms),
                               per_view_rms_px=per_view_rms)
+    problems = stereo_problems(calibration, options.gates)
+    if problems:
+        raise CalibrationError(f"{source}: stereo calibration refused, nothing written: "
+                               + "; ".join(problems))
+    weak = weak_note(len(names), options)
     calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
                              dropped, desync)
-    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync)
+    if weak:
+        calibration.info["weakly_determined"] = weak
+    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak)
 
 
 def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],

@@ -1,7 +1,10 @@
-"""Calibration views: left/right image pairs read from a folder of PNGs or from a session."""
+"""Calibration views: left/right image pairs read from a folder (common namings recognised),
+from two globs or from a session; single-camera image sets."""
 
 from __future__ import annotations
 
+import glob
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,32 +36,110 @@ def _read(path: Path) -> np.ndarray:
     return image
 
 
-def _folder_pairs(folder: Path) -> tuple[list[Path], list[Path], list[str]]:
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    lefts = {p.stem[: -len("_left")]: p for p in files if p.stem.endswith("_left")}
-    rights = {p.stem[: -len("_right")]: p for p in files if p.stem.endswith("_right")}
-    if not lefts and (folder / "left").is_dir() and (folder / "right").is_dir():
-        lefts = {p.stem: p for p in sorted((folder / "left").iterdir())
-                 if p.suffix.lower() in IMAGE_SUFFIXES}
-        rights = {p.stem: p for p in sorted((folder / "right").iterdir())
-                  if p.suffix.lower() in IMAGE_SUFFIXES}
+NAMING_RULES = (
+    "image pairs are found by name: <name>_left.png + <name>_right.png (also -left/-right, "
+    "_L/_R), left<name>.png + right<name>.png (e.g. left01.jpg + right01.jpg; also L01/R01), "
+    "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names, or one "
+    "side-by-side image per view (left half = left eye); or give --left 'GLOB' --right 'GLOB'")
+
+# Each regex names the eye and the view key of a file stem; tried in this order:
+# <name>_left / <name>_right, left<name> / right<name>, <name>_L / <name>_R, L<name> / R<name>
+_PAIR_RULES = (
+    re.compile(r"^(?P<key>.+?)[_\-. ]?(?P<eye>left|right)$", re.I),
+    re.compile(r"^(?P<eye>left|right)[_\-. ]?(?P<key>.+)$", re.I),
+    re.compile(r"^(?P<key>.+?)[_\-. ](?P<eye>l|r)$", re.I),
+    re.compile(r"^(?P<eye>l|r)[_\-. ]?(?P<key>\d.*)$", re.I),
+)
+_PAIR_FOLDERS = (("left", "right"), ("l", "r"), ("cam0", "cam1"))
+
+
+def _images_in(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _named_pairs(files: list[Path]) -> tuple[dict[str, Path], dict[str, Path]] | None:
+    """Left and right files by view key under the first naming rule that labels both eyes."""
+    for pattern in _PAIR_RULES:
+        eyes: dict[str, dict[str, Path]] = {"l": {}, "r": {}}
+        for path in files:
+            m = pattern.match(path.stem)
+            if m:
+                eyes[m["eye"][0].lower()][m["key"]] = path
+        if eyes["l"] and eyes["r"]:
+            return eyes["l"], eyes["r"]
+    return None
+
+
+def _subfolder_pairs(folder: Path) -> tuple[dict[str, Path], dict[str, Path]] | None:
+    subdirs = {p.name.lower(): p for p in folder.iterdir() if p.is_dir()}
+    for left, right in _PAIR_FOLDERS:
+        if left in subdirs and right in subdirs:
+            return ({p.stem: p for p in _images_in(subdirs[left])},
+                    {p.stem: p for p in _images_in(subdirs[right])})
+    return None
+
+
+def _folder_pairs(folder: Path) -> tuple[list[Path], list[Path], list[str]] | None:
+    """Paired left/right files of a folder, or ``None`` when no pair naming applies."""
+    found = _named_pairs(_images_in(folder)) or _subfolder_pairs(folder)
+    if found is None:
+        return None
+    lefts, rights = found
     unpaired = sorted(set(lefts) ^ set(rights))
     if unpaired:
         raise CalibrationError(f"{folder}: views without their other eye: {', '.join(unpaired)}; "
-                               "every <name>_left.png needs a <name>_right.png")
+                               f"{NAMING_RULES}")
     names = sorted(lefts)
     return [lefts[n] for n in names], [rights[n] for n in names], names
 
 
-def load_views(path: str | Path, every: int = 1) -> ViewSet:
-    """Pairs from a folder (``<name>_left.png`` + ``<name>_right.png``, or ``left/`` + ``right/``)
-    or from a recorded session (``.h5``, every ``every``-th frame)."""
+def _glob(pattern: str) -> list[Path]:
+    return sorted(Path(p) for p in glob.glob(pattern) if Path(p).suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _glob_pairs(left_glob: str, right_glob: str) -> tuple[list[Path], list[Path], list[str]]:
+    lefts, rights = _glob(left_glob), _glob(right_glob)
+    if not lefts or len(lefts) != len(rights):
+        raise CalibrationError(f"--left {left_glob!r} matches {len(lefts)} images and --right "
+                               f"{right_glob!r} {len(rights)}; they must match the same number "
+                               "(pairs are taken in sorted order)")
+    return lefts, rights, [p.stem for p in lefts]
+
+
+def _split_side_by_side(image: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    if image.shape[1] % 2:
+        raise CalibrationError(f"{path} is {image.shape[1]} px wide, so it is not a side-by-side "
+                               f"pair (width must be even); {NAMING_RULES}")
+    half = image.shape[1] // 2
+    return image[:, :half], image[:, half:]
+
+
+def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | None = None,
+               right_glob: str | None = None) -> ViewSet:
+    """Pairs from a folder (naming rules: :data:`NAMING_RULES`), from ``left_glob`` /
+    ``right_glob`` (paired in sorted order) or from a recorded session (``.h5``, every
+    ``every``-th frame)."""
+    if left_glob is not None or right_glob is not None:
+        if left_glob is None or right_glob is None:
+            raise CalibrationError("give both --left GLOB and --right GLOB")
+        lefts, rights, names = _glob_pairs(left_glob, right_glob)
+        pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
+        return ViewSet(pairs, names, f"--left {left_glob} --right {right_glob}")
+    if path is None:
+        raise CalibrationError("give a folder of image pairs, a session, or --left/--right globs")
     path = Path(path)
     if not path.exists():
         raise CalibrationError(f"{path} does not exist; give a folder of image pairs or a session")
     if path.is_dir():
-        lefts, rights, names = _folder_pairs(path)
-        pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
+        found = _folder_pairs(path)
+        if found is not None:
+            lefts, rights, names = found
+            pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
+        else:
+            files = _images_in(path)
+            pairs = [_split_side_by_side(_read(f), f) for f in files]
+            names = [f.stem for f in files]
     else:
         from vbfe.acquire import SessionReader
 
@@ -70,8 +151,50 @@ def load_views(path: str | Path, every: int = 1) -> ViewSet:
                     names.append(f"frame{i:05d}")
     if not pairs:
         raise CalibrationError(f"{path} holds no image pairs; capture some with "
-                               "'vbfe calibrate capture'")
+                               f"'vbfe calibrate capture' ({NAMING_RULES})")
     return ViewSet(pairs, names, str(path))
+
+
+@dataclass
+class ImageSet:
+    """Named images (BGR ``uint8``) of one camera and where they came from."""
+
+    images: list[np.ndarray]
+    names: list[str]
+    source: str
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def load_images(source: str | Path, eye: str | None = None, every: int = 1) -> ImageSet:
+    """One camera's images: every image of a folder or of a glob pattern, or with ``eye``
+    (``left``/``right``) that eye of stereo views (any :func:`load_views` source; a session
+    defaults to the left eye)."""
+    source_text = str(source)
+    path = Path(source)
+    if eye is None and not any(c in source_text for c in "*?[") and path.is_file():
+        eye = "left"  # a session
+    if eye is not None:
+        if eye not in ("left", "right"):
+            raise CalibrationError(f"--eye {eye!r}: use left or right")
+        views = load_views(path, every)
+        k = 0 if eye == "left" else 1
+        return ImageSet([pair[k] for pair in views.pairs], views.names,
+                        f"{views.source} ({eye} eye)")
+    if path.is_dir():
+        if _folder_pairs(path) is not None:
+            raise CalibrationError(f"{path} holds stereo image pairs; say which camera with "
+                                   "--eye left or --eye right")
+        files = _images_in(path)
+    elif any(c in source_text for c in "*?["):
+        files = _glob(source_text)
+    else:
+        raise CalibrationError(f"{path} does not exist; give a folder of images, a glob such "
+                               "as 'views/*.png' or a session")
+    if not files:
+        raise CalibrationError(f"{source_text} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+    return ImageSet([_read(f) for f in files], [f.stem for f in files], source_text)
 
 
 def save_views(folder: str | Path, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -89,14 +212,25 @@ def save_views(folder: str | Path, pairs: Sequence[tuple[np.ndarray, np.ndarray]
 
 def check_sizes(views: ViewSet) -> tuple[int, int]:
     """The common (width, height) of all images; mixed sizes are an error naming the odd views."""
-    sizes = [(img.shape[1], img.shape[0]) for pair in views.pairs for img in pair]
-    values, counts = np.unique(np.array(sizes), axis=0, return_counts=True)
+    return _common_size([[(img.shape[1], img.shape[0]) for img in pair] for pair in views.pairs],
+                        views.names, views.source)
+
+
+def image_size(images: ImageSet) -> tuple[int, int]:
+    """The common (width, height) of a camera's images; mixed sizes are an error."""
+    return _common_size([[(img.shape[1], img.shape[0])] for img in images.images],
+                        images.names, images.source)
+
+
+def _common_size(sizes: list[list[tuple[int, int]]], names: list[str],
+                 source: str) -> tuple[int, int]:
+    values, counts = np.unique(np.array([s for view in sizes for s in view]), axis=0,
+                               return_counts=True)
     if len(values) > 1:
         common = tuple(int(v) for v in values[np.argmax(counts)])
-        odd = [f"{name} ({l.shape[1]}x{l.shape[0]}, {r.shape[1]}x{r.shape[0]})"
-               for name, (l, r) in zip(views.names, views.pairs)
-               if (l.shape[1], l.shape[0]) != common or (r.shape[1], r.shape[0]) != common]
-        raise CalibrationError(f"{views.source}: mixed image sizes; most views are "
+        odd = [f"{name} ({', '.join(f'{w}x{h}' for w, h in view)})"
+               for name, view in zip(names, sizes) if any(s != common for s in view)]
+        raise CalibrationError(f"{source}: mixed image sizes; most views are "
                                f"{common[0]}x{common[1]} but {', '.join(odd)} differ; "
                                "calibrate one resolution at a time")
     return int(values[0][0]), int(values[0][1])

@@ -20,13 +20,13 @@ import cv2
 import numpy as np
 
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.sim.charuco_scene import (BoardTarget, Pose, charuco_target, random_board_poses,
-                                            render_board_views)
+from vbfe.drivers.sim.charuco_scene import (BoardTarget, ChessboardPattern, Pose, charuco_target,
+                                            random_board_poses, render_board_views)
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig
 from vbfe.drivers.sim.tissue import ImageTexture, Plane
 
-BOARDS = ("charuco",)
+BOARDS = ("charuco", "chessboard")
 DISTANCE_M = (0.03, 0.07)  # default range of random poses: keeps a 3 mm board readable at 640×360
 
 
@@ -41,9 +41,15 @@ def motion_blur(image: np.ndarray, length_px: int, angle_deg: float) -> np.ndarr
 
 def board_target(kind: str, squares_x: int, squares_y: int, square_mm: float, marker_mm: float,
                  dictionary: str, legacy: bool) -> BoardTarget:
-    """The target a ``[bench]`` table's ``board_*`` keys describe."""
+    """The target a ``[bench]`` table's ``board_*`` keys describe (a chessboard of
+    ``squares_x`` × ``squares_y`` squares has one inner corner fewer each way)."""
     if kind not in BOARDS:
         raise DeviceError(f"[bench] board must be one of {BOARDS}, got {kind!r}")
+    if kind == "chessboard":
+        if min(squares_x, squares_y) < 3 or square_mm <= 0:
+            raise DeviceError("[bench] a chessboard needs at least 3x3 squares and a positive "
+                              "board_square_mm")
+        return charuco_target(ChessboardPattern((squares_x - 1, squares_y - 1), square_mm * 1e-3))
     dict_id = getattr(cv2.aruco, str(dictionary), None)
     if not str(dictionary).startswith("DICT_") or dict_id is None:
         raise DeviceError(f"[bench] board_dictionary {dictionary!r} is not an ArUco dictionary "

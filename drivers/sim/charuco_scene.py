@@ -1,4 +1,7 @@
-"""A ChArUco board in front of the simulated stereo endoscope, for calibration.
+"""A calibration board (ChArUco or plain chessboard) in front of the simulated stereo endoscope.
+
+A plain chessboard is a :class:`ChessboardPattern`, which offers the part of the
+``cv2.aruco.CharucoBoard`` interface used here, so every function takes either.
 
 Images are made by inverse mapping: each output pixel (with the rig's lens distortion) is
 undistorted into a ray, the ray is intersected with the board plane, and the board texture is
@@ -24,6 +27,49 @@ Pose = tuple[np.ndarray, np.ndarray]  # (rvec, tvec): board frame → left-camer
 BACKGROUND = 110  # grey level around the board
 WHITE = 225
 BLACK = 25
+
+
+class ChessboardPattern:
+    """A printed chessboard with ``inner_corners`` (nx, ny) and a one-square white margin.
+
+    Board frame as ChArUco's: origin at the outer corner of the printed sheet (margin included),
+    x along the rows, z into the board; :meth:`getChessboardCorners` gives the inner corners
+    row by row, x fastest (OpenCV's ``findChessboardCorners`` order).
+    """
+
+    def __init__(self, inner_corners: tuple[int, int], square_m: float) -> None:
+        self.inner_corners = (int(inner_corners[0]), int(inner_corners[1]))
+        self.square_m = float(square_m)
+
+    def getSquareLength(self) -> float:  # noqa: N802 (CharucoBoard's name)
+        """Side of one square (m)."""
+        return self.square_m
+
+    def getChessboardSize(self) -> tuple[int, int]:  # noqa: N802
+        """The sheet in squares: the board's squares plus the margin on each side."""
+        return self.inner_corners[0] + 3, self.inner_corners[1] + 3
+
+    def getChessboardCorners(self) -> np.ndarray:  # noqa: N802
+        """Inner corners (n×3, m) in the board frame."""
+        nx, ny = self.inner_corners
+        col, row = np.meshgrid(np.arange(2, nx + 2), np.arange(2, ny + 2))
+        return (np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)])
+                * self.square_m).astype(np.float32)
+
+    def generateImage(self, size: tuple[int, int], marginSize: int = 0,  # noqa: N802, N803
+                      borderBits: int = 1) -> np.ndarray:  # noqa: N803 (unused, as ChArUco)
+        """The sheet as a grey ``uint8`` image of ``size`` (w, h) pixels, black top-left
+        square, white margin, plus ``marginSize`` extra white pixels around."""
+        w, h = size[0] - 2 * marginSize, size[1] - 2 * marginSize
+        sx, sy = self.getChessboardSize()
+        u = (np.arange(w) + 0.5) * sx / w
+        v = (np.arange(h) + 0.5) * sy / h
+        cu, cv_ = np.floor(u).astype(int), np.floor(v).astype(int)
+        black = ((cu[None, :] + cv_[:, None]) % 2 == 0)
+        inside = ((cu >= 1) & (cu <= sx - 2))[None, :] & ((cv_ >= 1) & (cv_ <= sy - 2))[:, None]
+        sheet = np.where(black & inside, 0, 255).astype(np.uint8)
+        return cv2.copyMakeBorder(sheet, marginSize, marginSize, marginSize, marginSize,
+                                  cv2.BORDER_CONSTANT, value=255)
 
 
 def board_size_m(board: cv2.aruco.CharucoBoard) -> tuple[float, float]:
@@ -106,16 +152,34 @@ def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarg
     texture, board_px_per_m = board.texture, board.px_per_m
     views = []
     for pose in poses:
-        pair = []
-        for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T)):
-            grey = _render_view(camera, R, T, texture, board_px_per_m, pose, supersample)
-            if blur_sigma_px > 0:
-                grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma_px)
-            grey = grey + rng.normal(0.0, noise_sigma, grey.shape).astype(np.float32)
-            grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
-            pair.append(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+        pair = [_render_eye(camera, R, T, texture, board_px_per_m, pose, supersample,
+                            noise_sigma, blur_sigma_px, rng)
+                for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T))]
         views.append((pair[0], pair[1]))
     return views
+
+
+def render_mono_views(camera: PinholeCamera, board: cv2.aruco.CharucoBoard, poses: list[Pose],
+                      board_px_per_m: float = 40000.0, noise_sigma: float = 1.5,
+                      blur_sigma_px: float = 0.5, supersample: int = 3,
+                      rng: np.random.Generator | None = None) -> list[np.ndarray]:
+    """BGR ``uint8`` views of ``board`` (board → camera poses) seen by one camera, rendered as
+    :func:`render_board_views` renders each eye."""
+    rng = np.random.default_rng() if rng is None else rng
+    texture = board_texture(board, board_px_per_m)
+    return [_render_eye(camera, None, None, texture, board_px_per_m, pose, supersample,
+                        noise_sigma, blur_sigma_px, rng) for pose in poses]
+
+
+def _render_eye(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | None,
+                texture: np.ndarray, px_per_m: float, pose: Pose, supersample: int,
+                noise_sigma: float, blur_sigma_px: float, rng: np.random.Generator) -> np.ndarray:
+    grey = _render_view(camera, R, T, texture, px_per_m, pose, supersample)
+    if blur_sigma_px > 0:
+        grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma_px)
+    grey = grey + rng.normal(0.0, noise_sigma, grey.shape).astype(np.float32)
+    grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
 
 
 def _rotation(tilt_x_deg: float, tilt_y_deg: float, roll_deg: float) -> np.ndarray:

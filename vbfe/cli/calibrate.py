@@ -1,33 +1,66 @@
-"""`vbfe calibrate board|capture|stereo|projector-capture|projector|check|color`: stereo,
-projector and colour
-calibration."""
+"""`vbfe calibrate board|capture|camera|stereo|projector-capture|projector|check|export|color`:
+single-camera, stereo, projector and colour calibration, checks and export to ROS / Kalibr /
+OpenCV files."""
 
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
+from typing import Any
 
 from vbfe.calib import commands
+from vbfe.calib.board import TARGETS
+from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
+from vbfe.calib.errors import CalibrationError
+from vbfe.calib.export import FORMATS
 from vbfe.calib.report import summary_rows
+from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
+_BOARD_KEYS = ("target", "squares_x", "squares_y", "inner_corners", "square_mm", "marker_mm",
+               "dictionary", "legacy")
 
 
 def _board_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("board (defaults: the [calib] table of the rig config)")
-    group.add_argument("--squares-x", type=int, dest="squares_x")
-    group.add_argument("--squares-y", type=int, dest="squares_y")
-    group.add_argument("--square-mm", type=float, dest="square_mm")
-    group.add_argument("--marker-mm", type=float, dest="marker_mm")
+    group.add_argument("--target", choices=TARGETS,
+                       help="ChArUco board or plain chessboard (default: [calib] target)")
+    group.add_argument("--squares-x", type=int, dest="squares_x", help="ChArUco squares along x")
+    group.add_argument("--squares-y", type=int, dest="squares_y", help="ChArUco squares along y")
+    group.add_argument("--inner-corners", metavar="NXxNY", dest="inner_corners",
+                       help="chessboard inner corners, e.g. 9x6 (OpenCV's left01.jpg set)")
+    group.add_argument("--square-mm", type=float, dest="square_mm", help="square side (mm)")
+    group.add_argument("--marker-mm", type=float, dest="marker_mm",
+                       help="ChArUco marker side (mm)")
     group.add_argument("--dictionary", help="ArUco dictionary, e.g. DICT_5X5_100")
     group.add_argument("--legacy", action="store_true", default=None,
                        help="board printed with OpenCV < 4.6 (legacy ChArUco pattern)")
 
 
-def _board(args: argparse.Namespace) -> dict:
-    return {k: getattr(args, k) for k in ("squares_x", "squares_y", "square_mm", "marker_mm",
-                                          "dictionary", "legacy")}
+def _board(args: argparse.Namespace) -> dict[str, Any]:
+    board = {k: getattr(args, k, None) for k in _BOARD_KEYS}
+    if board["inner_corners"] is not None:
+        m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", board["inner_corners"])
+        if not m:
+            raise CalibrationError(f"--inner-corners {board['inner_corners']!r}: give the inner "
+                                   "corners as NXxNY, e.g. 9x6")
+        board["inner_corners"] = (int(m[1]), int(m[2]))
+    return board
+
+
+def _solve_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--fix-k3", action="store_true", default=None,
+                        help="solve k1, k2, p1, p2 only (k3 = 0, as Kalibr's radtan model)")
+
+
+def _config_and_board(args: argparse.Namespace) -> tuple[dict, dict[str, Any]]:
+    """The rig config and board overrides, the board checked before any work starts."""
+    config, board = config_from(args), _board(args)
+    commands.board_spec(config, **board)
+    return config, board
 
 
 def _print_rows(rows: list[tuple[str, str]]) -> None:
@@ -38,9 +71,10 @@ def _print_rows(rows: list[tuple[str, str]]) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `calibrate` subcommand and its actions."""
-    parser = sub.add_parser("calibrate", help="ChArUco stereo and projector calibration",
-                            description="Print a board, capture views, calibrate the stereo "
-                            "endoscope and the projector, check a calibration.")
+    parser = sub.add_parser("calibrate", help="camera, stereo and projector calibration",
+                            description="Print a board, capture views, calibrate one camera, the "
+                            "stereo endoscope and the projector (ChArUco or chessboard), check "
+                            "a calibration, export it to ROS / Kalibr / OpenCV files.")
     actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
 
     p = actions.add_parser("board", help="write a printable ChArUco board (PNG + true-scale PDF)")
@@ -69,16 +103,51 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_option(p)
     p.set_defaults(func=run_projector_capture)
 
-    p = actions.add_parser("stereo", help="calibrate the stereo pair from views")
-    p.add_argument("source", help="folder of view pairs or a session .h5")
+    p = actions.add_parser("camera", help="calibrate one camera from views of the board",
+                           description="Calibrate one camera: intrinsics, distortion, per-view "
+                           "RMS and standard deviations, written as a camera YAML that "
+                           "'calibrate stereo --intrinsics' can use as fixed intrinsics.")
+    p.add_argument("source", help="folder of images, a quoted glob ('views/*.jpg'), or with "
+                   "--eye any stereo view source (folder of pairs, session)")
+    p.add_argument("-o", "--out", default="camera.yaml", help="camera YAML to write")
+    p.add_argument("--eye", choices=("left", "right"),
+                   help="take this eye of stereo views (" + NAMING_RULES + ")")
+    _solve_options(p)
+    _board_options(p)
+    add_config_option(p)
+    p.set_defaults(func=run_camera)
+
+    p = actions.add_parser("stereo", help="calibrate the stereo pair from views",
+                           description="Calibrate the stereo pair; " + NAMING_RULES + ". "
+                           "A result with an impossible baseline, a rectified principal point "
+                           "outside the image, a rectification keeping less than half the image "
+                           "or a high RMS is refused and nothing is written.")
+    p.add_argument("source", nargs="?", help="folder of view pairs or a session .h5")
+    p.add_argument("--left", metavar="GLOB", dest="left_glob",
+                   help="left images (quoted glob), paired in sorted order with --right")
+    p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
+    p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
+                   help="fix the intrinsics to these 'calibrate camera' files")
+    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
+                   help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
+                   "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
     p.add_argument("--store-in", metavar="SESSION.h5",
                    help="also store the calibration inside this session")
+    _solve_options(p)
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_stereo)
+
+    p = actions.add_parser("export", help="write a calibration as ROS, Kalibr or OpenCV files")
+    p.add_argument("calibration", help="calibration YAML (or session)")
+    p.add_argument("--format", required=True, choices=FORMATS, dest="fmt",
+                   help="ros: <stem>_left.yaml + <stem>_right.yaml camera_info; kalibr: "
+                   "<stem>-camchain.yaml; opencv: intrinsics.yml + extrinsics.yml")
+    p.add_argument("--out-dir", help="folder to write into (default: next to the calibration)")
+    p.set_defaults(func=run_export)
 
     p = actions.add_parser("projector", help="calibrate the projector (Gray code on the board)")
     p.add_argument("captures", help="folder of pose_NNN/ Gray-code captures")
@@ -99,6 +168,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", help="folder of fresh view pairs (or a session)")
     p.add_argument("--max-depth-error-mm", type=float, default=None,
                    help="limit at the working distance (default: [calib] table)")
+    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
+                   help="NO-GO for a baseline far from this (default: [calib] table)")
     _board_options(p)
     add_config_option(p)
     p.set_defaults(func=run_check)
@@ -113,9 +184,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_board(args: argparse.Namespace) -> int:
     """Write the board files."""
+    config, board = _config_and_board(args)
     check_outputs([Path(args.out).with_suffix(".png"), Path(args.out).with_suffix(".pdf")],
                   overwrite=args.overwrite)
-    png, pdf = commands.make_board(config_from(args), args.out, **_board(args))
+    png, pdf = commands.make_board(config, args.out, **board)
     print(f"wrote {png} and {pdf} (print the PDF at 100% scale, no fitting)")
     return 0
 
@@ -137,8 +209,9 @@ def run_capture(args: argparse.Namespace) -> int:
                           f"{coverage_text(collector.coverage(), len(collector.pairs))}")
 
         try:
-            result = commands.capture(config_from(args), args.folder, args.max_frames,
-                                      args.seed, on_view, **_board(args))
+            config, board = _config_and_board(args)
+            result = commands.capture(config, args.folder, args.max_frames, args.seed, on_view,
+                                      **board)
         finally:
             if preview is not None:
                 preview.dispose()
@@ -149,22 +222,63 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_solve_notes(dropped: dict[str, str], n_rejected: int, weak: str | None) -> None:
+    for name, why in dropped.items():
+        print(f"  dropped {name}: {why}")
+    if n_rejected:
+        print(f"  rejected {n_rejected} outlier corners (residual above the limit)")
+    if weak:
+        print(f"  {weak}")
+
+
+def run_camera(args: argparse.Namespace) -> int:
+    """Calibrate one camera and print intrinsics, σ and what was left out."""
+    config, board = _config_and_board(args)
+    with progress(desc="detecting corners", unit="image") as bar:
+        result = commands.camera(config, args.source, args.out, args.eye,
+                                 step=lambda: bar.update(1), fix_k3=args.fix_k3, **board)
+    model = result.model
+    K = model.K
+    print(f"wrote {args.out}")
+    _print_rows([("image size", f"{model.image_size[0]} x {model.image_size[1]} px"),
+                 ("fx, fy", f"{K[0, 0]:.2f}, {K[1, 1]:.2f} px"),
+                 ("cx, cy", f"{K[0, 2]:.2f}, {K[1, 2]:.2f} px"),
+                 ("distortion", ", ".join(f"{d:.5f}" for d in model.D)),
+                 ("RMS", f"{model.rms_px:.3f} px over {len(result.names)} views (per view "
+                  f"{model.per_view_rms_px.min():.3f} to {model.per_view_rms_px.max():.3f})"),
+                 ("uncertainty", uncertainty_text(K, model.std_intrinsics))])
+    _print_solve_notes(result.dropped, len(result.fit.rejected), result.weak)
+    return 0
+
+
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
     check_outputs([args.out], [args.source, args.store_in], args.overwrite)
+    config, board = _config_and_board(args)
+    intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     with progress(desc="detecting corners", unit="view") as bar:
-        outcome = commands.stereo(config_from(args), args.source, args.out,
-                                  report=not args.no_report, store_in_session=args.store_in,
-                                  step=lambda: bar.update(1), **_board(args))
+        outcome = commands.stereo(config, args.source, args.out, report=not args.no_report,
+                                  store_in_session=args.store_in, step=lambda: bar.update(1),
+                                  left_glob=args.left_glob, right_glob=args.right_glob,
+                                  intrinsics=intrinsics,
+                                  nominal_baseline_mm=args.nominal_baseline_mm,
+                                  fix_k3=args.fix_k3, **board)
     result = outcome.result
     print(f"wrote {outcome.yaml_path}" + (f", report {outcome.report_paths[1]}"
                                           if outcome.report_paths else ""))
     _print_rows(summary_rows(result.calibration))
-    for name, why in result.dropped.items():
-        print(f"  dropped {name}: {why}")
-    rejected = result.calibration.info["rejected_corners"]
-    if rejected:
-        print(f"  rejected {len(rejected)} outlier corners (listed in the report)")
+    for eye, fit in (("left", result.left), ("right", result.right)):
+        print(f"  {eye} " + uncertainty_text(fit.K, fit.std_intrinsics)
+              + (" (fixed from --intrinsics)" if intrinsics else ""))
+    _print_solve_notes(result.dropped, len(result.calibration.info["rejected_corners"]),
+                       None)  # a weak result is noted in the summary rows
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    """Write the calibration in another tool's format."""
+    for path in commands.export(args.calibration, args.fmt, args.out_dir):
+        print(f"wrote {path}")
     return 0
 
 
@@ -187,8 +301,9 @@ def run_projector(args: argparse.Namespace) -> int:
     """Calibrate the projector and print its intrinsics (without -o: update --calibration)."""
     check_outputs([args.out], [args.captures, args.calibration], args.overwrite)
     with progress(total=1, desc="projector calibration") as bar:
-        calibration = commands.projector(config_from(args), args.captures, args.calibration,
-                                         args.out, args.simulate, args.seed, **_board(args))
+        config, board = _config_and_board(args)
+        calibration = commands.projector(config, args.captures, args.calibration,
+                                         args.out, args.simulate, args.seed, **board)
         bar.update(1)
     K = calibration.K_proj
     print(f"projector fx={K[0, 0]:.2f} fy={K[1, 1]:.2f} cx={K[0, 2]:.2f} cy={K[1, 2]:.2f} px, "
@@ -201,8 +316,9 @@ def run_projector(args: argparse.Namespace) -> int:
 def run_check(args: argparse.Namespace) -> int:
     """Print the comparison; exit 1 on NO-GO."""
     with progress(total=1, desc="checking") as bar:
-        result = commands.check(config_from(args), args.stored, args.against, args.views,
-                                args.max_depth_error_mm, **_board(args))
+        config, board = _config_and_board(args)
+        result = commands.check(config, args.stored, args.against, args.views,
+                                args.max_depth_error_mm, args.nominal_baseline_mm, **board)
         bar.update(1)
     _print_rows(result.rows())
     return 0 if result.passed else 1
