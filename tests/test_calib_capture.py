@@ -105,3 +105,14 @@ def test_preview_window_shows_corners_and_coverage(tmp_path, capsys):
     assert main(["calibrate", "capture", str(tmp_path / "v"), "--max-frames", "2",
                  "--seed", "3", "--config", str(tmp_path / "rig.toml")]) == 0
     assert "kept" in capsys.readouterr().out
+
+
+def test_capture_of_a_simulated_chessboard_calibrates(tmp_path):
+    config = board_config(load_config(None), seed=6, board="chessboard", board_p_blur=0.0)
+    config["calib"].update(target="chessboard", capture_views=8, capture_max_views=8)
+    result = commands.capture(config, tmp_path / "views", max_frames=30)
+    assert result.enough and len(result.names) == 8
+    from vbfe.calib.stereo import calibrate_stereo
+
+    cal = calibrate_stereo(load_views(tmp_path / "views"), BoardSpec(target="chessboard")).calibration
+    assert abs(cal.B / true_rig(config).baseline_m - 1) < 0.02
