@@ -23,7 +23,7 @@ from vbfe.acquire.storage import check_destination, free_bytes
 from vbfe.acquire.writer import SessionWriter, finalize_session
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
-from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers.samples import ForceSample, StereoFrame
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 4
@@ -100,7 +100,8 @@ class Recorder:
                  calibration_yaml: str | None = None, queue_size: int = 256,
                  min_free_bytes: int = 1 << 30, pattern: np.ndarray | None = None,
                  pattern_name: str = "debruijn",
-                 on_flush: Callable[[RecorderStats], None] | None = None) -> None:
+                 on_flush: Callable[[RecorderStats], None] | None = None,
+                 on_forces: Callable[[list[ForceSample]], None] | None = None) -> None:
         self.devices = devices
         self.path = check_destination(path, min_free_bytes)
         self.compression = compression
@@ -110,6 +111,7 @@ class Recorder:
         self.min_free_bytes = min_free_bytes
         self.pattern, self.pattern_name = pattern, pattern_name
         self.on_flush = on_flush
+        self.on_forces = on_forces  # sees every batch of force samples (writer thread)
         self._frames: queue.Queue = queue.Queue(maxsize=queue_size)
         self._forces: queue.Queue = queue.Queue(maxsize=queue_size * 64)
         self._control: queue.Queue = queue.Queue()
@@ -151,11 +153,18 @@ class Recorder:
         for pump in self._pumps:
             pump.start()
 
+    def show(self, pattern: np.ndarray, name: str) -> None:
+        """Put ``pattern`` on the projector now and record the event (call from the thread
+        that runs :meth:`run`, e.g. from its ``on_tick``)."""
+        self._control.put(("event", self.devices.projector.show(pattern, name)))
+
     def run(self, duration_s: float | None = None,
             on_progress: Callable[[RecorderStats], None] | None = None,
-            progress_interval_s: float = 0.5) -> RecorderStats:
+            progress_interval_s: float = 0.5,
+            on_tick: Callable[["Recorder", RecorderStats], None] | None = None) -> RecorderStats:
         """Record until ``duration_s`` of frames (host clock) are in, a device is gone, or
-        Ctrl-C; then stop cleanly. Returns the final statistics."""
+        Ctrl-C; then stop cleanly. ``on_tick`` is called every 50 ms (wall clock) with the
+        current statistics. Returns the final statistics."""
         last_progress = 0.0
         if duration_s is not None:
             self._span_limit_ns = int(duration_s * 1e9)
@@ -163,6 +172,8 @@ class Recorder:
             while not self._stop.is_set():
                 time.sleep(0.05)
                 stats = self._update_stats()
+                if on_tick is not None:
+                    on_tick(self, stats)
                 if on_progress is not None and stats.wall_s - last_progress >= progress_interval_s:
                     on_progress(stats)
                     last_progress = stats.wall_s
@@ -244,6 +255,8 @@ class Recorder:
                 pumps_done = self._stop.is_set() and not any(p.is_alive() for p in self._pumps)
                 frames = self._drain(self._frames, _FRAME_BATCH, 0.0 if pumps_done else 0.02)
                 forces = self._drain(self._forces, 1 << 20)
+                if forces and self.on_forces is not None:
+                    self.on_forces(forces)
                 control = self._drain(self._control, 1 << 20)
                 frames = self._within_duration(frames)
                 if frames:

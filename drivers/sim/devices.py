@@ -156,15 +156,15 @@ class SimProjector(Projector):
         self._open = True
 
     def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
-        """Project ``pattern`` (must be the projector's size) from now on."""
+        """Project ``pattern`` (must be the projector's size) from now on (after the bench's
+        projector latency)."""
         if not self._open:
             raise DeviceError("simulated projector used before open()")
         if pattern.shape[:2] != (self.height, self.width):
             raise DeviceError(f"pattern {name!r} is {pattern.shape[1]}x{pattern.shape[0]} but the "
                               f"simulated projector is {self.width}x{self.height}; make it that size")
-        self.bench.show_pattern(pattern)
         event = ProjectorEvent(pattern=name, frame_id=self._seq, seq=self._seq,
-                               t_host_ns=self.bench.host_now_ns())
+                               t_host_ns=self.bench.show_pattern(pattern))
         self._seq += 1
         return event
 
