@@ -32,7 +32,8 @@ from scipy.stats import t as student_t
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader
-from vbfe.acquire.sync_corners import _box, _knot_profile, _leading_components, _vertex, force_axis
+from vbfe.acquire.sync_corners import (_bounds, _box, _knot_profile, _leading_components, _vertex,
+                                       force_axis)
 from vbfe.acquire.sync_session import DIM_NAME, PATTERN_NAME
 
 _WIDTH = 96  # frames are downscaled to this width
@@ -150,7 +151,6 @@ class ProtocolResult:
     taps_found: int
     flashes_shown: int
     flashes_seen: int
-    force_onsets_s: np.ndarray  # per tap (s after the first frame)
 
 
 def frame_signals(reader: SessionReader) -> tuple[np.ndarray, np.ndarray]:
@@ -214,12 +214,7 @@ def flash_instant(t: np.ndarray, brightness: np.ndarray, h: float, window: tuple
     predicted = _exposed_share(t[near], delays[rows], change, e)
     sse = np.sum((share[None] - predicted) ** 2, axis=(1, 2))
     k = int(np.argmin(sse))
-    inside = np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma ** 2)
-    low, high = k, k
-    while low - 1 in inside:
-        low -= 1
-    while high + 1 in inside:
-        high += 1
+    low, high = _bounds(np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma ** 2), k)
     if low == 0 or high == len(change) - 1:
         return None
     return (change[low] + change[high]) / 2, (high - low + 1) * _GRID_S / np.sqrt(12)
@@ -279,12 +274,7 @@ def tap_lag(t_frames: np.ndarray, components: np.ndarray, t_force: np.ndarray,
     rss = np.sum((c[None] - design @ coef) ** 2, axis=1)
     deviance = len(t) * np.sum(np.log(np.maximum(rss, 1e-300)), axis=1)
     k = int(np.argmin(deviance))
-    inside_ci = np.flatnonzero(deviance - deviance[k] <= _CHI2_95)
-    low, high = k, k
-    while low - 1 in inside_ci:
-        low -= 1
-    while high + 1 in inside_ci:
-        high += 1
+    low, high = _bounds(np.flatnonzero(deviance - deviance[k] <= _CHI2_95), k)
     if low == 0 or high == len(lags) - 1:
         return None
     lag = float(lags[0] + _vertex(deviance, k) * _LAG_STEP_S)
@@ -334,5 +324,4 @@ def analyse_protocol(reader: SessionReader, settings: ProtocolSettings,
                           if flash_latency else None),
         offset_drift=early_late(offset) if offset else None,
         latency_drift=early_late(flash_latency) if flash_latency else None,
-        taps_found=len(onsets), flashes_shown=len(events), flashes_seen=len(flashes),
-        force_onsets_s=onsets)
+        taps_found=len(onsets), flashes_shown=len(events), flashes_seen=len(flashes))

@@ -40,6 +40,7 @@ def true_offset_s(path) -> float:
         return float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 def test_protocol_session_measures_37_ms_and_passes_once_corrected(tmp_path, seed):
     config = bench_config(seed)
@@ -69,6 +70,7 @@ def test_protocol_session_measures_37_ms_and_passes_once_corrected(tmp_path, see
         assert reader.analysis()["sync_verdict"] == "pass"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 def test_synchronised_rig_passes_directly(tmp_path, seed):
     config = bench_config(seed + 10, force_latency_ms=45.0)
