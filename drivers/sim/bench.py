@@ -38,6 +38,12 @@ class SimBench:
     reader's clock fits map each stream to its median arrival, so
     ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
     when the first device is opened.
+
+    ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
+    ``sync_duration_s``, peak about ``tap_force_n``). Frames integrate the projector's light
+    over ``exposure_ms`` (rows offset by ``line_time_us``: rolling shutter); a pattern lights
+    the scene ``projector_latency_ms`` after its command, so a flash's true latency on the
+    frames' clock is ``image_latency_ms + projector_latency_ms``.
     """
 
     def __init__(self, rig: StereoRig | None = None, seed: int = 0, width: int = 640,
