@@ -23,7 +23,7 @@ from vbfe.acquire.storage import check_destination, free_bytes
 from vbfe.acquire.writer import SessionWriter, finalize_session
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
-from vbfe.drivers.samples import ForceSample, StereoFrame
+from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 4
@@ -34,6 +34,8 @@ class RecorderStats:
     """Progress of a recording, as shown on the progress line."""
 
     elapsed_s: float = 0.0  # span of recorded frame host times
+    first_frame_host_ns: int = 0  # host time of the first recorded frame
+    newest_read_host_ns: int = 0  # host time of the newest frame read from the camera
     wall_s: float = 0.0
     frames: int = 0
     samples: int = 0
@@ -58,6 +60,7 @@ class _Pump(threading.Thread):
         self.stream, self._read, self._out, self._control, self._halt = name, read, out, control, stop
         self.dropped = 0
         self.last_seq = -1
+        self.last_t_host_ns = 0
         self.error: str | None = None
 
     def run(self) -> None:
@@ -82,7 +85,7 @@ class _Pump(threading.Thread):
                 self._control.put(("gap", self.stream, "queue full", self.last_seq, item.seq,
                                    item.t_host_ns, burst))
                 burst = 0
-            self.last_seq = item.seq
+            self.last_seq, self.last_t_host_ns = item.seq, item.t_host_ns
         if burst:  # samples lost at the very end: no next sequence number
             self._control.put(("gap", self.stream, "queue full", self.last_seq, -1,
                                time.monotonic_ns(), burst))
@@ -153,10 +156,12 @@ class Recorder:
         for pump in self._pumps:
             pump.start()
 
-    def show(self, pattern: np.ndarray, name: str) -> None:
+    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
         """Put ``pattern`` on the projector now and record the event (call from the thread
         that runs :meth:`run`, e.g. from its ``on_tick``)."""
-        self._control.put(("event", self.devices.projector.show(pattern, name)))
+        event = self.devices.projector.show(pattern, name)
+        self._control.put(("event", event))
+        return event
 
     def run(self, duration_s: float | None = None,
             on_progress: Callable[[RecorderStats], None] | None = None,
@@ -232,6 +237,9 @@ class Recorder:
             s.flushed = dict(writer.flushed_counts)
             s.bytes_written = writer.bytes_written
         s.elapsed_s = (self._frame_t_host[1] - self._frame_t_host[0]) / 1e9
+        s.first_frame_host_ns = self._frame_t_host[0]
+        s.newest_read_host_ns = max((p.last_t_host_ns for p in self._pumps
+                                     if p.stream == "camera"), default=0)
         device_drops = {"camera": self.devices.camera.stats.dropped,
                         "force": self.devices.trocar.stats.dropped}
         s.dropped = {p.stream: p.dropped + device_drops[p.stream] for p in self._pumps}

@@ -8,7 +8,8 @@ instant ``c`` would give a frame whose rows integrate the light over the exposur
 (centred on the frame's time, rows offset by the rolling-shutter line time). The least-squares
 ``c`` is the instant the light changed on the frames' clock; a partially exposed frame pins it
 to a fraction of the exposure, a switch between two exposures only to the gap (uniform error).
-``c − h`` is the flash latency: camera latency plus the projector's own.
+``c − h`` is the flash latency: camera latency plus the projector's own. A frame's share is
+trusted to 2% of the flash's contrast (a tap's shading must not fake a partial exposure).
 
 *Taps.* A tap's force onset is a sharp rise above the trocar noise, refined by a one-knot
 spline fit (flat before the knot). Its image-motion onset: the frames' leading principal
@@ -43,6 +44,7 @@ _LAG_STEP_S = 0.00025  # tap lags are searched on this grid
 _CHI2_95 = 3.841
 _REJECT_MADS = 4.0
 _FLOOR_S = 0.0001  # no event is trusted to better than this
+_SHARE_FLOOR = 0.02  # a frame's share of the new light is not trusted to better than this
 _TAP_QUIET_S = 0.3  # a tap onset needs the force at rest this long before
 _FORCE_SMOOTH_S = 0.005
 _ONSET_SEARCH_S = 0.06  # the force knot is searched this far before the threshold crossing
@@ -209,12 +211,13 @@ def flash_instant(t: np.ndarray, brightness: np.ndarray, h: float, window: tuple
     share = (brightness[near][:, rows] - before[rows]) / contrast[rows]
     steady = np.concatenate([(brightness[pre][:, rows] - before[rows]) / contrast[rows],
                              (brightness[post][:, rows] - after[rows]) / contrast[rows]])
-    sigma = max(1.4826 * float(np.median(np.abs(steady))), 1e-3)
+    sigma = max(1.4826 * float(np.median(np.abs(steady))), _SHARE_FLOOR)
     change = h + np.arange(0.0, max_lag_s, _GRID_S)
     predicted = _exposed_share(t[near], delays[rows], change, e)
     sse = np.sum((share[None] - predicted) ** 2, axis=(1, 2))
     k = int(np.argmin(sse))
-    low, high = _bounds(np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma ** 2), k)
+    # rows of one frame err together (a tap's shading, flicker): the threshold counts frames
+    low, high = _bounds(np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma ** 2 * rows.sum()), k)
     if low == 0 or high == len(change) - 1:
         return None
     return (change[low] + change[high]) / 2, (high - low + 1) * _GRID_S / np.sqrt(12)

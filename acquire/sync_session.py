@@ -94,7 +94,7 @@ class SyncProtocol:
     shown: int = field(default=0, init=False)
     tap_counter: TapCounter = field(default_factory=TapCounter, init=False)
     _patterns: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False)
-    _last_flash_s: float = field(default=-1e9, init=False)
+    _last_flash_ns: int | None = field(default=None, init=False)  # host time of the last flash
 
     def __post_init__(self) -> None:
         if self.taps < 1:
@@ -124,18 +124,23 @@ class SyncProtocol:
         return config
 
     def tick(self, recorder: Recorder, stats: RecorderStats) -> None:
-        """Flash when the session's clock (recorded frame time) reaches the next scheduled
-        instant, never sooner than :data:`MIN_FLASH_GAP_S` after the previous flash."""
+        """Flash when the session's clock (the newest frame read, against the first frame
+        recorded) reaches the next scheduled instant and :data:`MIN_FLASH_GAP_S` has passed
+        since the previous flash's host time."""
         if self.shown >= len(self.schedule_s) or stats.frames == 0:
             return
-        due = max(float(self.schedule_s[self.shown]), self._last_flash_s + MIN_FLASH_GAP_S)
-        if stats.elapsed_s < due or stats.elapsed_s > self.duration_s - _LAST_FLASH_S:
+        now_ns = stats.newest_read_host_ns
+        now_s = (now_ns - stats.first_frame_host_ns) / 1e9
+        if now_s < float(self.schedule_s[self.shown]) or now_s > self.duration_s - _LAST_FLASH_S:
+            return
+        if self._last_flash_ns is not None and now_ns < self._last_flash_ns + MIN_FLASH_GAP_S * 1e9:
             return
         if self._patterns is None:
             self._patterns = (recorder.pattern, dim(recorder.pattern))
         self.shown += 1
-        recorder.show(self._patterns[self.shown % 2], DIM_NAME if self.shown % 2 else PATTERN_NAME)
-        self._last_flash_s = stats.elapsed_s
+        event = recorder.show(self._patterns[self.shown % 2],
+                              DIM_NAME if self.shown % 2 else PATTERN_NAME)
+        self._last_flash_ns = event.t_host_ns
 
     def progress(self) -> str:
         """The events collected so far, for the progress line."""
