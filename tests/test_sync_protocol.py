@@ -125,7 +125,7 @@ def test_flash_instant_is_sub_frame_with_a_partial_exposure_or_a_rolling_shutter
         found = flash_instant(t, brightness, 0.0, (-np.inf, np.inf), settings, 480, 0.3)
         assert found is not None
         assert found[0] == pytest.approx(change, abs=0.0003)
-        assert found[1] < 0.0005
+        assert found[1] < 0.001  # a share is trusted to 2%: sub-millisecond, not a frame
 
 
 def test_flash_between_exposures_is_known_to_the_gap():
