@@ -108,6 +108,7 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
                      "trocar's noise): that is what the sync protocol session is for.")
     _images(report, [r["plot"] for r in sync["sessions"][:1] if r["plot"]], "sync", out)
     report.heading("Sync protocol session (taps and projector flashes)")
+    protocol = numbers["sync_protocol"]
     ci, fci = protocol["ci95_s"], protocol["flash_ci95_s"] or [float("nan")] * 2
     report.table(["quantity", "measured (ms)", "95% CI (ms)", "events", "truth (ms)"], [
         ("image − force offset (taps)", 1e3 * protocol["offset_s"],
