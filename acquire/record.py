@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, store_analysis
 from vbfe.acquire.recorder import Recorder, RecorderStats
 from vbfe.config import section
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import Devices, open_devices
+
+if TYPE_CHECKING:
+    from vbfe.acquire.sync_session import SyncProtocol
 
 
 def record_session(config: dict[str, dict[str, Any]], path: str | Path,
@@ -18,17 +22,27 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    conditions: dict[str, Any] | None = None, compression: str | None = None,
                    calibration_yaml: str | None = None,
                    on_progress: Callable[[RecorderStats], None] | None = None,
-                   tare: bool = False, overwrite: bool = False) -> RecorderStats:
+                   tare: bool = False, overwrite: bool = False,
+                   protocol: SyncProtocol | None = None) -> RecorderStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
     is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
     stored). Simulated benches add their conditions, description and per-frame ground truth to
-    the session. An existing ``path`` is refused unless ``overwrite``."""
+    the session. An existing ``path`` is refused unless ``overwrite``.
+
+    With a sync ``protocol`` the projector flashes and the taps are counted while recording
+    (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
+    non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
+    correction."""
+    settings = section(config, "record")
+    if protocol is not None:
+        config = protocol.bench_config(config)
+        duration_s = protocol.duration_s
     devices = open_devices(config)
     recorder = session_recorder(config, path, devices, operator, notes, conditions,
-                                compression, calibration_yaml, overwrite)
+                                compression, calibration_yaml, overwrite, protocol)
     if tare:
-        n = int(section(config, "record").get("tare_samples", 500))
+        n = int(settings.get("tare_samples", 500))
         devices.trocar.open()  # the recorder's open keeps it open
         try:
             offset = devices.trocar.tare(n)
@@ -37,18 +51,24 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
             raise
         recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
     recorder.start()
-    return recorder.run(duration_s, on_progress)
+    stats = recorder.run(duration_s, on_progress, on_tick=protocol.tick if protocol else None)
+    correction_s = float(settings.get("frame_time_correction_s", 0.0))
+    if correction_s:
+        store_analysis(path, {FRAME_CORRECTION_ATTR: int(round(correction_s * 1e9))})
+    return stats
 
 
 def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, devices: Devices,
                      operator: str = "", notes: str = "",
                      conditions: dict[str, Any] | None = None, compression: str | None = None,
-                     calibration_yaml: str | None = None, overwrite: bool = False) -> Recorder:
+                     calibration_yaml: str | None = None, overwrite: bool = False,
+                     protocol: SyncProtocol | None = None) -> Recorder:
     """The recorder :func:`record_session` uses, over given devices (which may be wrapped,
     e.g. by a live estimator that sees every frame); not started yet."""
     settings = section(config, "record")
     metadata: dict[str, Any] = {"operator": operator, "notes": notes,
-                                "conditions": dict(conditions or {})}
+                                "conditions": dict(conditions or {}),
+                                "protocol": protocol.describe() if protocol else {"kind": "traction"}}
     if devices.bench is not None:
         metadata["conditions"] = {**devices.bench.conditions(), **metadata["conditions"]}
         metadata["bench"] = devices.bench.describe()
@@ -57,4 +77,5 @@ def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, device
                     metadata=metadata, calibration_yaml=calibration_yaml,
                     queue_size=int(settings["queue_size"]),
                     min_free_bytes=int(float(settings["min_free_gb"]) * 1e9),
-                    pattern=make_pattern, pattern_name="debruijn-hsv", overwrite=overwrite)
+                    pattern=make_pattern, pattern_name="debruijn-hsv", overwrite=overwrite,
+                    on_forces=protocol.tap_counter.feed if protocol else None)

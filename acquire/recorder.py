@@ -36,7 +36,7 @@ from vbfe.acquire.writer import SessionWriter, finalize_session
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
-from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
 _READ_TIMEOUT_S = 0.2
@@ -53,6 +53,8 @@ class RecorderStats:
     """Progress of a recording, as shown on the progress line."""
 
     elapsed_s: float = 0.0  # span of recorded frame host times
+    first_frame_host_ns: int = 0  # host time of the first recorded frame
+    newest_read_host_ns: int = 0  # host time of the newest frame read from the camera
     wall_s: float = 0.0
     frames: int = 0
     samples: int = 0
@@ -79,6 +81,7 @@ class _Pump(threading.Thread):
         self.paced = paced
         self.dropped = 0
         self.last_seq = -1
+        self.last_t_host_ns = 0
         self.error: str | None = None
 
     def run(self) -> None:
@@ -109,7 +112,7 @@ class _Pump(threading.Thread):
                 self._control.put(("gap", self.stream, "queue full", self.last_seq, item.seq,
                                    item.t_host_ns, burst))
                 burst = 0
-            self.last_seq = item.seq
+            self.last_seq, self.last_t_host_ns = item.seq, item.t_host_ns
         if burst:  # samples lost at the very end: no next sequence number
             self._control.put(("gap", self.stream, "queue full", self.last_seq, -1,
                                time.monotonic_ns(), burst))
@@ -155,7 +158,8 @@ class Recorder:
                  min_free_bytes: int = 1 << 30, pattern: PatternSource | None = None,
                  pattern_name: str = "debruijn",
                  on_flush: Callable[[RecorderStats], None] | None = None,
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False,
+                 on_forces: Callable[[list[ForceSample]], None] | None = None) -> None:
         if flush_interval_s <= 0:
             raise SessionError(f"flush_interval_s must be positive, got {flush_interval_s}")
         self.devices = devices
@@ -167,6 +171,7 @@ class Recorder:
         self.min_free_bytes = min_free_bytes
         self.pattern, self.pattern_name = pattern, pattern_name
         self.on_flush = on_flush
+        self.on_forces = on_forces  # sees every batch of force samples (writer thread)
         self._frames: queue.Queue = queue.Queue(maxsize=queue_size)
         self._forces: queue.Queue = queue.Queue(maxsize=queue_size * 64)
         self._control: queue.Queue = queue.Queue()
@@ -227,12 +232,20 @@ class Recorder:
         for pump in self._pumps:
             pump.start()
 
+    def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
+        """Put ``pattern`` on the projector now and record the event (call from the thread
+        that runs :meth:`run`, e.g. from its ``on_tick``)."""
+        event = self.devices.projector.show(pattern, name)
+        self._control.put(("event", event))
+        return event
+
     def run(self, duration_s: float | None = None,
             on_progress: Callable[[RecorderStats], None] | None = None,
-            progress_interval_s: float = 0.5) -> RecorderStats:
+            progress_interval_s: float = 0.5,
+            on_tick: Callable[["Recorder", RecorderStats], None] | None = None) -> RecorderStats:
         """Record until ``duration_s`` of frames (host clock) are in, a device is gone, the
-        disk is almost full, Ctrl-C or SIGTERM; then stop cleanly. Returns the final
-        statistics."""
+        disk is almost full, Ctrl-C or SIGTERM; then stop cleanly. ``on_tick`` is called every
+        50 ms (wall clock) with the current statistics. Returns the final statistics."""
         last_progress = 0.0
         if duration_s is not None:
             if not duration_s > 0:
@@ -243,6 +256,8 @@ class Recorder:
             while not self._stop.is_set() and self._stop_request is None:
                 time.sleep(0.05)
                 stats = self._update_stats()
+                if on_tick is not None:
+                    on_tick(self, stats)
                 if on_progress is not None and stats.wall_s - last_progress >= progress_interval_s:
                     on_progress(stats)
                     last_progress = stats.wall_s
@@ -337,6 +352,9 @@ class Recorder:
             s.flushed = dict(writer.flushed_counts)
             s.bytes_written = writer.bytes_written
         s.elapsed_s = (self._frame_t_host[1] - self._frame_t_host[0]) / 1e9
+        s.first_frame_host_ns = self._frame_t_host[0]
+        s.newest_read_host_ns = max((p.last_t_host_ns for p in self._pumps
+                                     if p.stream == "camera"), default=0)
         device_drops = {"camera": self.devices.camera.stats.dropped,
                         "force": self.devices.trocar.stats.dropped}
         s.dropped = {p.stream: p.dropped + device_drops[p.stream] for p in self._pumps}
@@ -368,6 +386,8 @@ class Recorder:
                 pumps_done = self._stop.is_set() and not any(p.is_alive() for p in self._pumps)
                 frames = self._drain(self._frames, _FRAME_BATCH, 0.0 if pumps_done else 0.02)
                 forces = self._drain(self._forces, 1 << 20)
+                if forces and self.on_forces is not None:
+                    self.on_forces(forces)
                 control = self._drain(self._control, 1 << 20)
                 frames = self._within_duration(frames)
                 if frames:

@@ -1,10 +1,14 @@
 """``verify_sync``: measure the offset between image motion and force in a session, audit drops,
 judge against limits.
 
-Two measurements of the same offset (:func:`measure_offset` picks one):
+A sync protocol session (``vbfe record --protocol sync``) is measured from its taps and
+projector flashes (:mod:`~vbfe.acquire.sync_protocol`) and judged PASS/FAIL. An ordinary traction
+session is measured passively, with two measurements of the same offset (:func:`measure_offset`
+picks one):
 :mod:`~vbfe.acquire.sync_corners` aligns the kinks the image and the force share where a pull
 starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync_changes`
-cross-correlates change signals (any profile with distinct force-change events).
+cross-correlates change signals (any profile with distinct force-change events). Its verdict is
+INCONCLUSIVE rather than FAIL when the offset is too uncertain to judge.
 """
 
 from __future__ import annotations
@@ -21,6 +25,10 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
 from vbfe.acquire.sync_changes import change_offset, motion_energy
 from vbfe.acquire.sync_corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.acquire.sync_protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
+
+PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
+MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass
 
 
 @dataclass(frozen=True)
@@ -56,9 +64,19 @@ class SyncReport:
     jitter_s: dict[str, float]
     audits: dict[str, StreamAudit]
     limits: SyncLimits
-    passed: bool
+    verdict: str  # PASS, FAIL or INCONCLUSIVE
     reasons: list[str] = field(default_factory=list)
     plot_path: Path | None = None
+    protocol: ProtocolResult | None = None  # a sync protocol session's flashes, taps, drifts
+
+    @property
+    def passed(self) -> bool:
+        """The verdict is PASS."""
+        return self.verdict == PASS
+
+    def config_suggestion(self) -> str:
+        """The ``[record]`` line that stores this correction in every new session."""
+        return f"frame_time_correction_s = {self.correction_s:.4f}"
 
     def text(self) -> str:
         """Human-readable report."""
@@ -69,6 +87,8 @@ class SyncReport:
                  f"{e.method})",
                  f"correction {1e3 * self.correction_s:+.2f} ms applied to frame times; residual "
                  f"{1e3 * self.residual_offset_s:+.2f} ms"]
+        if self.protocol is not None:
+            lines += _protocol_lines(self.protocol)
         for stream, ppm in self.drift_ppm.items():
             lines.append(f"clock      {stream}: drift {ppm:+.1f} ± "
                          f"{self.drift_uncertainty_ppm[stream]:.1f} ppm vs host, jitter "
@@ -77,7 +97,11 @@ class SyncReport:
             lines.append(f"audit      {stream}: {au.stored} stored, {au.dropped} dropped "
                          f"({100 * au.drop_fraction:.2f}%), {au.duplicated} duplicated, "
                          f"{au.reordered} out of order")
-        lines.append("verdict    " + ("PASS" if self.passed else "FAIL: " + "; ".join(self.reasons)))
+        verdict = self.verdict
+        if self.verdict == INCONCLUSIVE:
+            verdict += " - record a sync protocol session (vbfe record --protocol sync)"
+        lines.append("verdict    " + verdict + "".join(
+            ("; " if i else ": ") + r for i, r in enumerate(self.reasons)))
         if self.plot_path is not None:
             lines.append(f"plot       {self.plot_path}")
         return "\n".join(lines)
@@ -88,13 +112,50 @@ class SyncReport:
         return {"sync_offset_s": e.offset_s, "sync_offset_std_s": e.std_s,
                 "sync_offset_ci95_low_s": e.ci95_s[0], "sync_offset_ci95_high_s": e.ci95_s[1],
                 "sync_residual_offset_s": self.residual_offset_s, "sync_method": e.method,
-                "sync_verdict": "pass" if self.passed else "fail",
+                "sync_verdict": self.verdict.lower(),
+                "sync_protocol": "sync" if self.protocol is not None else "traction",
                 "sync_reasons": json.dumps(self.reasons),
                 "sync_drift_ppm": json.dumps(self.drift_ppm),
                 "sync_frame_drop_fraction": self.audits["camera"].drop_fraction,
                 "sync_force_drop_fraction": self.audits["force"].drop_fraction,
                 "sync_limits": json.dumps(self.limits.__dict__),
-                FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9))}
+                FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
+                **(_protocol_attrs(self.protocol) if self.protocol is not None else {})}
+
+
+def _interval(e: EventEstimate) -> str:
+    return (f"{1e3 * e.value_s:+.2f} ms (95% CI {1e3 * e.ci95_s[0]:+.2f} … "
+            f"{1e3 * e.ci95_s[1]:+.2f} ms, {e.n_used} events")
+
+
+def _protocol_lines(p: ProtocolResult) -> list[str]:
+    lines = [f"taps       {p.taps_found} found" + (f", offset {_interval(p.offset)})"
+                                                   if p.offset else ", none measurable")]
+    if p.flash_latency is not None:
+        lines.append(f"flashes    {p.flashes_seen} of {p.flashes_shown} seen, flash latency "
+                     f"{_interval(p.flash_latency)}); camera latency "
+                     f"{1e3 * p.camera_latency_s:+.2f} ms")
+    else:
+        lines.append(f"flashes    none of {p.flashes_shown} seen")
+    for name, drift in (("offset", p.offset_drift), ("latency", p.latency_drift)):
+        if drift is not None:
+            lo, hi = drift.ci95_s
+            lines.append(f"drift      {name}: late - early {1e3 * drift.change_s:+.2f} ms (95% CI "
+                         f"{1e3 * lo:+.2f} … {1e3 * hi:+.2f} ms)")
+    return lines
+
+
+def _protocol_attrs(p: ProtocolResult) -> dict[str, Any]:
+    out: dict[str, Any] = {"sync_taps_found": p.taps_found, "sync_flashes_shown": p.flashes_shown,
+                           "sync_flashes_seen": p.flashes_seen}
+    for name, e in (("tap_offset", p.offset), ("flash_latency", p.flash_latency)):
+        if e is not None:
+            out.update({f"sync_{name}_s": e.value_s, f"sync_{name}_ci95_low_s": e.ci95_s[0],
+                        f"sync_{name}_ci95_high_s": e.ci95_s[1], f"sync_{name}_events": e.n_used})
+    for name, d in (("offset", p.offset_drift), ("latency", p.latency_drift)):
+        if d is not None:
+            out[f"sync_{name}_drift_s"] = d.change_s
+    return out
 
 
 def _plot(path: Path, report: SyncReport) -> None:
@@ -105,9 +166,9 @@ def _plot(path: Path, report: SyncReport) -> None:
 
     e = report.estimate
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    if e.method == "force corners":
+    if e.corners:
         ax.errorbar(e.corner_times_s, e.corner_lags_s * 1e3, yerr=1.96e3 * e.corner_std_s,
-                    fmt="o", color="tab:blue", capsize=3, label="lag at each force corner (95%)")
+                    fmt="o", color="tab:blue", capsize=3, label=f"lag at each {e.method[:-1]} (95%)")
         ax.axhline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
         ax.axhspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2,
                    label="95% CI")
@@ -120,7 +181,7 @@ def _plot(path: Path, report: SyncReport) -> None:
                    label="95% CI")
         ax.set_xlabel("image time - force time (ms)")
         ax.set_ylabel("normalized cross-correlation")
-    ax.set_title(f"{report.path.name}: {'PASS' if report.passed else 'FAIL'}")
+    ax.set_title(f"{report.path.name}: {report.verdict}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -154,44 +215,92 @@ def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEsti
     return min(found, key=lambda e: e.ci95_s[1] - e.ci95_s[0])
 
 
+def _tap_estimate(result: ProtocolResult, path: Path) -> OffsetEstimate:
+    """The protocol's tap offset as an :class:`OffsetEstimate` (one lag per tap)."""
+    e = result.offset
+    if e is None:
+        raise SessionError(f"{path}: no tap could be measured ({result.taps_found} found in the "
+                           "force); record the protocol again, tapping briefly and firmly")
+    used = e.used
+    return OffsetEstimate(offset_s=e.value_s, std_s=e.std_s, ci95_s=e.ci95_s, method="taps",
+                          corner_times_s=e.times_s[used], corner_lags_s=e.values_s[used],
+                          corner_std_s=e.stds_s[used])
+
+
+def _verdict(estimate: OffsetEstimate, residual: float, protocol: ProtocolResult | None,
+             audits: dict[str, StreamAudit], limits: SyncLimits) -> tuple[str, list[str]]:
+    """PASS/FAIL (protocol sessions, or any definite failure) or INCONCLUSIVE (a passive
+    estimate too uncertain to judge), with the reasons."""
+    half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
+    low, high = (c - (estimate.offset_s - residual) for c in estimate.ci95_s)
+    failures, doubts = [], []
+    if abs(residual) > limits.max_offset_s:
+        text = f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms"
+        definite = low > limits.max_offset_s or high < -limits.max_offset_s
+        (failures if definite or protocol is not None else doubts).append(text)
+    if half_ci > limits.max_ci_halfwidth_s:
+        text = (f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
+                f"{1e3 * limits.max_ci_halfwidth_s:g} ms")
+        (failures if protocol is not None else doubts).append(text)
+    for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
+        if audits[stream].drop_fraction > limit:
+            failures.append(f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
+                            f"(limit {100 * limit:g}%)")
+    if protocol is not None:
+        if protocol.offset is not None and protocol.offset.n_used < MIN_TAPS:
+            failures.append(f"only {protocol.offset.n_used} taps measured (need {MIN_TAPS})")
+        if protocol.flashes_shown and protocol.flashes_seen < protocol.flashes_shown / 2:
+            failures.append(f"only {protocol.flashes_seen} of {protocol.flashes_shown} projector "
+                            "flashes seen (is the projector lighting the view, auto exposure off?)")
+        for name, drift in (("image-force offset (taps)", protocol.offset_drift),
+                            ("camera latency (flashes)", protocol.latency_drift)):
+            if drift is None:
+                continue
+            lo, hi = drift.ci95_s
+            if abs(drift.change_s) > limits.max_offset_s and (lo > 0 or hi < 0):
+                failures.append(f"{name} changed by {1e3 * drift.change_s:+.2f} ms from the first "
+                                "to the second half of the session (a lost frame or a change "
+                                "in the camera's buffering?)")
+    if failures:
+        return FAIL, failures + doubts
+    return (INCONCLUSIVE, doubts) if doubts else (PASS, [])
+
+
 def verify_sync(path: str | Path, limits: SyncLimits | None = None,
                 plot_path: str | Path | None = None, store: bool = True,
-                apply_correction: bool = False, max_lag_s: float = 0.25) -> SyncReport:
+                apply_correction: bool = False, max_lag_s: float = 0.25,
+                settings: ProtocolSettings | None = None) -> SyncReport:
     """Measure the image-force offset of a session, audit drops, judge against ``limits``.
 
-    With ``store`` the numbers and verdict go into the session's ``/analysis`` attributes; with
-    ``apply_correction`` the measured offset is also stored as a frame-time correction, which
-    :class:`SessionReader` applies from then on.
+    A sync protocol session is measured from its taps and flashes (``settings``: the camera's
+    exposure and line time) and judged PASS or FAIL; any other session passively, INCONCLUSIVE
+    when its offset is too uncertain to judge. With ``store`` the numbers and verdict go into
+    the session's ``/analysis`` attributes; with ``apply_correction`` the measured offset is
+    also stored as a frame-time correction, which :class:`SessionReader` applies from then on.
     """
     limits = limits or SyncLimits()
+    protocol = None
     with SessionReader(path) as reader:
         if reader.n_frames < 3 or len(reader.forces_n()) < 3:
             raise SessionError(f"{path} has too few frames or force samples to check sync")
-        estimate = measure_offset(reader, max_lag_s)
+        if reader.metadata.get("protocol", {}).get("kind") == "sync":
+            protocol = analyse_protocol(reader, settings or ProtocolSettings(), max(max_lag_s, 0.3))
+            estimate = _tap_estimate(protocol, Path(path))
+        else:
+            estimate = measure_offset(reader, max_lag_s)
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}
     applied = estimate.offset_s if apply_correction else 0.0
     residual = estimate.offset_s - applied
-    half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
-    reasons = []
-    if abs(residual) > limits.max_offset_s:
-        reasons.append(f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms")
-    if half_ci > limits.max_ci_halfwidth_s:
-        reasons.append(f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
-                       f"{1e3 * limits.max_ci_halfwidth_s:g} ms (too little motion, or too few "
-                       "sharp force changes, to align on?)")
-    for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
-        if audits[stream].drop_fraction > limit:
-            reasons.append(f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
-                           f"(limit {100 * limit:g}%)")
+    verdict, reasons = _verdict(estimate, residual, protocol, audits, limits)
     report = SyncReport(path=Path(path), estimate=estimate, correction_s=previous + applied,
                         residual_offset_s=residual,
                         drift_ppm={s: f.drift_ppm for s, f in fits.items()},
                         drift_uncertainty_ppm={s: f.drift_uncertainty_ppm for s, f in fits.items()},
                         jitter_s={s: f.jitter_ns / 1e9 for s, f in fits.items()},
-                        audits=audits, limits=limits, passed=not reasons, reasons=reasons,
-                        plot_path=Path(plot_path) if plot_path else None)
+                        audits=audits, limits=limits, verdict=verdict, reasons=reasons,
+                        plot_path=Path(plot_path) if plot_path else None, protocol=protocol)
     if report.plot_path is not None:
         _plot(report.plot_path, report)
     if store:

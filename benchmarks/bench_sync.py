@@ -1,13 +1,20 @@
 """verify-sync accuracy on the simulated bench: offset and clock drift against the bench's truth.
 
-Records one session per (paper condition, seed) through ``record_session`` with the default
+By default: sync protocol sessions (taps and projector flashes) with 5, 10, 20 and 40 events of
+each kind (``--seeds`` sessions each, 320×180 at 30 fps, true offset 37 ms): per number of
+events, the offset's error and 95% half-width and the flash latency's, so an operator knows how
+many taps are enough. Analysis time is a ratio: verify-sync over reading the frames once.
+
+    python benchmarks/bench_sync.py [--events 5 10 20 40 --seeds 3]
+
+With ``--passive``: records one traction session per (paper condition, seed) through ``record_session`` with the default
 ``[bench]`` table (size, rate and hold overridable), runs :func:`verify_sync` and prints, per
 session, the measured image−force offset against the true one (difference of the median
 latencies, 37 ms by default), whether the 95% interval holds the truth, and the camera/trocar
 drift estimates (± standard error) against the bench's; then the spread of the errors. Time is
 reported as a ratio: verify-sync time over the time to read the session's frames once.
 
-    python benchmarks/bench_sync.py [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
+    python benchmarks/bench_sync.py --passive [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
 """
 
 from __future__ import annotations
@@ -22,19 +29,60 @@ import numpy as np
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync_check import verify_sync
+from vbfe.acquire.sync_protocol import ProtocolSettings
+from vbfe.acquire.sync_session import SyncProtocol
 from vbfe.config import load_config
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--width", type=int, default=640)
-    parser.add_argument("--height", type=int, default=360)
-    parser.add_argument("--fps", type=float, default=30.0)
-    parser.add_argument("--hold", type=float, default=3.0, help="hold after the pull (s)")
-    parser.add_argument("--seeds", type=int, default=2, help="sessions per paper condition")
-    args = parser.parse_args()
+def _read_time(path: Path) -> float:
+    start = time.perf_counter()
+    with SessionReader(path) as reader:
+        for _ in reader.iter_frames():
+            pass
+    return time.perf_counter() - start
+
+
+def protocol_sweep(events: list[int], seeds: int) -> None:
+    """Error and 95% half-width of the tap offset and flash latency against the event count."""
+    config = load_config(None)
+    config["bench"].update(width=320, height=180, fps=30.0, distortion=False)
+    config["record"]["min_free_gb"] = 0.0
+    settings = ProtocolSettings.from_config(config)
+    true_latency = 1e-3 * (config["bench"]["image_latency_ms"]
+                           + config["bench"]["projector_latency_ms"])
+    print(f"{'events':>6} {'|offset error| mean/max (ms)':>29} {'half-width (ms)':>16} "
+          f"{'covers':>6} {'|flash error| mean/max (ms)':>28} {'half-width (ms)':>16} "
+          f"{'verify/read':>11}")
+    with tempfile.TemporaryDirectory() as folder:
+        for n in events:
+            rows = []
+            for seed in range(1, seeds + 1):
+                run = copy.deepcopy(config)
+                run["bench"]["seed"] = 100 * n + seed
+                path = Path(folder) / f"n{n}_s{seed}.h5"
+                record_session(run, path, protocol=SyncProtocol(
+                    taps=n, flashes=n, duration_s=max(10.0, float(n)), seed=seed))
+                with SessionReader(path) as reader:
+                    true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+                read_s = _read_time(path)
+                start = time.perf_counter()
+                report = verify_sync(path, settings=settings, store=False)
+                ratio = (time.perf_counter() - start) / read_s
+                e, f = report.estimate, report.protocol.flash_latency
+                rows.append((e.offset_s - true_s, (e.ci95_s[1] - e.ci95_s[0]) / 2,
+                             e.ci95_s[0] <= true_s <= e.ci95_s[1], f.value_s - true_latency,
+                             f.half_width_s, ratio))
+            err, half, covers, ferr, fhalf, ratio = (np.array(c) for c in zip(*rows))
+            print(f"{n:>6} {1e3 * np.mean(np.abs(err)):>14.2f} / {1e3 * np.max(np.abs(err)):<12.2f}"
+                  f"{1e3 * np.mean(half):>16.2f} {np.mean(covers):>6.0%} "
+                  f"{1e3 * np.mean(np.abs(ferr)):>13.2f} / {1e3 * np.max(np.abs(ferr)):<12.2f}"
+                  f"{1e3 * np.mean(fhalf):>16.2f} {np.mean(ratio):>11.2f}")
+
+
+def passive(args: argparse.Namespace) -> None:
+    """The passive estimate on traction sessions over the paper's conditions."""
     config = load_config(None)
     config["bench"].update(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold)
     config["record"]["min_free_gb"] = 0.0
@@ -47,12 +95,9 @@ def main() -> None:
             bench = SimBench.from_config(run["bench"])
             path = Path(folder) / f"s{n}.h5"
             record_session(run, path, duration_s=bench.duration_s())
-            start = time.perf_counter()
             with SessionReader(path) as reader:
-                for _ in reader.iter_frames():
-                    pass
                 true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-            read_s = time.perf_counter() - start
+            read_s = _read_time(path)
             start = time.perf_counter()
             report = verify_sync(path, store=False)
             verify_s = time.perf_counter() - start
@@ -76,6 +121,26 @@ def main() -> None:
           f"{np.mean(err <= 5):.0%}, within ±3 ms {np.mean(err <= 3):.0%}; 95% CI holds the "
           f"truth in {np.mean(covered):.0%}; camera drift |error| max "
           f"{np.max(np.abs(drift_errors)):.1f} ppm")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--events", type=int, nargs="+", default=[5, 10, 20, 40],
+                        help="taps and flashes per protocol session")
+    parser.add_argument("--passive", action="store_true",
+                        help="measure traction sessions passively instead")
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=360)
+    parser.add_argument("--fps", type=float, default=30.0)
+    parser.add_argument("--hold", type=float, default=3.0, help="hold after the pull (s)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="sessions per event count (3) or per paper condition (2)")
+    args = parser.parse_args()
+    if args.passive:
+        args.seeds = args.seeds or 2
+        passive(args)
+    else:
+        protocol_sweep(args.events, args.seeds or 3)
 
 
 if __name__ == "__main__":

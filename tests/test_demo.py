@@ -51,6 +51,15 @@ def test_sync_offset_is_measured_against_the_true_offset(numbers):
         assert abs(row["offset_s"] - row["true_offset_s"]) < 0.010, row["session"]
 
 
+def test_sync_protocol_session_measures_the_offset_and_passes_once_corrected(numbers):
+    p = numbers["sync_protocol"]
+    assert p["true_offset_s"] == pytest.approx(0.037)
+    assert abs(p["error_s"]) <= 0.001 and p["ci95_s"][0] <= p["true_offset_s"] <= p["ci95_s"][1]
+    assert p["flash_latency_s"] == pytest.approx(p["true_flash_latency_s"], abs=0.001)
+    assert p["taps_used"] >= 8 and p["verdict_before"] == "FAIL"
+    assert p["verdict_after_apply"] == "PASS"
+
+
 def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numbers):
     force = numbers["force"]
     assert not set(force["train_sessions"]) & set(force["test_sessions"])
@@ -75,5 +84,6 @@ def test_report_links_every_plot_and_shows_the_verdicts(demo_out):
         assert (demo_out / src).is_file(), src
     assert html.count("PASS") + html.count("FAIL") >= 10
     assert "pattern decoded" in html
-    for heading in ("calibration", "Synchronisation", "reconstruction", "Force estimation"):
+    for heading in ("calibration", "Synchronisation", "Sync protocol session", "reconstruction",
+                    "Force estimation"):
         assert heading in html

@@ -21,16 +21,17 @@ from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.board_scene import BoardScene, board_target
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
 from vbfe.drivers.sim.devices import SimCamera, SimProjector, SimTrocar
-from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
+from vbfe.drivers.sim.mechanics import TapProtocol, TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
 
 SCENES = ("tissue", "plane", "board")
+PROTOCOLS = ("traction", "sync")
 FORCE_RANGE_N = 5.0  # TRF85D measuring range
 _STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport", "force_noise",
-            "texture", "board")
+            "texture", "board", "taps", "projector")
 
 
 class SimBench:
@@ -45,6 +46,12 @@ class SimBench:
     reader's clock fits map each stream to its median arrival, so
     ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
     when the first device is opened.
+
+    ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
+    ``sync_duration_s``, peak about ``tap_force_n``). Frames integrate the projector's light
+    over ``exposure_ms`` (rows offset by ``line_time_us``: rolling shutter); a pattern lights
+    the scene ``projector_latency_ms`` after its command, so a flash's true latency on the
+    frames' clock is ``image_latency_ms + projector_latency_ms``.
     """
 
     def __init__(self, rig: StereoRig | None = None, seed: int = 0, width: int = 640,
@@ -69,9 +76,22 @@ class SimBench:
                  albedo_bgr: tuple[float, float, float] | None = None,
                  subsurface_blur_mm: float = 0.0, specular: float = 0.0,
                  crosstalk: float = 0.0, projector_gamma: float = 1.0, vignetting: float = 0.0,
-                 motion_blur_exposure_ms: float = 0.0) -> None:
+                 motion_blur_exposure_ms: float = 0.0,
+                 protocol: str = "traction", sync_taps: int = 20, sync_duration_s: float = 20.0,
+                 tap_force_n: float = 1.0, projector_latency_ms: float = 0.0,
+                 exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
+        if protocol not in PROTOCOLS:
+            raise DeviceError(f"[bench] protocol must be one of {PROTOCOLS}, got {protocol!r}")
+        if not 0 <= exposure_ms <= 1e3 / fps or projector_latency_ms < 0 or line_time_us < 0:
+            raise DeviceError("[bench] exposure_ms must be within [0, 1000/fps]; "
+                              "projector_latency_ms and line_time_us must not be negative")
+        if (image_latency_ms + projector_latency_ms
+                < (exposure_ms + line_time_us * 1e-3 * height) / 2 + 3 * image_jitter_ms):
+            raise DeviceError("[bench] image_latency_ms + projector_latency_ms must exceed half the "
+                              "exposure and readout plus 3x image_jitter_ms (a pattern must not "
+                              "light frames that have already arrived)")
         if fps <= 0 or trocar_rate_hz <= 0:
             raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
         if image_latency_ms < 3 * image_jitter_ms or force_latency_ms < 3 * force_jitter_ms:
@@ -91,8 +111,12 @@ class SimBench:
         rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in
                                    np.random.SeedSequence(seed).spawn(len(_STREAMS)))))
         self._force_rng = rngs["force_noise"]
-        protocol = TractionProtocol(stiffness_n_per_m, pull_speed_m_per_s, target_force_n,
-                                    rest_s, hold_s)
+        if protocol == "sync":
+            protocol = TapProtocol.random(rngs["taps"], sync_taps, sync_duration_s,
+                                          stiffness_n_per_m, tap_force_n)
+        else:
+            protocol = TractionProtocol(stiffness_n_per_m, pull_speed_m_per_s, target_force_n,
+                                        rest_s, hold_s)
         self._board = None
         if scene == "board":
             target = board_target(board, board_squares_x, board_squares_y, board_square_mm,
@@ -127,7 +151,12 @@ class SimBench:
                                        rng=rngs["render"], nuisance=self._nuisance(
             subsurface_blur_mm, specular, crosstalk, projector_gamma, vignetting,
             pull_speed_m_per_s * motion_blur_exposure_ms * 1e-3, working_distance_m))
-        self._pattern_shown = False
+        self.projector_latency_ns = int(round(projector_latency_ms * 1e6))
+        self.exposure_ns = int(round(exposure_ms * 1e6))
+        self.line_time_ns = line_time_us * 1e3
+        self._projector_rng = rngs["projector"]
+        self._light: list[tuple[int, np.ndarray]] = []  # (true ns it lights the scene, pattern)
+        self._lit: np.ndarray | None = None  # the pattern the renderer holds
         self._time = threading.Condition()
         self._now_host_ns = 0  # newest frame's host arrival, relative to host_epoch_ns
         self._open_devices: set[int] = set()
@@ -180,13 +209,18 @@ class SimBench:
     def conditions(self) -> dict[str, Any]:
         """Experimental conditions of the trial, for session metadata."""
         p, s = self.trial.protocol, self.trial.sample
+        if isinstance(p, TapProtocol):
+            return {"protocol": "sync", "stiffness_n_per_m": p.stiffness_n_per_m,
+                    "taps": len(p.tap_times_s), "thickness_m": s.thickness_m,
+                    "scene": self.scene, "seed": self.seed, "simulated": True}
         return {"stiffness_n_per_m": p.stiffness_n_per_m, "pull_speed_m_per_s": p.pull_speed_m_per_s,
                 "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
                 "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
                 "scene": self.scene, "seed": self.seed, "simulated": True}
 
     def duration_s(self) -> float:
-        """Length of one traction trial (rest, pull until the target force, hold)."""
+        """Length of one traction trial (rest, pull until the target force, hold) or of the sync
+        protocol session."""
         return self.trial.protocol.duration_s()
 
     # -- devices --------------------------------------------------------------------------
@@ -256,10 +290,49 @@ class SimBench:
         return self.host_epoch_ns + k * self.frame_period_ns + self.image_latency_ns
 
     # -- what the devices see and measure -------------------------------------------------
-    def show_pattern(self, pattern_bgr: np.ndarray) -> None:
-        """Light the scene with a projector image from now on."""
-        self.renderer.set_pattern(pattern_bgr, distance_m=self._tissue.distance_m)
-        self._pattern_shown = True
+    def show_pattern(self, pattern_bgr: np.ndarray) -> int:
+        """A projector command at the host's now: the pattern lights the scene
+        ``projector_latency_ms`` later. Returns the command's host time (absolute ns).
+
+        Not in real time the host clock stands at the newest frame's arrival between frames, so
+        the command is placed uniformly within the next frame period (a real host issues it at
+        any phase of the camera's frames). With ``projector_latency_ms = 0`` the projector is
+        ideal: every frame rendered after the command sees the pattern."""
+        with self._time:
+            now = self.host_now_ns() - self.host_epoch_ns
+            if self.projector_latency_ns == 0:
+                self._light = [(-(2**62), pattern_bgr)]
+                return now + self.host_epoch_ns
+            if not self.realtime:
+                now += int(self._projector_rng.integers(0, self.frame_period_ns))
+            self._light.append((now + self.projector_latency_ns, pattern_bgr))
+            return now + self.host_epoch_ns
+
+    def _exposure(self, true_ns: int) -> list[tuple[np.ndarray, np.ndarray | float]]:
+        """The patterns lighting frame ``true_ns`` and their share of each row's exposure
+        (window centred on the frame's time; rolling shutter: rows offset by the line time)."""
+        with self._time:
+            light = list(self._light)
+        if not light or light[0][0] > true_ns - self.exposure_ns // 2 - self._readout_ns():
+            default = make_pattern(self.rig.projector.width, self.rig.projector.height)
+            light.insert(0, (-(2**62), default))
+            with self._time:
+                self._light.insert(0, light[0])
+        rows = (np.arange(self.rig.left.height) - (self.rig.left.height - 1) / 2) * self.line_time_ns
+        start = true_ns + rows - self.exposure_ns / 2
+        end = start + self.exposure_ns
+        shares = []
+        for (on, pattern), (off, _) in zip(light, light[1:] + [(2**62, None)]):
+            if self.exposure_ns > 0:
+                share = np.clip(np.minimum(end, off) - np.maximum(start, on), 0, None) / self.exposure_ns
+            else:
+                share = ((start >= on) & (start < off)).astype(np.float64)
+            if share.any():
+                shares.append((pattern, share[0] if self.line_time_ns == 0 else share))
+        return shares
+
+    def _readout_ns(self) -> float:
+        return self.line_time_ns * self.rig.left.height / 2
 
     def surface_at(self, true_ns: int) -> Surface:
         """The scene's surface at true time ``true_ns``."""
@@ -271,15 +344,35 @@ class SimBench:
         return self._tissue.with_load(load)
 
     def render_frame(self, true_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left and right images at true time ``true_ns``.
+        """Left and right images at true time ``true_ns``: the scene at that instant, lit by
+        the patterns of the exposure window (a pattern change mid-exposure gives a mix).
 
         Until the projector shows something, the tissue is lit by the structured-light pattern
         and the board by room light."""
         if self._board is not None:
-            return self._board.render(true_ns, self.renderer if self._pattern_shown else None)
-        if not self._pattern_shown:
-            self.show_pattern(make_pattern(self.rig.projector.width, self.rig.projector.height))
-        return self.renderer.render(self.surface_at(true_ns))
+            return self._board.render(true_ns, self._lit_renderer(true_ns))
+        surface = self.surface_at(true_ns)
+        views = []
+        for pattern, share in self._exposure(true_ns):
+            self._set_lit(pattern)
+            views.append((self.renderer.render(surface), share))
+        if len(views) == 1:
+            return views[0][0]
+        return tuple(_mix([(pair[eye], w) for pair, w in views]) for eye in range(2))
+
+    def _set_lit(self, pattern: np.ndarray) -> None:
+        if pattern is not self._lit:
+            self.renderer.set_pattern(pattern, distance_m=self._tissue.distance_m)
+            self._lit = pattern
+
+    def _lit_renderer(self, true_ns: int) -> StereoRenderer | None:
+        """The renderer lit by the newest pattern shown by ``true_ns`` (None: room light)."""
+        with self._time:
+            shown = [pattern for on, pattern in self._light if on <= true_ns]
+        if not shown:
+            return None
+        self._set_lit(shown[-1])
+        return self.renderer
 
     def trocar_block(self, first: int, n: int) -> dict[str, np.ndarray]:
         """Trocar samples ``first … first+n−1``: true/device/host (relative) ns and force (N)."""
@@ -323,3 +416,10 @@ class SimBench:
         ``proj_uv_left``, ``valid_left`` (see :meth:`StereoRenderer.truth`)."""
         true_ns = int(self.camera_clock.true_ns(int(frame_t_device_ns)))
         return self.renderer.truth(self.surface_at(true_ns))
+
+
+def _mix(parts: list[tuple[np.ndarray, np.ndarray | float]]) -> np.ndarray:
+    """Weighted sum of images (per-row weights or one weight each), as ``uint8``."""
+    total = sum(np.asarray(w, np.float32).reshape(-1, 1, 1) * image.astype(np.float32)
+                for image, w in parts)
+    return np.clip(total + 0.5, 0, 255).astype(np.uint8)

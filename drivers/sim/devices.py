@@ -129,8 +129,9 @@ class SimProjector(Projector):
     """The bench's projector: what it shows is what the simulated cameras see."""
 
     def __init__(self, bench: "SimBench", **options: object) -> None:
-        super().__init__(bench.host_now_ns)
+        super().__init__(lambda: self._shown_at_ns)  # events carry the bench's command time
         _check_no_options("projector", options)
+        self._shown_at_ns = 0
         self.bench = bench
         self.width, self.height = bench.rig.projector.width, bench.rig.projector.height
 
@@ -138,11 +139,12 @@ class SimProjector(Projector):
         """Switch the projector on."""
 
     def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
-        """Project ``pattern`` (must be the projector's size) from now on; frame ID = ``seq``."""
+        """Project ``pattern`` (must be the projector's size) from now on (after the bench's
+        projector latency); frame ID = ``seq``."""
         if pattern.shape[:2] != (self.height, self.width):
             raise DeviceError(f"pattern {name!r} is {pattern.shape[1]}x{pattern.shape[0]} but the "
                               f"simulated projector is {self.width}x{self.height}; make it that size")
-        self.bench.show_pattern(pattern)
+        self._shown_at_ns = self.bench.show_pattern(pattern)
         return seq
 
     def _close(self) -> None:

@@ -154,3 +154,58 @@ class Trial:
         return {"protocol": asdict(self.protocol), "sample": asdict(self.sample),
                 "deformation_scale": self.deformation_scale, "radius_ref_m": self.radius_ref_m,
                 "radius_m": self.radius_m()}
+
+
+TAP = 3  # phase of a sync-protocol tap (REST between taps)
+
+
+@dataclass(frozen=True)
+class TapProtocol:
+    """The sync protocol's simulated operator: ``tap_times_s`` short taps on the resting tissue.
+
+    Each tap is a half-sine force impulse of ``tap_s`` seconds and peak ``peaks_n`` (sharp
+    onset, slope ``π·peak/tap_s``); the tissue follows elastically (``u = F/k``), so the image
+    moves exactly when the force does. Between taps the grasper is off the tissue (no force).
+    """
+
+    stiffness_n_per_m: float
+    tap_times_s: tuple[float, ...]
+    peaks_n: tuple[float, ...]
+    tap_s: float = 0.15
+    session_s: float = 20.0
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, taps: int, session_s: float,
+               stiffness_n_per_m: float = 80.0, peak_n: float = 1.0,
+               tap_s: float = 0.15, lead_s: float = 0.8, min_gap_s: float = 0.4) -> "TapProtocol":
+        """``taps`` taps at random (irregular) times in ``[lead_s, session_s - lead_s]``, at
+        least ``min_gap_s`` apart, with peaks between 0.7 and 1.3 × ``peak_n``."""
+        span = session_s - 2 * lead_s - taps * (tap_s + min_gap_s)
+        if taps < 1 or span <= 0:
+            raise DeviceError(f"[bench] {taps} taps of {tap_s} s do not fit in {session_s} s "
+                              "(at least 0.4 s apart); lengthen sync_duration_s or tap less")
+        gaps = rng.dirichlet(np.ones(taps + 1)) * span
+        starts = lead_s + np.cumsum(gaps[:-1]) + np.arange(taps) * (tap_s + min_gap_s)
+        peaks = peak_n * rng.uniform(0.7, 1.3, taps)
+        return cls(stiffness_n_per_m, tuple(float(t) for t in starts),
+                   tuple(float(p) for p in peaks), tap_s, session_s)
+
+    @property
+    def target_force_n(self) -> float:
+        """The largest force of the session (for the tissue fold check)."""
+        return max(self.peaks_n)
+
+    def duration_s(self) -> float:
+        """Length of the protocol session."""
+        return self.session_s
+
+    def state(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grasper displacement (m), force (N) and phase (REST or TAP) at times ``t_s``."""
+        t = np.asarray(t_s, np.float64)
+        force = np.zeros_like(t)
+        for start, peak in zip(self.tap_times_s, self.peaks_n):
+            s = (t - start) / self.tap_s
+            inside = (s > 0) & (s < 1)
+            force[inside] = peak * np.sin(np.pi * s[inside])
+        phase = np.where(force > 0, TAP, REST)
+        return force / self.stiffness_n_per_m, force, phase

@@ -11,6 +11,7 @@ import cv2
 
 from vbfe.acquire.reader import SessionReader
 from vbfe.acquire.sync_check import SyncLimits, verify_sync
+from vbfe.acquire.sync_protocol import ProtocolSettings
 from vbfe.batch.errors import BatchError
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status
@@ -53,6 +54,7 @@ class VerifySyncTask:
     limits (and no correction is to be applied)."""
 
     limits: dict[str, float] = field(default_factory=dict)
+    settings: dict[str, float] = field(default_factory=dict)  # the camera facts (ProtocolSettings)
     apply: bool = False
     overwrite: bool = False  # measure again even when a result for these limits is stored
 
@@ -67,6 +69,7 @@ class VerifySyncTask:
             return {"action": "up to date", "verdict": str(stored["sync_verdict"]).upper(),
                     "offset_ms": 1e3 * float(stored["sync_offset_s"])}
         report = verify_sync(session, limits, plot_path=plot, store=True,
-                             apply_correction=self.apply)
-        return {"action": "checked", "verdict": "PASS" if report.passed else "FAIL",
+                             apply_correction=self.apply,
+                             settings=ProtocolSettings(**self.settings))
+        return {"action": "checked", "verdict": report.verdict,
                 "offset_ms": 1e3 * report.estimate.offset_s}

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from vbfe.acquire import RecorderStats, record_session
 from vbfe.acquire.layout import COMPRESSIONS
+from vbfe.acquire.sync_session import SyncProtocol
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.errors import VbfeError
@@ -31,6 +33,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="zero the unloaded trocar from its first [record] tare_samples "
                         "samples before recording (the offset is stored with the session)")
     add_overwrite_option(parser)
+    parser.add_argument("--protocol", choices=("traction", "sync"), default="traction",
+                        help="sync: a short sync check session (projector flashes, operator "
+                             "taps; --duration defaults to 20 s), then run verify-sync on it")
+    parser.add_argument("--taps", type=int, default=20, metavar="N",
+                        help="taps the operator is asked for (sync protocol)")
+    parser.add_argument("--flashes", type=int, default=20, metavar="N",
+                        help="projector flashes (sync protocol)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of the random flash times (sync protocol; default: fresh)")
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -67,11 +78,17 @@ def run(args: argparse.Namespace) -> int:
             calibration = Path(args.calib).read_text(encoding="utf-8")
         except OSError as exc:
             raise VbfeError(f"cannot read calibration {args.calib}: {exc.strerror}") from None
+    protocol = None
+    if args.protocol == "sync":
+        protocol = SyncProtocol(taps=args.taps, flashes=args.flashes,
+                                duration_s=args.duration or 20.0, seed=args.seed)
+        print(protocol.instructions(), file=sys.stderr)
     bar = progress(total=None, desc="recording", unit="frame")
 
     def show(stats: RecorderStats) -> None:
         bar.n = stats.frames
-        bar.set_postfix_str(f"{stats.elapsed_s:.1f} s, {stats.samples} force samples, "
+        events = f"{protocol.progress()}, " if protocol else ""
+        bar.set_postfix_str(f"{events}{stats.elapsed_s:.1f} s, {stats.samples} force samples, "
                             f"dropped {sum(stats.dropped.values())}, "
                             f"{stats.write_rate_mb_s:.0f} MB/s", refresh=True)
 
@@ -80,10 +97,14 @@ def run(args: argparse.Namespace) -> int:
                                operator=args.operator, notes=args.notes,
                                conditions=_conditions(args.condition),
                                compression=args.compression, calibration_yaml=calibration,
-                               on_progress=show, tare=args.tare, overwrite=args.overwrite)
+                               on_progress=show, tare=args.tare, overwrite=args.overwrite,
+                               protocol=protocol)
         show(stats)
     finally:
         bar.close()
     print(f"{args.output}: {stats.frames} frames, {stats.samples} force samples, "
           f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}")
+    if protocol is not None:
+        print(f"sync protocol: collected {protocol.progress()}; check it with "
+              f"`vbfe verify-sync {args.output}`")
     return 0

@@ -5,21 +5,26 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.acquire.sync_check import SyncLimits, verify_sync
+from vbfe.acquire.sync_check import FAIL, PASS, SyncLimits, verify_sync
+from vbfe.acquire.sync_protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from
+
+EXIT_CODES = {PASS: 0, FAIL: 1}  # anything else (INCONCLUSIVE): 3
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `verify-sync` subcommand."""
     parser = sub.add_parser("verify-sync", help="estimate the image-force time offset, clock "
-                            "drift and drops of sessions; pass/fail against the rig's limits")
+                            "drift and drops of sessions; PASS/FAIL against the rig's limits "
+                            "(exit 0/1; 3: inconclusive, record --protocol sync)")
     parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="plot of the offset measurement (default: SESSION.sync.png)")
     parser.add_argument("--apply", action="store_true",
-                        help="store the measured offset as a frame-time correction")
+                        help="store the measured offset as a frame-time correction and print "
+                             "the rig config line that applies it to new sessions")
     parser.add_argument("--no-store", action="store_true",
                         help="do not write the results into the session (single session)")
     parser.add_argument("--workers", type=int, default=None,
@@ -31,30 +36,33 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the report(s); exit code 1 when a verdict is FAIL."""
+    """Print the report(s); exit code 0 PASS, 1 FAIL, 3 INCONCLUSIVE (the worst of many)."""
     from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import expand_sessions
 
     config = config_from(args)
-    limits = SyncLimits.from_config(config)
+    limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
         # the default plot is this command's own product and is refreshed on every run
         check_outputs([plot], [sessions[0]], overwrite=args.overwrite or args.plot is None)
         report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
-                             apply_correction=args.apply)
+                             apply_correction=args.apply, settings=settings)
         print(report.text())
-        return 0 if report.passed else 1
+        if args.apply:
+            print(f"rig config  add to [record] of your rig.toml so new sessions are corrected: "
+                  f"{report.config_suggestion()}")
+        return EXIT_CODES.get(report.verdict, 3)
     if args.plot or args.no_store:
         raise BatchError("--plot and --no-store take a single session; with several, each "
                          "result is stored in its session and plotted next to it")
     from vbfe.batch.tasks import VerifySyncTask
 
     executor, address = batch_settings(args, config.get("batch", {}))
-    task = VerifySyncTask(limits=dict(limits.__dict__), apply=args.apply,
-                          overwrite=args.overwrite)
+    task = VerifySyncTask(limits=dict(limits.__dict__), settings=dict(settings.__dict__),
+                          apply=args.apply, overwrite=args.overwrite)
     outcomes = run_batch(task, sessions, executor, args.workers, address, "verify-sync",
                          lambda v: f"{v['verdict']} offset {v['offset_ms']:+.2f} ms"
                          f" ({v['action']})")
-    return 0 if all(o.value["verdict"] == "PASS" for o in outcomes) else 1
+    return max(EXIT_CODES.get(o.value["verdict"], 3) for o in outcomes)
