@@ -124,7 +124,7 @@ class _Pump(threading.Thread):
                 self._out.put(item, timeout=_PUT_POLL_S)
             except queue.Full:
                 continue
-            self.last_seq = item.seq
+            self.last_seq, self.last_t_host_ns = item.seq, item.t_host_ns
             return
 
 
@@ -212,6 +212,7 @@ class Recorder:
             except Exception:
                 self._close_devices()
                 raise
+            self.pattern = pattern  # the image shown (a sync protocol flashes it)
         self._writer = SessionWriter(self.path, (cam.width, cam.height), self.compression,
                                      self.metadata, self.calibration_yaml,
                                      getattr(trocar, "axes", ("x", "y", "z")),

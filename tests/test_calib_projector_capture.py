@@ -35,7 +35,8 @@ def test_cli_capture_and_gray_code_capture_on_the_bench_board_scene(tmp_path):
     """Both commands with the sim backend; the bench is chosen only in the rig config."""
     (tmp_path / "rig.toml").write_text(
         '[bench]\nscene = "board"\nfps = 10.0\nboard_hold_s = 10.0\nboard_in_projector = true\n'
-        'board_max_tilt_deg = 45.0\n[calib]\nprojector_settle_s = 0.0\n')
+        'board_max_tilt_deg = 45.0\nprojector_latency_ms = 0.0\nexposure_ms = 0.0\n'
+        '[calib]\nprojector_settle_s = 0.0\n')
     (tmp_path / "hand.toml").write_text('[bench]\nscene = "board"\n')
     done = vbfe("calibrate", "capture", "views", "--headless", "--max-frames", "6", "--seed", "2",
                 "--config", "hand.toml", cwd=tmp_path)
