@@ -3,6 +3,9 @@
 A full queue never blocks a device: the sample is dropped, counted and marked as a gap. The
 writer flushes at least every ``flush_interval_s`` (SWMR), so a crash loses at most that much.
 A device that vanishes ends the session cleanly with what was recorded and a marked gap.
+A recording of a given duration keeps exactly the frames and force samples that arrived (host
+clock) before its end: when the duration is reached, the force reader goes on until it has read
+past the end, so which samples are kept never depends on when the threads happened to stop.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from vbfe.drivers.samples import StereoFrame
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 4
+_END_GRACE_S = 2.0  # how long a reader may go on after the stop to reach the recording's end
 
 
 @dataclass
@@ -53,16 +57,31 @@ class _Pump(threading.Thread):
     """Reads one device into a bounded queue; counts and reports overflow and disconnection."""
 
     def __init__(self, name: str, read: Callable[[float], Any], out: queue.Queue,
-                 control: queue.Queue, stop: threading.Event) -> None:
+                 control: queue.Queue, stop: threading.Event,
+                 read_until_ns: Callable[[], int | None] = lambda: None) -> None:
         super().__init__(name=f"vbfe-read-{name}", daemon=True)
         self.stream, self._read, self._out, self._control, self._halt = name, read, out, control, stop
+        self._read_until_ns = read_until_ns
         self.dropped = 0
         self.last_seq = -1
+        self.last_host_ns: int | None = None
         self.error: str | None = None
+        self._halted_at: float | None = None
+
+    def _done(self) -> bool:
+        """Stopped, and past the recording's end (``read_until_ns``) when there is one."""
+        if not self._halt.is_set():
+            return False
+        end_ns = self._read_until_ns()
+        if end_ns is None or (self.last_host_ns is not None and self.last_host_ns >= end_ns):
+            return True
+        if self._halted_at is None:
+            self._halted_at = time.monotonic()
+        return time.monotonic() - self._halted_at > _END_GRACE_S
 
     def run(self) -> None:
         burst = 0
-        while not self._halt.is_set():
+        while not self._done():
             try:
                 item = self._read(_READ_TIMEOUT_S)
             except DeviceError as exc:
@@ -72,6 +91,7 @@ class _Pump(threading.Thread):
                 break
             if item is None:
                 continue
+            self.last_host_ns = item.t_host_ns
             try:
                 self._out.put_nowait(item)
             except queue.Full:
@@ -122,6 +142,7 @@ class Recorder:
         self._frame_t_host = [0, 0]  # first, last
         self._span_limit_ns: int | None = None  # frames later than this after the first are not kept
         self._span_reached = threading.Event()
+        self._end_host_ns: int | None = None  # first frame's host time + duration
         self._t_start = 0.0
         self.stats = RecorderStats()
 
@@ -144,7 +165,8 @@ class Recorder:
         if self.pattern is not None:
             self._control.put(("event", projector.show(self.pattern, self.pattern_name)))
         self._pumps = [_Pump("camera", cam.read, self._frames, self._control, self._stop),
-                       _Pump("force", trocar.read, self._forces, self._control, self._stop)]
+                       _Pump("force", trocar.read, self._forces, self._control, self._stop,
+                             self._reached_end_ns)]
         self._writer_thread = threading.Thread(target=self._write_loop, name="vbfe-writer",
                                                daemon=True)
         self._writer_thread.start()
@@ -246,6 +268,8 @@ class Recorder:
                 forces = self._drain(self._forces, 1 << 20)
                 control = self._drain(self._control, 1 << 20)
                 frames = self._within_duration(frames)
+                if self._end_host_ns is not None:
+                    forces = [f for f in forces if f.t_host_ns < self._end_host_ns]
                 if frames:
                     self._frame_t_host[1] = frames[-1].t_host_ns
                     self._frame_t_device.extend(fr.t_device_ns for fr in frames)
@@ -272,13 +296,17 @@ class Recorder:
         simulation may deliver many frames per progress tick)."""
         if frames and not self._frame_t_device:
             self._frame_t_host[0] = frames[0].t_host_ns
-        if self._span_limit_ns is None:
+        if self._span_limit_ns is None or not (frames or self._frame_t_device):
             return frames
-        end = self._frame_t_host[0] + self._span_limit_ns
-        kept = [fr for fr in frames if fr.t_host_ns < end]
+        self._end_host_ns = self._frame_t_host[0] + self._span_limit_ns
+        kept = [fr for fr in frames if fr.t_host_ns < self._end_host_ns]
         if len(kept) < len(frames):
             self._span_reached.set()
         return kept
+
+    def _reached_end_ns(self) -> int | None:
+        """The recording's end (host ns) once the duration is reached, for the force reader."""
+        return self._end_host_ns if self._span_reached.is_set() else None
 
     def _flush(self) -> None:
         self._writer.flush()
