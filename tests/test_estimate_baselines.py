@@ -12,7 +12,12 @@ def prepared(name, displacement_m, force_n, condition):
                            targets_n=np.asarray(force_n, float).reshape(n, -1),
                            pools=np.zeros((n, 4, 3), np.float32),
                            displacement_m=np.asarray(displacement_m, float),
+                           heights_m=np.nan_to_num(np.asarray(displacement_m, float)).reshape(n, 1) * [1, 0.5],
                            n_frames_total=n, n_skipped=0)
+
+
+def all_frames(sessions):
+    return [(s, np.arange(s.n_used)) for s in sessions]
 
 
 def test_fitted_baselines_recover_known_relations():
@@ -20,7 +25,7 @@ def test_fitted_baselines_recover_known_relations():
     sessions = [prepared("a", d, 120.0 * d, {"stiffness_n_per_m": 40.0}),
                 prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
     sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
-    fitted = fit_baselines(sessions)
+    fitted = fit_baselines(all_frames(sessions))
     np.testing.assert_allclose(fitted["hooke"].slope, [120.0], rtol=1e-9)
     np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
     np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
@@ -31,7 +36,7 @@ def test_fitted_baselines_recover_known_relations():
 
 def test_linear_and_hooke_differ_when_force_has_an_offset():
     d = np.linspace(0.001, 0.01, 40)
-    fitted = fit_baselines([prepared("a", d, 1.0 + 100.0 * d, {})])
+    fitted = fit_baselines(all_frames([prepared("a", d, 1.0 + 100.0 * d, {})]))
     np.testing.assert_allclose(fitted["linear_displacement"].predict(np.array([0.02]))[0], [3.0])
     assert fitted["hooke"].intercept[0] == 0.0
     assert abs(fitted["hooke"].predict(np.array([0.02]))[0, 0] - 3.0) > 0.1

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import StageProgress
+from vbfe.cli.common import StageProgress, add_config_option, config_from
+from vbfe.config import section
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,13 +17,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("model", metavar="MODEL.pt")
     parser.add_argument("sessions", nargs="*", metavar="SESSION.h5")
     parser.add_argument("--out", required=True, metavar="DIR", help="report directory")
+    add_config_option(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
-    from vbfe.estimate import evaluate  # torch loads only when a command needs it
+    from vbfe.estimate import TrainConfig, evaluate, use_threads  # torch loads only when needed
 
+    use_threads(TrainConfig.from_table(section(config_from(args), "train")).threads)
     bars = StageProgress()
     try:
         report = evaluate(args.model, args.sessions or None, args.out, progress=bars)
@@ -32,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
         overall = numbers["overall"]
         print(f"{method:>20}: MAE {overall['mae_n']:.3f} N (σ {overall['sd_abs_error_n']:.3f}), "
               f"RMSE {overall['rmse_n']:.3f} N over {overall['n_frames']} frames")
+    print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")
     print(f"report: {report.out_dir / 'report.md'}")
