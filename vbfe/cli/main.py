@@ -7,12 +7,12 @@ import sys
 from collections.abc import Sequence
 
 from vbfe import __version__
-from vbfe.cli import (calibrate, demo, devices, evaluate, inspect, reconstruct, record, train,
-                      verify_sync, view)
+from vbfe.cli import (calibrate, demo, devices, evaluate, import_data, inspect, reconstruct,
+                      record, train, verify_sync, view)
 from vbfe.errors import VbfeError
 
-COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, reconstruct, train, evaluate,
-            demo)
+COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, reconstruct, import_data,
+            train, evaluate, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:
