@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from vbfe.estimate.baselines import AffineBaseline, fit_baselines
+from vbfe.estimate.baselines import (AffineBaseline, RidgeBaseline, baseline_from_dict,
+                                    fit_baselines)
 from vbfe.estimate.dataset import PreparedSession
 
 
@@ -47,3 +48,19 @@ def test_baseline_round_trips_through_a_dict():
     again = AffineBaseline.from_dict(b.to_dict())
     np.testing.assert_array_equal(again.predict(np.array([0.5, np.nan])),
                                   [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]])
+
+
+def test_ridge_on_height_maps_recovers_a_linear_map_and_round_trips():
+    rng = np.random.default_rng(0)
+    heights = rng.normal(0, 1e-3, (400, 16))
+    weights = rng.normal(0, 1.0, 16) * 1e3
+    force = heights @ weights + 2.0 + rng.normal(0, 0.01, 400)
+    session = prepared("r", np.zeros(400), force, {})
+    session.heights_m = heights
+    train, test = np.arange(300), np.arange(300, 400)
+    ridge = fit_baselines([(session, train)])["ridge_height_map"]
+    predicted = ridge.predict_session(session)[test, 0]
+    assert np.abs(predicted - force[test]).mean() < 0.05 * np.abs(force - force.mean()).mean()
+    again = baseline_from_dict(ridge.to_dict())
+    np.testing.assert_allclose(again.predict_session(session), ridge.predict_session(session))
+    assert isinstance(again, RidgeBaseline)
