@@ -10,6 +10,7 @@ inside each session with a gap between parts (``split_by_time``), never by singl
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections import defaultdict
 from collections.abc import Callable, Iterator, Sequence
@@ -153,6 +154,11 @@ def skipped_counts(sessions: Sequence[PreparedSession]) -> dict[str, dict[str, i
 PARTS = ("train", "val", "test")
 
 
+def _session_key(name: str) -> str:
+    """A session's identity: its resolved path when it names a file, else the name."""
+    return os.path.realpath(name) if os.path.exists(name) else name
+
+
 @dataclass
 class SessionSplit:
     """Which frames are in each part: whole sessions (``kind="session"``) or, for
@@ -168,13 +174,23 @@ class SessionSplit:
     gap_frames: int = 0
     blocks: dict[str, dict[str, list[list[int]]]] = field(default_factory=dict)
 
+    def _find(self, name: str, names: Sequence[str]) -> str | None:
+        """The entry of ``names`` that is session ``name`` (the same file by another path)."""
+        key = _session_key(name)
+        return next((n for n in names if _session_key(n) == key), None)
+
+    def contains(self, part: str, name: str) -> bool:
+        """Whether session ``name`` has frames in ``part``."""
+        return self._find(name, getattr(self, part)) is not None
+
     def positions(self, part: str, session: PreparedSession) -> np.ndarray:
         """Used-frame positions of ``session`` that belong to ``part`` (may be empty)."""
-        if self.kind == "time" and session.name in self.blocks.get(part, {}):
-            ranges = self.blocks[part][session.name]
-            return np.concatenate([np.arange(a, b) for a, b in ranges] or [np.zeros(0, int)])
-        if self.kind == "time" or session.name not in getattr(self, part):
+        found = self._find(session.name, getattr(self, part))
+        if found is None:
             return np.zeros(0, dtype=np.int64)
+        if self.kind == "time":
+            ranges = self.blocks[part][found]
+            return np.concatenate([np.arange(a, b) for a, b in ranges])
         return np.arange(session.n_used)
 
     def frames(self, part: str, sessions: Sequence[PreparedSession]

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.errors import EstimateError
-from vbfe.estimate.model_file import ForceModel, load_model, training_sessions
+from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.report import plot_scatter, plot_session, safe_stem, write_json, write_tables
 from vbfe.estimate.sources import SessionLike
 
@@ -55,11 +55,12 @@ def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np
     """
     split = model.split
     everything = np.arange(session.n_used)
-    if split.kind == "time" and any(session.name in split.blocks.get(part, {})
+    if split.kind == "time" and any(split.contains(part, session.name)
                                     for part in ("train", "val", "test")):
         test = split.positions("test", session)
         return (test, False) if len(test) else (everything, True)
-    return everything, session.name in set(training_sessions(model))
+    return everything, split.contains("train", session.name) or split.contains("val",
+                                                                             session.name)
 
 
 def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out_dir: str | Path,

@@ -144,9 +144,3 @@ def load_model(path: str | Path) -> ForceModel:
                                  for name, b in payload["baselines"].items()},
                       record=record, temporal=temporal)
 
-
-def training_sessions(model: ForceModel) -> Sequence[str]:
-    """Names of the sessions the network or its baselines were fitted or validated on
-    (with a time split, a session's held-out blocks are still held out)."""
-    split = model.split
-    return [*split.train, *split.val]

@@ -176,7 +176,7 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
             affordable = int((deadline - time.monotonic()) / epoch_s)
             epochs_left = max(0, min(config.epochs - epoch, affordable))
             cosine.total_steps = max(steps + epochs_left * steps_per_epoch, steps, 1)
-    if check_batches is None:
+    if best_epoch == 0:  # no validation (or no finite validation loss): keep the last epoch
         best_epoch, best_state = len(history), copy.deepcopy(network.state_dict())
     network.load_state_dict(best_state)
     network.to("cpu").eval()
