@@ -53,6 +53,8 @@ class TrainConfig:
     device: str = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
     temporal_frames: int = 0  # temporal model: k frames in its causal window (0 = not trained)
     temporal_span_frames: int = 10  # frames from the oldest to the newest frame of the window
+    temporal_epochs: int = 0  # epochs of the temporal model (0: ``epochs``); it starts from
+    # the trained PointNet's encoder, so it needs fewer
     ridge_cells: int = 16  # ridge baseline: the height map relative to the rest frame, cells²
 
     def __post_init__(self) -> None:
@@ -76,6 +78,8 @@ class TrainConfig:
                 self.temporal_frames and self.temporal_span_frames < self.temporal_frames - 1):
             raise EstimateError("[train] temporal_frames must be 0 (off) or >= 2, and "
                                 "temporal_span_frames >= temporal_frames - 1")
+        if self.temporal_epochs < 0:
+            raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
         if self.ridge_cells < 2 or self.val_max_frames < 1:
             raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
 

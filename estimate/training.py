@@ -9,7 +9,8 @@ validation subsample with fixed point draws) and writes everything to a model fi
 of epochs and keeps the last. The time limit is checked after every batch and the schedule is
 re-sized after every epoch to the epochs the remaining time allows, so it anneals in time.
 With ``temporal_frames > 0`` the temporal model is trained the same way after PointNet
-(each gets half of the time limit).
+(each gets half of the time limit), its encoder starting from PointNet's trained encoder, for
+``temporal_epochs``.
 """
 
 from __future__ import annotations
@@ -122,21 +123,21 @@ class _CosineSteps:
 
 
 def _fit(network: PointNetRegressor, train_batches: FrameBatches,
-         check_batches: FrameBatches | None, config: TrainConfig, device: torch.device,
-         rng: np.random.Generator, deadline: float | None,
+         check_batches: FrameBatches | None, config: TrainConfig, epochs: int,
+         device: torch.device, rng: np.random.Generator, deadline: float | None,
          progress: Callable[[int, int], None] | None) -> FitOutcome:
     """Train ``network`` in place; it ends with the best (or, without validation, last) weights."""
     network.to(device)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
     steps_per_epoch = max(1, sum(1 for k in range(0, len(train_batches), config.batch_size)
                                  if len(train_batches) - k >= 2))
-    cosine = _CosineSteps(config.epochs * steps_per_epoch)
+    cosine = _CosineSteps(epochs * steps_per_epoch)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine)
     history: list[dict[str, float]] = []
     best_loss, best_epoch = float("inf"), 0
     best_state = copy.deepcopy(network.state_dict())
     stopped_by, steps = "epochs", 0
-    for epoch in range(1, config.epochs + 1):
+    for epoch in range(1, epochs + 1):
         epoch_start = time.monotonic()
         network.train()
         total, count = 0.0, 0
@@ -165,7 +166,7 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
                 best_state = copy.deepcopy(network.state_dict())
         history.append(entry)
         if progress is not None:
-            progress(epoch, config.epochs)
+            progress(epoch, epochs)
         if stopped_by == "time limit":
             break
         if check_batches is not None and epoch - best_epoch >= config.patience:
@@ -174,7 +175,7 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
         if deadline is not None:  # anneal over the epochs the remaining time allows
             epoch_s = max(time.monotonic() - epoch_start, 1e-6)
             affordable = int((deadline - time.monotonic()) / epoch_s)
-            epochs_left = max(0, min(config.epochs - epoch, affordable))
+            epochs_left = max(0, min(epochs - epoch, affordable))
             cosine.total_steps = max(steps + epochs_left * steps_per_epoch, steps, 1)
     if best_epoch == 0:  # no validation (or no finite validation loss): keep the last epoch
         best_epoch, best_state = len(history), copy.deepcopy(network.state_dict())
@@ -233,11 +234,14 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
         check_batches = (FrameBatches(val_parts, config.n_points, window,
                                       max_frames=config.val_max_frames) if val_parts else None)
         network = _build_network(config, train_batches, temporal=bool(window))
-        stage = "epochs" if name == "pointnet" else "temporal epochs"
+        epochs, stage = config.epochs, "epochs"
+        if window:  # start from the single-frame encoder
+            network.features.load_state_dict(networks["pointnet"].features.state_dict())
+            epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
         deadline = time.monotonic() + budget if budget > 0 else None
-        outcomes[name] = _fit(network, train_batches, check_batches, config, device, rng,
-                              deadline, (lambda done, total, stage=stage:
-                                         progress(stage, done, total)) if progress else None)
+        outcomes[name] = _fit(network, train_batches, check_batches, config, epochs, device,
+                              rng, deadline, (lambda done, total, stage=stage:
+                                              progress(stage, done, total)) if progress else None)
         networks[name] = network
         if outcomes[name].stopped_by == "time limit":
             notes.append(f"{name}: stopped by the time limit after "

@@ -41,6 +41,7 @@ class DemoPlan:
     recon_check_frames: int  # frames per session scored against the true depth
     temporal_frames: int  # temporal model: frames in its causal window
     temporal_span_frames: int  # oldest-to-newest frames of that window
+    temporal_epochs: int  # it starts from PointNet's encoder, so it needs fewer epochs
 
     @classmethod
     def full(cls) -> "DemoPlan":
@@ -54,7 +55,8 @@ class DemoPlan:
         return cls(width=640, height=360, fps=10.0, hold_s=3.0, calibration_frames=120,
                    projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
-                   recon_check_frames=3, temporal_frames=3, temporal_span_frames=10)
+                   recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
+                   temporal_epochs=20)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
@@ -62,7 +64,8 @@ class DemoPlan:
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
                    projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
-                   recon_check_frames=1, temporal_frames=3, temporal_span_frames=6)
+                   recon_check_frames=1, temporal_frames=2, temporal_span_frames=5,
+                   temporal_epochs=15)
 
 
 @dataclass
@@ -228,7 +231,8 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
         config["train"], epochs=plan.epochs, n_points=plan.n_points,
         frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
         time_limit_s=plan.time_limit_s, threads=plan.threads,
-        temporal_frames=plan.temporal_frames, temporal_span_frames=plan.temporal_span_frames)
+        temporal_frames=plan.temporal_frames, temporal_span_frames=plan.temporal_span_frames,
+        temporal_epochs=plan.temporal_epochs)
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
