@@ -12,7 +12,7 @@ Frames without a displacement (NaN) are left out of fitting and predicted with `
 
 - ``ridge_height_map``: ridge regression on the frame's downsampled height map relative to the
   rest (first) frame (``PreparedSession.heights_m``, cells² values), columns standardised on the
-  training frames, penalty chosen by generalised cross-validation on the training frames.
+  training frames, penalty chosen by blocked cross-validation on the training frames.
 """
 
 from __future__ import annotations
@@ -92,28 +92,42 @@ def baseline_from_dict(d: dict[str, Any]) -> Baseline:
     return RidgeBaseline.from_dict(d) if d.get("kind") == "ridge" else AffineBaseline.from_dict(d)
 
 
-def fit_ridge(heights: np.ndarray, y: np.ndarray) -> RidgeBaseline:
-    """Ridge regression on height maps; the penalty minimises the GCV score (via one SVD)."""
-    mean = heights.mean(axis=0)
-    scale = heights.std(axis=0)
+RIDGE_FOLDS = 5
+
+
+def _ridge_solve(x: np.ndarray, y: np.ndarray, alphas: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Column means/scales of ``x``, the mean of ``y`` and ridge weights for every alpha."""
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0)
     scale = np.where(scale > 1e-12, scale, 1.0)
-    x = (heights - mean) / scale
+    u, sv, vt = np.linalg.svd((x - mean) / scale, full_matrices=False)
     y_mean = y.mean(axis=0)
-    u, sv, vt = np.linalg.svd(x, full_matrices=False)
     uty = u.T @ (y - y_mean)
-    n = len(x)
-    best: tuple[float, float] | None = None
-    for alpha in np.logspace(-3, 4, 30) * n / max(x.shape[1], 1):
-        shrink = sv ** 2 / (sv ** 2 + alpha)
-        fitted = u @ (shrink[:, None] * uty)
-        dof = float(shrink.sum())
-        gcv = float(((y - y_mean - fitted) ** 2).sum()) / max(n - dof, 1.0) ** 2
-        if best is None or gcv < best[0]:
-            best = (gcv, float(alpha))
-    assert best is not None
-    alpha = best[1]
-    weights = vt.T @ ((sv / (sv ** 2 + alpha))[:, None] * uty)
-    return RidgeBaseline("ridge_height_map", mean, scale, weights, y_mean, alpha)
+    weights = [vt.T @ ((sv / (sv ** 2 + a))[:, None] * uty) for a in alphas]
+    return np.stack([mean, scale]), y_mean, weights
+
+
+def fit_ridge(heights: np.ndarray, y: np.ndarray) -> RidgeBaseline:
+    """Ridge regression on height maps; the penalty is chosen by blocked cross-validation.
+
+    The training frames are cut into ``RIDGE_FOLDS`` contiguous folds (neighbouring frames are
+    nearly copies of each other, so shuffled folds would favour overfitting).
+    """
+    alphas = np.logspace(-2, 5, 22) * len(heights) / max(heights.shape[1], 1)
+    folds = np.array_split(np.arange(len(heights)), min(RIDGE_FOLDS, len(heights)))
+    errors = np.zeros(len(alphas))
+    for fold in folds:
+        fit = np.setdiff1d(np.arange(len(heights)), fold)
+        if len(fit) < 2:
+            continue
+        (mean, scale), y_mean, weights = _ridge_solve(heights[fit], y[fit], alphas)
+        x = (heights[fold] - mean) / scale
+        errors += [float(((x @ w + y_mean - y[fold]) ** 2).sum()) for w in weights]
+    best = int(np.argmin(errors))
+    (mean, scale), y_mean, weights = _ridge_solve(heights, y, alphas[best:best + 1])
+    return RidgeBaseline("ridge_height_map", mean, scale, weights[0], y_mean,
+                         float(alphas[best]))
 
 
 def _fit_mean(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

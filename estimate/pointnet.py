@@ -85,7 +85,7 @@ class PointNetRegressor(nn.Module):
 
     def __init__(self, n_outputs: int = 1, conv_channels: Sequence[int] = (64, 128, 1024),
                  head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
-                 global_features: bool = True, n_head_clouds: int = 1) -> None:
+                 global_features: bool = True) -> None:
         super().__init__()
         self.hparams = {"n_outputs": n_outputs, "conv_channels": list(conv_channels),
                         "head_channels": list(head_channels), "dropout": dropout,
@@ -93,7 +93,7 @@ class PointNetRegressor(nn.Module):
         self.global_features = global_features
         self.features = _shared_mlp(conv_channels)
         self.embedding_size = conv_channels[-1] + (N_GLOBAL_FEATURES if global_features else 0)
-        self.head = _head(self.embedding_size * n_head_clouds, head_channels, dropout, n_outputs)
+        self.head = _head(self.embedding_size, head_channels, dropout, n_outputs)
         self.register_buffer("target_mean", torch.zeros(n_outputs))
         self.register_buffer("target_std", torch.ones(n_outputs))
         self.register_buffer("feature_mean", torch.zeros(N_GLOBAL_FEATURES))
@@ -128,19 +128,25 @@ class TemporalPointNet(PointNetRegressor):
     """The PointNet encoder over a causal window: rest cloud + the last k clouds → force.
 
     Input ``B × (1 + k) × N × 3`` (the session's rest frame first, then the window oldest to
-    newest). Every cloud is embedded by the shared encoder; the head sees the newest cloud's
-    embedding and each window cloud's embedding minus the rest cloud's, so it can read how the
-    surface has moved and how it is moving (a relaxing tissue at constant shape).
+    newest). Every cloud is embedded by the shared encoder. The force is the single-frame head
+    on the newest cloud (as in ``PointNetRegressor``, whose trained weights it can start from)
+    plus a motion correction: a second head on each window cloud's embedding minus the rest
+    cloud's, so it can read how the surface has moved and how it is moving (a relaxing tissue
+    at constant shape). The correction's output layer starts at zero.
     """
 
     def __init__(self, n_outputs: int = 1, n_frames: int = 4,
                  conv_channels: Sequence[int] = (64, 128, 1024),
                  head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
                  global_features: bool = True) -> None:
-        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features,
-                         n_head_clouds=n_frames + 1)
+        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features)
         self.hparams["n_frames"] = n_frames
         self.n_frames = n_frames
+        self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout,
+                                 n_outputs)
+        last = self.motion_head[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
 
     @staticmethod
     def cloud_features(points: torch.Tensor) -> torch.Tensor:
@@ -150,5 +156,5 @@ class TemporalPointNet(PointNetRegressor):
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         b, w = points.shape[:2]
         emb = self.embed(points.reshape(b * w, *points.shape[2:])).reshape(b, w, -1)
-        head_in = torch.cat([emb[:, -1], (emb[:, 1:] - emb[:, :1]).reshape(b, -1)], dim=1)
-        return self.head(head_in) * self.target_std + self.target_mean
+        motion = self.motion_head((emb[:, 1:] - emb[:, :1]).reshape(b, -1))
+        return (self.head(emb[:, -1]) + motion) * self.target_std + self.target_mean

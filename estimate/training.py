@@ -9,8 +9,9 @@ validation subsample with fixed point draws) and writes everything to a model fi
 of epochs and keeps the last. The time limit is checked after every batch and the schedule is
 re-sized after every epoch to the epochs the remaining time allows, so it anneals in time.
 With ``temporal_frames > 0`` the temporal model is trained the same way after PointNet
-(each gets half of the time limit), its encoder starting from PointNet's trained encoder, for
-``temporal_epochs``.
+(each gets half of the time limit), starting as the trained PointNet with its motion
+correction at zero, for ``temporal_epochs``; its starting weights compete in the best-epoch
+choice, so on the validation frames it is never worse than PointNet.
 """
 
 from __future__ import annotations
@@ -125,8 +126,12 @@ class _CosineSteps:
 def _fit(network: PointNetRegressor, train_batches: FrameBatches,
          check_batches: FrameBatches | None, config: TrainConfig, epochs: int,
          device: torch.device, rng: np.random.Generator, deadline: float | None,
-         progress: Callable[[int, int], None] | None) -> FitOutcome:
-    """Train ``network`` in place; it ends with the best (or, without validation, last) weights."""
+         progress: Callable[[int, int], None] | None, warm_start: bool = False) -> FitOutcome:
+    """Train ``network`` in place; it ends with the best (or, without validation, last) weights.
+
+    With ``warm_start`` the starting weights compete too (best epoch 0): a network that starts
+    from a trained one is never handed back worse on the validation frames than it started.
+    """
     network.to(device)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
     steps_per_epoch = max(1, sum(1 for k in range(0, len(train_batches), config.batch_size)
@@ -134,8 +139,13 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
     cosine = _CosineSteps(epochs * steps_per_epoch)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine)
     history: list[dict[str, float]] = []
-    best_loss, best_epoch = float("inf"), 0
-    best_state = copy.deepcopy(network.state_dict())
+    best_loss, best_epoch, best_state = float("inf"), -1, None
+    start = {"epoch": 0}
+    if warm_start and check_batches is not None:
+        start["val_loss"], start["val_mae_n"] = _mean_loss(
+            network, check_batches, 4 * config.batch_size, device)
+        best_loss, best_epoch = start["val_loss"], 0
+        best_state = copy.deepcopy(network.state_dict())
     stopped_by, steps = "epochs", 0
     for epoch in range(1, epochs + 1):
         epoch_start = time.monotonic()
@@ -169,7 +179,7 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
             progress(epoch, epochs)
         if stopped_by == "time limit":
             break
-        if check_batches is not None and epoch - best_epoch >= config.patience:
+        if check_batches is not None and epoch - max(best_epoch, 0) >= config.patience:
             stopped_by = "patience"
             break
         if deadline is not None:  # anneal over the epochs the remaining time allows
@@ -177,11 +187,11 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
             affordable = int((deadline - time.monotonic()) / epoch_s)
             epochs_left = max(0, min(epochs - epoch, affordable))
             cosine.total_steps = max(steps + epochs_left * steps_per_epoch, steps, 1)
-    if best_epoch == 0:  # no validation (or no finite validation loss): keep the last epoch
+    if best_state is None:  # no validation (or no finite validation loss): keep the last epoch
         best_epoch, best_state = len(history), copy.deepcopy(network.state_dict())
     network.load_state_dict(best_state)
     network.to("cpu").eval()
-    best = history[best_epoch - 1]
+    best = history[best_epoch - 1] if best_epoch else start
     return FitOutcome(history=history, best_epoch=best_epoch,
                       best_val_loss=best.get("val_loss", float("nan")),
                       val_mae_n=best.get("val_mae_n", float("nan")), stopped_by=stopped_by)
@@ -235,13 +245,14 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
                                       max_frames=config.val_max_frames) if val_parts else None)
         network = _build_network(config, train_batches, temporal=bool(window))
         epochs, stage = config.epochs, "epochs"
-        if window:  # start from the single-frame encoder
-            network.features.load_state_dict(networks["pointnet"].features.state_dict())
+        if window:  # start as the trained single-frame network, motion correction at zero
+            network.load_state_dict(networks["pointnet"].state_dict(), strict=False)
             epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
         deadline = time.monotonic() + budget if budget > 0 else None
         outcomes[name] = _fit(network, train_batches, check_batches, config, epochs, device,
                               rng, deadline, (lambda done, total, stage=stage:
-                                              progress(stage, done, total)) if progress else None)
+                                              progress(stage, done, total)) if progress else None,
+                              warm_start=bool(window))
         networks[name] = network
         if outcomes[name].stopped_by == "time limit":
             notes.append(f"{name}: stopped by the time limit after "
