@@ -6,8 +6,9 @@ MSE loss (force scaled by its training standard deviation) under a per-step cosi
 rate, keeps the network of the epoch with the lowest validation loss (measured on a fixed
 validation subsample with fixed point draws) and writes everything to a model file (see
 ``model_file.py``). Without enough validation frames it says so, trains the configured number
-of epochs and keeps the last. The time limit is checked after every batch and the schedule is
-re-sized after every epoch to the epochs the remaining time allows, so it anneals in time.
+of epochs and keeps the last. The time limit is checked after every batch, where the
+schedule's length is also re-sized to the steps the remaining time allows, so the learning
+rate anneals by the time limit.
 With ``temporal_frames > 0`` the temporal model is trained the same way after PointNet
 (each gets half of the time limit), starting as the trained PointNet with its motion
 correction at zero, for ``temporal_epochs``; its starting weights compete in the best-epoch
@@ -136,7 +137,8 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
     steps_per_epoch = max(1, sum(1 for k in range(0, len(train_batches), config.batch_size)
                                  if len(train_batches) - k >= 2))
-    cosine = _CosineSteps(epochs * steps_per_epoch)
+    planned_steps = epochs * steps_per_epoch
+    cosine = _CosineSteps(planned_steps)
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine)
     history: list[dict[str, float]] = []
     best_loss, best_epoch, best_state = float("inf"), -1, None
@@ -147,8 +149,8 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
         best_loss, best_epoch = start["val_loss"], 0
         best_state = copy.deepcopy(network.state_dict())
     stopped_by, steps = "epochs", 0
+    fit_start = time.monotonic()  # per-step time below includes the validation passes
     for epoch in range(1, epochs + 1):
-        epoch_start = time.monotonic()
         network.train()
         total, count = 0.0, 0
         for points, y in train_batches.batches(config.batch_size, rng):
@@ -163,9 +165,15 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
             steps += 1
             total += loss.item() * len(y)
             count += len(y)
-            if deadline is not None and time.monotonic() > deadline:
-                stopped_by = "time limit"
-                break
+            if deadline is not None:
+                now = time.monotonic()
+                if now > deadline:
+                    stopped_by = "time limit"
+                    break
+                # anneal over the steps the remaining time allows, re-sized after every step
+                step_s = (now - fit_start) / steps
+                affordable = steps + int((deadline - now) / step_s)
+                cosine.total_steps = max(min(planned_steps, affordable), steps, 1)
         entry = {"epoch": epoch, "train_loss": total / max(count, 1),
                  "lr": optimizer.param_groups[0]["lr"]}
         if check_batches is not None:
@@ -182,11 +190,6 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
         if check_batches is not None and epoch - max(best_epoch, 0) >= config.patience:
             stopped_by = "patience"
             break
-        if deadline is not None:  # anneal over the epochs the remaining time allows
-            epoch_s = max(time.monotonic() - epoch_start, 1e-6)
-            affordable = int((deadline - time.monotonic()) / epoch_s)
-            epochs_left = max(0, min(epochs - epoch, affordable))
-            cosine.total_steps = max(steps + epochs_left * steps_per_epoch, steps, 1)
     if best_state is None:  # no validation (or no finite validation loss): keep the last epoch
         best_epoch, best_state = len(history), copy.deepcopy(network.state_dict())
     network.load_state_dict(best_state)
