@@ -59,8 +59,9 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     # The clouds carry the force: peak displacement alone (deterministic, fitted on the
     # training sessions) clearly beats the mean predictor on sessions it never saw.
     assert mae["linear_displacement"] < 0.8 * mae["mean"]
-    # Recordings are reproducible and training is seeded on one thread, so these hold run
-    # after run (and for other training seeds: see the closing note of issue #17).
+    # Recordings are reproducible and training is seeded on one thread, so the quick run
+    # gives the same figures every time (measured: PointNet 0.76x the mean predictor; the
+    # temporal model starts as PointNet and keeps its start unless validation improves).
     assert mae["pointnet"] <= 0.8 * mae["mean"]
     assert mae["temporal"] <= mae["pointnet"]
 
