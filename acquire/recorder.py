@@ -10,6 +10,9 @@ finalized. A write failure (full disk,
 I/O error) stops capture and leaves the file as of its last flush. A device that vanishes ends
 the session cleanly with what was recorded and a marked gap. In :meth:`Recorder.run`, Ctrl-C
 and SIGTERM stop the recording; further ones while it is being finished are ignored.
+A recording of a given duration keeps exactly the frames and force samples that arrived (host
+clock) before its end: when the duration is reached, the force reader goes on until it has read
+past the end, so which samples are kept never depends on when the threads happened to stop.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ _SPACE_CHECK_S = 0.25  # free space is read this often
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
 
 PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
+_END_GRACE_S = 2.0  # how long a reader may go on after the stop to reach the recording's end
 
 
 @dataclass
@@ -74,19 +78,33 @@ class _Pump(threading.Thread):
     """Reads one device into a bounded queue; counts and reports overflow and disconnection."""
 
     def __init__(self, name: str, device: StereoCamera | ForceSensor, out: queue.Queue,
-                 control: queue.Queue, stop: threading.Event, paced: bool = False) -> None:
+                 control: queue.Queue, stop: threading.Event, paced: bool = False,
+                 read_until_ns: Callable[[], int | None] = lambda: None) -> None:
         super().__init__(name=f"vbfe-read-{name}", daemon=True)
         self.stream, self._device, self._out = name, device, out
         self._control, self._halt = control, stop
         self.paced = paced
+        self._read_until_ns = read_until_ns
         self.dropped = 0
         self.last_seq = -1
-        self.last_t_host_ns = 0
+        self.last_t_host_ns = 0  # host time of the newest item read
         self.error: str | None = None
+        self._halted_at: float | None = None
+
+    def _done(self) -> bool:
+        """Stopped, and past the recording's end (``read_until_ns``) when there is one."""
+        if not self._halt.is_set():
+            return False
+        end_ns = self._read_until_ns()
+        if end_ns is None or self.last_t_host_ns >= end_ns:
+            return True
+        if self._halted_at is None:
+            self._halted_at = time.monotonic()
+        return time.monotonic() - self._halted_at > _END_GRACE_S
 
     def run(self) -> None:
         burst = 0
-        while not self._halt.is_set():
+        while not self._done():
             try:
                 item = self._device.read(_READ_TIMEOUT_S)
             except DeviceError as exc:
@@ -99,6 +117,7 @@ class _Pump(threading.Thread):
                                    mark.t_host_ns, mark.count))
             if item is None:
                 continue
+            self.last_t_host_ns = item.t_host_ns
             try:
                 if self.paced:
                     self._put_paced(item)
@@ -112,19 +131,22 @@ class _Pump(threading.Thread):
                 self._control.put(("gap", self.stream, "queue full", self.last_seq, item.seq,
                                    item.t_host_ns, burst))
                 burst = 0
-            self.last_seq, self.last_t_host_ns = item.seq, item.t_host_ns
+            self.last_seq = item.seq
         if burst:  # samples lost at the very end: no next sequence number
             self._control.put(("gap", self.stream, "queue full", self.last_seq, -1,
                                time.monotonic_ns(), burst))
 
     def _put_paced(self, item: Any) -> None:
-        """Wait for room in the queue (the device is not real time: it waits, nothing drops)."""
-        while not self._halt.is_set():
+        """Wait for room in the queue (the device is not real time: it waits, nothing drops;
+        after a stop, only while the reader still has to reach the recording's end)."""
+        while True:
             try:
                 self._out.put(item, timeout=_PUT_POLL_S)
             except queue.Full:
+                if self._done():
+                    return
                 continue
-            self.last_seq, self.last_t_host_ns = item.seq, item.t_host_ns
+            self.last_seq = item.seq
             return
 
 
@@ -188,6 +210,7 @@ class Recorder:
         self._frame_t_host = [0, 0]  # first, last
         self._span_limit_ns: int | None = None  # frames later than this after the first are not kept
         self._span_reached = threading.Event()
+        self._end_host_ns: int | None = None  # first frame's host time + duration
         self._t_start = 0.0
         self.stats = RecorderStats()
 
@@ -226,7 +249,8 @@ class Recorder:
                 self._close_devices()
                 raise
         self._pumps = [_Pump("camera", cam, self._frames, self._control, self._stop, paced),
-                       _Pump("force", trocar, self._forces, self._control, self._stop, paced)]
+                       _Pump("force", trocar, self._forces, self._control, self._stop, paced,
+                             self._reached_end_ns)]
         self._writer_thread = threading.Thread(target=self._write_loop, name="vbfe-writer",
                                                daemon=True)
         self._writer_thread.start()
@@ -391,6 +415,8 @@ class Recorder:
                     self.on_forces(forces)
                 control = self._drain(self._control, 1 << 20)
                 frames = self._within_duration(frames)
+                if self._end_host_ns is not None:
+                    forces = [f for f in forces if f.t_host_ns < self._end_host_ns]
                 if frames:
                     self._frame_t_host[1] = frames[-1].t_host_ns
                     self._frame_t_device.extend(fr.t_device_ns for fr in frames)
@@ -423,13 +449,17 @@ class Recorder:
         simulation may deliver many frames per progress tick)."""
         if frames and not self._frame_t_device:
             self._frame_t_host[0] = frames[0].t_host_ns
-        if self._span_limit_ns is None:
+        if self._span_limit_ns is None or not (frames or self._frame_t_device):
             return frames
-        end = self._frame_t_host[0] + self._span_limit_ns
-        kept = [fr for fr in frames if fr.t_host_ns < end]
+        self._end_host_ns = self._frame_t_host[0] + self._span_limit_ns
+        kept = [fr for fr in frames if fr.t_host_ns < self._end_host_ns]
         if len(kept) < len(frames):
             self._span_reached.set()
         return kept
+
+    def _reached_end_ns(self) -> int | None:
+        """The recording's end (host ns) once the duration is reached, for the force reader."""
+        return self._end_host_ns if self._span_reached.is_set() else None
 
     def _flush(self) -> None:
         started = time.monotonic()

@@ -4,9 +4,14 @@
     python benchmarks/bench_estimate.py run*.h5 --out DIR    # recorded sessions with clouds
     python benchmarks/bench_estimate.py --sim-bench 3 --out DIR   # record + reconstruct first
 
-Held-out sessions (one repeat per condition) are evaluated; prints PointNet's MAE as a ratio to
-the mean predictor's, and the inference time of one 2048-point cloud as a ratio to a reference
-matmul of the network's widest layer (2048×128 @ 128×1024), timed in the same run.
+Held-out sessions (one repeat per condition) are evaluated; prints every method's MAE as a
+ratio to the mean predictor's, the inference latency of one 2048-point cloud (batch 1) for
+PointNet and the temporal model (its window of k clouds + the rest cloud) on the CPU, and the
+training throughput (clouds/s through forward + backward + step) on the CPU and, when torch
+sees one, on CUDA; times are also given as ratios to a reference matmul of the paper network's
+widest layer (2048×128 @ 128×1024), timed in the same run.
+
+    python benchmarks/bench_estimate.py --timing-only        # latency and throughput only
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import torch
 
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.model_file import ForceModel, load_model
-from vbfe.estimate.pointnet import PointNetRegressor
+from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
@@ -37,21 +42,76 @@ def best_time_s(fn, repeats: int = 20) -> float:
     return min(timeit.repeat(fn, number=1, repeat=repeats))
 
 
-def inference_timing(model: ForceModel, n_points: int = 2048) -> None:
-    """Print the time of one cloud through the trained and the paper-sized network."""
+def reference_time_s(n_points: int = 2048) -> float:
+    """The reference: one matmul of the paper network's widest layer, timed now."""
     rng = np.random.default_rng(0)
-    patch = synthetic_sessions(repeats=1, points_per_side=64)[0].clouds[-1]
-    patch = patch[np.isfinite(patch).all(axis=1)]
-    cloud = patch[rng.choice(len(patch), n_points, replace=False)][None].astype(np.float32)
     a = torch.from_numpy(rng.normal(size=(n_points, 128)).astype(np.float32))
     b = torch.from_numpy(rng.normal(size=(128, 1024)).astype(np.float32))
     reference = best_time_s(lambda: a @ b)
-    paper = ForceModel(PointNetRegressor().eval(), model.config, model.baselines)
     print(f"reference matmul {n_points}x128 @ 128x1024: {reference * 1e3:.2f} ms")
-    for label, m in (("trained model", model), ("paper-size model 3-64-128-1024", paper)):
-        t = best_time_s(lambda: m.predict_points(cloud))
-        print(f"inference, one {n_points}-point cloud, {label}: {t * 1e3:.2f} ms "
+    return reference
+
+
+def _patch(n_points: int, rng: np.random.Generator) -> np.ndarray:
+    patch = synthetic_sessions(repeats=1, points_per_side=64)[0].clouds[-1]
+    patch = patch[np.isfinite(patch).all(axis=1)]
+    return patch[rng.choice(len(patch), n_points, replace=False)].astype(np.float32)
+
+
+def networks(conv: list[int], head: list[int], k: int) -> dict[str, torch.nn.Module]:
+    """PointNet and the temporal model (window of k) of one width."""
+    return {"PointNet": PointNetRegressor(1, conv, head),
+            f"temporal k={k}": TemporalPointNet(1, k, conv, head)}
+
+
+def inference_timing(reference: float, trained: ForceModel | None, k: int,
+                     n_points: int = 2048) -> None:
+    """Latency of one cloud (batch 1) through PointNet and the temporal model, CPU."""
+    rng = np.random.default_rng(0)
+    cloud = torch.from_numpy(_patch(n_points, rng))[None]
+    window = cloud[:, None].expand(1, k + 1, n_points, 3).contiguous()
+    candidates = {f"paper size 64-128-1024, {name}": net
+                  for name, net in networks([64, 128, 1024], [512, 256], k).items()}
+    if trained is not None:
+        candidates["trained PointNet"] = trained.network
+        if trained.temporal is not None:
+            candidates[f"trained temporal k={trained.temporal.n_frames}"] = trained.temporal
+    for label, net in candidates.items():
+        net.eval()
+        x = window[:, :net.n_frames + 1] if isinstance(net, TemporalPointNet) else cloud
+        with torch.no_grad():
+            t = best_time_s(lambda: net(x))
+        print(f"inference, one {n_points}-point cloud, batch 1, CPU, {label}: {t * 1e3:.2f} ms "
               f"= {t / reference:.1f}x reference (goal <= 20 ms)")
+
+
+def training_throughput(reference: float, conv: list[int], head: list[int], k: int,
+                        n_points: int, batch: int = 32, steps: int = 5) -> None:
+    """Clouds per second through forward + backward + optimizer step, CPU and CUDA."""
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    rng = np.random.default_rng(1)
+    clouds = torch.from_numpy(np.stack([_patch(n_points, rng) for _ in range(batch)]))
+    for device in devices:
+        for name, net in networks(conv, head, k).items():
+            net.to(device).train()
+            x = (clouds[:, None].expand(batch, k + 1, n_points, 3).contiguous()
+                 if isinstance(net, TemporalPointNet) else clouds).to(device)
+            y = torch.ones(batch, 1, device=device)
+            optimizer = torch.optim.NAdam(net.parameters(), lr=1e-3)
+
+            def step() -> None:
+                loss = ((net(x) - y) ** 2).mean()
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+                if device == "cuda":
+                    torch.cuda.synchronize()
+
+            t = best_time_s(step, repeats=steps)
+            per_cloud = t / (batch * (k + 1 if isinstance(net, TemporalPointNet) else 1))
+            print(f"training, {device}, {name} {conv}, {n_points} points, batch {batch}: "
+                  f"{batch / t:.0f} examples/s ({1 / per_cloud:.0f} clouds/s), "
+                  f"step {t * 1e3:.0f} ms = {t / reference:.0f}x reference")
 
 
 def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: int) -> list[Path]:
@@ -95,7 +155,17 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=256)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--time-limit", type=float, default=540.0, help="training seconds")
+    parser.add_argument("--temporal-frames", type=int, default=3, help="temporal model's k")
+    parser.add_argument("--timing-only", action="store_true",
+                        help="only inference latency and training throughput")
     args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    conv, head = [32, 64, 256], [128, 64]
+    reference = reference_time_s()
+    if args.timing_only:
+        inference_timing(reference, None, args.temporal_frames)
+        training_throughput(reference, conv, head, args.temporal_frames, args.points)
+        return
 
     out = Path(args.out or tempfile.mkdtemp(prefix="bench_estimate_"))
     if args.sessions:
@@ -108,10 +178,11 @@ def main() -> None:
     n_total = len(sessions)
     test_fraction = 1 / max(3, args.sim_bench or args.repeats)  # ~ one repeat per condition
     config = TrainConfig(epochs=args.epochs, n_points=args.points, batch_size=32,
-                         learning_rate=3e-3, patience=15, conv_channels=[32, 64, 256],
-                         head_channels=[128, 64], dropout=0.1, val_fraction=test_fraction / 2,
+                         learning_rate=3e-3, patience=15, conv_channels=conv,
+                         head_channels=head, dropout=0.1, val_fraction=test_fraction / 2,
                          test_fraction=test_fraction, time_limit_s=args.time_limit,
-                         threads=args.threads)
+                         threads=args.threads, temporal_frames=args.temporal_frames,
+                         temporal_span_frames=2 * args.temporal_frames)
     print(f"{n_total} sessions; training {config.conv_channels} / {config.head_channels}, "
           f"{config.n_points} points, {config.threads} threads")
     result = train(sessions, out / "model.pt", config)
@@ -125,7 +196,8 @@ def main() -> None:
     for method in report.metrics:
         mae = report.mae_n(method)
         print(f"held-out {method:>20}: MAE {mae:.3f} N = {mae / mean_mae:.2f}x mean predictor")
-    inference_timing(load_model(result.model_path))
+    inference_timing(reference, load_model(result.model_path), args.temporal_frames)
+    training_throughput(reference, conv, head, args.temporal_frames, args.points)
     print(f"report: {out / 'report' / 'report.md'}")
 
 

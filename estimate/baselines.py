@@ -9,13 +9,17 @@ frame, see ``displacement.py``) to force as ``slope·d + intercept`` per output:
   training sessions; the per-condition stiffness is *not* given to it.
 
 Frames without a displacement (NaN) are left out of fitting and predicted with ``d = 0``.
+
+- ``ridge_height_map``: ridge regression on the frame's downsampled height map relative to the
+  rest (first) frame (``PreparedSession.heights_m``, cells² values), columns standardised on the
+  training frames, penalty chosen by blocked cross-validation on the training frames.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Union
 
 import numpy as np
 
@@ -36,6 +40,10 @@ class AffineBaseline:
         d = np.nan_to_num(np.asarray(displacement_m, dtype=np.float64), nan=0.0)
         return d[:, None] * self.slope + self.intercept
 
+    def predict_session(self, session: PreparedSession) -> np.ndarray:
+        """Predicted force (used frames × outputs) of a prepared session."""
+        return self.predict(session.displacement_m)
+
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "slope": self.slope.tolist(),
                 "intercept": self.intercept.tolist()}
@@ -43,6 +51,83 @@ class AffineBaseline:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "AffineBaseline":
         return cls(d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float))
+
+
+@dataclass(frozen=True)
+class RidgeBaseline:
+    """Force = ((heights − mean) / scale) · weights + intercept, on the height map of a frame."""
+
+    name: str
+    mean: np.ndarray  # cells²
+    scale: np.ndarray  # cells²
+    weights: np.ndarray  # cells² × outputs
+    intercept: np.ndarray  # outputs
+    alpha: float
+
+    def predict(self, heights_m: np.ndarray) -> np.ndarray:
+        """Predicted force (frames × outputs) from height maps (frames × cells²)."""
+        return ((np.asarray(heights_m, float) - self.mean) / self.scale) @ self.weights \
+            + self.intercept
+
+    def predict_session(self, session: PreparedSession) -> np.ndarray:
+        """Predicted force (used frames × outputs) of a prepared session."""
+        return self.predict(session.heights_m)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "kind": "ridge", "mean": self.mean.tolist(),
+                "scale": self.scale.tolist(), "weights": self.weights.tolist(),
+                "intercept": self.intercept.tolist(), "alpha": self.alpha}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "RidgeBaseline":
+        return cls(d["name"], *(np.asarray(d[k], float) for k in
+                                ("mean", "scale", "weights", "intercept")), float(d["alpha"]))
+
+
+Baseline = Union[AffineBaseline, RidgeBaseline]
+
+
+def baseline_from_dict(d: dict[str, Any]) -> Baseline:
+    """Rebuild a baseline stored by ``to_dict``."""
+    return RidgeBaseline.from_dict(d) if d.get("kind") == "ridge" else AffineBaseline.from_dict(d)
+
+
+RIDGE_FOLDS = 5
+
+
+def _ridge_solve(x: np.ndarray, y: np.ndarray, alphas: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Column means/scales of ``x``, the mean of ``y`` and ridge weights for every alpha."""
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0)
+    scale = np.where(scale > 1e-12, scale, 1.0)
+    u, sv, vt = np.linalg.svd((x - mean) / scale, full_matrices=False)
+    y_mean = y.mean(axis=0)
+    uty = u.T @ (y - y_mean)
+    weights = [vt.T @ ((sv / (sv ** 2 + a))[:, None] * uty) for a in alphas]
+    return np.stack([mean, scale]), y_mean, weights
+
+
+def fit_ridge(heights: np.ndarray, y: np.ndarray) -> RidgeBaseline:
+    """Ridge regression on height maps; the penalty is chosen by blocked cross-validation.
+
+    The training frames are cut into ``RIDGE_FOLDS`` contiguous folds (neighbouring frames are
+    nearly copies of each other, so shuffled folds would favour overfitting).
+    """
+    alphas = np.logspace(-2, 5, 22) * len(heights) / max(heights.shape[1], 1)
+    folds = np.array_split(np.arange(len(heights)), min(RIDGE_FOLDS, len(heights)))
+    errors = np.zeros(len(alphas))
+    for fold in folds:
+        fit = np.setdiff1d(np.arange(len(heights)), fold)
+        if len(fit) < 2:
+            continue
+        (mean, scale), y_mean, weights = _ridge_solve(heights[fit], y[fit], alphas)
+        x = (heights[fold] - mean) / scale
+        errors += [float(((x @ w + y_mean - y[fold]) ** 2).sum()) for w in weights]
+    best = int(np.argmin(errors))
+    (mean, scale), y_mean, weights = _ridge_solve(heights, y, alphas[best:best + 1])
+    return RidgeBaseline("ridge_height_map", mean, scale, weights[0], y_mean,
+                         float(alphas[best]))
 
 
 def _fit_mean(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -72,12 +157,14 @@ FITTERS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarr
     "mean": _fit_mean, "linear_displacement": _fit_linear, "hooke": _fit_hooke}
 
 
-def fit_baselines(sessions: Sequence[PreparedSession]) -> dict[str, AffineBaseline]:
-    """Fit every baseline on the given (training) sessions."""
-    d = np.concatenate([s.displacement_m for s in sessions])
-    y = np.concatenate([s.targets_n for s in sessions])
+def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> dict[str, Baseline]:
+    """Fit every baseline on the given (training) frames: (session, used-frame positions)."""
+    d = np.concatenate([s.displacement_m[p] for s, p in parts])
+    y = np.concatenate([s.targets_n[p] for s, p in parts])
     if not np.isfinite(d).any():
         raise EstimateError("no training frame has a surface displacement; baselines cannot be "
                             "fitted (are the clouds empty outside the first frame?)")
-    return {name: AffineBaseline(name, *fit(d, y))
-            for name, fit in FITTERS.items()}
+    fitted: dict[str, Baseline] = {name: AffineBaseline(name, *fit(d, y))
+                                   for name, fit in FITTERS.items()}
+    fitted["ridge_height_map"] = fit_ridge(np.concatenate([s.heights_m[p] for s, p in parts]), y)
+    return fitted

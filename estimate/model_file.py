@@ -3,8 +3,9 @@
 A model file is ``torch.save`` of a plain dict (loadable with ``weights_only=True``): format
 name and version, architecture name and version, network hyper-parameters and weights (force
 scaling and global-feature standardisation are buffers of the network), the training config,
-the session split, the fitted baselines, training history, skipped-frame counts and the vbfe
-version that wrote it.
+the session split (kind, gap, blocks), the fitted baselines, training history, skipped-frame
+counts and the vbfe version that wrote it; with a temporal model also its hyper-parameters
+(window size k in ``n_frames``) and weights under ``temporal``.
 """
 
 from __future__ import annotations
@@ -20,10 +21,12 @@ import numpy as np
 import torch
 
 from vbfe import __version__
-from vbfe.estimate.baselines import AffineBaseline
-from vbfe.estimate.dataset import FrameBatches, PreparedSession, crop_roi, sample_points
+from vbfe.estimate.baselines import Baseline, baseline_from_dict
+from vbfe.estimate.dataset import (FrameBatches, PreparedSession, SessionSplit, crop_roi,
+                                   sample_points)
 from vbfe.estimate.errors import EstimateError
-from vbfe.estimate.pointnet import ARCHITECTURE, ARCHITECTURE_VERSION, PointNetRegressor
+from vbfe.estimate.pointnet import (ARCHITECTURE, ARCHITECTURE_VERSION, PointNetRegressor,
+                                    TemporalPointNet)
 from vbfe.estimate.train_config import TrainConfig
 
 FORMAT = "vbfe-force-model"
@@ -36,8 +39,14 @@ class ForceModel:
 
     network: PointNetRegressor
     config: TrainConfig
-    baselines: dict[str, AffineBaseline]
+    baselines: dict[str, Baseline]
     record: dict[str, Any] = field(default_factory=dict)  # split, sessions, history, versions
+    temporal: TemporalPointNet | None = None
+
+    @property
+    def split(self) -> SessionSplit:
+        """The split the model was trained with."""
+        return SessionSplit.from_dict(self.record.get("split", {}))
 
     def predict_points(self, points: np.ndarray | torch.Tensor) -> np.ndarray:
         """Force (B×outputs, N) for clouds already cropped and sampled (B×n_points×3, metres)."""
@@ -63,9 +72,25 @@ class ForceModel:
 
     def predict_session(self, session: PreparedSession, batch_size: int = 64) -> np.ndarray:
         """Force (frames×outputs) for every used frame of a prepared session."""
-        frames = FrameBatches([session], self.config.n_points)
-        return np.concatenate([self.predict_points(points)
-                               for points, _ in frames.batches(batch_size, rng=None)])
+        return self._predict_frames(self.network, session, (), batch_size)
+
+    def predict_session_temporal(self, session: PreparedSession, batch_size: int = 16
+                                 ) -> np.ndarray:
+        """Temporal-model force (frames×outputs) for every used frame of a prepared session."""
+        if self.temporal is None:
+            raise EstimateError("this model file has no temporal model: train with "
+                                "temporal_frames >= 2 in [train]")
+        return self._predict_frames(self.temporal, session, self.config.temporal_window,
+                                    batch_size)
+
+    def _predict_frames(self, network: PointNetRegressor, session: PreparedSession,
+                        window: Sequence[int], batch_size: int) -> np.ndarray:
+        frames = FrameBatches([(session, np.arange(session.n_used))], self.config.n_points,
+                              window)
+        network.eval()
+        with torch.no_grad():
+            return np.concatenate([network(points).numpy()
+                                   for points, _ in frames.batches(batch_size, rng=None)])
 
 
 def save_model(path: str | Path, model: ForceModel) -> Path:
@@ -79,6 +104,8 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
         "config": model.config.to_dict(),
         "baselines": {name: b.to_dict() for name, b in model.baselines.items()},
         "record": model.record,
+        "temporal": None if model.temporal is None else {
+            "hparams": model.temporal.hparams, "state_dict": model.temporal.state_dict()},
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
@@ -112,15 +139,15 @@ def load_model(path: str | Path) -> ForceModel:
     network = PointNetRegressor(**payload["hparams"])
     network.load_state_dict(payload["state_dict"])
     network.eval()
+    temporal = None
+    if payload.get("temporal"):
+        temporal = TemporalPointNet(**payload["temporal"]["hparams"])
+        temporal.load_state_dict(payload["temporal"]["state_dict"])
+        temporal.eval()
     record = dict(payload["record"])
     record["vbfe_version"] = payload["vbfe_version"]
     return ForceModel(network=network, config=TrainConfig(**payload["config"]),
-                      baselines={name: AffineBaseline.from_dict(b)
+                      baselines={name: baseline_from_dict(b)
                                  for name, b in payload["baselines"].items()},
-                      record=record)
+                      record=record, temporal=temporal)
 
-
-def training_sessions(model: ForceModel) -> Sequence[str]:
-    """Names of the sessions the network or its baselines were fitted or validated on."""
-    split = model.record.get("split", {})
-    return [*split.get("train", []), *split.get("val", [])]

@@ -92,8 +92,8 @@ class PointNetRegressor(nn.Module):
                         "global_features": global_features}
         self.global_features = global_features
         self.features = _shared_mlp(conv_channels)
-        n_head_in = conv_channels[-1] + (N_GLOBAL_FEATURES if global_features else 0)
-        self.head = _head(n_head_in, head_channels, dropout, n_outputs)
+        self.embedding_size = conv_channels[-1] + (N_GLOBAL_FEATURES if global_features else 0)
+        self.head = _head(self.embedding_size, head_channels, dropout, n_outputs)
         self.register_buffer("target_mean", torch.zeros(n_outputs))
         self.register_buffer("target_std", torch.ones(n_outputs))
         self.register_buffer("feature_mean", torch.zeros(N_GLOBAL_FEATURES))
@@ -112,9 +112,49 @@ class PointNetRegressor(nn.Module):
         """The global features removed by normalisation: centroid and D_max (B×4, metres)."""
         return normalize_clouds(points)[1]
 
-    def forward(self, points: torch.Tensor) -> torch.Tensor:
+    def embed(self, points: torch.Tensor) -> torch.Tensor:
+        """Per-cloud embedding (B×embedding_size): pooled point features + global features."""
         normalized, features = normalize_clouds(points)
         pooled = self.features(normalized.transpose(1, 2)).amax(dim=2)
         if self.global_features:
             pooled = torch.cat([pooled, (features - self.feature_mean) / self.feature_std], dim=1)
-        return self.head(pooled) * self.target_std + self.target_mean
+        return pooled
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        return self.head(self.embed(points)) * self.target_std + self.target_mean
+
+
+class TemporalPointNet(PointNetRegressor):
+    """The PointNet encoder over a causal window: rest cloud + the last k clouds → force.
+
+    Input ``B × (1 + k) × N × 3`` (the session's rest frame first, then the window oldest to
+    newest). Every cloud is embedded by the shared encoder. The force is the single-frame head
+    on the newest cloud (as in ``PointNetRegressor``, whose trained weights it can start from)
+    plus a motion correction: a second head on each window cloud's embedding minus the rest
+    cloud's, so it can read how the surface has moved and how it is moving (a relaxing tissue
+    at constant shape). The correction's output layer starts at zero.
+    """
+
+    def __init__(self, n_outputs: int = 1, n_frames: int = 4,
+                 conv_channels: Sequence[int] = (64, 128, 1024),
+                 head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
+                 global_features: bool = True) -> None:
+        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features)
+        self.hparams["n_frames"] = n_frames
+        self.n_frames = n_frames
+        self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout,
+                                 n_outputs)
+        last = self.motion_head[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+
+    @staticmethod
+    def cloud_features(points: torch.Tensor) -> torch.Tensor:
+        """Global features of every cloud of the windows (B·(1+k)×4, metres)."""
+        return normalize_clouds(points.reshape(-1, *points.shape[-2:]))[1]
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        b, w = points.shape[:2]
+        emb = self.embed(points.reshape(b * w, *points.shape[2:])).reshape(b, w, -1)
+        motion = self.motion_head((emb[:, 1:] - emb[:, :1]).reshape(b, -1))
+        return (self.head(emb[:, -1]) + motion) * self.target_std + self.target_mean

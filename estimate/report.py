@@ -16,8 +16,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-METHOD_LABELS = {"pointnet": "PointNet", "mean": "Mean predictor",
-                 "linear_displacement": "Linear on displacement", "hooke": "Hooke (fitted k̂)"}
+METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
+                 "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
+                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on height map"}
 
 
 def write_json(path: Path, data: dict[str, Any]) -> Path:

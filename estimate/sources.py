@@ -1,21 +1,27 @@
-"""Where training data comes from: a recorded session with its clouds sidecar, or clouds in memory.
+"""Where training data comes from: a recorded session with its clouds sidecar, a clouds file
+written by ``vbfe import`` (``*.clouds.h5`` with a ``labels`` group), or clouds in memory.
 
-Both kinds answer the same questions (name, conditions, frame times, force at each frame, the
+All kinds answer the same questions (name, conditions, frame times, force at each frame, the
 point cloud of frame ``i``), so dataset building never cares which one it reads.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, Union
 
+import h5py
 import numpy as np
 
 from vbfe.acquire import SessionReader
 from vbfe.errors import VbfeError
 from vbfe.estimate.errors import EstimateError
 from vbfe.recon import CloudReader, sidecar_path
+
+CLOUDS_SUFFIX = ".clouds.h5"
+LABELS_GROUP = "labels"  # written by ``vbfe import``: force_n (frames × 3, N), conditions_json
 
 
 class CloudSource(Protocol):
@@ -104,18 +110,66 @@ class RecordedSession:
                 reader.close()
 
 
+class ImportedClouds:
+    """A clouds file written by ``vbfe import``: recon's cloud format plus force labels."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            with h5py.File(self.path, "r") as f:
+                labels = f.get(LABELS_GROUP)
+                if labels is None or "force_n" not in labels:
+                    raise EstimateError(
+                        f"{self.path} holds point clouds but no forces; give the session .h5 "
+                        "it was reconstructed from, or create the file with `vbfe import`")
+                self._forces = np.asarray(labels["force_n"][()], dtype=np.float64)
+                self.conditions = dict(json.loads(labels.attrs.get("conditions_json", "{}")))
+        except OSError as exc:
+            raise EstimateError(f"{self.path} is not a readable clouds file: {exc}") from None
+        try:
+            self._clouds = CloudReader(self.path)
+        except VbfeError as exc:
+            raise EstimateError(f"cannot read {self.path}: {exc}") from exc
+        self.name = str(self.path)
+        self.n_frames = self._clouds.n_frames
+        if len(self._forces) != self.n_frames:
+            self.close()
+            raise EstimateError(f"{self.path} has {len(self._forces)} force rows for "
+                                f"{self.n_frames} clouds: import it again")
+
+    def frame_times_ns(self) -> np.ndarray:
+        return np.asarray(self._clouds.frame_table("t_host_ns"), dtype=np.int64)
+
+    def force_at_frames(self) -> np.ndarray:
+        return self._forces
+
+    def cloud(self, i: int) -> np.ndarray:
+        return np.asarray(self._clouds.cloud(i)[0], dtype=np.float64)
+
+    def close(self) -> None:
+        self._clouds.close()
+
+
 SessionLike = Union[str, Path, SessionClouds]
 
 
 def open_source(item: SessionLike) -> CloudSource:
-    """A session path (with its clouds sidecar) or an in-memory ``SessionClouds`` as a source."""
+    """A session path (with its clouds sidecar), an imported ``*.clouds.h5`` file, or an
+    in-memory ``SessionClouds`` as a source."""
     if isinstance(item, SessionClouds):
         return item
+    if str(item).endswith(CLOUDS_SUFFIX):
+        if not Path(item).is_file():
+            raise EstimateError(f"clouds file {item} does not exist")
+        return ImportedClouds(item)
     return RecordedSession(item)
 
 
 def condition_label(conditions: dict[str, Any]) -> str:
-    """``"80 N/m @ 0.005 m/s"``-style label of a session's stiffness × pull speed."""
+    """``"80 N/m @ 0.005 m/s"``-style label of a session's stiffness × pull speed (or the
+    ``label`` given at import)."""
+    if conditions.get("label"):
+        return str(conditions["label"])
     parts = [f"{conditions[key]:g} {unit}" for key, unit in
              (("stiffness_n_per_m", "N/m"), ("pull_speed_m_per_s", "m/s")) if key in conditions]
     return " @ ".join(parts) if parts else "unknown"

@@ -6,10 +6,15 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from vbfe.estimate.errors import EstimateError
 
-TARGETS = ("magnitude", "xyz")
+AXES = ("x", "y", "z")
+TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
 ROI_KINDS = ("all", "radius", "box")
+SPLITS = ("session", "time")
+DEVICES = ("auto", "cpu", "cuda")
 
 
 @dataclass
@@ -26,7 +31,7 @@ class TrainConfig:
     learning_rate: float = 1e-3
     n_points: int = 1024
     patience: int = 10
-    target: str = "magnitude"  # |F| in newtons, or "xyz": the three trocar axes
+    target: str = "magnitude"  # |F| in newtons, "xyz": the three trocar axes, or "x", "-z"...
     roi: str = "all"
     roi_radius_m: float = 0.02
     roi_box_m: list[float] = field(default_factory=lambda: [-1.0, -1.0, 0.0, 1.0, 1.0, 1.0])
@@ -34,6 +39,10 @@ class TrainConfig:
     frame_stride: int = 1  # use every k-th frame of each session
     val_fraction: float = 0.2
     test_fraction: float = 0.0
+    split: str = "session"  # "session": whole sessions per part; "time": blocks inside sessions
+    time_blocks: int = 5  # contiguous blocks per session for the time split
+    gap_frames: int = 30  # frames left out at every boundary between parts (time split)
+    val_max_frames: int = 2048  # fixed validation subsample (same frames and points every epoch)
     seed: int = 0
     conv_channels: list[int] = field(default_factory=lambda: [64, 128, 1024])
     head_channels: list[int] = field(default_factory=lambda: [512, 256])
@@ -41,6 +50,12 @@ class TrainConfig:
     global_features: bool = True  # feed the removed centroid and D_max to the head
     time_limit_s: float = 0.0  # stop training after this wall time (0 = no limit)
     threads: int = 2  # torch CPU threads (1 is faster when other jobs share the cores)
+    device: str = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
+    temporal_frames: int = 0  # temporal model: k frames in its causal window (0 = not trained)
+    temporal_span_frames: int = 10  # frames from the oldest to the newest frame of the window
+    temporal_epochs: int = 0  # epochs of the temporal model (0: ``epochs``); it starts from
+    # the trained PointNet's encoder, so it needs fewer
+    ridge_cells: int = 16  # ridge baseline: the height map relative to the rest frame, cells²
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -53,11 +68,31 @@ class TrainConfig:
             raise EstimateError("[train] needs n_points >= 2, batch_size >= 2 and epochs >= 1")
         if not 0 <= self.val_fraction < 1 or not 0 <= self.test_fraction < 1:
             raise EstimateError("[train] val_fraction and test_fraction must be in [0, 1)")
+        for key, allowed in (("split", SPLITS), ("device", DEVICES)):
+            if getattr(self, key) not in allowed:
+                raise EstimateError(f"[train] {key} must be one of {allowed}, "
+                                    f"not {getattr(self, key)!r}")
+        if self.time_blocks < 2 or self.gap_frames < 0:
+            raise EstimateError("[train] needs time_blocks >= 2 and gap_frames >= 0")
+        if self.temporal_frames < 0 or self.temporal_frames == 1 or (
+                self.temporal_frames and self.temporal_span_frames < self.temporal_frames - 1):
+            raise EstimateError("[train] temporal_frames must be 0 (off) or >= 2, and "
+                                "temporal_span_frames >= temporal_frames - 1")
+        if self.temporal_epochs < 0:
+            raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
+        if self.ridge_cells < 2 or self.val_max_frames < 1:
+            raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
 
     @property
     def n_outputs(self) -> int:
         """Number of regressed force components."""
-        return 1 if self.target == "magnitude" else 3
+        return 3 if self.target == "xyz" else 1
+
+    @property
+    def temporal_window(self) -> list[int]:
+        """Offsets (frames back from the newest) of the temporal model's window, oldest first."""
+        offsets = np.linspace(self.temporal_span_frames, 0, self.temporal_frames)
+        return [int(v) for v in np.round(offsets)]
 
     @classmethod
     def from_table(cls, table: dict[str, Any], **overrides: Any) -> "TrainConfig":

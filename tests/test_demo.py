@@ -64,16 +64,18 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     force = numbers["force"]
     assert not set(force["train_sessions"]) & set(force["test_sessions"])
     metrics = force["metrics"]
-    assert set(metrics) == {"pointnet", "mean", "linear_displacement", "hooke"}
+    assert set(metrics) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
+                            "ridge_height_map"}
     assert len(metrics["pointnet"]["per_condition"]) == 3
     mae = {method: metrics[method]["overall"]["mae_n"] for method in metrics}
     # The clouds carry the force: peak displacement alone (deterministic, fitted on the
     # training sessions) clearly beats the mean predictor on sessions it never saw.
     assert mae["linear_displacement"] < 0.8 * mae["mean"]
-    # --quick trains PointNet on three sessions for seconds, which is too little to require
-    # it to beat the mean (the full demo does: 0.45x) and varies from run to run (0.58-1.13x
-    # seen); it must still be a working regressor, not a constant or a broken network.
-    assert mae["pointnet"] < 1.5 * mae["mean"]
+    # Recordings are reproducible and training is seeded on one thread, so the quick run
+    # gives the same figures every time (measured: PointNet 0.76x the mean predictor; the
+    # temporal model starts as PointNet and keeps its start unless validation improves).
+    assert mae["pointnet"] <= 0.8 * mae["mean"]
+    assert mae["temporal"] <= mae["pointnet"]
 
 
 def test_report_links_every_plot_and_shows_the_verdicts(demo_out):

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from vbfe.estimate.baselines import AffineBaseline, fit_baselines
+from vbfe.estimate.baselines import (AffineBaseline, RidgeBaseline, baseline_from_dict,
+                                    fit_baselines)
 from vbfe.estimate.dataset import PreparedSession
 
 
@@ -12,7 +13,12 @@ def prepared(name, displacement_m, force_n, condition):
                            targets_n=np.asarray(force_n, float).reshape(n, -1),
                            pools=np.zeros((n, 4, 3), np.float32),
                            displacement_m=np.asarray(displacement_m, float),
+                           heights_m=np.nan_to_num(np.asarray(displacement_m, float)).reshape(n, 1) * [1, 0.5],
                            n_frames_total=n, n_skipped=0)
+
+
+def all_frames(sessions):
+    return [(s, np.arange(s.n_used)) for s in sessions]
 
 
 def test_fitted_baselines_recover_known_relations():
@@ -20,7 +26,7 @@ def test_fitted_baselines_recover_known_relations():
     sessions = [prepared("a", d, 120.0 * d, {"stiffness_n_per_m": 40.0}),
                 prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
     sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
-    fitted = fit_baselines(sessions)
+    fitted = fit_baselines(all_frames(sessions))
     np.testing.assert_allclose(fitted["hooke"].slope, [120.0], rtol=1e-9)
     np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
     np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
@@ -31,7 +37,7 @@ def test_fitted_baselines_recover_known_relations():
 
 def test_linear_and_hooke_differ_when_force_has_an_offset():
     d = np.linspace(0.001, 0.01, 40)
-    fitted = fit_baselines([prepared("a", d, 1.0 + 100.0 * d, {})])
+    fitted = fit_baselines(all_frames([prepared("a", d, 1.0 + 100.0 * d, {})]))
     np.testing.assert_allclose(fitted["linear_displacement"].predict(np.array([0.02]))[0], [3.0])
     assert fitted["hooke"].intercept[0] == 0.0
     assert abs(fitted["hooke"].predict(np.array([0.02]))[0, 0] - 3.0) > 0.1
@@ -42,3 +48,19 @@ def test_baseline_round_trips_through_a_dict():
     again = AffineBaseline.from_dict(b.to_dict())
     np.testing.assert_array_equal(again.predict(np.array([0.5, np.nan])),
                                   [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]])
+
+
+def test_ridge_on_height_maps_recovers_a_linear_map_and_round_trips():
+    rng = np.random.default_rng(0)
+    heights = rng.normal(0, 1e-3, (400, 16))
+    weights = rng.normal(0, 1.0, 16) * 1e3
+    force = heights @ weights + 2.0 + rng.normal(0, 0.01, 400)
+    session = prepared("r", np.zeros(400), force, {})
+    session.heights_m = heights
+    train, test = np.arange(300), np.arange(300, 400)
+    ridge = fit_baselines([(session, train)])["ridge_height_map"]
+    predicted = ridge.predict_session(session)[test, 0]
+    assert np.abs(predicted - force[test]).mean() < 0.05 * np.abs(force - force.mean()).mean()
+    again = baseline_from_dict(ridge.to_dict())
+    np.testing.assert_allclose(again.predict_session(session), ridge.predict_session(session))
+    assert isinstance(again, RidgeBaseline)

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from vbfe.estimate.dataset import (FrameBatches, crop_roi, force_target, prepare_session,
-                                   prepare_sessions, sample_points, split_by_session)
+from vbfe.estimate.dataset import (FrameBatches, SessionSplit, crop_roi, force_target,
+                                   prepare_session, prepare_sessions, sample_points,
+                                   split_by_session, split_by_time)
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import SessionClouds
@@ -39,6 +40,10 @@ def test_force_target_magnitude_or_axes():
     forces = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, -2.0]])
     np.testing.assert_allclose(force_target(forces, "magnitude"), [[5.0], [2.0]])
     np.testing.assert_allclose(force_target(forces, "xyz"), forces)
+    np.testing.assert_allclose(force_target(forces, "-z"), [[0.0], [2.0]])
+    np.testing.assert_allclose(force_target(forces, "y"), [[4.0], [0.0]])
+    with pytest.raises(EstimateError, match="target"):
+        TrainConfig(target="w")
 
 
 def test_empty_and_nan_clouds_are_skipped_and_counted():
@@ -106,8 +111,10 @@ def test_split_is_by_session_without_leakage_and_stratified():
     for part in (split.val, split.test):  # one repeat of each of the three conditions
         assert len({by_name[n] for n in part}) == 3
     # frames of one session never end up on both sides
-    train_times = FrameBatches([s for s in sessions if s.name in parts[0]], 8)
-    assert len(train_times) == sum(s.n_used for s in sessions if s.name in parts[0])
+    train_frames = split.frames("train", sessions)
+    assert {s.name for s, _ in train_frames} == parts[0]
+    assert len(FrameBatches(train_frames, 8)) == sum(s.n_used for s in sessions
+                                                    if s.name in parts[0])
     assert split_by_session(sessions, 0.25, 0.25, seed=5) == split
 
 
@@ -121,10 +128,47 @@ def test_split_keeps_one_training_session():
 def test_batches_redraw_points_from_the_pool():
     sessions = prepare_sessions(synthetic_sessions(repeats=1, fps=2, points_per_side=12),
                                 small_config())
-    batches = FrameBatches(sessions, 64)
+    batches = FrameBatches([(s, np.arange(s.n_used)) for s in sessions], 64)
     rng = np.random.default_rng(0)
     (a, ya), = list(batches.batches(10_000, rng))
     (b, yb), = list(batches.batches(10_000, None))
     assert a.shape == b.shape == (len(batches), 64, 3) and ya.shape == (len(batches), 1)
     np.testing.assert_array_equal(b.numpy(), batches.pools[:, :64])
     np.testing.assert_array_equal(np.sort(yb.numpy(), 0), np.sort(ya.numpy(), 0))
+
+
+def _positions(split, part, session):
+    return set(split.positions(part, session).tolist())
+
+
+def test_time_split_leaves_a_gap_between_parts_and_never_shares_frames():
+    session = prepare_session(synthetic_session("one", 80.0, 0.005, np.random.default_rng(4),
+                                                fps=30, points_per_side=10), small_config())
+    split = split_by_time([session], val_fraction=0.2, test_fraction=0.2, n_blocks=5,
+                          gap_frames=12, seed=3)
+    assert split.kind == "time" and split.train == split.val == split.test == ["one"]
+    train, val, test = (_positions(split, p, session) for p in ("train", "val", "test"))
+    assert train and val and test and not (train & val or train & test or val & test)
+    held_out = np.array(sorted(val | test))
+    for i in train:  # no training frame within the gap of a held-out frame
+        assert np.abs(held_out - i).min() > 12
+    for i in val:
+        assert np.abs(np.array(sorted(test)) - i).min() > 12
+    block = session.n_used // 5
+    assert block - 12 <= len(test) <= block + 1
+    again = SessionSplit.from_dict(split.to_dict())
+    assert _positions(again, "test", session) == test and "gap 12 frames" in again.describe()
+
+
+def test_temporal_window_is_causal_and_starts_with_the_rest_frame():
+    session = prepare_session(synthetic_session("w", 200.0, 0.01, np.random.default_rng(5),
+                                                fps=10, points_per_side=8), small_config())
+    positions = np.array([0, 3, 20])
+    batches = FrameBatches([(session, positions)], 16, window=[6, 3, 0])
+    rows = batches.frame_indices(np.arange(3))
+    np.testing.assert_array_equal(rows, [[0, 0, 0, 0], [0, 0, 0, 3], [0, 14, 17, 20]])
+    points, y = next(batches.batches(8, None))
+    assert points.shape == (3, 4, 16, 3)
+    np.testing.assert_array_equal(points[2, 3].numpy(), session.pools[20, :16])
+    np.testing.assert_allclose(y.numpy(), session.targets_n[positions], rtol=1e-6)
+    assert TrainConfig(temporal_frames=3, temporal_span_frames=6).temporal_window == [6, 3, 0]

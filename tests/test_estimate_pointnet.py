@@ -5,8 +5,8 @@ import pytest
 import torch
 from scipy.spatial.distance import pdist
 
-from vbfe.estimate.pointnet import (PointNetRegressor, diameter, normalize_clouds,
-                                    weighted_centroid)
+from vbfe.estimate.pointnet import (PointNetRegressor, TemporalPointNet, diameter,
+                                    normalize_clouds, weighted_centroid)
 
 
 @pytest.fixture
@@ -63,3 +63,28 @@ def test_global_features_carry_the_size_that_normalisation_removes(clouds):
                                 global_features=with_features).eval()
         same = torch.allclose(net(clouds), net(clouds * 2.0), atol=1e-5)
         assert same is not with_features
+
+
+def test_temporal_model_sees_the_window_in_order_and_shares_the_encoder(clouds):
+    torch.manual_seed(0)
+    net = TemporalPointNet(n_outputs=2, n_frames=3, conv_channels=[8, 16],
+                           head_channels=[8], dropout=0.0).eval()
+    single = PointNetRegressor(n_outputs=2, conv_channels=[8, 16], head_channels=[8],
+                               dropout=0.0).eval()
+    windows = clouds[:, None].repeat(1, 4, 1, 1)  # rest + 3 frames, 2 windows of the same cloud
+    windows[:, 2] += torch.tensor([0.0, 0.0, -0.001])  # the tissue moves over the window
+    windows[:, 3] += torch.tensor([0.0, 0.0, -0.002])
+    # it starts as the single-frame network it is given, the motion correction at zero
+    net.load_state_dict(single.state_dict(), strict=False)
+    torch.testing.assert_close(net(windows), single(windows[:, 3]))
+    torch.nn.init.normal_(net.motion_head[-1].weight)
+    out = net(windows)
+    assert out.shape == (4, 2) and torch.isfinite(out).all()
+    shuffled = windows[:, :, torch.randperm(windows.shape[2])]
+    torch.testing.assert_close(net(shuffled), out, rtol=1e-5, atol=1e-5)  # blind to point order
+    reordered = windows[:, [0, 2, 1, 3]]  # the same newest cloud, another history
+    assert not torch.allclose(net(reordered), out)
+    assert net.hparams["n_frames"] == 3
+    again = TemporalPointNet(**net.hparams)
+    again.load_state_dict(net.state_dict())
+    torch.testing.assert_close(again.eval()(windows), out)

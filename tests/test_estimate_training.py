@@ -45,7 +45,8 @@ def test_training_writes_a_model_with_its_record(trained):
     assert not set(split["train"]) & set(split["val"])
     assert model.record["normalization"]["target_std_n"][0] > 0.5
     assert model.record["vbfe_version"]
-    assert set(model.baselines) == {"mean", "linear_displacement", "hooke"}
+    assert set(model.baselines) == {"mean", "linear_displacement", "hooke", "ridge_height_map"}
+    assert model.split.kind == "session" and model.temporal is None
     prediction = model.predict_cloud(synthetic_sessions(repeats=1, **SMALL)[0].clouds[-1])
     assert prediction.shape == (1,) and np.isfinite(prediction).all()
 
@@ -64,7 +65,9 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     held_out[0].clouds[3] = np.full((50, 3), np.nan)
     report = evaluate(path, held_out, tmp_path / "eval")
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert set(metrics["metrics"]) == {"pointnet", "mean", "linear_displacement", "hooke"}
+    assert set(metrics["metrics"]) == {"pointnet", "mean", "linear_displacement", "hooke",
+                                       "ridge_height_map"}
+    assert metrics["split"]["kind"] == "session"
     conditions = metrics["metrics"]["pointnet"]["per_condition"]
     assert set(conditions) == {"40 N/m @ 0.01 m/s", "80 N/m @ 0.005 m/s",
                                "200 N/m @ 0.002 m/s"}
@@ -77,7 +80,8 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     assert len(pngs) == 4 and all((tmp_path / "eval" / p).read_bytes()[:4] == b"\x89PNG"
                                   for p in pngs)
     table = (tmp_path / "eval" / "report.md").read_text()
-    for label in ("PointNet", "Mean predictor", "Linear on displacement", "Hooke"):
+    for label in ("PointNet", "Mean predictor", "Linear on displacement", "Hooke", "Ridge",
+                  "split by session"):
         assert label in table
     assert "<table" in (tmp_path / "eval" / "report.html").read_text()
     assert report.files[0].name == "metrics.json"
@@ -89,6 +93,45 @@ def test_evaluating_training_sessions_is_flagged(trained, tmp_path):
                       tmp_path)
     assert report.seen_in_training == ["train-k40-v0.01-r0"]
     assert "not held-out" in (tmp_path / "report.md").read_text()
+
+
+def test_cpu_training_is_repeatable_and_leaves_torch_threads_alone(tmp_path):
+    sessions = synthetic_sessions(repeats=2, seed=4, prefix="rep", fps=2, points_per_side=12)
+    torch.set_num_threads(1)
+    first = train(sessions, tmp_path / "a.pt", tiny_config(epochs=3, threads=2))
+    assert torch.get_num_threads() == 1
+    second = train(sessions, tmp_path / "b.pt", tiny_config(epochs=3, threads=2))
+    a, b = load_model(first.model_path), load_model(second.model_path)
+    for name, tensor in a.network.state_dict().items():
+        assert torch.equal(tensor, b.network.state_dict()[name]), name
+    assert first.history == second.history
+
+
+def test_time_limit_stops_within_an_epoch_and_anneals_the_learning_rate(tmp_path):
+    sessions = synthetic_sessions(repeats=2, seed=5, prefix="tl", fps=4, points_per_side=12)
+    config = tiny_config(epochs=10_000, patience=10_000, time_limit_s=3.0, batch_size=4)
+    result = train(sessions, tmp_path / "tl.pt", config)
+    assert any("time limit" in note for note in result.notes)
+    assert result.epochs_run < 10_000
+    lrs = [entry["lr"] for entry in result.history]
+    assert lrs[-1] < 0.5 * config.learning_rate  # the schedule was sized to the limit
+    assert result.duration_s < 3.0 + 10.0  # preparation plus at most one batch past the limit
+
+
+def test_without_validation_data_training_says_so_and_runs_the_fixed_epochs(tmp_path):
+    sessions = synthetic_sessions(repeats=1, seed=6, prefix="nv", fps=2, points_per_side=12)
+    result = train(sessions, tmp_path / "nv.pt", tiny_config(epochs=4, val_fraction=0.0))
+    assert any("too little data for a validation set" in n for n in result.notes)
+    assert result.epochs_run == result.best_epoch == 4
+    assert load_model(result.model_path).record["early_stopping_on"].startswith("none")
+
+
+def test_cuda_request_without_a_gpu_is_refused(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    sessions = synthetic_sessions(repeats=1, seed=6, prefix="cu", fps=2, points_per_side=12)
+    with pytest.raises(EstimateError, match="CUDA"):
+        train(sessions, tmp_path / "cu.pt", tiny_config(epochs=1, device="cuda"))
 
 
 def test_three_axis_target(tmp_path):

@@ -40,6 +40,9 @@ class DemoPlan:
     threads: int  # torch CPU threads
     recon_check_frames: int  # frames per session scored against the true depth
     protocol_s: float  # the sync protocol session: this long, one tap and one flash a second
+    temporal_frames: int  # temporal model: frames in its causal window
+    temporal_span_frames: int  # oldest-to-newest frames of that window
+    temporal_epochs: int  # it starts from PointNet's encoder, so it needs fewer epochs
 
     @classmethod
     def full(cls) -> "DemoPlan":
@@ -53,7 +56,8 @@ class DemoPlan:
         return cls(width=640, height=360, fps=10.0, hold_s=3.0, calibration_frames=120,
                    projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
-                   recon_check_frames=3, protocol_s=20.0)
+                   recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
+                   temporal_epochs=20, protocol_s=20.0)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
@@ -61,7 +65,8 @@ class DemoPlan:
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
                    projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
-                   recon_check_frames=1, protocol_s=10.0)
+                   recon_check_frames=1, temporal_frames=2, temporal_span_frames=5,
+                   temporal_epochs=15, protocol_s=10.0)
 
 
 @dataclass
@@ -274,14 +279,17 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
     """Train PointNet on most sessions, evaluate it and the baselines on held-out sessions."""
     from vbfe.estimate.evaluation import evaluate
     from vbfe.estimate.train_config import TrainConfig
-    from vbfe.estimate.training import train
+    from vbfe.estimate.training import train, use_threads
 
     held_out = [s for s in sessions if s.stem.endswith(f"_r{plan.repeats - 1}")]
     training = [s for s in sessions if s not in held_out]
     train_config = TrainConfig.from_table(
         config["train"], epochs=plan.epochs, n_points=plan.n_points,
         frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
-        time_limit_s=plan.time_limit_s, threads=plan.threads)
+        time_limit_s=plan.time_limit_s, threads=plan.threads,
+        temporal_frames=plan.temporal_frames, temporal_span_frames=plan.temporal_span_frames,
+        temporal_epochs=plan.temporal_epochs)
+    use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
     def progress(name: str, done: int, total: int) -> None:

@@ -141,6 +141,9 @@ class SimBench:
         self.camera_clock = DeviceClock(int(clock_rng.integers(10**9, 10**12)), camera_drift_ppm)
         self.trocar_clock = DeviceClock(int(clock_rng.integers(10**9, 10**12)), trocar_drift_ppm,
                                         tick_ns=1000)
+        # not in real time the host clock is simulated too: its epoch comes from the seed, so
+        # two recordings of one bench hold the same host timestamps
+        self._sim_host_epoch_ns = int(clock_rng.integers(10**9, 10**12))
         self.image_latency_ns = int(round(image_latency_ms * 1e6))
         self.force_latency_ns = int(round(force_latency_ms * 1e6))
         self.camera_transport = Transport(self.image_latency_ns, image_jitter_ms * 1e6,
@@ -241,7 +244,8 @@ class SimBench:
         ``drives_time`` (its frames move the simulated host clock)."""
         with self._time:
             if not self._open_devices:
-                self.host_epoch_ns = time.monotonic_ns()
+                self.host_epoch_ns = (time.monotonic_ns() if self.realtime
+                                      else self._sim_host_epoch_ns)
             self._open_devices.add(id(device))
             self._camera_open |= drives_time
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import StageProgress
+from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.config import section
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="score the live estimate stream of this session")
     parser.add_argument("--out", metavar="DIR", default=None, help="report directory")
     add_overwrite_option(parser)
+    add_config_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -56,9 +58,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.model or not args.out:
         raise EstimateError("give MODEL.pt and --out DIR (or --live SESSION.h5)")
     from vbfe.batch.manifest import expand_sessions
-    from vbfe.estimate import evaluate  # torch loads only when a command needs it
+    from vbfe.estimate import TrainConfig, evaluate, use_threads  # torch loads only when needed
 
     check_outputs([], [args.model, *args.sessions], args.overwrite, directories=[args.out])
+    use_threads(TrainConfig.from_table(section(config_from(args), "train")).threads)
     bars = StageProgress()
     try:
         sessions = [str(p) for p in expand_sessions(args.sessions)]
@@ -69,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         overall = numbers["overall"]
         print(f"{method:>20}: MAE {overall['mae_n']:.3f} N (σ {overall['sd_abs_error_n']:.3f}), "
               f"RMSE {overall['rmse_n']:.3f} N over {overall['n_frames']} frames")
+    print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")
     print(f"report: {report.out_dir / 'report.md'}")

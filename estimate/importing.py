@@ -1,0 +1,295 @@
+"""``vbfe import``: external recordings → a clouds file with forces that train/evaluate read.
+
+Frames come from a folder of point clouds (``*.ply`` or ``*.npy``, N×3 metres, sorted by file
+name) or of 16-bit depth PNGs back-projected with pinhole intrinsics (``fx fy cx cy`` in
+pixels), a depth scale (metres per depth unit; 0 = no depth) and an optional pixel region of
+interest. Forces come from a CSV: either a time column (resampled linearly at the frame times,
+NaN outside the force record) or a frame-index column (0 = first frame file). The clouds are
+written with recon's ``CloudWriter`` (the format of ``vbfe reconstruct``'s sidecars); the forces
+at the frames and the conditions go in a ``labels`` group of the same file (see
+docs/importing.md).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+
+from vbfe import __version__
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
+from vbfe.recon.clouds import CloudWriter, session_fingerprint
+
+IMPORT_SOURCE = "vbfe import"
+FORCE_UNITS_N = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": 9.80665e-3, "kgf": 9.80665,
+                 "lbf": 4.4482216152605}
+TIME_UNITS_NS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
+PLY_TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2",
+             "ushort": "u2", "int16": "i2", "uint16": "u2", "int": "i4", "uint": "u4",
+             "int32": "i4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+             "float64": "f8"}
+
+
+@dataclass(frozen=True)
+class DepthCamera:
+    """Pinhole intrinsics (pixels), depth scale (m per unit) and optional ROI ``x0 y0 x1 y1``."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth_scale_m: float
+    roi: tuple[int, int, int, int] | None = None
+    pixel_step: int = 1
+
+    def check(self, width: int, height: int) -> None:
+        """Refuse intrinsics that cannot describe a ``width × height`` depth image."""
+        if self.fx <= 0 or self.fy <= 0 or self.depth_scale_m <= 0 or self.pixel_step < 1:
+            raise EstimateError("fx, fy and --depth-scale must be positive and --pixel-step >= 1")
+        if not (0 <= self.cx < width and 0 <= self.cy < height):
+            raise EstimateError(f"principal point ({self.cx}, {self.cy}) is outside the "
+                                f"{width}x{height} depth image; check --cx/--cy")
+        if self.roi is not None:
+            x0, y0, x1, y1 = self.roi
+            if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+                raise EstimateError(f"--roi {x0} {y0} {x1} {y1} is not inside the "
+                                    f"{width}x{height} depth image (x0 y0 x1 y1, x1 > x0)")
+
+    def points(self, depth: np.ndarray) -> np.ndarray:
+        """Back-projected points (N×3, metres, camera frame) of the valid ROI pixels."""
+        x0, y0, x1, y1 = self.roi or (0, 0, depth.shape[1], depth.shape[0])
+        v, u = np.mgrid[y0:y1:self.pixel_step, x0:x1:self.pixel_step]
+        z = depth[v, u].astype(np.float64) * self.depth_scale_m
+        valid = z > 0
+        z, u, v = z[valid], u[valid], v[valid]
+        return np.column_stack([(u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z])
+
+
+def frame_files(folder: str | Path, patterns: Sequence[str]) -> list[Path]:
+    """The frame files of ``folder`` matching ``patterns``, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise EstimateError(f"{folder} is not a folder of frames")
+    files = sorted({p for pattern in patterns for p in folder.glob(pattern)})
+    if not files:
+        raise EstimateError(f"{folder} holds no {' or '.join(patterns)} files")
+    return files
+
+
+def read_ply(path: str | Path) -> np.ndarray:
+    """Vertex x, y, z (N×3 float64) of an ASCII or binary PLY file."""
+    path = Path(path)
+    data = path.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise EstimateError(f"{path} is not a PLY file (no ply/end_header header)")
+    body_start = data.index(b"\n", end) + 1
+    header = data[:end].decode("ascii", "replace").splitlines()
+    fmt, count, fields, in_vertex = "", 0, [], False
+    for line in header:
+        words = line.split()
+        if words[:1] == ["format"]:
+            fmt = words[1]
+        elif words[:1] == ["element"]:
+            in_vertex = words[1] == "vertex"
+            count = int(words[2]) if in_vertex else count
+        elif words[:1] == ["property"] and in_vertex:
+            if words[1] == "list" or words[1] not in PLY_TYPES:
+                raise EstimateError(f"{path}: vertex property {' '.join(words[1:])} is not "
+                                    "supported; give x, y, z as scalar properties")
+            fields.append((words[2], PLY_TYPES[words[1]]))
+    names = [name for name, _ in fields]
+    if not {"x", "y", "z"} <= set(names):
+        raise EstimateError(f"{path}: vertices need x, y and z properties, found {names}")
+    if fmt == "ascii":
+        rows = data[body_start:].decode("ascii", "replace").split("\n")[:count]
+        try:
+            table = np.array([r.split()[:len(fields)] for r in rows], dtype=np.float64)
+        except ValueError:
+            raise EstimateError(f"{path}: the ASCII vertex rows are not {len(fields)} numbers "
+                                f"each ({count} vertices declared)") from None
+        return table.reshape(-1, len(fields))[:, [names.index(a) for a in "xyz"]]
+    order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt)
+    if order is None:
+        raise EstimateError(f"{path}: unknown PLY format {fmt!r}")
+    dtype = np.dtype([(name, order + t) for name, t in fields])
+    vertices = np.frombuffer(data, dtype=dtype, count=count, offset=body_start)
+    return np.column_stack([vertices[a].astype(np.float64) for a in "xyz"])
+
+
+def read_cloud(path: Path) -> np.ndarray:
+    """One point-cloud frame (PLY, or NPY of shape N×3) in metres."""
+    if path.suffix.lower() == ".ply":
+        return read_ply(path)
+    points = np.load(path, allow_pickle=False)
+    if points.ndim != 2 or points.shape[1] < 3:
+        raise EstimateError(f"{path} holds an array of shape {points.shape}; need N×3 points")
+    return np.asarray(points[:, :3], dtype=np.float64)
+
+
+def read_depth(path: Path) -> np.ndarray:
+    """One 16-bit single-channel depth PNG."""
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
+        kind = "unreadable" if depth is None else f"{depth.dtype} with shape {depth.shape}"
+        raise EstimateError(f"{path} is {kind}; depth frames must be 16-bit single-channel PNGs")
+    return depth
+
+
+def read_columns(path: str | Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
+    """Numeric columns of a CSV with a header row."""
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise EstimateError(f"{path} has no column(s) {missing}; its columns are "
+                                    f"{header}")
+            rows = list(reader)
+    except OSError as exc:
+        raise EstimateError(f"cannot read {path}: {exc.strerror}") from None
+    out = {}
+    for c in columns:
+        try:
+            out[c] = np.array([float(row[c]) for row in rows])
+        except (TypeError, ValueError):
+            raise EstimateError(f"{path}: column {c!r} holds a value that is not a number")
+    return out
+
+
+@dataclass(frozen=True)
+class ForceTable:
+    """How to read forces from a CSV: force columns and their unit, and a time or frame key."""
+
+    path: Path
+    force_columns: tuple[str, ...]
+    force_unit: str = "N"
+    time_column: str | None = None
+    time_unit: str = "s"
+    frame_column: str | None = None
+    axis: str = "z"  # where a single force column goes
+
+    def forces_at(self, frame_times_ns: np.ndarray) -> np.ndarray:
+        """Force (frames × 3, newtons) at each frame."""
+        if len(self.force_columns) not in (1, 3):
+            raise EstimateError("--force-columns takes one column or three (x,y,z)")
+        if (self.time_column is None) == (self.frame_column is None):
+            raise EstimateError("give exactly one of --time-column and --frame-column")
+        if self.force_unit not in FORCE_UNITS_N or self.time_unit not in TIME_UNITS_NS:
+            raise EstimateError(f"units: force one of {sorted(FORCE_UNITS_N)}, time one of "
+                                f"{sorted(TIME_UNITS_NS)}")
+        key = self.time_column or self.frame_column
+        table = read_columns(self.path, [key, *self.force_columns])
+        values = np.column_stack([table[c] for c in self.force_columns])
+        values = values * FORCE_UNITS_N[self.force_unit]
+        if len(self.force_columns) == 1:
+            axis = "xyz".index(self.axis)
+            values = np.insert(np.zeros((len(values), 2)), axis, values[:, 0], axis=1)
+        n = len(frame_times_ns)
+        out = np.full((n, 3), np.nan)
+        if self.frame_column is not None:
+            index = table[key]
+            inside = (index >= 0) & (index < n) & (index == np.round(index))
+            out[index[inside].astype(int)] = values[inside]
+            return out
+        t_ns = table[key] * TIME_UNITS_NS[self.time_unit]
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, values = t_ns[order], values[order]
+        if len(t_ns) < 2:
+            raise EstimateError(f"{self.path} needs at least two force samples to resample")
+        for a in range(3):
+            out[:, a] = np.interp(frame_times_ns, t_ns, values[:, a], left=np.nan, right=np.nan)
+        return out
+
+
+def frame_times(n_frames: int, fps: float | None, times_csv: Path | None, column: str | None,
+                time_unit: str) -> np.ndarray:
+    """Frame times (ns): ``i / fps``, or a column of a CSV (one row per frame file)."""
+    if (fps is None) == (times_csv is None):
+        raise EstimateError("give exactly one of --fps and --frame-times")
+    if fps is not None:
+        if fps <= 0:
+            raise EstimateError(f"--fps must be positive, not {fps}")
+        return np.round(np.arange(n_frames) * 1e9 / fps).astype(np.int64)
+    if column is None:
+        raise EstimateError("--frame-times needs --frame-time-column (the column of frame times)")
+    times = read_columns(times_csv, [column])[column] * TIME_UNITS_NS[time_unit]
+    if len(times) != n_frames:
+        raise EstimateError(f"{times_csv} has {len(times)} frame times for {n_frames} frames")
+    if np.any(np.diff(times) <= 0):
+        raise EstimateError(f"{times_csv}: frame times must increase")
+    return np.round(times).astype(np.int64)
+
+
+def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.ndarray,
+                 forces_n: np.ndarray, conditions: dict, source: dict) -> Path:
+    """Write the clouds with recon's ``CloudWriter``, then the forces and conditions."""
+    out = Path(out)
+    if not out.name.endswith(CLOUDS_SUFFIX):
+        raise EstimateError(f"--out {out.name}: name the imported file *{CLOUDS_SUFFIX}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".part")
+    attrs = {"session_path": str(source.get("folder", "")),
+             "session_fingerprint": session_fingerprint(0, (np.asarray(times_ns),)),
+             "verify": False, "sgbm_json": "{}", "software_version": __version__,
+             "source": IMPORT_SOURCE, "source_json": json.dumps(source)}
+    writer = CloudWriter(tmp, attrs, calibration_yaml=json.dumps(source.get("camera", {})))
+    try:
+        for i, (points, t_ns) in enumerate(zip(clouds, times_ns)):
+            points = np.asarray(points, np.float32).reshape(-1, 3)
+            writer.append(i, int(t_ns), points, np.zeros((len(points), 3), np.uint8),
+                          valid_fraction=float(np.isfinite(points).all(axis=1).mean())
+                          if len(points) else 0.0,
+                          disparity_px=np.full(4, np.nan), match_counts=np.zeros(4, np.int64))
+    except BaseException:
+        writer.abort()
+        tmp.unlink(missing_ok=True)
+        raise
+    writer.finish()
+    with h5py.File(tmp, "a") as f:
+        labels = f.create_group(LABELS_GROUP)
+        force = labels.create_dataset("force_n", data=np.asarray(forces_n, np.float64))
+        force.attrs.update({"units": "N", "axes": ["x", "y", "z"]})
+        labels.attrs["conditions_json"] = json.dumps(conditions)
+    tmp.replace(out)
+    return out
+
+
+def import_frames(kind: str, folder: str | Path, out: str | Path, forces: ForceTable,
+                  fps: float | None = None, frame_times_csv: Path | None = None,
+                  frame_time_column: str | None = None, camera: DepthCamera | None = None,
+                  condition: str | None = None) -> tuple[Path, int, int]:
+    """Import a ``"clouds"`` or ``"depth"`` folder; returns (file, frames, frames with force)."""
+    if kind == "depth":
+        if camera is None:
+            raise EstimateError("depth frames need the intrinsics --fx --fy --cx --cy and "
+                                "--depth-scale")
+        files = frame_files(folder, ("*.png",))
+        first = read_depth(files[0])
+        camera.check(first.shape[1], first.shape[0])
+        clouds = [camera.points(read_depth(p)) for p in files]
+    else:
+        files = frame_files(folder, ("*.ply", "*.npy"))
+        clouds = [read_cloud(p) for p in files]
+    times = frame_times(len(files), fps, frame_times_csv, frame_time_column, forces.time_unit)
+    force = forces.forces_at(times)
+    with_force = int(np.isfinite(force).all(axis=1).sum())
+    if with_force == 0:
+        raise EstimateError(f"no frame has a force from {forces.path}: check the time column "
+                            "and units (frame and force times must share a clock) or the frame "
+                            "column")
+    source = {"kind": kind, "folder": str(folder), "files": [p.name for p in files],
+              "forces_csv": str(forces.path),
+              "camera": None if camera is None else camera.__dict__}
+    conditions = {"label": condition} if condition else {}
+    path = write_clouds(out, clouds, times, force, conditions, source)
+    return path, len(files), with_force

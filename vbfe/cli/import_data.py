@@ -1,0 +1,72 @@
+"""`vbfe import`: external point clouds or depth images + a force CSV → a clouds file to train on."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `import` subcommand."""
+    parser = sub.add_parser(
+        "import", help="import external point clouds or depth images with a force CSV",
+        description="Turn a folder of frames (KIND clouds: *.ply/*.npy point clouds in metres; "
+        "KIND depth: 16-bit PNG depth images) and a force CSV into OUT.clouds.h5, which "
+        "`vbfe train` and `vbfe evaluate` take like a reconstructed session. See "
+        "docs/importing.md.")
+    parser.add_argument("kind", choices=("clouds", "depth"), help="what the frames are")
+    parser.add_argument("frames", metavar="FOLDER", help="frame files, in file-name order")
+    parser.add_argument("--forces", required=True, type=Path, metavar="CSV",
+                        help="force CSV with a header row")
+    parser.add_argument("--out", required=True, metavar="OUT.clouds.h5")
+    parser.add_argument("--force-columns", required=True, metavar="FX,FY,FZ",
+                        help="one or three force column names")
+    parser.add_argument("--force-unit", default="N", help="N (default), mN, kN, gf, kgf, lbf")
+    parser.add_argument("--force-axis", default="z", choices=("x", "y", "z"),
+                        help="axis a single force column is stored on (default z)")
+    key = parser.add_mutually_exclusive_group(required=True)
+    key.add_argument("--time-column", help="CSV column of force sample times")
+    key.add_argument("--frame-column", help="CSV column of frame indices (0 = first file)")
+    parser.add_argument("--time-unit", default="s", help="s (default), ms, us or ns, for the "
+                        "force and frame times")
+    parser.add_argument("--fps", type=float, help="frame i is at i / FPS seconds")
+    parser.add_argument("--frame-times", type=Path, metavar="CSV",
+                        help="CSV with one time per frame file (same clock as the forces)")
+    parser.add_argument("--frame-time-column", help="column of --frame-times")
+    parser.add_argument("--condition", help="label of the recording's condition in reports")
+    depth = parser.add_argument_group("depth images")
+    for name in ("fx", "fy", "cx", "cy"):
+        depth.add_argument(f"--{name}", type=float, help="intrinsics, pixels")
+    depth.add_argument("--depth-scale", type=float, metavar="M_PER_UNIT",
+                       help="metres per depth unit (e.g. 0.001 for millimetres)")
+    depth.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
+                       help="pixel region of interest (X1, Y1 exclusive)")
+    depth.add_argument("--pixel-step", type=int, default=1, help="use every k-th pixel")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Import and print what was written."""
+    from vbfe.estimate.errors import EstimateError
+    from vbfe.estimate.importing import DepthCamera, ForceTable, import_frames
+
+    camera = None
+    if args.kind == "depth":
+        needed = {"--fx": args.fx, "--fy": args.fy, "--cx": args.cx, "--cy": args.cy,
+                  "--depth-scale": args.depth_scale}
+        missing = [flag for flag, value in needed.items() if value is None]
+        if missing:
+            raise EstimateError(f"depth frames need {' '.join(missing)}")
+        camera = DepthCamera(args.fx, args.fy, args.cx, args.cy, args.depth_scale,
+                             tuple(args.roi) if args.roi else None, args.pixel_step)
+    forces = ForceTable(args.forces, tuple(c.strip() for c in args.force_columns.split(",")),
+                        args.force_unit, args.time_column, args.time_unit, args.frame_column,
+                        args.force_axis)
+    path, n_frames, with_force = import_frames(
+        args.kind, args.frames, args.out, forces, fps=args.fps, frame_times_csv=args.frame_times,
+        frame_time_column=args.frame_time_column, camera=camera, condition=args.condition)
+    print(f"wrote {path}: {n_frames} frames, {with_force} with a force")
+    if with_force < n_frames:
+        print(f"{n_frames - with_force} frames have no force (outside the force record) and "
+              "will be skipped in training")
+    return 0
