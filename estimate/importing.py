@@ -246,10 +246,11 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
     try:
         for i, (points, t_ns) in enumerate(zip(clouds, times_ns)):
             points = np.asarray(points, np.float32).reshape(-1, 3)
-            writer.append(i, int(t_ns), points, np.zeros((len(points), 3), np.uint8),
-                          valid_fraction=float(np.isfinite(points).all(axis=1).mean())
-                          if len(points) else 0.0,
-                          disparity_px=np.full(4, np.nan), match_counts=np.zeros(4, np.int64))
+            writer.append(i, int(t_ns), points, np.zeros((len(points), 3), np.uint8), {
+                "valid_fraction": float(np.isfinite(points).all(axis=1).mean())
+                if len(points) else 0.0, "disparity_px": np.full(4, np.nan),
+                "match_counts": np.full(4, -1, np.int64), "decoded_fraction": np.nan,
+                "edge_fraction": np.nan})
     except BaseException:
         writer.abort()
         tmp.unlink(missing_ok=True)

@@ -10,7 +10,7 @@ import numpy as np
 from vbfe.acquire import Recorder, SessionReader
 from vbfe.config import load_config
 from vbfe.drivers.registry import open_devices
-from vbfe.recon.pattern import make_pattern
+from vbfe.drivers.projector.pattern import make_pattern
 
 RIG = """
 [bench]
