@@ -22,6 +22,7 @@ import numpy as np
 import vbfe
 from vbfe.acquire.clock import fit_clock
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.reader import SessionReader
 from vbfe.acquire.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
                                  JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
                                  image_filter)
@@ -225,13 +226,16 @@ def recover_session(path: str | Path, out_path: str | Path) -> Path:
     out_path = Path(out_path)
     if out_path.exists():
         raise SessionError(f"{out_path} already exists; choose a new file for the recovered copy")
+    if not out_path.parent.is_dir():
+        raise SessionError(f"cannot recover into {out_path}: folder {out_path.parent} does not "
+                           "exist")
+    with SessionReader(path):  # a damaged file fails here, naming what is wrong
+        pass
     try:
         src = h5py.File(path, "r", swmr=True)
     except OSError as exc:
         raise SessionError(f"{path} cannot be opened for recovery: {exc}") from None
     with src, h5py.File(out_path, "w", libver="latest") as dst:
-        if src.attrs.get("format") != FORMAT_NAME:
-            raise SessionError(f"{path} is not a vbfe session; nothing to recover")
         dst.attrs.update(dict(src.attrs))
         for name in src:
             src.copy(src[name], dst, name=name)

@@ -19,6 +19,7 @@ from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewColl
                                 camera_frames, capture_views)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.options import calib_settings
 from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
                                   save_captures, with_projector)
 from vbfe.calib.report import write_report
@@ -117,9 +118,9 @@ def projector(config: Config, captures_folder: str | Path, calibration_path: str
 
 
 def _projector_size(config: Config, rig) -> tuple[int, int]:
-    table = section(config, "calib")
-    if "projector_width" in table:
-        return int(table["projector_width"]), int(table["projector_height"])
+    table = calib_settings(section(config, "calib"))
+    if table.projector_width and table.projector_height:
+        return table.projector_width, table.projector_height
     return rig.projector.width, rig.projector.height
 
 
@@ -130,13 +131,12 @@ def check(config: Config, stored_path: str | Path, new_path: str | Path | None =
     if new_path is None and views_path is None:
         raise CalibrationError("give a new calibration (--against FILE) or fresh views "
                                "(--views FOLDER) to check the stored calibration")
-    table = section(config, "calib")
+    table = calib_settings(section(config, "calib"))
     limit_mm = max_depth_error_mm if max_depth_error_mm is not None else \
-        float(table.get("check_max_depth_error_mm", 0.5))
+        table.check_max_depth_error_mm
     return check_calibration(
         load_calibration(stored_path),
         new=load_calibration(new_path) if new_path is not None else None,
         views=load_views(views_path) if views_path is not None else None,
         spec=board_spec(config, **overrides), max_depth_error_m=limit_mm / 1e3,
-        max_epipolar_px=float(table.get("check_max_epipolar_px", 0.5)),
-        min_corners=int(table.get("min_corners", 12)))
+        max_epipolar_px=table.check_max_epipolar_px, min_corners=table.min_corners)

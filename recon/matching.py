@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from vbfe.recon.errors import ReconError
+from vbfe.settings import parse_table, setting
 
 MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
          "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
@@ -20,37 +21,30 @@ class SgbmParams:
     """StereoSGBM settings; ``p1``/``p2`` = 0 pick OpenCV's usual 8·3·b² and 32·3·b²."""
 
     min_disparity: int = 0
-    num_disparities: int = 128
-    block_size: int = 5
-    uniqueness_ratio: int = 5
-    speckle_window_size: int = 100
-    speckle_range: int = 2
+    num_disparities: int = setting(128, gt=0)
+    block_size: int = setting(5, ge=1)
+    uniqueness_ratio: int = setting(5, ge=0)
+    speckle_window_size: int = setting(100, ge=0)
+    speckle_range: int = setting(2, ge=0)
     disp12_max_diff: int = 1
-    p1: int = 0
-    p2: int = 0
-    pre_filter_cap: int = 63
-    mode: str = "sgbm_3way"
-    verify_search_px: int = 3  # ± pixels searched along the row when verification rejects a match
-    decode_row_step: int = 3  # De Bruijn codes are decoded on every n-th row and copied below
+    p1: int = setting(0, ge=0)
+    p2: int = setting(0, ge=0)
+    pre_filter_cap: int = setting(63, ge=0)
+    mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
+    # ± pixels searched along the row when verification rejects a match
+    verify_search_px: int = setting(3, ge=0)
+    # De Bruijn codes are decoded on every n-th row and copied below
+    decode_row_step: int = setting(3, ge=1)
 
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SgbmParams":
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise ReconError(f"[sgbm] table has unknown key(s) {sorted(unknown)}; "
-                             f"known: {sorted(known)}")
-        params = cls(**table)
-        if params.num_disparities <= 0 or params.num_disparities % 16:
+        params = parse_table(cls, table, "sgbm")
+        if params.num_disparities % 16:
             raise ReconError(f"[sgbm] num_disparities must be a positive multiple of 16, got "
                              f"{params.num_disparities}")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
-        if params.decode_row_step < 1:
-            raise ReconError(f"[sgbm] decode_row_step must be >= 1, got {params.decode_row_step}")
-        if params.mode not in MODES:
-            raise ReconError(f"[sgbm] mode must be one of {sorted(MODES)}, got {params.mode!r}")
         return params
 
     def create(self, channels: int = 3) -> cv2.StereoSGBM:

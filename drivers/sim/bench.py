@@ -7,7 +7,6 @@ out driver-interface devices that share it (see :mod:`vbfe.drivers.sim.devices`)
 
 from __future__ import annotations
 
-import inspect
 import math
 import threading
 import time
@@ -22,6 +21,7 @@ from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
+from vbfe.settings import parse_kwargs
 
 SCENES = ("tissue", "plane")
 _STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport", "force_noise",
@@ -102,11 +102,7 @@ class SimBench:
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SimBench":
         """A bench from the rig config's ``[bench]`` table (keys are constructor arguments)."""
-        known = [p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "rig")]
-        unknown = sorted(set(table) - set(known))
-        if unknown:
-            raise DeviceError(f"[bench] has unknown key(s) {unknown}; known: {known}")
-        return cls(**table)
+        return cls(**parse_kwargs(cls, table, "bench", skip=("rig",)))
 
     def describe(self) -> dict[str, Any]:
         """JSON-able description: constructor arguments, the true rig and the trial drawn."""

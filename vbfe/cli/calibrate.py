@@ -7,7 +7,7 @@ import argparse
 from vbfe.calib import commands
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.report import summary_rows
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, check_output_path, config_from, progress
 
 
 def _board_options(parser: argparse.ArgumentParser) -> None:
@@ -125,6 +125,7 @@ def run_capture(args: argparse.Namespace) -> int:
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
+    check_output_path(args.out, "calibration file")
     with progress(desc="detecting corners", unit="view") as bar:
         outcome = commands.stereo(config_from(args), args.source, args.out,
                                   report=not args.no_report, store_in_session=args.store_in,

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
 from vbfe.config import load_config
+from vbfe.errors import VbfeError
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
@@ -20,6 +22,24 @@ def add_config_option(parser: argparse.ArgumentParser) -> None:
 def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """The rig configuration the user chose."""
     return load_config(getattr(args, "config", None))
+
+
+def check_output_path(path: str | Path, what: str, folder: bool = False) -> Path:
+    """Fail before any work when ``path`` cannot become the file (or ``folder``) to write:
+    a folder given for a file, a file given for a folder, or a parent folder that is missing."""
+    path = Path(path)
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise VbfeError(f"{what} {path} is a file, not a folder; give a folder to write into")
+        parent = next((p for p in path.parents if p.exists()), Path("."))
+        if not parent.is_dir():
+            raise VbfeError(f"{what} {path}: {parent} is a file, not a folder")
+        return path
+    if path.is_dir():
+        raise VbfeError(f"{what} {path} is a folder; give a file name to write")
+    if not path.parent.is_dir():
+        raise VbfeError(f"{what} {path}: folder {path.parent} does not exist; create it first")
+    return path
 
 
 def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import StageProgress
+from vbfe.cli.common import StageProgress, check_output_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +23,7 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
     from vbfe.estimate import evaluate  # torch loads only when a command needs it
 
+    check_output_path(args.out, "report folder", folder=True)
     bars = StageProgress()
     try:
         report = evaluate(args.model, args.sessions or None, args.out, progress=bars)

@@ -6,6 +6,7 @@ import argparse
 
 from vbfe.acquire import recover_session
 from vbfe.acquire.inspect import inspect_session
+from vbfe.cli.common import check_output_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the summary; exit code 1 when the file was not closed cleanly."""
     if args.recover:
+        check_output_path(args.recover, "recovered session")
         recover_session(args.session, args.recover)
         print(f"recovered {args.session} into {args.recover}")
         args.session = args.recover

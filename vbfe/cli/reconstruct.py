@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, check_output_path, config_from, progress
 from vbfe.config import section
 
 
@@ -37,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.recon.session_recon import reconstruct_session, resolve_calibration
 
     params = SgbmParams.from_config(section(config_from(args), "sgbm"))
+    if args.out:
+        check_output_path(args.out, "clouds file")
+    if args.ply_dir:
+        check_output_path(args.ply_dir, "PLY folder", folder=True)
     calibration = resolve_calibration(args.session, args.calib)
     with SessionReader(args.session) as reader:
         n_frames = reader.n_frames

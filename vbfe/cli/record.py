@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from vbfe.acquire import RecorderStats, record_session
 from vbfe.acquire.layout import COMPRESSIONS
@@ -45,12 +44,12 @@ def _conditions(pairs: list[str]) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
-    calibration = None
+    calibration, calibration_size = None, None
     if args.calib:
-        try:
-            calibration = Path(args.calib).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise VbfeError(f"cannot read calibration {args.calib}: {exc.strerror}") from None
+        from vbfe.calib.calibration import Calibration  # checked before anything is recorded
+
+        loaded = Calibration.load(args.calib)
+        calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size
     bar = progress(total=None, desc="recording", unit="frame")
 
     def show(stats: RecorderStats) -> None:
@@ -64,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
                                operator=args.operator, notes=args.notes,
                                conditions=_conditions(args.condition),
                                compression=args.compression, calibration_yaml=calibration,
+                               calibration_size=calibration_size, calibration_name=args.calib,
                                on_progress=show)
         show(stats)
     finally:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
-from vbfe.cli.common import StageProgress, add_config_option, config_from
+from vbfe.cli.common import StageProgress, add_config_option, check_output_path, config_from
 from vbfe.config import section
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
                  ("epochs", "n_points", "batch_size", "learning_rate", "target", "val_fraction",
                   "test_fraction", "time_limit_s", "seed")}
     config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
+    check_output_path(args.out, "model file")
     bars = StageProgress()
     try:
         result = train(args.sessions, args.out, config, progress=bars)
@@ -43,7 +45,12 @@ def run(args: argparse.Namespace) -> int:
         bars.close()
     print(f"model written to {result.model_path} (best epoch {result.best_epoch} of "
           f"{result.epochs_run}, {result.duration_s:.0f} s)")
-    print(f"validation MAE {result.val_mae_n:.3f} N; baselines: " + ", ".join(
+    if not result.split.val:
+        print("warning: no session was held out for validation (one session, or too few for "
+              "--val-fraction): the MAE below is the training MAE; train on several sessions "
+              "for an honest validation error", file=sys.stderr)
+    print(f"{'validation' if result.split.val else 'training'} MAE {result.val_mae_n:.3f} N; "
+          "baselines: " + ", ".join(
         f"{name} {mae:.3f} N" for name, mae in result.baseline_val_mae_n.items()))
     skipped = sum(v["skipped"] for v in result.skipped.values())
     if skipped:
