@@ -125,6 +125,7 @@ class SessionReader:
         f = self._file
         self.complete = bool(f.attrs.get("complete", False)) and self.closed_cleanly
         self.encoding = _check_layout(f, self.path)
+        self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
         cam = f["camera"]
         image_keys = (("left_jpeg_index", "right_jpeg_index") if self.encoding == "jpeg"
                       else ("left", "right"))
@@ -215,9 +216,9 @@ class SessionReader:
         """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""
         if stream not in self._fits:
             stored = self._file.get(f"clock/{stream}")
-            if stored is not None and "slope" in stored.attrs:
+            try:  # a stored fit with attributes missing or damaged is recomputed
                 self._fits[stream] = ClockFit.from_attrs(dict(stored.attrs))
-            else:
+            except (AttributeError, KeyError, TypeError, ValueError):
                 t_dev, t_host, _ = self.stream_times(stream)
                 self._fits[stream] = fit_clock(t_dev, t_host)
         return self._fits[stream]

@@ -88,6 +88,9 @@ class Calibration:
             if value is None:
                 continue
             arr = np.asarray(value, dtype=np.float64)
+            if name in _VECTORS and arr.ndim == 2 and min(arr.shape) != 1:
+                raise CalibrationError(f"calibration field {name} is a {arr.shape} matrix, "
+                                       "not a vector")
             if name in _VECTORS:
                 arr = arr.reshape(-1)
             if not any(_shape_ok(arr.shape, s) for s in shapes):

@@ -132,11 +132,18 @@ def check(config: Config, stored_path: str | Path, new_path: str | Path | None =
         raise CalibrationError("give a new calibration (--against FILE) or fresh views "
                                "(--views FOLDER) to check the stored calibration")
     table = calib_settings(section(config, "calib"))
+    stored, new = load_calibration(stored_path), None
+    if new_path is not None:
+        new = load_calibration(new_path)
+        if new.image_size != stored.image_size:
+            raise CalibrationError(f"{new_path} is for {new.image_size[0]}x{new.image_size[1]} "
+                                   f"images, {stored_path} for {stored.image_size[0]}x"
+                                   f"{stored.image_size[1]}: compare calibrations of one camera "
+                                   "mode")
     limit_mm = max_depth_error_mm if max_depth_error_mm is not None else \
         table.check_max_depth_error_mm
     return check_calibration(
-        load_calibration(stored_path),
-        new=load_calibration(new_path) if new_path is not None else None,
+        stored, new=new,
         views=load_views(views_path) if views_path is not None else None,
         spec=board_spec(config, **overrides), max_depth_error_m=limit_mm / 1e3,
         max_epipolar_px=table.check_max_epipolar_px, min_corners=table.min_corners)

@@ -251,12 +251,17 @@ def headless_viewer(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(QtWidgets.QApplication, "exec", lambda self: 0)
 
 
+# commands that do real work on a readable session run only the damages that must fail
+# (inspect and --recover run every damage)
+HEAVY = ("reconstruct", "view", "verify-sync")
+
+
 @pytest.mark.parametrize("command", sorted(SESSION_COMMANDS))
 def test_damaged_sessions(corpus, capsys, headless_viewer, command):
     sessions = _session_corpus(corpus)
     cases = [Case(f"session {what}", SESSION_COMMANDS[command](path, corpus),
                   (str(path), path.name), must)
-             for what, path, must in sessions]
+             for what, path, must in sessions if must or command not in HEAVY]
     run_cases(cases, capsys)
 
 
@@ -369,8 +374,10 @@ def test_damaged_calibrations(corpus, capsys, command):
     if not hasattr(corpus, "_calibrations"):
         corpus._calibrations = list(calibration_mutations(
             corpus.calibration, lambda: fresh(corpus, ".yaml", "c")))
+    # reconstruct names the session and its image size when the calibration's size differs
+    other = ("calibration is for",) if command.startswith("reconstruct") else ()
     cases = [Case(f"calibration {what}", CALIBRATION_COMMANDS[command](path, corpus),
-                  (str(path), path.name), must)
+                  (str(path), path.name, *(other if what == "other image size" else ())), must)
              for what, path, must in corpus._calibrations]
     run_cases(cases, capsys)
 
@@ -391,9 +398,10 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
         optional = key in ("vbfe_version", "created_unix_ns")
         yield f"delete {key}", save({k: v for k, v in payload.items() if k != key}), not optional
     state = payload["state_dict"]
-    for key in list(state)[::3]:
+    for key in list(state)[::3]:  # BatchNorm rebuilds a missing batch counter: harmless
         yield (f"delete weight {key}",
-               save({**payload, "state_dict": {k: v for k, v in state.items() if k != key}}), True)
+               save({**payload, "state_dict": {k: v for k, v in state.items() if k != key}}),
+               not key.endswith("num_batches_tracked"))
     for key in [k for k in state if state[k].dtype.is_floating_point][::3]:
         yield (f"{key} wrong shape",
                save({**payload, "state_dict": {**state, key: torch.zeros(2, 2, 2)}}), True)

@@ -53,6 +53,8 @@ class SimBench:
                  deformation_scale: float = 0.15, realtime: bool = False) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
+        if width <= 0 or height <= 0:
+            raise DeviceError(f"[bench] width and height must be positive, got {width}x{height}")
         if fps <= 0 or trocar_rate_hz <= 0:
             raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
         if image_latency_ms < 3 * image_jitter_ms or force_latency_ms < 3 * force_jitter_ms:
