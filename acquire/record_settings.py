@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from vbfe.acquire.layout import COMPRESSIONS
 from vbfe.settings import parse_table, setting
 
 
@@ -12,7 +13,7 @@ from vbfe.settings import parse_table, setting
 class RecordSettings:
     """The ``[record]`` table (see vbfe/default_rig.toml for what each key means)."""
 
-    compression: Literal["none", "lzf", "blosc-lz4", "mjpeg"] = "lzf"
+    compression: Literal[COMPRESSIONS] = "lzf"
     flush_interval_s: float = setting(1.0, gt=0)
     queue_size: int = setting(64, ge=1)
     min_free_gb: float = setting(1.0, ge=0)

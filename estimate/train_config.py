@@ -27,8 +27,8 @@ class TrainConfig:
     learning_rate: float = setting(1e-3, gt=0)
     n_points: int = setting(1024, ge=2)
     patience: int = setting(10, ge=1)
-    target: Literal["magnitude", "xyz"] = "magnitude"  # |F| in newtons, or the 3 trocar axes
-    roi: Literal["all", "radius", "box"] = "all"
+    target: Literal[TARGETS] = "magnitude"  # |F| in newtons, or the 3 trocar axes
+    roi: Literal[ROI_KINDS] = "all"
     roi_radius_m: float = setting(0.02, gt=0)
     roi_box_m: list[float] = setting([-1.0, -1.0, 0.0, 1.0, 1.0, 1.0])
     pool_factor: int = setting(2, ge=1)  # points kept per frame = pool_factor * n_points

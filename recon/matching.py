@@ -13,6 +13,7 @@ from vbfe.settings import parse_table, setting
 
 MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
          "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
+MODE_NAMES = tuple(MODES)
 DISPARITY_SCALE = 16.0  # StereoSGBM returns fixed-point disparities with 4 fractional bits
 
 
@@ -30,7 +31,7 @@ class SgbmParams:
     p1: int = setting(0, ge=0)
     p2: int = setting(0, ge=0)
     pre_filter_cap: int = setting(63, ge=0)
-    mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
+    mode: Literal[MODE_NAMES] = "sgbm_3way"
     # ± pixels searched along the row when verification rejects a match
     verify_search_px: int = setting(3, ge=0)
     # De Bruijn codes are decoded on every n-th row and copied below

@@ -18,7 +18,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,7 @@ import numpy as np
 import pytest
 
 from vbfe.cli.main import main
-from vbfe.config import default_config
+from vbfe.config import default_config, read_toml
 
 SMALL_RIG = """\
 [bench]
@@ -98,9 +97,6 @@ def run_cases(cases: list[Case], capsys: pytest.CaptureFixture) -> None:
     """Run every case, then fail once listing the bad outcomes (and always print the count)."""
     failures = []
     for case in cases:
-        if os.environ.get("VBFE_TRACE"):
-            with capsys.disabled():
-                print(case.name, flush=True)
         code, err = run_cli(case.argv, capsys)
         problem = judge(case, code, err)
         if problem:
@@ -130,7 +126,7 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Corpus:
     rig = folder / "rig.toml"
     rig.write_text(SMALL_RIG)
     session, calibration, model = folder / "s.h5", folder / "calib.yaml", folder / "m.pt"
-    bench = SimBench.from_config(tomllib.loads(SMALL_RIG)["bench"])
+    bench = SimBench.from_config(read_toml(rig, "rig config")["bench"])
     calibration_from_rig(bench.rig).save(calibration)
     assert main(["record", str(session), "--duration", RECORD_S, "--config", str(rig),
                  "--calib", str(calibration)]) == 0
@@ -503,7 +499,7 @@ def _config_command(table: str, rig: Path, corpus: Corpus) -> list[str]:
 
 def config_cases(corpus: Corpus) -> list[Case]:
     """Wrong types, unknown keys and out-of-range values for every key of every table."""
-    small = tomllib.loads(SMALL_RIG)
+    small = read_toml(corpus.rig, "rig config")
     tables = {name: values for name, values in default_config().items()
               if name not in ("camera", "trocar", "projector")}
     cases = []
