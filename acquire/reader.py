@@ -129,16 +129,75 @@ def _check_session(f: h5py.File, path: Path) -> None:
                            f"understands ({SCHEMA_VERSION}); update vbfe")
 
 
+# (dataset, dimensions, dtype kind): "i" integer, "f" float, "u" uint8 image data, "S" bytes
+_TIME_DATASETS = [(f"{stream}/{key}", 1, "i") for stream in STREAMS
+                  for key in ("t_device_ns", "t_host_ns", "seq")]
+_LAYOUT = [*_TIME_DATASETS, ("force/force_n", 2, "f"), ("projector/pattern", 1, "S"),
+           ("projector/frame_id", 1, "i"), ("gaps", 2, "i"), ("clock_pairs", 2, "i")]
+_IMAGES = {"raw": [("camera/left", 4, "u"), ("camera/right", 4, "u")],
+           "jpeg": [("camera/left_jpeg", 1, "u"), ("camera/right_jpeg", 1, "u"),
+                    ("camera/left_jpeg_index", 2, "i"), ("camera/right_jpeg_index", 2, "i")]}
+
+
+def _check_layout(f: h5py.File, path: Path) -> str:
+    """Check the datasets and attributes a reader needs; returns the image encoding."""
+    damaged = "the session file is damaged; record it again or restore a copy"
+    camera = f.get("camera")
+    if not isinstance(camera, h5py.Group):
+        raise SessionError(f"{path} has no 'camera' group: {damaged}")
+    for attr in ("width", "height"):
+        value = camera.attrs.get(attr)
+        if not isinstance(value, (int, np.integer)) or value <= 0:
+            raise SessionError(f"{path}: camera attribute {attr!r} is missing or not a positive "
+                               f"integer ({value!r}): {damaged}")
+    encoding = str(camera.attrs.get("encoding", "raw"))
+    if encoding not in _IMAGES:
+        raise SessionError(f"{path}: unknown camera encoding {encoding!r}: {damaged}")
+    for name, ndim, kind in [*_LAYOUT, *_IMAGES[encoding]]:
+        ds = f.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise SessionError(f"{path} has no dataset {name!r}: {damaged}")
+        if ds.ndim != ndim or ds.dtype.kind not in {"i": "iu", "f": "f", "u": "u",
+                                                    "S": "S"}[kind]:
+            raise SessionError(f"{path}: dataset {name!r} is {ds.dtype} {ds.shape}, not the "
+                               f"session layout's: {damaged}")
+    width, height = int(camera.attrs["width"]), int(camera.attrs["height"])
+    for eye in ("left", "right"):
+        if encoding == "raw" and camera[eye].shape[1:] != (height, width, 3):
+            raise SessionError(f"{path}: camera/{eye} holds {camera[eye].shape[1:]} images, "
+                               f"the session says {width}x{height}: {damaged}")
+    if f["force/force_n"].shape[1] != len(f["force/force_n"].attrs.get("axes", "xyz")):
+        raise SessionError(f"{path}: force/force_n has {f['force/force_n'].shape[1]} columns, "
+                           f"not one per force axis: {damaged}")
+    if f["gaps"].shape[1] != len(GAP_COLUMNS) or f["clock_pairs"].shape[1] != 2:
+        raise SessionError(f"{path}: gaps or clock_pairs has the wrong number of columns: "
+                           f"{damaged}")
+    return encoding
+
+
 class SessionReader:
     """Read-only access to a recorded session (frames, forces, events, clock fits, metadata)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._file, self.closed_cleanly = open_session_file(self.path)
+        try:
+            self._open()
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            self._file.close()
+            raise SessionError(f"{self.path} cannot be read (corrupt or truncated?): "
+                               f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                               ) from None
+        except SessionError:
+            self._file.close()
+            raise
+
+    def _open(self) -> None:
         _check_session(self._file, self.path)
         f = self._file
         self.complete = bool(f.attrs.get("complete", False)) and self.closed_cleanly
-        self.encoding = str(f["camera"].attrs.get("encoding", "raw"))
+        self.encoding = _check_layout(f, self.path)
+        self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
         cam = f["camera"]
         image_keys = (("left_jpeg_index", "right_jpeg_index") if self.encoding == "jpeg"
                       else ("left", "right"))
@@ -187,7 +246,7 @@ class SessionReader:
         try:
             ds = self._file[name]
             return ds[:n] if n is not None else ds[()]
-        except (OSError, KeyError) as exc:
+        except (OSError, KeyError, ValueError) as exc:
             raise SessionError(f"cannot read {name} from {self.path} (damaged?): "
                                f"{read_failure_reason(exc)}") from None
 
@@ -245,9 +304,9 @@ class SessionReader:
         """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""
         if stream not in self._fits:
             stored = self._file.get(f"clock/{stream}")
-            if stored is not None and "slope" in stored.attrs:
+            try:  # a stored fit with attributes missing or damaged is recomputed
                 self._fits[stream] = ClockFit.from_attrs(dict(stored.attrs))
-            else:
+            except (AttributeError, KeyError, TypeError, ValueError):
                 t_dev, t_host, _ = self.stream_times(stream)
                 self._fits[stream] = fit_clock(t_dev, t_host)
         return self._fits[stream]
@@ -323,13 +382,23 @@ class SessionReader:
     @property
     def attrs(self) -> dict[str, Any]:
         """The root attributes (schema and software version, start time, drop counters …)."""
-        return plain_attrs(self._file.attrs)
+        try:
+            return plain_attrs(self._file.attrs)
+        except OSError as exc:
+            raise SessionError(f"cannot read the attributes of {self.path} (corrupt?): "
+                               f"{exc}") from None
 
     @property
     def metadata(self) -> dict[str, Any]:
         """Operator, notes, devices, conditions, bench, … as given when recording started."""
         attrs = self.attrs
-        meta = json.loads(attrs.get("metadata_json", "{}"))
+        try:
+            meta = json.loads(attrs.get("metadata_json", "{}"))
+        except (json.JSONDecodeError, TypeError):
+            raise SessionError(f"{self.path}: the metadata_json attribute is not JSON (damaged "
+                               "file); record it again or restore a copy") from None
+        if not isinstance(meta, dict):
+            raise SessionError(f"{self.path}: the metadata_json attribute is not a JSON object")
         for key in ("operator", "notes", "schema_version", "software_version", "compression",
                     "start_utc_ns"):
             meta.setdefault(key, attrs.get(key))

@@ -23,6 +23,7 @@ import numpy as np
 from vbfe.acquire.audit import StreamAudit, audit_sequence
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
+from vbfe.acquire.record_settings import record_settings
 from vbfe.acquire.sync_changes import change_offset, motion_energy
 from vbfe.acquire.sync_corners import OffsetEstimate, corner_offset, frame_components
 from vbfe.acquire.sync_protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
@@ -43,12 +44,9 @@ class SyncLimits:
     @classmethod
     def from_config(cls, config: dict[str, dict[str, Any]]) -> "SyncLimits":
         """Limits from a rig configuration's ``[record]`` table."""
-        table = config.get("record", {})
-        default = cls()
-        return cls(float(table.get("sync_max_offset_s", default.max_offset_s)),
-                   float(table.get("sync_max_ci_halfwidth_s", default.max_ci_halfwidth_s)),
-                   float(table.get("sync_max_frame_drop", default.max_frame_drop)),
-                   float(table.get("sync_max_force_drop", default.max_force_drop)))
+        table = record_settings(config)
+        return cls(table.sync_max_offset_s, table.sync_max_ci_halfwidth_s,
+                   table.sync_max_frame_drop, table.sync_max_force_drop)
 
 
 @dataclass

@@ -29,6 +29,7 @@ import numpy as np
 import vbfe
 from vbfe.acquire.clock import fit_clock
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.reader import SessionReader
 from vbfe.acquire.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
                                  JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
                                  image_filter)
@@ -315,6 +316,11 @@ def recover_session(path: str | Path, out_path: str | Path,
     out_path = Path(out_path)
     if out_path.exists() and not overwrite:
         raise SessionError(f"{out_path} already exists; choose a new file for the recovered copy")
+    if not out_path.parent.is_dir():
+        raise SessionError(f"cannot recover into {out_path}: folder {out_path.parent} does not "
+                           "exist")
+    with SessionReader(path):  # a damaged file fails here, naming what is wrong
+        pass
     src, _ = open_session_file(path)
     tmp = out_path.with_name(f".{out_path.name}.partial")
     try:

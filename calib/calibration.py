@@ -8,6 +8,8 @@ image. ``f, B, cx, cy`` are those of the rectified pair: ``f = P1[0,0]``, ``cx =
 
 from __future__ import annotations
 
+import base64
+import binascii
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -37,6 +39,10 @@ _VECTORS = {"T", "D1", "D2", "D_proj", "T_proj", "color_offset"}
 
 
 _INFO_PIECE_CHARS = 1000
+# The info JSON is stored base64-encoded: OpenCV writes a string that starts and ends with the
+# same quote character verbatim, so raw JSON pieces could produce YAML it cannot read back.
+_INFO_NODE = "info_json_base64"
+_OLD_INFO_NODE = "info_json"  # raw JSON pieces (files written before the base64 node)
 
 
 @dataclass
@@ -81,16 +87,40 @@ class Calibration:
             if value is None:
                 continue
             arr = np.asarray(value, dtype=np.float64)
+            if name in _VECTORS and arr.ndim == 2 and min(arr.shape) != 1:
+                raise CalibrationError(f"calibration field {name} is a {arr.shape} matrix, "
+                                       "not a vector")
             if name in _VECTORS:
                 arr = arr.reshape(-1)
             if not any(_shape_ok(arr.shape, s) for s in shapes):
                 raise CalibrationError(
                     f"calibration field {name} has shape {arr.shape}, expected "
                     f"{' or '.join(str(s).replace('-1', 'n') for s in shapes)}")
+            if name in _MATRICES or name in ("K_proj", "D_proj", "R_proj", "T_proj"):
+                if not np.isfinite(arr).all():
+                    raise CalibrationError(f"calibration field {name} holds NaN or infinite "
+                                           "values; recalibrate with 'vbfe calibrate stereo'")
             setattr(self, name, arr)
         self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
         if self.projector_size is not None:
             self.projector_size = (int(self.projector_size[0]), int(self.projector_size[1]))
+        self._check_physical()
+
+    def _check_physical(self) -> None:
+        w, h = self.image_size
+        if w <= 0 or h <= 0:
+            raise CalibrationError(f"calibration image size {w}x{h} is not positive")
+        for name in ("K1", "K2"):
+            K = getattr(self, name)
+            if K[0, 0] <= 0 or K[1, 1] <= 0:
+                raise CalibrationError(f"calibration {name} has a focal length <= 0")
+            if not (0 <= K[0, 2] < w and 0 <= K[1, 2] < h):
+                raise CalibrationError(f"calibration {name} puts the principal point "
+                                       f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
+                                       "image; recalibrate")
+        if self.P2[0, 0] == 0 or self.B == 0:
+            raise CalibrationError("calibration P2 gives a zero baseline (or focal length); "
+                                   "recalibrate")
 
     # --- the rectified pair -------------------------------------------------------------
     @property
@@ -183,9 +213,9 @@ class Calibration:
         if self.projector_size is not None:
             fs.write("projector_width", self.projector_size[0])
             fs.write("projector_height", self.projector_size[1])
-        # FileStorage caps one string at a few kB: the JSON goes in as a sequence of pieces.
-        text = json.dumps(self.info, sort_keys=True)
-        fs.startWriteStruct("info_json", cv2.FileNode_SEQ)
+        # FileStorage caps one string at a few kB: the text goes in as a sequence of pieces.
+        text = base64.b64encode(json.dumps(self.info, sort_keys=True).encode()).decode("ascii")
+        fs.startWriteStruct(_INFO_NODE, cv2.FileNode_SEQ)
         for start in range(0, max(len(text), 1), _INFO_PIECE_CHARS):
             fs.write("", text[start:start + _INFO_PIECE_CHARS])
         fs.endWriteStruct()
@@ -202,16 +232,32 @@ class Calibration:
                                    f"({str(cause).strip().splitlines()[-1]})") from None
         try:
             return cls._from_storage(fs, source)
+        except cv2.error as exc:  # a node of the wrong kind (e.g. a list where a map is needed)
+            raise CalibrationError(f"{source} is not a vbfe calibration file "
+                                   f"({exc.err.strip() or 'unreadable node'})") from None
         finally:
             fs.release()
 
     @classmethod
     def _from_storage(cls, fs: cv2.FileStorage, source: str) -> "Calibration":
+        if not fs.root().isMap():
+            raise CalibrationError(f"{source} is not a vbfe calibration file (its top level is "
+                                   "not a map of named nodes)")
+
         def node(name: str) -> cv2.FileNode | None:
             n = fs.getNode(name)
-            return None if n.empty() else n
+            return None if n.empty() or n.isNone() else n
 
-        if node("format") is None or node("format").string() != "vbfe-calibration":
+        def number(name: str) -> float | None:
+            n = node(name)
+            if n is None:
+                return None
+            if not (n.isInt() or n.isReal()):
+                raise CalibrationError(f"{source}: {name} is not a number")
+            return n.real()
+
+        fmt = node("format")
+        if fmt is None or not fmt.isString() or fmt.string() != "vbfe-calibration":
             raise CalibrationError(f"{source} is not a vbfe calibration file (no 'format: "
                                    "vbfe-calibration'); write one with 'vbfe calibrate stereo'")
         kwargs: dict[str, Any] = {}
@@ -222,33 +268,38 @@ class Calibration:
                     raise CalibrationError(f"{source} has no {name}; the file is incomplete, "
                                            "recalibrate with 'vbfe calibrate stereo'")
                 continue
-            mat = n.mat()
+            mat = n.mat() if n.isMap() else None
             if mat is None:
-                raise CalibrationError(f"{source}: {name} is not a matrix")
+                raise CalibrationError(f"{source}: {name} is not a matrix (!!opencv-matrix)")
             kwargs[name] = mat
-        for name in ("image_width", "image_height"):
-            if node(name) is None:
-                raise CalibrationError(f"{source} has no {name}")
-        kwargs["image_size"] = (int(node("image_width").real()), int(node("image_height").real()))
+        size = [number(name) for name in ("image_width", "image_height")]
+        if None in size:
+            raise CalibrationError(f"{source} has no image_width and image_height")
+        kwargs["image_size"] = (int(size[0]), int(size[1]))
         for name in ("rms_left_px", "rms_right_px", "rms_stereo_px", "rms_projector_px"):
             if node(name) is not None:
-                kwargs[name] = node(name).real()
+                kwargs[name] = number(name)
         if node("projector_width") is not None:
-            kwargs["projector_size"] = (int(node("projector_width").real()),
-                                        int(node("projector_height").real()))
-        info = node("info_json")
-        if info is not None:
-            pieces = [info.at(i).string() for i in range(info.size())] if info.isSeq() \
-                else [info.string()]
-            kwargs["info"] = json.loads("".join(pieces))
+            kwargs["projector_size"] = (int(number("projector_width") or 0),
+                                        int(number("projector_height") or 0))
+        kwargs["info"] = _read_info(node(_INFO_NODE), node(_OLD_INFO_NODE), source)
         try:
             return cls(**kwargs)
         except CalibrationError as exc:
             raise CalibrationError(f"{source}: {exc}") from None
 
     def save(self, path: str | Path) -> Path:
-        """Write the YAML file atomically (a crash leaves the old file intact)."""
-        return write_text_atomic(path, self.to_yaml_text())
+        """Write the YAML file atomically (a crash leaves the old file intact), after reading
+        the text back: a calibration that would not load again is never written."""
+        path = Path(path)
+        text = self.to_yaml_text()
+        back = Calibration.from_yaml_text(text, source=f"calibration written to {path}")
+        if back.info != json.loads(json.dumps(self.info)) or not all(
+                np.allclose(getattr(back, name), getattr(self, name), rtol=1e-12, atol=0)
+                for name in _MATRICES):
+            raise CalibrationError(f"the calibration for {path} does not read back as written; "
+                                   "nothing was written (please report this)")
+        return write_text_atomic(path, text)
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":
@@ -266,6 +317,28 @@ class Calibration:
     def replace(self, **changes: Any) -> "Calibration":
         """A copy with some fields changed."""
         return dataclasses.replace(self, **changes)
+
+
+def _read_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
+               source: str) -> dict[str, Any]:
+    """The info dict from its base64 pieces (or the raw JSON pieces of older files)."""
+    chosen = node if node is not None else old
+    if chosen is None:
+        return {}
+    items = [chosen.at(i) for i in range(chosen.size())] if chosen.isSeq() else [chosen]
+    if not all(item.isString() for item in items):
+        raise CalibrationError(f"{source}: {_INFO_NODE if node is not None else _OLD_INFO_NODE}"
+                               " is not a sequence of strings")
+    text = "".join(item.string() for item in items)
+    try:
+        if node is not None:
+            text = base64.b64decode(text, validate=True).decode("utf-8")
+        info = json.loads(text)
+    except (binascii.Error, UnicodeDecodeError, json.JSONDecodeError):
+        raise CalibrationError(f"{source}: the info text does not decode (damaged file)") from None
+    if not isinstance(info, dict):
+        raise CalibrationError(f"{source}: the info text is not a JSON object")
+    return info
 
 
 def _shape_ok(shape: tuple[int, ...], expected: tuple[int, ...]) -> bool:

@@ -26,6 +26,7 @@ from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import export_calibration
 from vbfe.calib.gates import GateLimits
 from vbfe.calib.mono import MonoResult, calibrate_mono
+from vbfe.calib.options import calib_settings
 from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
                                   with_projector)
 from vbfe.calib.projector_capture import (GrayCaptureOptions, capture_gray_code,
@@ -179,9 +180,9 @@ def projector(config: Config, captures_folder: str | Path, calibration_path: str
 def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, int]:
     """``[calib] projector_width/height``, else the size the captures were made for, else the
     configured projector's."""
-    table = section(config, "calib")
-    if "projector_width" in table:
-        return int(table["projector_width"]), int(table["projector_height"])
+    table = calib_settings(section(config, "calib"))
+    if table.projector_width and table.projector_height:
+        return table.projector_width, table.projector_height
     size = captured_projector_size(captures_folder)
     if size is not None:
         return size
@@ -201,13 +202,21 @@ def check(config: Config, stored_path: str | Path, new_path: str | Path | None =
     if new_path is None and views_path is None:
         raise CalibrationError("give a new calibration (--against FILE) or fresh views "
                                "(--views FOLDER) to check the stored calibration")
-    table = _calib_table(config, nominal_baseline_mm)
+    gate_table = _calib_table(config, nominal_baseline_mm)
+    table = calib_settings(gate_table)
+    stored, new = load_calibration(stored_path), None
+    if new_path is not None:
+        new = load_calibration(new_path)
+        if new.image_size != stored.image_size:
+            raise CalibrationError(f"{new_path} is for {new.image_size[0]}x{new.image_size[1]} "
+                                   f"images, {stored_path} for {stored.image_size[0]}x"
+                                   f"{stored.image_size[1]}: compare calibrations of one camera "
+                                   "mode")
     limit_mm = max_depth_error_mm if max_depth_error_mm is not None else \
-        float(table.get("check_max_depth_error_mm", 0.5))
+        table.check_max_depth_error_mm
     return check_calibration(
-        load_calibration(stored_path),
-        new=load_calibration(new_path) if new_path is not None else None,
+        stored, new=new,
         views=load_views(views_path) if views_path is not None else None,
         spec=board_spec(config, **overrides), max_depth_error_m=limit_mm / 1e3,
-        max_epipolar_px=float(table.get("check_max_epipolar_px", 0.5)),
-        min_corners=int(table.get("min_corners", 12)), limits=GateLimits.from_config(table))
+        max_epipolar_px=table.check_max_epipolar_px, min_corners=table.min_corners,
+        limits=GateLimits.from_config(gate_table))

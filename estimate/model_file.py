@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from vbfe import __version__
+from vbfe.config import ConfigError
 from vbfe.estimate.baselines import Baseline, baseline_from_dict
 from vbfe.estimate.dataset import (FrameBatches, PreparedSession, SessionSplit, crop_roi,
                                    sample_points)
@@ -28,6 +29,7 @@ from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.pointnet import (ARCHITECTURE, ARCHITECTURE_VERSION, PointNetRegressor,
                                     TemporalPointNet)
 from vbfe.estimate.train_config import TrainConfig
+from vbfe.settings import parse_kwargs, parse_table
 
 FORMAT = "vbfe-force-model"
 FORMAT_VERSION = 1
@@ -136,18 +138,53 @@ def load_model(path: str | Path) -> ForceModel:
     _check(payload, path, "format_version", FORMAT_VERSION, "format version")
     _check(payload, path, "architecture", ARCHITECTURE, "architecture")
     _check(payload, path, "architecture_version", ARCHITECTURE_VERSION, "architecture version")
-    network = PointNetRegressor(**payload["hparams"])
-    network.load_state_dict(payload["state_dict"])
+    return _model_from_payload(payload, path)
+
+
+_PAYLOAD_TYPES = {"hparams": dict, "state_dict": dict, "config": dict, "baselines": dict,
+                  "record": dict}
+
+
+def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
+    """Check every part of a model file's payload and build the model; EstimateError if bad."""
+    retrain = "retrain with `vbfe train` or give the .pt file it wrote"
+    for key, kind in _PAYLOAD_TYPES.items():
+        if not isinstance(payload.get(key), kind):
+            raise EstimateError(f"{path} has no valid {key!r} entry (damaged model file); "
+                                f"{retrain}")
+    try:
+        network = PointNetRegressor(**parse_kwargs(PointNetRegressor, payload["hparams"],
+                                                   "hparams"))
+        config = parse_table(TrainConfig, payload["config"], "train")
+    except (ConfigError, EstimateError, ValueError, TypeError) as exc:
+        raise EstimateError(f"{path}: model settings are damaged: {exc}; {retrain}") from None
+    state = payload["state_dict"]
+    bad = [k for k, v in state.items() if not isinstance(v, torch.Tensor)
+           or (v.is_floating_point() and not torch.isfinite(v).all())]
+    if bad:
+        raise EstimateError(f"{path}: weight {bad[0]!r} is not finite or not a tensor "
+                            f"(damaged model file); {retrain}")
+    try:
+        network.load_state_dict(state)
+    except RuntimeError as exc:
+        first = str(exc).splitlines()[1].strip() if "\n" in str(exc) else str(exc)
+        raise EstimateError(f"{path}: the weights do not fit the network ({first[:200]}); "
+                            f"{retrain}") from None
     network.eval()
     temporal = None
-    if payload.get("temporal"):
-        temporal = TemporalPointNet(**payload["temporal"]["hparams"])
-        temporal.load_state_dict(payload["temporal"]["state_dict"])
-        temporal.eval()
+    try:
+        if payload.get("temporal"):
+            temporal = TemporalPointNet(**payload["temporal"]["hparams"])
+            temporal.load_state_dict(payload["temporal"]["state_dict"])
+            temporal.eval()
+    except (KeyError, TypeError, ValueError, RuntimeError):
+        raise EstimateError(f"{path}: the temporal model is damaged; {retrain}") from None
+    try:
+        baselines = {name: baseline_from_dict(b) for name, b in payload["baselines"].items()}
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise EstimateError(f"{path}: the baselines are damaged; {retrain}") from None
     record = dict(payload["record"])
-    record["vbfe_version"] = payload["vbfe_version"]
-    return ForceModel(network=network, config=TrainConfig(**payload["config"]),
-                      baselines={name: baseline_from_dict(b)
-                                 for name, b in payload["baselines"].items()},
-                      record=record, temporal=temporal)
+    record["vbfe_version"] = payload.get("vbfe_version")
+    return ForceModel(network=network, config=config, baselines=baselines, record=record,
+                      temporal=temporal)
 

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 
 from vbfe.estimate.errors import EstimateError
+from vbfe.settings import parse_table, setting
 
 AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
@@ -26,36 +27,36 @@ class TrainConfig:
     ``[xmin, ymin, zmin, xmax, ymax, zmax]`` in the rectified left-camera frame, metres).
     """
 
-    epochs: int = 60
-    batch_size: int = 32
-    learning_rate: float = 1e-3
-    n_points: int = 1024
-    patience: int = 10
-    target: str = "magnitude"  # |F| in newtons, "xyz": the three trocar axes, or "x", "-z"...
-    roi: str = "all"
-    roi_radius_m: float = 0.02
-    roi_box_m: list[float] = field(default_factory=lambda: [-1.0, -1.0, 0.0, 1.0, 1.0, 1.0])
-    pool_factor: int = 2  # points kept per frame = pool_factor * n_points; redrawn every epoch
-    frame_stride: int = 1  # use every k-th frame of each session
-    val_fraction: float = 0.2
-    test_fraction: float = 0.0
-    split: str = "session"  # "session": whole sessions per part; "time": blocks inside sessions
-    time_blocks: int = 5  # contiguous blocks per session for the time split
-    gap_frames: int = 30  # frames left out at every boundary between parts (time split)
-    val_max_frames: int = 2048  # fixed validation subsample (same frames and points every epoch)
+    epochs: int = setting(60, ge=1)
+    batch_size: int = setting(32, ge=2)
+    learning_rate: float = setting(1e-3, gt=0)
+    n_points: int = setting(1024, ge=2)
+    patience: int = setting(10, ge=1)
+    target: Literal[TARGETS] = "magnitude"  # |F| in newtons, "xyz": the three axes, or "x", "-z"...
+    roi: Literal[ROI_KINDS] = "all"
+    roi_radius_m: float = setting(0.02, gt=0)
+    roi_box_m: list[float] = setting([-1.0, -1.0, 0.0, 1.0, 1.0, 1.0])
+    pool_factor: int = setting(2, ge=1)  # points kept per frame = pool_factor * n_points
+    frame_stride: int = setting(1, ge=1)  # use every k-th frame of each session
+    val_fraction: float = setting(0.2, ge=0, lt=1)
+    test_fraction: float = setting(0.0, ge=0, lt=1)
+    split: Literal[SPLITS] = "session"  # "session": whole sessions per part; "time": blocks
+    time_blocks: int = setting(5, ge=1)  # contiguous blocks per session for the time split
+    gap_frames: int = setting(30, ge=0)  # frames left out at every boundary between parts
+    val_max_frames: int = setting(2048, ge=1)  # fixed validation subsample
     seed: int = 0
-    conv_channels: list[int] = field(default_factory=lambda: [64, 128, 1024])
-    head_channels: list[int] = field(default_factory=lambda: [512, 256])
-    dropout: float = 0.3
+    conv_channels: list[int] = setting([64, 128, 1024])
+    head_channels: list[int] = setting([512, 256])
+    dropout: float = setting(0.3, ge=0, lt=1)
     global_features: bool = True  # feed the removed centroid and D_max to the head
-    time_limit_s: float = 0.0  # stop training after this wall time (0 = no limit)
-    threads: int = 2  # torch CPU threads (1 is faster when other jobs share the cores)
-    device: str = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
-    temporal_frames: int = 0  # temporal model: k frames in its causal window (0 = not trained)
-    temporal_span_frames: int = 10  # frames from the oldest to the newest frame of the window
-    temporal_epochs: int = 0  # epochs of the temporal model (0: ``epochs``); it starts from
-    # the trained PointNet's encoder, so it needs fewer
-    ridge_cells: int = 16  # ridge baseline: the height map relative to the rest frame, cells²
+    time_limit_s: float = setting(0.0, ge=0)  # stop training after this wall time (0 = no limit)
+    threads: int = setting(2, ge=1)  # torch CPU threads (1 is faster on shared cores)
+    device: Literal[DEVICES] = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
+    temporal_frames: int = setting(0, ge=0)  # temporal model: k frames in its causal window
+    temporal_span_frames: int = setting(10, ge=1)  # oldest to newest frame of the window
+    temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it
+    # starts from the trained PointNet's encoder, so it needs fewer
+    ridge_cells: int = setting(16, ge=2)  # ridge baseline: height map relative to rest, cells²
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -96,14 +97,11 @@ class TrainConfig:
 
     @classmethod
     def from_table(cls, table: dict[str, Any], **overrides: Any) -> "TrainConfig":
-        """Build from the rig config's ``[train]`` table, then apply non-``None`` overrides."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise EstimateError(f"[train] has unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
+        """Build from the rig config's ``[train]`` table, then apply non-``None`` overrides
+        (checked like the table's keys)."""
         values = dict(table)
         values.update({k: v for k, v in overrides.items() if v is not None})
-        return cls(**values)
+        return parse_table(cls, values, "train")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (stored in model files)."""

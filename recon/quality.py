@@ -15,7 +15,8 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
-from vbfe.recon.matching import SgbmParams, check_known_keys
+from vbfe.recon.matching import SgbmParams
+from vbfe.settings import parse_table, setting
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 
@@ -24,20 +25,16 @@ DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 class ReconSettings:
     """The ``[recon]`` table: the rig's working-distance range and the warning thresholds."""
 
-    min_depth_mm: float = 25.0  # nearest surface the disparity range must cover
-    max_depth_mm: float = 120.0  # farthest
-    min_decoded_fraction: float = 0.05  # below this share of readable pattern pixels, warn
-    max_edge_fraction: float = 0.01  # above this share of matches at the range's edge, warn
+    min_depth_mm: float = setting(25.0, gt=0)  # nearest surface the disparity range must cover
+    max_depth_mm: float = setting(120.0, gt=0)  # farthest
+    min_decoded_fraction: float = setting(0.05, ge=0, le=1)  # below this readable share, warn
+    max_edge_fraction: float = setting(0.01, ge=0, le=1)  # above this share at the edge, warn
 
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "ReconSettings":
         """Settings from the ``[recon]`` table of a rig config (unknown keys are an error)."""
-        check_known_keys("recon", table, cls)
-        for key, value in table.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ReconError(f"[recon] {key} must be a number, got {value!r}")
-        settings = cls(**{k: float(v) for k, v in table.items()})
-        if not 0 < settings.min_depth_mm < settings.max_depth_mm:
+        settings = parse_table(cls, table, "recon")
+        if not settings.min_depth_mm < settings.max_depth_mm:
             raise ReconError(f"[recon] needs 0 < min_depth_mm < max_depth_mm, got "
                              f"{settings.min_depth_mm} and {settings.max_depth_mm}")
         return settings

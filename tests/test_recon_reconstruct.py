@@ -120,11 +120,11 @@ def test_images_of_another_size_are_a_clear_error(scene):
 
 
 def test_sgbm_settings_come_from_the_rig_table():
-    from vbfe.config import default_config, section
+    from vbfe.config import ConfigError, default_config, section
 
     params = SgbmParams.from_config(section(default_config(), "sgbm"))
     assert params.num_disparities % 16 == 0 and params.block_size % 2 == 1
     with pytest.raises(ReconError, match="num_disparities"):
         SgbmParams.from_config({"num_disparities": 100})
-    with pytest.raises(ReconError, match="unknown key"):
+    with pytest.raises(ConfigError, match=r"unknown key 'blocksize' in \[sgbm\]"):
         SgbmParams.from_config({"blocksize": 5})

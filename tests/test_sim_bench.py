@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from vbfe.config import load_config
+from vbfe.config import ConfigError, load_config
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import open_devices
 from vbfe.drivers.sim import SimBench
@@ -122,7 +122,7 @@ def test_config_builds_the_bench_and_refuses_unknown_keys():
     assert (devices.camera.width, devices.camera.height) == (config["bench"]["width"],
                                                              config["bench"]["height"])
     assert devices.bench.duration_s() > 5.0
-    with pytest.raises(DeviceError, match="stifness"):
+    with pytest.raises(ConfigError, match="stifness"):
         SimBench.from_config({"stifness_n_per_m": 40.0})
     with pytest.raises(DeviceError, match="no options"):
         SimBench().camera(device="/dev/video0")

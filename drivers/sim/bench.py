@@ -26,6 +26,7 @@ from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
+from vbfe.settings import parse_kwargs
 
 SCENES = ("tissue", "plane", "board")
 PROTOCOLS = ("traction", "sync")
@@ -82,6 +83,8 @@ class SimBench:
                  exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
+        if width <= 0 or height <= 0:
+            raise DeviceError(f"[bench] width and height must be positive, got {width}x{height}")
         if protocol not in PROTOCOLS:
             raise DeviceError(f"[bench] protocol must be one of {PROTOCOLS}, got {protocol!r}")
         if not 0 <= exposure_ms <= 1e3 / fps or projector_latency_ms < 0 or line_time_us < 0:
@@ -185,11 +188,7 @@ class SimBench:
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SimBench":
         """A bench from the rig config's ``[bench]`` table (keys are constructor arguments)."""
-        known = [p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "rig")]
-        unknown = sorted(set(table) - set(known))
-        if unknown:
-            raise DeviceError(f"[bench] has unknown key(s) {unknown}; known: {known}")
-        return cls(**table)
+        return cls(**parse_kwargs(cls, table, "bench", skip=("rig",)))
 
     def describe(self) -> dict[str, Any]:
         """JSON-able description: constructor arguments, the true rig and the trial drawn."""

@@ -6,11 +6,13 @@ import argparse
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 from vbfe.batch.errors import BatchError
 from vbfe.batch.executors import EXECUTORS, TaskOutcome, run_tasks
 from vbfe.cli.common import progress
+from vbfe.settings import parse_table
 
 
 def add_batch_options(parser: argparse.ArgumentParser) -> None:
@@ -24,14 +26,18 @@ def add_batch_options(parser: argparse.ArgumentParser) -> None:
                        help="Ray cluster to join (default: [batch] ray_address, else a local Ray)")
 
 
+@dataclass(frozen=True)
+class BatchSettings:
+    """The ``[batch]`` table."""
+
+    executor: Literal[EXECUTORS] = "local"
+    ray_address: str = ""  # "": a local Ray
+
+
 def batch_settings(args: argparse.Namespace, table: dict[str, Any]) -> tuple[str, str | None]:
     """The executor and Ray address: command-line options over the ``[batch]`` table."""
-    executor = args.executor or str(table.get("executor", "local"))
-    address = args.ray_address or str(table.get("ray_address", "")) or None
-    if executor not in EXECUTORS:
-        raise BatchError(f"[batch] executor must be one of {', '.join(EXECUTORS)}, got "
-                         f"{executor!r}")
-    return executor, address
+    settings = parse_table(BatchSettings, table, "batch")
+    return args.executor or settings.executor, args.ray_address or settings.ray_address or None
 
 
 def run_batch(task: Callable[[str], Any], sessions: Sequence[Path], executor: str,

@@ -48,23 +48,24 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.live.estimator import FrameEstimator
     from vbfe.live.errors import LiveError
     from vbfe.live.run import LiveRun, run_headless
+    from vbfe.live.settings import live_settings
     from vbfe.recon.matching import SgbmParams
 
     config = config_from(args)
-    settings = section(config, "live")
+    settings = live_settings(section(config, "live"))
     if args.duration is not None and args.duration <= 0:
         raise LiveError(f"--duration must be positive, got {args.duration}")
-    device = args.device or settings["device"]
+    device = args.device or settings.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     elif device == "cuda" and not torch.cuda.is_available():
         raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
-    torch.set_num_threads(int(settings["torch_threads"]))
+    torch.set_num_threads(settings.torch_threads)
     model = load_model(args.model)
     calibration = load_calibration(args.calib)
     estimator = FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
-                               verify=not args.no_verify and bool(settings["verify"]),
-                               scale=args.scale or float(settings["scale"]), device=device)
+                               verify=not args.no_verify and settings.verify,
+                               scale=args.scale or settings.scale, device=device)
     config["bench"]["realtime"] = True  # live means the camera's own pace, on the bench too
     devices = open_devices(config)
     width, height = calibration.image_size
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     live.start(recorder, args.duration)
     if args.headless:
         status = run_headless(live, args.duration, lambda s: print(s.line(), flush=True),
-                              float(settings["status_interval_s"]))
+                              settings.status_interval_s)
     else:
         from vbfe.live.viewer import show_live
 

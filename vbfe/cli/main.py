@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from vbfe import __version__
 from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, import_data, inspect, live,
                       reconstruct, record, train, verify_sync, view)
+from vbfe.config import ConfigError
 from vbfe.errors import VbfeError
 
 COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, dataset, reconstruct,
@@ -34,7 +35,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except VbfeError as exc:
-        print(f"vbfe {args.command}: error: {exc}", file=sys.stderr)
+        message = str(exc)
+        config = getattr(args, "config", None)
+        if isinstance(exc, ConfigError) and config and config not in message:
+            message += f" (rig config {config})"
+        print(f"vbfe {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"vbfe {args.command}: interrupted", file=sys.stderr)

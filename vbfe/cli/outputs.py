@@ -34,8 +34,9 @@ def _same_file(a: Path, b: Path) -> bool:
 def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
                   overwrite: bool = False, directories: Iterable[str | Path | None] = ()) -> None:
     """Refuse, naming the path, an output that is an input, or that exists without
-    ``overwrite``. ``directories`` are output folders: they may exist when empty (or with
-    ``overwrite``)."""
+    ``overwrite``, a folder given for a file or a file for a folder, or a file whose folder is
+    missing. ``directories`` are output folders: they may exist when empty (or with
+    ``overwrite``) and are created by the command."""
     sources = [Path(p) for p in inputs if p is not None]
     for path, is_dir in [(Path(p), False) for p in outputs if p is not None] + \
                         [(Path(p), True) for p in directories if p is not None]:
@@ -46,12 +47,18 @@ def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | P
         if is_dir:
             if path.exists() and not path.is_dir():
                 raise OutputError(f"output folder {path} is a file; choose another folder")
+            parent = next((p for p in path.parents if p.exists()), Path("."))
+            if not parent.is_dir():
+                raise OutputError(f"output folder {path}: {parent} is a file, not a folder")
             if path.is_dir() and any(path.iterdir()) and not overwrite:
                 raise OutputError(f"output folder {path} is not empty; pass --overwrite to write "
                                   "into it anyway or choose a new folder")
             continue
         if path.is_dir():
             raise OutputError(f"output {path} is a folder; give a file name")
+        if not path.parent.is_dir():
+            raise OutputError(f"output {path}: folder {path.parent} does not exist; create it "
+                              "first")
         if path.exists() and not overwrite:
             raise OutputError(f"{path} already exists; pass --overwrite to replace it or choose a "
                               "new name")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from vbfe.acquire import RecorderStats, record_session
 from vbfe.acquire.layout import COMPRESSIONS
@@ -72,12 +71,12 @@ def _conditions(pairs: list[str]) -> dict[str, object]:
 def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
     check_outputs([args.output], [args.calib], args.overwrite)
-    calibration = None
+    calibration, calibration_size = None, None
     if args.calib:
-        try:
-            calibration = Path(args.calib).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise VbfeError(f"cannot read calibration {args.calib}: {exc.strerror}") from None
+        from vbfe.calib.calibration import Calibration  # checked before anything is recorded
+
+        loaded = Calibration.load(args.calib)
+        calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size
     protocol = None
     if args.protocol == "sync":
         protocol = SyncProtocol(taps=args.taps, flashes=args.flashes,
@@ -98,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
                                conditions=_conditions(args.condition),
                                compression=args.compression, calibration_yaml=calibration,
                                on_progress=show, tare=args.tare, overwrite=args.overwrite,
-                               protocol=protocol)
+                               protocol=protocol, calibration_size=calibration_size,
+                               calibration_name=args.calib)
         show(stats)
     finally:
         bar.close()

@@ -1,0 +1,24 @@
+"""The ``[live]`` table of the rig config."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from vbfe.settings import parse_table, setting
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """Defaults of ``vbfe live`` (see vbfe/default_rig.toml)."""
+
+    scale: float = setting(1.0, ge=0.1, le=1.0)
+    verify: bool = True
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    torch_threads: int = setting(1, ge=1)
+    status_interval_s: float = setting(1.0, gt=0)
+
+
+def live_settings(table: dict[str, Any]) -> LiveSettings:
+    """The ``[live]`` table, checked."""
+    return parse_table(LiveSettings, table, "live")
