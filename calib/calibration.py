@@ -118,9 +118,8 @@ class Calibration:
                 raise CalibrationError(f"calibration {name} puts the principal point "
                                        f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
                                        "image; recalibrate")
-        if self.P2[0, 0] == 0 or self.B == 0:
-            raise CalibrationError("calibration P2 gives a zero baseline (or focal length); "
-                                   "recalibrate")
+        if self.P2[0, 0] <= 0:  # a zero or impossible baseline is for the sanity gates to judge
+            raise CalibrationError("calibration P2 has a focal length <= 0; recalibrate")
 
     # --- the rectified pair -------------------------------------------------------------
     @property

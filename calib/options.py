@@ -17,10 +17,10 @@ class CalibSettings:
 
     target: Literal["charuco", "chessboard"] = "charuco"
     inner_corners: list[int] = setting([])  # a chessboard's (nx, ny), instead of its squares
-    squares_x: int = setting(9, ge=2)
-    squares_y: int = setting(7, ge=2)
-    square_mm: float = setting(3.0, gt=0)
-    marker_mm: float = setting(2.2, gt=0)
+    squares_x: int = 9  # board values are checked by BoardSpec, with board-specific messages
+    squares_y: int = 7
+    square_mm: float = 3.0
+    marker_mm: float = 2.2
     dictionary: str = "DICT_5X5_100"
     legacy: bool = False
     min_corners: int = setting(12, ge=4)

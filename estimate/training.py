@@ -231,8 +231,10 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     n_val = sum(len(p) for _, p in val_parts)
     notes = [split.describe()]
     if n_val < MIN_VAL_FRAMES:
-        notes.append(f"too little data for a validation set ({n_val} frames): no early "
-                     f"stopping, trained the fixed {config.epochs} epochs and kept the last")
+        notes.append(f"warning: too little data for a validation set ({n_val} frames; one "
+                     f"session, or too few for --val-fraction): no early stopping, trained the "
+                     f"fixed {config.epochs} epochs and kept the last; the MAE below is the "
+                     f"training MAE")
         val_parts = []
     baselines = fit_baselines(train_parts)
     check_parts = val_parts or train_parts

@@ -101,22 +101,24 @@ def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
 
 
 def capture_color_model(camera: StereoCamera, projector: Projector, frames: int = 3,
-                        settle_frames: int = 2, timeout_s: float = 2.0) -> ColorModel:
+                        settle_s: float = 0.15, timeout_s: float = 2.0) -> ColorModel:
     """Fit the colour model from a calibration capture: each flat projection of
-    :func:`color_calibration_patterns` is shown, ``settle_frames`` frames are dropped (projector
-    latency) and ``frames`` frames of both eyes are averaged. ``camera`` and ``projector`` are
-    open devices aimed at a surface (a white target is best; any albedo cancels)."""
+    :func:`color_calibration_patterns` is shown, the frames that arrived less than
+    ``settle_s`` after the projector reported it are dropped (projector latency and exposure)
+    and ``frames`` frames of both eyes are averaged. ``camera`` and ``projector`` are open
+    devices aimed at a surface (a white target is best; any albedo cancels)."""
     captures = {}
     for name, image in color_calibration_patterns(projector.width, projector.height).items():
-        projector.show(image, f"color-{name}")
+        due_ns = projector.show(image, f"color-{name}").t_host_ns + int(round(settle_s * 1e9))
         views = []
-        for _ in range(settle_frames + frames):
+        while len(views) < frames:
             frame = camera.read(timeout_s)
             if frame is None:
                 raise ReconError(f"colour calibration: no camera frame within {timeout_s} s "
                                  f"while projecting flat {name}; check the camera")
-            views.append(np.concatenate([frame.left, frame.right], axis=1))
-        captures[name] = np.mean(views[settle_frames:], axis=0)
+            if frame.t_host_ns >= due_ns:
+                views.append(np.concatenate([frame.left, frame.right], axis=1))
+        captures[name] = np.mean(views, axis=0)
     return estimate_color_model(captures)
 
 

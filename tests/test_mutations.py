@@ -120,7 +120,7 @@ class Corpus:
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Corpus:
     """A small simulated session, its exact calibration, point clouds and a tiny model."""
     from vbfe.drivers.sim import SimBench
-    from vbfe.recon import calibration_from_rig
+    from vbfe.truth import calibration_from_rig
 
     folder = tmp_path_factory.mktemp("corpus")
     rig = folder / "rig.toml"
@@ -391,7 +391,7 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
         return path
 
     for key in payload:
-        optional = key in ("vbfe_version", "created_unix_ns")
+        optional = key in ("vbfe_version", "created_unix_ns", "temporal")
         yield f"delete {key}", save({k: v for k, v in payload.items() if k != key}), not optional
     state = payload["state_dict"]
     for key in list(state)[::3]:  # BatchNorm rebuilds a missing batch counter: harmless
@@ -466,13 +466,14 @@ def wrong_values(value: object) -> list[object]:
     raise AssertionError(value)
 
 
-# (table, key, value) that have the right type but are out of range
+# (table, key, value) that have the right type but are out of range (bad board sizes are
+# test_calib_chessboard's: their messages name the flag and the board)
 OUT_OF_RANGE = [("record", "flush_interval_s", -1.0), ("record", "queue_size", 0),
                 ("record", "min_free_gb", -1.0), ("record", "compression", "zip"),
                 ("record", "sync_max_offset_s", -0.1), ("bench", "fps", 0.0),
-                ("bench", "width", -640), ("sgbm", "num_disparities", 0),
-                ("sgbm", "block_size", 4), ("sgbm", "mode", "fast"), ("calib", "squares_x", 1),
-                ("calib", "square_mm", 0.0), ("calib", "min_views", 0),
+                ("bench", "width", -640), ("sgbm", "num_disparities", 20),
+                ("sgbm", "block_size", 4), ("sgbm", "mode", "fast"), ("calib", "min_corners", 1),
+                ("calib", "capture_views", 0), ("calib", "min_views", 0),
                 ("train", "epochs", 0), ("train", "learning_rate", -1.0),
                 ("train", "target", "torque"), ("train", "val_fraction", 1.5)]
 
@@ -486,9 +487,14 @@ DEVICE_CASES = [("camera", "sim", "widht", None), ("camera", "v4l2", "widht", ("
 
 def _config_command(table: str, rig: Path, corpus: Corpus) -> list[str]:
     """A command that reads ``table`` of the rig config."""
-    if table == "sgbm":
+    if table in ("sgbm", "recon"):
         return ["reconstruct", str(corpus.session), "--workers", "1", "--config", str(rig),
                 "--out", str(fresh(corpus, ".clouds.h5"))]
+    if table == "batch":
+        return ["verify-sync", str(corpus.session), str(corpus.session), "--config", str(rig)]
+    if table == "live":
+        return ["live", "--model", str(corpus.model), "--calib", str(corpus.calibration),
+                "--duration", "0.2", "--headless", "--config", str(rig)]
     if table == "calib":
         return ["calibrate", "board", str(fresh(corpus, "", "board")), "--config", str(rig)]
     if table == "train":
@@ -565,7 +571,8 @@ def test_representative_cases_through_subprocesses(corpus):
              (["verify-sync", str(noisy), "--no-store"], str(noisy)),
              (["calibrate", "check", str(bad_calib), "--against", str(corpus.calibration)],
               str(bad_calib)),
-             (["reconstruct", str(corpus.session), "--calib", str(json_calib)], str(json_calib)),
+             (["reconstruct", str(corpus.session), "--calib", str(json_calib), "--out",
+               str(fresh(corpus, ".clouds.h5"))], str(json_calib)),
              (["record", str(fresh(corpus, ".h5")), "--duration", "0.2", "--calib",
                str(bad_calib), "--config", str(corpus.rig)], str(bad_calib)),
              (["record", str(fresh(corpus, ".h5")), "--config", str(rig)], "chanel"),

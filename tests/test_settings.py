@@ -9,7 +9,7 @@ import pytest
 
 from vbfe.calib.calibration import Calibration
 from vbfe.config import ConfigError
-from vbfe.recon.accuracy import calibration_from_rig
+from vbfe.truth import calibration_from_rig
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.settings import parse_kwargs, parse_table, setting
 

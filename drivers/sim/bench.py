@@ -83,6 +83,8 @@ class SimBench:
                  exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
+        if fps <= 0 or trocar_rate_hz <= 0:
+            raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
         if width <= 0 or height <= 0:
             raise DeviceError(f"[bench] width and height must be positive, got {width}x{height}")
         if protocol not in PROTOCOLS:
@@ -95,8 +97,6 @@ class SimBench:
             raise DeviceError("[bench] image_latency_ms + projector_latency_ms must exceed half the "
                               "exposure and readout plus 3x image_jitter_ms (a pattern must not "
                               "light frames that have already arrived)")
-        if fps <= 0 or trocar_rate_hz <= 0:
-            raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
         if image_latency_ms < 3 * image_jitter_ms or force_latency_ms < 3 * force_jitter_ms:
             raise DeviceError("[bench] each latency must be at least 3x its jitter "
                               "(image_latency_ms/image_jitter_ms, force_latency_ms/force_jitter_ms)")

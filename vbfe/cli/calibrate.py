@@ -19,6 +19,7 @@ from vbfe.calib.report import summary_rows
 from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.config import section
 
 _BOARD_KEYS = ("target", "squares_x", "squares_y", "inner_corners", "square_mm", "marker_mm",
                "dictionary", "legacy")
@@ -330,10 +331,15 @@ def run_color(args: argparse.Namespace) -> int:
     from vbfe.drivers.registry import open_devices
     from vbfe.recon.color import capture_color_model
 
+    from vbfe.calib.options import calib_settings
+
     calibration = load_calibration(args.calibration)
-    devices = open_devices(config_from(args))
+    config = config_from(args)
+    settle_s = calib_settings(section(config, "calib")).projector_settle_s
+    devices = open_devices(config, ("camera", "projector"))
     with devices.camera, devices.projector:
-        model = capture_color_model(devices.camera, devices.projector, frames=args.frames)
+        model = capture_color_model(devices.camera, devices.projector, frames=args.frames,
+                                    settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)
     rows = "; ".join(" ".join(f"{v:.3f}" for v in row) for row in model.mixing)
     print(f"colour mixing (camera BGR <- projector BGR) [{rows}], offset "

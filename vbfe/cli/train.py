@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"model written to {result.model_path} (best epoch {result.best_epoch} of "
           f"{result.epochs_run}, {result.duration_s:.0f} s)")
     for note in result.notes:
-        print(note)
+        print(note, file=sys.stderr if note.startswith("warning:") else sys.stdout)
     temporal = ("" if result.temporal_val_mae_n is None
                 else f", temporal model {result.temporal_val_mae_n:.3f} N")
     print(f"validation MAE: PointNet {result.val_mae_n:.3f} N{temporal}; baselines: " + ", ".join(
