@@ -80,8 +80,8 @@ class GrayCodeCapturer:
         """Width and height of the projector in pixels."""
         return int(self.projector.width), int(self.projector.height)
 
-    def _read(self) -> StereoFrame:
-        frame = self.camera.read(self.options.read_timeout_s)
+    def _read(self, after_ns: int = 0) -> StereoFrame:
+        frame = self.camera.read_after(after_ns, self.options.read_timeout_s)
         if frame is None:
             raise CalibrationError(f"the camera gave no frame within "
                                    f"{self.options.read_timeout_s} s; check it is streaming")
@@ -90,13 +90,10 @@ class GrayCodeCapturer:
     def shoot(self, image: np.ndarray, name: str) -> StereoFrame:
         """Show ``image`` and return the first frame that arrived ``settle_s`` after it."""
         event = self.projector.show(image, name)
-        due_ns = event.t_host_ns + int(round(self.options.settle_s * 1e9))
-        while True:
-            frame = self._read()
-            if frame.t_host_ns >= due_ns:
-                self.log.append({"pattern": name, "shown_t_host_ns": event.t_host_ns,
-                                 "frame_seq": frame.seq, "frame_t_host_ns": frame.t_host_ns})
-                return frame
+        frame = self._read(event.t_host_ns + int(round(self.options.settle_s * 1e9)))
+        self.log.append({"pattern": name, "shown_t_host_ns": event.t_host_ns,
+                         "frame_seq": frame.seq, "frame_t_host_ns": frame.t_host_ns})
+        return frame
 
     def wait_for_pose(self, previous: np.ndarray | None) -> np.ndarray:
         """Under white light, wait until the board rests at a pose unlike ``previous`` (the last

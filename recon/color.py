@@ -112,12 +112,11 @@ def capture_color_model(camera: StereoCamera, projector: Projector, frames: int 
         due_ns = projector.show(image, f"color-{name}").t_host_ns + int(round(settle_s * 1e9))
         views = []
         while len(views) < frames:
-            frame = camera.read(timeout_s)
+            frame = camera.read_after(due_ns, timeout_s)
             if frame is None:
                 raise ReconError(f"colour calibration: no camera frame within {timeout_s} s "
                                  f"while projecting flat {name}; check the camera")
-            if frame.t_host_ns >= due_ns:
-                views.append(np.concatenate([frame.left, frame.right], axis=1))
+            views.append(np.concatenate([frame.left, frame.right], axis=1))
         captures[name] = np.mean(views, axis=0)
     return estimate_color_model(captures)
 

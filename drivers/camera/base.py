@@ -20,6 +20,15 @@ class StereoCamera(SampleStream[StereoFrame]):
     height: int
     fps: float
 
+    def read_after(self, t_host_ns: int, timeout_s: float = 1.0) -> StereoFrame | None:
+        """The first frame that arrived at or after host time ``t_host_ns`` (older ones are
+        read and dropped, e.g. while a new projector pattern settles); ``None`` when a read
+        times out."""
+        while True:
+            frame = self.read(timeout_s)
+            if frame is None or frame.t_host_ns >= t_host_ns:
+                return frame
+
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""
         return {"kind": type(self).__name__, "width": self.width, "height": self.height, "fps": self.fps}
