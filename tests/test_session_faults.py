@@ -17,9 +17,12 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import write_bar_session
-from vbfe.acquire import SessionError, SessionReader
+from vbfe.acquire import Recorder, RecorderStats, SessionError, SessionReader
 from vbfe.acquire.inspect import inspect_session
+from vbfe.acquire.record import session_recorder
 from vbfe.cli.main import main
+from vbfe.config import load_config
+from vbfe.drivers.registry import open_devices
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # smallest size the sim renders exactly
@@ -264,11 +267,32 @@ def test_ctrl_c_twice_and_sigterm_stop_and_finalize(tmp_path, signals, reason):
         proc.send_signal(sig)
         time.sleep(0.05)
     _, err = proc.communicate(timeout=60)
+    # A second signal may land while the file is finishing or after it is closed (a small
+    # bench finishes in under 50 ms): either way the exit status is the recording's.
     assert proc.returncode == 0, err
-    if len(signals) > 1:
-        assert "please wait" in err
     with SessionReader(path) as s:
         assert s.complete and s.attrs["end_reason"] == reason and s.n_frames > 0
+
+
+def test_a_second_ctrl_c_while_stopping_is_ignored_with_a_message(tmp_path, capsys):
+    config = load_config(rig(tmp_path, SMALL_BENCH))
+    path = tmp_path / "s.h5"
+    recorder = session_recorder(config, path, open_devices(config))
+    sent: list[int] = []
+
+    def ctrl_c_twice(rec: Recorder, stats: RecorderStats) -> None:
+        if stats.frames > 0 and not sent:
+            for _ in range(2):  # the handler runs in between: the second finds it stopping
+                sent.append(os.getpid())
+                os.kill(os.getpid(), signal.SIGINT)
+
+    recorder.start()
+    stats = recorder.run(None, on_tick=ctrl_c_twice)
+    assert stats.end_reason == "stopped by operator" and len(sent) == 2
+    assert "please wait" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    with SessionReader(path) as s:
+        assert s.complete and s.attrs["end_reason"] == "stopped by operator"
 
 
 # -- pacing, SIGKILL loss, live view, HDMI projector ---------------------------------------------
