@@ -2,7 +2,9 @@
 
 Each session is prepared once (``prepare_session``): every used frame keeps a pool of
 ``pool_factor × n_points`` finite ROI points (drawn without replacement, or with replacement
-when the ROI holds fewer), from which ``n_points`` are redrawn for each epoch. Frames whose ROI
+when the ROI holds fewer), from which ``n_points`` are redrawn for each epoch; with
+``[train] rest_depth`` each point also carries its depth change against the session's first
+usable frame (see ``rest_depth.py``). Frames whose ROI
 holds fewer than ``MIN_FRAME_POINTS`` finite points, or whose force is not finite, are skipped
 and counted. Splits are made by session (``split_by_session``) or by contiguous time blocks
 inside each session with a gap between parts (``split_by_time``), never by single frames.
@@ -22,6 +24,7 @@ import torch
 
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.rest_depth import RestDepth
 from vbfe.estimate.sources import SessionLike, condition_label, open_source
 from vbfe.estimate.train_config import TrainConfig
 
@@ -68,7 +71,7 @@ class PreparedSession:
     conditions: dict[str, Any]
     times_ns: np.ndarray  # used frames, int64
     targets_n: np.ndarray  # used frames × outputs
-    pools: np.ndarray  # used frames × pool × 3, float32, metres
+    pools: np.ndarray  # used frames × pool × 3 (x, y, z; 4 with the rest depth change), float32, m
     displacement_m: np.ndarray  # peak surface displacement vs the first usable frame
     heights_m: np.ndarray  # used frames × cells²: depth change vs the first usable frame (0: unseen)
     n_frames_total: int
@@ -94,6 +97,7 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
         pool_size = config.pool_factor * config.n_points
         grid: DisplacementGrid | None = None
         height_grid: DisplacementGrid | None = None
+        rest: RestDepth | None = None
         kept, pools, displacement, heights = [], [], [], []
         skipped = 0
         for i in range(source.n_frames):
@@ -105,6 +109,7 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
             if cloud_ok and grid is None:
                 grid = DisplacementGrid(points)
                 height_grid = DisplacementGrid(points, cells=config.ridge_cells)
+                rest = RestDepth(points) if config.rest_depth else None
             if i % config.frame_stride:
                 continue
             if not cloud_ok or not np.isfinite(targets[i]).all():
@@ -112,7 +117,8 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
                 continue
             assert grid is not None and height_grid is not None
             kept.append(i)
-            pools.append(sample_points(points, pool_size, rng).astype(np.float32))
+            pool = sample_points(points, pool_size, rng)
+            pools.append(rest.with_change(pool) if rest else pool.astype(np.float32))
             displacement.append(grid.peak_displacement_m(points))
             heights.append(np.nan_to_num(height_grid.depth_map(points)
                                          - height_grid.reference_depth_m).ravel())
@@ -120,7 +126,8 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
         return PreparedSession(
             name=source.name, conditions=dict(source.conditions),
             times_ns=np.asarray(times, dtype=np.int64)[kept], targets_n=targets[kept],
-            pools=np.stack(pools) if pools else np.zeros((0, pool_size, 3), np.float32),
+            pools=(np.stack(pools) if pools else
+                   np.zeros((0, pool_size, 4 if config.rest_depth else 3), np.float32)),
             displacement_m=np.asarray(displacement, dtype=np.float64),
             heights_m=np.asarray(heights, dtype=np.float64).reshape(len(kept),
                                                                     config.ridge_cells ** 2),
@@ -313,7 +320,7 @@ class FrameBatches:
 
     ``parts`` are (session, used-frame positions) pairs. With a ``window`` (offsets back in
     frames, oldest first, e.g. ``[10, 5, 0]``) each example is the causal window of those
-    frames preceded by the session's rest (first) frame: ``B × (1 + k) × n_points × 3``;
+    frames preceded by the session's rest (first) frame: ``B × (1 + k) × n_points × C``;
     frames before the session start repeat its first frame. ``max_frames`` keeps a fixed,
     evenly spaced subsample (e.g. for validation).
     """

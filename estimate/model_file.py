@@ -23,11 +23,12 @@ import torch
 from vbfe import __version__
 from vbfe.config import ConfigError
 from vbfe.estimate.baselines import Baseline, baseline_from_dict
-from vbfe.estimate.dataset import (FrameBatches, PreparedSession, SessionSplit, crop_roi,
-                                   sample_points)
+from vbfe.estimate.dataset import (MIN_FRAME_POINTS, FrameBatches, PreparedSession,
+                                   SessionSplit, crop_roi, sample_points)
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.pointnet import (ARCHITECTURE, ARCHITECTURE_VERSION, PointNetRegressor,
                                     TemporalPointNet)
+from vbfe.estimate.rest_depth import RestDepth
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.settings import parse_kwargs, parse_table
 
@@ -51,25 +52,49 @@ class ForceModel:
         return SessionSplit.from_dict(self.record.get("split", {}))
 
     def predict_points(self, points: np.ndarray | torch.Tensor) -> np.ndarray:
-        """Force (B×outputs, N) for clouds already cropped and sampled (B×n_points×3, metres)."""
+        """Force (B×outputs, N) for clouds already prepared (B×n_points×C, metres; see
+        ``prepare_cloud``)."""
         self.network.eval()
         device = next(self.network.parameters()).device
         with torch.no_grad():
             return self.network(torch.as_tensor(points, dtype=torch.float32,
                                                 device=device)).cpu().numpy()
 
-    def prepare_cloud(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def rest_reference(self, rest_points: np.ndarray) -> RestDepth | None:
+        """The rest reference for clouds of one run, from its rest (undeformed) cloud (N×3,
+        may hold NaN; cropped to the training ROI); ``None`` when the network needs none."""
+        if not self.network.rest_depth:
+            return None
+        cropped = crop_roi(rest_points, self.config)
+        if len(cropped) < MIN_FRAME_POINTS:
+            raise EstimateError(f"the rest cloud has {len(cropped)} points inside the model's "
+                                "region of interest; start from a frame where the tissue is "
+                                "seen at rest")
+        return RestDepth(cropped)
+
+    def prepare_cloud(self, points: np.ndarray, rng: np.random.Generator,
+                      rest: RestDepth | None = None) -> np.ndarray:
         """A raw cloud (N×3, may hold NaN) cropped to the training ROI and sampled to
-        ``n_points`` (n_points×3)."""
+        ``n_points`` (n_points×3, or ×4 with the depth change against ``rest``, which a
+        network trained with ``rest_depth`` needs)."""
         cropped = crop_roi(points, self.config)
         if len(cropped) == 0:
             raise EstimateError("the cloud has no finite point inside the model's region of "
                                 "interest; check the reconstruction or the [train] roi")
-        return sample_points(cropped, self.config.n_points, rng)
+        sampled = sample_points(cropped, self.config.n_points, rng)
+        if not self.network.rest_depth:
+            return sampled
+        if rest is None:
+            raise EstimateError("this model reads each cloud against the rest cloud of its "
+                                "run; give the rest (undeformed) cloud")
+        return rest.with_change(sampled)
 
-    def predict_cloud(self, points: np.ndarray, seed: int = 0) -> np.ndarray:
-        """Force (outputs,) for one raw cloud (N×3, may hold NaN); applies the training ROI."""
-        sampled = self.prepare_cloud(points, np.random.default_rng(seed))
+    def predict_cloud(self, points: np.ndarray, seed: int = 0,
+                      rest_points: np.ndarray | None = None) -> np.ndarray:
+        """Force (outputs,) for one raw cloud (N×3, may hold NaN); applies the training ROI.
+        ``rest_points``: the run's rest cloud (needed when the network uses ``rest_depth``)."""
+        rest = self.rest_reference(rest_points) if rest_points is not None else None
+        sampled = self.prepare_cloud(points, np.random.default_rng(seed), rest)
         return self.predict_points(sampled[None])[0]
 
     def predict_session(self, session: PreparedSession, batch_size: int = 64) -> np.ndarray:

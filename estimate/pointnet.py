@@ -9,7 +9,9 @@ dropout) end in a linear output in newtons.
 
 Normalisation removes the cloud's position and size, which on a pulled tissue carry much of the
 force signal; with ``global_features=True`` the removed centroid (x, y, z) and D_max are fed to
-the head as four extra, standardised inputs.
+the head as four extra, standardised inputs. With ``rest_depth=True`` (vbfe's modification,
+see ``rest_depth.py``) every point carries a fourth input, its depth change against the
+session's rest cloud, divided by its training standard deviation: clouds are then B×N×4.
 """
 
 from __future__ import annotations
@@ -65,9 +67,9 @@ def normalize_clouds(points: torch.Tensor, weights: torch.Tensor | None = None
     return normalized, torch.cat([centroid, d_max.unsqueeze(1)], dim=1)
 
 
-def _shared_mlp(channels: Sequence[int]) -> nn.Sequential:
+def _shared_mlp(channels: Sequence[int], n_in: int) -> nn.Sequential:
     layers: list[nn.Module] = []
-    for c_in, c_out in zip([3, *channels[:-1]], channels):
+    for c_in, c_out in zip([n_in, *channels[:-1]], channels):
         layers += [nn.Conv1d(c_in, c_out, kernel_size=1), nn.BatchNorm1d(c_out), nn.ELU()]
     return nn.Sequential(*layers)
 
@@ -81,40 +83,50 @@ def _head(n_in: int, channels: Sequence[int], dropout: float, n_outputs: int) ->
 
 
 class PointNetRegressor(nn.Module):
-    """Point clouds (B×N×3, metres, any point order) → force (B×n_outputs, newtons)."""
+    """Point clouds (B×N×3, or B×N×4 with the rest depth change; metres, any point order) →
+    force (B×n_outputs, newtons)."""
 
     def __init__(self, n_outputs: int = 1, conv_channels: Sequence[int] = (64, 128, 1024),
                  head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
-                 global_features: bool = True) -> None:
+                 global_features: bool = True, rest_depth: bool = False) -> None:
         super().__init__()
         self.hparams = {"n_outputs": n_outputs, "conv_channels": list(conv_channels),
                         "head_channels": list(head_channels), "dropout": dropout,
-                        "global_features": global_features}
+                        "global_features": global_features, "rest_depth": rest_depth}
         self.global_features = global_features
-        self.features = _shared_mlp(conv_channels)
+        self.rest_depth = rest_depth
+        self.features = _shared_mlp(conv_channels, 4 if rest_depth else 3)
         self.embedding_size = conv_channels[-1] + (N_GLOBAL_FEATURES if global_features else 0)
         self.head = _head(self.embedding_size, head_channels, dropout, n_outputs)
         self.register_buffer("target_mean", torch.zeros(n_outputs))
         self.register_buffer("target_std", torch.ones(n_outputs))
         self.register_buffer("feature_mean", torch.zeros(N_GLOBAL_FEATURES))
         self.register_buffer("feature_std", torch.ones(N_GLOBAL_FEATURES))
+        if rest_depth:
+            self.register_buffer("depth_scale", torch.ones(1))
 
     def set_normalization(self, target_mean: torch.Tensor, target_std: torch.Tensor,
-                          feature_mean: torch.Tensor, feature_std: torch.Tensor) -> None:
-        """Set the force scaling and the global-feature standardisation (from training data)."""
+                          feature_mean: torch.Tensor, feature_std: torch.Tensor,
+                          depth_std: float = 1.0) -> None:
+        """Set the force scaling, the global-feature standardisation and (with
+        ``rest_depth``) the depth-change scale, all from training data."""
         self.target_mean.copy_(target_mean)
         self.target_std.copy_(torch.clamp(target_std, min=1e-6))
         self.feature_mean.copy_(feature_mean)
         self.feature_std.copy_(torch.clamp(feature_std, min=1e-9))
+        if self.rest_depth:
+            self.depth_scale.fill_(max(depth_std, 1e-9))
 
     @staticmethod
     def cloud_features(points: torch.Tensor) -> torch.Tensor:
         """The global features removed by normalisation: centroid and D_max (B×4, metres)."""
-        return normalize_clouds(points)[1]
+        return normalize_clouds(points[..., :3])[1]
 
     def embed(self, points: torch.Tensor) -> torch.Tensor:
         """Per-cloud embedding (B×embedding_size): pooled point features + global features."""
-        normalized, features = normalize_clouds(points)
+        normalized, features = normalize_clouds(points[..., :3])
+        if self.rest_depth:
+            normalized = torch.cat([normalized, points[..., 3:4] / self.depth_scale], dim=-1)
         pooled = self.features(normalized.transpose(1, 2)).amax(dim=2)
         if self.global_features:
             pooled = torch.cat([pooled, (features - self.feature_mean) / self.feature_std], dim=1)
@@ -127,10 +139,10 @@ class PointNetRegressor(nn.Module):
 class TemporalPointNet(PointNetRegressor):
     """The PointNet encoder over a causal window: rest cloud + the last k clouds → force.
 
-    Input ``B × (1 + k) × N × 3`` (the session's rest frame first, then the window oldest to
-    newest). Every cloud is embedded by the shared encoder. The force is the single-frame head
-    on the newest cloud (as in ``PointNetRegressor``, whose trained weights it can start from)
-    plus a motion correction: a second head on each window cloud's embedding minus the rest
+    Input ``B × (1 + k) × N × C`` (C = 3, or 4 with ``rest_depth``): the session's rest frame
+    first, then the window oldest to newest. Every cloud is embedded by the shared encoder.
+    The force is the single-frame head on the newest cloud (as in ``PointNetRegressor``, whose
+    trained weights it can start from) plus a motion correction: a second head on each window cloud's embedding minus the rest
     cloud's, so it can read how the surface has moved and how it is moving (a relaxing tissue
     at constant shape). The correction's output layer starts at zero.
     """
@@ -138,8 +150,9 @@ class TemporalPointNet(PointNetRegressor):
     def __init__(self, n_outputs: int = 1, n_frames: int = 4,
                  conv_channels: Sequence[int] = (64, 128, 1024),
                  head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
-                 global_features: bool = True) -> None:
-        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features)
+                 global_features: bool = True, rest_depth: bool = False) -> None:
+        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features,
+                         rest_depth)
         self.hparams["n_frames"] = n_frames
         self.n_frames = n_frames
         self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout,
@@ -151,7 +164,7 @@ class TemporalPointNet(PointNetRegressor):
     @staticmethod
     def cloud_features(points: torch.Tensor) -> torch.Tensor:
         """Global features of every cloud of the windows (B·(1+k)×4, metres)."""
-        return normalize_clouds(points.reshape(-1, *points.shape[-2:]))[1]
+        return normalize_clouds(points.reshape(-1, *points.shape[-2:])[..., :3])[1]
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         b, w = points.shape[:2]

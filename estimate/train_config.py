@@ -49,6 +49,7 @@ class TrainConfig:
     head_channels: list[int] = setting([512, 256])
     dropout: float = setting(0.3, ge=0, lt=1)
     global_features: bool = True  # feed the removed centroid and D_max to the head
+    rest_depth: bool = True  # each point also carries its depth change vs the rest frame
     time_limit_s: float = setting(0.0, ge=0)  # stop training after this wall time (0 = no limit)
     threads: int = setting(2, ge=1)  # torch CPU threads (1 is faster on shared cores)
     device: Literal[DEVICES] = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"

@@ -88,15 +88,17 @@ def _build_network(config: TrainConfig, train_batches: FrameBatches,
                    temporal: bool) -> PointNetRegressor:
     hparams = dict(n_outputs=config.n_outputs, conv_channels=config.conv_channels,
                    head_channels=config.head_channels, dropout=config.dropout,
-                   global_features=config.global_features)
+                   global_features=config.global_features, rest_depth=config.rest_depth)
     network = (TemporalPointNet(n_frames=config.temporal_frames, **hparams) if temporal
                else PointNetRegressor(**hparams))
     targets = torch.from_numpy(train_batches.targets)
     with torch.no_grad():
         features = torch.cat([network.cloud_features(points)
                               for points, _ in train_batches.batches(256, rng=None)])
+    depth_std = (float(train_batches.pools[train_batches.frames, :, 3].std())
+                 if config.rest_depth else 1.0)
     network.set_normalization(targets.mean(0), targets.std(0, unbiased=False),
-                              features.mean(0), features.std(0, unbiased=False))
+                              features.mean(0), features.std(0, unbiased=False), depth_std)
     return network
 
 

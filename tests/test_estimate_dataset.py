@@ -55,7 +55,7 @@ def test_empty_and_nan_clouds_are_skipped_and_counted():
     prepared = prepare_session(session, small_config())
     assert prepared.n_skipped == 3
     assert prepared.n_used == session.n_frames - 3 == len(prepared.pools)
-    assert prepared.pools.shape[1:] == (128, 3) and np.isfinite(prepared.pools).all()
+    assert prepared.pools.shape[1:] == (128, 4) and np.isfinite(prepared.pools).all()
     kept_times = set(prepared.times_ns.tolist())
     assert not kept_times & {int(session.times_ns[i]) for i in (2, 5, 7)}
 
@@ -132,7 +132,7 @@ def test_batches_redraw_points_from_the_pool():
     rng = np.random.default_rng(0)
     (a, ya), = list(batches.batches(10_000, rng))
     (b, yb), = list(batches.batches(10_000, None))
-    assert a.shape == b.shape == (len(batches), 64, 3) and ya.shape == (len(batches), 1)
+    assert a.shape == b.shape == (len(batches), 64, 4) and ya.shape == (len(batches), 1)
     np.testing.assert_array_equal(b.numpy(), batches.pools[:, :64])
     np.testing.assert_array_equal(np.sort(yb.numpy(), 0), np.sort(ya.numpy(), 0))
 
@@ -168,7 +168,7 @@ def test_temporal_window_is_causal_and_starts_with_the_rest_frame():
     rows = batches.frame_indices(np.arange(3))
     np.testing.assert_array_equal(rows, [[0, 0, 0, 0], [0, 0, 0, 3], [0, 14, 17, 20]])
     points, y = next(batches.batches(8, None))
-    assert points.shape == (3, 4, 16, 3)
+    assert points.shape == (3, 4, 16, 4)
     np.testing.assert_array_equal(points[2, 3].numpy(), session.pools[20, :16])
     np.testing.assert_allclose(y.numpy(), session.targets_n[positions], rtol=1e-6)
     assert TrainConfig(temporal_frames=3, temporal_span_frames=6).temporal_window == [6, 3, 0]

@@ -5,8 +5,10 @@ import pytest
 import torch
 from scipy.spatial.distance import pdist
 
+from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.pointnet import (PointNetRegressor, TemporalPointNet, diameter,
                                     normalize_clouds, weighted_centroid)
+from vbfe.estimate.rest_depth import RestDepth
 
 
 @pytest.fixture
@@ -88,3 +90,37 @@ def test_temporal_model_sees_the_window_in_order_and_shares_the_encoder(clouds):
     again = TemporalPointNet(**net.hparams)
     again.load_state_dict(net.state_dict())
     torch.testing.assert_close(again.eval()(windows), out)
+
+
+def test_rest_depth_measures_a_bump_against_the_rest_surface():
+    xy = np.stack(np.meshgrid(np.linspace(-0.02, 0.02, 41), np.linspace(-0.02, 0.02, 41)),
+                  -1).reshape(-1, 2)
+    tilt = 0.06 + 0.1 * xy[:, 0]  # a tilted rest surface, 6 cm away
+    rest = RestDepth(np.column_stack([xy, tilt]))
+    bump = -0.003 * np.exp(-(xy ** 2).sum(1) / (2 * 0.004 ** 2))  # pulled 3 mm towards the camera
+    pulled = np.column_stack([xy + 0.0002, tilt + 0.1 * 0.0002 + bump])  # and slid 0.2 mm
+    change = rest.change_m(pulled)
+    centre, rim = np.argmin((xy ** 2).sum(1)), np.argmax((xy ** 2).sum(1))
+    assert change[centre] == pytest.approx(-0.003, abs=1e-4)
+    assert abs(change[rim]) < 1e-4
+    np.testing.assert_allclose(change, bump, atol=2e-4)
+    four = rest.with_change(pulled)
+    assert four.shape == (len(xy), 4) and four.dtype == np.float32
+    with pytest.raises(EstimateError, match="rest cloud"):
+        RestDepth(np.full((5, 3), np.nan))
+
+
+def test_the_rest_depth_channel_reaches_the_network(clouds):
+    torch.manual_seed(0)
+    net = PointNetRegressor(conv_channels=(16, 32), head_channels=(16,), rest_depth=True).eval()
+    net.set_normalization(torch.zeros(1), torch.ones(1), torch.zeros(4), torch.ones(4),
+                          depth_std=0.001)
+    flat = torch.cat([clouds, torch.zeros(*clouds.shape[:2], 1)], dim=2)
+    pulled = flat.clone()
+    pulled[..., 3] = -0.002  # same shape, moved 2 mm against the rest surface
+    with torch.no_grad():
+        assert not torch.allclose(net(flat), net(pulled))
+        assert float(net.depth_scale) == pytest.approx(0.001)
+        again = PointNetRegressor(**net.hparams)
+        again.load_state_dict(net.state_dict())
+        torch.testing.assert_close(again.eval()(pulled), net(pulled))

@@ -47,8 +47,11 @@ def test_training_writes_a_model_with_its_record(trained):
     assert model.record["vbfe_version"]
     assert set(model.baselines) == {"mean", "linear_displacement", "hooke", "ridge_height_map"}
     assert model.split.kind == "session" and model.temporal is None
-    prediction = model.predict_cloud(synthetic_sessions(repeats=1, **SMALL)[0].clouds[-1])
+    clouds = synthetic_sessions(repeats=1, **SMALL)[0].clouds
+    prediction = model.predict_cloud(clouds[-1], rest_points=clouds[0])
     assert prediction.shape == (1,) and np.isfinite(prediction).all()
+    with pytest.raises(EstimateError, match="rest cloud"):
+        model.predict_cloud(clouds[-1])
 
 
 def test_model_learns_force_on_held_out_sessions(trained, tmp_path):
@@ -138,7 +141,8 @@ def test_three_axis_target(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=4, prefix="xyz", fps=2, points_per_side=12)
     result = train(sessions, tmp_path / "xyz.pt", tiny_config(epochs=2, target="xyz"))
     model = load_model(result.model_path)
-    assert model.predict_cloud(sessions[0].clouds[-1]).shape == (3,)
+    clouds = sessions[0].clouds
+    assert model.predict_cloud(clouds[-1], rest_points=clouds[0]).shape == (3,)
 
 
 @pytest.mark.parametrize("change, message", [

@@ -43,6 +43,8 @@ class DemoPlan:
     temporal_frames: int  # temporal model: frames in its causal window
     temporal_span_frames: int  # oldest-to-newest frames of that window
     temporal_epochs: int  # it starts from PointNet's encoder, so it needs fewer epochs
+    split: str  # how training picks its validation frames: "session" or "time" blocks
+    gap_frames: int  # time split: frames left out between blocks
 
     @classmethod
     def full(cls) -> "DemoPlan":
@@ -57,16 +59,18 @@ class DemoPlan:
                    projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
                    recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
-                   temporal_epochs=20, protocol_s=20.0)
+                   temporal_epochs=20, protocol_s=20.0, split="session", gap_frames=0)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
-        """A small run for tests (under two minutes)."""
+        """A small run for tests (under two minutes). With one training session per
+        condition, validation takes time blocks inside them (a held-out session would take a
+        whole condition out of training)."""
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
                    projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
                    recon_check_frames=1, temporal_frames=2, temporal_span_frames=5,
-                   temporal_epochs=15, protocol_s=10.0)
+                   temporal_epochs=15, protocol_s=10.0, split="time", gap_frames=4)
 
 
 @dataclass
@@ -288,7 +292,7 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
         frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
         time_limit_s=plan.time_limit_s, threads=plan.threads,
         temporal_frames=plan.temporal_frames, temporal_span_frames=plan.temporal_span_frames,
-        temporal_epochs=plan.temporal_epochs)
+        temporal_epochs=plan.temporal_epochs, split=plan.split, gap_frames=plan.gap_frames)
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
