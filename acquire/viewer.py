@@ -17,7 +17,7 @@ import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtCore, QtWidgets
 
-from vbfe.acquire.reader import SessionReader
+from vbfe.acquire.session.reader import SessionReader
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.qt_app import dispose_widget, qt_application
 from vbfe.drivers.registry import Devices

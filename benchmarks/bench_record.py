@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from vbfe.acquire import Recorder, SessionWriter
-from vbfe.acquire.layout import COMPRESSIONS
+from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.pacing import sleep_until

@@ -31,7 +31,7 @@ from types import TracebackType
 import h5py
 import numpy as np
 
-from vbfe.acquire.h5attrs import plain_attrs, text
+from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"

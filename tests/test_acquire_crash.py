@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionError, SessionReader, store_calibration
-from vbfe.acquire.inspect import inspect_session
+from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
 
 RECORDER_SCRIPT = textwrap.dedent("""

@@ -10,7 +10,7 @@ import pytest
 
 from tests.test_acquire_devices import bar_devices, bar_image, force_profile
 from vbfe.acquire import Recorder, SessionError, SessionReader, store_calibration
-import vbfe.acquire.recorder as recorder_module
+import vbfe.acquire.recording.recorder as recorder_module
 
 CAM_OFFSET_NS = 5_000_000_000
 

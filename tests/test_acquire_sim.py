@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionReader, record_session
-from vbfe.acquire.sync_check import verify_sync
+from vbfe.acquire.sync.check import verify_sync
 from vbfe.cli.main import main
 from vbfe.config import load_config
 

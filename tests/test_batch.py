@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import record_session
-from vbfe.acquire.inspect import inspect_session
+from vbfe.acquire.session.inspect import inspect_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.manifest import read_manifest
 from vbfe.config import load_config

@@ -18,7 +18,7 @@ import pytest
 
 from tests.test_acquire_devices import BarCamera, RecordingProjector
 from vbfe.acquire import Recorder, SessionReader
-from vbfe.acquire.clock import fit_clock
+from vbfe.acquire.session.clock import fit_clock
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.trocar.can_clock import HOST_CLOCK
 from vbfe.drivers.trocar.can_trocar import CAN_ERR_CRTL, CanTrocar

@@ -18,8 +18,8 @@ import pytest
 
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import Recorder, RecorderStats, SessionError, SessionReader
-from vbfe.acquire.inspect import inspect_session
-from vbfe.acquire.record import session_recorder
+from vbfe.acquire.recording.record import session_recorder
+from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
 from vbfe.config import load_config
 from vbfe.drivers.registry import open_devices

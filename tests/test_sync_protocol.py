@@ -11,10 +11,10 @@ import pytest
 
 from tests.fakes.lagging_camera import LaggingCamera
 from vbfe.acquire import SessionReader, record_session
-from vbfe.acquire import record as record_module
-from vbfe.acquire.sync_check import FAIL, INCONCLUSIVE, PASS, verify_sync
-from vbfe.acquire.sync_protocol import ProtocolSettings, flash_instant
-from vbfe.acquire.sync_session import SyncProtocol
+from vbfe.acquire.recording import record as record_module
+from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
+from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
+from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.config import load_config
 from vbfe.drivers import registry
 

@@ -163,7 +163,7 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
 def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any]:
     """verify-sync on every session; measured offset against the bench's true offset."""
     from vbfe.acquire import SessionReader
-    from vbfe.acquire.sync_check import verify_sync
+    from vbfe.acquire.sync.check import verify_sync
 
     rows = []
     (out / "sync").mkdir(exist_ok=True)
@@ -191,9 +191,9 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     """One sync protocol session on the rig: offset from the taps and flash latency against
     the bench's truth, verdict before and after ``--apply``."""
     from vbfe.acquire import SessionReader, record_session
-    from vbfe.acquire.sync_check import SyncLimits, verify_sync
-    from vbfe.acquire.sync_protocol import ProtocolSettings
-    from vbfe.acquire.sync_session import SyncProtocol
+    from vbfe.acquire.sync.check import SyncLimits, verify_sync
+    from vbfe.acquire.sync.protocol import ProtocolSettings
+    from vbfe.acquire.recording.sync_session import SyncProtocol
 
     step = stage("sync protocol session", 1)
     run_config = copy.deepcopy(config)

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.inspect import inspect_session
-from vbfe.acquire.reader import SessionReader
+from vbfe.acquire.session.inspect import inspect_session
+from vbfe.acquire.session.reader import SessionReader
 from vbfe.batch.errors import BatchError
 from vbfe.recon.freshness import clouds_status, text_hash
 from vbfe.recon.matching import SgbmParams

@@ -9,9 +9,9 @@ from typing import Any
 
 import cv2
 
-from vbfe.acquire.reader import SessionReader
-from vbfe.acquire.sync_check import SyncLimits, verify_sync
-from vbfe.acquire.sync_protocol import ProtocolSettings
+from vbfe.acquire.session.reader import SessionReader
+from vbfe.acquire.sync.check import SyncLimits, verify_sync
+from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.batch.errors import BatchError
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status

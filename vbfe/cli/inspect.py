@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from vbfe.acquire import recover_session
-from vbfe.acquire.inspect import inspect_session
-from vbfe.acquire.verify import verify_session
+from vbfe.acquire.session.inspect import inspect_session
+from vbfe.acquire.session.verify import verify_session
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 

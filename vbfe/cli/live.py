@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     """Run live estimation and print the summary."""
     import torch
 
-    from vbfe.acquire.record import session_recorder
+    from vbfe.acquire.recording.record import session_recorder
     from vbfe.calib.calibration import load_calibration
     from vbfe.drivers.registry import open_devices
     from vbfe.estimate.model_file import load_model

@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from vbfe.acquire import RecorderStats, record_session
-from vbfe.acquire.layout import COMPRESSIONS
-from vbfe.acquire.sync_session import SyncProtocol
+from vbfe.acquire.session.layout import COMPRESSIONS
+from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.errors import VbfeError

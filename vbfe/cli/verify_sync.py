@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.acquire.sync_check import FAIL, PASS, SyncLimits, verify_sync
-from vbfe.acquire.sync_protocol import ProtocolSettings
+from vbfe.acquire.sync.check import FAIL, PASS, SyncLimits, verify_sync
+from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from
 

@@ -17,7 +17,7 @@ from typing import Any, Callable
 import numpy as np
 
 from vbfe.acquire import EstimateStream, SessionReader, store_estimates
-from vbfe.acquire.recorder import Recorder
+from vbfe.acquire.recording.recorder import Recorder
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import ForceSample, StereoFrame

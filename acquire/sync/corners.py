@@ -22,7 +22,7 @@ import numpy as np
 from scipy.signal import find_peaks
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import SessionReader
+from vbfe.acquire.session.reader import SessionReader
 
 _MOTION_WIDTH = 128  # frames are downscaled (area average) to this width
 _COMPONENTS = 3  # leading principal components of the frames that carry the motion

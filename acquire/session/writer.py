@@ -27,13 +27,13 @@ import h5py
 import numpy as np
 
 import vbfe
-from vbfe.acquire.clock import fit_clock
+from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import SessionReader
-from vbfe.acquire.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
+from vbfe.acquire.session.reader import SessionReader
+from vbfe.acquire.session.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
                                  JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
                                  image_filter)
-from vbfe.acquire.reader import consistent_rows, open_session_file
+from vbfe.acquire.session.reader import consistent_rows, open_session_file
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _TIME_CHUNK = 4096

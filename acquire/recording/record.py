@@ -7,15 +7,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, store_analysis
-from vbfe.acquire.record_settings import record_settings
-from vbfe.acquire.recorder import Recorder, RecorderStats
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, store_analysis
+from vbfe.acquire.recording.settings import record_settings
+from vbfe.acquire.recording.recorder import Recorder, RecorderStats
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import Devices, open_devices
 
 if TYPE_CHECKING:
-    from vbfe.acquire.sync_session import SyncProtocol
+    from vbfe.acquire.recording.sync_session import SyncProtocol
 
 
 def record_session(config: dict[str, dict[str, Any]], path: str | Path,

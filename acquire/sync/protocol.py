@@ -1,5 +1,5 @@
 """Sync protocol analysis: camera latency from projector flashes, image-force offset from taps,
-drift from early against late events (see :mod:`~vbfe.acquire.sync_session` for the recording).
+drift from early against late events (see :mod:`~vbfe.acquire.recording.sync_session` for the recording).
 
 *Flashes.* Each frame's rows are averaged into a brightness profile. Around a projector switch
 (host time ``h``) the profile goes from its level before the command to its level after the
@@ -32,10 +32,10 @@ import numpy as np
 from scipy.stats import t as student_t
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader
-from vbfe.acquire.sync_corners import (_bounds, _box, _knot_profile, _leading_components, _vertex,
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
+from vbfe.acquire.sync.corners import (_bounds, _box, _knot_profile, _leading_components, _vertex,
                                        force_axis)
-from vbfe.acquire.sync_session import DIM_NAME, PATTERN_NAME
+from vbfe.acquire.recording.sync_session import DIM_NAME, PATTERN_NAME
 
 _WIDTH = 96  # frames are downscaled to this width
 _COMPONENTS = 3

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from vbfe.acquire.layout import COMPRESSIONS
+from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.settings import parse_table, setting
 
 

@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.audit import StreamAudit, audit_sequence
-from vbfe.acquire.clock import ClockFit
-from vbfe.acquire.estimates import EstimateStream
-from vbfe.acquire.reader import SessionReader
+from vbfe.acquire.session.audit import StreamAudit, audit_sequence
+from vbfe.acquire.session.clock import ClockFit
+from vbfe.acquire.session.estimates import EstimateStream
+from vbfe.acquire.session.reader import SessionReader
 
 
 @dataclass

@@ -21,11 +21,11 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.acquire.clock import ClockFit, fit_clock
+from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.h5attrs import plain_attrs, text
-from vbfe.acquire.estimates import EstimateStream, read_estimates, write_estimates
-from vbfe.acquire.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
+from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.acquire.session.estimates import EstimateStream, read_estimates, write_estimates
+from vbfe.acquire.session.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times

@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.storage import check_destination, free_bytes
-from vbfe.acquire.writer import SessionWriter, finalize_session
+from vbfe.acquire.recording.storage import check_destination, free_bytes
+from vbfe.acquire.session.writer import SessionWriter, finalize_session
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices

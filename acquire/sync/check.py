@@ -2,11 +2,11 @@
 judge against limits.
 
 A sync protocol session (``vbfe record --protocol sync``) is measured from its taps and
-projector flashes (:mod:`~vbfe.acquire.sync_protocol`) and judged PASS/FAIL. An ordinary traction
+projector flashes (:mod:`~vbfe.acquire.sync.protocol`) and judged PASS/FAIL. An ordinary traction
 session is measured passively, with two measurements of the same offset (:func:`measure_offset`
 picks one):
-:mod:`~vbfe.acquire.sync_corners` aligns the kinks the image and the force share where a pull
-starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync_changes`
+:mod:`~vbfe.acquire.sync.corners` aligns the kinks the image and the force share where a pull
+starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync.changes`
 cross-correlates change signals (any profile with distinct force-change events). Its verdict is
 INCONCLUSIVE rather than FAIL when the offset is too uncertain to judge.
 """
@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.audit import StreamAudit, audit_sequence
+from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
-from vbfe.acquire.record_settings import record_settings
-from vbfe.acquire.sync_changes import change_offset, motion_energy
-from vbfe.acquire.sync_corners import OffsetEstimate, corner_offset, frame_components
-from vbfe.acquire.sync_protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
+from vbfe.acquire.recording.settings import record_settings
+from vbfe.acquire.sync.changes import change_offset, motion_energy
+from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass

@@ -12,8 +12,8 @@ import numpy as np
 from scipy.signal import find_peaks
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.reader import SessionReader
-from vbfe.acquire.sync_corners import OffsetEstimate, _vertex, grey_left_frames
+from vbfe.acquire.session.reader import SessionReader
+from vbfe.acquire.sync.corners import OffsetEstimate, _vertex, grey_left_frames
 
 _MOTION_WIDTH = 160  # frames are downscaled to this width before differencing
 _EVENT_FRACTION = 0.25  # a segment is an event when its force change is this share of the most

@@ -3,7 +3,7 @@
 While recording, the projector switches between the structured-light pattern and a dimmed copy
 of it at random, recorded instants (every switch is a projector event with its host time), and
 the operator taps the tissue briefly at irregular intervals; a tap counter watches the force
-stream so the progress line can say how many taps are in. :mod:`~vbfe.acquire.sync_protocol`
+stream so the progress line can say how many taps are in. :mod:`~vbfe.acquire.sync.protocol`
 measures the camera latency from the flashes and the image-force offset from the taps.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.recorder import Recorder, RecorderStats
+from vbfe.acquire.recording.recorder import Recorder, RecorderStats
 from vbfe.drivers.samples import ForceSample
 
 PATTERN_NAME = "debruijn-hsv"  # the pattern every session starts with

@@ -12,7 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vbfe.acquire.reader import open_session_file, read_failure_reason
+from vbfe.acquire.session.reader import open_session_file, read_failure_reason
 
 
 @dataclass(frozen=True)
