@@ -12,7 +12,8 @@ Frames without a displacement (NaN) are left out of fitting and predicted with `
 
 - ``ridge_height_map``: ridge regression on the frame's downsampled height map relative to the
   rest (first) frame (``PreparedSession.heights_m``, cells² values), columns standardised on the
-  training frames, penalty chosen by blocked cross-validation on the training frames.
+  training frames, penalty chosen by cross-validation over the training sessions (contiguous
+  blocks when there is one).
 """
 
 from __future__ import annotations
@@ -108,17 +109,25 @@ def _ridge_solve(x: np.ndarray, y: np.ndarray, alphas: np.ndarray
     return np.stack([mean, scale]), y_mean, weights
 
 
-def fit_ridge(heights: np.ndarray, y: np.ndarray) -> RidgeBaseline:
+def fit_ridge(heights: np.ndarray, y: np.ndarray,
+              groups: np.ndarray | None = None) -> RidgeBaseline:
     """Ridge regression on height maps; the penalty is chosen by blocked cross-validation.
 
-    The training frames are cut into ``RIDGE_FOLDS`` contiguous folds (neighbouring frames are
-    nearly copies of each other, so shuffled folds would favour overfitting).
+    With frames from two or more sessions (``groups``: a session id per frame) each session is
+    one fold, so the penalty is the one that carries over to a session it did not see (the
+    use it is scored on); otherwise the frames are cut into ``RIDGE_FOLDS`` contiguous folds
+    (neighbouring frames are nearly copies of each other, so shuffled folds would favour
+    overfitting).
     """
     alphas = np.logspace(-2, 5, 22) * len(heights) / max(heights.shape[1], 1)
-    folds = np.array_split(np.arange(len(heights)), min(RIDGE_FOLDS, len(heights)))
+    frames = np.arange(len(heights))
+    if groups is not None and len(np.unique(groups)) >= 2:
+        folds = [frames[groups == g] for g in np.unique(groups)]
+    else:
+        folds = np.array_split(frames, min(RIDGE_FOLDS, len(heights)))
     errors = np.zeros(len(alphas))
     for fold in folds:
-        fit = np.setdiff1d(np.arange(len(heights)), fold)
+        fit = np.setdiff1d(frames, fold)
         if len(fit) < 2:
             continue
         (mean, scale), y_mean, weights = _ridge_solve(heights[fit], y[fit], alphas)
@@ -166,5 +175,7 @@ def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> dict[s
                             "fitted (are the clouds empty outside the first frame?)")
     fitted: dict[str, Baseline] = {name: AffineBaseline(name, *fit(d, y))
                                    for name, fit in FITTERS.items()}
-    fitted["ridge_height_map"] = fit_ridge(np.concatenate([s.heights_m[p] for s, p in parts]), y)
+    sessions = np.concatenate([np.full(len(p), k) for k, (_, p) in enumerate(parts)])
+    fitted["ridge_height_map"] = fit_ridge(np.concatenate([s.heights_m[p] for s, p in parts]), y,
+                                           sessions)
     return fitted

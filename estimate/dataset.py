@@ -93,7 +93,9 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
         forces = source.force_at_frames()
         times = source.frame_times_ns()
         targets = force_target(forces, config.target)
-        rng = np.random.default_rng([config.seed, zlib.crc32(source.name.encode())])
+        # seeded by the session's file name, so a session draws the same pools from any folder
+        rng = np.random.default_rng([config.seed,
+                                     zlib.crc32(os.path.basename(source.name).encode())])
         pool_size = config.pool_factor * config.n_points
         grid: DisplacementGrid | None = None
         height_grid: DisplacementGrid | None = None

@@ -40,6 +40,8 @@ class EvaluationReport:
     skipped: dict[str, dict[str, int]]
     files: list[Path] = field(default_factory=list)
     split_description: str = ""  # how the model's training data was split
+    # session → {"times_ns", "measured_n", method: predicted force} over the scored frames
+    frames: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     def mae_n(self, method: str = "pointnet") -> float:
         """Overall MAE of one method (``pointnet``, ``temporal``, ``mean``,
@@ -83,6 +85,7 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
 
     predictions: dict[str, list[np.ndarray]] = defaultdict(list)
     measured, labels, plots, seen_in_training = [], [], [], []
+    frames: dict[str, dict[str, np.ndarray]] = {}
     for k, session in enumerate(prepared):
         positions, seen = _held_out_positions(model, session)
         if seen:
@@ -96,6 +99,8 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
         for method, force in per_method.items():
             predictions[method].append(force)
         measured.append(session.targets_n[positions])
+        frames[session.name] = {"times_ns": session.times_ns[positions],
+                                "measured_n": session.targets_n[positions], **per_method}
         labels += [session.condition] * len(positions)
         plots.append(plot_session(out_dir / f"force_{k:02d}_{safe_stem(session.name)}.png",
                                   f"{session.name} ({session.condition})",
@@ -144,4 +149,4 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
     return EvaluationReport(out_dir=out_dir, metrics=metrics, sessions=names,
                             seen_in_training=seen_in_training, skipped=skipped,
                             files=[metrics_path, md_path, html_path, *plots],
-                            split_description=split_note)
+                            split_description=split_note, frames=frames)

@@ -71,13 +71,16 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     # The clouds carry the force: peak displacement alone (deterministic, fitted on the
     # training sessions) clearly beats the mean predictor on sessions it never saw.
     assert mae["linear_displacement"] < 0.8 * mae["mean"]
-    # Recordings are reproducible and training is seeded on one thread, so the quick run
-    # gives the same figures every time (measured on the merged bench: PointNet 0.89x the
-    # mean predictor; issue 17's goal of 0.8x is not met yet). A model no better than the
-    # mean fails; the temporal model starts as PointNet and keeps its start unless
-    # validation improves.
-    assert mae["pointnet"] <= 0.95 * mae["mean"]
-    assert mae["temporal"] <= mae["pointnet"]
+    # Recordings are reproducible and training is seeded on one thread; across seeds of the
+    # quick run (one training session per condition) PointNet reading each point's depth
+    # change against the rest frame measured 0.45-0.52x the mean predictor and the temporal
+    # model 0.41-0.52x; the better of the two 0.75-0.91x the better displacement baseline.
+    assert mae["pointnet"] <= 0.8 * mae["mean"]
+    assert mae["temporal"] <= 0.8 * mae["mean"]
+    best_baseline = min(mae["linear_displacement"], mae["hooke"])
+    assert min(mae["pointnet"], mae["temporal"]) <= 1.05 * best_baseline
+    phases = force["per_phase"]["pointnet"]
+    assert set(phases) == {"pull", "hold"} and phases["hold"]["n_frames"] > 0
 
 
 def test_report_links_every_plot_and_shows_the_verdicts(demo_out):

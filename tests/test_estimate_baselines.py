@@ -3,7 +3,7 @@
 import numpy as np
 
 from vbfe.estimate.baselines import (AffineBaseline, RidgeBaseline, baseline_from_dict,
-                                    fit_baselines)
+                                    fit_baselines, fit_ridge)
 from vbfe.estimate.dataset import PreparedSession
 
 
@@ -64,3 +64,22 @@ def test_ridge_on_height_maps_recovers_a_linear_map_and_round_trips():
     again = baseline_from_dict(ridge.to_dict())
     np.testing.assert_allclose(again.predict_session(session), ridge.predict_session(session))
     assert isinstance(again, RidgeBaseline)
+
+
+def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():
+    # Within each session force follows its own map of the heights; nothing carries over.
+    # Folds inside a session would reward fitting that map; session folds choose a penalty
+    # that shrinks towards the mean instead.
+    rng = np.random.default_rng(1)
+    heights = rng.normal(0, 1e-3, (300, 16))
+    groups = np.repeat([0, 1, 2], 100)
+    maps = rng.normal(0, 1.0, (3, 16)) * 1e3
+    force = np.einsum("ij,ij->i", heights, maps[groups]) + 2.0
+    within = fit_ridge(heights, force[:, None])
+    across = fit_ridge(heights, force[:, None], groups)
+    assert across.alpha > 100 * within.alpha
+    unseen = rng.normal(0, 1e-3, (200, 16))
+    truth = unseen @ (rng.normal(0, 1.0, 16) * 1e3) + 2.0
+    error = {name: np.abs(r.predict(unseen)[:, 0] - truth).mean()
+             for name, r in (("within", within), ("across", across))}
+    assert error["across"] < error["within"]

@@ -309,8 +309,33 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
     return {"train_sessions": [s.stem for s in training],
             "test_sessions": [s.stem for s in held_out],
             "train_seconds": result.duration_s, "epochs_run": result.epochs_run,
-            "metrics": report.metrics,
+            "metrics": report.metrics, "per_phase": phase_metrics(report, held_out),
             "plots": [str(p) for p in report.files if str(p).endswith(".png")]}
+
+
+PHASES = {1: "pull", 2: "hold"}  # the bench's per-frame truth ``phase`` (0 is rest)
+
+
+def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict[str, float]]]:
+    """Per method, the errors of the evaluated frames during the pull and during the hold
+    (phases from the bench's truth, matched to the scored frames by frame time)."""
+    from vbfe.acquire import SessionReader
+    from vbfe.estimate.evaluation import error_stats
+
+    phases, rows = [], []
+    for path in sessions:
+        frames = report.frames[str(path)]
+        with SessionReader(path) as reader:
+            phase_at = dict(zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist()))
+        phases.append(np.array([phase_at[t] for t in frames["times_ns"].tolist()]))
+        rows.append(frames)
+    phase = np.concatenate(phases)
+    measured = np.concatenate([f["measured_n"] for f in rows])
+    methods = [m for m in rows[0] if m not in ("times_ns", "measured_n")]
+    return {method: {name: error_stats(np.concatenate([f[method] for f in rows])[phase == code],
+                                       measured[phase == code])
+                     for code, name in PHASES.items() if (phase == code).any()}
+            for method in methods}
 
 
 def run_demo(out_dir: str | Path = "vbfe-demo", quick: bool = False,

@@ -158,5 +158,14 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
         + [PAPER_MAE_N.get(c.split(" ")[0], "")] for c in conditions])
     report.paragraph("Per-condition MAE in newtons; the paper's column is its Table I on real "
                      "silicone hoses, given for scale, not as a like-for-like comparison.")
+    phases = force.get("per_phase", {})
+    if phases:
+        names = sorted({name for by_phase in phases.values() for name in by_phase})
+        report.table(["method"] + [f"MAE during {name} (N)" for name in names], [
+            [label] + [phases[m][name]["mae_n"] if name in phases[m] else "" for name in names]
+            for m, label in METHODS if m in phases])
+        report.paragraph("The same held-out frames by phase of the trial (from the bench's "
+                         "truth): while pulling, and while the force is held and the tissue "
+                         "relaxes at constant shape.")
     _images(report, force["plots"], "force", out)
     return report.write(out / "index.html")
