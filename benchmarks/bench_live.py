@@ -1,23 +1,31 @@
 """Live estimation on the simulated bench: achieved estimate rate and latency per stage.
 
-For each resolution the bench camera runs in real time at 30 fps (rendering costs CPU here
-that a real endoscope does not), the newest frame is reconstructed (SGBM + De Bruijn
-verification) and a PointNet (untrained weights: speed does not depend on them) estimates the
-force. Prints estimates/s, p50/p95 latency from frame capture (host time) to estimate, the
-median of each stage, and the share of frames skipped. Run:
-``python benchmarks/bench_live.py [--seconds S] [--scale 1.0]``.
+For each resolution a stereo endoscope delivers 30 fps in real time and the newest frame is
+reconstructed (SGBM + De Bruijn verification) and a PointNet (untrained weights: speed does not
+depend on them) estimates the force. Prints estimates/s, p50/p95 latency from frame capture
+(host time) to estimate, the median of each stage, and the share of frames skipped.
+
+The endoscope is the real OpenCV camera driver reading a capture that replays frames the
+bench rendered beforehand, paced on the host clock: a real endoscope's frames cost the host
+nothing to make, while the bench's live rendering would take a large share of the two cores
+(``--render-live`` measures that instead). Run:
+``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--render-live]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import time
 
+import cv2
 import numpy as np
 import torch
 
 from vbfe.config import load_config, section
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.camera.opencv import OpenCVStereoCamera
+from vbfe.drivers.pacing import sleep_until
+from vbfe.drivers.registry import Devices, open_devices
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
@@ -27,21 +35,85 @@ from vbfe.recon import SgbmParams
 from vbfe.truth import calibration_from_rig, true_rig
 
 SIZES = ((640, 360), (1280, 720))
+FPS = 30.0
+REPLAY_FRAMES = 60  # rendered once, replayed in a loop
+
+
+class ReplayCapture:
+    """The ``cv2.VideoCapture`` surface of a side-by-side endoscope that replays given frames
+    at ``fps`` on the host clock (device time = the frame's due time)."""
+
+    def __init__(self, frames: list[np.ndarray], fps: float) -> None:
+        self.frames, self.period_ns = frames, 1e9 / fps
+        self.fps, self._start_ns, self._seq = fps, time.monotonic_ns(), -1
+
+    def isOpened(self) -> bool:  # noqa: N802 - cv2.VideoCapture's names
+        return True
+
+    def grab(self) -> bool:
+        self._seq += 1
+        sleep_until(self._start_ns + round(self._seq * self.period_ns))
+        return True
+
+    def retrieve(self) -> tuple[bool, np.ndarray]:
+        return True, self.frames[self._seq % len(self.frames)]
+
+    def read(self) -> tuple[bool, np.ndarray]:
+        return self.retrieve() if self.grab() else (False, None)
+
+    def get(self, prop: int) -> float:
+        height, width = self.frames[0].shape[:2]
+        values = {cv2.CAP_PROP_FRAME_WIDTH: width, cv2.CAP_PROP_FRAME_HEIGHT: height,
+                  cv2.CAP_PROP_FPS: self.fps,
+                  cv2.CAP_PROP_POS_MSEC: (self._start_ns + self._seq * self.period_ns) / 1e6}
+        return float(values.get(prop, 0.0))
+
+    def set(self, prop: int, value: float) -> bool:
+        return True
+
+    def release(self) -> None:
+        pass
+
+
+def rendered_frames(config: dict, n: int) -> list[np.ndarray]:
+    """``n`` side-by-side frames of the bench's trial, rendered as fast as the bench can."""
+    config = {**config, "bench": {**config["bench"], "realtime": False}}
+    camera = open_devices(config, families=("camera",)).camera
+    camera.open()
+    try:
+        frames = [camera.read(5.0) for _ in range(n)]
+    finally:
+        camera.close()
+    return [np.hstack([f.left, f.right]) for f in frames]
+
+
+def replay_devices(config: dict, frames: list[np.ndarray]) -> Devices:
+    """The bench's trocar and projector with a replaying endoscope in place of its camera."""
+    devices = open_devices(config, families=("trocar", "projector"))
+    height, width = frames[0].shape[0], frames[0].shape[1] // 2
+    camera = OpenCVStereoCamera(device="replay", width=width, height=height, fps=FPS,
+                                fourcc="YUYV",
+                                capture_factory=lambda device: ReplayCapture(frames, FPS))
+    return Devices(camera=camera, trocar=devices.trocar, projector=devices.projector,
+                   bench=devices.bench)
 
 
 def untrained_model(conv_channels: list[int]) -> ForceModel:
-    """A PointNet of the given width with the default [train] settings (1024 points)."""
+    """A PointNet of the given width with the default [train] settings (1024 points, depth
+    change against the run's first cloud)."""
     config = TrainConfig(conv_channels=conv_channels)
-    network = PointNetRegressor(conv_channels=conv_channels, head_channels=config.head_channels)
+    network = PointNetRegressor(conv_channels=conv_channels, head_channels=config.head_channels,
+                                rest_depth=config.rest_depth)
     return ForceModel(network=network.eval(), config=config, baselines={})
 
 
 def measure(width: int, height: int, seconds: float, scale: float,
-            conv_channels: list[int]) -> dict[str, float]:
+            conv_channels: list[int], render_live: bool) -> dict[str, float]:
     """Run live estimation on a real-time bench of this size for ``seconds``."""
     config = load_config()
-    config["bench"].update(width=width, height=height, fps=30.0, realtime=True)
-    devices = open_devices(config)
+    config["bench"].update(width=width, height=height, fps=FPS, realtime=True)
+    devices = (open_devices(config) if render_live
+               else replay_devices(config, rendered_frames(config, REPLAY_FRAMES)))
     calibration = calibration_from_rig(true_rig(config))
     estimator = FrameEstimator(untrained_model(conv_channels), calibration,
                                SgbmParams.from_config(section(config, "sgbm")), scale=scale)
@@ -63,15 +135,19 @@ def main() -> None:
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--paper-network", action="store_true",
                         help="PointNet 64-128-1024 instead of the demo's 32-64-256")
+    parser.add_argument("--render-live", action="store_true",
+                        help="the bench camera renders every frame in real time (costs CPU)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     channels = [64, 128, 1024] if args.paper_network else [32, 64, 256]
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
-          f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}")
+          f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, "
+          f"{'bench rendering live' if args.render_live else 'replayed bench frames'} at "
+          f"{FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads 1")
     print(f"{'camera':>10} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} {'skipped':>8} "
           + " ".join(f"{s + ' ms':>14}" for s in STAGES))
     for width, height in SIZES:
-        r = measure(width, height, args.seconds, args.scale, channels)
+        r = measure(width, height, args.seconds, args.scale, channels, args.render_live)
         print(f"{width:>5}x{height:<4} {r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} "
               f"{r['skipped']:8.0%} " + " ".join(f"{r[s]:14.1f}" for s in STAGES))
 

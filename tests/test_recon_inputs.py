@@ -64,6 +64,31 @@ def test_rendered_png_pair_through_the_cli_gives_the_true_depth(tmp_path):
     assert (tmp_path / "ply" / "frame_000000.ply").is_file()
 
 
+def test_rectified_pair_with_offset_principal_points_takes_middlebury_doffs(tmp_path):
+    # Crop 8 columns off the right image's left side: its principal point moves 8 px left
+    # (Middlebury's doffs = cx_right - cx_left = -8) and every disparity grows by 8 px.
+    rig, pair = _render(0.06)
+    shift = 8
+    right = np.zeros_like(pair.right)
+    right[:, :-shift] = pair.right[:, shift:]
+    cv2.imwrite(str(tmp_path / "mb_left.png"), pair.left)
+    cv2.imwrite(str(tmp_path / "mb_right.png"), right)
+    errors = {}
+    for doffs in (-shift, 0):
+        out = tmp_path / f"doffs{doffs}"
+        out.mkdir()
+        result = _vbfe("reconstruct", tmp_path / "mb_left.png", tmp_path / "mb_right.png",
+                       *_geometry_args(rig), "--doffs", doffs, "--maps-dir", out,
+                       "--out", out / "c.clouds.h5")
+        assert result.returncode == 0, result.stderr
+        depth = read_png_map(out / "mb_left_depth.png", "depth")
+        both = pair.valid_left & np.isfinite(depth)
+        assert both.sum() > 0.5 * pair.valid_left.sum()
+        errors[doffs] = np.median(np.abs(depth[both] - pair.depth_left_m[both]))
+    assert errors[-shift] < 0.0003  # as without the crop
+    assert errors[0] > 0.005  # read as 8 px more disparity: ~13 mm too near at 60 mm
+
+
 def test_impossible_rectified_geometry_is_refused(tmp_path):
     rig, pair = _render(0.06)
     for eye, image in (("left", pair.left), ("right", pair.right)):

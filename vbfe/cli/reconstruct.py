@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     rectified.add_argument("--baseline", type=float, metavar="MM", help="baseline (mm)")
     rectified.add_argument("--cx", type=float, metavar="PX", help="principal point x (px)")
     rectified.add_argument("--cy", type=float, metavar="PX", help="principal point y (px)")
+    rectified.add_argument("--doffs", type=float, default=0.0, metavar="PX",
+                           help="right principal point x minus the left's (px; Middlebury's "
+                                "doffs; default 0)")
     parser.add_argument("--out", metavar="CLOUDS.h5", default=None,
                         help="output file of one input (default: next to it, .clouds.h5)")
     parser.add_argument("--workers", type=int, default=None,
@@ -73,7 +76,7 @@ def _calibration(args: argparse.Namespace, size: tuple[int, int] | None):
                              f"{', '.join(missing) or 'none'}) and no --calib")
         if size is None:
             raise ReconError("--rectified is for image pairs; a session stores its calibration")
-        return rectified_calibration(args.f, args.baseline, args.cx, args.cy, size)
+        return rectified_calibration(args.f, args.baseline, args.cx, args.cy, size, args.doffs)
     if size is not None and args.calib is None:
         raise ReconError("image pairs need --calib calib.yaml, or --rectified with --f, "
                          "--baseline, --cx and --cy")
