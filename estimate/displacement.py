@@ -38,15 +38,20 @@ class DisplacementGrid:
         ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
         inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
         cell = ij[inside, 0] * self.cells + ij[inside, 1]
-        z = points[inside, 2]
-        order = np.lexsort((z, cell))
-        cell, z = cell[order], z[order]
-        ids, start, count = np.unique(cell, return_index=True, return_counts=True)
+        z = points[inside, 2].astype(np.float64)
         depth = np.full(self.cells * self.cells, np.nan)
+        if not len(z):
+            return depth.reshape(self.cells, self.cells)
+        # one sort by cell, then depth: z scaled into [0, 0.5) rides on the cell number
+        low, span = z.min(), float(np.ptp(z)) or 1.0
+        order = np.argsort(cell + (z - low) * (0.5 / span))
+        cell, z = cell[order], z[order]
+        start = np.concatenate([[0], np.flatnonzero(np.diff(cell)) + 1])
+        count = np.diff(np.append(start, len(cell)))
         keep = count >= MIN_CELL_POINTS
         mid = start[keep] + count[keep] // 2
         lower = start[keep] + (count[keep] - 1) // 2
-        depth[ids[keep]] = (z[mid] + z[lower]) / 2
+        depth[cell[start[keep]]] = (z[mid] + z[lower]) / 2
         return depth.reshape(self.cells, self.cells)
 
     def peak_displacement_m(self, points: np.ndarray) -> float:
