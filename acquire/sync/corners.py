@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.signal import find_peaks
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
@@ -131,6 +130,8 @@ def force_corners(t_s: np.ndarray, force: np.ndarray) -> list[Corner]:
     change = np.abs(after - before)
     if not change.any():
         return []
+    from scipy.signal import find_peaks  # here: scipy.signal costs every vbfe command ~0.8 s
+
     peaks, _ = find_peaks(change, height=_CORNER_FRACTION * change.max(), distance=m)
     corners = []
     for i in peaks:
