@@ -117,10 +117,12 @@ class SyncProtocol:
 
     def bench_config(self, config: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
         """The rig configuration with the simulated operator told to follow the protocol (the
-        ``[bench]`` table; real devices ignore it)."""
+        ``[bench]`` table; real devices ignore it). The bench runs in real time: flashes are
+        timed on the host clock, which a bench running faster than real time outpaces (late
+        flashes crowd out the last ones)."""
         config = copy.deepcopy(config)
         config.setdefault("bench", {}).update(protocol="sync", sync_taps=self.taps,
-                                              sync_duration_s=self.duration_s)
+                                              sync_duration_s=self.duration_s, realtime=True)
         return config
 
     def tick(self, recorder: Recorder, stats: RecorderStats) -> None:
