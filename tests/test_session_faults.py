@@ -195,10 +195,16 @@ def test_free_space_guard_stops_and_finalizes_before_the_disk_is_full(tmp_path, 
     if limit is not None:
         pytest.skip("free space is only measurable on a real small file system")
     path = disk / "guarded.h5"
-    config = rig(tmp_path, SMALL_BENCH + '[record]\ncompression = "none"\nmin_free_gb = 0.04\n')
+    # 640x360 uncompressed: 1.4 MB a frame, ~10 MB between two clock checks of free space on
+    # a fast machine, as much as the whole stop margin; the guard must also count bytes
+    config = rig(tmp_path, '[bench]\nwidth = 640\nheight = 360\n'
+                 '[record]\ncompression = "none"\nmin_free_gb = 0.04\n')
     code, _, err = run_vbfe("record", str(path), "--duration", "60", "--config", config)
     assert code == 2, err
     assert "disk almost full" in err and "finalized with" in err
+    # stopped within an eighth of the 10 MB margin (plus a frame): checked by volume written
+    left_gb = float(err.split("disk almost full: ")[1].split(" GB left")[0])
+    assert left_gb >= 0.0075, err
     with assert_consistent_times(path) as reader:
         assert reader.complete and reader.attrs["end_reason"].startswith("disk almost full")
 

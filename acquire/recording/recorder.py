@@ -5,8 +5,8 @@ as a gap. A device that describes itself as not real time (``describe()["realtim
 the simulated bench run as fast as it renders) waits for room instead: the writer paces it.
 Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so the data lost
 to a crash (flush time, queued samples and scheduling delays included) stays within it. Free
-space is checked continuously; below a quarter of ``min_free_bytes`` the session stops and is
-finalized. A write failure (full disk,
+space is checked continuously (on the clock and by volume written); below a quarter of
+``min_free_bytes`` the session stops and is finalized. A write failure (full disk,
 I/O error) stops capture and leaves the file as of its last flush. A device that vanishes ends
 the session cleanly with what was recorded and a marked gap. In :meth:`Recorder.run`, Ctrl-C
 and SIGTERM stop the recording; further ones while it is being finished are ignored.
@@ -45,7 +45,9 @@ from vbfe.drivers.trocar.base import ForceSensor
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 1  # frames appended between two looks at the flush schedule
 _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the queue is full
-_SPACE_CHECK_S = 0.25  # free space is read this often
+_SPACE_CHECK_S = 0.25  # free space is read this often, and after every eighth of the stop
+# margin (a quarter of min_free_bytes) of image data, however fast the frames come
+_MIN_SPACE_CHECK_BYTES = 1 << 20
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
 
 PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
@@ -406,6 +408,8 @@ class Recorder:
         writer = self._writer
         next_flush = time.monotonic() + self._flush_period_s()
         next_space_check = 0.0
+        check_every_bytes = max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
+        unchecked_bytes = 0
         try:
             while True:
                 pumps_done = self._stop.is_set() and not any(p.is_alive() for p in self._pumps)
@@ -421,6 +425,7 @@ class Recorder:
                     self._frame_t_host[1] = frames[-1].t_host_ns
                     self._frame_t_device.extend(fr.t_device_ns for fr in frames)
                 writer.append_frames(frames)
+                unchecked_bytes += sum(f.left.nbytes + f.right.nbytes for f in frames)
                 writer.append_forces(forces)
                 for message in control:
                     if message[0] == "event":
@@ -433,9 +438,9 @@ class Recorder:
                     next_flush += self._flush_period_s()
                     if next_flush <= time.monotonic():
                         next_flush = time.monotonic()
-                if now >= next_space_check:
+                if now >= next_space_check or unchecked_bytes >= check_every_bytes:
                     self._check_space()
-                    next_space_check = now + _SPACE_CHECK_S
+                    next_space_check, unchecked_bytes = now + _SPACE_CHECK_S, 0
                 if pumps_done and not (frames or forces or control):
                     break
             writer.close()
