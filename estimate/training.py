@@ -48,6 +48,7 @@ class FitOutcome:
     best_val_loss: float
     val_mae_n: float
     stopped_by: str  # "epochs", "patience" or "time limit"
+    start_val_loss: float = float("nan")  # of the starting weights (warm start only)
 
 
 @dataclass
@@ -199,7 +200,8 @@ def _fit(network: PointNetRegressor, train_batches: FrameBatches,
     best = history[best_epoch - 1] if best_epoch else start
     return FitOutcome(history=history, best_epoch=best_epoch,
                       best_val_loss=best.get("val_loss", float("nan")),
-                      val_mae_n=best.get("val_mae_n", float("nan")), stopped_by=stopped_by)
+                      val_mae_n=best.get("val_mae_n", float("nan")), stopped_by=stopped_by,
+                      start_val_loss=start.get("val_loss", float("nan")))
 
 
 def _frames_mae(predict: Callable[[PreparedSession], np.ndarray],
@@ -279,7 +281,8 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     if "temporal" in outcomes:
         record["temporal"] = {"window": config.temporal_window,
                               "history": outcomes["temporal"].history,
-                              "best_epoch": outcomes["temporal"].best_epoch}
+                              "best_epoch": outcomes["temporal"].best_epoch,
+                              "start_val_loss": outcomes["temporal"].start_val_loss}
     model = ForceModel(networks["pointnet"], config, baselines, record,
                        temporal=networks.get("temporal"))
     path = save_model(out, model)

@@ -11,6 +11,7 @@ from vbfe.cli.main import main
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.model_file import load_model
+from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
@@ -187,3 +188,20 @@ def test_cli_evaluate_refuses_a_non_model(tmp_path, capsys):
     bad.write_text("hello")
     assert main(["evaluate", str(bad), "--out", str(tmp_path / "r")]) == 2
     assert "not a vbfe model file" in capsys.readouterr().err
+
+
+def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp_path):
+    sessions = synthetic_sessions(repeats=2, seed=3, prefix="warm", fps=2, points_per_side=12)
+    result = train(sessions, tmp_path / "warm.pt",
+                   tiny_config(epochs=4, temporal_frames=2, temporal_span_frames=2,
+                               temporal_epochs=4))
+    model = load_model(result.model_path)
+    temporal = model.record["temporal"]
+    assert len(temporal["history"]) >= 1 and temporal["start_val_loss"] > 0
+    best = temporal["best_epoch"]
+    if best:  # a gain over the start, the PointNet it was built from
+        assert temporal["history"][best - 1]["val_loss"] < temporal["start_val_loss"]
+    else:  # exactly that PointNet: the same head on the newest cloud, motion correction at zero
+        prepared = prepare_session(sessions[0], model.config)
+        np.testing.assert_allclose(model.predict_session_temporal(prepared),
+                                   model.predict_session(prepared), rtol=1e-5, atol=1e-6)
