@@ -25,7 +25,7 @@ from vbfe.config import load_config
 from vbfe.drivers.registry import open_devices
 
 REPO = Path(__file__).resolve().parents[1]
-SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # smallest size the sim renders exactly
+SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # small and quick to render
 
 
 def vbfe(*args: str, **popen: object) -> subprocess.Popen:

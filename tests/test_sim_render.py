@@ -83,3 +83,19 @@ def test_plane_with_shading_and_tint():
     assert np.allclose(out.depth_left_m[out.valid_left], 0.05, atol=1e-7)
     centre = out.left[80:100, 150:170].astype(np.float32).mean(axis=(0, 1))
     assert centre[2] > 200 and abs(centre[0] / centre[2] - 0.5) < 0.02  # tint ratio kept
+
+
+def test_a_size_rendered_on_every_pixel_keeps_its_size_and_truth(tissue):
+    # 160x90: no coarse grid divides it, so every pixel is ray-cast; its depth must agree
+    # with the 320x180 render (strided, upsampled) averaged over the matching 2x2 blocks
+    small = render_scene(default_rig(160, 90), tissue, smooth_pattern(), noise_sigma=0.0,
+                         pattern_blur=0.0, rng=np.random.default_rng(0))
+    for image in (small.left, small.right):
+        assert image.shape == (90, 160, 3)
+    assert small.depth_left_m.shape == small.valid_left.shape == (90, 160)
+    large = render_scene(default_rig(320, 180), tissue, smooth_pattern(), noise_sigma=0.0,
+                         pattern_blur=0.0, rng=np.random.default_rng(0))
+    blocks = large.depth_left_m.reshape(90, 2, 160, 2).mean(axis=(1, 3))
+    both = small.valid_left & large.valid_left.reshape(90, 2, 160, 2).all(axis=(1, 3))
+    assert both.mean() > 0.9
+    assert np.median(np.abs(small.depth_left_m[both] - blocks[both])) < 1e-4

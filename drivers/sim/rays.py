@@ -77,6 +77,8 @@ def upsample_strided(field: np.ndarray, stride: int, out: np.ndarray | None = No
 
     ``out`` (padded size, reused between calls) avoids reallocating large buffers.
     """
+    if stride == 1:  # sampled on every pixel already, without padding
+        return field
     rows, cols = field.shape[:2]
     size = (cols * stride, rows * stride)
     out = cv2.resize(field, size, dst=out, interpolation=cv2.INTER_LINEAR)
