@@ -46,7 +46,7 @@ _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 1  # frames appended between two looks at the flush schedule
 _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the queue is full
 _SPACE_CHECK_S = 0.25  # free space is read this often, and after every eighth of the stop
-# margin (a quarter of min_free_bytes) of image data, however fast the frames come
+# margin (a quarter of min_free_bytes) written, however fast the frames come
 _MIN_SPACE_CHECK_BYTES = 1 << 20
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
 
@@ -409,7 +409,7 @@ class Recorder:
         next_flush = time.monotonic() + self._flush_period_s()
         next_space_check = 0.0
         check_every_bytes = max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
-        unchecked_bytes = 0
+        checked_at_bytes = 0
         try:
             while True:
                 pumps_done = self._stop.is_set() and not any(p.is_alive() for p in self._pumps)
@@ -425,7 +425,6 @@ class Recorder:
                     self._frame_t_host[1] = frames[-1].t_host_ns
                     self._frame_t_device.extend(fr.t_device_ns for fr in frames)
                 writer.append_frames(frames)
-                unchecked_bytes += sum(f.left.nbytes + f.right.nbytes for f in frames)
                 writer.append_forces(forces)
                 for message in control:
                     if message[0] == "event":
@@ -438,9 +437,10 @@ class Recorder:
                     next_flush += self._flush_period_s()
                     if next_flush <= time.monotonic():
                         next_flush = time.monotonic()
-                if now >= next_space_check or unchecked_bytes >= check_every_bytes:
+                if (now >= next_space_check
+                        or writer.bytes_written - checked_at_bytes >= check_every_bytes):
                     self._check_space()
-                    next_space_check, unchecked_bytes = now + _SPACE_CHECK_S, 0
+                    next_space_check, checked_at_bytes = now + _SPACE_CHECK_S, writer.bytes_written
                 if pumps_done and not (frames or forces or control):
                     break
             writer.close()
