@@ -69,12 +69,14 @@ def params_for(calibration: Calibration, params: SgbmParams,
 def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
     """Share of matched pixels within one pixel of either end of the disparity range: surfaces
     nearer or farther than the range covers pile up there (or are lost)."""
-    matched = disparity[np.isfinite(disparity)]
-    if not matched.size:
+    n_matched = np.count_nonzero(np.isfinite(disparity))
+    if not n_matched:
         return 0.0
     low = params.min_disparity
     high = params.min_disparity + params.num_disparities - 1
-    return float(np.mean((matched <= low + 1) | (matched >= high - 1)))
+    # comparisons with NaN are false: unmatched pixels count at neither end
+    at_edge = np.count_nonzero(disparity <= low + 1) + np.count_nonzero(disparity >= high - 1)
+    return float(at_edge / n_matched)
 
 
 def decoded_fraction(index: np.ndarray) -> float:

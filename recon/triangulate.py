@@ -132,8 +132,9 @@ class Reconstructor:
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         rect_left, disparity, valid, quality = self.rectified_disparity(left, right)
-        valid &= disparity > self._doffs  # at or beyond infinity: no depth
-        disparity = np.where(valid, disparity, np.float32(np.nan))
+        if self.params.min_disparity <= self._doffs:  # some matches at or beyond infinity
+            valid &= disparity > self._doffs
+            disparity = np.where(valid, disparity, np.float32(np.nan))
         cal = self.calibration
         points = disparity_to_points(disparity, valid, cal.f, cal.B, cal.cx, cal.cy, self._doffs)
         colors = cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB).reshape(-1, 3).take(

@@ -31,17 +31,22 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
     matched = np.isfinite(disparity)
     readable = matched & (left.index >= 0)
     map_x = np.arange(width, dtype=np.float32) - disparity
-    map_x[~matched] = -10.0
-    map_y = _row_map(height, width)
-    right_index = right.index.astype(np.int16)
+    cv2.patchNaNs(map_x, -10.0)  # unmatched: outside the image
+    # the matched right pixel, rounded once into OpenCV's fixed-point map; the codes around it
+    # come from views of the right code map shifted by whole columns (-2 beyond its ends)
+    matched_xy, _ = cv2.convertMaps(map_x, _row_map(height, width), cv2.CV_16SC2,
+                                    nninterpolation=True)
+    tol = BOUNDARY_TOLERANCE_PX
+    padded = cv2.copyMakeBorder(right.index.astype(np.int16), 0, 0, tol, tol,
+                                cv2.BORDER_CONSTANT, value=-2)
     kept = np.zeros((height, width), bool)
-    for shift in range(-BOUNDARY_TOLERANCE_PX, BOUNDARY_TOLERANCE_PX + 1):
-        code = cv2.remap(right_index, map_x + np.float32(shift), map_y, cv2.INTER_NEAREST,
+    for start in range(2 * tol + 1):
+        code = cv2.remap(padded[:, start:start + width], matched_xy, None, cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=-2)
         kept |= code == left.index
     kept &= readable
     out = np.where(kept, disparity, np.float32(np.nan))
-    rows, cols = np.nonzero(readable & ~kept)
+    rows, cols = np.divmod(np.flatnonzero(readable & ~kept), width)
     new_d = _search(disparity, left, right, rows, cols, disparity[rows, cols],
                     left.index[rows, cols], search_px)
     out[rows, cols] = new_d
