@@ -10,6 +10,8 @@ frame, see ``displacement.py``) to force as ``slope·d + intercept`` per output:
 
 Frames without a displacement (NaN) are left out of fitting and predicted with ``d = 0``.
 
+- ``mlp_displacement_history``: a small MLP on the causal window of peak displacements
+  (``history_baseline.py``); left out when ``[train] history_frames`` is 0.
 - ``ridge_height_map``: ridge regression on the frame's downsampled height map relative to the
   rest (first) frame (``PreparedSession.heights_m``, cells² values), columns standardised on the
   training frames, penalty chosen by cross-validation over the training sessions (contiguous
@@ -26,6 +28,7 @@ import numpy as np
 
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.history_baseline import HistoryBaseline, fit_history
 
 
 @dataclass(frozen=True)
@@ -85,12 +88,13 @@ class RidgeBaseline:
                                 ("mean", "scale", "weights", "intercept")), float(d["alpha"]))
 
 
-Baseline = Union[AffineBaseline, RidgeBaseline]
+Baseline = Union[AffineBaseline, RidgeBaseline, HistoryBaseline]
+_KINDS = {"ridge": RidgeBaseline, "history_mlp": HistoryBaseline}
 
 
 def baseline_from_dict(d: dict[str, Any]) -> Baseline:
     """Rebuild a baseline stored by ``to_dict``."""
-    return RidgeBaseline.from_dict(d) if d.get("kind") == "ridge" else AffineBaseline.from_dict(d)
+    return _KINDS.get(d.get("kind"), AffineBaseline).from_dict(d)
 
 
 RIDGE_FOLDS = 5
@@ -166,8 +170,10 @@ FITTERS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarr
     "mean": _fit_mean, "linear_displacement": _fit_linear, "hooke": _fit_hooke}
 
 
-def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> dict[str, Baseline]:
-    """Fit every baseline on the given (training) frames: (session, used-frame positions)."""
+def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]],
+                  history_offsets: Sequence[int] = (), seed: int = 0) -> dict[str, Baseline]:
+    """Fit every baseline on the given (training) frames: (session, used-frame positions);
+    the displacement-history MLP only with ``history_offsets`` (frames back, 0: the frame)."""
     d = np.concatenate([s.displacement_m[p] for s, p in parts])
     y = np.concatenate([s.targets_n[p] for s, p in parts])
     if not np.isfinite(d).any():
@@ -178,4 +184,7 @@ def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> dict[s
     sessions = np.concatenate([np.full(len(p), k) for k, (_, p) in enumerate(parts)])
     fitted["ridge_height_map"] = fit_ridge(np.concatenate([s.heights_m[p] for s, p in parts]), y,
                                            sessions)
+    if len(history_offsets):
+        history = fit_history(parts, history_offsets, seed)
+        fitted[history.name] = history
     return fitted

@@ -18,7 +18,8 @@ from matplotlib.figure import Figure
 
 METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
-                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on height map"}
+                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on height map",
+                 "mlp_displacement_history": "MLP on displacement history"}
 
 
 def write_json(path: Path, data: dict[str, Any]) -> Path:

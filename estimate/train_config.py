@@ -18,6 +18,11 @@ SPLITS = ("session", "time")
 DEVICES = ("auto", "cpu", "cuda")
 
 
+def _window(span_frames: int, n_frames: int) -> list[int]:
+    """``n_frames`` offsets evenly spread from ``span_frames`` back to 0, oldest first."""
+    return [int(v) for v in np.round(np.linspace(span_frames, 0, n_frames))]
+
+
 @dataclass
 class TrainConfig:
     """Everything that decides what a model sees and how it is trained.
@@ -58,6 +63,8 @@ class TrainConfig:
     temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it
     # starts from the trained PointNet's encoder, so it needs fewer
     ridge_cells: int = setting(16, ge=2)  # ridge baseline: height map relative to rest, cells²
+    history_frames: int = setting(6, ge=0)  # displacement-history baseline: frames (0: off)
+    history_span_frames: int = setting(20, ge=1)  # oldest to newest frame of its window
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -82,6 +89,10 @@ class TrainConfig:
                                 "temporal_span_frames >= temporal_frames - 1")
         if self.temporal_epochs < 0:
             raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
+        if self.history_frames == 1 or (
+                self.history_frames and self.history_span_frames < self.history_frames - 1):
+            raise EstimateError("[train] history_frames must be 0 (off) or >= 2, and "
+                                "history_span_frames >= history_frames - 1")
         if self.ridge_cells < 2 or self.val_max_frames < 1:
             raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
 
@@ -93,8 +104,12 @@ class TrainConfig:
     @property
     def temporal_window(self) -> list[int]:
         """Offsets (frames back from the newest) of the temporal model's window, oldest first."""
-        offsets = np.linspace(self.temporal_span_frames, 0, self.temporal_frames)
-        return [int(v) for v in np.round(offsets)]
+        return _window(self.temporal_span_frames, self.temporal_frames)
+
+    @property
+    def history_window(self) -> list[int]:
+        """Offsets (frames back) of the displacement-history baseline's window, oldest first."""
+        return _window(self.history_span_frames, self.history_frames)
 
     @classmethod
     def from_table(cls, table: dict[str, Any], **overrides: Any) -> "TrainConfig":

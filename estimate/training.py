@@ -240,7 +240,7 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
                      f"fixed {config.epochs} epochs and kept the last; the MAE below is the "
                      f"training MAE")
         val_parts = []
-    baselines = fit_baselines(train_parts)
+    baselines = fit_baselines(train_parts, config.history_window, config.seed)
     check_parts = val_parts or train_parts
 
     budget = config.time_limit_s / (2 if config.temporal_frames else 1)

@@ -27,6 +27,7 @@ def test_fitted_baselines_recover_known_relations():
                 prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
     sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
     fitted = fit_baselines(all_frames(sessions))
+    assert set(fitted) == {"mean", "linear_displacement", "hooke", "ridge_height_map"}
     np.testing.assert_allclose(fitted["hooke"].slope, [120.0], rtol=1e-9)
     np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
     np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
@@ -83,3 +84,33 @@ def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():
     error = {name: np.abs(r.predict(unseen)[:, 0] - truth).mean()
              for name, r in (("within", within), ("across", across))}
     assert error["across"] < error["within"]
+
+
+def test_history_mlp_reads_the_pull_rate_that_one_frame_cannot():
+    # Two stiffnesses pulled so that force rises at the same rate (k·v fixed, as in the paper's
+    # protocol): at one displacement the soft tissue carries less force than the stiff one, so
+    # a function of the current displacement alone must err; its recent course tells the speed.
+    def ramp(name, k, v, frames=60, dt=0.1):
+        t = np.arange(frames) * dt
+        d = v * np.clip(t - 0.5, 0, None)
+        return prepared(name, d, k * d, {"stiffness_n_per_m": k})
+    train = [ramp("soft", 40.0, 0.01), ramp("stiff", 200.0, 0.002)]
+    test = [ramp("soft2", 40.0, 0.01, frames=50), ramp("stiff2", 200.0, 0.002, frames=50)]
+    fitted = fit_baselines(all_frames(train), history_offsets=[4, 2, 0], seed=0)
+    history, linear = fitted["mlp_displacement_history"], fitted["linear_displacement"]
+    errors = {name: np.mean([np.abs(b.predict_session(s) - s.targets_n).mean() for s in test])
+              for name, b in (("history", history), ("linear", linear))}
+    spread = np.mean([np.abs(s.targets_n - s.targets_n.mean()).mean() for s in test])
+    assert errors["history"] < 0.1 * spread and errors["history"] < 0.2 * errors["linear"]
+    again = baseline_from_dict(history.to_dict())
+    np.testing.assert_allclose(again.predict_session(test[0]), history.predict_session(test[0]))
+    repeat = fit_baselines(all_frames(train), history_offsets=[4, 2, 0], seed=0)
+    np.testing.assert_array_equal(repeat["mlp_displacement_history"].predict_session(test[1]),
+                                  history.predict_session(test[1]))
+
+
+def test_history_features_are_causal():
+    from vbfe.estimate.history_baseline import history_features
+    d = np.array([1.0, np.nan, 3.0, 4.0])
+    np.testing.assert_array_equal(history_features(d, [5, 2, 0]),
+                                  [[0, 0, 1], [0, 0, 0], [0, 1, 3], [0, 0, 4]])

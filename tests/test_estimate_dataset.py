@@ -172,3 +172,11 @@ def test_temporal_window_is_causal_and_starts_with_the_rest_frame():
     np.testing.assert_array_equal(points[2, 3].numpy(), session.pools[20, :16])
     np.testing.assert_allclose(y.numpy(), session.targets_n[positions], rtol=1e-6)
     assert TrainConfig(temporal_frames=3, temporal_span_frames=6).temporal_window == [6, 3, 0]
+
+
+def test_history_window_is_set_in_the_config_and_checked():
+    assert TrainConfig(history_frames=3, history_span_frames=6).history_window == [6, 3, 0]
+    assert TrainConfig(history_frames=0).history_window == []
+    for bad in (dict(history_frames=1), dict(history_frames=5, history_span_frames=3)):
+        with pytest.raises(EstimateError, match="history_frames"):
+            TrainConfig(**bad)

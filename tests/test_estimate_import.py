@@ -114,7 +114,7 @@ def test_depth_import_trains_and_evaluates_with_a_time_split(depth_dataset, tmp_
     assert metrics["seen_in_training"] == []
     methods = metrics["metrics"]
     assert set(methods) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
-                            "ridge_height_map"}
+                            "ridge_height_map", "mlp_displacement_history"}
     # one test block of five, less nothing (test blocks keep their frames; gaps come out of
     # the lower parts), out of 300 frames
     assert methods["mean"]["overall"]["n_frames"] == 60

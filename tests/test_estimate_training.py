@@ -46,7 +46,8 @@ def test_training_writes_a_model_with_its_record(trained):
     assert not set(split["train"]) & set(split["val"])
     assert model.record["normalization"]["target_std_n"][0] > 0.5
     assert model.record["vbfe_version"]
-    assert set(model.baselines) == {"mean", "linear_displacement", "hooke", "ridge_height_map"}
+    assert set(model.baselines) == {"mean", "linear_displacement", "hooke", "ridge_height_map",
+                                   "mlp_displacement_history"}
     assert model.split.kind == "session" and model.temporal is None
     clouds = synthetic_sessions(repeats=1, **SMALL)[0].clouds
     prediction = model.predict_cloud(clouds[-1], rest_points=clouds[0])
@@ -70,7 +71,7 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     report = evaluate(path, held_out, tmp_path / "eval")
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert set(metrics["metrics"]) == {"pointnet", "mean", "linear_displacement", "hooke",
-                                       "ridge_height_map"}
+                                       "ridge_height_map", "mlp_displacement_history"}
     assert metrics["split"]["kind"] == "session"
     conditions = metrics["metrics"]["pointnet"]["per_condition"]
     assert set(conditions) == {"40 N/m @ 0.01 m/s", "80 N/m @ 0.005 m/s",

@@ -22,7 +22,8 @@ FORCE_RATIO_LIMIT = 0.5  # PointNet MAE at most half the mean predictor's
 PAPER_MAE_N = {"40": 0.4055, "80": 0.4748, "200": 0.8044}  # Table I, per stiffness (N/m)
 METHODS = (("pointnet", "PointNet (modified)"), ("temporal", "temporal PointNet"),
            ("mean", "mean predictor"), ("linear_displacement", "linear in peak displacement"),
-           ("hooke", "Hooke's law"), ("ridge_height_map", "ridge on height map"))
+           ("hooke", "Hooke's law"), ("ridge_height_map", "ridge on height map"),
+           ("mlp_displacement_history", "MLP on displacement history"))
 
 
 def checks(numbers: dict[str, Any]) -> list[tuple[str, str, str, bool]]:
