@@ -292,11 +292,12 @@ def test_a_second_ctrl_c_while_stopping_is_ignored_with_a_message(tmp_path, caps
                 sent.append(os.getpid())
                 os.kill(os.getpid(), signal.SIGINT)
 
+    before = signal.getsignal(signal.SIGINT)  # SIG_IGN when started as a background job
     recorder.start()
     stats = recorder.run(None, on_tick=ctrl_c_twice)
     assert stats.end_reason == "stopped by operator" and len(sent) == 2
     assert "please wait" in capsys.readouterr().err
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # put back
+    assert signal.getsignal(signal.SIGINT) is before  # put back
     with SessionReader(path) as s:
         assert s.complete and s.attrs["end_reason"] == "stopped by operator"
 
