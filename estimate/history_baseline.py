@@ -32,7 +32,7 @@ def history_features(displacement_m: np.ndarray, offsets: Sequence[int]) -> np.n
     d = np.nan_to_num(np.asarray(displacement_m, np.float64), nan=0.0)
     n = len(d)
     columns = [np.concatenate([np.zeros(min(o, n)), d[:max(n - o, 0)]]) for o in offsets]
-    return np.stack(columns, axis=1) if columns else np.zeros((len(d), 0))
+    return np.stack(columns, axis=1)
 
 
 @dataclass(frozen=True)

@@ -83,18 +83,19 @@ class TrainConfig:
                                     f"not {getattr(self, key)!r}")
         if self.time_blocks < 2 or self.gap_frames < 0:
             raise EstimateError("[train] needs time_blocks >= 2 and gap_frames >= 0")
-        if self.temporal_frames < 0 or self.temporal_frames == 1 or (
-                self.temporal_frames and self.temporal_span_frames < self.temporal_frames - 1):
-            raise EstimateError("[train] temporal_frames must be 0 (off) or >= 2, and "
-                                "temporal_span_frames >= temporal_frames - 1")
+        for window in ("temporal", "history"):
+            self._check_window(window)
         if self.temporal_epochs < 0:
             raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
-        if self.history_frames == 1 or (
-                self.history_frames and self.history_span_frames < self.history_frames - 1):
-            raise EstimateError("[train] history_frames must be 0 (off) or >= 2, and "
-                                "history_span_frames >= history_frames - 1")
         if self.ridge_cells < 2 or self.val_max_frames < 1:
             raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
+
+    def _check_window(self, name: str) -> None:
+        """A causal window (``{name}_frames`` over ``{name}_span_frames``) is off or >= 2 frames."""
+        frames, span = getattr(self, f"{name}_frames"), getattr(self, f"{name}_span_frames")
+        if frames < 0 or frames == 1 or (frames and span < frames - 1):
+            raise EstimateError(f"[train] {name}_frames must be 0 (off) or >= 2, and "
+                                f"{name}_span_frames >= {name}_frames - 1")
 
     @property
     def n_outputs(self) -> int:

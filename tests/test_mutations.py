@@ -413,6 +413,11 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
         yield (f"config {key}={value!r}",
                save({**payload, "config": {**payload["config"], key: value}}), True)
     yield "baselines broken", save({**payload, "baselines": {"mean": {"x": 1}}}), True
+    history = payload["baselines"]["mlp_displacement_history"]
+    yield ("history baseline layers broken",
+           save({**payload, "baselines": {**payload["baselines"],
+                                          "mlp_displacement_history": {**history,
+                                                                       "layers": "abc"}}}), True)
     yield "state_dict not a dict", save({**payload, "state_dict": [1]}), True
     data = valid.read_bytes()
     for fraction in (0.0, 0.3, 0.9):
