@@ -201,6 +201,11 @@ class SessionWriter:
         _append(self._frame_id, np.array([e.frame_id for e in events], dtype=np.int64))
         self._append_times("projector", events)
 
+    def append(self, stream: str, records: Sequence[Any]) -> None:
+        """Append records of ``stream``."""
+        {"camera": self.append_frames, "force": self.append_forces,
+         "projector": self.append_events}[stream](records)
+
     def add_gap(self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int,
                 count: int) -> None:
         """Mark a gap in a stream: samples lost between ``last_seq`` and ``next_seq``."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vbfe.acquire import RecorderStats, record_session
+from vbfe.acquire import AcquisitionStats, record_session
 from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.cli.common import add_config_option, config_from, progress
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         print(protocol.instructions(), file=sys.stderr)
     bar = progress(total=None, desc="recording", unit="frame")
 
-    def show(stats: RecorderStats) -> None:
+    def show(stats: AcquisitionStats) -> None:
         bar.n = stats.frames
         events = f"{protocol.progress()}, " if protocol else ""
         bar.set_postfix_str(f"{events}{stats.elapsed_s:.1f} s, {stats.samples} force samples, "

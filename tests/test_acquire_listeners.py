@@ -1,0 +1,70 @@
+"""Listeners of an acquisition: a new one attaches to a recording in a few lines; one rig
+opens with rollback; a failing listener stops the acquisition without losing the session."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.test_acquire_devices import bar_devices
+from vbfe.acquire import Acquisition, Listener, Recorder, SessionReader
+from vbfe.config import load_config
+from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import RigOptions
+
+
+class FrameCounter(Listener):
+    """The whole of a new listener: count the frames of a recording."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+
+    def on_frames(self, frames) -> None:
+        self.frames += len(frames)
+
+
+def test_a_frame_counting_listener_sees_every_recorded_frame(tmp_path):
+    counter = FrameCounter()
+    with Recorder(bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0,
+                  listeners=(counter,)) as recorder:
+        stats = recorder.run(2.0)
+    with SessionReader(tmp_path / "s.h5") as session:
+        assert counter.frames == session.n_frames == stats.frames >= 55
+
+
+class Broken(Listener):
+    def on_samples(self, samples) -> None:
+        raise ValueError("a bug in a listener")
+
+
+def test_a_failing_listener_stops_the_acquisition_and_the_session_is_finalized(tmp_path):
+    recorder = Recorder(bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0,
+                        listeners=(Broken(),))
+    with pytest.raises(ValueError, match="a bug in a listener"):
+        recorder.run(5.0)
+    assert not any(d.is_open for d in recorder.rig.devices.values())
+    with SessionReader(tmp_path / "s.h5") as session:
+        assert session.complete and session.n_frames < 5 * 30
+
+
+def test_a_simulated_rig_is_an_ordinary_rig_with_truth_and_options():
+    config = load_config()
+    config["bench"].update(width=160, height=90, fps=20.0)
+    rig = open_rig(config, RigOptions(seed=3, realtime=False))
+    described = rig.describe()
+    assert described["bench"]["seed"] == 3 and described["conditions"]["seed"] == 3
+    assert set(described["devices"]) == {"camera", "trocar", "projector"}
+    assert rig.truth is not None
+    counter = FrameCounter()
+    acquisition = Acquisition(rig, listeners=(counter,))
+    stats = acquisition.run(0.5)
+    assert counter.frames == stats.frames == 10
+
+
+def test_a_device_failing_to_open_closes_those_already_opened():
+    rig = bar_devices()
+    rig.trocar._open = lambda: (_ for _ in ()).throw(DeviceError("trocar unplugged"))
+    with pytest.raises(DeviceError, match="unplugged"):
+        with rig:
+            pass
+    assert not rig.camera.is_open
