@@ -3,12 +3,19 @@ opens with rollback; a failing listener stops the acquisition without losing the
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
+import numpy as np
 import pytest
 
 from tests.test_acquire_devices import bar_devices
 from vbfe.acquire import Acquisition, Listener, Recorder, SessionReader
+from vbfe.acquire.session.layout import vector_stream
 from vbfe.config import load_config
+from vbfe.drivers.device import SampleStream
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 
@@ -68,3 +75,47 @@ def test_a_device_failing_to_open_closes_those_already_opened():
         with rig:
             pass
     assert not rig.camera.is_open
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    values: np.ndarray
+    seq: int
+    t_device_ns: int
+    t_host_ns: int
+
+
+class FakeRobot(SampleStream[Kinematics]):
+    """A device of a further kind: 7 joint angles at 100 Hz, read into the stream "robot"."""
+
+    stream = "robot"
+
+    def _open(self) -> None:
+        self._t0, self._n = time.monotonic_ns(), 0
+
+    def _close(self) -> None:
+        pass
+
+    def _read_sample(self, timeout_s: float) -> Kinematics | None:
+        due = self._t0 + self._n * 10_000_000
+        if not sleep_until(due, timeout_s):
+            return None
+        self._n += 1
+        return Kinematics(np.full(7, self._n, float), self._n - 1, due, time.monotonic_ns())
+
+    def describe(self) -> dict[str, object]:
+        return {"kind": "FakeRobot"}
+
+
+def test_a_further_device_kind_is_recorded_as_an_extra_stream_and_read_back(tmp_path):
+    rig = bar_devices(speed=8.0)
+    rig.devices["robot"] = FakeRobot()
+    spec = vector_stream("robot", [f"q{i}" for i in range(7)], units="rad")
+    with Recorder(rig, tmp_path / "s.h5", min_free_bytes=0, streams=(spec,)) as recorder:
+        recorder.run(1.0)
+    with SessionReader(tmp_path / "s.h5") as session:
+        values = session.stream_column("robot", "values")
+        t_dev, t_host, seq = session.stream_times("robot")
+        assert values.shape == (len(seq), 7) and len(seq) >= 30
+        assert np.array_equal(values[:, 0], seq + 1)
+        assert session.clock_fit("robot") is not None

@@ -10,7 +10,8 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import AcquisitionStats
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.settings import record_settings
-from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, store_analysis
+from vbfe.acquire.session.annotate import store_analysis
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig

@@ -9,13 +9,15 @@ from typing import Any
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats, PatternSource
 from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.session_sink import SessionSink
+from vbfe.acquire.session.layout import StreamSpec
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 
 
 class Recorder(Acquisition):
     """Record a rig into the session ``path`` (see :class:`SessionSink` for the file's
-    options), handing every record to ``listeners`` too.
+    options; ``streams`` the specs of extra streams), handing every record to ``listeners``
+    too.
 
     Use as ``with Recorder(rig, path) as rec: rec.run(duration_s)`` or call :meth:`start` /
     :meth:`stop` yourself; the rig is opened at the start and closed at the stop.
@@ -27,9 +29,10 @@ class Recorder(Acquisition):
                  min_free_bytes: int = 1 << 30, pattern: PatternSource | None = None,
                  pattern_name: str = PATTERN_NAME,
                  on_flush: Callable[[AcquisitionStats], None] | None = None,
-                 overwrite: bool = False, listeners: tuple[Listener, ...] = ()) -> None:
+                 overwrite: bool = False, listeners: tuple[Listener, ...] = (),
+                 streams: tuple[StreamSpec, ...] = ()) -> None:
         self.sink = SessionSink(path, compression, flush_interval_s, metadata, calibration_yaml,
-                                min_free_bytes, overwrite, on_flush)
+                                min_free_bytes, overwrite, on_flush, streams)
         super().__init__(rig, pattern, pattern_name, queue_size, (self.sink, *listeners))
         self.what = str(self.sink.path)
 

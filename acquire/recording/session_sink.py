@@ -25,6 +25,7 @@ import numpy as np
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
+from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 
 if TYPE_CHECKING:
@@ -66,14 +67,17 @@ def _merged_metadata(given: dict[str, Any], described: dict[str, Any]) -> dict[s
 class SessionSink(Listener):
     """Write every record of an acquisition into the new session file ``path``.
 
-    ``on_flush(stats)`` is called after each flush (dispatch thread). The destination is checked
-    (folder, free space, ``overwrite``) when the sink is made.
+    ``streams`` are the specs of streams beyond the core ones (camera, force, projector) that
+    the rig's further devices feed. ``on_flush(stats)`` is called after each flush (dispatch
+    thread). The destination is checked (folder, free space, ``overwrite``) when the sink is
+    made.
     """
 
     def __init__(self, path: str | Path, compression: str = "lzf", flush_interval_s: float = 1.0,
                  metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
                  min_free_bytes: int = 1 << 30, overwrite: bool = False,
-                 on_flush: Callable[["AcquisitionStats"], None] | None = None) -> None:
+                 on_flush: Callable[["AcquisitionStats"], None] | None = None,
+                 streams: Sequence[StreamSpec] = ()) -> None:
         if flush_interval_s <= 0:
             raise SessionError(f"flush_interval_s must be positive, got {flush_interval_s}")
         self.path = check_destination(path, min_free_bytes, overwrite)
@@ -83,6 +87,7 @@ class SessionSink(Listener):
         self.calibration_yaml = calibration_yaml
         self.min_free_bytes = min_free_bytes
         self.on_flush = on_flush
+        self.streams = tuple(streams)
         self._acquisition: Acquisition | None = None
         self._writer: SessionWriter | None = None
         self._error: BaseException | None = None
@@ -108,7 +113,7 @@ class SessionSink(Listener):
         self.metadata = _merged_metadata(self.metadata, rig.describe())
         self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
                                      self.compression, self.metadata, self.calibration_yaml,
-                                     rig.trocar.axes, self.flush_interval_s)
+                                     rig.trocar.axes, self.flush_interval_s, self.streams)
         self._next_flush = time.monotonic() + self._flush_period_s()
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
