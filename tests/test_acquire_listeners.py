@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import bar_devices
-from vbfe.acquire import Acquisition, Listener, Recorder, SessionReader
-from vbfe.acquire.session.layout import vector_stream
+from vbfe.acquire import (Acquisition, Listener, Recorder, SessionReader, SessionWriter,
+                          recover_session)
+from vbfe.acquire.session.layout import marker_stream, vector_stream
 from vbfe.config import load_config
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.errors import DeviceError
@@ -119,3 +120,23 @@ def test_a_further_device_kind_is_recorded_as_an_extra_stream_and_read_back(tmp_
         assert values.shape == (len(seq), 7) and len(seq) >= 30
         assert np.array_equal(values[:, 0], seq + 1)
         assert session.clock_fit("robot") is not None
+
+
+@dataclass(frozen=True)
+class Marker:
+    text: str
+    seq: int
+    t_device_ns: int
+    t_host_ns: int
+
+
+def test_a_marker_stream_keeps_its_text_and_gaps_through_a_recovery_copy(tmp_path):
+    writer = SessionWriter(tmp_path / "s.h5", (8, 6), extra_streams=[marker_stream("markers")])
+    writer.append("markers", [Marker("start", 0, 5, 10), Marker("stop ü", 1, 6, 11)])
+    writer.add_gap("markers", "queue full", 1, 3, 12, 1)
+    writer.close()
+    out, dropped = recover_session(tmp_path / "s.h5", tmp_path / "r.h5")
+    with SessionReader(out) as session:
+        assert list(session.stream_column("markers", "text")) == ["start", "stop ü"]
+        assert session.stream_times("markers")[1].tolist() == [10, 11]
+        assert session.gaps()[0]["stream"] == "markers" and dropped["markers"] == 0

@@ -308,7 +308,10 @@ class SessionReader:
         spec = self.streams.get(stream)
         if spec is None or column not in [c.name for c in spec.columns]:
             raise SessionError(f"{self.path} has no column {column!r} in stream {stream!r}")
-        return self._read(f"{stream}/{column}", self.stream_length(stream))
+        values = self._read(f"{stream}/{column}", self.stream_length(stream))
+        if values.dtype.kind == "O":  # text
+            return np.array([text(v) for v in values], dtype=object)
+        return values
 
     def clock_fit(self, stream: str) -> ClockFit:
         """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""

@@ -58,8 +58,12 @@ def _reserve_space(directory: Path) -> int | None:
 
 def _series(group: h5py.Group, name: str, dtype: Any, shape: tuple[int, ...] = (),
             chunk: int = 4096, **kwargs: Any) -> h5py.Dataset:
+    """A resizable, chunked dataset of rows of ``shape``; checksummed unless it holds text
+    (HDF5 filters cannot apply to variable-length data)."""
+    checksum = h5py.check_string_dtype(np.dtype(dtype)) is None
     return group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape),
-                                chunks=(chunk, *shape), dtype=dtype, fletcher32=True, **kwargs)
+                                chunks=(chunk, *shape), dtype=dtype, fletcher32=checksum,
+                                **kwargs)
 
 
 def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
