@@ -23,6 +23,7 @@ import h5py
 import numpy as np
 
 from vbfe import __version__
+from vbfe.acquire.resample import resample_at
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.recon.clouds import CloudWriter, session_fingerprint
@@ -202,13 +203,9 @@ class ForceTable:
             out[index[inside].astype(int)] = values[inside]
             return out
         t_ns = table[key] * TIME_UNITS_NS[self.time_unit]
-        order = np.argsort(t_ns, kind="stable")
-        t_ns, values = t_ns[order], values[order]
         if len(t_ns) < 2:
             raise EstimateError(f"{self.path} needs at least two force samples to resample")
-        for a in range(3):
-            out[:, a] = np.interp(frame_times_ns, t_ns, values[:, a], left=np.nan, right=np.nan)
-        return out
+        return resample_at(frame_times_ns, np.round(t_ns).astype(np.int64), values)
 
 
 def frame_times(n_frames: int, fps: float | None, times_csv: Path | None, column: str | None,

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.acquisition import AcquisitionStats
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.settings import record_settings
@@ -47,12 +48,11 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     if protocol is not None:
         options, duration_s = protocol.rig_options(), protocol.duration_s
     rig = open_rig(config, options)
-    camera_size = (rig.camera.width, rig.camera.height)
-    if calibration_size is not None and tuple(calibration_size) != camera_size:
-        raise SessionError(f"{calibration_name} is for {calibration_size[0]}x"
-                           f"{calibration_size[1]} images but the camera gives {camera_size[0]}x"
-                           f"{camera_size[1]}; calibrate at this resolution or change the "
-                           "camera's size")
+    if calibration_size is not None:
+        mismatch = size_mismatch("the camera gives", (rig.camera.width, rig.camera.height),
+                                 calibration_name, calibration_size)
+        if mismatch:
+            raise SessionError(mismatch)
     recorder = session_recorder(config, path, rig, operator, notes, conditions,
                                 compression, calibration_yaml, overwrite,
                                 (protocol,) if protocol else ())

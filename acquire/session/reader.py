@@ -23,6 +23,7 @@ import numpy as np
 
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.layout import (FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION,
@@ -350,21 +351,8 @@ class SessionReader:
         Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
         get NaN rather than an invented value.
         """
-        t_frames = self.frame_times_ns()
-        t_force, forces = self.force_times_ns(), self.forces_n()
-        out = np.full((len(t_frames), forces.shape[1] if forces.ndim == 2 else 3), np.nan)
-        if len(t_force) < 2 or len(t_frames) == 0:
-            return out
-        order = np.argsort(t_force, kind="stable")
-        t_force, forces = t_force[order], forces[order]
-        x = (t_frames - t_force[0]).astype(np.float64)
-        xp = (t_force - t_force[0]).astype(np.float64)
-        for axis in range(forces.shape[1]):
-            out[:, axis] = np.interp(x, xp, forces[:, axis], left=np.nan, right=np.nan)
-        right = np.clip(np.searchsorted(xp, x), 1, len(xp) - 1)
-        too_wide = (xp[right] - xp[right - 1]) > max_gap_s * 1e9
-        out[too_wide] = np.nan
-        return out
+        return resample_at(self.frame_times_ns(), self.force_times_ns(), self.forces_n(),
+                           max_gap_s * 1e9)
 
     # -- events, gaps, metadata ---------------------------------------------------------
     def projector_events(self) -> list[ProjectorEvent]:
