@@ -24,6 +24,7 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.estimate.errors import EstimateError
+from vbfe.files import commit, partial_path
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.recon.clouds import CloudWriter, session_fingerprint
 
@@ -237,7 +238,7 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
     if not out.name.endswith(CLOUDS_SUFFIX):
         raise EstimateError(f"--out {out.name}: name the imported file *{CLOUDS_SUFFIX}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".part")
+    tmp = partial_path(out)
     attrs = {"session_path": str(source.get("folder", "")),
              "session_fingerprint": session_fingerprint(0, (np.asarray(times_ns),)),
              "verify": False, "sgbm_json": "{}", "software_version": __version__,
@@ -251,18 +252,17 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
                 if len(points) else 0.0, "disparity_px": np.full(4, np.nan),
                 "match_counts": np.full(4, -1, np.int64), "decoded_fraction": np.nan,
                 "edge_fraction": np.nan})
+        writer.finish()
+        with h5py.File(tmp, "a") as f:
+            labels = f.create_group(LABELS_GROUP)
+            force = labels.create_dataset("force_n", data=np.asarray(forces_n, np.float64))
+            force.attrs.update({"units": "N", "axes": ["x", "y", "z"]})
+            labels.attrs["conditions_json"] = json.dumps(conditions)
     except BaseException:
         writer.abort()
         tmp.unlink(missing_ok=True)
         raise
-    writer.finish()
-    with h5py.File(tmp, "a") as f:
-        labels = f.create_group(LABELS_GROUP)
-        force = labels.create_dataset("force_n", data=np.asarray(forces_n, np.float64))
-        force.attrs.update({"units": "N", "axes": ["x", "y", "z"]})
-        labels.attrs["conditions_json"] = json.dumps(conditions)
-    tmp.replace(out)
-    return out
+    return commit(tmp, out)
 
 
 def import_frames(kind: str, folder: str | Path, out: str | Path, forces: ForceTable,

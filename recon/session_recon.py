@@ -17,6 +17,7 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire import SessionReader
+from vbfe.files import commit, partial_path
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
@@ -103,7 +104,7 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
     marks the clouds of a session that was still being recorded."""
     params = params_for(calibration, params, settings)
     workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
-    tmp_path = out_path.with_name(out_path.name + ".partial")
+    tmp_path = partial_path(out_path)
     writer = CloudWriter(tmp_path, {
         "session_path": str(Path(source if isinstance(source, str) else source.lefts[0]).resolve()),
         "session_fingerprint": fingerprint, "source_kind": kind, "verify": verify,
@@ -124,8 +125,7 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
         writer.abort()
         tmp_path.unlink(missing_ok=True)
         raise
-    os.replace(tmp_path, out_path)
-    return out_path
+    return commit(tmp_path, out_path)
 
 
 def _check_size(what: str, size: tuple[int, int], calibration: Calibration) -> None:

@@ -35,6 +35,7 @@ from vbfe.acquire.session.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS,
                                  image_filter)
 from vbfe.acquire.session.reader import consistent_rows, open_session_file
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.files import WriterLock, commit, partial_path
 
 _TIME_CHUNK = 4096
 _JPEG_CHUNK = 1 << 20
@@ -90,6 +91,7 @@ class SessionWriter:
         self.bytes_written = 0  # uncompressed payload bytes
         width, height = frame_size
         metadata = dict(metadata or {})
+        self._lock = WriterLock(self.path).acquire()  # before the old file is truncated
         self._reserve = _reserve_space(self.path.parent)
         try:
             self._file = h5py.File(self.path, "w", libver="latest")
@@ -215,9 +217,11 @@ class SessionWriter:
         return self.flushed_counts
 
     def _release_reserve(self) -> None:
+        """Free the reserved space and the writer lock (the file is closed or given up)."""
         if self._reserve is not None:
             os.close(self._reserve)
             self._reserve = None
+        self._lock.release()
 
     def abort(self) -> bool:
         """Close after a write failure (full disk, I/O error): release the reserved space so
@@ -248,12 +252,13 @@ def finalize_session(path: str | Path, attrs: dict[str, Any],
 
     The file is reopened without HDF5's file lock (``locking=False``): a reader that has the
     session open holds a shared lock that would otherwise make this fail."""
-    try:
-        f = h5py.File(path, "r+", locking=False)
-    except OSError as exc:
-        raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
-    with f:
-        _finish(f, attrs, truth)
+    with WriterLock(path):
+        try:
+            f = h5py.File(path, "r+", locking=False)
+        except OSError as exc:
+            raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
+        with f:
+            _finish(f, attrs, truth)
 
 
 def _finish(f: h5py.File, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None) -> None:
@@ -322,7 +327,7 @@ def recover_session(path: str | Path, out_path: str | Path,
     with SessionReader(path):  # a damaged file fails here, naming what is wrong
         pass
     src, _ = open_session_file(path)
-    tmp = out_path.with_name(f".{out_path.name}.partial")
+    tmp = partial_path(out_path)
     try:
         with src, h5py.File(tmp, "w", libver="latest") as dst:
             if src.attrs.get("format") != FORMAT_NAME:
@@ -341,5 +346,4 @@ def recover_session(path: str | Path, out_path: str | Path,
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    os.replace(tmp, out_path)
-    return out_path, dropped
+    return commit(tmp, out_path), dropped

@@ -26,6 +26,7 @@ from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader, st
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.files import atomic_path
 from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
@@ -182,8 +183,11 @@ def _plot(path: Path, report: SyncReport) -> None:
     ax.set_title(f"{report.path.name}: {report.verdict}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=100, format=Path(path).suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
 
 
 def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEstimate:

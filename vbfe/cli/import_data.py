@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `import` subcommand."""
@@ -42,6 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                        help="pixel region of interest (X1, Y1 exclusive)")
     depth.add_argument("--pixel-step", type=int, default=1, help="use every k-th pixel")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -50,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.estimate.errors import EstimateError
     from vbfe.estimate.importing import DepthCamera, ForceTable, import_frames
 
+    check_outputs([args.out], [args.frames, args.forces, args.frame_times], args.overwrite,
+                  writes="hdf5")
     camera = None
     if args.kind == "depth":
         needed = {"--fx": args.fx, "--fy": args.fy, "--cx": args.cx, "--cy": args.cy,

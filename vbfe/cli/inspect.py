@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     if is_cloud_file(args.session):
         return _inspect_clouds(args.session)
     if args.recover:
-        check_outputs([args.recover], [args.session], args.overwrite)
+        check_outputs([args.recover], [args.session], args.overwrite, writes="session")
         _, dropped = recover_session(args.session, args.recover, overwrite=args.overwrite)
         lost = ", ".join(f"{n} {stream}" for stream, n in dropped.items() if n) or "none"
         print(f"recovered {args.session} into {args.recover}; rows dropped for inconsistent "

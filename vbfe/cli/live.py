@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.outputs import check_outputs
 from vbfe.config import section
 
 DEVICES = ("auto", "cpu", "cuda")
@@ -51,8 +52,12 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.live.settings import live_settings
     from vbfe.recon.matching import SgbmParams
 
+    check_outputs([args.record], [args.model, args.calib], writes="session")  # a new file
     config = config_from(args)
     settings = live_settings(section(config, "live"))
+    if args.scale is not None and not 0 < args.scale <= 1:
+        raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
+                        "(0, 1], e.g. 0.5")
     if args.duration is not None and args.duration <= 0:
         raise LiveError(f"--duration must be positive, got {args.duration}")
     device = args.device or settings.device

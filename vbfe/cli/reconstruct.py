@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
 
         source = args.inputs[0]
         check_outputs([args.out or sidecar_path(source)], [source, args.calib],
-                      args.overwrite, directories=[args.ply_dir, args.maps_dir])
+                      args.overwrite, directories=[args.ply_dir, args.maps_dir], writes="hdf5",
+                      sidecars=False)
         calibration = _calibration(args, None)
         with SessionReader(source) as reader:
             n_frames = reader.n_frames
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         pairs = image_pairs(args.inputs)
         check_outputs([args.out or sidecar_path(pairs.lefts[0])],
                       [*pairs.lefts, *pairs.rights, args.calib], args.overwrite,
-                      directories=[args.ply_dir, args.maps_dir])
+                      directories=[args.ply_dir, args.maps_dir], writes="hdf5", sidecars=False)
         calibration = _calibration(args, pairs.frame_size())
         with progress(total=pairs.n_frames, desc="reconstruct", unit="pair") as bar:
             out = reconstruct_images(pairs, calibration, progress=bar.update, **common)

@@ -45,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
-        # the default plot is this command's own product and is refreshed on every run
-        check_outputs([plot], [sessions[0]], overwrite=args.overwrite or args.plot is None)
+        check_outputs([plot], [sessions[0]], args.overwrite)
         report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
                              apply_correction=args.apply, settings=settings)
         print(report.text())
