@@ -24,15 +24,22 @@ def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
 
 
 def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -> list[Path]:
-    """Every file the inputs stand for: themselves, the sessions of manifests (``*.csv``) and
+    """Every file the inputs stand for: themselves, the sessions of manifests (``*.csv`` with a
+    ``path`` column) and
     (with ``sidecars``) the clouds sidecar of every session."""
+    from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import MANIFEST_SUFFIX, read_manifest
     from vbfe.recon.clouds import sidecar_path
 
     out: list[Path] = []
     for item in (Path(p) for p in inputs if p is not None):
         out.append(item)
-        listed = read_manifest(item) if item.suffix == MANIFEST_SUFFIX and item.is_file() else []
+        listed: list[Path] = []
+        if item.suffix == MANIFEST_SUFFIX and item.is_file():
+            try:
+                listed = read_manifest(item)
+            except BatchError:  # another kind of CSV (forces, frame times)
+                pass
         for path in (item, *listed):
             if path is not item:
                 out.append(path)
