@@ -32,6 +32,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.files import require_free_space
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
@@ -66,11 +67,15 @@ def is_cloud_file(path: str | Path) -> bool:
         return False
 
 
+FREE_MARGIN_BYTES = 4 << 20  # left free while writing: HDF5's chunk caches and tables at finish
+
+
 class CloudWriter:
     """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
 
     def __init__(self, path: str | Path, attrs: dict[str, object], calibration_yaml: str) -> None:
         self.path = Path(path)
+        require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         try:
             self._file = h5py.File(self.path, "w")
         except OSError as exc:
@@ -90,6 +95,8 @@ class CloudWriter:
                stats: dict[str, object]) -> None:
         """Add the next frame's cloud and statistics (``stats``: the other per-frame tables,
         see :data:`FRAME_TABLES`)."""
+        require_free_space(self.path.parent, points.nbytes + colors.nbytes + FREE_MARGIN_BYTES,
+                           "the point clouds")  # stop before HDF5 meets a full disk
         start, n = self._offsets[-1], len(points)
         for name, data in (("points", points), ("colors", colors)):
             ds = self._file[name]
@@ -101,6 +108,7 @@ class CloudWriter:
 
     def finish(self) -> Path:
         """Write the per-frame tables, mark the file complete and close it."""
+        require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         f = self._file
         f.create_dataset("offsets", data=np.asarray(self._offsets, np.int64))
         columns = {"disparity_px": DISPARITY_COLUMNS, "match_counts": COUNT_COLUMNS}

@@ -16,6 +16,7 @@ from typing import Any
 
 from vbfe.batch.errors import BatchError
 from vbfe.errors import VbfeError
+from vbfe.signals import raise_for
 
 EXECUTORS = ("local", "ray")
 
@@ -43,6 +44,7 @@ def _call(fn: Callable[[str], Any], item: str) -> tuple[bool, Any]:
 def _child(fn: Callable[[str], Any], item: str,
            conn: multiprocessing.connection.Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    signal.signal(signal.SIGTERM, lambda signum, frame: raise_for(signum))  # cleanups run
     conn.send(_call(fn, item))
     conn.close()
 

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import signal
 import sys
-import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
 from vbfe import __version__
 from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, import_data, inspect, live,
@@ -15,6 +13,7 @@ from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, import_data, 
 from vbfe.config import ConfigError
 from vbfe.errors import VbfeError
 from vbfe.files import os_error_text
+from vbfe.signals import Terminated, sigterm_as_interrupt
 
 COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, dataset, reconstruct,
             import_data, train, evaluate, live, demo)
@@ -32,36 +31,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so that every cleanup for an interrupt runs."""
-
-
-@contextlib.contextmanager
-def _terminate_as_interrupt() -> Iterator[None]:
-    """While a command runs, SIGTERM raises :class:`Terminated` in the main thread (where it
-    was left at its default action)."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def on_term(signum: int, frame: object) -> None:
-        raise Terminated
-
-    signal.signal(signal.SIGTERM, on_term)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code (2: bad input or a
     file that cannot be read or written; 130: Ctrl-C; 143: SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with _terminate_as_interrupt():
+        with sigterm_as_interrupt():
             return int(args.func(args) or 0)
     except VbfeError as exc:
         message = str(exc)
