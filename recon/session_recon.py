@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from vbfe import __version__
-from vbfe.acquire import SessionReader
+from vbfe.acquire import SessionError, SessionReader
 from vbfe.files import commit, partial_path
 from vbfe.signals import stop_workers_on_signals
 from vbfe.calib.calibration import Calibration, load_calibration
@@ -52,7 +52,15 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
 def _process_frame(i: int) -> FrameResult:
     """Reconstruct frame ``i`` of the worker's source; returns the cloud, its statistics and
     (when maps were asked for) the disparity map."""
-    frame = _worker["reader"].frame(i)
+    try:
+        frame = _worker["reader"].frame(i)
+    except (OSError, KeyError, SessionError):  # the recorder finalized the file meanwhile
+        reader = _worker["reader"]
+        if not isinstance(reader, SessionReader):
+            raise
+        reader.close()
+        _worker["reader"] = SessionReader(reader.path)
+        frame = _worker["reader"].frame(i)
     cloud = _worker["reconstructor"].process(frame.left, frame.right)
     d = cloud.disparity[cloud.valid]
     stats = {"valid_fraction": float(cloud.valid.mean()),

@@ -238,10 +238,14 @@ class Recorder:
                 self._close_devices()
                 raise
             self.pattern = pattern  # the image shown (a sync protocol flashes it)
-        self._writer = SessionWriter(self.path, (cam.width, cam.height), self.compression,
-                                     self.metadata, self.calibration_yaml,
-                                     getattr(trocar, "axes", ("x", "y", "z")),
-                                     self.flush_interval_s)
+        try:  # refused while another process writes the file, or cannot be created
+            self._writer = SessionWriter(self.path, (cam.width, cam.height), self.compression,
+                                         self.metadata, self.calibration_yaml,
+                                         getattr(trocar, "axes", ("x", "y", "z")),
+                                         self.flush_interval_s)
+        except BaseException:
+            self._close_devices()
+            raise
         self._t_start = time.monotonic()
         if pattern is not None:
             try:
