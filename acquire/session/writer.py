@@ -35,7 +35,7 @@ from vbfe.acquire.session.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS,
                                  image_filter)
 from vbfe.acquire.session.reader import consistent_rows, open_session_file
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
-from vbfe.files import WriterLock, commit, partial_path
+from vbfe.files import WriterLock, commit, partial_path, require_free_space
 
 _TIME_CHUNK = 4096
 _JPEG_CHUNK = 1 << 20
@@ -326,6 +326,8 @@ def recover_session(path: str | Path, out_path: str | Path,
                            "exist")
     with SessionReader(path):  # a damaged file fails here, naming what is wrong
         pass
+    require_free_space(out_path.parent, Path(path).stat().st_size + _RESERVE_BYTES,
+                       f"the recovered copy {out_path}")
     src, _ = open_session_file(path)
     tmp = partial_path(out_path)
     try:

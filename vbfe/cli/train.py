@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
+from vbfe.files import require_free_space
+
+MODEL_FREE_BYTES = 64 << 20  # a model file with its baselines and training record, with room
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `train` subcommand."""
@@ -46,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.estimate import TrainConfig, train, use_threads  # torch loads only when needed
 
     check_outputs([args.out], args.sessions, args.overwrite)
+    require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
     overrides = {key: getattr(args, key) for key in
                  ("epochs", "n_points", "batch_size", "learning_rate", "target", "split",
                   "gap_frames", "val_fraction", "test_fraction", "temporal_frames", "device",
