@@ -7,6 +7,7 @@ a failing command leaves nothing behind. Most cases call the CLI's ``main`` in t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 from pathlib import Path
 
@@ -194,3 +195,54 @@ def test_a_session_is_never_replaced_by_a_calibration_whatever_its_name(inputs, 
     assert hashlib.sha256(session.read_bytes()).hexdigest() == kept
     with h5py.File(session, "r") as f:
         assert f.attrs["format"] == "vbfe-session"
+
+
+BAD_VALUES = [  # (rig config, command, words of the one error line)
+    ("[record]\nflush_interval_s = inf\n", ["record", "{o}.h5"], "[record] flush_interval_s"),
+    ("[record]\nflush_interval_s = nan\n", ["record", "{o}.h5"], "[record] flush_interval_s"),
+    ("[bench]\nhold_s = -3\n", ["record", "{o}.h5"], "[bench] hold_s"),
+    ("[bench]\nstiffness_n_per_m = 0\n", ["record", "{o}.h5"], "[bench] stiffness_n_per_m"),
+    ("[bench]\nwidth = 100000\nheight = 100000\n", ["record", "{o}.h5"], "[bench] width"),
+    ("[sgbm]\np1 = 100\np2 = 10\n", ["reconstruct", "{s}", "--out", "{o}.clouds.h5"],
+     "[sgbm] p2"),
+    ("[train]\nconv_channels = []\n", ["train", "{s}", "--out", "{o}.pt"],
+     "[train] conv_channels"),
+    ("", ["reconstruct", "{s}", "--workers", "0"], "--workers"),
+    ("", ["verify-sync", "{s}", "--workers", "-3"], "--workers"),
+    ("", ["calibrate", "capture", "{o}", "--max-frames", "-1"], "--max-frames"),
+    ("", ["calibrate", "check", "{s}", "--max-depth-error-mm", "-1"], "--max-depth-error-mm"),
+    ("", ["calibrate", "color", "{s}", "--frames", "0"], "--frames"),
+    ("", ["live", "--model", "m.pt", "--calib", "{s}", "--scale", "0"], "--scale"),
+    ("", ["import", "clouds", "{o}", "--forces", "f.csv", "--out", "{o}.clouds.h5",
+          "--force-columns", "fz", "--time-column", "t", "--fps", "nan"], "--fps"),
+    ("", ["calibrate", "capture", "{s}"], "is a file"),
+    ("", ["calibrate", "projector-capture", "{s}"], "is a file"),
+    ("", ["calibrate", "export", "{s}", "--format", "ros", "--out-dir", "{m}"], "is a file"),
+    ("", ["demo", "--out", "{s}"], "is a file"),
+]
+
+
+@pytest.mark.parametrize("table, argv, words", BAD_VALUES)
+def test_bad_values_are_one_line_naming_table_and_key(inputs, tmp_path, capsys, table, argv,
+                                                      words):
+    argv = [a.format(s=inputs["session"], o=tmp_path / "out", m=inputs["d"] / "model.pt")
+            for a in argv]
+    if table:
+        (tmp_path / "rig.toml").write_text(table)
+        argv += ["--config", str(tmp_path / "rig.toml")]
+    with pytest.raises(SystemExit) if words.startswith("--") else contextlib.nullcontext():
+        assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and words in err.splitlines()[-1], err
+    assert not list(tmp_path.glob("out*"))
+
+
+@pytest.mark.parametrize("content", [None, bytes(range(256))])
+def test_a_config_that_is_a_folder_or_binary_is_one_line(tmp_path, capsys, content):
+    config = tmp_path / "rig"
+    if content is None:
+        config.mkdir()
+    else:
+        config.write_bytes(content)
+    assert main(["record", str(tmp_path / "x.h5"), "--config", str(config)]) == 2
+    one_error(capsys, "rig config", str(config))

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                 "doffs; default 0)")
     parser.add_argument("--out", metavar="CLOUDS.h5", default=None,
                         help="output file of one input (default: next to it, .clouds.h5)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=positive(int), default=None,
                         help="parallel processes: frames of one input, or sessions of many "
                         "(default: one per CPU core)")
     parser.add_argument("--no-verify", action="store_true",
