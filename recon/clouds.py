@@ -148,7 +148,18 @@ class CloudReader:
             self._file.close()
             raise ReconError(f"{self.path} is not a complete vbfe cloud file (interrupted "
                              f"reconstruction?); run 'vbfe reconstruct' again")
-        self._offsets = self._file["offsets"][()]
+        try:
+            self._offsets = self._file["offsets"][()]
+            n_points = len(self._file["points"]), len(self._file["colors"])
+        except (KeyError, OSError) as exc:
+            self._file.close()
+            raise ReconError(f"{self.path} is damaged ({' '.join(str(exc).split())}); run "
+                             "'vbfe reconstruct' again") from None
+        if len(self._offsets) < 1 or self._offsets[0] != 0 or np.any(np.diff(self._offsets) < 0) \
+                or not self._offsets[-1] == n_points[0] == n_points[1]:
+            self._file.close()
+            raise ReconError(f"{self.path} is damaged (its frame offsets do not match its "
+                             "points); run 'vbfe reconstruct' again")
 
     def close(self) -> None:
         """Close the file."""
@@ -189,7 +200,11 @@ class CloudReader:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
         start, stop = int(self._offsets[i]), int(self._offsets[i + 1])
-        return self._file["points"][start:stop], self._file["colors"][start:stop]
+        try:
+            return self._file["points"][start:stop], self._file["colors"][start:stop]
+        except OSError:
+            raise ReconError(f"{self.path}: frame {i} cannot be read (the stored bytes changed "
+                             "after writing); run 'vbfe reconstruct' again") from None
 
     def frame_table(self, name: str) -> np.ndarray:
         """A per-frame array named in :data:`FRAME_TABLES` (quality tables missing from a

@@ -246,3 +246,20 @@ def test_a_config_that_is_a_folder_or_binary_is_one_line(tmp_path, capsys, conte
         config.write_bytes(content)
     assert main(["record", str(tmp_path / "x.h5"), "--config", str(config)]) == 2
     one_error(capsys, "rig config", str(config))
+
+
+def test_plain_inspect_checks_every_chunk_of_a_small_session(inputs, tmp_path, capsys):
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(inputs["session"].read_bytes())
+    with h5py.File(damaged, "r") as f:
+        info = f["force/force_n"].id.get_chunk_info(0)
+    with open(damaged, "r+b") as fh:  # one changed byte in the first force chunk
+        fh.seek(info.byte_offset + info.size // 2)
+        byte = fh.read(1)
+        fh.seek(-1, 1)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    assert main(["inspect", str(inputs["session"])]) == 0
+    assert "0 damaged" in capsys.readouterr().out
+    assert main(["inspect", str(damaged)]) == 1
+    out = capsys.readouterr().out
+    assert "damaged   force/force_n: rows 0-" in out and "checksum" in out, out
