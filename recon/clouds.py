@@ -63,7 +63,7 @@ def is_cloud_file(path: str | Path) -> bool:
     try:
         with h5py.File(path, "r") as f:
             return f.attrs.get("format") == FORMAT_NAME
-    except OSError:
+    except (OSError, KeyError, RuntimeError):  # not HDF5, or its attributes are damaged
         return False
 
 

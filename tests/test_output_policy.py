@@ -263,3 +263,20 @@ def test_plain_inspect_checks_every_chunk_of_a_small_session(inputs, tmp_path, c
     assert main(["inspect", str(damaged)]) == 1
     out = capsys.readouterr().out
     assert "damaged   force/force_n: rows 0-" in out and "checksum" in out, out
+
+
+def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(inputs, tmp_path,
+                                                                          capsys):
+    data = inputs["session"].read_bytes()
+    damaged = tmp_path / "damaged.h5"
+    for offset in range(200, 4096, 300):  # superblock, object headers, attribute messages
+        changed = bytearray(data)
+        changed[offset:offset + 8] = bytes(b ^ 0xFF for b in changed[offset:offset + 8])
+        damaged.write_bytes(changed)
+        for argv in (["inspect", str(damaged)],
+                     ["reconstruct", str(damaged), "--out", str(tmp_path / "c.clouds.h5")]):
+            code = main(argv)
+            err = capsys.readouterr().err
+            assert code in (0, 1, 2) and "Traceback" not in err, (offset, argv, err)
+            assert code != 2 or len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5"]

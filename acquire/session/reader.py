@@ -132,6 +132,8 @@ def read_failure_reason(exc: BaseException) -> str:
     text = str(exc)
     if "Fletcher32" in text or "checksum" in text:
         return "checksum mismatch: the stored bytes changed after writing"
+    if "metadata checksum" in text:
+        return "metadata checksum mismatch: the file's structure changed after writing"
     if "filter returned failure" in text:
         return "checksum or decompression failed: the stored bytes changed after writing"
     return text
