@@ -18,7 +18,7 @@ import numpy as np
 from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
 from vbfe.files import commit, partial_path
-from vbfe.signals import stop_workers_on_signals
+from vbfe.signals import die_with_parent, stop_workers_on_signals
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
@@ -41,6 +41,7 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
     per worker process (child processes leave Ctrl-C to the parent, which stops the pool)."""
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        die_with_parent()
     cv2.setNumThreads(threads)
     _worker["reader"] = SessionReader(source) if isinstance(source, str) else source
     _worker["keep_maps"] = keep_maps

@@ -16,7 +16,7 @@ from typing import Any
 
 from vbfe.batch.errors import BatchError
 from vbfe.errors import VbfeError
-from vbfe.signals import raise_for
+from vbfe.signals import die_with_parent, raise_for
 
 EXECUTORS = ("local", "ray")
 
@@ -45,6 +45,7 @@ def _child(fn: Callable[[str], Any], item: str,
            conn: multiprocessing.connection.Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     signal.signal(signal.SIGTERM, lambda signum, frame: raise_for(signum))  # cleanups run
+    die_with_parent()
     conn.send(_call(fn, item))
     conn.close()
 
