@@ -26,7 +26,7 @@ from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader, st
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
-from vbfe.files import atomic_path
+from vbfe.files import save_figure
 from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
@@ -184,8 +184,7 @@ def _plot(path: Path, report: SyncReport) -> None:
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=100, format=Path(path).suffix.lstrip(".") or "png")
+        save_figure(fig, path, dpi=100)
     finally:
         plt.close(fig)
 
