@@ -280,3 +280,20 @@ def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(input
             assert code in (0, 1, 2) and "Traceback" not in err, (offset, argv, err)
             assert code != 2 or len(err.strip().splitlines()) == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5"]
+
+
+@pytest.mark.parametrize("rows, words", [("0,1\n0.2,2\n0.1,3\n", "must increase"),
+                                         ("0,1\nnan,2\n0.2,3\n", "missing or infinite")])
+def test_import_refuses_force_times_out_of_order_or_missing(tmp_path, capsys, rows, words):
+    import numpy as np
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2):
+        np.save(frames / f"{i:03d}.npy", np.random.default_rng(i).random((50, 3)))
+    (tmp_path / "f.csv").write_text("t,fz\n" + rows)
+    out = tmp_path / "x.clouds.h5"
+    assert main(["import", "clouds", str(frames), "--forces", str(tmp_path / "f.csv"), "--out",
+                 str(out), "--force-columns", "fz", "--time-column", "t", "--fps", "10"]) == 2
+    one_error(capsys, "f.csv", words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.csv", "frames"]
