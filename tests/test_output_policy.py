@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import hashlib
+import time
 from pathlib import Path
 
 import h5py
@@ -297,3 +298,11 @@ def test_import_refuses_force_times_out_of_order_or_missing(tmp_path, capsys, ro
                  str(out), "--force-columns", "fz", "--time-column", "t", "--fps", "10"]) == 2
     one_error(capsys, "f.csv", words)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.csv", "frames"]
+
+
+def test_an_unreachable_ray_head_is_one_line_at_once(inputs, capsys):
+    started = time.monotonic()
+    assert main(["reconstruct", str(inputs["session"]), "--executor", "ray", "--ray-address",
+                 "127.0.0.1:9"]) == 2
+    one_error(capsys, "cannot reach the Ray cluster at 127.0.0.1:9")
+    assert time.monotonic() - started < 5
