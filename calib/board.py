@@ -12,6 +12,7 @@ import numpy as np
 
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import from_table
+from vbfe.files import save_figure, write_bytes_atomic
 
 
 TARGETS = ("charuco", "chessboard")
@@ -203,8 +204,10 @@ def write_board(spec: BoardSpec, out_stem: str | Path, px_per_mm: float = 40.0,
     image = board_image(spec, px_per_mm, margin_mm)
     png = out_stem.with_suffix(".png")
     dpi = px_per_mm * 25.4
-    if not cv2.imwrite(str(png), image):
-        raise CalibrationError(f"cannot write {png}; check the folder is writable")
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:
+        raise CalibrationError(f"OpenCV could not encode {png}")
+    write_bytes_atomic(png, encoded.tobytes())
     # PDF page exactly the board's physical size (inches = mm / 25.4)
     height_px, width_px = image.shape
     fig = plt.figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi)
@@ -212,6 +215,8 @@ def write_board(spec: BoardSpec, out_stem: str | Path, px_per_mm: float = 40.0,
     ax.imshow(image, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
     ax.set_axis_off()
     pdf = out_stem.with_suffix(".pdf")
-    fig.savefig(pdf, dpi=dpi)
-    plt.close(fig)
+    try:
+        save_figure(fig, pdf, dpi=dpi)
+    finally:
+        plt.close(fig)
     return png, pdf

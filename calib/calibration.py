@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.files import write_text_atomic
+from vbfe.files import write_bytes_atomic
 
 FORMAT_VERSION = 1
 
@@ -298,7 +298,7 @@ class Calibration:
                 for name in _MATRICES):
             raise CalibrationError(f"the calibration for {path} does not read back as written; "
                                    "nothing was written (please report this)")
-        return write_text_atomic(path, text)
+        return write_bytes_atomic(path, text)
 
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":

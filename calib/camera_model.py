@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.files import write_text_atomic
+from vbfe.files import write_bytes_atomic
 
 CAMERA_FORMAT = "vbfe-camera"
 
@@ -63,7 +63,7 @@ class CameraModel:
             for item in items:
                 fs.write("", item)
             fs.endWriteStruct()
-        return write_text_atomic(path, fs.releaseAndGetString())
+        return write_bytes_atomic(path, fs.releaseAndGetString())
 
     @classmethod
     def load(cls, path: str | Path) -> "CameraModel":

@@ -11,6 +11,7 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.files import write_bytes_atomic
 
 FORMATS = ("ros", "kalibr", "opencv")
 
@@ -100,22 +101,25 @@ def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if fmt == "ros":
-        files = {f"{stem}_left.yaml": ros_camera_info("left", cal.image_size, cal.K1, cal.D1,
-                                                      cal.R1, cal.P1),
-                 f"{stem}_right.yaml": ros_camera_info("right", cal.image_size, cal.K2, cal.D2,
-                                                       cal.R2, cal.P2)}
+        texts = [ros_camera_info("left", cal.image_size, cal.K1, cal.D1, cal.R1, cal.P1),
+                 ros_camera_info("right", cal.image_size, cal.K2, cal.D2, cal.R2, cal.P2)]
     elif fmt == "kalibr":
-        files = {f"{stem}-camchain.yaml": kalibr_camchain(cal)}
+        texts = [kalibr_camchain(cal)]
     else:
-        intrinsics, extrinsics = _opencv_files(cal)
-        files = {"intrinsics.yml": intrinsics, "extrinsics.yml": extrinsics}
+        texts = list(_opencv_files(cal))
+    files = dict(zip(export_names(fmt, stem), texts))
     written = []
     for name, text in files.items():
         path = out_dir / name
         try:
-            path.write_text(text, encoding="utf-8")
+            written.append(write_bytes_atomic(path, text))
         except OSError as exc:
             raise CalibrationError(f"cannot write {path} ({exc.strerror}); check the folder "
                                    "is writable") from None
-        written.append(path)
     return written
+
+
+def export_names(fmt: str, stem: str = "calibration") -> list[str]:
+    """The names of the files :func:`export_calibration` writes for ``fmt``."""
+    return {"ros": [f"{stem}_left.yaml", f"{stem}_right.yaml"],
+            "kalibr": [f"{stem}-camchain.yaml"]}.get(fmt, ["intrinsics.yml", "extrinsics.yml"])

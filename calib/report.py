@@ -11,6 +11,7 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.stereo import StereoResult
 from vbfe.calib.views import ViewSet
+from vbfe.files import save_figure
 from vbfe.report import HtmlReport
 
 
@@ -84,8 +85,10 @@ def write_report(result: StereoResult, views: ViewSet, out_stem: str | Path) -> 
     axes[1, 1].set_axis_off()
     fig.tight_layout()
     png = out_stem.with_suffix(".png")
-    fig.savefig(png, dpi=90)
-    plt.close(fig)
+    try:
+        save_figure(fig, png, dpi=90)
+    finally:
+        plt.close(fig)
 
     report = HtmlReport("Stereo calibration")
     report.table(["quantity", "value"], summary_rows(cal))

@@ -25,6 +25,7 @@ import numpy as np
 from vbfe import __version__
 from vbfe.acquire.resample import resample_at
 from vbfe.estimate.errors import EstimateError
+from vbfe.files import commit, partial_path
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.recon.clouds import CloudWriter
 
@@ -129,7 +130,10 @@ def read_cloud(path: Path) -> np.ndarray:
     """One point-cloud frame (PLY, or NPY of shape N×3) in metres."""
     if path.suffix.lower() == ".ply":
         return read_ply(path)
-    points = np.load(path, allow_pickle=False)
+    try:
+        points = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise EstimateError(f"{path} is not a readable NPY array ({exc}); re-export the frame")
     if points.ndim != 2 or points.shape[1] < 3:
         raise EstimateError(f"{path} holds an array of shape {points.shape}; need N×3 points")
     return np.asarray(points[:, :3], dtype=np.float64)
@@ -158,12 +162,19 @@ def read_columns(path: str | Path, columns: Sequence[str]) -> dict[str, np.ndarr
             rows = list(reader)
     except OSError as exc:
         raise EstimateError(f"cannot read {path}: {exc.strerror}") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise EstimateError(f"{path} is not a text CSV file ({exc.__class__.__name__}); give "
+                            "a CSV with a header row") from None
     out = {}
     for c in columns:
         try:
             out[c] = np.array([float(row[c]) for row in rows])
         except (TypeError, ValueError):
             raise EstimateError(f"{path}: column {c!r} holds a value that is not a number")
+        if not np.isfinite(out[c]).all():
+            row = int(np.flatnonzero(~np.isfinite(out[c]))[0]) + 2
+            raise EstimateError(f"{path}: column {c!r} has a missing or infinite value on line "
+                                f"{row}")
     return out
 
 
@@ -203,6 +214,10 @@ class ForceTable:
             out[index[inside].astype(int)] = values[inside]
             return out
         t_ns = table[key] * TIME_UNITS_NS[self.time_unit]
+        steps = np.flatnonzero(np.diff(t_ns) <= 0)
+        if len(steps):
+            raise EstimateError(f"{self.path}: times in {key!r} must increase; line "
+                                f"{steps[0] + 3} is not after line {steps[0] + 2}")
         if len(t_ns) < 2:
             raise EstimateError(f"{self.path} needs at least two force samples to resample")
         return resample_at(frame_times_ns, np.round(t_ns).astype(np.int64), values)
@@ -214,7 +229,7 @@ def frame_times(n_frames: int, fps: float | None, times_csv: Path | None, column
     if (fps is None) == (times_csv is None):
         raise EstimateError("give exactly one of --fps and --frame-times")
     if fps is not None:
-        if fps <= 0:
+        if not 0 < fps < float("inf"):
             raise EstimateError(f"--fps must be positive, not {fps}")
         return np.round(np.arange(n_frames) * 1e9 / fps).astype(np.int64)
     if column is None:
@@ -234,7 +249,7 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
     if not out.name.endswith(CLOUDS_SUFFIX):
         raise EstimateError(f"--out {out.name}: name the imported file *{CLOUDS_SUFFIX}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".part")
+    tmp = partial_path(out)
     attrs = {"source_kind": IMPORT_SOURCE, "session_path": str(source.get("folder", "")),
              "software_version": __version__, "source_json": json.dumps(source)}
     writer = CloudWriter(tmp, attrs, calibration_yaml=None)  # no stereo calibration made them
@@ -246,18 +261,17 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
                 if len(points) else 0.0, "disparity_px": np.full(4, np.nan),
                 "match_counts": np.full(4, -1, np.int64), "decoded_fraction": np.nan,
                 "edge_fraction": np.nan})
+        writer.finish()
+        with h5py.File(tmp, "a") as f:
+            labels = f.create_group(LABELS_GROUP)
+            force = labels.create_dataset("force_n", data=np.asarray(forces_n, np.float64))
+            force.attrs.update({"units": "N", "axes": ["x", "y", "z"]})
+            labels.attrs["conditions_json"] = json.dumps(conditions)
     except BaseException:
         writer.abort()
         tmp.unlink(missing_ok=True)
         raise
-    writer.finish()
-    with h5py.File(tmp, "a") as f:
-        labels = f.create_group(LABELS_GROUP)
-        force = labels.create_dataset("force_n", data=np.asarray(forces_n, np.float64))
-        force.attrs.update({"units": "N", "axes": ["x", "y", "z"]})
-        labels.attrs["conditions_json"] = json.dumps(conditions)
-    tmp.replace(out)
-    return out
+    return commit(tmp, out)
 
 
 def import_frames(kind: str, folder: str | Path, out: str | Path, forces: ForceTable,
@@ -272,7 +286,14 @@ def import_frames(kind: str, folder: str | Path, out: str | Path, forces: ForceT
         files = frame_files(folder, ("*.png",))
         first = read_depth(files[0])
         camera.check(first.shape[1], first.shape[0])
-        clouds = [camera.points(read_depth(p)) for p in files]
+        clouds = []
+        for p in files:
+            depth = read_depth(p)
+            if depth.shape != first.shape:
+                raise EstimateError(f"{p} is {depth.shape[1]}x{depth.shape[0]} but {files[0]} "
+                                    f"is {first.shape[1]}x{first.shape[0]}; depth frames must "
+                                    "share one size")
+            clouds.append(camera.points(depth))
     else:
         files = frame_files(folder, ("*.ply", "*.npy"))
         clouds = [read_cloud(p) for p in files]

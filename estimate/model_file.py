@@ -10,7 +10,6 @@ counts and the vbfe version that wrote it; with a temporal model also its hyper-
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from vbfe.estimate.pointnet import (ARCHITECTURE, ARCHITECTURE_VERSION, PointNet
                                     TemporalPointNet)
 from vbfe.estimate.rest_depth import RestDepth
 from vbfe.estimate.train_config import TrainConfig
+from vbfe.files import atomic_path
 from vbfe.settings import parse_kwargs, parse_table
 
 FORMAT = "vbfe-force-model"
@@ -135,9 +135,8 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
             "hparams": model.temporal.hparams, "state_dict": model.temporal.state_dict()},
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
     return path
 
 

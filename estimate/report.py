@@ -16,6 +16,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from vbfe.files import save_figure, write_bytes_atomic
+
 METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
                  "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on height map",
@@ -24,8 +26,7 @@ METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
 
 def write_json(path: Path, data: dict[str, Any]) -> Path:
     """Write ``data`` as indented JSON."""
-    path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
-    return path
+    return write_bytes_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
 def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str], list[list[str]]]:
@@ -76,8 +77,8 @@ def write_tables(out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Seque
     page += [f"<p><img src='{html.escape(p.name)}' alt='{html.escape(p.stem)}'></p>" for p in plots]
     page.append("</body></html>")
     md_path, html_path = out_dir / "report.md", out_dir / "report.html"
-    md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
-    html_path.write_text("\n".join(page) + "\n", encoding="utf-8")
+    write_bytes_atomic(md_path, "\n".join(md) + "\n")
+    write_bytes_atomic(html_path, "\n".join(page) + "\n")
     return md_path, html_path
 
 
@@ -102,8 +103,7 @@ def plot_session(path: Path, title: str, times_ns: np.ndarray, measured_n: np.nd
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_scatter(path: Path, measured_n: np.ndarray, predicted_n: np.ndarray,
@@ -123,8 +123,7 @@ def plot_scatter(path: Path, measured_n: np.ndarray, predicted_n: np.ndarray,
     ax.set_ylabel("PointNet |F| (N)")
     ax.legend(fontsize=7, markerscale=3)
     fig.tight_layout()
-    fig.savefig(path)
-    return path
+    return save_figure(fig, path)
 
 
 def safe_stem(name: str) -> str:

@@ -89,6 +89,11 @@ class TrainConfig:
             raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
         if self.ridge_cells < 2 or self.val_max_frames < 1:
             raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
+        for key in ("conv_channels", "head_channels"):
+            widths = getattr(self, key)
+            if (key == "conv_channels" and not widths) or any(w < 1 for w in widths):
+                raise EstimateError(f"[train] {key} = {widths}: give layer widths >= 1"
+                                    + (" (at least one layer)" if key == "conv_channels" else ""))
 
     def _check_window(self, name: str) -> None:
         """A causal window (``{name}_frames`` over ``{name}_span_frames``) is off or >= 2 frames."""

@@ -32,6 +32,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.files import require_free_space
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
@@ -62,8 +63,11 @@ def is_cloud_file(path: str | Path) -> bool:
     try:
         with h5py.File(path, "r") as f:
             return f.attrs.get("format") == FORMAT_NAME
-    except OSError:
+    except (OSError, KeyError, RuntimeError):  # not HDF5, or its attributes are damaged
         return False
+
+
+FREE_MARGIN_BYTES = 4 << 20  # left free while writing: HDF5's chunk caches and tables at finish
 
 
 class CloudWriter:
@@ -72,6 +76,7 @@ class CloudWriter:
     def __init__(self, path: str | Path, attrs: dict[str, object],
                  calibration_yaml: str | None) -> None:
         self.path = Path(path)
+        require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         try:
             self._file = h5py.File(self.path, "w")
         except OSError as exc:
@@ -93,6 +98,8 @@ class CloudWriter:
                stats: dict[str, object]) -> None:
         """Add the next frame's cloud and statistics (``stats``: the other per-frame tables,
         see :data:`FRAME_TABLES`)."""
+        require_free_space(self.path.parent, points.nbytes + colors.nbytes + FREE_MARGIN_BYTES,
+                           "the point clouds")  # stop before HDF5 meets a full disk
         start, n = self._offsets[-1], len(points)
         for name, data in (("points", points), ("colors", colors)):
             ds = self._file[name]
@@ -104,6 +111,7 @@ class CloudWriter:
 
     def finish(self) -> Path:
         """Write the per-frame tables, mark the file complete and close it."""
+        require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         f = self._file
         f.create_dataset("offsets", data=np.asarray(self._offsets, np.int64))
         columns = {"disparity_px": DISPARITY_COLUMNS, "match_counts": COUNT_COLUMNS}
@@ -143,7 +151,18 @@ class CloudReader:
             self._file.close()
             raise ReconError(f"{self.path} is not a complete vbfe cloud file (interrupted "
                              f"reconstruction?); run 'vbfe reconstruct' again")
-        self._offsets = self._file["offsets"][()]
+        try:
+            self._offsets = self._file["offsets"][()]
+            n_points = len(self._file["points"]), len(self._file["colors"])
+        except (KeyError, OSError) as exc:
+            self._file.close()
+            raise ReconError(f"{self.path} is damaged ({' '.join(str(exc).split())}); run "
+                             "'vbfe reconstruct' again") from None
+        if len(self._offsets) < 1 or self._offsets[0] != 0 or np.any(np.diff(self._offsets) < 0) \
+                or not self._offsets[-1] == n_points[0] == n_points[1]:
+            self._file.close()
+            raise ReconError(f"{self.path} is damaged (its frame offsets do not match its "
+                             "points); run 'vbfe reconstruct' again")
 
     def close(self) -> None:
         """Close the file."""
@@ -184,7 +203,11 @@ class CloudReader:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
         start, stop = int(self._offsets[i]), int(self._offsets[i + 1])
-        return self._file["points"][start:stop], self._file["colors"][start:stop]
+        try:
+            return self._file["points"][start:stop], self._file["colors"][start:stop]
+        except OSError:
+            raise ReconError(f"{self.path}: frame {i} cannot be read (the stored bytes changed "
+                             "after writing); run 'vbfe reconstruct' again") from None
 
     def frame_table(self, name: str) -> np.ndarray:
         """A per-frame array named in :data:`FRAME_TABLES` (quality tables missing from a

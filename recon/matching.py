@@ -48,6 +48,9 @@ class SgbmParams:
             raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
                              f"positive multiple of 16, got "
                              f"{params.num_disparities}")
+        if params.p1 and params.p2 and params.p2 <= params.p1:
+            raise ReconError(f"[sgbm] p2 = {params.p2} must be larger than p1 = {params.p1} "
+                             "(OpenCV's smoothness penalties; 0 picks both)")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
         return params

@@ -16,7 +16,9 @@ import cv2
 import numpy as np
 
 from vbfe import __version__
-from vbfe.acquire import SessionReader
+from vbfe.acquire import SessionError, SessionReader
+from vbfe.files import commit, partial_path
+from vbfe.signals import die_with_parent, stop_workers_on_signals
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
@@ -39,6 +41,7 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
     per worker process (child processes leave Ctrl-C to the parent, which stops the pool)."""
     if ignore_interrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        die_with_parent()
     cv2.setNumThreads(threads)
     _worker["reader"] = SessionReader(source) if isinstance(source, str) else source
     _worker["keep_maps"] = keep_maps
@@ -50,7 +53,15 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
 def _process_frame(i: int) -> FrameResult:
     """Reconstruct frame ``i`` of the worker's source; returns the cloud, its statistics and
     (when maps were asked for) the disparity map."""
-    frame = _worker["reader"].frame(i)
+    try:
+        frame = _worker["reader"].frame(i)
+    except (OSError, KeyError, SessionError):  # the recorder finalized the file meanwhile
+        reader = _worker["reader"]
+        if not isinstance(reader, SessionReader):
+            raise
+        reader.close()
+        _worker["reader"] = SessionReader(reader.path)
+        frame = _worker["reader"].frame(i)
     cloud = _worker["reconstructor"].process(frame.left, frame.right)
     d = cloud.disparity[cloud.valid]
     stats = {"valid_fraction": float(cloud.valid.mean()),
@@ -88,7 +99,8 @@ def _results(source: str | ImagePairs, calibration: Calibration, params: SgbmPar
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker, initargs=(*init_args, 1, True))
     try:
-        yield from pool.map(_process_frame, range(n_frames), chunksize=2)
+        with stop_workers_on_signals():
+            yield from pool.map(_process_frame, range(n_frames), chunksize=2)
     finally:  # on Ctrl-C or an error, drop the frames not started yet
         pool.shutdown(wait=True, cancel_futures=True)
 
@@ -103,7 +115,7 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
     marks the clouds of a session that was still being recorded."""
     params = params_for(calibration, params, settings)
     workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
-    tmp_path = out_path.with_name(out_path.name + ".partial")
+    tmp_path = partial_path(out_path)
     writer = CloudWriter(tmp_path, {
         "session_path": str(Path(source if isinstance(source, str) else source.lefts[0]).resolve()),
         "session_fingerprint": fingerprint, "source_kind": kind, "verify": verify,
@@ -124,8 +136,7 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
         writer.abort()
         tmp_path.unlink(missing_ok=True)
         raise
-    os.replace(tmp_path, out_path)
-    return out_path
+    return commit(tmp_path, out_path)
 
 
 def _check_size(what: str, size: tuple[int, int], calibration: Calibration) -> None:

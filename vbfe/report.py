@@ -7,6 +7,8 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from vbfe.files import write_bytes_atomic
+
 _STYLE = """
 body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; color: #222; }
 table { border-collapse: collapse; margin: 0.8em 0; }
@@ -61,8 +63,7 @@ class HtmlReport:
         """Write the report as HTML and return its path."""
         path = Path(path)
         body = "\n".join(self._parts)
-        path.write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>"
-                        f"{html.escape(self.title)}</title><style>{_STYLE}</style></head><body>"
-                        f"<h1>{html.escape(self.title)}</h1>\n{body}\n</body></html>",
-                        encoding="utf-8")
-        return path
+        return write_bytes_atomic(
+            path, f"<!doctype html><html><head><meta charset='utf-8'><title>"
+            f"{html.escape(self.title)}</title><style>{_STYLE}</style></head><body>"
+            f"<h1>{html.escape(self.title)}</h1>\n{body}\n</body></html>")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import os
 import types
 import typing
@@ -116,6 +117,8 @@ def _check(table: str, key: str, value: Any, hint: Any, limits: Mapping[str, flo
         value = _coerce(value, hint)
     except _Mismatch:
         raise ConfigError(f"[{table}] {key} = {value!r} is not {_describe(hint)}") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"[{table}] {key} = {value!r} is not a finite number")
     for name, bound in limits.items():
         ok = {"gt": lambda v: v > bound, "ge": lambda v: v >= bound,
               "lt": lambda v: v < bound, "le": lambda v: v <= bound}[name]

@@ -21,6 +21,7 @@ import cv2
 import h5py
 import numpy as np
 
+from vbfe.files import is_hdf5
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at
@@ -80,6 +81,23 @@ def consistent_rows(group: h5py.Group) -> int:
     return first + int(unset[0]) if len(unset) else n
 
 
+OPEN_ATTEMPTS = 5  # a recorder finalizing the file changes its metadata for a moment
+OPEN_RETRY_S = 0.2
+
+
+def _open_retrying(path: Path, mode: str) -> h5py.File:
+    """``h5py.File(path, mode)`` without HDF5's file lock, tried again for about a second while
+    it fails for another reason than a write flag (a writer finalizing the file meanwhile)."""
+    for _ in range(OPEN_ATTEMPTS - 1 if is_hdf5(path) else 0):
+        try:
+            return h5py.File(path, mode, locking=False)
+        except OSError as exc:
+            if "already open for write" in str(exc) or "open for read-only" in str(exc):
+                raise
+        time.sleep(OPEN_RETRY_S)
+    return h5py.File(path, mode, locking=False)
+
+
 def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, bool]:
     """Open a session's HDF5 file; returns ``(file, closed_cleanly)``.
 
@@ -96,7 +114,7 @@ def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, boo
         raise SessionError(f"{path} is truncated: {actual} bytes of the {declared} its header "
                            "declares (copied or written only in part); nothing can be read")
     try:
-        return h5py.File(path, mode, locking=False), True
+        return _open_retrying(path, mode), True
     except OSError as exc:
         if "already open for write" not in str(exc) and "open for read-only" not in str(exc):
             raise SessionError(f"{path} is not a readable HDF5 file (truncated or corrupt?): "
@@ -116,6 +134,10 @@ def read_failure_reason(exc: BaseException) -> str:
     text = str(exc)
     if "Fletcher32" in text or "checksum" in text:
         return "checksum mismatch: the stored bytes changed after writing"
+    if "metadata checksum" in text:
+        return "metadata checksum mismatch: the file's structure changed after writing"
+    if "filter returned failure" in text:
+        return "checksum or decompression failed: the stored bytes changed after writing"
     return text
 
 

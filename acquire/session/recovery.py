@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,7 +11,8 @@ import numpy as np
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.layout import FORMAT_NAME, session_streams
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
-from vbfe.acquire.session.writer import finish_file
+from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
+from vbfe.files import commit, partial_path, require_free_space
 
 
 def _trim(group: h5py.Group, keys: Sequence[str], n: int) -> int:
@@ -59,8 +59,10 @@ def recover_session(path: str | Path, out_path: str | Path,
                            "exist")
     with SessionReader(path):  # a damaged file fails here, naming what is wrong
         pass
+    require_free_space(out_path.parent, Path(path).stat().st_size + RESERVE_BYTES,
+                       f"the recovered copy {out_path}")
     src, _ = open_session_file(path)
-    tmp = out_path.with_name(f".{out_path.name}.partial")
+    tmp = partial_path(out_path)
     try:
         with src, h5py.File(tmp, "w", libver="latest") as dst:
             if src.attrs.get("format") != FORMAT_NAME:
@@ -79,5 +81,4 @@ def recover_session(path: str | Path, out_path: str | Path,
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    os.replace(tmp, out_path)
-    return out_path, dropped
+    return commit(tmp, out_path), dropped

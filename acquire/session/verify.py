@@ -29,7 +29,8 @@ class Damage:
         """One line naming what is damaged."""
         what = (f"frame{'s' if len(self.frames) > 1 else ''} "
                 f"{', '.join(map(str, self.frames))}" if self.frames
-                else f"rows {self.first_row}-{self.last_row}")
+                else f"rows {self.first_row}-{self.last_row}" if self.first_row >= 0
+                else "structure (HDF5 metadata)")
         return f"damaged   {self.dataset}: {what} ({self.reason})"
 
 
@@ -54,10 +55,23 @@ def verify_session(path: str | Path) -> tuple[int, list[Damage]]:
     """Read every chunk of every dataset; returns ``(chunks read, damaged chunks)``."""
     f, _ = open_session_file(path)
     datasets: list[h5py.Dataset] = []
+    damage: list[Damage] = []
+
+    def visit(name: str) -> None:
+        try:
+            obj = f[name]
+        except (KeyError, OSError, RuntimeError) as exc:
+            damage.append(Damage(name, -1, -1, (), read_failure_reason(exc)))
+            return
+        if isinstance(obj, h5py.Dataset):
+            datasets.append(obj)
+
     with f:
-        f.visititems(lambda _, obj: datasets.append(obj)
-                     if isinstance(obj, h5py.Dataset) else None)
-        damage, chunks = [], 0
+        try:
+            f.visit(visit)
+        except (KeyError, OSError, RuntimeError) as exc:  # a group's own metadata
+            damage.append(Damage("/", -1, -1, (), read_failure_reason(exc)))
+        chunks = 0
         for ds in datasets:
             if ds.chunks is None or ds.size == 0:
                 continue

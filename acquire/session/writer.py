@@ -35,9 +35,10 @@ from vbfe.acquire.session.layout import (COMPRESSIONS, EXTRA_STREAMS_ATTR, FORMA
                                          image_filter, session_streams)
 from vbfe.acquire.session.reader import consistent_rows
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.files import WriterLock
 
 _JPEG_CHUNK = 1 << 20
-_RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
+RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
 # no chunk cache for images: a frame is compressed and written as it is appended, so a flush
 # has only metadata and the small time series left to write
 _IMAGE_CACHE = {"rdcc_nbytes": 0, "rdcc_w0": 1.0}
@@ -52,7 +53,7 @@ def _reserve_space(directory: Path) -> int | None:
         return None
     os.unlink(name)
     with contextlib.suppress(OSError):
-        os.posix_fallocate(fd, 0, min(_RESERVE_BYTES, shutil.disk_usage(directory).free // 8))
+        os.posix_fallocate(fd, 0, min(RESERVE_BYTES, shutil.disk_usage(directory).free // 8))
     return fd
 
 
@@ -101,6 +102,7 @@ class SessionWriter:
             raise SessionError(f"stream names for {path} must be unique and not a session "
                                f"dataset's: {[spec.name for spec in specs]}")
         metadata = dict(metadata or {})
+        self._lock = WriterLock(self.path).acquire()  # before the old file is truncated
         self._reserve = _reserve_space(self.path.parent)
         try:
             self._file = h5py.File(self.path, "w", libver="latest")
@@ -231,9 +233,11 @@ class SessionWriter:
         return self.flushed_counts
 
     def _release_reserve(self) -> None:
+        """Free the reserved space and the writer lock (the file is closed or given up)."""
         if self._reserve is not None:
             os.close(self._reserve)
             self._reserve = None
+        self._lock.release()
 
     def abort(self) -> bool:
         """Close after a write failure (full disk, I/O error): release the reserved space so
@@ -264,12 +268,13 @@ def finalize_session(path: str | Path, attrs: dict[str, Any],
 
     The file is reopened without HDF5's file lock (``locking=False``): a reader that has the
     session open holds a shared lock that would otherwise make this fail."""
-    try:
-        f = h5py.File(path, "r+", locking=False)
-    except OSError as exc:
-        raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
-    with f:
-        finish_file(f, attrs, truth)
+    with WriterLock(path):
+        try:
+            f = h5py.File(path, "r+", locking=False)
+        except OSError as exc:
+            raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
+        with f:
+            finish_file(f, attrs, truth)
 
 
 def finish_file(f: h5py.File, attrs: dict[str, Any],

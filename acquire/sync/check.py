@@ -27,6 +27,7 @@ from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.files import save_figure
 from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
@@ -183,8 +184,10 @@ def _plot(path: Path, report: SyncReport) -> None:
     ax.set_title(f"{report.path.name}: {report.verdict}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=100)
+    finally:
+        plt.close(fig)
 
 
 def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEstimate:

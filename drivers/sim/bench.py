@@ -35,6 +35,8 @@ _STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport",
             "texture", "board", "taps", "projector")
 
 
+MAX_PIXELS = 8192 * 8192  # per camera image: larger is a typo, not a camera
+
 class SimBench:
     """A simulated rig: stereo endoscope, projector, trocar and a hose pulled once.
 
@@ -85,8 +87,9 @@ class SimBench:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
         if fps <= 0 or trocar_rate_hz <= 0:
             raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
-        if width <= 0 or height <= 0:
-            raise DeviceError(f"[bench] width and height must be positive, got {width}x{height}")
+        if width <= 0 or height <= 0 or width * height > MAX_PIXELS:
+            raise DeviceError(f"[bench] width x height = {width}x{height}: give positive sizes "
+                              f"of at most {MAX_PIXELS // 10**6} megapixels")
         if protocol not in PROTOCOLS:
             raise DeviceError(f"[bench] protocol must be one of {PROTOCOLS}, got {protocol!r}")
         if not 0 <= exposure_ms <= 1e3 / fps or projector_latency_ms < 0 or line_time_us < 0:
@@ -102,6 +105,18 @@ class SimBench:
                               "(image_latency_ms/image_jitter_ms, force_latency_ms/force_jitter_ms)")
         self._params = {name: value for name, value in locals().items()
                         if name not in ("self", "rig")}
+        for key, value in {"stiffness_n_per_m": stiffness_n_per_m,
+                           "pull_speed_m_per_s": pull_speed_m_per_s,
+                           "target_force_n": target_force_n, "tap_force_n": tap_force_n,
+                           "sync_duration_s": sync_duration_s, "baseline_m": baseline_m,
+                           "working_distance_m": working_distance_m}.items():
+            if not value > 0:
+                raise DeviceError(f"[bench] {key} = {value} must be positive")
+        for key, value in {"rest_s": rest_s, "hold_s": hold_s, "noise_sigma": noise_sigma,
+                           "force_noise_n": force_noise_n, "ambient": ambient,
+                           "force_resolution_n": force_resolution_n}.items():
+            if value < 0:
+                raise DeviceError(f"[bench] {key} = {value} must not be negative")
         self.rig = rig if rig is not None else default_rig(width, height, baseline_m,
                                                            working_distance_m, distortion)
         self._params.update(width=self.rig.left.width, height=self.rig.left.height)

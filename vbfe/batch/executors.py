@@ -9,13 +9,16 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import re
 import signal
+import socket
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from vbfe.batch.errors import BatchError
 from vbfe.errors import VbfeError
+from vbfe.signals import die_with_parent, raise_for
 
 EXECUTORS = ("local", "ray")
 
@@ -43,6 +46,8 @@ def _call(fn: Callable[[str], Any], item: str) -> tuple[bool, Any]:
 def _child(fn: Callable[[str], Any], item: str,
            conn: multiprocessing.connection.Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    signal.signal(signal.SIGTERM, lambda signum, frame: raise_for(signum))  # cleanups run
+    die_with_parent()
     conn.send(_call(fn, item))
     conn.close()
 
@@ -86,9 +91,23 @@ def run_local(fn: Callable[[str], Any], items: Sequence[str],
             process.join()
 
 
+def _check_reachable(address: str | None, timeout_s: float = 3.0) -> None:
+    """Refuse at once a ``HOST:PORT`` (or ``ray://HOST:PORT``) nobody answers on; Ray itself
+    retries for about 20 s and prints its C++ log meanwhile."""
+    match = re.fullmatch(r"(?:ray://)?\[?([^\]]+?)\]?:(\d+)", address or "")
+    if match is None:
+        return
+    try:
+        socket.create_connection((match[1], int(match[2])), timeout=timeout_s).close()
+    except OSError as exc:
+        raise BatchError(f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); "
+                         "start it with 'ray start --head' or check --ray-address") from None
+
+
 def run_ray(fn: Callable[[str], Any], items: Sequence[str], address: str | None = None,
             num_cpus: int | None = None) -> Iterator[TaskOutcome]:
     """Tasks on a Ray cluster at ``address`` (``None``: a local Ray with ``num_cpus``)."""
+    _check_reachable(address)
     try:
         import ray
     except ImportError:

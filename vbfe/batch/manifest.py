@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
-import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.batch.errors import BatchError
+from vbfe.files import atomic_path
 from vbfe.recon.freshness import clouds_status, text_hash
 from vbfe.recon.matching import SgbmParams
 
@@ -104,15 +104,12 @@ def scan_dataset(folder: str | Path, sgbm_params: SgbmParams | None = None,
 def write_manifest(path: str | Path, entries: Iterable[SessionEntry]) -> Path:
     """Write the rows as a CSV manifest (to a temporary name, then renamed into place)."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".partial")
     try:
-        with open(tmp, "w", newline="", encoding="utf-8") as f:
+        with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
             writer = csv.DictWriter(f, fieldnames=COLUMNS)
             writer.writeheader()
             writer.writerows(dataclasses.asdict(e) for e in entries)
-        os.replace(tmp, path)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise BatchError(f"cannot write manifest {path}: {exc.strerror or exc}") from None
     return path
 

@@ -13,6 +13,7 @@ from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.check import SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.batch.errors import BatchError
+from vbfe.files import check_outputs
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status
 from vbfe.recon.matching import SgbmParams
@@ -68,6 +69,7 @@ class VerifySyncTask:
         if same_limits and plot.exists() and not (self.apply or self.overwrite):
             return {"action": "up to date", "verdict": str(stored["sync_verdict"]).upper(),
                     "offset_ms": 1e3 * float(stored["sync_offset_s"])}
+        check_outputs([plot], [session], self.overwrite or same_limits)  # ours when same limits
         report = verify_sync(session, limits, plot_path=plot, store=True,
                              apply_correction=self.apply,
                              settings=ProtocolSettings(**self.settings))

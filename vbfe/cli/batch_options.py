@@ -48,6 +48,10 @@ def run_batch(task: Callable[[str], Any], sessions: Sequence[Path], executor: st
     missing = [str(s) for s in sessions if not Path(s).is_file()]
     if missing:
         raise BatchError(f"session file(s) not found: {', '.join(missing)}")
+    unique: dict[Path, Path] = {}  # a session listed twice is done once
+    for session in sessions:
+        unique.setdefault(Path(session).resolve(), session)
+    sessions = list(unique.values())
     outcomes = []
     with progress(total=len(sessions), desc=desc, unit="session") as bar:
         for outcome in run_tasks(task, [str(s) for s in sessions], executor,

@@ -14,10 +14,10 @@ from vbfe.calib.board import TARGETS
 from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.export import FORMATS
+from vbfe.calib.export import FORMATS, export_names
 from vbfe.calib.report import summary_rows
 from vbfe.calib.views import NAMING_RULES
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
@@ -87,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = actions.add_parser("capture", help="keep views of the board at new poses (PNG pairs)")
     p.add_argument("folder", help="folder for view_NNN_left.png / view_NNN_right.png")
-    p.add_argument("--max-frames", type=int, default=200, help="stop after this many frames")
+    p.add_argument("--max-frames", type=positive(int), default=200, help="stop after this many frames")
     p.add_argument("--headless", action="store_true",
                    help="no preview window (corners and coverage): print coverage bars as text")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
@@ -99,7 +99,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                            help="show the Gray-code sequence at board poses, keep the camera's "
                            "images (pose_NNN/ folders for 'projector')")
     p.add_argument("out", help="folder for pose_NNN/ (new poses go after those already there)")
-    p.add_argument("--poses", type=int, default=8, help="board poses to capture (default 8)")
+    p.add_argument("--poses", type=positive(int), default=8, help="board poses to capture (default 8)")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
     add_config_option(p)
     p.set_defaults(func=run_projector_capture)
@@ -115,6 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="take this eye of stereo views (" + NAMING_RULES + ")")
     _solve_options(p)
     _board_options(p)
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_camera)
 
@@ -129,7 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
     p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
                    help="fix the intrinsics to these 'calibrate camera' files")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
+    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
                    help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
                    "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
@@ -148,13 +149,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ros: <stem>_left.yaml + <stem>_right.yaml camera_info; kalibr: "
                    "<stem>-camchain.yaml; opencv: intrinsics.yml + extrinsics.yml")
     p.add_argument("--out-dir", help="folder to write into (default: next to the calibration)")
+    add_overwrite_option(p)
     p.set_defaults(func=run_export)
 
     p = actions.add_parser("projector", help="calibrate the projector (Gray code on the board)")
     p.add_argument("captures", help="folder of pose_NNN/ Gray-code captures")
     p.add_argument("--calibration", required=True, help="stereo calibration YAML (or session)")
-    p.add_argument("-o", "--out", help="YAML to write (default: update --calibration)")
-    p.add_argument("--simulate", type=int, default=0, metavar="N",
+    p.add_argument("-o", "--out", help="YAML to write (default: update --calibration, which "
+                   "needs --overwrite)")
+    p.add_argument("--simulate", type=positive(int, zero=True), default=0, metavar="N",
                    help="first capture N poses into CAPTURES with the rig's camera and projector "
                    "(as projector-capture; rendered on the simulated bench)")
     p.add_argument("--seed", type=int, default=None)
@@ -167,9 +170,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("stored", help="stored calibration YAML (or session)")
     p.add_argument("--against", help="a new calibration YAML to compare with")
     p.add_argument("--views", help="folder of fresh view pairs (or a session)")
-    p.add_argument("--max-depth-error-mm", type=float, default=None,
+    p.add_argument("--max-depth-error-mm", type=positive(float), default=None,
                    help="limit at the working distance (default: [calib] table)")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
+    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
                    help="NO-GO for a baseline far from this (default: [calib] table)")
     _board_options(p)
     add_config_option(p)
@@ -177,10 +180,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = actions.add_parser("color", help="fit the colour crosstalk model (flat projections)")
     p.add_argument("calibration", help="calibration YAML to add color_mixing/color_offset to")
-    p.add_argument("-o", "--out", default=None, help="write here instead of in place")
-    p.add_argument("--frames", type=int, default=3, help="frames averaged per projection")
+    p.add_argument("-o", "--out", default=None, help="write here instead of in place (in place "
+                   "needs --overwrite)")
+    p.add_argument("--frames", type=positive(int), default=3, help="frames averaged per projection")
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_color)
+
+
+def _check_update(args: argparse.Namespace, inputs: list[str]) -> None:
+    """A command that adds to a calibration: ``-o`` is a new file (never an input); without it
+    the calibration YAML is updated in place, which replaces it (``--overwrite``)."""
+    if args.out is None:
+        check_outputs([args.calibration], inputs, args.overwrite)
+    else:
+        check_outputs([args.out], [*inputs, args.calibration], args.overwrite)
 
 
 def run_board(args: argparse.Namespace) -> int:
@@ -210,6 +224,7 @@ def run_capture(args: argparse.Namespace) -> int:
                           f"{coverage_text(collector.coverage(), len(collector.pairs))}")
 
         try:
+            check_outputs([], directories=[args.folder], overwrite=True)  # adds new views only
             config, board = _config_and_board(args)
             result = commands.capture(config, args.folder, args.max_frames, args.seed, on_view,
                                       **board)
@@ -234,6 +249,7 @@ def _print_solve_notes(dropped: dict[str, str], n_rejected: int, weak: str | Non
 
 def run_camera(args: argparse.Namespace) -> int:
     """Calibrate one camera and print intrinsics, σ and what was left out."""
+    check_outputs([args.out], [args.source], args.overwrite)
     config, board = _config_and_board(args)
     with progress(desc="detecting corners", unit="image") as bar:
         result = commands.camera(config, args.source, args.out, args.eye,
@@ -254,7 +270,8 @@ def run_camera(args: argparse.Namespace) -> int:
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
-    check_outputs([args.out], [args.source, args.store_in], args.overwrite)
+    check_outputs([args.out], [args.source, args.store_in, *(args.intrinsics or ())],
+                  args.overwrite)
     config, board = _config_and_board(args)
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     with progress(desc="detecting corners", unit="view") as bar:
@@ -278,6 +295,10 @@ def run_stereo(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     """Write the calibration in another tool's format."""
+    folder = Path(args.out_dir or Path(args.calibration).parent)
+    check_outputs([folder / name for name in export_names(args.fmt, Path(args.calibration).stem)]
+                  if folder.is_dir() else [], [args.calibration], args.overwrite,
+                  directories=[] if folder.is_dir() else [folder])
     for path in commands.export(args.calibration, args.fmt, args.out_dir):
         print(f"wrote {path}")
     return 0
@@ -285,6 +306,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_projector_capture(args: argparse.Namespace) -> int:
     """Capture Gray-code poses, saying what the capture waits for."""
+    check_outputs([], directories=[args.out], overwrite=True)  # adds poses after those there
     with progress(total=args.poses, desc="poses", unit="pose") as bar:
         def on_event(message: str) -> None:
             bar.write(message)
@@ -300,7 +322,7 @@ def run_projector_capture(args: argparse.Namespace) -> int:
 
 def run_projector(args: argparse.Namespace) -> int:
     """Calibrate the projector and print its intrinsics (without -o: update --calibration)."""
-    check_outputs([args.out], [args.captures, args.calibration], args.overwrite)
+    _check_update(args, [args.captures])
     with progress(total=1, desc="projector calibration") as bar:
         config, board = _config_and_board(args)
         calibration = commands.projector(config, args.captures, args.calibration,
@@ -333,6 +355,7 @@ def run_color(args: argparse.Namespace) -> int:
 
     from vbfe.calib.options import calib_settings
 
+    _check_update(args, [])
     calibration = load_calibration(args.calibration)
     config = config_from(args)
     settle_s = calib_settings(section(config, "calib")).projector_settle_s

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from tqdm import tqdm
@@ -15,6 +17,23 @@ def add_config_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--config rig.toml`` (defaults run the simulated bench)."""
     parser.add_argument("--config", metavar="RIG.toml", default=None,
                         help="rig configuration (default: the simulated bench)")
+
+
+def positive(kind: type = float, zero: bool = False) -> Callable[[str], Any]:
+    """An argparse type: a finite number of type ``kind`` above 0 (from 0 with ``zero``)."""
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not math.isfinite(value) or value < 0 or (value == 0 and not zero):
+            raise argparse.ArgumentTypeError(f"must be {'0 or more' if zero else 'positive'}, "
+                                             f"got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
 
 
 def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
 SHOWN = (("path", 28), ("status", 10), ("condition", 44), ("operator", 8), ("date_utc", 19),
@@ -24,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("folder", metavar="DIR")
     parser.add_argument("--manifest", metavar="FILE.csv", default=None,
                         help="write the rows to this CSV (paths relative to its folder)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing manifest")
+    add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -44,10 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if manifest is not None:
         if manifest.suffix != ".csv":
             raise BatchError(f"manifest {manifest} must end in .csv")
-        if manifest.exists() and not args.overwrite:
-            raise BatchError(f"manifest {manifest} exists; pass --overwrite to replace it")
-        if not manifest.parent.is_dir():
-            raise BatchError(f"folder {manifest.parent} of the manifest does not exist")
+        check_outputs([manifest], [], args.overwrite)
     params = SgbmParams.from_config(section(config_from(args), "sgbm"))
     entries = scan_dataset(args.folder, params,
                            relative_to=manifest.parent if manifest else args.folder)

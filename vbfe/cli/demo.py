@@ -6,6 +6,7 @@ import argparse
 from collections.abc import Callable
 
 from vbfe.cli.common import progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", default="vbfe-demo", help="report folder (default: vbfe-demo)")
     parser.add_argument("--quick", action="store_true",
                         help="small images, fewer trials and epochs (about two minutes)")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -26,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.demo import run_demo
     from vbfe.demo_report import checks
 
+    check_outputs([], directories=[args.out], overwrite=args.overwrite)
     bars = []
 
     def stage(name: str, total: int) -> Callable[[int], None]:

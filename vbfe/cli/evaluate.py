@@ -32,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _run_live(args: argparse.Namespace) -> int:
     from vbfe.estimate.live_score import score_live_stream
 
+    check_outputs([], [args.live], args.overwrite, directories=[args.out])
     score = score_live_stream(args.live, args.out)
     e = score["error"]
     print(f"live estimates of {args.live}: MAE {e['mae_n']:.3f} N (σ {e['sd_abs_error_n']:.3f}), "

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vbfe.cli.common import positive
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `import` subcommand."""
@@ -29,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     key.add_argument("--frame-column", help="CSV column of frame indices (0 = first file)")
     parser.add_argument("--time-unit", default="s", help="s (default), ms, us or ns, for the "
                         "force and frame times")
-    parser.add_argument("--fps", type=float, help="frame i is at i / FPS seconds")
+    parser.add_argument("--fps", type=positive(float), help="frame i is at i / FPS seconds")
     parser.add_argument("--frame-times", type=Path, metavar="CSV",
                         help="CSV with one time per frame file (same clock as the forces)")
     parser.add_argument("--frame-time-column", help="column of --frame-times")
@@ -37,11 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     depth = parser.add_argument_group("depth images")
     for name in ("fx", "fy", "cx", "cy"):
         depth.add_argument(f"--{name}", type=float, help="intrinsics, pixels")
-    depth.add_argument("--depth-scale", type=float, metavar="M_PER_UNIT",
+    depth.add_argument("--depth-scale", type=positive(float), metavar="M_PER_UNIT",
                        help="metres per depth unit (e.g. 0.001 for millimetres)")
     depth.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                        help="pixel region of interest (X1, Y1 exclusive)")
-    depth.add_argument("--pixel-step", type=int, default=1, help="use every k-th pixel")
+    depth.add_argument("--pixel-step", type=positive(int), default=1, help="use every k-th pixel")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -50,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.estimate.errors import EstimateError
     from vbfe.estimate.importing import DepthCamera, ForceTable, import_frames
 
+    check_outputs([args.out], [args.frames, args.forces, args.frame_times], args.overwrite,
+                  writes="hdf5")
     camera = None
     if args.kind == "depth":
         needed = {"--fx": args.fx, "--fy": args.fy, "--cx": args.cx, "--cy": args.cy,

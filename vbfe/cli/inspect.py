@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from vbfe.acquire import recover_session
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.acquire.session.verify import verify_session
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
+QUICK_VERIFY_BYTES = 256 << 20  # sessions up to this size are checksummed by every inspect
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--recover", metavar="OUT.h5", default=None,
                         help="copy an interrupted session into a clean, finalized file")
     parser.add_argument("--verify", action="store_true",
-                        help="read every chunk and report those whose checksum fails")
+                        help="read every chunk and report those whose checksum fails (done "
+                        f"anyway for sessions up to {QUICK_VERIFY_BYTES >> 20} MB)")
     add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
@@ -30,14 +34,14 @@ def run(args: argparse.Namespace) -> int:
     if is_cloud_file(args.session):
         return _inspect_clouds(args.session)
     if args.recover:
-        check_outputs([args.recover], [args.session], args.overwrite)
+        check_outputs([args.recover], [args.session], args.overwrite, writes="session")
         _, dropped = recover_session(args.session, args.recover, overwrite=args.overwrite)
         lost = ", ".join(f"{n} {stream}" for stream, n in dropped.items() if n) or "none"
         print(f"recovered {args.session} into {args.recover}; rows dropped for inconsistent "
               f"timestamps: {lost}")
         args.session = args.recover
     damaged = False
-    if args.verify:
+    if args.verify or Path(args.session).stat().st_size <= QUICK_VERIFY_BYTES:
         chunks, damage = verify_session(args.session)
         for item in damage:
             print(item.text())

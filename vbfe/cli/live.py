@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.outputs import check_outputs
 from vbfe.config import section
 
 DEVICES = ("auto", "cpu", "cuda")
@@ -24,10 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="calibration of this camera mode (or a session that stores one)")
     parser.add_argument("--record", metavar="SESSION.h5", default=None,
                         help="also record the session, with the estimate stream")
-    parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
+    parser.add_argument("--duration", type=positive(float), default=None, metavar="SECONDS",
                         help="stop after this long (default: until closed or Ctrl-C)")
     parser.add_argument("--headless", action="store_true", help="status lines instead of a window")
-    parser.add_argument("--scale", type=float, default=None,
+    parser.add_argument("--scale", type=positive(float), default=None,
                         help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip the De Bruijn verification (faster, bare SGBM)")
@@ -45,10 +46,12 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.live.run import live_estimator, live_run, run_headless
     from vbfe.live.settings import live_settings
 
+    check_outputs([args.record], [args.model, args.calib], writes="session")  # a new file
     config = config_from(args)
     settings = live_settings(section(config, "live"))
-    if args.duration is not None and args.duration <= 0:
-        raise LiveError(f"--duration must be positive, got {args.duration}")
+    if args.scale is not None and args.scale > 1:
+        raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
+                        "(0, 1], e.g. 0.5")
     calibration = load_calibration(args.calib)
     estimator = live_estimator(config, settings, load_model(args.model), calibration,
                                args.scale, not args.no_verify, args.device)

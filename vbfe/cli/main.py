@@ -12,6 +12,8 @@ from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, import_data, 
                       reconstruct, record, train, verify_sync, view)
 from vbfe.config import ConfigError
 from vbfe.errors import VbfeError
+from vbfe.files import os_error_text
+from vbfe.signals import Terminated, sigterm_as_interrupt
 
 COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, dataset, reconstruct,
             import_data, train, evaluate, live, demo)
@@ -30,18 +32,31 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
+    """Entry point of the console script; returns the process exit code (2: bad input or a
+    file that cannot be read or written; 130: Ctrl-C; 143: SIGTERM)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with sigterm_as_interrupt():
+            return int(args.func(args) or 0)
     except VbfeError as exc:
         message = str(exc)
         config = getattr(args, "config", None)
         if isinstance(exc, ConfigError) and config and config not in message:
             message += f" (rig config {config})"
+        message = " ".join(line.strip() for line in message.splitlines())  # one line
         print(f"vbfe {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"vbfe {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"vbfe {args.command}: error: not enough memory; use smaller inputs or settings",
+              file=sys.stderr)
+        return 2
+    except Terminated:
+        print(f"vbfe {args.command}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"vbfe {args.command}: interrupted", file=sys.stderr)
         return 130

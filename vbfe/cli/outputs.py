@@ -1,64 +1,57 @@
-"""The one check every command runs on its outputs before doing any work.
+"""The one check every command runs on its outputs before doing any work (see vbfe.files).
 
-An output never replaces an existing file unless the user passed ``--overwrite``, and never
-replaces one of the command's own inputs, even with ``--overwrite``. Commands then write each
-output under a temporary name and rename it when complete.
+The inputs a command names are expanded to everything it reads: the sessions a manifest lists
+and the ``X.clouds.h5`` sidecar of every session, so none of them can be an output.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from vbfe.errors import VbfeError
+from vbfe.files import OutputError, Writes
+from vbfe.files import check_outputs as _check
 
-
-class OutputError(VbfeError):
-    """An output path would overwrite data, or cannot be written."""
+__all__ = ["OutputError", "add_overwrite_option", "check_outputs", "command_inputs"]
 
 
 def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--overwrite`` (replace existing output files)."""
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing output files (never the command's own inputs)")
+                        help="replace existing output files (never the command's own inputs, "
+                        "never a session by another kind of file)")
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    if a.exists() and b.exists():
-        return os.path.samefile(a, b)
-    return a.resolve() == b.resolve()
+def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -> list[Path]:
+    """Every file the inputs stand for: themselves, the sessions of manifests (``*.csv`` with a
+    ``path`` column) and
+    (with ``sidecars``) the clouds sidecar of every session."""
+    from vbfe.batch.errors import BatchError
+    from vbfe.batch.manifest import MANIFEST_SUFFIX, read_manifest
+    from vbfe.recon.clouds import sidecar_path
+
+    out: list[Path] = []
+    for item in (Path(p) for p in inputs if p is not None):
+        out.append(item)
+        listed: list[Path] = []
+        if item.suffix == MANIFEST_SUFFIX and item.is_file():
+            try:
+                listed = read_manifest(item)
+            except BatchError:  # another kind of CSV (forces, frame times)
+                pass
+        for path in (item, *listed):
+            if path is not item:
+                out.append(path)
+            if sidecars and path.suffix.lower() in (".h5", ".hdf5") \
+                    and not path.name.endswith(".clouds.h5"):
+                out.append(sidecar_path(path))
+    return out
 
 
 def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
-                  overwrite: bool = False, directories: Iterable[str | Path | None] = ()) -> None:
-    """Refuse, naming the path, an output that is an input, or that exists without
-    ``overwrite``, a folder given for a file or a file for a folder, or a file whose folder is
-    missing. ``directories`` are output folders: they may exist when empty (or with
-    ``overwrite``) and are created by the command."""
-    sources = [Path(p) for p in inputs if p is not None]
-    for path, is_dir in [(Path(p), False) for p in outputs if p is not None] + \
-                        [(Path(p), True) for p in directories if p is not None]:
-        for source in sources:
-            if _same_file(path, source):
-                raise OutputError(f"output {path} is also an input of this command ({source}); "
-                                  "choose another output name")
-        if is_dir:
-            if path.exists() and not path.is_dir():
-                raise OutputError(f"output folder {path} is a file; choose another folder")
-            parent = next((p for p in path.parents if p.exists()), Path("."))
-            if not parent.is_dir():
-                raise OutputError(f"output folder {path}: {parent} is a file, not a folder")
-            if path.is_dir() and any(path.iterdir()) and not overwrite:
-                raise OutputError(f"output folder {path} is not empty; pass --overwrite to write "
-                                  "into it anyway or choose a new folder")
-            continue
-        if path.is_dir():
-            raise OutputError(f"output {path} is a folder; give a file name")
-        if not path.parent.is_dir():
-            raise OutputError(f"output {path}: folder {path.parent} does not exist; create it "
-                              "first")
-        if path.exists() and not overwrite:
-            raise OutputError(f"{path} already exists; pass --overwrite to replace it or choose a "
-                              "new name")
+                  overwrite: bool = False, directories: Iterable[str | Path | None] = (),
+                  writes: Writes = "file", sidecars: bool = True) -> None:
+    """:func:`vbfe.files.check_outputs` against everything the inputs stand for (without the
+    sessions' sidecars when ``sidecars`` is false: a command that writes them)."""
+    _check(outputs, command_inputs(inputs, sidecars), overwrite, directories, writes)

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                 "doffs; default 0)")
     parser.add_argument("--out", metavar="CLOUDS.h5", default=None,
                         help="output file of one input (default: next to it, .clouds.h5)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=positive(int), default=None,
                         help="parallel processes: frames of one input, or sessions of many "
                         "(default: one per CPU core)")
     parser.add_argument("--no-verify", action="store_true",
@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
 
         source = args.inputs[0]
         check_outputs([args.out or sidecar_path(source)], [source, args.calib],
-                      args.overwrite, directories=[args.ply_dir, args.maps_dir])
+                      args.overwrite, directories=[args.ply_dir, args.maps_dir], writes="hdf5",
+                      sidecars=False)
         calibration = _calibration(args, None)
         with SessionReader(source) as reader:
             n_frames = reader.n_frames
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         pairs = image_pairs(args.inputs)
         check_outputs([args.out or sidecar_path(pairs.lefts[0])],
                       [*pairs.lefts, *pairs.rights, args.calib], args.overwrite,
-                      directories=[args.ply_dir, args.maps_dir])
+                      directories=[args.ply_dir, args.maps_dir], writes="hdf5", sidecars=False)
         calibration = _calibration(args, pairs.frame_size())
         with progress(total=pairs.n_frames, desc="reconstruct", unit="pair") as bar:
             out = reconstruct_images(pairs, calibration, progress=bar.update, **common)

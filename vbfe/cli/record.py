@@ -70,7 +70,7 @@ def _conditions(pairs: list[str]) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
-    check_outputs([args.output], [args.calib], args.overwrite)
+    check_outputs([args.output], [args.calib], args.overwrite, writes="session")
     calibration, calibration_size = None, None
     if args.calib:
         from vbfe.calib.calibration import Calibration  # checked before anything is recorded

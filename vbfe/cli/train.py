@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from vbfe.cli.common import StageProgress, add_config_option, config_from
+from vbfe.cli.common import StageProgress, add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
+from vbfe.files import require_free_space
+
+MODEL_FREE_BYTES = 64 << 20  # a model file with its baselines and training record, with room
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `train` subcommand."""
@@ -33,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--temporal-frames", type=int, metavar="K",
                         help="also train the temporal model on a causal window of K frames")
     parser.add_argument("--device", metavar="auto|cpu|cuda", help="cpu (default), cuda, or auto")
-    parser.add_argument("--time-limit", type=float, dest="time_limit_s", metavar="SECONDS")
+    parser.add_argument("--time-limit", type=positive(float), dest="time_limit_s", metavar="SECONDS")
     parser.add_argument("--seed", type=int)
     add_overwrite_option(parser)
     add_config_option(parser)
@@ -46,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.estimate import TrainConfig, train, use_threads  # torch loads only when needed
 
     check_outputs([args.out], args.sessions, args.overwrite)
+    require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
     overrides = {key: getattr(args, key) for key in
                  ("epochs", "n_points", "batch_size", "learning_rate", "target", "split",
                   "gap_frames", "val_fraction", "test_fraction", "temporal_frames", "device",

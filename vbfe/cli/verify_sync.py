@@ -8,7 +8,7 @@ from pathlib import Path
 from vbfe.acquire.sync.check import FAIL, PASS, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.common import add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 EXIT_CODES = {PASS: 0, FAIL: 1}  # anything else (INCONCLUSIVE): 3
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                              "the rig config line that applies it to new sessions")
     parser.add_argument("--no-store", action="store_true",
                         help="do not write the results into the session (single session)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=positive(int), default=None,
                         help="sessions checked at once (default: one per CPU core)")
     add_batch_options(parser)
     add_overwrite_option(parser)
@@ -45,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
-        # the default plot is this command's own product and is refreshed on every run
-        check_outputs([plot], [sessions[0]], overwrite=args.overwrite or args.plot is None)
+        check_outputs([plot], [sessions[0]], args.overwrite)
         report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
                              apply_correction=args.apply, settings=settings)
         print(report.text())
