@@ -10,6 +10,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.calib.chessboard import detect_chessboard
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import from_table
 
@@ -157,27 +158,9 @@ class BoardDetector:
         return Detection(ids[order], corners.reshape(-1, 2).astype(np.float64)[order])
 
     def _detect_chessboard(self, grey: np.ndarray) -> Detection:
-        found, corners = cv2.findChessboardCorners(
-            grey, self.spec.inner_corners,
-            flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not found:  # the sector-based detector finds boards the classic one misses
-            found, corners = cv2.findChessboardCornersSB(
-                grey, self.spec.inner_corners,
-                flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
-        if not found:
+        corners = detect_chessboard(grey, self.spec.inner_corners)
+        if corners is None:
             return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
-        corners = corners.reshape(-1, 2).astype(np.float32)
-        nx = self.spec.inner_corners[0]
-        spacing = float(np.min(np.linalg.norm(np.diff(corners.reshape(-1, nx, 2), axis=1),
-                                              axis=2)))
-        half = int(np.clip(0.3 * spacing, 2, 11))  # the window must stay inside one square pair
-        corners = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (half, half), (-1, -1),
-                                   (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
-        corners = corners.reshape(-1, 2).astype(np.float64)
-        # A chessboard reads the same turned by 180°: start at the top-left end in every image,
-        # so both eyes of a view number their corners alike.
-        if (corners[-1] - corners[0]) @ np.array([1.0, 1.0]) < 0:
-            corners = corners[::-1].copy()
         return Detection(np.arange(len(corners), dtype=np.int32), corners)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.camera import (CRITERIA, CameraFit, CameraOptions, calibrate_camera,
                                need_views, outlier_views, points, residuals, solve_flags,
                                weak_note)
@@ -56,6 +57,7 @@ class StereoResult:
     dropped: dict[str, str] = field(default_factory=dict)  # view -> why
     desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
     weak: str | None = None  # why the result is weakly determined, if it is
+    renumbered: list[str] = field(default_factory=list)  # chessboard views whose eyes disagreed
 
 
 def detect_views(views: ViewSet, spec: BoardSpec,
@@ -186,8 +188,18 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     fixed = (None, None) if intrinsics is None else intrinsics
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
-    names, pairs, dropped = [], [], {}
+    names, pairs, dropped, renumbered = [], [], {}, []
     for name, (dl, dr) in zip(view_names, detections):
+        if spec.target == "chessboard" and len(dl) and len(dr):
+            corners, turned, contrast = same_numbering(dl.corners, dr.corners)
+            if not is_clear(contrast):
+                dropped[name] = ("the left and right eyes' chessboard corners cannot be matched "
+                                 f"(both numberings fit, contrast {contrast:.1f}); retake the view "
+                                 "with the board less turned")
+                continue
+            if turned:
+                renumbered.append(name)
+                dr = Detection(dr.ids, corners)
         common = np.intersect1d(dl.ids, dr.ids)
         if len(common) < options.min_corners:
             dropped[name] = (f"too few corners (left {len(dl)}, right {len(dr)}, in both "
@@ -252,9 +264,11 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     weak = weak_note(len(names), options)
     calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
                              dropped, desync)
+    calibration.info["renumbered_views"] = renumbered
     if weak:
         calibration.info["weakly_determined"] = weak
-    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak)
+    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak,
+                        renumbered)
 
 
 def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],

@@ -223,11 +223,19 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_solve_notes(dropped: dict[str, str], n_rejected: int, weak: str | None) -> None:
+_NAMED_CORNERS = 8  # rejected corners named one by one; the rest counted
+
+
+def _print_solve_notes(dropped: dict[str, str], rejected: list, weak: str | None) -> None:
+    """Dropped views and rejected corners by name (``rejected``: [view, camera, id, px] rows)."""
     for name, why in dropped.items():
         print(f"  dropped {name}: {why}")
-    if n_rejected:
-        print(f"  rejected {n_rejected} outlier corners (residual above the limit)")
+    for view, camera, corner, px in rejected[:_NAMED_CORNERS]:
+        print(f"  rejected corner {corner} of view {view} ({camera} eye): {px:.2f} px from the "
+              "fit, an outlier")
+    if len(rejected) > _NAMED_CORNERS:
+        print(f"  rejected {len(rejected) - _NAMED_CORNERS} more outlier corners (listed in the "
+              "calibration file)")
     if weak:
         print(f"  {weak}")
 
@@ -248,7 +256,8 @@ def run_camera(args: argparse.Namespace) -> int:
                  ("RMS", f"{model.rms_px:.3f} px over {len(result.names)} views (per view "
                   f"{model.per_view_rms_px.min():.3f} to {model.per_view_rms_px.max():.3f})"),
                  ("uncertainty", uncertainty_text(K, model.std_intrinsics))])
-    _print_solve_notes(result.dropped, len(result.fit.rejected), result.weak)
+    _print_solve_notes(result.dropped, [[r.view, r.camera, r.corner_id, r.residual_px]
+                                         for r in result.fit.rejected], result.weak)
     return 0
 
 
@@ -271,7 +280,10 @@ def run_stereo(args: argparse.Namespace) -> int:
     for eye, fit in (("left", result.left), ("right", result.right)):
         print(f"  {eye} " + uncertainty_text(fit.K, fit.std_intrinsics)
               + (" (fixed from --intrinsics)" if intrinsics else ""))
-    _print_solve_notes(result.dropped, len(result.calibration.info["rejected_corners"]),
+    if result.renumbered:
+        print(f"  the eyes numbered the chessboard from opposite ends in views "
+              f"{', '.join(result.renumbered)}: the right eye's corners were renumbered to match")
+    _print_solve_notes(result.dropped, result.calibration.info["rejected_corners"],
                        None)  # a weak result is noted in the summary rows
     return 0
 
