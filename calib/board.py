@@ -12,7 +12,7 @@ import numpy as np
 
 from vbfe.calib.chessboard import detect_chessboard
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 
 
 TARGETS = ("charuco", "chessboard")
@@ -24,13 +24,13 @@ class BoardSpec:
     marker side and dictionary. A chessboard of ``squares_x`` × ``squares_y`` squares has
     ``(squares_x - 1)`` × ``(squares_y - 1)`` inner corners, all of which must be seen."""
 
-    squares_x: int = 9
-    squares_y: int = 7
-    square_m: float = 0.003
-    marker_m: float = 0.0022
-    dictionary: str = "DICT_5X5_100"
-    legacy: bool = False  # boards generated before OpenCV 4.6
-    target: str = "charuco"  # or "chessboard"
+    squares_x: int = calib_field("squares_x")
+    squares_y: int = calib_field("squares_y")
+    square_m: float = calib_field("square_mm", 1e-3)
+    marker_m: float = calib_field("marker_mm", 1e-3)
+    dictionary: str = calib_field("dictionary")
+    legacy: bool = calib_field("legacy")  # boards generated before OpenCV 4.6
+    target: str = calib_field("target")  # "charuco" or "chessboard"
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -60,11 +60,13 @@ class BoardSpec:
         """The board of a rig config's ``[calib]`` table (sizes there are in mm; a chessboard
         may be given as ``inner_corners = [9, 6]`` instead of its squares)."""
         table = dict(calib_table)
-        if table.get("inner_corners") is not None:
-            nx, ny = table.pop("inner_corners")
-            table.update(squares_x=int(nx) + 1, squares_y=int(ny) + 1)
-        return from_table(cls, table, keys={"square_m": "square_mm", "marker_m": "marker_mm"},
-                          scales={"square_m": 1e-3, "marker_m": 1e-3})
+        inner = table.pop("inner_corners", None)
+        if inner:
+            if len(inner) != 2:
+                raise CalibrationError(f"[calib] inner_corners = {inner!r}: give [nx, ny], e.g. "
+                                       "[9, 6]")
+            table.update(squares_x=int(inner[0]) + 1, squares_y=int(inner[1]) + 1)
+        return from_table(cls, table)
 
     @property
     def inner_corners(self) -> tuple[int, int]:

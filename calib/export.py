@@ -90,28 +90,33 @@ def _opencv_files(cal: Calibration) -> tuple[str, str]:
     return texts[0], texts[1]
 
 
-def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
-                       stem: str = "calibration") -> list[Path]:
-    """Write ``cal`` in format ``fmt`` into ``out_dir``; returns the files written:
-    ros: ``<stem>_left.yaml``, ``<stem>_right.yaml``; kalibr: ``<stem>-camchain.yaml``;
-    opencv: ``intrinsics.yml``, ``extrinsics.yml``."""
+def export_paths(fmt: str, out_dir: str | Path, stem: str = "calibration") -> list[Path]:
+    """The files :func:`export_calibration` writes: ros: ``<stem>_left.yaml``,
+    ``<stem>_right.yaml``; kalibr: ``<stem>-camchain.yaml``; opencv: ``intrinsics.yml``,
+    ``extrinsics.yml``."""
     if fmt not in FORMATS:
         raise CalibrationError(f"unknown export format {fmt!r}; use one of {', '.join(FORMATS)}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    names = {"ros": [f"{stem}_left.yaml", f"{stem}_right.yaml"],
+             "kalibr": [f"{stem}-camchain.yaml"],
+             "opencv": ["intrinsics.yml", "extrinsics.yml"]}[fmt]
+    return [Path(out_dir) / name for name in names]
+
+
+def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
+                       stem: str = "calibration") -> list[Path]:
+    """Write ``cal`` in format ``fmt`` into ``out_dir`` (files: :func:`export_paths`); returns
+    the files written."""
+    paths = export_paths(fmt, out_dir, stem)
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
     if fmt == "ros":
-        files = {f"{stem}_left.yaml": ros_camera_info("left", cal.image_size, cal.K1, cal.D1,
-                                                      cal.R1, cal.P1),
-                 f"{stem}_right.yaml": ros_camera_info("right", cal.image_size, cal.K2, cal.D2,
-                                                       cal.R2, cal.P2)}
+        texts = [ros_camera_info("left", cal.image_size, cal.K1, cal.D1, cal.R1, cal.P1),
+                 ros_camera_info("right", cal.image_size, cal.K2, cal.D2, cal.R2, cal.P2)]
     elif fmt == "kalibr":
-        files = {f"{stem}-camchain.yaml": kalibr_camchain(cal)}
+        texts = [kalibr_camchain(cal)]
     else:
-        intrinsics, extrinsics = _opencv_files(cal)
-        files = {"intrinsics.yml": intrinsics, "extrinsics.yml": extrinsics}
+        texts = list(_opencv_files(cal))
     written = []
-    for name, text in files.items():
-        path = out_dir / name
+    for path, text in zip(paths, texts):
         try:
             path.write_text(text, encoding="utf-8")
         except OSError as exc:

@@ -21,26 +21,24 @@ from vbfe.calib.camera import (CRITERIA, CameraFit, CameraOptions, calibrate_cam
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.views import ViewSet, check_sizes
 
 
 @dataclass
 class StereoOptions(CameraOptions):
-    """Knobs of :func:`calibrate_stereo` (defaults match the ``[calib]`` table)."""
+    """Knobs of :func:`calibrate_stereo` (defaults: the ``[calib]`` table)."""
 
-    desync_min_px: float = 0.5
-    reject_desync: bool = True
-    rectify_alpha: float = 0.0
-    working_distance_m: float = 0.06
+    desync_min_px: float = calib_field("desync_min_px")
+    reject_desync: bool = calib_field("reject_desync")
+    rectify_alpha: float = calib_field("rectify_alpha")
+    working_distance_m: float = calib_field("working_distance_mm", 1e-3)
     gates: GateLimits = field(default_factory=GateLimits)
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "StereoOptions":
         """Options from a rig config's ``[calib]`` table."""
-        options = from_table(cls, calib_table,
-                             keys={"working_distance_m": "working_distance_mm"},
-                             scales={"working_distance_m": 1e-3})
+        options = from_table(cls, calib_table)
         options.gates = GateLimits.from_config(calib_table)
         return options
 
@@ -238,7 +236,8 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
         if keep.sum() < options.min_views:
             raise CalibrationError(f"{source}: {int(flagged.sum())} views look "
                                    f"desynchronised ({', '.join(desync)}); only {int(keep.sum())} "
-                                   f"left, need {options.min_views}; check the camera's frame sync")
+                                   f"left, need {options.min_views} (--min-views); check the "
+                                   "camera's frame sync")
         for n in desync:
             dropped[n] = "left/right captured at different instants (desynchronised)"
         left, right = _keep_views(left, keep), _keep_views(right, keep)
@@ -257,7 +256,7 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
                               Q=Q, image_size=image_size, rms_left_px=left.rms_px,
                               rms_right_px=right.rms_px, rms_stereo_px=float(rms),
                               per_view_rms_px=per_view_rms)
-    problems = stereo_problems(calibration, options.gates)
+    problems = stereo_problems(calibration, options.gates, names)
     if problems:
         raise CalibrationError(f"{source}: stereo calibration refused, nothing written: "
                                + "; ".join(problems))

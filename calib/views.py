@@ -40,7 +40,7 @@ NAMING_RULES = (
     "image pairs are found by name: <name>_left.png + <name>_right.png (also -left/-right, "
     "_L/_R), left<name>.png + right<name>.png (e.g. left01.jpg + right01.jpg; also L01/R01), "
     "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names, or one "
-    "side-by-side image per view (left half = left eye); or give --left 'GLOB' --right 'GLOB'")
+    "side-by-side image per view (left half = left eye)")
 
 # Each regex names the eye and the view key of a file stem; tried in this order:
 # <name>_left / <name>_right, left<name> / right<name>, <name>_L / <name>_R, L<name> / R<name>

@@ -106,3 +106,46 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
                 for view, eye, corner, px in result.calibration.info["rejected_corners"]}
     assert rejected[("05", "right", 45)] > 2.0
     assert result.renumbered == ["02", "07"]
+
+
+def _vbfe(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.mark.parametrize("flag, value, says", [
+    ("--min-views", "20", "only 13 usable views, need at least 20 (--min-views)"),
+    ("--max-rms-px", "0.1", "is above the limit 0.1 px (--max-rms-px)"),
+    ("--nominal-baseline-mm", "10", "more than 25 % from the rig's nominal 10 mm"),
+])
+def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, flag, value, says):
+    out = tmp_path / "c.yaml"
+    run = _vbfe("calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1",
+                "-o", str(out), "--no-report", flag, value)
+    assert run.returncode == 2 and not out.exists()
+    error = run.stderr.strip().splitlines()[-1]
+    assert error.startswith("vbfe calibrate: error:") and says in error
+
+
+def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_failed(cli_run):
+    _, calibration = cli_run
+    go = _vbfe("calibrate", "check", str(calibration), "--views", str(DATA),
+               "--working-distance-mm", "40")
+    assert go.returncode == 0, go.stderr
+    assert "verdict at 40 mm     GO" in go.stdout
+    no_go = _vbfe("calibrate", "check", str(calibration), "--views", str(DATA),
+                  "--max-epipolar-px", "0.05")
+    verdict = no_go.stdout.strip().splitlines()[-1]
+    assert no_go.returncode == 1
+    assert "NO-GO: epipolar RMS" in verdict and "limit 0.050 px" in verdict
+    assert "depth error" not in verdict  # the depth error passed: it is not cited
+
+
+def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path):
+    _, calibration = cli_run
+    args = ("calibrate", "export", str(calibration), "--format", "opencv", "--out-dir",
+            str(tmp_path))
+    assert _vbfe(*args).returncode == 0
+    again = _vbfe(*args)
+    assert again.returncode == 2 and "--overwrite" in again.stderr
+    assert _vbfe(*args, "--overwrite").returncode == 0

@@ -93,7 +93,7 @@ def test_calibrate_color_fits_the_bench_crosstalk_into_the_calibration(tmp_path)
     config = tmp_path / "rig.toml"
     config.write_text('[bench]\nscene = "plane"\ncrosstalk = 0.3\ndistortion = false\n')
     result = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "color",
-                             str(calibration_path), "--config", str(config)],
+                             str(calibration_path), "--overwrite", "--config", str(config)],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     stored = Calibration.load(calibration_path)

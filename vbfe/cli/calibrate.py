@@ -57,6 +57,56 @@ def _solve_options(parser: argparse.ArgumentParser) -> None:
                         help="solve k1, k2, p1, p2 only (k3 = 0, as Kalibr's radtan model)")
 
 
+def _number(kind: type, minimum: float, strict: bool) -> Any:
+    """An argparse type: a ``kind`` number above (``strict``) or at least ``minimum``."""
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (value > minimum if strict else value >= minimum):
+            raise argparse.ArgumentTypeError(
+                f"{text} must be {'above' if strict else 'at least'} {minimum:g}")
+        return value
+    return parse
+
+
+# the [calib] keys that gate flags set: flag, type, metavar, help
+_GATE_FLAGS = {
+    "min_views": ("--min-views", _number(int, 1, False), "N",
+                  "fewest usable views accepted (default: [calib] min_views)"),
+    "max_rms_px": ("--max-rms-px", _number(float, 0, True), "PX",
+                   "refuse an RMS reprojection error above this (default: [calib] max_rms_px)"),
+    "nominal_baseline_mm": ("--nominal-baseline-mm", _number(float, 0, False), "MM",
+                            "refuse a baseline more than [calib] baseline_tolerance from this "
+                            "(0 = not checked; default: [calib] nominal_baseline_mm)"),
+    "working_distance_mm": ("--working-distance-mm", _number(float, 0, True), "MM",
+                            "distance at which depth uncertainty is stated and checked "
+                            "(default: [calib] working_distance_mm; check: the stored one)"),
+    "check_max_depth_error_mm": ("--max-depth-error-mm", _number(float, 0, True), "MM",
+                                 "NO-GO above this depth error at the working distance "
+                                 "(default: [calib] check_max_depth_error_mm)"),
+    "check_max_epipolar_px": ("--max-epipolar-px", _number(float, 0, True), "PX",
+                              "NO-GO above this epipolar RMS of fresh views "
+                              "(default: [calib] check_max_epipolar_px)"),
+}
+
+
+def _gate_options(parser: argparse.ArgumentParser, *keys: str) -> None:
+    group = parser.add_argument_group("limits (defaults: the [calib] table of the rig config)")
+    for key in keys:
+        flag, kind, metavar, text = _GATE_FLAGS[key]
+        group.add_argument(flag, type=kind, dest=key, metavar=metavar, default=None, help=text)
+
+
+def _settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``[calib]`` values given on the command line (gate flags, --fix-k3)."""
+    given = {key: getattr(args, key, None) for key in _GATE_FLAGS}
+    if getattr(args, "fix_k3", None):
+        given["fix_k3"] = True
+    return {key: value for key, value in given.items() if value is not None}
+
+
 def _config_and_board(args: argparse.Namespace) -> tuple[dict, dict[str, Any]]:
     """The rig config and board overrides, the board checked before any work starts."""
     config, board = config_from(args), _board(args)
@@ -114,12 +164,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eye", choices=("left", "right"),
                    help="take this eye of stereo views (" + NAMING_RULES + ")")
     _solve_options(p)
+    _gate_options(p, "min_views", "max_rms_px")
     _board_options(p)
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_camera)
 
     p = actions.add_parser("stereo", help="calibrate the stereo pair from views",
-                           description="Calibrate the stereo pair; " + NAMING_RULES + ". "
+                           description="Calibrate the stereo pair; " + NAMING_RULES + "; or "
+                           "give --left 'GLOB' --right 'GLOB'. "
                            "A result with an impossible baseline, a rectified principal point "
                            "outside the image, a rectification keeping less than half the image "
                            "or a high RMS is refused and nothing is written.")
@@ -129,14 +182,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
     p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
                    help="fix the intrinsics to these 'calibrate camera' files")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
-                   help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
-                   "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
     p.add_argument("--store-in", metavar="SESSION.h5",
                    help="also store the calibration inside this session")
     _solve_options(p)
+    _gate_options(p, "min_views", "max_rms_px", "nominal_baseline_mm", "working_distance_mm")
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)
@@ -148,6 +199,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ros: <stem>_left.yaml + <stem>_right.yaml camera_info; kalibr: "
                    "<stem>-camchain.yaml; opencv: intrinsics.yml + extrinsics.yml")
     p.add_argument("--out-dir", help="folder to write into (default: next to the calibration)")
+    add_overwrite_option(p)
     p.set_defaults(func=run_export)
 
     p = actions.add_parser("projector", help="calibrate the projector (Gray code on the board)")
@@ -166,19 +218,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = actions.add_parser("check", help="go/no-go of the stored calibration")
     p.add_argument("stored", help="stored calibration YAML (or session)")
     p.add_argument("--against", help="a new calibration YAML to compare with")
-    p.add_argument("--views", help="folder of fresh view pairs (or a session)")
-    p.add_argument("--max-depth-error-mm", type=float, default=None,
-                   help="limit at the working distance (default: [calib] table)")
-    p.add_argument("--nominal-baseline-mm", type=float, default=None, metavar="MM",
-                   help="NO-GO for a baseline far from this (default: [calib] table)")
+    p.add_argument("--views", help="folder of fresh view pairs (or a session); the board is the "
+                   "one stored in the calibration unless board options are given")
+    _gate_options(p, "working_distance_mm", "check_max_depth_error_mm", "check_max_epipolar_px",
+                  "max_rms_px", "nominal_baseline_mm")
     _board_options(p)
     add_config_option(p)
     p.set_defaults(func=run_check)
 
     p = actions.add_parser("color", help="fit the colour crosstalk model (flat projections)")
     p.add_argument("calibration", help="calibration YAML to add color_mixing/color_offset to")
-    p.add_argument("-o", "--out", default=None, help="write here instead of in place")
+    p.add_argument("-o", "--out", default=None,
+                   help="write here (default: update CALIBRATION in place, with --overwrite)")
     p.add_argument("--frames", type=int, default=3, help="frames averaged per projection")
+    add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_color)
 
@@ -242,10 +295,11 @@ def _print_solve_notes(dropped: dict[str, str], rejected: list, weak: str | None
 
 def run_camera(args: argparse.Namespace) -> int:
     """Calibrate one camera and print intrinsics, σ and what was left out."""
+    check_outputs([args.out], [args.source], args.overwrite)
     config, board = _config_and_board(args)
     with progress(desc="detecting corners", unit="image") as bar:
         result = commands.camera(config, args.source, args.out, args.eye,
-                                 step=lambda: bar.update(1), fix_k3=args.fix_k3, **board)
+                                 step=lambda: bar.update(1), settings=_settings(args), **board)
     model = result.model
     K = model.K
     print(f"wrote {args.out}")
@@ -270,9 +324,7 @@ def run_stereo(args: argparse.Namespace) -> int:
         outcome = commands.stereo(config, args.source, args.out, report=not args.no_report,
                                   store_in_session=args.store_in, step=lambda: bar.update(1),
                                   left_glob=args.left_glob, right_glob=args.right_glob,
-                                  intrinsics=intrinsics,
-                                  nominal_baseline_mm=args.nominal_baseline_mm,
-                                  fix_k3=args.fix_k3, **board)
+                                  intrinsics=intrinsics, settings=_settings(args), **board)
     result = outcome.result
     print(f"wrote {outcome.yaml_path}" + (f", report {outcome.report_paths[1]}"
                                           if outcome.report_paths else ""))
@@ -290,6 +342,8 @@ def run_stereo(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     """Write the calibration in another tool's format."""
+    check_outputs(commands.export_targets(args.calibration, args.fmt, args.out_dir),
+                  [args.calibration], args.overwrite)
     for path in commands.export(args.calibration, args.fmt, args.out_dir):
         print(f"wrote {path}")
     return 0
@@ -331,7 +385,7 @@ def run_check(args: argparse.Namespace) -> int:
     with progress(total=1, desc="checking") as bar:
         config, board = _config_and_board(args)
         result = commands.check(config, args.stored, args.against, args.views,
-                                args.max_depth_error_mm, args.nominal_baseline_mm, **board)
+                                settings=_settings(args), **board)
         bar.update(1)
     _print_rows(result.rows())
     return 0 if result.passed else 1
@@ -345,6 +399,9 @@ def run_color(args: argparse.Namespace) -> int:
 
     from vbfe.calib.options import calib_settings
 
+    # without -o the calibration is updated in place, which only --overwrite allows
+    check_outputs([args.out or args.calibration], [args.calibration] if args.out else [],
+                  args.overwrite)
     calibration = load_calibration(args.calibration)
     config = config_from(args)
     settle_s = calib_settings(section(config, "calib")).projector_settle_s
