@@ -133,6 +133,50 @@ class Calibration:
         return float(-self.P2[0, 3] / self.P2[0, 0])
 
     @property
+    def fy(self) -> float:
+        """Vertical focal length of the rectified pair (pixels; ``f`` is the horizontal one)."""
+        return float(self.P1[1, 1])
+
+    @property
+    def doffs(self) -> float:
+        """Right minus left rectified principal point x (px; Middlebury's ``doffs``): a point at
+        depth ``z`` has disparity ``d = f·B/z - doffs``; 0 after OpenCV's zero-disparity
+        rectification."""
+        return float(self.P2[0, 2] - self.P1[0, 2])
+
+    @classmethod
+    def rectified(cls, fx: float, fy: float, baseline_m: float, cx: float, cy: float,
+                  image_size: tuple[int, int], doffs: float = 0.0,
+                  source: str = "already-rectified pair") -> "Calibration":
+        """The calibration of an already-rectified, distortion-free pair: focal lengths
+        ``fx, fy`` (px), baseline (m, left camera on the left), the left principal point and
+        ``doffs`` (right minus left principal point x, px) of images of ``image_size``."""
+        width, height = image_size
+        problems = [f"focal length {name} = {value:g} px must be positive"
+                    for name, value in (("fx", fx), ("fy", fy)) if not value > 0]
+        if not baseline_m > 0:
+            problems.append(f"baseline {baseline_m * 1e3:g} mm must be positive")
+        if not (0 <= cx < width and 0 <= cy < height):
+            problems.append(f"principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} "
+                            "image")
+        if not (np.isfinite(doffs) and 0 <= cx + doffs < width):
+            problems.append(f"doffs {doffs:g} px puts the right principal point ({cx + doffs:g}) "
+                            f"outside the {width}-px wide image")
+        if problems:
+            raise CalibrationError("; ".join(problems))
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        K2 = K.copy()
+        K2[0, 2] = cx + doffs
+        P1, P2 = np.hstack([K, np.zeros((3, 1))]), np.hstack([K2, np.zeros((3, 1))])
+        P2[0, 3] = -fx * baseline_m
+        # OpenCV's Q, its y row scaled by fx/fy so that Y = (v - cy)·z/fy
+        Q = np.array([[1.0, 0.0, 0.0, -cx], [0.0, fx / fy, 0.0, -cy * fx / fy],
+                      [0.0, 0.0, 0.0, fx], [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m]])
+        return cls(K1=K, D1=np.zeros(5), K2=K2, D2=np.zeros(5), R=np.eye(3),
+                   T=np.array([-baseline_m, 0.0, 0.0]), R1=np.eye(3), R2=np.eye(3), P1=P1,
+                   P2=P2, Q=Q, image_size=(width, height), info={"source": source})
+
+    @property
     def cx(self) -> float:
         """Principal point x of the rectified left image (pixels)."""
         return float(self.P1[0, 2])
@@ -163,8 +207,9 @@ class Calibration:
         S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, scale, (scale - 1) / 2], [0, 0, 1]])
         P1, P2 = S @ self.P1, S @ self.P2
         tx = P2[0, 3] / P2[0, 0]  # −B, in metres
-        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, 1.0, 0, -P1[1, 2]], [0, 0, 0, P1[0, 0]],
-                      [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx]])
+        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs given as such
+        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, aspect, 0, -P1[1, 2] * aspect],
+                      [0, 0, 0, P1[0, 0]], [0, 0, -1 / tx, -self.doffs * scale / tx]])
         return self.replace(K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size,
                             per_view_rms_px=None)
 

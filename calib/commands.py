@@ -24,7 +24,8 @@ from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewColl
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import export_calibration, export_paths
-from vbfe.calib.gates import GateLimits
+from vbfe.calib.gates import GateLimits, stereo_problems
+from vbfe.calib.importers import import_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.options import calib_settings
 from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
@@ -145,6 +146,20 @@ def camera(config: Config, source: str | Path, out_path: str | Path, eye: str | 
                             GateLimits.from_config(table), step)
     result.model.save(out_path)
     return result
+
+
+def import_files(config: Config, paths: list[str | Path], out_path: str | Path,
+                 image_size: tuple[int, int] | None = None, unit_mm: float = 1000.0,
+                 settings: dict[str, Any] | None = None) -> tuple[Calibration, str]:
+    """Read another tool's calibration (:func:`import_calibration`), refuse it when it fails
+    the sanity gates, write it as vbfe's calibration file; returns it and the format read."""
+    calibration, fmt = import_calibration(paths, image_size, unit_mm * 1e-3)
+    problems = stereo_problems(calibration, GateLimits.from_config(_calib_table(config, settings)))
+    if problems:
+        raise CalibrationError(f"{' + '.join(map(str, paths))}: imported {fmt} calibration "
+                               "refused, nothing written: " + "; ".join(problems))
+    calibration.save(out_path)
+    return calibration, fmt
 
 
 def export_targets(calibration_path: str | Path, fmt: str,

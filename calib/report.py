@@ -28,11 +28,15 @@ def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
     """(label, value) rows describing a calibration, for reports and the CLI."""
     info = calibration.info
     rows = [("image size", f"{calibration.image_size[0]} x {calibration.image_size[1]} px"),
-            ("f (rectified)", f"{calibration.f:.2f} px"),
-            ("cx, cy (rectified)", f"{calibration.cx:.2f}, {calibration.cy:.2f} px"),
-            ("B", f"{calibration.B * 1e3:.4f} mm"),
-            ("RMS left / right / stereo", f"{calibration.rms_left_px:.3f} / "
-             f"{calibration.rms_right_px:.3f} / {calibration.rms_stereo_px:.3f} px")]
+            ("f (rectified)", f"{calibration.f:.2f} px" + (
+                f" (fx), {calibration.fy:.2f} px (fy)" if calibration.fy != calibration.f
+                else "")),
+            ("cx, cy (rectified)", f"{calibration.cx:.2f}, {calibration.cy:.2f} px"
+             + (f"; doffs {calibration.doffs:.2f} px" if calibration.doffs else "")),
+            ("B", f"{calibration.B * 1e3:.4f} mm")]
+    if np.isfinite(calibration.rms_stereo_px):
+        rows.append(("RMS left / right / stereo", f"{calibration.rms_left_px:.3f} / "
+                     f"{calibration.rms_right_px:.3f} / {calibration.rms_stereo_px:.3f} px"))
     if "sigma_B_m" in info:
         rows += [("σ(B)", f"{info['sigma_B_m'] * 1e3:.4f} mm"),
                  ("σ(fx) left / right", f"{info['std_left']['fx']:.3f} / "

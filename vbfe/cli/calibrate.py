@@ -1,6 +1,6 @@
-"""`vbfe calibrate board|capture|camera|stereo|projector-capture|projector|check|export|color`:
-single-camera, stereo, projector and colour calibration, checks and export to ROS / Kalibr /
-OpenCV files."""
+"""`vbfe calibrate board|capture|camera|stereo|projector-capture|projector|check|import|export|
+color`: single-camera, stereo, projector and colour calibration, checks, and import from / export
+to OpenCV, Kalibr, ROS and Middlebury files."""
 
 from __future__ import annotations
 
@@ -202,6 +202,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_overwrite_option(p)
     p.set_defaults(func=run_export)
 
+    p = actions.add_parser("import", help="read another tool's stereo calibration",
+                           description="Read OpenCV's stereo sample files (M1 D1 M2 D2 R T, also "
+                           "K1 ...; YAML or XML; one file or intrinsics.yml extrinsics.yml), a "
+                           "Kalibr camchain, a ROS camera_info pair (left right) or a "
+                           "Middlebury calib.txt, check it with the sanity gates and write "
+                           "vbfe's calibration file.")
+    p.add_argument("files", nargs="+", metavar="FILE", help="the calibration file(s)")
+    p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
+    p.add_argument("--image-size", metavar="WxH", dest="image_size",
+                   help="image size, for OpenCV files that do not hold it, e.g. 640x480")
+    p.add_argument("--unit-mm", type=_number(float, 0, True), default=1000.0, metavar="MM",
+                   help="length of one unit of an OpenCV file's T, in mm (default 1000: metres; "
+                   "OpenCV's sample measures in board squares)")
+    _gate_options(p, "nominal_baseline_mm")
+    add_overwrite_option(p)
+    add_config_option(p)
+    p.set_defaults(func=run_import)
+
     p = actions.add_parser("projector", help="calibrate the projector (Gray code on the board)")
     p.add_argument("captures", help="folder of pose_NNN/ Gray-code captures")
     p.add_argument("--calibration", required=True, help="stereo calibration YAML (or session)")
@@ -342,10 +360,28 @@ def run_stereo(args: argparse.Namespace) -> int:
 
 def run_export(args: argparse.Namespace) -> int:
     """Write the calibration in another tool's format."""
-    check_outputs(commands.export_targets(args.calibration, args.fmt, args.out_dir),
-                  [args.calibration], args.overwrite)
+    targets = commands.export_targets(args.calibration, args.fmt, args.out_dir)
+    # a missing --out-dir is created by the export: only files in existing folders can clash
+    check_outputs([p for p in targets if p.parent.is_dir()], [args.calibration], args.overwrite)
     for path in commands.export(args.calibration, args.fmt, args.out_dir):
         print(f"wrote {path}")
+    return 0
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Import another tool's calibration and print its summary."""
+    check_outputs([args.out], args.files, args.overwrite)
+    size = None
+    if args.image_size is not None:
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.image_size)
+        if not m:
+            raise CalibrationError(f"--image-size {args.image_size!r}: give WIDTHxHEIGHT, e.g. "
+                                   "640x480")
+        size = (int(m[1]), int(m[2]))
+    calibration, fmt = commands.import_files(config_from(args), args.files, args.out, size,
+                                             args.unit_mm, _settings(args))
+    print(f"read {fmt} calibration; wrote {args.out}")
+    _print_rows(summary_rows(calibration))
     return 0
 
 
