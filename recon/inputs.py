@@ -1,8 +1,6 @@
-"""Stereo inputs other than a session: one image pair, a folder of pairs, and the calibration
-of an already-rectified pair.
-
-Folder naming (any of): ``<name>_left.png`` + ``<name>_right.png``; ``left<name>.png`` +
-``right<name>.png``; sub-folders ``left/`` and ``right/`` holding files of the same names.
+"""Stereo inputs other than a session: one image pair, a folder of pairs (named as
+:data:`vbfe.calib.pairs.PAIR_NAMING` says, as for ``calibrate``), and the calibration of an
+already-rectified pair.
 """
 
 from __future__ import annotations
@@ -17,10 +15,8 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.pairs import PAIR_NAMING, pair_files
 from vbfe.recon.errors import ReconError
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
-
 
 class StereoImages(NamedTuple):
     """One raw stereo pair (BGR ``uint8``), shaped like a session frame's ``left``/``right``."""
@@ -66,10 +62,6 @@ def _read(path: Path) -> np.ndarray:
     return image
 
 
-def _images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-
-
 def _paired(folder: Path, lefts: dict[str, Path], rights: dict[str, Path]) -> ImagePairs:
     unpaired = sorted(set(lefts) ^ set(rights))
     if unpaired:
@@ -79,29 +71,13 @@ def _paired(folder: Path, lefts: dict[str, Path], rights: dict[str, Path]) -> Im
     return ImagePairs(tuple(lefts[n] for n in names), tuple(rights[n] for n in names), names)
 
 
-def _pair_key(stem: str, eye: str) -> str | None:
-    """The pair name in a file stem ``<name>_<eye>`` or ``<eye><name>``; None for other files."""
-    if stem.lower().endswith("_" + eye):
-        return stem[:-len(eye) - 1]
-    if stem.lower().startswith(eye):
-        return stem[len(eye):]
-    return None
-
-
 def find_pairs(folder: str | Path) -> ImagePairs:
-    """The stereo pairs in ``folder`` under any of the module's naming rules."""
+    """The stereo pairs in ``folder`` under :data:`~vbfe.calib.pairs.PAIR_NAMING`."""
     folder = Path(folder)
-    files = _images(folder)
-    lefts = {k: p for p in files if (k := _pair_key(p.stem, "left")) is not None}
-    rights = {k: p for p in files if (k := _pair_key(p.stem, "right")) is not None}
-    if not lefts and not rights and (folder / "left").is_dir() and (folder / "right").is_dir():
-        lefts = {p.stem: p for p in _images(folder / "left")}
-        rights = {p.stem: p for p in _images(folder / "right")}
-    if not lefts and not rights:
-        raise ReconError(f"{folder} holds no stereo pairs; name them <name>_left.png and "
-                         f"<name>_right.png, left<name>.png and right<name>.png, or put them in "
-                         f"left/ and right/ sub-folders")
-    return _paired(folder, lefts, rights)
+    found = pair_files(folder)
+    if found is None:
+        raise ReconError(f"{folder} holds no stereo pairs; {PAIR_NAMING}")
+    return _paired(folder, *found)
 
 
 def image_pairs(paths: list[str | Path]) -> ImagePairs:
