@@ -12,7 +12,7 @@ import numpy as np
 
 from vbfe.calib.chessboard import detect_chessboard
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import calib_field, calib_settings, from_table
 
 
 TARGETS = ("charuco", "chessboard")
@@ -59,8 +59,8 @@ class BoardSpec:
     def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
         """The board of a rig config's ``[calib]`` table (sizes there are in mm; a chessboard
         may be given as ``inner_corners = [9, 6]`` instead of its squares)."""
-        table = dict(calib_table)
-        inner = table.pop("inner_corners", None)
+        inner = calib_settings(calib_table).inner_corners  # checked: a list of integers
+        table = {k: v for k, v in calib_table.items() if k != "inner_corners"}
         if inner:
             if len(inner) != 2:
                 raise CalibrationError(f"[calib] inner_corners = {inner!r}: give [nx, ny], e.g. "
@@ -87,8 +87,13 @@ class BoardSpec:
                 f"{', legacy pattern' if self.legacy else ''}")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able description (stored in the calibration's info)."""
-        return asdict(self)
+        """JSON-able description (stored in the calibration's info): a chessboard without the
+        ChArUco-only marker size, dictionary and legacy flag."""
+        board = asdict(self)
+        if self.target == "chessboard":
+            for key in ("marker_m", "dictionary", "legacy"):
+                board.pop(key)
+        return board
 
     @property
     def n_corners(self) -> int:

@@ -149,3 +149,17 @@ def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path):
     again = _vbfe(*args)
     assert again.returncode == 2 and "--overwrite" in again.stderr
     assert _vbfe(*args, "--overwrite").returncode == 0
+
+
+def test_diagnostics_are_plain_yaml_and_the_board_is_the_chessboard(cli_run):
+    _, calibration = cli_run
+    text = calibration.read_text()
+    assert "base64" not in text and "info_json" not in text
+    fs = cv2.FileStorage(str(calibration), cv2.FILE_STORAGE_READ)
+    board = fs.getNode("info").getNode("board")
+    assert board.getNode("target").string() == "chessboard"
+    assert (board.getNode("squares_x").real(), board.getNode("squares_y").real()) == (10, 7)
+    assert board.getNode("dictionary").empty() and board.getNode("marker_m").empty()
+    views = fs.getNode("info").getNode("views")
+    assert [views.at(i).string() for i in range(views.size())] == VIEWS
+    fs.release()
