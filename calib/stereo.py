@@ -22,6 +22,7 @@ from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.uncertainty import UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
 
 
@@ -56,6 +57,7 @@ class StereoResult:
     desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
     weak: str | None = None  # why the result is weakly determined, if it is
     renumbered: list[str] = field(default_factory=list)  # chessboard views whose eyes disagreed
+    uncertainty: UncertaintyMap | None = None  # depth σ over the image, board coverage
 
 
 def detect_views(views: ViewSet, spec: BoardSpec,
@@ -266,8 +268,14 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     calibration.info["renumbered_views"] = renumbered
     if weak:
         calibration.info["weakly_determined"] = weak
+    uncertainty = uncertainty_map(calibration, spec, left, right, options.working_distance_m,
+                                  calibration.info["sigma_B_m"], options.fix_k3)
+    calibration.info["uncertainty"] = {
+        "summary": uncertainty.summary(),
+        "depth_sigma_m": uncertainty.depth_sigma_m.round(9).tolist(),  # rows of the grid
+        "board_views_per_region": uncertainty.coverage.tolist()}  # 3x3, top row first
     return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak,
-                        renumbered)
+                        renumbered, uncertainty)
 
 
 def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],

@@ -56,8 +56,8 @@ def opencv_reference() -> dict[str, float]:
 def cli_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path_factory.mktemp("opencv_sample") / "c.yaml"
     run = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "stereo", str(DATA),
-                          "--inner-corners", "9x6", "--square-mm", "1", "-o", str(out),
-                          "--no-report"], capture_output=True, text=True, timeout=120)
+                          "--inner-corners", "9x6", "--square-mm", "1", "-o", str(out)],
+                         capture_output=True, text=True, timeout=120)
     return run, out
 
 
@@ -163,3 +163,25 @@ def test_diagnostics_are_plain_yaml_and_the_board_is_the_chessboard(cli_run):
     views = fs.getNode("info").getNode("views")
     assert [views.at(i).string() for i in range(views.size())] == VIEWS
     fs.release()
+
+
+def test_the_report_shows_the_uncertainty_map_and_board_coverage(cli_run):
+    run, out = cli_run
+    cal = Calibration.load(out)
+    uncertainty = cal.info["uncertainty"]
+    sigma = np.array(uncertainty["depth_sigma_m"])
+    assert np.isfinite(sigma).all() and (sigma > 0).all()
+    assert sigma[len(sigma) // 2, len(sigma[0]) // 2] < sigma[0, 0]  # known best mid-image
+    # coverage: left images with corners in each third of the image, counted with OpenCV
+    expected = np.zeros((3, 3), int)
+    for view in VIEWS:
+        corners = _opencv_corners(_grey("left", view), 5).reshape(-1, 2)
+        regions = {(int(y * 3 // 480), int(x * 3 // 640)) for x, y in corners}
+        for r, c in regions:
+            expected[r, c] += 1
+    assert uncertainty["board_views_per_region"] == expected.tolist()
+    line = f"uncertainty                depth σ at 60 mm: {sigma[6, 8] * 1e3:.3f} mm centre"
+    assert line in run.stdout and "board seen in every region" in run.stdout
+    html = out.with_suffix(".html").read_text()
+    assert "c_uncertainty.png" in html and uncertainty["summary"] in html
+    assert out.with_name("c_uncertainty.png").stat().st_size > 10_000
