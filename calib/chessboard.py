@@ -1,9 +1,10 @@
 """Plain chessboards: corners as accurate as OpenCV's calibration samples at any resolution, and
 one corner numbering for both eyes of a stereo view.
 
-A chessboard reads the same turned by 180°, so the detector may number a view's left and right
-corners from opposite ends. :func:`same_numbering` takes the right eye's numbering whose
-left→right displacements agree (nearly one shift for all corners, as a stereo pair sees them).
+A chessboard reads the same turned by 180° (a square one also by 90°), so the detector may
+number a view's left and right corners from different ends. :func:`same_numbering` takes the
+right eye's numbering whose left→right displacements agree (nearly one shift for all corners,
+as a stereo pair sees them).
 """
 
 from __future__ import annotations
@@ -60,15 +61,26 @@ def _displacement_spread(left: np.ndarray, right: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(shifts - np.median(shifts, axis=0), axis=1)))
 
 
-def same_numbering(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, bool, float]:
-    """The right eye's corners (n×2) numbered as the left eye's, whether they were renumbered
-    (turned by 180°), and how clearly: the other numbering's displacement spread over the
-    chosen one's (below :data:`_MIN_NUMBERING_CONTRAST` the view is ambiguous)."""
-    kept = _displacement_spread(left, right)
-    turned = _displacement_spread(left, right[::-1])
-    if turned < kept:
-        return right[::-1].copy(), True, kept / max(turned, 1e-9)
-    return right, False, turned / max(kept, 1e-9)
+def _numberings(corners: np.ndarray, inner: tuple[int, int]) -> list[np.ndarray]:
+    """The corners in every numbering that reads the same board: as found and turned by 180°,
+    and for a square board also by ±90°."""
+    nx, ny = inner
+    grid = corners.reshape(ny, nx, 2)
+    turns = (0, 1, 2, 3) if nx == ny else (0, 2)
+    return [np.rot90(grid, k).reshape(-1, 2).copy() for k in turns]
+
+
+def same_numbering(left: np.ndarray, right: np.ndarray,
+                   inner: tuple[int, int]) -> tuple[np.ndarray, bool, float]:
+    """The right eye's corners (n×2) numbered as the left eye's, whether they were renumbered,
+    and how clearly: the runner-up numbering's displacement spread over the chosen one's
+    (below :data:`_MIN_NUMBERING_CONTRAST` the view is ambiguous)."""
+    candidates = _numberings(right, inner)
+    spreads = [_displacement_spread(left, c) for c in candidates]
+    order = np.argsort(spreads)
+    best, runner_up = int(order[0]), int(order[1])
+    return (candidates[best], best != 0,
+            spreads[runner_up] / max(spreads[best], 1e-9))
 
 
 def is_clear(contrast: float) -> bool:

@@ -191,7 +191,8 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     names, pairs, dropped, renumbered = [], [], {}, []
     for name, (dl, dr) in zip(view_names, detections):
         if spec.target == "chessboard" and len(dl) and len(dr):
-            corners, turned, contrast = same_numbering(dl.corners, dr.corners)
+            corners, turned, contrast = same_numbering(dl.corners, dr.corners,
+                                                       spec.inner_corners)
             if not is_clear(contrast):
                 dropped[name] = ("the left and right eyes' chessboard corners cannot be matched "
                                  f"(both numberings fit, contrast {contrast:.1f}); retake the view "

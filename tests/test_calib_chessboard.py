@@ -275,7 +275,14 @@ def test_a_right_eye_numbered_from_the_other_end_is_renumbered_to_match_the_left
     detector = BoardDetector(SPEC)
     dl, dr = detector.detect(left), detector.detect(right)
     assert len(dl) == len(dr) == INNER[0] * INNER[1]
-    kept, turned, contrast = same_numbering(dl.corners, dr.corners)
+    kept, turned, contrast = same_numbering(dl.corners, dr.corners, INNER)
     assert not turned and is_clear(contrast) and np.array_equal(kept, dr.corners)
-    back, turned, contrast = same_numbering(dl.corners, dr.corners[::-1])
+    back, turned, contrast = same_numbering(dl.corners, dr.corners[::-1], INNER)
     assert turned and is_clear(contrast) and np.array_equal(back, dr.corners)
+    # a square board may also come numbered a quarter turn round
+    square = (INNER[1], INNER[1])
+    left_sq, right_sq = (d.corners.reshape(INNER[1], INNER[0], 2)[:, :INNER[1]].reshape(-1, 2)
+                         for d in (dl, dr))
+    quarter = np.rot90(right_sq.reshape(INNER[1], INNER[1], 2)).reshape(-1, 2)
+    back, turned, contrast = same_numbering(left_sq, quarter, square)
+    assert turned and is_clear(contrast) and np.array_equal(back, right_sq)
