@@ -120,7 +120,11 @@ class Calibration:
                                        f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
                                        "image; recalibrate")
         if self.P2[0, 0] <= 0:  # a zero or impossible baseline is for the sanity gates to judge
-            raise CalibrationError("calibration P2 has a focal length <= 0; recalibrate")
+            raise CalibrationError(
+                f"the rectified right focal length P2[0,0] = {self.P2[0, 0]:.4g} px is not "
+                "positive: the two eyes' geometry is inconsistent (the views' left and right "
+                "images do not show the same board poses); check each pair is one moment of "
+                "one rig and the board options match the board")
 
     # --- the rectified pair -------------------------------------------------------------
     @property
