@@ -91,3 +91,19 @@ def test_import_refuses_what_the_gates_refuse_and_needs_a_size(tmp_path, calibra
     assert main(["calibrate", "import", str(tmp_path / "m.yml"), "-o",
                  str(tmp_path / "m.yaml")]) == 2
     assert "--image-size" in capsys.readouterr().err
+
+
+def test_reconstruct_rectified_takes_fx_and_fy(tmp_path, capsys):
+    from vbfe.recon.inputs import rectified_calibration
+
+    cal = rectified_calibration(700.0, 710.0, 4.0, 320.0, 180.0, (640, 360), doffs_px=3.0)
+    assert (cal.f, cal.fy, cal.doffs, cal.B) == pytest.approx((700.0, 710.0, 3.0, 0.004))
+    for eye in ("left", "right"):
+        cv2.imwrite(str(tmp_path / f"{eye}.png"), np.zeros((360, 640, 3), np.uint8))
+    pair = [str(tmp_path / "left.png"), str(tmp_path / "right.png")]
+    geometry = ["--baseline", "4", "--cx", "320", "--cy", "180"]
+    assert main(["reconstruct", *pair, "--rectified", "--f", "700", "--fx", "700",
+                 *geometry]) == 2
+    assert "not both --f and --fx/--fy" in capsys.readouterr().err
+    assert main(["reconstruct", *pair, "--rectified", "--fx", "700", *geometry]) == 2
+    assert "missing --f (or --fx and --fy)" in capsys.readouterr().err
