@@ -22,7 +22,7 @@ from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import calib_field, from_table
-from vbfe.calib.uncertainty import UncertaintyMap, uncertainty_map
+from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
 
 
@@ -246,10 +246,9 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
         left, right = _keep_views(left, keep), _keep_views(right, keep)
         stereo_pairs = [p for p, k in zip(stereo_pairs, keep) if k]
         names = [n for n, k in zip(names, keep) if k]
-    rms, K1, D1, K2, D2, R, T, _, _, per_view = _stereo_solve(spec, stereo_pairs, left, right,
-                                                              image_size,
-                                                              intrinsics is not None,
-                                                              solve_flags(options))
+    rms, K1, D1, K2, D2, R, T, rvecs, tvecs, per_view = _stereo_solve(
+        spec, stereo_pairs, left, right, image_size, intrinsics is not None,
+        solve_flags(options))
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, image_size, R,
                                                 T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
                                                 alpha=options.rectify_alpha)
@@ -269,8 +268,12 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     calibration.info["renumbered_views"] = renumbered
     if weak:
         calibration.info["weakly_determined"] = weak
-    uncertainty = uncertainty_map(calibration, spec, left, right, options.working_distance_m,
-                                  calibration.info["sigma_B_m"], options.fix_k3)
+    solve = StereoSolve(K1, D1, K2, D2, R, T, list(rvecs), list(tvecs),
+                        [spec.object_points()[dl.ids] for dl, _ in stereo_pairs],
+                        [dl.corners for dl, _ in stereo_pairs],
+                        [dr.corners for _, dr in stereo_pairs])
+    uncertainty = uncertainty_map(calibration, solve, left, options.working_distance_m,
+                                  options.fix_k3)
     calibration.info["uncertainty"] = {
         "summary": uncertainty.summary(),
         "depth_sigma_m": uncertainty.depth_sigma_m.round(9).tolist(),  # rows of the grid
