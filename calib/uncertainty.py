@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera import CameraFit
 
