@@ -15,6 +15,7 @@ from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.gates import GateLimits
 from vbfe.calib.stereo import StereoOptions, calibrate_detections
+from vbfe.cli.main import main
 
 DATA = Path(__file__).parent / "data" / "opencv_stereo"
 VIEWS = [f"{i:02d}" for i in range(1, 15) if i != 10]  # stereo_calib.xml's list
@@ -108,9 +109,11 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
     assert result.renumbered == ["02", "07"]
 
 
-def _vbfe(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True,
-                          text=True, timeout=120)
+def _vbfe(capsys, *args: str) -> subprocess.CompletedProcess:
+    """The CLI in this process (cheaper than a subprocess; the first test uses one)."""
+    code = main(list(args))
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 @pytest.mark.parametrize("flag, value, says", [
@@ -118,22 +121,24 @@ def _vbfe(*args: str) -> subprocess.CompletedProcess:
     ("--max-rms-px", "0.1", "is above the limit 0.1 px (--max-rms-px)"),
     ("--nominal-baseline-mm", "10", "more than 25 % from the rig's nominal 10 mm"),
 ])
-def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, flag, value, says):
+def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value,
+                                                              says):
     out = tmp_path / "c.yaml"
-    run = _vbfe("calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1",
+    run = _vbfe(capsys, "calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1",
                 "-o", str(out), "--no-report", flag, value)
     assert run.returncode == 2 and not out.exists()
     error = run.stderr.strip().splitlines()[-1]
     assert error.startswith("vbfe calibrate: error:") and says in error
 
 
-def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_failed(cli_run):
+def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_failed(cli_run,
+                                                                                    capsys):
     _, calibration = cli_run
-    go = _vbfe("calibrate", "check", str(calibration), "--views", str(DATA),
+    go = _vbfe(capsys, "calibrate", "check", str(calibration), "--views", str(DATA),
                "--working-distance-mm", "40")
     assert go.returncode == 0, go.stderr
     assert "verdict at 40 mm     GO" in go.stdout
-    no_go = _vbfe("calibrate", "check", str(calibration), "--views", str(DATA),
+    no_go = _vbfe(capsys, "calibrate", "check", str(calibration), "--views", str(DATA),
                   "--max-epipolar-px", "0.05")
     verdict = no_go.stdout.strip().splitlines()[-1]
     assert no_go.returncode == 1
@@ -141,14 +146,14 @@ def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_fa
     assert "depth error" not in verdict  # the depth error passed: it is not cited
 
 
-def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path):
+def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path, capsys):
     _, calibration = cli_run
     args = ("calibrate", "export", str(calibration), "--format", "opencv", "--out-dir",
             str(tmp_path))
-    assert _vbfe(*args).returncode == 0
-    again = _vbfe(*args)
+    assert _vbfe(capsys, *args).returncode == 0
+    again = _vbfe(capsys, *args)
     assert again.returncode == 2 and "--overwrite" in again.stderr
-    assert _vbfe(*args, "--overwrite").returncode == 0
+    assert _vbfe(capsys, *args, "--overwrite").returncode == 0
 
 
 def test_diagnostics_are_plain_yaml_and_the_board_is_the_chessboard(cli_run):
