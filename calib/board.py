@@ -10,8 +10,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.calib.chessboard import detect_chessboard
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, calib_settings, from_table
 from vbfe.files import save_figure, write_bytes_atomic
 
 
@@ -24,13 +25,13 @@ class BoardSpec:
     marker side and dictionary. A chessboard of ``squares_x`` × ``squares_y`` squares has
     ``(squares_x - 1)`` × ``(squares_y - 1)`` inner corners, all of which must be seen."""
 
-    squares_x: int = 9
-    squares_y: int = 7
-    square_m: float = 0.003
-    marker_m: float = 0.0022
-    dictionary: str = "DICT_5X5_100"
-    legacy: bool = False  # boards generated before OpenCV 4.6
-    target: str = "charuco"  # or "chessboard"
+    squares_x: int = calib_field("squares_x")
+    squares_y: int = calib_field("squares_y")
+    square_m: float = calib_field("square_mm", 1e-3)
+    marker_m: float = calib_field("marker_mm", 1e-3)
+    dictionary: str = calib_field("dictionary")
+    legacy: bool = calib_field("legacy")  # boards generated before OpenCV 4.6
+    target: str = calib_field("target")  # "charuco" or "chessboard"
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -59,12 +60,14 @@ class BoardSpec:
     def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
         """The board of a rig config's ``[calib]`` table (sizes there are in mm; a chessboard
         may be given as ``inner_corners = [9, 6]`` instead of its squares)."""
-        table = dict(calib_table)
-        if table.get("inner_corners") is not None:
-            nx, ny = table.pop("inner_corners")
-            table.update(squares_x=int(nx) + 1, squares_y=int(ny) + 1)
-        return from_table(cls, table, keys={"square_m": "square_mm", "marker_m": "marker_mm"},
-                          scales={"square_m": 1e-3, "marker_m": 1e-3})
+        inner = calib_settings(calib_table).inner_corners  # checked: a list of integers
+        table = {k: v for k, v in calib_table.items() if k != "inner_corners"}
+        if inner:
+            if len(inner) != 2:
+                raise CalibrationError(f"[calib] inner_corners = {inner!r}: give [nx, ny], e.g. "
+                                       "[9, 6]")
+            table.update(squares_x=int(inner[0]) + 1, squares_y=int(inner[1]) + 1)
+        return from_table(cls, table)
 
     @property
     def inner_corners(self) -> tuple[int, int]:
@@ -85,8 +88,13 @@ class BoardSpec:
                 f"{', legacy pattern' if self.legacy else ''}")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able description (stored in the calibration's info)."""
-        return asdict(self)
+        """JSON-able description (stored in the calibration's info): a chessboard without the
+        ChArUco-only marker size, dictionary and legacy flag."""
+        board = asdict(self)
+        if self.target == "chessboard":
+            for key in ("marker_m", "dictionary", "legacy"):
+                board.pop(key)
+        return board
 
     @property
     def n_corners(self) -> int:
@@ -158,27 +166,9 @@ class BoardDetector:
         return Detection(ids[order], corners.reshape(-1, 2).astype(np.float64)[order])
 
     def _detect_chessboard(self, grey: np.ndarray) -> Detection:
-        found, corners = cv2.findChessboardCorners(
-            grey, self.spec.inner_corners,
-            flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if not found:  # the sector-based detector finds boards the classic one misses
-            found, corners = cv2.findChessboardCornersSB(
-                grey, self.spec.inner_corners,
-                flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
-        if not found:
+        corners = detect_chessboard(grey, self.spec.inner_corners)
+        if corners is None:
             return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
-        corners = corners.reshape(-1, 2).astype(np.float32)
-        nx = self.spec.inner_corners[0]
-        spacing = float(np.min(np.linalg.norm(np.diff(corners.reshape(-1, nx, 2), axis=1),
-                                              axis=2)))
-        half = int(np.clip(0.3 * spacing, 2, 11))  # the window must stay inside one square pair
-        corners = cv2.cornerSubPix(grey, corners.reshape(-1, 1, 2), (half, half), (-1, -1),
-                                   (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
-        corners = corners.reshape(-1, 2).astype(np.float64)
-        # A chessboard reads the same turned by 180°: start at the top-left end in every image,
-        # so both eyes of a view number their corners alike.
-        if (corners[-1] - corners[0]) @ np.array([1.0, 1.0]) < 0:
-            corners = corners[::-1].copy()
         return Detection(np.arange(len(corners), dtype=np.int32), corners)
 
 

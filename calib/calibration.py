@@ -12,6 +12,7 @@ import base64
 import binascii
 import dataclasses
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,11 +39,11 @@ _OPTIONAL_MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
 _VECTORS = {"T", "D1", "D2", "D_proj", "T_proj", "color_offset"}
 
 
-_INFO_PIECE_CHARS = 1000
-# The info JSON is stored base64-encoded: OpenCV writes a string that starts and ends with the
-# same quote character verbatim, so raw JSON pieces could produce YAML it cannot read back.
-_INFO_NODE = "info_json_base64"
-_OLD_INFO_NODE = "info_json"  # raw JSON pieces (files written before the base64 node)
+_INFO_NODE = "info"  # the info dict as a YAML map (see _write_info)
+# files written before the YAML map: base64 of the JSON text, or raw JSON, in pieces
+_OLD_INFO_NODES = ("info_json_base64", "info_json")
+_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_\- ]*")  # what FileStorage takes as a map key
+_PLAIN_WORDS = {"null", "~", ".nan", ".inf", "-.inf", "true", "false", "yes", "no"}
 
 
 @dataclass
@@ -119,7 +120,11 @@ class Calibration:
                                        f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
                                        "image; recalibrate")
         if self.P2[0, 0] <= 0:  # a zero or impossible baseline is for the sanity gates to judge
-            raise CalibrationError("calibration P2 has a focal length <= 0; recalibrate")
+            raise CalibrationError(
+                f"the rectified right focal length P2[0,0] = {self.P2[0, 0]:.4g} px is not "
+                "positive: the two eyes' geometry is inconsistent (the views' left and right "
+                "images do not show the same board poses); check each pair is one moment of "
+                "one rig and the board options match the board")
 
     # --- the rectified pair -------------------------------------------------------------
     @property
@@ -131,6 +136,50 @@ class Calibration:
     def B(self) -> float:
         """Baseline of the rectified pair (metres)."""
         return float(-self.P2[0, 3] / self.P2[0, 0])
+
+    @property
+    def fy(self) -> float:
+        """Vertical focal length of the rectified pair (pixels; ``f`` is the horizontal one)."""
+        return float(self.P1[1, 1])
+
+    @property
+    def doffs(self) -> float:
+        """Right minus left rectified principal point x (px; Middlebury's ``doffs``): a point at
+        depth ``z`` has disparity ``d = f·B/z - doffs``; 0 after OpenCV's zero-disparity
+        rectification."""
+        return float(self.P2[0, 2] - self.P1[0, 2])
+
+    @classmethod
+    def rectified(cls, fx: float, fy: float, baseline_m: float, cx: float, cy: float,
+                  image_size: tuple[int, int], doffs: float = 0.0,
+                  source: str = "already-rectified pair") -> "Calibration":
+        """The calibration of an already-rectified, distortion-free pair: focal lengths
+        ``fx, fy`` (px), baseline (m, left camera on the left), the left principal point and
+        ``doffs`` (right minus left principal point x, px) of images of ``image_size``."""
+        width, height = image_size
+        problems = [f"focal length {name} = {value:g} px must be positive"
+                    for name, value in (("fx", fx), ("fy", fy)) if not value > 0]
+        if not baseline_m > 0:
+            problems.append(f"baseline {baseline_m * 1e3:g} mm must be positive")
+        if not (0 <= cx < width and 0 <= cy < height):
+            problems.append(f"principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} "
+                            "image")
+        if not (np.isfinite(doffs) and 0 <= cx + doffs < width):
+            problems.append(f"doffs {doffs:g} px puts the right principal point ({cx + doffs:g}) "
+                            f"outside the {width}-px wide image")
+        if problems:
+            raise CalibrationError("; ".join(problems))
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        K2 = K.copy()
+        K2[0, 2] = cx + doffs
+        P1, P2 = np.hstack([K, np.zeros((3, 1))]), np.hstack([K2, np.zeros((3, 1))])
+        P2[0, 3] = -fx * baseline_m
+        # OpenCV's Q, its y row scaled by fx/fy so that Y = (v - cy)·z/fy
+        Q = np.array([[1.0, 0.0, 0.0, -cx], [0.0, fx / fy, 0.0, -cy * fx / fy],
+                      [0.0, 0.0, 0.0, fx], [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m]])
+        return cls(K1=K, D1=np.zeros(5), K2=K2, D2=np.zeros(5), R=np.eye(3),
+                   T=np.array([-baseline_m, 0.0, 0.0]), R1=np.eye(3), R2=np.eye(3), P1=P1,
+                   P2=P2, Q=Q, image_size=(width, height), info={"source": source})
 
     @property
     def cx(self) -> float:
@@ -163,8 +212,9 @@ class Calibration:
         S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, scale, (scale - 1) / 2], [0, 0, 1]])
         P1, P2 = S @ self.P1, S @ self.P2
         tx = P2[0, 3] / P2[0, 0]  # −B, in metres
-        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, 1.0, 0, -P1[1, 2]], [0, 0, 0, P1[0, 0]],
-                      [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx]])
+        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs given as such
+        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, aspect, 0, -P1[1, 2] * aspect],
+                      [0, 0, 0, P1[0, 0]], [0, 0, -1 / tx, -self.doffs * scale / tx]])
         return self.replace(K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size,
                             per_view_rms_px=None)
 
@@ -212,12 +262,7 @@ class Calibration:
         if self.projector_size is not None:
             fs.write("projector_width", self.projector_size[0])
             fs.write("projector_height", self.projector_size[1])
-        # FileStorage caps one string at a few kB: the text goes in as a sequence of pieces.
-        text = base64.b64encode(json.dumps(self.info, sort_keys=True).encode()).decode("ascii")
-        fs.startWriteStruct(_INFO_NODE, cv2.FileNode_SEQ)
-        for start in range(0, max(len(text), 1), _INFO_PIECE_CHARS):
-            fs.write("", text[start:start + _INFO_PIECE_CHARS])
-        fs.endWriteStruct()
+        _write_info(fs, _INFO_NODE, json.loads(json.dumps(self.info, sort_keys=True)))
         return fs.releaseAndGetString()
 
     @classmethod
@@ -281,7 +326,14 @@ class Calibration:
         if node("projector_width") is not None:
             kwargs["projector_size"] = (int(number("projector_width") or 0),
                                         int(number("projector_height") or 0))
-        kwargs["info"] = _read_info(node(_INFO_NODE), node(_OLD_INFO_NODE), source)
+        info = node(_INFO_NODE)
+        if info is not None:
+            if not info.isMap():
+                raise CalibrationError(f"{source}: {_INFO_NODE} is not a map of named nodes")
+            kwargs["info"] = _read_info(info)
+        else:
+            kwargs["info"] = _read_old_info(node(_OLD_INFO_NODES[0]), node(_OLD_INFO_NODES[1]),
+                                            source)
         try:
             return cls(**kwargs)
         except CalibrationError as exc:
@@ -318,15 +370,79 @@ class Calibration:
         return dataclasses.replace(self, **changes)
 
 
-def _read_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
-               source: str) -> dict[str, Any]:
-    """The info dict from its base64 pieces (or the raw JSON pieces of older files)."""
+def _plain(text: str) -> bool:
+    """Whether FileStorage writes and reads ``text`` back unchanged as a YAML scalar."""
+    quoted = len(text) >= 2 and text[0] == text[-1] and text[0] in "'\""
+    return not quoted and text == text.strip() and text.lower() not in _PLAIN_WORDS
+
+
+def _write_info(fs: cv2.FileStorage, name: str, value: Any) -> None:
+    """``value`` (JSON-like) as plain YAML nodes: maps, sequences (numbers inline), numbers
+    and strings. Rare cases get a one-key map: ``{null: 1}`` for None, ``{base64: …}`` for a
+    string FileStorage would change (quoted, padded, a YAML word), and a dict whose keys are
+    not FileStorage keys (e.g. ``"05"``) is a sequence of ``{key, value}`` maps."""
+    if isinstance(value, dict):
+        if all(isinstance(k, str) and _KEY.fullmatch(k) for k in value):
+            fs.startWriteStruct(name, cv2.FileNode_MAP)
+            for key, item in value.items():
+                _write_info(fs, key, item)
+        else:
+            fs.startWriteStruct(name, cv2.FileNode_SEQ)
+            for key, item in value.items():
+                _write_info(fs, "", {"key": key, "value": item})
+        fs.endWriteStruct()
+    elif isinstance(value, list):
+        numbers = all(isinstance(v, (int, float)) for v in value)
+        fs.startWriteStruct(name, cv2.FileNode_SEQ | (cv2.FileNode_FLOW if numbers else 0))
+        for item in value:
+            _write_info(fs, "", item)
+        fs.endWriteStruct()
+    elif value is None:
+        _write_info(fs, name, {"null": 1})
+    elif isinstance(value, (bool, int)):
+        fs.write(name, int(value))
+    elif isinstance(value, float):
+        fs.write(name, value)
+    elif _plain(value):
+        fs.write(name, value)
+    else:
+        _write_info(fs, name, {"base64": base64.b64encode(value.encode()).decode("ascii")})
+
+
+def _read_info(node: cv2.FileNode) -> Any:
+    """The value :func:`_write_info` wrote."""
+    if node.isMap():
+        keys = list(node.keys())
+        if keys == ["null"]:
+            return None
+        if keys == ["base64"]:
+            return base64.b64decode(node.getNode("base64").string()).decode("utf-8")
+        return {key: _read_info(node.getNode(key)) for key in keys}
+    if node.isSeq():
+        items = [node.at(i) for i in range(node.size())]
+        if items and all(item.isMap() and list(item.keys()) == ["key", "value"]
+                         for item in items):
+            return {item.getNode("key").string(): _read_info(item.getNode("value"))
+                    for item in items}
+        return [_read_info(item) for item in items]
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return node.real()
+    return node.string()
+
+
+def _read_old_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
+                   source: str) -> dict[str, Any]:
+    """The info dict of files written before the YAML map: base64 pieces, or raw JSON pieces
+    in still older files."""
     chosen = node if node is not None else old
     if chosen is None:
         return {}
     items = [chosen.at(i) for i in range(chosen.size())] if chosen.isSeq() else [chosen]
     if not all(item.isString() for item in items):
-        raise CalibrationError(f"{source}: {_INFO_NODE if node is not None else _OLD_INFO_NODE}"
+        name = _OLD_INFO_NODES[0] if node is not None else _OLD_INFO_NODES[1]
+        raise CalibrationError(f"{source}: {name}"
                                " is not a sequence of strings")
     text = "".join(item.string() for item in items)
     try:

@@ -12,7 +12,7 @@ import numpy as np
 from vbfe.calib.board import BoardSpec, Detection
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 _MIN_SIGMA_PX = 0.1  # floor of the robust residual spread: sub-pixel corner noise of real boards
@@ -21,16 +21,16 @@ _MIN_VIEW_SPREAD = 0.1  # floor of the per-view RMS spread, as a fraction of the
 
 @dataclass
 class CameraOptions:
-    """Knobs of the robust single-camera solve (defaults match the ``[calib]`` table)."""
+    """Knobs of the robust single-camera solve (defaults: the ``[calib]`` table)."""
 
-    min_corners: int = 12
-    min_views: int = 6
-    outlier_sigma: float = 4.0
-    outlier_min_px: float = 1.0
-    view_outlier_z: float = 3.5
-    view_outlier_min_px: float = 0.25
-    well_determined_views: int = 10
-    fix_k3: bool = False  # solve k1, k2, p1, p2 only (Kalibr's radtan model)
+    min_corners: int = calib_field("min_corners")
+    min_views: int = calib_field("min_views")
+    outlier_sigma: float = calib_field("outlier_sigma")
+    outlier_min_px: float = calib_field("outlier_min_px")
+    view_outlier_z: float = calib_field("view_outlier_z")
+    view_outlier_min_px: float = calib_field("view_outlier_min_px")
+    well_determined_views: int = calib_field("well_determined_views")
+    fix_k3: bool = calib_field("fix_k3")  # solve k1, k2, p1, p2 only (Kalibr's radtan model)
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "CameraOptions":
@@ -202,5 +202,6 @@ def need_views(n: int, options: CameraOptions, source: str, dropped: dict[str, s
     if n < options.min_views:
         detail = "; ".join(f"{k}: {why}" for k, why in dropped.items())
         raise CalibrationError(f"{source}: only {n} usable views, need at least "
-                               f"{options.min_views}; capture more views"
+                               f"{options.min_views} (--min-views); capture more views, or "
+                               "lower --min-views when the views are good and varied"
                                + (f" (dropped {detail})" if detail else ""))

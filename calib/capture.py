@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.views import load_views, save_views
 
 # The spread each coverage parameter must reach for a full bar (ROS camera_calibration's, with
@@ -30,17 +30,16 @@ SHARPNESS_SCALE = {"charuco": 1.0, "chessboard": 3.5}
 class CaptureOptions:
     """Thresholds for keeping a view (defaults match the ``[calib]`` table)."""
 
-    min_corners: int = 12
-    min_views: int = 20
-    max_views: int = 40
-    min_sharpness: float = 12.0  # see sharpness()
-    min_pose_distance: float = 0.2  # sum of |Δ| of the X, Y, size, skew parameters
+    min_corners: int = calib_field("min_corners")
+    min_views: int = calib_field("capture_views")
+    max_views: int = calib_field("capture_max_views")
+    min_sharpness: float = calib_field("min_sharpness")  # see sharpness()
+    min_pose_distance: float = calib_field("min_pose_distance")  # sum of |Δ| of X, Y, size, skew
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "CaptureOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table, keys={"min_views": "capture_views",
-                                                  "max_views": "capture_max_views"})
+        return from_table(cls, calib_table)
 
 
 @dataclass

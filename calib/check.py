@@ -12,6 +12,8 @@ from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
+from vbfe.calib.options import DEFAULTS
+from vbfe.calib.stereo import StereoOptions
 from vbfe.calib.views import ViewSet, check_sizes
 
 
@@ -36,16 +38,25 @@ class CheckResult:
         values = [v for v in (self.depth_error_params_m, self.depth_error_views_m) if v is not None]
         return max(values) if values else float("nan")
 
+    def failures(self) -> list[str]:
+        """What fails the check, each with its value, limit and remedy (empty: GO)."""
+        out = list(self.problems)
+        z_mm = self.working_distance_m * 1e3
+        if not self.depth_error_m <= self.max_depth_error_m:
+            out.append(f"depth error at {z_mm:.0f} mm {self.depth_error_m * 1e3:.3f} mm is above "
+                       f"the limit {self.max_depth_error_m * 1e3:.3f} mm (--max-depth-error-mm): "
+                       "the focal length or baseline has changed; recalibrate")
+        if self.epipolar_rms_px is not None and not self.epipolar_rms_px <= self.max_epipolar_px:
+            out.append(f"epipolar RMS {self.epipolar_rms_px:.3f} px is above the limit "
+                       f"{self.max_epipolar_px:.3f} px (--max-epipolar-px): left and right rows "
+                       "no longer line up (the eyes have moved against each other); recalibrate")
+        return out
+
     @property
     def passed(self) -> bool:
         """No failed sanity gate, depth error within the threshold and, with views, epipolar
         error too."""
-        if self.problems:
-            return False
-        ok = self.depth_error_m <= self.max_depth_error_m
-        if self.epipolar_rms_px is not None:
-            ok = ok and self.epipolar_rms_px <= self.max_epipolar_px
-        return bool(ok)
+        return not self.failures()
 
     def rows(self) -> list[tuple[str, str]]:
         """(label, value) rows for display."""
@@ -64,10 +75,14 @@ class CheckResult:
                      f"(limit {self.max_epipolar_px:.2f})"),
                     ("board scale", f"{self.board_scale:.5f}"),
                     ("depth error (views)", f"{self.depth_error_views_m * 1e3:.3f} mm")]
+        failures = self.failures()
         out.append((f"verdict at {self.working_distance_m * 1e3:.0f} mm",
-                    ("GO" if self.passed else "NO-GO") + f": depth error "
-                    f"{self.depth_error_m * 1e3:.3f} mm, "
-                    f"limit {self.max_depth_error_m * 1e3:.3f} mm"))
+                    "NO-GO: " + "; ".join(failures) if failures else
+                    f"GO: depth error {self.depth_error_m * 1e3:.3f} mm, limit "
+                    f"{self.max_depth_error_m * 1e3:.3f} mm"
+                    + (f"; epipolar RMS {self.epipolar_rms_px:.3f} px, limit "
+                       f"{self.max_epipolar_px:.3f} px" if self.epipolar_rms_px is not None
+                       else "")))
         return out
 
 
@@ -92,7 +107,8 @@ def board_scale(points: np.ndarray, board_points: np.ndarray) -> float:
 
 def check_calibration(stored: Calibration, new: Calibration | None = None,
                       views: ViewSet | None = None, spec: BoardSpec | None = None,
-                      max_depth_error_m: float = 0.0005, max_epipolar_px: float = 0.5,
+                      max_depth_error_m: float | None = None,
+                      max_epipolar_px: float | None = None,
                       working_distance_m: float | None = None,
                       min_corners: int = 12, limits: GateLimits | None = None) -> CheckResult:
     """Compare ``stored`` with a ``new`` calibration (parameter deltas) and/or fresh ``views`` of
@@ -101,8 +117,10 @@ def check_calibration(stored: Calibration, new: Calibration | None = None,
     compared with."""
     if new is None and views is None:
         raise CalibrationError("nothing to check against: give a new calibration or fresh views")
-    z = working_distance_m or float(stored.info.get("working_distance_m", 0.06))
-    result = CheckResult(z, max_depth_error_m, max_epipolar_px)
+    z = working_distance_m or float(stored.info.get("working_distance_m",
+                                                    StereoOptions().working_distance_m))
+    result = CheckResult(z, max_depth_error_m or DEFAULTS.check_max_depth_error_mm / 1e3,
+                         max_epipolar_px or DEFAULTS.check_max_epipolar_px)
     limits = limits or GateLimits()
     result.problems = [f"stored: {p}" for p in stereo_problems(stored, limits)]
     if new is not None:

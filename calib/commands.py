@@ -22,8 +22,9 @@ from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewColl
                                 camera_frames, capture_views)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.export import export_calibration
-from vbfe.calib.gates import GateLimits
+from vbfe.calib.export import export_calibration, export_paths
+from vbfe.calib.gates import GateLimits, stereo_problems
+from vbfe.calib.importers import import_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.options import calib_settings
 from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
@@ -94,14 +95,10 @@ class StereoOutcome:
     report_paths: tuple[Path, Path] | None
 
 
-def _calib_table(config: Config, nominal_baseline_mm: float | None = None,
-                 fix_k3: bool | None = None) -> dict[str, Any]:
-    table = section(config, "calib")
-    if nominal_baseline_mm is not None:
-        table["nominal_baseline_mm"] = nominal_baseline_mm
-    if fix_k3:
-        table["fix_k3"] = True
-    return table
+def _calib_table(config: Config, settings: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The ``[calib]`` table with ``settings`` (keys of the table, e.g. from command-line
+    flags) in place of its values."""
+    return {**section(config, "calib"), **(settings or {})}
 
 
 def stereo(config: Config, source: str | Path | None, out_path: str | Path,
@@ -109,16 +106,15 @@ def stereo(config: Config, source: str | Path | None, out_path: str | Path,
            step: Callable[[], None] | None = None, left_glob: str | None = None,
            right_glob: str | None = None,
            intrinsics: tuple[str | Path, str | Path] | None = None,
-           nominal_baseline_mm: float | None = None, fix_k3: bool | None = None,
-           **overrides: Any) -> StereoOutcome:
+           settings: dict[str, Any] | None = None, **overrides: Any) -> StereoOutcome:
     """Calibrate from a folder of view pairs, ``--left``/``--right`` globs or a session, with
     the cameras' intrinsics solved or fixed from two camera files; refuse a result failing the
-    sanity gates; write the YAML (and report)."""
+    sanity gates; write the YAML (and report). ``settings`` replace ``[calib]`` values."""
     spec = board_spec(config, **overrides)
     views = load_views(source, left_glob=left_glob, right_glob=right_glob)
     fixed = None if intrinsics is None else \
         (CameraModel.load(intrinsics[0]), CameraModel.load(intrinsics[1]))
-    options = StereoOptions.from_config(_calib_table(config, nominal_baseline_mm, fix_k3))
+    options = StereoOptions.from_config(_calib_table(config, settings))
     result = calibrate_stereo(views, spec, options, step, fixed)
     out_path = Path(out_path)
     result.calibration.save(out_path)
@@ -131,16 +127,37 @@ def stereo(config: Config, source: str | Path | None, out_path: str | Path,
 
 
 def camera(config: Config, source: str | Path, out_path: str | Path, eye: str | None = None,
-           step: Callable[[], None] | None = None, fix_k3: bool | None = None,
+           step: Callable[[], None] | None = None, settings: dict[str, Any] | None = None,
            **overrides: Any) -> MonoResult:
     """Calibrate one camera from a folder or glob of images (or one eye of stereo views);
-    write the camera YAML."""
+    write the camera YAML. ``settings`` replace ``[calib]`` values."""
     spec = board_spec(config, **overrides)
-    table = _calib_table(config, fix_k3=fix_k3)
+    table = _calib_table(config, settings)
     result = calibrate_mono(load_images(source, eye), spec, CameraOptions.from_config(table),
                             GateLimits.from_config(table), step)
     result.model.save(out_path)
     return result
+
+
+def import_files(config: Config, paths: list[str | Path], out_path: str | Path,
+                 image_size: tuple[int, int] | None = None, unit_mm: float = 1000.0,
+                 settings: dict[str, Any] | None = None) -> tuple[Calibration, str]:
+    """Read another tool's calibration (:func:`import_calibration`), refuse it when it fails
+    the sanity gates, write it as vbfe's calibration file; returns it and the format read."""
+    calibration, fmt = import_calibration(paths, image_size, unit_mm * 1e-3)
+    problems = stereo_problems(calibration, GateLimits.from_config(_calib_table(config, settings)))
+    if problems:
+        raise CalibrationError(f"{' + '.join(map(str, paths))}: imported {fmt} calibration "
+                               "refused, nothing written: " + "; ".join(problems))
+    calibration.save(out_path)
+    return calibration, fmt
+
+
+def export_targets(calibration_path: str | Path, fmt: str,
+                   out_dir: str | Path | None = None) -> list[Path]:
+    """The files :func:`export` writes."""
+    path = Path(calibration_path)
+    return export_paths(fmt, out_dir or path.parent, path.stem)
 
 
 def export(calibration_path: str | Path, fmt: str, out_dir: str | Path | None = None) -> list[Path]:
@@ -185,15 +202,30 @@ def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, i
     return int(projector.width), int(projector.height)
 
 
+def _stored_board(stored: Calibration, config: Config, overrides: dict[str, Any]) -> BoardSpec:
+    """The board the stored calibration was made with, unless board options are given (or it
+    records none)."""
+    board = stored.info.get("board")
+    if any(v is not None for v in overrides.values()) or not isinstance(board, dict):
+        return board_spec(config, **overrides)
+    try:
+        return BoardSpec(**board)
+    except TypeError:
+        raise CalibrationError(f"the stored calibration's board {board} is not a board "
+                               "description; give the board options (--target, ...)") from None
+
+
 def check(config: Config, stored_path: str | Path, new_path: str | Path | None = None,
-          views_path: str | Path | None = None, max_depth_error_mm: float | None = None,
-          nominal_baseline_mm: float | None = None, **overrides: Any) -> CheckResult:
+          views_path: str | Path | None = None, settings: dict[str, Any] | None = None,
+          **overrides: Any) -> CheckResult:
     """Go/no-go of the stored calibration: its sanity gates, then against a new one and/or
-    fresh board views."""
+    fresh board views (of the board stored in the calibration unless board ``overrides`` are
+    given). ``settings`` replace ``[calib]`` values; the working distance is the stored one
+    unless ``settings`` give ``working_distance_mm``."""
     if new_path is None and views_path is None:
         raise CalibrationError("give a new calibration (--against FILE) or fresh views "
                                "(--views FOLDER) to check the stored calibration")
-    gate_table = _calib_table(config, nominal_baseline_mm)
+    gate_table = _calib_table(config, settings)
     table = calib_settings(gate_table)
     stored, new = load_calibration(stored_path), None
     if new_path is not None:
@@ -203,11 +235,12 @@ def check(config: Config, stored_path: str | Path, new_path: str | Path | None =
                                    f"images, {stored_path} for {stored.image_size[0]}x"
                                    f"{stored.image_size[1]}: compare calibrations of one camera "
                                    "mode")
-    limit_mm = max_depth_error_mm if max_depth_error_mm is not None else \
-        table.check_max_depth_error_mm
+    distance_mm = (settings or {}).get("working_distance_mm")
     return check_calibration(
         stored, new=new,
         views=load_views(views_path) if views_path is not None else None,
-        spec=board_spec(config, **overrides), max_depth_error_m=limit_mm / 1e3,
-        max_epipolar_px=table.check_max_epipolar_px, min_corners=table.min_corners,
-        limits=GateLimits.from_config(gate_table))
+        spec=_stored_board(stored, config, overrides),
+        max_depth_error_m=table.check_max_depth_error_mm / 1e3,
+        max_epipolar_px=table.check_max_epipolar_px,
+        working_distance_m=None if distance_mm is None else distance_mm / 1e3,
+        min_corners=table.min_corners, limits=GateLimits.from_config(gate_table))

@@ -1,6 +1,7 @@
 """Export a calibration to the formats other tools read: ROS ``camera_info`` YAML (one file per
-eye), a Kalibr camchain YAML, and OpenCV's stereo sample files (``intrinsics.yml`` +
-``extrinsics.yml``). See docs/calibration-format.md."""
+eye), a Kalibr camchain YAML, OpenCV's stereo sample files (``intrinsics.yml`` +
+``extrinsics.yml``) and a Middlebury ``calib.txt`` (the rectified pair). See
+docs/calibration-format.md; :mod:`vbfe.calib.importers` reads them back."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.files import write_bytes_atomic
 
-FORMATS = ("ros", "kalibr", "opencv")
+FORMATS = ("ros", "kalibr", "opencv", "middlebury")
 
 
 def _yaml_float(value: float) -> str:
@@ -79,11 +80,25 @@ def kalibr_camchain(cal: Calibration, topics: tuple[str, str] = ("/cam0/image_ra
     return "".join(out)
 
 
+def middlebury_calib(cal: Calibration) -> str:
+    """Middlebury ``calib.txt`` text of the rectified pair: ``cam0``/``cam1`` (the rectified
+    camera matrices), ``doffs`` (px), ``baseline`` (mm), ``width``, ``height``."""
+    def camera(P: np.ndarray) -> str:
+        return "[" + "; ".join(" ".join(repr(float(v)) for v in row) for row in P[:, :3]) + "]"
+
+    return (f"cam0={camera(cal.P1)}\ncam1={camera(cal.P2)}\ndoffs={cal.doffs!r}\n"
+            f"baseline={cal.B * 1e3!r}\nwidth={cal.image_size[0]}\n"
+            f"height={cal.image_size[1]}\n")
+
+
 def _opencv_files(cal: Calibration) -> tuple[str, str]:
     texts = []
     for names in (("M1", "D1", "M2", "D2"), ("R", "T", "R1", "R2", "P1", "P2", "Q")):
         fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
                              | cv2.FILE_STORAGE_FORMAT_YAML)
+        if "M1" in names:  # OpenCV's sample leaves the size out; its readers skip these nodes
+            fs.write("image_width", cal.image_size[0])
+            fs.write("image_height", cal.image_size[1])
         for name in names:
             value = getattr(cal, {"M1": "K1", "M2": "K2"}.get(name, name))
             fs.write(name, value.reshape(-1, 1) if value.ndim == 1 else value)
@@ -91,26 +106,36 @@ def _opencv_files(cal: Calibration) -> tuple[str, str]:
     return texts[0], texts[1]
 
 
-def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
-                       stem: str = "calibration") -> list[Path]:
-    """Write ``cal`` in format ``fmt`` into ``out_dir``; returns the files written:
-    ros: ``<stem>_left.yaml``, ``<stem>_right.yaml``; kalibr: ``<stem>-camchain.yaml``;
-    opencv: ``intrinsics.yml``, ``extrinsics.yml``."""
+def export_paths(fmt: str, out_dir: str | Path, stem: str = "calibration") -> list[Path]:
+    """The files :func:`export_calibration` writes: ros: ``<stem>_left.yaml``,
+    ``<stem>_right.yaml``; kalibr: ``<stem>-camchain.yaml``; opencv: ``intrinsics.yml``,
+    ``extrinsics.yml``; middlebury: ``calib.txt``."""
     if fmt not in FORMATS:
         raise CalibrationError(f"unknown export format {fmt!r}; use one of {', '.join(FORMATS)}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    names = {"ros": [f"{stem}_left.yaml", f"{stem}_right.yaml"],
+             "kalibr": [f"{stem}-camchain.yaml"],
+             "opencv": ["intrinsics.yml", "extrinsics.yml"],
+             "middlebury": ["calib.txt"]}[fmt]
+    return [Path(out_dir) / name for name in names]
+
+
+def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
+                       stem: str = "calibration") -> list[Path]:
+    """Write ``cal`` in format ``fmt`` into ``out_dir`` (files: :func:`export_paths`); returns
+    the files written."""
+    paths = export_paths(fmt, out_dir, stem)
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
     if fmt == "ros":
         texts = [ros_camera_info("left", cal.image_size, cal.K1, cal.D1, cal.R1, cal.P1),
                  ros_camera_info("right", cal.image_size, cal.K2, cal.D2, cal.R2, cal.P2)]
     elif fmt == "kalibr":
         texts = [kalibr_camchain(cal)]
+    elif fmt == "middlebury":
+        texts = [middlebury_calib(cal)]
     else:
         texts = list(_opencv_files(cal))
-    files = dict(zip(export_names(fmt, stem), texts))
     written = []
-    for name, text in files.items():
-        path = out_dir / name
+    for path, text in zip(paths, texts):
         try:
             written.append(write_bytes_atomic(path, text))
         except OSError as exc:
@@ -118,8 +143,3 @@ def export_calibration(cal: Calibration, fmt: str, out_dir: str | Path,
                                    "is writable") from None
     return written
 
-
-def export_names(fmt: str, stem: str = "calibration") -> list[str]:
-    """The names of the files :func:`export_calibration` writes for ``fmt``."""
-    return {"ros": [f"{stem}_left.yaml", f"{stem}_right.yaml"],
-            "kalibr": [f"{stem}-camchain.yaml"]}.get(fmt, ["intrinsics.yml", "extrinsics.yml"])

@@ -20,7 +20,7 @@ from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 # Radial distortion k1, k2 only: a projector lens has little tangential distortion, and the few
@@ -58,19 +58,18 @@ def projector_images(projector_size: tuple[int, int]) -> tuple[np.ndarray, np.nd
 
 @dataclass
 class ProjectorOptions:
-    """Knobs of :func:`calibrate_projector` (defaults match the ``[calib]`` table)."""
+    """Knobs of :func:`calibrate_projector` (defaults: the ``[calib]`` table)."""
 
-    window_px: int = 8  # half size of the camera window around each corner
-    min_contrast: float = 10.0  # white − black grey levels for a pixel to be decoded
-    min_corners: int = 12
+    window_px: int = calib_field("projector_window_px")  # half window around each corner
+    min_contrast: float = calib_field("projector_min_contrast")  # white − black grey levels
+    min_corners: int = calib_field("min_corners")
     min_poses: int = 4
     ransac_px: float = 2.5  # projector pixels
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "ProjectorOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table, keys={"window_px": "projector_window_px",
-                                                  "min_contrast": "projector_min_contrast"})
+        return from_table(cls, calib_table)
 
 
 def corner_projector_points(capture: GrayCodeCapture, corners: np.ndarray,

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.projector import GrayCodeCapture, projector_images, save_captures
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
@@ -35,22 +35,19 @@ MAX_DISCARDS = 3  # sequences in a row spoilt by a moving board before the captu
 
 @dataclass
 class GrayCaptureOptions:
-    """How the capture waits for patterns and poses (defaults match the ``[calib]`` table)."""
+    """How the capture waits for patterns and poses (defaults: the ``[calib]`` table)."""
 
-    settle_s: float = 0.15  # projector latency + one camera exposure
-    still_level: float = 2.0  # mean |grey change| between frames of a board at rest
-    change_level: float = 6.0  # mean |grey change| from the last pose that means a new pose
-    still_frames: int = 2  # consecutive frames at rest before a pose is captured
-    pose_timeout_s: float = 60.0  # longest wait for the board to come to rest at a new pose
+    settle_s: float = calib_field("projector_settle_s")  # projector latency + one exposure
+    still_level: float = calib_field("projector_still_level")  # |grey change| of a board at rest
+    change_level: float = calib_field("projector_change_level")  # |grey change| of a new pose
+    still_frames: int = calib_field("projector_still_frames")  # frames at rest before capturing
+    pose_timeout_s: float = calib_field("projector_pose_timeout_s")  # longest wait for a pose
     read_timeout_s: float = 2.0  # longest wait for one camera frame
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "GrayCaptureOptions":
         """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table, keys={
-            "settle_s": "projector_settle_s", "still_level": "projector_still_level",
-            "change_level": "projector_change_level", "still_frames": "projector_still_frames",
-            "pose_timeout_s": "projector_pose_timeout_s"})
+        return from_table(cls, calib_table)
 
 
 def _grey(frame: StereoFrame) -> np.ndarray:

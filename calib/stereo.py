@@ -14,32 +14,32 @@ import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.camera import (CRITERIA, CameraFit, CameraOptions, calibrate_camera,
                                need_views, outlier_views, points, residuals, solve_flags,
                                weak_note)
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
-from vbfe.calib.options import from_table
+from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
 
 
 @dataclass
 class StereoOptions(CameraOptions):
-    """Knobs of :func:`calibrate_stereo` (defaults match the ``[calib]`` table)."""
+    """Knobs of :func:`calibrate_stereo` (defaults: the ``[calib]`` table)."""
 
-    desync_min_px: float = 0.5
-    reject_desync: bool = True
-    rectify_alpha: float = 0.0
-    working_distance_m: float = 0.06
+    desync_min_px: float = calib_field("desync_min_px")
+    reject_desync: bool = calib_field("reject_desync")
+    rectify_alpha: float = calib_field("rectify_alpha")
+    working_distance_m: float = calib_field("working_distance_mm", 1e-3)
     gates: GateLimits = field(default_factory=GateLimits)
 
     @classmethod
     def from_config(cls, calib_table: dict) -> "StereoOptions":
         """Options from a rig config's ``[calib]`` table."""
-        options = from_table(cls, calib_table,
-                             keys={"working_distance_m": "working_distance_mm"},
-                             scales={"working_distance_m": 1e-3})
+        options = from_table(cls, calib_table)
         options.gates = GateLimits.from_config(calib_table)
         return options
 
@@ -56,6 +56,8 @@ class StereoResult:
     dropped: dict[str, str] = field(default_factory=dict)  # view -> why
     desync: dict[str, tuple[float, float]] = field(default_factory=dict)  # view -> (dx, dy) px
     weak: str | None = None  # why the result is weakly determined, if it is
+    renumbered: list[str] = field(default_factory=list)  # chessboard views whose eyes disagreed
+    uncertainty: UncertaintyMap | None = None  # depth σ over the image, board coverage
 
 
 def detect_views(views: ViewSet, spec: BoardSpec,
@@ -186,8 +188,19 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     fixed = (None, None) if intrinsics is None else intrinsics
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
-    names, pairs, dropped = [], [], {}
+    names, pairs, dropped, renumbered = [], [], {}, []
     for name, (dl, dr) in zip(view_names, detections):
+        if spec.target == "chessboard" and len(dl) and len(dr):
+            corners, turned, contrast = same_numbering(dl.corners, dr.corners,
+                                                       spec.inner_corners)
+            if not is_clear(contrast):
+                dropped[name] = ("the left and right eyes' chessboard corners cannot be matched "
+                                 f"(both numberings fit, contrast {contrast:.1f}); retake the view "
+                                 "with the board less turned")
+                continue
+            if turned:
+                renumbered.append(name)
+                dr = Detection(dr.ids, corners)
         common = np.intersect1d(dl.ids, dr.ids)
         if len(common) < options.min_corners:
             dropped[name] = (f"too few corners (left {len(dl)}, right {len(dr)}, in both "
@@ -226,16 +239,16 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
         if keep.sum() < options.min_views:
             raise CalibrationError(f"{source}: {int(flagged.sum())} views look "
                                    f"desynchronised ({', '.join(desync)}); only {int(keep.sum())} "
-                                   f"left, need {options.min_views}; check the camera's frame sync")
+                                   f"left, need {options.min_views} (--min-views); check the "
+                                   "camera's frame sync")
         for n in desync:
             dropped[n] = "left/right captured at different instants (desynchronised)"
         left, right = _keep_views(left, keep), _keep_views(right, keep)
         stereo_pairs = [p for p, k in zip(stereo_pairs, keep) if k]
         names = [n for n, k in zip(names, keep) if k]
-    rms, K1, D1, K2, D2, R, T, _, _, per_view = _stereo_solve(spec, stereo_pairs, left, right,
-                                                              image_size,
-                                                              intrinsics is not None,
-                                                              solve_flags(options))
+    rms, K1, D1, K2, D2, R, T, rvecs, tvecs, per_view = _stereo_solve(
+        spec, stereo_pairs, left, right, image_size, intrinsics is not None,
+        solve_flags(options))
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, image_size, R,
                                                 T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
                                                 alpha=options.rectify_alpha)
@@ -245,16 +258,28 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
                               Q=Q, image_size=image_size, rms_left_px=left.rms_px,
                               rms_right_px=right.rms_px, rms_stereo_px=float(rms),
                               per_view_rms_px=per_view_rms)
-    problems = stereo_problems(calibration, options.gates)
+    problems = stereo_problems(calibration, options.gates, names)
     if problems:
         raise CalibrationError(f"{source}: stereo calibration refused, nothing written: "
                                + "; ".join(problems))
     weak = weak_note(len(names), options)
     calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
                              dropped, desync)
+    calibration.info["renumbered_views"] = renumbered
     if weak:
         calibration.info["weakly_determined"] = weak
-    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak)
+    solve = StereoSolve(K1, D1, K2, D2, R, T, list(rvecs), list(tvecs),
+                        [spec.object_points()[dl.ids] for dl, _ in stereo_pairs],
+                        [dl.corners for dl, _ in stereo_pairs],
+                        [dr.corners for _, dr in stereo_pairs])
+    uncertainty = uncertainty_map(calibration, solve, left, options.working_distance_m,
+                                  options.fix_k3)
+    calibration.info["uncertainty"] = {
+        "summary": uncertainty.summary(),
+        "depth_sigma_m": uncertainty.depth_sigma_m.round(9).tolist(),  # rows of the grid
+        "board_views_per_region": uncertainty.coverage.tolist()}  # 3x3, top row first
+    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak,
+                        renumbered, uncertainty)
 
 
 def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],

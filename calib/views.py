@@ -4,7 +4,6 @@ from two globs or from a session; single-camera image sets."""
 from __future__ import annotations
 
 import glob
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,9 +12,9 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.pairs import IMAGE_SUFFIXES, PAIR_NAMING, images_in, pair_files
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-
+NAMING_RULES = PAIR_NAMING + ", or one side-by-side image per view (left half = left eye)"
 
 @dataclass
 class ViewSet:
@@ -36,53 +35,9 @@ def _read(path: Path) -> np.ndarray:
     return image
 
 
-NAMING_RULES = (
-    "image pairs are found by name: <name>_left.png + <name>_right.png (also -left/-right, "
-    "_L/_R), left<name>.png + right<name>.png (e.g. left01.jpg + right01.jpg; also L01/R01), "
-    "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names, or one "
-    "side-by-side image per view (left half = left eye); or give --left 'GLOB' --right 'GLOB'")
-
-# Each regex names the eye and the view key of a file stem; tried in this order:
-# <name>_left / <name>_right, left<name> / right<name>, <name>_L / <name>_R, L<name> / R<name>
-_PAIR_RULES = (
-    re.compile(r"^(?P<key>.+?)[_\-. ]?(?P<eye>left|right)$", re.I),
-    re.compile(r"^(?P<eye>left|right)[_\-. ]?(?P<key>.+)$", re.I),
-    re.compile(r"^(?P<key>.+?)[_\-. ](?P<eye>l|r)$", re.I),
-    re.compile(r"^(?P<eye>l|r)[_\-. ]?(?P<key>\d.*)$", re.I),
-)
-_PAIR_FOLDERS = (("left", "right"), ("l", "r"), ("cam0", "cam1"))
-
-
-def _images_in(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-
-
-def _named_pairs(files: list[Path]) -> tuple[dict[str, Path], dict[str, Path]] | None:
-    """Left and right files by view key under the first naming rule that labels both eyes."""
-    for pattern in _PAIR_RULES:
-        eyes: dict[str, dict[str, Path]] = {"l": {}, "r": {}}
-        for path in files:
-            m = pattern.match(path.stem)
-            if m:
-                eyes[m["eye"][0].lower()][m["key"]] = path
-        if eyes["l"] and eyes["r"]:
-            return eyes["l"], eyes["r"]
-    return None
-
-
-def _subfolder_pairs(folder: Path) -> tuple[dict[str, Path], dict[str, Path]] | None:
-    subdirs = {p.name.lower(): p for p in folder.iterdir() if p.is_dir()}
-    for left, right in _PAIR_FOLDERS:
-        if left in subdirs and right in subdirs:
-            return ({p.stem: p for p in _images_in(subdirs[left])},
-                    {p.stem: p for p in _images_in(subdirs[right])})
-    return None
-
-
 def _folder_pairs(folder: Path) -> tuple[list[Path], list[Path], list[str]] | None:
     """Paired left/right files of a folder, or ``None`` when no pair naming applies."""
-    found = _named_pairs(_images_in(folder)) or _subfolder_pairs(folder)
+    found = pair_files(folder)
     if found is None:
         return None
     lefts, rights = found
@@ -137,7 +92,7 @@ def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | 
             lefts, rights, names = found
             pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
         else:
-            files = _images_in(path)
+            files = images_in(path)
             pairs = [_split_side_by_side(_read(f), f) for f in files]
             names = [f.stem for f in files]
     else:
@@ -186,7 +141,7 @@ def load_images(source: str | Path, eye: str | None = None, every: int = 1) -> I
         if _folder_pairs(path) is not None:
             raise CalibrationError(f"{path} holds stereo image pairs; say which camera with "
                                    "--eye left or --eye right")
-        files = _images_in(path)
+        files = images_in(path)
     elif any(c in source_text for c in "*?["):
         files = _glob(source_text)
     else:

@@ -1,14 +1,11 @@
-"""Stereo inputs other than a session: one image pair, a folder of pairs, and the calibration
-of an already-rectified pair.
-
-Folder naming (any of): ``<name>_left.png`` + ``<name>_right.png``; ``left<name>.png`` +
-``right<name>.png``; sub-folders ``left/`` and ``right/`` holding files of the same names.
+"""Stereo inputs other than a session: one image pair, a folder of pairs (named as
+:data:`vbfe.calib.pairs.PAIR_NAMING` says, as for ``calibrate``), and the calibration of an
+already-rectified pair.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -17,10 +14,9 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.errors import CalibrationError
+from vbfe.calib.pairs import PAIR_NAMING, pair_files
 from vbfe.recon.errors import ReconError
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
-
 
 class StereoImages(NamedTuple):
     """One raw stereo pair (BGR ``uint8``), shaped like a session frame's ``left``/``right``."""
@@ -66,10 +62,6 @@ def _read(path: Path) -> np.ndarray:
     return image
 
 
-def _images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-
-
 def _paired(folder: Path, lefts: dict[str, Path], rights: dict[str, Path]) -> ImagePairs:
     unpaired = sorted(set(lefts) ^ set(rights))
     if unpaired:
@@ -79,29 +71,13 @@ def _paired(folder: Path, lefts: dict[str, Path], rights: dict[str, Path]) -> Im
     return ImagePairs(tuple(lefts[n] for n in names), tuple(rights[n] for n in names), names)
 
 
-def _pair_key(stem: str, eye: str) -> str | None:
-    """The pair name in a file stem ``<name>_<eye>`` or ``<eye><name>``; None for other files."""
-    if stem.lower().endswith("_" + eye):
-        return stem[:-len(eye) - 1]
-    if stem.lower().startswith(eye):
-        return stem[len(eye):]
-    return None
-
-
 def find_pairs(folder: str | Path) -> ImagePairs:
-    """The stereo pairs in ``folder`` under any of the module's naming rules."""
+    """The stereo pairs in ``folder`` under :data:`~vbfe.calib.pairs.PAIR_NAMING`."""
     folder = Path(folder)
-    files = _images(folder)
-    lefts = {k: p for p in files if (k := _pair_key(p.stem, "left")) is not None}
-    rights = {k: p for p in files if (k := _pair_key(p.stem, "right")) is not None}
-    if not lefts and not rights and (folder / "left").is_dir() and (folder / "right").is_dir():
-        lefts = {p.stem: p for p in _images(folder / "left")}
-        rights = {p.stem: p for p in _images(folder / "right")}
-    if not lefts and not rights:
-        raise ReconError(f"{folder} holds no stereo pairs; name them <name>_left.png and "
-                         f"<name>_right.png, left<name>.png and right<name>.png, or put them in "
-                         f"left/ and right/ sub-folders")
-    return _paired(folder, lefts, rights)
+    found = pair_files(folder)
+    if found is None:
+        raise ReconError(f"{folder} holds no stereo pairs; {PAIR_NAMING}")
+    return _paired(folder, *found)
 
 
 def image_pairs(paths: list[str | Path]) -> ImagePairs:
@@ -117,36 +93,13 @@ def image_pairs(paths: list[str | Path]) -> ImagePairs:
     raise ReconError("give a session (.h5), two image files (LEFT RIGHT) or one folder of pairs")
 
 
-def rectified_calibration(f_px: float, baseline_mm: float, cx: float, cy: float,
-                          image_size: tuple[int, int], doffs_px: float = 0.0) -> Calibration:
-    """Calibration of an already-rectified, distortion-free pair: focal length ``f_px``,
-    baseline ``baseline_mm`` (left camera on the left) and the left principal point ``cx, cy``
-    (px) of images of ``image_size`` (width, height). ``doffs_px`` is the right principal
-    point's x minus the left's (Middlebury's ``doffs``; ``z = f·B / (d + doffs)``)."""
-    width, height = image_size
-    problems = []
-    if not f_px > 0:
-        problems.append(f"focal length --f must be positive (got {f_px})")
-    if not baseline_mm > 0:
-        problems.append(f"--baseline must be positive (got {baseline_mm} mm)")
-    if not (0 <= cx < width and 0 <= cy < height):
-        problems.append(f"principal point ({cx}, {cy}) lies outside the {width}x{height} image")
-    if problems:
-        raise ReconError("; ".join(problems))
-    if not math.isfinite(doffs_px) or not 0 <= cx + doffs_px < width:
-        raise ReconError(f"--doffs {doffs_px} puts the right principal point ({cx + doffs_px}) "
-                         f"outside the {width}-px wide image")
-    K = np.array([[f_px, 0.0, cx], [0.0, f_px, cy], [0.0, 0.0, 1.0]])
-    K2 = K.copy()
-    K2[0, 2] = cx + doffs_px
-    baseline_m = baseline_mm * 1e-3
-    P1 = np.hstack([K, np.zeros((3, 1))])
-    P2 = np.hstack([K2, np.zeros((3, 1))])
-    P2[0, 3] = -f_px * baseline_m
-    # OpenCV's Q: [0, 0, -1/Tx, (cx - cx')/Tx] with Tx = -B
-    Q = np.array([[1.0, 0.0, 0.0, -cx], [0.0, 1.0, 0.0, -cy], [0.0, 0.0, 0.0, f_px],
-                  [0.0, 0.0, 1.0 / baseline_m, doffs_px / baseline_m]])
-    return Calibration(K1=K, D1=np.zeros(5), K2=K2, D2=np.zeros(5), R=np.eye(3),
-                       T=np.array([-baseline_m, 0.0, 0.0]), R1=np.eye(3), R2=np.eye(3), P1=P1,
-                       P2=P2, Q=Q, image_size=(width, height),
-                       info={"source": "already-rectified pair (--rectified)"})
+def rectified_calibration(fx_px: float, fy_px: float, baseline_mm: float, cx: float,
+                          cy: float, image_size: tuple[int, int],
+                          doffs_px: float = 0.0) -> Calibration:
+    """:meth:`Calibration.rectified` from the ``--rectified`` options (baseline in mm), its
+    refusal as a ReconError."""
+    try:
+        return Calibration.rectified(fx_px, fy_px, baseline_mm * 1e-3, cx, cy, image_size,
+                                     doffs_px, source="already-rectified pair (--rectified)")
+    except CalibrationError as exc:
+        raise ReconError(f"--rectified: {exc}") from None

@@ -40,7 +40,7 @@ class MapOutput:
 def depth_map_m(disparity: np.ndarray, calibration: Calibration) -> np.ndarray:
     """Depth ``z = f·B/(d - doffs)`` (m, float32, NaN where the disparity is missing or at or
     beyond infinity)."""
-    doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
+    doffs = -calibration.doffs  # here: left minus right
     shifted = disparity.astype(np.float32) - np.float32(doffs)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(shifted > 0, np.float32(calibration.f * calibration.B) / shifted,

@@ -50,7 +50,7 @@ def disparity_range(calibration: Calibration, min_depth_mm: float,
     if f_b <= 0:
         raise ReconError(f"calibration has f·B = {f_b:.3g} px·m; the rectified pair needs a "
                          f"positive focal length and baseline (left camera on the left)")
-    doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
+    doffs = -calibration.doffs  # here: left minus right
     low = math.floor(f_b / (max_depth_mm * 1e-3) + doffs)
     high = math.ceil(f_b / (min_depth_mm * 1e-3) + doffs)
     count = DISPARITY_STEP * max(1, math.ceil((high - low + 1) / DISPARITY_STEP))

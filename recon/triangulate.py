@@ -84,7 +84,7 @@ class Reconstructor:
                                      row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
-        self._doffs = float(calibration.P1[0, 2] - calibration.P2[0, 2])
+        self._doffs = -calibration.doffs  # left minus right principal point x
         # computed once, in OpenCV's fast fixed-point form, reused for every frame
         self._maps = [cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
                       for map_x, map_y in calibration.rectification_maps()]

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.stereo import calibrate_detections, detect_views
@@ -269,13 +270,19 @@ def test_capture_collects_chessboard_views(tmp_path):
     assert not blurred.kept and blurred.reason.startswith("blurred")
 
 
-def test_chessboard_corners_are_numbered_alike_in_a_board_turned_by_180_degrees():
-    left, _ = stereo_set()[0]
+def test_a_right_eye_numbered_from_the_other_end_is_renumbered_to_match_the_left():
+    left, right = stereo_set()[0]
     detector = BoardDetector(SPEC)
-    upright = detector.detect(left)
-    turned = detector.detect(cv2.rotate(left, cv2.ROTATE_180))
-    h, w = left.shape[:2]
-    back = np.array([w - 1, h - 1]) - turned.corners  # turned pixel positions mapped back
-    assert len(upright) == len(turned) == INNER[0] * INNER[1]
-    # both start at the image's top-left end, so corner k of one is corner n-1-k of the other
-    assert np.allclose(back[::-1], upright.corners, atol=0.3)
+    dl, dr = detector.detect(left), detector.detect(right)
+    assert len(dl) == len(dr) == INNER[0] * INNER[1]
+    kept, turned, contrast = same_numbering(dl.corners, dr.corners, INNER)
+    assert not turned and is_clear(contrast) and np.array_equal(kept, dr.corners)
+    back, turned, contrast = same_numbering(dl.corners, dr.corners[::-1], INNER)
+    assert turned and is_clear(contrast) and np.array_equal(back, dr.corners)
+    # a square board may also come numbered a quarter turn round
+    square = (INNER[1], INNER[1])
+    left_sq, right_sq = (d.corners.reshape(INNER[1], INNER[0], 2)[:, :INNER[1]].reshape(-1, 2)
+                         for d in (dl, dr))
+    quarter = np.rot90(right_sq.reshape(INNER[1], INNER[1], 2)).reshape(-1, 2)
+    back, turned, contrast = same_numbering(left_sq, quarter, square)
+    assert turned and is_clear(contrast) and np.array_equal(back, right_sq)

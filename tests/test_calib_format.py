@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import cv2
@@ -10,7 +11,14 @@ import pytest
 
 from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib.camera import CameraOptions
+from vbfe.calib.capture import CaptureOptions
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.gates import GateLimits
+from vbfe.calib.projector import ProjectorOptions
+from vbfe.calib.projector_capture import GrayCaptureOptions
+from vbfe.calib.stereo import StereoOptions
+from vbfe.config import default_config
 from vbfe.cli.main import main
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig
@@ -112,3 +120,23 @@ def test_legacy_boards_need_the_legacy_option():
     assert len(BoardDetector(legacy).detect(printed_long_ago)) == legacy.n_corners
     assert len(BoardDetector(current).detect(printed_long_ago)) == 0
     assert BoardSpec.from_config({"legacy": True, "squares_x": 8}).board().getLegacyPattern()
+
+
+def test_calibration_defaults_are_written_once_in_the_rig_table():
+    """Every options field set by a [calib] key defaults to that key's value in
+    default_rig.toml (in the field's units)."""
+    table = default_config()["calib"]
+    classes = [BoardSpec, CameraOptions, StereoOptions, GateLimits, CaptureOptions,
+               ProjectorOptions, GrayCaptureOptions]
+    checked = 0
+    for cls in classes:
+        for f in dataclasses.fields(cls):
+            key = f.metadata.get("calib_key")
+            if key is not None:
+                default = f.default_factory() if f.default is dataclasses.MISSING else f.default
+                scale = f.metadata["scale"]
+                expected = table[key] if scale == 1.0 else pytest.approx(table[key] * scale)
+                assert default == expected, (cls, f.name)
+                checked += 1
+    assert checked >= 30
+    assert GateLimits().nominal_baseline_m == pytest.approx(table["nominal_baseline_mm"] * 1e-3)

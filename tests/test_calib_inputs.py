@@ -11,6 +11,7 @@ import pytest
 
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.views import NAMING_RULES, load_images, load_views
+from vbfe.recon.inputs import find_pairs
 
 
 def image(value: int, width: int = 16, height: int = 8) -> np.ndarray:
@@ -45,6 +46,10 @@ def test_common_pair_namings_are_found(tmp_path, layout):
     for k, (left, right) in enumerate(views.pairs):  # sorted by view name, eyes not swapped
         assert left[0, 0, 0] == pytest.approx(10 + 40 * k, abs=2)
         assert right[0, 0, 0] == pytest.approx(30 + 40 * k, abs=2)
+    pairs = find_pairs(tmp_path)  # reconstruct takes every folder calibrate takes, alike
+    assert list(pairs.names) == views.names
+    assert all(pairs.frame(k).left[0, 0, 0] == pytest.approx(10 + 40 * k, abs=2)
+               for k in range(2))
 
 
 def test_side_by_side_images_split_into_left_and_right(tmp_path):

@@ -285,6 +285,8 @@ def _storage_nodes(path: Path) -> dict[str, object]:
             nodes[name] = [node.at(i).string() for i in range(node.size())]
         elif node.isString():
             nodes[name] = node.string()
+        elif node.isMap() and node.getNode("dt").empty():
+            continue  # the info map: optional, its damage is generated separately
         elif node.isMap():
             nodes[name] = node.mat()
         else:
@@ -338,9 +340,11 @@ def calibration_mutations(valid: Path, out: Callable[[], Path]
         yield f"{name} is 0", write_storage(out(), {**nodes, name: 0}), True
     yield ("other image size", write_storage(out(), {**nodes, "image_width": 640,
                                                      "image_height": 360}), True)
-    info = next(name for name in nodes if name.startswith("info_json"))
-    yield f"{info} is a number", write_storage(out(), {**nodes, info: 3}), True
-    yield f"{info} does not decode", write_storage(out(), {**nodes, info: ["{no"]}), True
+    yield "info is a number", write_storage(out(), {**nodes, "info": 3}), True
+    yield "info is a list", write_storage(out(), {**nodes, "info": ["{no"]}), True
+    yield ("old info does not decode",
+           write_storage(out(), {**{k: v for k, v in nodes.items() if k != "info"},
+                                 "info_json_base64": ["{no"]}), True)
     text = valid.read_text()
     for what, content in (("empty", ""), ("JSON", '{"K1": [1, 2, 3]}'), ("JSON list", "[1, 2]"),
                           ("binary", bytes(range(256)).decode("latin-1")),

@@ -1,5 +1,6 @@
 """One settings mechanism: every config table checked the same way, and the calibration writer."""
 
+import base64
 import json
 import subprocess
 import sys
@@ -117,6 +118,9 @@ def test_calibration_with_quote_delimited_info_pieces_round_trips(tmp_path):
 def test_calibration_files_of_the_older_raw_json_info_still_load(tmp_path):
     calibration = calibration_from_rig(default_rig(320, 180)).replace(info={"views": ["a"]})
     text = calibration.to_yaml_text()
-    start = text.index("info_json_base64:")
+    start = text.index("info:")
     old = text[:start] + 'info_json:\n   - "{\\"views\\": [\\"a\\"]}"\n'
     assert Calibration.from_yaml_text(old).info == {"views": ["a"]}
+    b64 = base64.b64encode(b'{"views": ["a"]}').decode()
+    older = text[:start] + f'info_json_base64:\n   - "{b64}"\n'
+    assert Calibration.from_yaml_text(older).info == {"views": ["a"]}

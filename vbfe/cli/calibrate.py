@@ -1,6 +1,6 @@
-"""`vbfe calibrate board|capture|camera|stereo|projector-capture|projector|check|export|color`:
-single-camera, stereo, projector and colour calibration, checks and export to ROS / Kalibr /
-OpenCV files."""
+"""`vbfe calibrate board|capture|camera|stereo|projector-capture|projector|check|import|export|
+color`: single-camera, stereo, projector and colour calibration, checks, and import from / export
+to OpenCV, Kalibr, ROS and Middlebury files."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from vbfe.calib.board import TARGETS
 from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.export import FORMATS, export_names
+from vbfe.calib.export import FORMATS
 from vbfe.calib.report import summary_rows
 from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, positive, progress
@@ -55,6 +55,42 @@ def _board(args: argparse.Namespace) -> dict[str, Any]:
 def _solve_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fix-k3", action="store_true", default=None,
                         help="solve k1, k2, p1, p2 only (k3 = 0, as Kalibr's radtan model)")
+
+
+# the [calib] keys that gate flags set: flag, type, metavar, help
+_GATE_FLAGS = {
+    "min_views": ("--min-views", positive(int), "N",
+                  "fewest usable views accepted (default: [calib] min_views)"),
+    "max_rms_px": ("--max-rms-px", positive(float), "PX",
+                   "refuse an RMS reprojection error above this (default: [calib] max_rms_px)"),
+    "nominal_baseline_mm": ("--nominal-baseline-mm", positive(float, zero=True), "MM",
+                            "refuse a baseline more than [calib] baseline_tolerance from this "
+                            "(0 = not checked; default: [calib] nominal_baseline_mm)"),
+    "working_distance_mm": ("--working-distance-mm", positive(float), "MM",
+                            "distance at which depth uncertainty is stated and checked "
+                            "(default: [calib] working_distance_mm; check: the stored one)"),
+    "check_max_depth_error_mm": ("--max-depth-error-mm", positive(float), "MM",
+                                 "NO-GO above this depth error at the working distance "
+                                 "(default: [calib] check_max_depth_error_mm)"),
+    "check_max_epipolar_px": ("--max-epipolar-px", positive(float), "PX",
+                              "NO-GO above this epipolar RMS of fresh views "
+                              "(default: [calib] check_max_epipolar_px)"),
+}
+
+
+def _gate_options(parser: argparse.ArgumentParser, *keys: str) -> None:
+    group = parser.add_argument_group("limits (defaults: the [calib] table of the rig config)")
+    for key in keys:
+        flag, kind, metavar, text = _GATE_FLAGS[key]
+        group.add_argument(flag, type=kind, dest=key, metavar=metavar, default=None, help=text)
+
+
+def _settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``[calib]`` values given on the command line (gate flags, --fix-k3)."""
+    given = {key: getattr(args, key, None) for key in _GATE_FLAGS}
+    if getattr(args, "fix_k3", None):
+        given["fix_k3"] = True
+    return {key: value for key, value in given.items() if value is not None}
 
 
 def _config_and_board(args: argparse.Namespace) -> tuple[dict, dict[str, Any]]:
@@ -114,13 +150,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eye", choices=("left", "right"),
                    help="take this eye of stereo views (" + NAMING_RULES + ")")
     _solve_options(p)
+    _gate_options(p, "min_views", "max_rms_px")
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_camera)
 
     p = actions.add_parser("stereo", help="calibrate the stereo pair from views",
-                           description="Calibrate the stereo pair; " + NAMING_RULES + ". "
+                           description="Calibrate the stereo pair; " + NAMING_RULES + "; or "
+                           "give --left 'GLOB' --right 'GLOB'. "
                            "A result with an impossible baseline, a rectified principal point "
                            "outside the image, a rectification keeping less than half the image "
                            "or a high RMS is refused and nothing is written.")
@@ -130,14 +168,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
     p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
                    help="fix the intrinsics to these 'calibrate camera' files")
-    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
-                   help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
-                   "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
     p.add_argument("--store-in", metavar="SESSION.h5",
                    help="also store the calibration inside this session")
     _solve_options(p)
+    _gate_options(p, "min_views", "max_rms_px", "nominal_baseline_mm", "working_distance_mm")
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)
@@ -151,6 +187,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out-dir", help="folder to write into (default: next to the calibration)")
     add_overwrite_option(p)
     p.set_defaults(func=run_export)
+
+    p = actions.add_parser("import", help="read another tool's stereo calibration",
+                           description="Read OpenCV's stereo sample files (M1 D1 M2 D2 R T, also "
+                           "K1 ...; YAML or XML; one file or intrinsics.yml extrinsics.yml), a "
+                           "Kalibr camchain, a ROS camera_info pair (left right) or a "
+                           "Middlebury calib.txt, check it with the sanity gates and write "
+                           "vbfe's calibration file.")
+    p.add_argument("files", nargs="+", metavar="FILE", help="the calibration file(s)")
+    p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
+    p.add_argument("--image-size", metavar="WxH", dest="image_size",
+                   help="image size, for OpenCV files that do not hold it, e.g. 640x480")
+    p.add_argument("--unit-mm", type=positive(float), default=1000.0, metavar="MM",
+                   help="length of one unit of an OpenCV file's T, in mm (default 1000: metres; "
+                   "OpenCV's sample measures in board squares)")
+    _gate_options(p, "nominal_baseline_mm")
+    add_overwrite_option(p)
+    add_config_option(p)
+    p.set_defaults(func=run_import)
 
     p = actions.add_parser("projector", help="calibrate the projector (Gray code on the board)")
     p.add_argument("captures", help="folder of pose_NNN/ Gray-code captures")
@@ -169,19 +223,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = actions.add_parser("check", help="go/no-go of the stored calibration")
     p.add_argument("stored", help="stored calibration YAML (or session)")
     p.add_argument("--against", help="a new calibration YAML to compare with")
-    p.add_argument("--views", help="folder of fresh view pairs (or a session)")
-    p.add_argument("--max-depth-error-mm", type=positive(float), default=None,
-                   help="limit at the working distance (default: [calib] table)")
-    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
-                   help="NO-GO for a baseline far from this (default: [calib] table)")
+    p.add_argument("--views", help="folder of fresh view pairs (or a session); the board is the "
+                   "one stored in the calibration unless board options are given")
+    _gate_options(p, "working_distance_mm", "check_max_depth_error_mm", "check_max_epipolar_px",
+                  "max_rms_px", "nominal_baseline_mm")
     _board_options(p)
     add_config_option(p)
     p.set_defaults(func=run_check)
 
     p = actions.add_parser("color", help="fit the colour crosstalk model (flat projections)")
     p.add_argument("calibration", help="calibration YAML to add color_mixing/color_offset to")
-    p.add_argument("-o", "--out", default=None, help="write here instead of in place (in place "
-                   "needs --overwrite)")
+    p.add_argument("-o", "--out", default=None,
+                   help="write here (default: update CALIBRATION in place, with --overwrite)")
     p.add_argument("--frames", type=positive(int), default=3, help="frames averaged per projection")
     add_overwrite_option(p)
     add_config_option(p)
@@ -238,11 +291,19 @@ def run_capture(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_solve_notes(dropped: dict[str, str], n_rejected: int, weak: str | None) -> None:
+_NAMED_CORNERS = 8  # rejected corners named one by one; the rest counted
+
+
+def _print_solve_notes(dropped: dict[str, str], rejected: list, weak: str | None) -> None:
+    """Dropped views and rejected corners by name (``rejected``: [view, camera, id, px] rows)."""
     for name, why in dropped.items():
         print(f"  dropped {name}: {why}")
-    if n_rejected:
-        print(f"  rejected {n_rejected} outlier corners (residual above the limit)")
+    for view, camera, corner, px in rejected[:_NAMED_CORNERS]:
+        print(f"  rejected corner {corner} of view {view} ({camera} eye): {px:.2f} px from the "
+              "fit, an outlier")
+    if len(rejected) > _NAMED_CORNERS:
+        print(f"  rejected {len(rejected) - _NAMED_CORNERS} more outlier corners (listed in the "
+              "calibration file)")
     if weak:
         print(f"  {weak}")
 
@@ -253,7 +314,7 @@ def run_camera(args: argparse.Namespace) -> int:
     config, board = _config_and_board(args)
     with progress(desc="detecting corners", unit="image") as bar:
         result = commands.camera(config, args.source, args.out, args.eye,
-                                 step=lambda: bar.update(1), fix_k3=args.fix_k3, **board)
+                                 step=lambda: bar.update(1), settings=_settings(args), **board)
     model = result.model
     K = model.K
     print(f"wrote {args.out}")
@@ -264,7 +325,8 @@ def run_camera(args: argparse.Namespace) -> int:
                  ("RMS", f"{model.rms_px:.3f} px over {len(result.names)} views (per view "
                   f"{model.per_view_rms_px.min():.3f} to {model.per_view_rms_px.max():.3f})"),
                  ("uncertainty", uncertainty_text(K, model.std_intrinsics))])
-    _print_solve_notes(result.dropped, len(result.fit.rejected), result.weak)
+    _print_solve_notes(result.dropped, [[r.view, r.camera, r.corner_id, r.residual_px]
+                                         for r in result.fit.rejected], result.weak)
     return 0
 
 
@@ -278,9 +340,7 @@ def run_stereo(args: argparse.Namespace) -> int:
         outcome = commands.stereo(config, args.source, args.out, report=not args.no_report,
                                   store_in_session=args.store_in, step=lambda: bar.update(1),
                                   left_glob=args.left_glob, right_glob=args.right_glob,
-                                  intrinsics=intrinsics,
-                                  nominal_baseline_mm=args.nominal_baseline_mm,
-                                  fix_k3=args.fix_k3, **board)
+                                  intrinsics=intrinsics, settings=_settings(args), **board)
     result = outcome.result
     print(f"wrote {outcome.yaml_path}" + (f", report {outcome.report_paths[1]}"
                                           if outcome.report_paths else ""))
@@ -288,19 +348,39 @@ def run_stereo(args: argparse.Namespace) -> int:
     for eye, fit in (("left", result.left), ("right", result.right)):
         print(f"  {eye} " + uncertainty_text(fit.K, fit.std_intrinsics)
               + (" (fixed from --intrinsics)" if intrinsics else ""))
-    _print_solve_notes(result.dropped, len(result.calibration.info["rejected_corners"]),
+    if result.renumbered:
+        print(f"  the eyes numbered the chessboard from opposite ends in views "
+              f"{', '.join(result.renumbered)}: the right eye's corners were renumbered to match")
+    _print_solve_notes(result.dropped, result.calibration.info["rejected_corners"],
                        None)  # a weak result is noted in the summary rows
     return 0
 
 
 def run_export(args: argparse.Namespace) -> int:
     """Write the calibration in another tool's format."""
-    folder = Path(args.out_dir or Path(args.calibration).parent)
-    check_outputs([folder / name for name in export_names(args.fmt, Path(args.calibration).stem)]
-                  if folder.is_dir() else [], [args.calibration], args.overwrite,
+    targets = commands.export_targets(args.calibration, args.fmt, args.out_dir)
+    folder = targets[0].parent
+    check_outputs([p for p in targets if p.parent.is_dir()], [args.calibration], args.overwrite,
                   directories=[] if folder.is_dir() else [folder])
     for path in commands.export(args.calibration, args.fmt, args.out_dir):
         print(f"wrote {path}")
+    return 0
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Import another tool's calibration and print its summary."""
+    check_outputs([args.out], args.files, args.overwrite)
+    size = None
+    if args.image_size is not None:
+        m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", args.image_size)
+        if not m:
+            raise CalibrationError(f"--image-size {args.image_size!r}: give WIDTHxHEIGHT, e.g. "
+                                   "640x480")
+        size = (int(m[1]), int(m[2]))
+    calibration, fmt = commands.import_files(config_from(args), args.files, args.out, size,
+                                             args.unit_mm, _settings(args))
+    print(f"read {fmt} calibration; wrote {args.out}")
+    _print_rows(summary_rows(calibration))
     return 0
 
 
@@ -341,7 +421,7 @@ def run_check(args: argparse.Namespace) -> int:
     with progress(total=1, desc="checking") as bar:
         config, board = _config_and_board(args)
         result = commands.check(config, args.stored, args.against, args.views,
-                                args.max_depth_error_mm, args.nominal_baseline_mm, **board)
+                                settings=_settings(args), **board)
         bar.update(1)
     _print_rows(result.rows())
     return 0 if result.passed else 1

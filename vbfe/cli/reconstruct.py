@@ -34,7 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "already-rectified pairs", "instead of --calib: the rectified pair's geometry")
     rectified.add_argument("--rectified", action="store_true",
                            help="the images are rectified and undistorted")
-    rectified.add_argument("--f", type=float, metavar="PX", help="focal length (px)")
+    rectified.add_argument("--f", type=float, metavar="PX", help="focal length (px; fx = fy)")
+    rectified.add_argument("--fx", type=float, metavar="PX", help="horizontal focal length (px)")
+    rectified.add_argument("--fy", type=float, metavar="PX", help="vertical focal length (px)")
     rectified.add_argument("--baseline", type=float, metavar="MM", help="baseline (mm)")
     rectified.add_argument("--cx", type=float, metavar="PX", help="principal point x (px)")
     rectified.add_argument("--cy", type=float, metavar="PX", help="principal point y (px)")
@@ -69,14 +71,17 @@ def _calibration(args: argparse.Namespace, size: tuple[int, int] | None):
     from vbfe.recon.session_recon import resolve_calibration
 
     if args.rectified:
-        missing = [f"--{name}" for name in ("f", "baseline", "cx", "cy")
-                   if getattr(args, name) is None]
-        if missing or args.calib:
-            raise ReconError("--rectified needs --f, --baseline, --cx and --cy (missing "
-                             f"{', '.join(missing) or 'none'}) and no --calib")
+        fx, fy = (args.fx, args.fy) if args.f is None else (args.f, args.f)
+        missing = [flag for flag, value in (("--f (or --fx and --fy)", fx if fy else None),
+                                            ("--baseline", args.baseline), ("--cx", args.cx),
+                                            ("--cy", args.cy)) if value is None]
+        if missing or args.calib or (args.f is not None and (args.fx or args.fy)):
+            raise ReconError("--rectified needs --f (or --fx and --fy), --baseline, --cx and "
+                             f"--cy (missing {', '.join(missing) or 'none'}), not both --f and "
+                             "--fx/--fy, and no --calib")
         if size is None:
             raise ReconError("--rectified is for image pairs; a session stores its calibration")
-        return rectified_calibration(args.f, args.baseline, args.cx, args.cy, size, args.doffs)
+        return rectified_calibration(fx, fy, args.baseline, args.cx, args.cy, size, args.doffs)
     if size is not None and args.calib is None:
         raise ReconError("image pairs need --calib calib.yaml, or --rectified with --f, "
                          "--baseline, --cx and --cy")

@@ -85,7 +85,7 @@ def rectified_truth(calibration: Calibration, depth_left_m: np.ndarray,
                                             np.ones(u.size)]))[2].reshape(height, width)
     depth_rect = raw_depth / ray_z
     valid_rect = raw_depth > 0
-    doffs = calibration.P1[0, 2] - calibration.P2[0, 2]
+    doffs = -calibration.doffs  # here: left minus right
     disparity = np.where(valid_rect, calibration.f * calibration.B
                          / np.where(valid_rect, depth_rect, 1.0) + doffs, 0)
     return (disparity.astype(np.float32),
