@@ -89,6 +89,13 @@ def _fraction_text(values: np.ndarray) -> str:
     return f"{np.mean(finite):.1%}" if finite.size else "n/a"
 
 
+def _verified_share(reader: CloudReader) -> float:
+    """Share of all points whose match the De Bruijn code confirmed."""
+    flags = [reader.verified(i) for i in range(reader.n_frames)]
+    total = sum(len(f) for f in flags)
+    return sum(int(np.count_nonzero(f)) for f in flags) / max(total, 1)
+
+
 def summary_line(reader: CloudReader) -> str:
     """One line: frames, density, decoded pattern, what verification did, disparity range."""
     n = reader.n_frames
@@ -106,6 +113,7 @@ def summary_line(reader: CloudReader) -> str:
         kept, corrected, rejected = (counts[:, k].sum() / total for k in (1, 2, 3))
         parts.append(f"matches kept {kept:.1%} / corrected {corrected:.1%} / "
                      f"rejected {rejected:.1%}")
+        parts.append(f"points verified {_verified_share(reader):.1%}")
     else:
         parts.append("no verification")
     parts.append(f"disparities {low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px")
@@ -130,9 +138,9 @@ def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     return lines
 
 
-def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list[str], bool]:
-    """One-line warnings for a cloud file, and whether the pattern was too weak to verify
-    (the cloud is then empty or nearly so)."""
+def quality_warnings(reader: CloudReader, settings: ReconSettings) -> list[str]:
+    """One-line warnings for a cloud file: a pattern too weak to verify most matches (they
+    are then SGBM's, flagged unverified), matches piled up at the disparity range's edge."""
     warnings = []
     n = reader.n_frames
     decoded = reader.frame_table("decoded_fraction")
@@ -141,8 +149,8 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list
         warnings.append(
             f"the De Bruijn pattern is readable on only {np.nanmedian(decoded[weak]):.2%} of the "
             f"pixels in {int(weak.sum())} of {n} frames (need {settings.min_decoded_fraction:.0%}"
-            f"), so verification rejected their matches; is the projector on and the pattern "
-            f"in view? For pairs without the pattern use --no-verify")
+            f"), so their matches are SGBM's alone, flagged unverified; is the projector on "
+            f"and the pattern in view? For pairs without the pattern use --no-verify")
     edge = reader.frame_table("edge_fraction")
     if n and np.nanmax(edge) > settings.max_edge_fraction:
         sgbm = reader.attrs["sgbm"]
@@ -152,4 +160,4 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list
             f"{low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px (worst frame): the "
             f"surface is nearer or farther than it covers; widen [recon] min_depth_mm/"
             f"max_depth_mm or set [sgbm] num_disparities")
-    return warnings, bool(weak.any())
+    return warnings

@@ -25,9 +25,9 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.recon.inputs import ImagePairs
 from vbfe.recon.maps import MapOutput, write_maps
 from vbfe.recon.quality import ReconSettings, params_for
-from vbfe.recon.triangulate import Reconstructor
+from vbfe.recon.triangulate import FrameCloud, Reconstructor
 
-FrameResult = tuple[int, np.ndarray, np.ndarray, dict[str, object], np.ndarray | None]
+FrameResult = tuple[int, FrameCloud, dict[str, object]]
 
 _worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
 
@@ -48,8 +48,8 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
 
 
 def _process_frame(i: int) -> FrameResult:
-    """Reconstruct frame ``i`` of the worker's source; returns the cloud, its statistics and
-    (when maps were asked for) the disparity map."""
+    """Reconstruct frame ``i`` of the worker's source; returns the cloud (without its
+    per-pixel maps unless they were asked for) and its statistics."""
     frame = _worker["reader"].frame(i)
     cloud = _worker["reconstructor"].process(frame.left, frame.right)
     d = cloud.disparity[cloud.valid]
@@ -58,8 +58,9 @@ def _process_frame(i: int) -> FrameResult:
                               if d.size else np.full(4, np.nan, np.float32)),
              "match_counts": np.array([cloud.counts.get(k, -1) for k in COUNT_COLUMNS], np.int64),
              "decoded_fraction": cloud.decoded_fraction, "edge_fraction": cloud.edge_fraction}
-    return (i, cloud.points, cloud.colors, stats,
-            cloud.disparity if _worker["keep_maps"] else None)
+    if not _worker["keep_maps"]:  # nothing per pixel crosses the process boundary
+        cloud = dataclasses.replace(cloud, disparity=None, valid=None, status=None)
+    return i, cloud, stats
 
 
 def resolve_calibration(session_path: str | Path,
@@ -111,12 +112,12 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
         "sgbm_json": json.dumps(dataclasses.asdict(params)), "software_version": __version__},
         calibration.to_yaml_text())
     try:
-        for i, points, colors, stats, disparity in _results(
-                source, calibration, params, verify, settings, maps is not None, n_frames,
-                workers):
-            writer.append(i, int(times[i]), points, colors, stats)
+        for i, cloud, stats in _results(source, calibration, params, verify, settings,
+                                        maps is not None, n_frames, workers):
+            writer.append(i, int(times[i]), cloud.points, cloud.colors, stats, cloud.verified)
             if maps is not None:
-                write_maps(maps.folder, names[i], disparity, calibration, maps.fmt)
+                write_maps(maps.folder, names[i], cloud.disparity, calibration, maps.fmt,
+                           cloud.status)
             if progress is not None:
                 progress(1)
         writer.finish()
