@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -150,3 +151,40 @@ def rectified_calibration(f_px: float, baseline_mm: float, cx: float, cy: float,
                        T=np.array([-baseline_m, 0.0, 0.0]), R1=np.eye(3), R2=np.eye(3), P1=P1,
                        P2=P2, Q=Q, image_size=(width, height),
                        info={"source": "already-rectified pair (--rectified)"})
+
+
+def middlebury_calibration(path: str | Path, image_size: tuple[int, int]) -> Calibration:
+    """The rectified geometry in a Middlebury ``calib.txt`` (``cam0=[f 0 cx; 0 f cy; 0 0 1]``,
+    ``cam1``, ``doffs``, ``baseline`` in mm) for images of ``image_size``."""
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReconError(f"cannot read Middlebury calibration {path}: {exc}") from None
+    fields = dict(re.findall(r"^\s*(\w+)\s*=\s*(.+?)\s*$", text, re.MULTILINE))
+    try:
+        cam0 = np.array([float(v) for v in re.findall(r"[-+\d.eE]+", fields["cam0"])])
+        f_px, cx, cy = cam0[0], cam0[2], cam0[5]
+        baseline_mm, doffs = float(fields["baseline"]), float(fields.get("doffs", 0.0))
+    except (KeyError, IndexError, ValueError):
+        raise ReconError(f"{path} is not a Middlebury calib.txt (needs cam0=[f 0 cx; 0 f cy; "
+                         f"0 0 1], baseline= and doffs=)") from None
+    calibration = rectified_calibration(f_px, baseline_mm, cx, cy, image_size, doffs)
+    return calibration.replace(info={"source": f"Middlebury calibration {path}"})
+
+
+def pair_calibration(image_size: tuple[int, int], calib: str | Path | None = None,
+                     rectified: dict[str, float] | None = None) -> Calibration:
+    """The calibration of image pairs of ``image_size``: a calibration YAML file, a Middlebury
+    ``calib.txt``, or ``rectified`` geometry (the arguments of :func:`rectified_calibration`:
+    ``f_px``, ``baseline_mm``, ``cx``, ``cy``, ``doffs_px``)."""
+    if rectified is not None:
+        if calib is not None:
+            raise ReconError("give either a calibration file (--calib) or the rectified "
+                             "geometry (--rectified), not both")
+        return rectified_calibration(image_size=image_size, **rectified)
+    if calib is None:
+        raise ReconError("image pairs need --calib calib.yaml (or a Middlebury calib.txt), or "
+                         "--rectified with --f, --baseline, --cx and --cy")
+    if Path(calib).suffix.lower() == ".txt":
+        return middlebury_calibration(calib, image_size)
+    return Calibration.load(calib)

@@ -45,8 +45,8 @@ class SgbmParams:
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
         params = parse_table(cls, table, "sgbm")
         if params.num_disparities % 16:
-            raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
-                             f"positive multiple of 16, got "
+            raise ReconError(f"[sgbm] num_disparities (--num-disparities) must be 0 (from the "
+                             f"depth range) or a positive multiple of 16, got "
                              f"{params.num_disparities}")
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")

@@ -7,6 +7,7 @@ Settings come from the rig config's ``[recon]`` table (:class:`ReconSettings`).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -19,6 +20,12 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.settings import parse_table, setting
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
+COST_BYTES = 2  # StereoSGBM's CostType (short)
+# rows of cost buffers the single-pass modes hold at once (aggregation, window, both passes):
+# a bound, not OpenCV's exact figure; MODE_HH holds two for every row of the image
+SINGLE_PASS_ROWS = 64
+RANGE_FLAGS = ("--min-disparity/--num-disparities (or [sgbm] min_disparity/num_disparities, or "
+               "the depth range [recon] min_depth_mm/max_depth_mm)")
 
 
 @dataclass(frozen=True)
@@ -64,6 +71,35 @@ def params_for(calibration: Calibration, params: SgbmParams,
         return params
     low, count = disparity_range(calibration, settings.min_depth_mm, settings.max_depth_mm)
     return replace(params, min_disparity=low, num_disparities=count)
+
+
+def sgbm_buffer_bytes(params: SgbmParams, image_size: tuple[int, int]) -> int:
+    """Bytes of cost buffers StereoSGBM needs for ``params`` on images of ``image_size``."""
+    width, height = image_size
+    rows = 2 * height if params.mode in ("hh", "hh4") else SINGLE_PASS_ROWS
+    return COST_BYTES * (width + params.num_disparities) * params.num_disparities * rows
+
+
+def memory_bytes() -> int:
+    """Physical memory of this machine (bytes)."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_disparity_range(params: SgbmParams, image_size: tuple[int, int]) -> None:
+    """Refuse a disparity range SGBM cannot match on images of ``image_size`` (wider than the
+    image, or cost buffers beyond half this machine's memory), naming the settings to change."""
+    width = image_size[0]
+    low, high = params.min_disparity, params.min_disparity + params.num_disparities - 1
+    if params.num_disparities >= width or not -width < low < width:
+        raise ReconError(f"disparity range {low}..{high} px does not fit the {width}-px wide "
+                         f"images (the range must be narrower than the image and start inside "
+                         f"it); set {RANGE_FLAGS}")
+    needed, limit = sgbm_buffer_bytes(params, image_size), memory_bytes() // 2
+    if needed > limit:
+        raise ReconError(f"disparity range {low}..{high} px with mode {params.mode!r} needs "
+                         f"{needed / 2**30:.1f} GiB of SGBM buffers, more than half of this "
+                         f"machine's {2 * limit / 2**30:.1f} GiB; narrow it with {RANGE_FLAGS} "
+                         f"or use mode sgbm_3way")
 
 
 def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:

@@ -17,17 +17,19 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire import SessionReader
-from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.inputs import ImagePairs
 from vbfe.recon.maps import MapOutput, write_maps
-from vbfe.recon.quality import ReconSettings, params_for
+from vbfe.recon.quality import ReconSettings, check_disparity_range, params_for
 from vbfe.recon.triangulate import FrameCloud, Reconstructor
 
 FrameResult = tuple[int, FrameCloud, dict[str, object]]
+FrameHook = Callable[[str, FrameCloud], object]
+StartHook = Callable[[int, bool], object]
 
 _worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
 
@@ -63,14 +65,6 @@ def _process_frame(i: int) -> FrameResult:
     return i, cloud, stats
 
 
-def resolve_calibration(session_path: str | Path,
-                        calibration: Calibration | str | Path | None = None) -> Calibration:
-    """The calibration to use: the given object, a YAML/session path, or the session's own."""
-    if isinstance(calibration, Calibration):
-        return calibration
-    return load_calibration(session_path if calibration is None else calibration)
-
-
 def _results(source: str | ImagePairs, calibration: Calibration, params: SgbmParams,
              verify: bool, settings: ReconSettings, keep_maps: bool, n_frames: int,
              workers: int) -> Iterator[FrameResult]:
@@ -98,11 +92,17 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
                  times: np.ndarray, names: list[str], calibration: Calibration, out_path: Path,
                  workers: int | None, progress: Callable[[int], object] | None,
                  params: SgbmParams, verify: bool, settings: ReconSettings,
-                 maps: MapOutput | None, partial: bool = False) -> Path:
+                 maps: MapOutput | None, per_frame: FrameHook | None = None,
+                 started: StartHook | None = None, partial: bool = False) -> Path:
     """Reconstruct ``n_frames`` frames of ``source`` into ``out_path`` (written to a temporary
     name and renamed when complete, so an interrupted run leaves no partial file); ``partial``
-    marks the clouds of a session that was still being recorded."""
+    marks the clouds of a session that was still being recorded; ``started(n_frames,
+    partial)`` is called once the settings are checked, ``per_frame(name, cloud)`` with each
+    frame's cloud and its per-pixel maps."""
     params = params_for(calibration, params, settings)
+    check_disparity_range(params, calibration.image_size)
+    if started is not None:
+        started(n_frames, partial)
     workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
     tmp_path = out_path.with_name(out_path.name + ".partial")
     writer = CloudWriter(tmp_path, {
@@ -112,12 +112,15 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
         "sgbm_json": json.dumps(dataclasses.asdict(params)), "software_version": __version__},
         calibration.to_yaml_text())
     try:
+        keep_maps = maps is not None or per_frame is not None
         for i, cloud, stats in _results(source, calibration, params, verify, settings,
-                                        maps is not None, n_frames, workers):
+                                        keep_maps, n_frames, workers):
             writer.append(i, int(times[i]), cloud.points, cloud.colors, stats, cloud.verified)
             if maps is not None:
                 write_maps(maps.folder, names[i], cloud.disparity, calibration, maps.fmt,
                            cloud.status)
+            if per_frame is not None:
+                per_frame(names[i], cloud)
             if progress is not None:
                 progress(1)
         writer.finish()
@@ -141,15 +144,18 @@ def reconstruct_images(pairs: ImagePairs, calibration: Calibration,
                        progress: Callable[[int], object] | None = None,
                        sgbm_params: SgbmParams | None = None, verify: bool = True,
                        settings: ReconSettings | None = None,
-                       maps: MapOutput | None = None) -> Path:
+                       maps: MapOutput | None = None, per_frame: FrameHook | None = None,
+                       started: StartHook | None = None) -> Path:
     """Reconstruct image pairs (see :mod:`vbfe.recon.inputs`) into a cloud file, by default
-    ``<first left image>.clouds.h5``; frame times are 0."""
+    ``<first left image>.clouds.h5``; frame times are 0. ``per_frame(name, cloud)`` sees each
+    pair's cloud with its per-pixel maps (e.g. to score it against ground truth);
+    ``started(n_pairs, False)`` is called once the settings are checked."""
     _check_size(f"{pairs.lefts[0]}", pairs.frame_size(), calibration)
     out_path = Path(out_path) if out_path is not None else sidecar_path(pairs.lefts[0])
     return _reconstruct(pairs, "images", pairs.fingerprint(), pairs.n_frames,
                         np.zeros(pairs.n_frames, np.int64), list(pairs.names), calibration,
                         out_path, workers, progress, sgbm_params or SgbmParams(), verify,
-                        settings or ReconSettings(), maps)
+                        settings or ReconSettings(), maps, per_frame, started)
 
 
 def reconstruct_session(session_path: str | Path,
@@ -158,29 +164,35 @@ def reconstruct_session(session_path: str | Path,
                         progress: Callable[[int], object] | None = None,
                         sgbm_params: SgbmParams | None = None, verify: bool = True,
                         settings: ReconSettings | None = None,
-                        maps: MapOutput | None = None) -> Path:
+                        maps: MapOutput | None = None,
+                        started: StartHook | None = None) -> Path:
     """Reconstruct all frames of a session into ``<session>.clouds.h5`` (or ``out_path``).
 
-    ``calibration`` is a :class:`Calibration`, a YAML/session path, or ``None`` for the one
-    stored in the session. ``workers`` processes (default: one per CPU core, at most the
-    number of frames) share the frames; ``progress(n)`` is called with each finished frame
-    count. ``settings`` (the ``[recon]`` table) give the depth range a zero
-    ``num_disparities`` is derived from; ``maps`` asks for disparity/depth maps too. The
-    sidecar is written to a temporary name and renamed when complete, so an interrupted run
-    leaves no partial file. A session still being recorded is reconstructed up to its frames
-    flushed at the start; the sidecar then has ``session_partial = True``.
+    ``calibration`` is a :class:`Calibration`, a YAML path, or ``None`` for the one stored in
+    the session. ``workers`` processes (default: one per CPU core, at most the number of
+    frames) share the frames; ``started(n_frames, partial)`` is called once the session is
+    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the ``[recon]``
+    table) give the depth range a zero ``num_disparities`` is derived from; ``maps`` asks for
+    disparity/depth/quality maps too. The sidecar is written to a temporary name and renamed
+    when complete, so an interrupted run leaves no partial file. A session still being
+    recorded is reconstructed up to its frames flushed at the start (``partial``); the sidecar
+    then has ``session_partial = True``.
     """
     session_path = Path(session_path)
-    calibration = resolve_calibration(session_path, calibration)
     out_path = Path(out_path) if out_path is not None else sidecar_path(session_path)
-    with SessionReader(session_path) as reader:
+    with SessionReader(session_path) as reader:  # the one look before the workers open it
         n_frames = reader.n_frames
         partial = reader.growing
         size = reader.frame_size
         times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
         fingerprint = fingerprint_of(reader)
+        if calibration is None:
+            calibration = stored_calibration(reader.calibration_yaml(), session_path)
+    if not isinstance(calibration, Calibration):
+        calibration = load_calibration(calibration)
     _check_size(f"session {session_path}", size, calibration)
     names = [f"frame_{i:06d}" for i in range(n_frames)]
     return _reconstruct(str(session_path), "session", fingerprint, n_frames, times, names,
                         calibration, out_path, workers, progress, sgbm_params or SgbmParams(),
-                        verify, settings or ReconSettings(), maps, partial)
+                        verify, settings or ReconSettings(), maps, started=started,
+                        partial=partial)

@@ -16,7 +16,8 @@ from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
-from vbfe.recon.quality import ReconSettings, decoded_fraction, edge_fraction, params_for
+from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
+                                edge_fraction, params_for)
 from vbfe.recon.verify import verify_disparity
 
 
@@ -66,6 +67,7 @@ class Reconstructor:
         self.calibration = calibration
         self.settings = settings or ReconSettings()
         self.params = params_for(calibration, sgbm_params or SgbmParams(), self.settings)
+        check_disparity_range(self.params, calibration.image_size)
         self.verify = verify
         self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
                                      row_step=self.params.decode_row_step)
