@@ -191,10 +191,11 @@ class CloudReader:
         return self._file["points"][start:stop], self._file["colors"][start:stop]
 
     def verified(self, i: int) -> np.ndarray:
-        """Frame ``i``'s verified flag per point (N bool; all False in files before version 3)."""
+        """Frame ``i``'s verified flag per point (N bool). Files before version 3 kept only
+        verified points when verification ran, so their points read as all verified then."""
         points, _ = self.cloud(i)
         if "verified" not in self._file:
-            return np.zeros(len(points), bool)
+            return np.full(len(points), bool(self._file.attrs.get("verify", False)))
         i %= self.n_frames
         return self._file["verified"][int(self._offsets[i]):int(self._offsets[i + 1])]
 

@@ -123,9 +123,9 @@ def _run_batch(args: argparse.Namespace, config: dict, params: object, settings:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.batch.tasks import ReconstructTask
 
-    if args.out or args.ply_dir or args.maps_dir or args.rectified:
-        raise BatchError("--out, --ply-dir, --maps-dir and --rectified take one input; with "
-                         "several sessions each one's clouds go next to it")
+    if args.out or args.ply_dir or args.maps_dir or args.rectified or args.truth:
+        raise BatchError("--out, --ply-dir, --maps-dir, --rectified and --truth take one "
+                         "input; with several sessions each one's clouds go next to it")
     executor, address = batch_settings(args, config.get("batch", {}))
     task = ReconstructTask(sgbm=dataclasses.asdict(params), verify=not args.no_verify,
                            settings=dataclasses.asdict(settings), calibration=args.calib,
