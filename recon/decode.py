@@ -82,7 +82,8 @@ class FringeDecoder:
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
         local_max = cv2.dilate(value, np.ones((1, max(3, int(round(period)) | 1)), np.uint8))
         index = np.empty((height, image.shape[1]), np.int16)
-        kernels.decode_rows(value, colour, local_max, self.lookup, self._channel_symbol,
+        kernels.decode_rows(value[..., None], colour, local_max, self.lookup,
+                            self._channel_symbol,
                             BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, N_SYMBOLS, WINDOW,
                             MIN_VOTES, self.row_step, index)
         return FringeCode(index=index, colour=colour, period_px=period, row_step=self.row_step)

@@ -23,60 +23,60 @@ CORRECTED = 4  # replaced by a nearby candidate on the left pixel's fringe
 
 
 @njit(cache=True, nogil=True)
-def _pairwise_block(a, lo, n):
-    """``a[lo:lo+n]`` (``n <= PAIRWISE_BLOCK``) summed in numpy's pairwise order (float32)."""
+def _pairwise_block(a, lo, n, k):
+    """``a[lo:lo+n, k]`` (``n <= PAIRWISE_BLOCK``) summed in numpy's pairwise order (float32)."""
     if n < 8:
         res = np.float32(0.0)
         for i in range(lo, lo + n):
-            res += a[i]
+            res += a[i, k]
         return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    stop = n - n % 8
+    r0, r1, r2, r3 = a[lo, k], a[lo + 1, k], a[lo + 2, k], a[lo + 3, k]
+    r4, r5, r6, r7 = a[lo + 4, k], a[lo + 5, k], a[lo + 6, k], a[lo + 7, k]
+    i = lo + 8
+    stop = lo + n - n % 8
     while i < stop:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
+        r0 += a[i, k]
+        r1 += a[i + 1, k]
+        r2 += a[i + 2, k]
+        r3 += a[i + 3, k]
+        r4 += a[i + 4, k]
+        r5 += a[i + 5, k]
+        r6 += a[i + 6, k]
+        r7 += a[i + 7, k]
         i += 8
     res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
+    while i < lo + n:
+        res += a[i, k]
         i += 1
     return res
 
 
 @njit(cache=True, nogil=True)
-def _pairwise_sum(a, lo, n):
-    """``a[lo:lo+n]`` summed in numpy's pairwise order: halves of long runs recursively."""
+def _pairwise_sum(a, lo, n, k):
+    """``a[lo:lo+n, k]`` summed in numpy's pairwise order: halves of long runs recursively."""
     if n <= PAIRWISE_BLOCK:
-        return _pairwise_block(a, lo, n)
+        return _pairwise_block(a, lo, n, k)
     half = n // 2
     half -= half % 8
-    return _pairwise_sum(a, lo, half) + _pairwise_sum(a, lo + half, n - half)
+    return _pairwise_sum(a, lo, half, k) + _pairwise_sum(a, lo + half, n - half, k)
 
 
 @njit(cache=True, nogil=True)
-def _run_sum(a, lo, n):
-    """``np.add.reduceat``'s sum of one run: its first element plus the pairwise rest."""
+def _run_sum(a, lo, n, k):
+    """``np.add.reduceat``'s sum of one run of column ``k`` of ``a`` (W×C): its first element
+    plus the pairwise rest."""
     if n - 1 <= PAIRWISE_BLOCK:
-        return a[lo] + _pairwise_block(a, lo + 1, n - 1)
-    return a[lo] + _pairwise_sum(a, lo + 1, n - 1)
+        return a[lo, k] + _pairwise_block(a, lo + 1, n - 1, k)
+    return a[lo, k] + _pairwise_sum(a, lo + 1, n - 1, k)
 
 
 @njit(cache=True, nogil=True)
 def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth, min_value,
                 min_purity, n_symbols, window, min_votes, row_step, index):
     """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
-    decoded rows' brightness ``value`` and corrected ``colour``; each decoded row fills the
-    ``row_step`` image rows from its own down."""
-    rows, width = value.shape
+    decoded rows' brightness ``value`` (rows×W×1) and corrected ``colour`` (rows×W×3); each
+    decoded row fills the ``row_step`` image rows from its own down."""
+    rows, width = value.shape[:2]
     height = index.shape[0]
     depth = np.float32(boundary_depth)
     purity_limit = np.float32(min_purity)
@@ -87,21 +87,21 @@ def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth
     candidates = np.empty(window, np.int32)
     for r in range(rows):
         v = value[r]
+        row_colour = colour[r]
         n = 1
         starts[0] = 0
         for x in range(1, width - 1):
-            c = v[x]
-            if c < v[x - 1] and c <= v[x + 1] and c < depth * local_max[r, x]:
+            c = v[x, 0]
+            if c < v[x - 1, 0] and c <= v[x + 1, 0] and c < depth * local_max[r, x]:
                 starts[n] = x
                 n += 1
         starts[n] = width
-        blue, green, red = colour[r, :, 0], colour[r, :, 1], colour[r, :, 2]
         for j in range(n):
             lo = starts[j]
             count = starts[j + 1] - lo
-            b, g, rd = _run_sum(blue, lo, count), _run_sum(green, lo, count), \
-                _run_sum(red, lo, count)
-            brightness = np.float64(_run_sum(v, lo, count)) / count
+            b, g, rd = (_run_sum(row_colour, lo, count, 0), _run_sum(row_colour, lo, count, 1),
+                        _run_sum(row_colour, lo, count, 2))
+            brightness = np.float64(_run_sum(v, lo, count, 0)) / count
             channel, top = 0, b
             if g > top:
                 channel, top = 1, g
@@ -268,10 +268,10 @@ def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px
 
 def warm_up() -> None:
     """Load (or, the first time, compile) every loop, so no timed call pays for it."""
-    value = np.ones((2, 8), np.float32)
+    value = np.ones((2, 8, 1), np.float32)
     colour = np.ones((2, 8, 3), np.float32)
     index = np.zeros((4, 8), np.int16)
-    decode_rows(value, colour, value, np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
+    decode_rows(value, colour, value[..., 0], np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
                 0.25, 3, 4, 2, 2, index)
     disparity = np.ones((4, 8), np.float32)
     status = np.zeros((4, 8), np.uint8)

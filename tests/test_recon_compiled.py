@@ -30,10 +30,15 @@ def decoded():
 
 def test_compiled_decoder_gives_the_numpy_fringe_indices(decoded):
     reconstructor, pair, left, right, _ = decoded
+    decoder = reconstructor.decoder
     for image, code in ((pair.left, left), (pair.right, right)):
-        expected = reference.decode_index(reconstructor.decoder, image, left.period_px)
+        expected = reference.decode_index(decoder, image, left.period_px)
         assert (expected >= 0).mean() > 0.5
         assert np.array_equal(code.index, expected)
+    half_flat = pair.left.copy()
+    half_flat[:, 320:] = 90  # runs far longer than numpy's 128-element pairwise blocks
+    assert np.array_equal(decoder.decode(half_flat, period_px=left.period_px).index,
+                          reference.decode_index(decoder, half_flat, left.period_px))
 
 
 def test_compiled_verification_gives_the_numpy_disparities(decoded):
