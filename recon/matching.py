@@ -45,8 +45,8 @@ class SgbmParams:
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
         params = parse_table(cls, table, "sgbm")
         if params.num_disparities % 16:
-            raise ReconError(f"[sgbm] num_disparities must be 0 (from the depth range) or a "
-                             f"positive multiple of 16, got "
+            raise ReconError(f"[sgbm] num_disparities (--num-disparities) must be 0 (from the "
+                             f"depth range) or a positive multiple of 16, got "
                              f"{params.num_disparities}")
         if params.p1 and params.p2 and params.p2 <= params.p1:
             raise ReconError(f"[sgbm] p2 = {params.p2} must be larger than p1 = {params.p1} "

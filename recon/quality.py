@@ -7,6 +7,7 @@ Settings come from the rig config's ``[recon]`` table (:class:`ReconSettings`).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -19,6 +20,12 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.settings import parse_table, setting
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
+COST_BYTES = 2  # StereoSGBM's CostType (short)
+# rows of cost buffers the single-pass modes hold at once (aggregation, window, both passes):
+# a bound, not OpenCV's exact figure; MODE_HH holds two for every row of the image
+SINGLE_PASS_ROWS = 64
+RANGE_FLAGS = ("--min-disparity/--num-disparities (or [sgbm] min_disparity/num_disparities, or "
+               "the depth range [recon] min_depth_mm/max_depth_mm)")
 
 
 @dataclass(frozen=True)
@@ -66,6 +73,35 @@ def params_for(calibration: Calibration, params: SgbmParams,
     return replace(params, min_disparity=low, num_disparities=count)
 
 
+def sgbm_buffer_bytes(params: SgbmParams, image_size: tuple[int, int]) -> int:
+    """Bytes of cost buffers StereoSGBM needs for ``params`` on images of ``image_size``."""
+    width, height = image_size
+    rows = 2 * height if params.mode in ("hh", "hh4") else SINGLE_PASS_ROWS
+    return COST_BYTES * (width + params.num_disparities) * params.num_disparities * rows
+
+
+def memory_bytes() -> int:
+    """Physical memory of this machine (bytes)."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_disparity_range(params: SgbmParams, image_size: tuple[int, int]) -> None:
+    """Refuse a disparity range SGBM cannot match on images of ``image_size`` (wider than the
+    image, or cost buffers beyond half this machine's memory), naming the settings to change."""
+    width = image_size[0]
+    low, high = params.min_disparity, params.min_disparity + params.num_disparities - 1
+    if params.num_disparities >= width or not -width < low < width:
+        raise ReconError(f"disparity range {low}..{high} px does not fit the {width}-px wide "
+                         f"images (the range must be narrower than the image and start inside "
+                         f"it); set {RANGE_FLAGS}")
+    needed, limit = sgbm_buffer_bytes(params, image_size), memory_bytes() // 2
+    if needed > limit:
+        raise ReconError(f"disparity range {low}..{high} px with mode {params.mode!r} needs "
+                         f"{needed / 2**30:.1f} GiB of SGBM buffers, more than half of this "
+                         f"machine's {2 * limit / 2**30:.1f} GiB; narrow it with {RANGE_FLAGS} "
+                         f"or use mode sgbm_3way")
+
+
 def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
     """Share of matched pixels within one pixel of either end of the disparity range: surfaces
     nearer or farther than the range covers pile up there (or are lost)."""
@@ -89,6 +125,13 @@ def _fraction_text(values: np.ndarray) -> str:
     return f"{np.mean(finite):.1%}" if finite.size else "n/a"
 
 
+def _verified_share(reader: CloudReader) -> float:
+    """Share of all points whose match the De Bruijn code confirmed."""
+    flags = [reader.verified(i) for i in range(reader.n_frames)]
+    total = sum(len(f) for f in flags)
+    return sum(int(np.count_nonzero(f)) for f in flags) / max(total, 1)
+
+
 def summary_line(reader: CloudReader) -> str:
     """One line: frames, density, decoded pattern, what verification did, disparity range."""
     n = reader.n_frames
@@ -106,6 +149,7 @@ def summary_line(reader: CloudReader) -> str:
         kept, corrected, rejected = (counts[:, k].sum() / total for k in (1, 2, 3))
         parts.append(f"matches kept {kept:.1%} / corrected {corrected:.1%} / "
                      f"rejected {rejected:.1%}")
+        parts.append(f"points verified {_verified_share(reader):.1%}")
     else:
         parts.append("no verification")
     parts.append(f"disparities {low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px")
@@ -130,9 +174,9 @@ def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     return lines
 
 
-def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list[str], bool]:
-    """One-line warnings for a cloud file, and whether the pattern was too weak to verify
-    (the cloud is then empty or nearly so)."""
+def quality_warnings(reader: CloudReader, settings: ReconSettings) -> list[str]:
+    """One-line warnings for a cloud file: a pattern too weak to verify most matches (they
+    are then SGBM's, flagged unverified), matches piled up at the disparity range's edge."""
     warnings = []
     n = reader.n_frames
     decoded = reader.frame_table("decoded_fraction")
@@ -141,8 +185,8 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list
         warnings.append(
             f"the De Bruijn pattern is readable on only {np.nanmedian(decoded[weak]):.2%} of the "
             f"pixels in {int(weak.sum())} of {n} frames (need {settings.min_decoded_fraction:.0%}"
-            f"), so verification rejected their matches; is the projector on and the pattern "
-            f"in view? For pairs without the pattern use --no-verify")
+            f"), so their matches are SGBM's alone, flagged unverified; is the projector on "
+            f"and the pattern in view? For pairs without the pattern use --no-verify")
     edge = reader.frame_table("edge_fraction")
     if n and np.nanmax(edge) > settings.max_edge_fraction:
         sgbm = reader.attrs["sgbm"]
@@ -152,4 +196,4 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> tuple[list
             f"{low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px (worst frame): the "
             f"surface is nearer or farther than it covers; widen [recon] min_depth_mm/"
             f"max_depth_mm or set [sgbm] num_disparities")
-    return warnings, bool(weak.any())
+    return warnings

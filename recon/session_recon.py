@@ -19,17 +19,19 @@ from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
 from vbfe.files import commit, partial_path
 from vbfe.signals import die_with_parent, stop_workers_on_signals
-from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.inputs import ImagePairs
 from vbfe.recon.maps import MapOutput, write_maps
-from vbfe.recon.quality import ReconSettings, params_for
-from vbfe.recon.triangulate import Reconstructor
+from vbfe.recon.quality import ReconSettings, check_disparity_range, params_for
+from vbfe.recon.triangulate import FrameCloud, Reconstructor
 
-FrameResult = tuple[int, np.ndarray, np.ndarray, dict[str, object], np.ndarray | None]
+FrameResult = tuple[int, FrameCloud, dict[str, object]]
+FrameHook = Callable[[str, FrameCloud], object]
+StartHook = Callable[[int, bool], object]
 
 _worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
 
@@ -51,8 +53,8 @@ def _init_worker(source: str | ImagePairs, calibration_yaml: str, params: dict, 
 
 
 def _process_frame(i: int) -> FrameResult:
-    """Reconstruct frame ``i`` of the worker's source; returns the cloud, its statistics and
-    (when maps were asked for) the disparity map."""
+    """Reconstruct frame ``i`` of the worker's source; returns the cloud (without its
+    per-pixel maps unless they were asked for) and its statistics."""
     try:
         frame = _worker["reader"].frame(i)
     except (OSError, KeyError, SessionError):  # the recorder finalized the file meanwhile
@@ -69,16 +71,9 @@ def _process_frame(i: int) -> FrameResult:
                               if d.size else np.full(4, np.nan, np.float32)),
              "match_counts": np.array([cloud.counts.get(k, -1) for k in COUNT_COLUMNS], np.int64),
              "decoded_fraction": cloud.decoded_fraction, "edge_fraction": cloud.edge_fraction}
-    return (i, cloud.points, cloud.colors, stats,
-            cloud.disparity if _worker["keep_maps"] else None)
-
-
-def resolve_calibration(session_path: str | Path,
-                        calibration: Calibration | str | Path | None = None) -> Calibration:
-    """The calibration to use: the given object, a YAML/session path, or the session's own."""
-    if isinstance(calibration, Calibration):
-        return calibration
-    return load_calibration(session_path if calibration is None else calibration)
+    if not _worker["keep_maps"]:  # nothing per pixel crosses the process boundary
+        cloud = dataclasses.replace(cloud, disparity=None, valid=None, status=None)
+    return i, cloud, stats
 
 
 def _results(source: str | ImagePairs, calibration: Calibration, params: SgbmParams,
@@ -109,11 +104,17 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
                  times: np.ndarray, names: list[str], calibration: Calibration, out_path: Path,
                  workers: int | None, progress: Callable[[int], object] | None,
                  params: SgbmParams, verify: bool, settings: ReconSettings,
-                 maps: MapOutput | None, partial: bool = False) -> Path:
+                 maps: MapOutput | None, per_frame: FrameHook | None = None,
+                 started: StartHook | None = None, partial: bool = False) -> Path:
     """Reconstruct ``n_frames`` frames of ``source`` into ``out_path`` (written to a temporary
     name and renamed when complete, so an interrupted run leaves no partial file); ``partial``
-    marks the clouds of a session that was still being recorded."""
+    marks the clouds of a session that was still being recorded; ``started(n_frames,
+    partial)`` is called once the settings are checked, ``per_frame(name, cloud)`` with each
+    frame's cloud and its per-pixel maps."""
     params = params_for(calibration, params, settings)
+    check_disparity_range(params, calibration.image_size)
+    if started is not None:
+        started(n_frames, partial)
     workers = max(1, min(workers or os.cpu_count() or 1, n_frames))
     tmp_path = partial_path(out_path)
     writer = CloudWriter(tmp_path, {
@@ -123,12 +124,15 @@ def _reconstruct(source: str | ImagePairs, kind: str, fingerprint: str, n_frames
         "sgbm_json": json.dumps(dataclasses.asdict(params)), "software_version": __version__},
         calibration.to_yaml_text())
     try:
-        for i, points, colors, stats, disparity in _results(
-                source, calibration, params, verify, settings, maps is not None, n_frames,
-                workers):
-            writer.append(i, int(times[i]), points, colors, stats)
+        keep_maps = maps is not None or per_frame is not None
+        for i, cloud, stats in _results(source, calibration, params, verify, settings,
+                                        keep_maps, n_frames, workers):
+            writer.append(i, int(times[i]), cloud.points, cloud.colors, stats, cloud.verified)
             if maps is not None:
-                write_maps(maps.folder, names[i], disparity, calibration, maps.fmt)
+                write_maps(maps.folder, names[i], cloud.disparity, calibration, maps.fmt,
+                           cloud.status)
+            if per_frame is not None:
+                per_frame(names[i], cloud)
             if progress is not None:
                 progress(1)
         writer.finish()
@@ -151,15 +155,18 @@ def reconstruct_images(pairs: ImagePairs, calibration: Calibration,
                        progress: Callable[[int], object] | None = None,
                        sgbm_params: SgbmParams | None = None, verify: bool = True,
                        settings: ReconSettings | None = None,
-                       maps: MapOutput | None = None) -> Path:
+                       maps: MapOutput | None = None, per_frame: FrameHook | None = None,
+                       started: StartHook | None = None) -> Path:
     """Reconstruct image pairs (see :mod:`vbfe.recon.inputs`) into a cloud file, by default
-    ``<first left image>.clouds.h5``; frame times are 0."""
+    ``<first left image>.clouds.h5``; frame times are 0. ``per_frame(name, cloud)`` sees each
+    pair's cloud with its per-pixel maps (e.g. to score it against ground truth);
+    ``started(n_pairs, False)`` is called once the settings are checked."""
     _check_size(f"{pairs.lefts[0]}", pairs.frame_size(), calibration)
     out_path = Path(out_path) if out_path is not None else sidecar_path(pairs.lefts[0])
     return _reconstruct(pairs, "images", pairs.fingerprint(), pairs.n_frames,
                         np.zeros(pairs.n_frames, np.int64), list(pairs.names), calibration,
                         out_path, workers, progress, sgbm_params or SgbmParams(), verify,
-                        settings or ReconSettings(), maps)
+                        settings or ReconSettings(), maps, per_frame, started)
 
 
 def reconstruct_session(session_path: str | Path,
@@ -168,29 +175,35 @@ def reconstruct_session(session_path: str | Path,
                         progress: Callable[[int], object] | None = None,
                         sgbm_params: SgbmParams | None = None, verify: bool = True,
                         settings: ReconSettings | None = None,
-                        maps: MapOutput | None = None) -> Path:
+                        maps: MapOutput | None = None,
+                        started: StartHook | None = None) -> Path:
     """Reconstruct all frames of a session into ``<session>.clouds.h5`` (or ``out_path``).
 
-    ``calibration`` is a :class:`Calibration`, a YAML/session path, or ``None`` for the one
-    stored in the session. ``workers`` processes (default: one per CPU core, at most the
-    number of frames) share the frames; ``progress(n)`` is called with each finished frame
-    count. ``settings`` (the ``[recon]`` table) give the depth range a zero
-    ``num_disparities`` is derived from; ``maps`` asks for disparity/depth maps too. The
-    sidecar is written to a temporary name and renamed when complete, so an interrupted run
-    leaves no partial file. A session still being recorded is reconstructed up to its frames
-    flushed at the start; the sidecar then has ``session_partial = True``.
+    ``calibration`` is a :class:`Calibration`, a YAML path, or ``None`` for the one stored in
+    the session. ``workers`` processes (default: one per CPU core, at most the number of
+    frames) share the frames; ``started(n_frames, partial)`` is called once the session is
+    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the ``[recon]``
+    table) give the depth range a zero ``num_disparities`` is derived from; ``maps`` asks for
+    disparity/depth/quality maps too. The sidecar is written to a temporary name and renamed
+    when complete, so an interrupted run leaves no partial file. A session still being
+    recorded is reconstructed up to its frames flushed at the start (``partial``); the sidecar
+    then has ``session_partial = True``.
     """
     session_path = Path(session_path)
-    calibration = resolve_calibration(session_path, calibration)
     out_path = Path(out_path) if out_path is not None else sidecar_path(session_path)
-    with SessionReader(session_path) as reader:
+    with SessionReader(session_path) as reader:  # the one look before the workers open it
         n_frames = reader.n_frames
         partial = reader.growing
         size = reader.frame_size
         times = reader.frame_times_ns() if n_frames else np.zeros(0, np.int64)
         fingerprint = fingerprint_of(reader)
+        if calibration is None:
+            calibration = stored_calibration(reader.calibration_yaml(), session_path)
+    if not isinstance(calibration, Calibration):
+        calibration = load_calibration(calibration)
     _check_size(f"session {session_path}", size, calibration)
     names = [f"frame_{i:06d}" for i in range(n_frames)]
     return _reconstruct(str(session_path), "session", fingerprint, n_frames, times, names,
                         calibration, out_path, workers, progress, sgbm_params or SgbmParams(),
-                        verify, settings or ReconSettings(), maps, partial)
+                        verify, settings or ReconSettings(), maps, started=started,
+                        partial=partial)

@@ -1,8 +1,7 @@
-"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, z = fB/d point cloud."""
+"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, z = fB/(d - doffs) cloud."""
 
 from __future__ import annotations
 
-import functools
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -11,11 +10,14 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
+from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
-from vbfe.recon.quality import ReconSettings, decoded_fraction, edge_fraction, params_for
+from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
+from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
+                                edge_fraction, params_for)
 from vbfe.recon.verify import verify_disparity
 
 
@@ -24,46 +26,32 @@ class FrameCloud:
     """One frame's reconstruction, all in the rectified left camera frame.
 
     ``disparity`` (H×W float32 px, NaN where invalid), ``valid`` (H×W bool), ``points`` (N×3
-    float32, metres; row-major order of the valid pixels), ``colors`` (N×3 uint8, **RGB**).
-    Quality: ``counts`` of the verification (SGBM matches, kept, corrected, rejected),
-    ``decoded_fraction`` of left pixels with a readable De Bruijn code (NaN without
-    verification) and ``edge_fraction`` of SGBM matches at the disparity range's ends.
+    float32, metres; row-major order of the valid pixels), ``colors`` (N×3 uint8, **RGB**),
+    ``verified`` (N bool: the point's match agrees with the De Bruijn code) and ``status``
+    (H×W uint8, the outcome per pixel: ``NO_MATCH``, ``REJECTED``, ``UNVERIFIED``, ``KEPT``
+    or ``CORRECTED`` of :mod:`vbfe.recon.kernels`). Quality: ``counts`` of the verification
+    (SGBM matches, kept, corrected, rejected, unverified), ``decoded_fraction`` of left pixels
+    with a readable De Bruijn code (NaN without verification) and ``edge_fraction`` of SGBM
+    matches at the disparity range's ends.
     """
 
     disparity: np.ndarray
     valid: np.ndarray
     points: np.ndarray
     colors: np.ndarray
+    verified: np.ndarray
+    status: np.ndarray
     counts: dict[str, int] = field(default_factory=dict)
     decoded_fraction: float = float("nan")
     edge_fraction: float = 0.0
 
 
-def disparity_to_points(disparity: np.ndarray, valid: np.ndarray, f_px: float, baseline_m: float,
-                        cx: float, cy: float, doffs_px: float = 0.0) -> np.ndarray:
-    """Points (N×3 float32, m) of the valid pixels in row-major order: ``z = fB/(d - doffs)``,
-    ``x = (u-cx)z/f``, ``y = (v-cy)z/f``.
-
-    ``doffs_px`` is the difference of the rectified principal points (left minus right), zero
-    for the usual zero-disparity rectification.
-    """
-    flat = np.flatnonzero(valid)
-    x_over_z, y_over_z = _ray_slopes(valid.shape, float(f_px), float(cx), float(cy))
-    points = np.empty((len(flat), 3), np.float32)
-    z = np.float32(f_px * baseline_m) / (disparity.ravel().take(flat) - np.float32(doffs_px))
-    points[:, 2] = z
-    points[:, 0] = x_over_z.take(flat) * z
-    points[:, 1] = y_over_z.take(flat) * z
-    return points
-
-
-@functools.lru_cache(maxsize=4)
-def _ray_slopes(shape: tuple[int, int], f_px: float, cx: float, cy: float
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """``(u - cx) / f`` and ``(v - cy) / f`` of every pixel, flattened (built once per camera)."""
-    v, u = np.indices(shape, np.float32)
-    return ((u - np.float32(cx)) / np.float32(f_px)).ravel(), \
-        ((v - np.float32(cy)) / np.float32(f_px)).ravel()
+def _fixed_point_map(map_x: np.ndarray, map_y: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's fixed-point form of a remap, or None when it copies every pixel to itself."""
+    xy, fraction = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
+    grid = np.indices(map_x.shape, np.int16)[::-1].transpose(1, 2, 0)
+    return None if not fraction.any() and np.array_equal(xy, grid) else (xy, fraction)
 
 
 class Reconstructor:
@@ -79,15 +67,18 @@ class Reconstructor:
         self.calibration = calibration
         self.settings = settings or ReconSettings()
         self.params = params_for(calibration, sgbm_params or SgbmParams(), self.settings)
+        check_disparity_range(self.params, calibration.image_size)
         self.verify = verify
         self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
                                      row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
         self._doffs = -calibration.doffs  # left minus right principal point x
-        # computed once, in OpenCV's fast fixed-point form, reused for every frame
-        self._maps = [cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
+        # computed once, in OpenCV's fast fixed-point form, reused for every frame; None
+        # where rectification leaves the image as it is (an already-rectified pair)
+        self._maps = [_fixed_point_map(map_x, map_y)
                       for map_x, map_y in calibration.rectification_maps()]
+        kernels.warm_up()
 
     def _overlap(self) -> ThreadPoolExecutor:
         """The one background thread SGBM runs in while the codes are decoded."""
@@ -104,16 +95,22 @@ class Reconstructor:
                     f"the calibration is for {width}x{height} BGR images; use the calibration of "
                     f"this camera and resolution")
 
+    def _rectify(self, image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None
+                 ) -> np.ndarray:
+        return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
+
     def rectified_disparity(self, left: np.ndarray, right: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
-        """Rectified left image, disparity (px, NaN invalid), valid mask and quality: the
-        verification counts, ``decoded_fraction`` and ``edge_fraction``."""
+        """Rectified left image, disparity (px, NaN invalid), outcome per pixel (the status
+        codes of :mod:`vbfe.recon.kernels`) and quality: the verification counts,
+        ``decoded_fraction`` and ``edge_fraction``."""
         self._check_size(left, right)
-        rect_left, rect_right = (cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
-                                 for image, (map_x, map_y) in zip((left, right), self._maps))
+        rect_left, rect_right = (self._rectify(image, maps)
+                                 for image, maps in zip((left, right), self._maps))
         if not self.verify:
             disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-            return rect_left, disparity, np.isfinite(disparity), {
+            status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
+            return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
         # with several OpenCV threads, decode while SGBM runs (both release the GIL): the
         # single-threaded decoding then shares the cores SGBM leaves idle
@@ -124,23 +121,20 @@ class Reconstructor:
         disparity = (matching.result() if matching is not None else
                      sgbm_disparity(rect_left, rect_right, self.params, self._matcher))
         quality = {"edge_fraction": edge_fraction(disparity, self.params)}
-        disparity, valid, counts = verify_disparity(disparity, left_code, right_code,
-                                                    self.params.verify_search_px)
+        disparity, status, counts = verify_disparity(disparity, left_code, right_code,
+                                                     self.params.verify_search_px)
         quality["decoded_fraction"] = decoded_fraction(left_code.index)
-        return rect_left, disparity, valid, {**quality, **counts}
+        return rect_left, disparity, status, {**quality, **counts}
 
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
-        rect_left, disparity, valid, quality = self.rectified_disparity(left, right)
-        if self.params.min_disparity <= self._doffs:  # some matches at or beyond infinity
-            valid &= disparity > self._doffs
-            disparity = np.where(valid, disparity, np.float32(np.nan))
+        rect_left, disparity, status, quality = self.rectified_disparity(left, right)
         cal = self.calibration
-        points = disparity_to_points(disparity, valid, cal.f, cal.B, cal.cx, cal.cy, self._doffs)
-        colors = cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB).reshape(-1, 3).take(
-            np.flatnonzero(valid), axis=0)
+        points, colors, verified = kernels.triangulate(
+            disparity, status, cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB), cal.f, cal.B,
+            cal.cx, cal.cy, self._doffs)
         counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
-        return FrameCloud(disparity=disparity, valid=valid, points=points, colors=colors,
-                          counts=counts,
+        return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
+                          colors=colors, verified=verified, status=status, counts=counts,
                           decoded_fraction=quality.get("decoded_fraction", float("nan")),
                           edge_fraction=quality["edge_fraction"])

@@ -144,6 +144,7 @@ def test_a_killed_worker_fails_only_its_own_task():
 def test_batch_misuse_is_a_one_line_error(dataset):
     root, sessions = dataset
     result = vbfe("reconstruct", *sessions, "--executor", "local", "--out", "x.h5")
-    assert result.returncode == 2 and "--out, --ply-dir, --maps-dir and --rectified take one input" in result.stderr
+    assert result.returncode == 2
+    assert "--out, --ply-dir, --maps-dir, --rectified and --truth take one input" in result.stderr
     missing = vbfe("verify-sync", root / "nope.h5", sessions[0])
     assert missing.returncode == 2 and "not found" in missing.stderr and "nope.h5" in missing.stderr

@@ -166,21 +166,49 @@ def test_near_scene_session_gets_its_range_from_the_geometry(tmp_path):
     assert "of the matched pixels sit at the edge of the disparity range 0..63 px" in result.stderr
 
 
-def test_pair_without_the_pattern_warns_once_and_exits_1(tmp_path):
+def test_half_patterned_pair_is_verified_where_the_pattern_is_and_kept_where_not(tmp_path):
+    rig, pair = _render(0.06)
+    _, flat = _render(0.06, pattern=False)
+    half = pair.left.shape[1] // 2  # the right half of both views without the pattern
+    for eye, image, plain in (("left", pair.left, flat.left), ("right", pair.right, flat.right)):
+        image = image.copy()
+        image[:, half:] = plain[:, half:]
+        cv2.imwrite(str(tmp_path / f"half_{eye}.png"), image)
+    result = _vbfe("reconstruct", tmp_path, *_geometry_args(rig), "--maps-dir", tmp_path / "m")
+    assert result.returncode == 0, result.stderr
+    assert "pattern is readable on only" not in result.stderr  # half of it is plenty
+    quality = cv2.imread(str(tmp_path / "m" / "half_quality.png"), cv2.IMREAD_UNCHANGED)
+    depth = read_png_map(tmp_path / "m" / "half_depth.png", "depth")
+    covered = pair.valid_left
+    inner = (slice(None), slice(40, half - 40)), (slice(None), slice(half + 80, -40))
+    patterned, plain = (quality[side][covered[side]] for side in inner)
+    assert np.mean(patterned >= 3) > 0.75 and np.mean(patterned == 2) < 0.01  # verified
+    assert np.mean(plain == 2) > 0.7 and np.mean(plain >= 3) < 0.01  # SGBM's, unverified
+    assert np.isfinite(depth[covered]).mean() > 0.7  # dense over both halves
+    good = np.isfinite(depth) & covered
+    assert np.median(np.abs(depth[good] - pair.depth_left_m[good])) < 0.0005
+    with CloudReader(tmp_path / "half_left.clouds.h5") as clouds:
+        points, _ = clouds.cloud(0)
+        verified = clouds.verified(0)
+        assert len(verified) == len(points) == int(np.isfinite(depth).sum())
+        assert verified.sum() == np.count_nonzero(quality >= 3)
+        assert "points verified" in result.stdout
+
+
+def test_pair_without_the_pattern_warns_once_and_keeps_sgbm_unverified(tmp_path):
     rig, pair = _render(0.06, pattern=False)
     for eye, image in (("left", pair.left), ("right", pair.right)):
         cv2.imwrite(str(tmp_path / f"flat_{eye}.png"), image)
     result = _vbfe("reconstruct", tmp_path, *_geometry_args(rig))
-    assert result.returncode == 1
+    assert result.returncode == 0, result.stderr
     warnings = [line for line in result.stderr.splitlines() if "warning" in line]
     assert len(warnings) == 1
     assert warnings[0].startswith("vbfe reconstruct: warning: the De Bruijn pattern is readable "
                                   "on only")
-    assert "use --no-verify" in warnings[0]
-    result = _vbfe("reconstruct", tmp_path, *_geometry_args(rig), "--no-verify", "--overwrite")
-    assert result.returncode == 0 and "warning" not in result.stderr
+    assert "flagged unverified" in warnings[0] and "use --no-verify" in warnings[0]
     with CloudReader(tmp_path / "flat_left.clouds.h5") as clouds:
-        assert clouds.frame_table("valid_fraction")[0] > 0.3  # SGBM alone still matches
+        assert clouds.frame_table("valid_fraction")[0] > 0.3  # SGBM's matches, kept
+        assert not clouds.verified(0).any()
 
 
 def test_bad_depth_range_in_the_config_is_a_one_line_error(tmp_path):

@@ -10,7 +10,7 @@ from vbfe.recon import FrameCloud, ReconError, Reconstructor, SgbmParams, make_p
 from vbfe.truth import calibration_from_rig, evaluate_against_truth, rectified_truth
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.matching import sgbm_disparity
-from vbfe.recon.triangulate import disparity_to_points
+from vbfe.recon.kernels import KEPT, triangulate
 from vbfe.recon.verify import verify_disparity
 
 WORKING_DISTANCE_M = 0.06
@@ -84,21 +84,29 @@ def test_injected_whole_fringe_errors_are_corrected_or_rejected(scene):
     wrong = disparity.copy()
     block = (slice(150, 200), slice(300, 400))
     wrong[block] += 2 * left.period_px  # two fringes off: a different code
-    checked, valid, counts = verify_disparity(wrong, left, right, params.verify_search_px)
+    checked, status, counts = verify_disparity(wrong, left, right, params.verify_search_px)
+    valid = np.isfinite(checked)
     error = np.abs(checked[block] - pair.disparity_left_px[block])
     assert np.all(error[valid[block]] <= 1.5)
     assert counts["rejected"] > 0
     assert valid[block].sum() < np.isfinite(kept[block]).sum()
 
 
-def test_triangulation_follows_z_equals_f_b_over_d():
+def test_triangulation_follows_z_equals_f_b_over_d_minus_doffs():
     disparity = np.full((3, 4), 20.0, np.float32)
-    valid = np.ones((3, 4), bool)
-    valid[0, 0] = False
-    points = disparity_to_points(disparity, valid, f_px=500.0, baseline_m=0.004, cx=1.5, cy=1.0)
-    assert points.shape == (11, 3)
-    np.testing.assert_allclose(points[:, 2], 0.1)
-    np.testing.assert_allclose(points[0], [(1 - 1.5) * 0.1 / 500, (0 - 1.0) * 0.1 / 500, 0.1])
+    disparity[0, 0] = np.nan
+    disparity[2, 3] = 1.5  # at or beyond infinity with doffs = 2: no point
+    status = np.full((3, 4), KEPT, np.uint8)
+    image = np.arange(36, dtype=np.uint8).reshape(3, 4, 3)
+    points, colours, verified = triangulate(disparity, status, image, 500.0, 0.004, 1.5, 1.0,
+                                            2.0)
+    assert points.shape == (10, 3) and verified.all()
+    np.testing.assert_allclose(points[:, 2], 500 * 0.004 / 18, rtol=1e-6)
+    z = 500 * 0.004 / 18
+    np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 500, z],
+                               rtol=1e-6)
+    assert np.array_equal(colours[0], image[0, 1])
+    assert np.isnan(disparity[2, 3]) and status[2, 3] == 0
 
 
 def test_frame_cloud_points_agree_with_the_rendered_depth(scene):

@@ -24,12 +24,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or a FOLDER of <name>_left/<name>_right, left<name>/right<name> or left/ + right/ "
         "images. Several sessions or a manifest CSV (vbfe dataset) run one task per session "
         "on a local process pool or a Ray cluster; sessions whose clouds are current are "
-        "skipped. Exit status 1 when the pattern was too weak for verification.")
+        "skipped. Where the De Bruijn pattern cannot be read, SGBM's matches are kept and flagged "
+        "unverified (per point in the clouds file, per pixel in the quality map).")
     parser.add_argument("inputs", nargs="+", metavar="INPUT",
                         help="SESSION.h5 (one or more), MANIFEST.csv, LEFT RIGHT image files, "
                         "or a FOLDER of pairs")
     parser.add_argument("--calib", metavar="FILE", default=None,
-                        help="calibration YAML (default: the one stored in each session)")
+                        help="calibration YAML, or a Middlebury calib.txt for rectified pairs "
+                        "(default: the one stored in each session)")
     rectified = parser.add_argument_group(
         "already-rectified pairs", "instead of --calib: the rectified pair's geometry")
     rectified.add_argument("--rectified", action="store_true",
@@ -43,6 +45,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     rectified.add_argument("--doffs", type=float, default=0.0, metavar="PX",
                            help="right principal point x minus the left's (px; Middlebury's "
                                 "doffs; default 0)")
+    matching = parser.add_argument_group(
+        "disparity range", "instead of the range derived from [recon] min_depth_mm/max_depth_mm")
+    matching.add_argument("--min-disparity", type=int, metavar="PX", default=None,
+                          help="smallest disparity searched (px; [sgbm] min_disparity)")
+    matching.add_argument("--num-disparities", type=int, metavar="N", default=None,
+                          help="number of disparities searched, a multiple of 16 ([sgbm] "
+                          "num_disparities)")
     parser.add_argument("--out", metavar="CLOUDS.h5", default=None,
                         help="output file of one input (default: next to it, .clouds.h5)")
     parser.add_argument("--workers", type=positive(int), default=None,
@@ -54,38 +63,58 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--ply-dir", metavar="DIR", default=None,
                         help="also write one PLY file per frame into DIR (one input)")
     parser.add_argument("--maps-dir", metavar="DIR", default=None,
-                        help="also write disparity and depth maps per frame into DIR (one input)")
+                        help="also write disparity, depth and quality maps per frame into DIR "
+                        "(one input)")
     parser.add_argument("--maps-format", choices=("png", "npy"), default="png",
                         help="png: 16-bit, disparity px = value/256, depth mm = value/10; "
                         "npy: float32 px and m (default: png)")
+    truth = parser.add_argument_group(
+        "ground truth", "score the disparity of one pair against a truth map (Middlebury "
+        "evaluation: density, bad>1/2/3 px, mean absolute error in px and mm)")
+    truth.add_argument("--truth", metavar="GT", default=None,
+                       help="truth map of the left view: Middlebury PFM (inf = unknown) or an "
+                       "8/16-bit PNG (0 = unknown)")
+    truth.add_argument("--truth-kind", choices=("disparity", "depth"), default="disparity",
+                       help="what the truth holds: disparity (px) or depth (mm) (default: "
+                       "disparity)")
+    truth.add_argument("--truth-scale", type=float, default=None, metavar="S",
+                       help="PNG value per px of disparity or per mm of depth (default: 256 "
+                       "for 16-bit disparity, 10 for 16-bit depth; 8-bit maps need it, e.g. 4 "
+                       "for Middlebury 2003 quarter size)")
     add_batch_options(parser)
     add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
 
-def _calibration(args: argparse.Namespace, size: tuple[int, int] | None):
-    """The calibration from --calib, --rectified geometry or (sessions) the stored one."""
+def _rectified(args: argparse.Namespace) -> dict[str, float] | None:
+    """The --rectified geometry (None without --rectified)."""
     from vbfe.recon.errors import ReconError
-    from vbfe.recon.inputs import rectified_calibration
-    from vbfe.recon.session_recon import resolve_calibration
 
-    if args.rectified:
-        fx, fy = (args.fx, args.fy) if args.f is None else (args.f, args.f)
-        missing = [flag for flag, value in (("--f (or --fx and --fy)", fx if fy else None),
-                                            ("--baseline", args.baseline), ("--cx", args.cx),
-                                            ("--cy", args.cy)) if value is None]
-        if missing or args.calib or (args.f is not None and (args.fx or args.fy)):
-            raise ReconError("--rectified needs --f (or --fx and --fy), --baseline, --cx and "
-                             f"--cy (missing {', '.join(missing) or 'none'}), not both --f and "
-                             "--fx/--fy, and no --calib")
-        if size is None:
-            raise ReconError("--rectified is for image pairs; a session stores its calibration")
-        return rectified_calibration(fx, fy, args.baseline, args.cx, args.cy, size, args.doffs)
-    if size is not None and args.calib is None:
-        raise ReconError("image pairs need --calib calib.yaml, or --rectified with --f, "
-                         "--baseline, --cx and --cy")
-    return resolve_calibration(args.inputs[0], args.calib)
+    if not args.rectified:
+        return None
+    fx, fy = (args.fx, args.fy) if args.f is None else (args.f, args.f)
+    missing = [flag for flag, value in (("--f (or --fx and --fy)", fx if fy else None),
+                                        ("--baseline", args.baseline), ("--cx", args.cx),
+                                        ("--cy", args.cy)) if value is None]
+    if missing or (args.f is not None and (args.fx or args.fy)):
+        raise ReconError("--rectified needs --f (or --fx and --fy), --baseline, --cx and "
+                         f"--cy (missing {', '.join(missing) or 'none'}), not both --f and "
+                         "--fx/--fy")
+    return {"fx_px": fx, "fy_px": fy, "baseline_mm": args.baseline, "cx": args.cx,
+            "cy": args.cy, "doffs_px": args.doffs}
+
+
+def _range_flags(args: argparse.Namespace) -> dict[str, int]:
+    """The [sgbm] keys set by --min-disparity/--num-disparities."""
+    from vbfe.recon.errors import ReconError
+
+    if args.min_disparity is not None and args.num_disparities is None:
+        raise ReconError("--min-disparity needs --num-disparities (without it the range comes "
+                         "from [recon] min_depth_mm/max_depth_mm)")
+    return {key: value for key, value in (("min_disparity", args.min_disparity),
+                                          ("num_disparities", args.num_disparities))
+            if value is not None}
 
 
 def _is_batch(args: argparse.Namespace) -> bool:
@@ -99,9 +128,9 @@ def _run_batch(args: argparse.Namespace, config: dict, params: object, settings:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.batch.tasks import ReconstructTask
 
-    if args.out or args.ply_dir or args.maps_dir or args.rectified:
-        raise BatchError("--out, --ply-dir, --maps-dir and --rectified take one input; with "
-                         "several sessions each one's clouds go next to it")
+    if args.out or args.ply_dir or args.maps_dir or args.rectified or args.truth:
+        raise BatchError("--out, --ply-dir, --maps-dir, --rectified and --truth take one "
+                         "input; with several sessions each one's clouds go next to it")
     executor, address = batch_settings(args, config.get("batch", {}))
     task = ReconstructTask(sgbm=dataclasses.asdict(params), verify=not args.no_verify,
                            settings=dataclasses.asdict(settings), calibration=args.calib,
@@ -112,17 +141,44 @@ def _run_batch(args: argparse.Namespace, config: dict, params: object, settings:
     return 0
 
 
+class _LazyBar:
+    """A progress bar shown once the work starts (nothing on stderr before a refusal)."""
+
+    def __init__(self, unit: str, source: str) -> None:
+        self.unit, self.source, self._bar = unit, source, None
+
+    def start(self, total: int, partial: bool) -> None:
+        self._bar = progress(total=total, desc="reconstruct", unit=self.unit)
+        if partial:
+            self._bar.write(f"vbfe reconstruct: {self.source} is still being recorded: "
+                            f"reconstructing its {total} frames flushed so far (the output is "
+                            f"marked partial)", file=sys.stderr)
+
+    def update(self, n: int) -> None:
+        self._bar.update(n)
+
+    def __enter__(self) -> "_LazyBar":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
 def run(args: argparse.Namespace) -> int:
-    """Reconstruct, print the quality summary and warnings, and say where the clouds went."""
+    """Reconstruct, print the quality summary, warnings and truth scores, and say where the
+    clouds went."""
     from vbfe.recon.clouds import CloudReader, export_ply, sidecar_path
-    from vbfe.recon.inputs import image_pairs
+    from vbfe.recon.errors import ReconError
+    from vbfe.recon.inputs import image_pairs, pair_calibration
     from vbfe.recon.maps import MapOutput
     from vbfe.recon.matching import SgbmParams
     from vbfe.recon.quality import ReconSettings, quality_warnings, summary_line
+    from vbfe.recon.scoring import score_disparity, truth_disparity
     from vbfe.recon.session_recon import reconstruct_images, reconstruct_session
 
     config = config_from(args)
-    params = SgbmParams.from_config(section(config, "sgbm"))
+    params = SgbmParams.from_config({**section(config, "sgbm"), **_range_flags(args)})
     settings = ReconSettings.from_config(section(config, "recon"))
     if _is_batch(args):
         return _run_batch(args, config, params, settings)
@@ -130,39 +186,48 @@ def run(args: argparse.Namespace) -> int:
     common = {"out_path": args.out, "workers": args.workers, "sgbm_params": params,
               "verify": not args.no_verify, "settings": settings, "maps": maps}
     session = len(args.inputs) == 1 and Path(args.inputs[0]).suffix.lower() in SESSION_SUFFIXES
+    scores = []
     if session:
-        from vbfe.acquire import SessionReader
-
         source = args.inputs[0]
+        if args.rectified or args.truth:
+            raise ReconError("--rectified and --truth are for image pairs; a session stores "
+                             "its calibration")
         check_outputs([args.out or sidecar_path(source)], [source, args.calib],
                       args.overwrite, directories=[args.ply_dir, args.maps_dir], writes="hdf5",
                       sidecars=False)
-        calibration = _calibration(args, None)
-        with SessionReader(source) as reader:
-            n_frames = reader.n_frames
-            if reader.growing:
-                print(f"vbfe reconstruct: {source} is still being recorded: reconstructing its "
-                      f"{n_frames} frames flushed so far (the output is marked partial)",
-                      file=sys.stderr)
-        with progress(total=n_frames, desc="reconstruct", unit="frame") as bar:
-            out = reconstruct_session(source, calibration=calibration, progress=bar.update,
-                                      **common)
+        bar = _LazyBar("frame", source)
+        with bar:
+            out = reconstruct_session(source, calibration=args.calib, progress=bar.update,
+                                      started=bar.start, **common)
     else:
         pairs = image_pairs(args.inputs)
         check_outputs([args.out or sidecar_path(pairs.lefts[0])],
-                      [*pairs.lefts, *pairs.rights, args.calib], args.overwrite,
+                      [*pairs.lefts, *pairs.rights, args.calib, args.truth], args.overwrite,
                       directories=[args.ply_dir, args.maps_dir], writes="hdf5", sidecars=False)
-        calibration = _calibration(args, pairs.frame_size())
-        with progress(total=pairs.n_frames, desc="reconstruct", unit="pair") as bar:
-            out = reconstruct_images(pairs, calibration, progress=bar.update, **common)
+        calibration = pair_calibration(pairs.frame_size(), args.calib, _rectified(args))
+        per_frame = None
+        if args.truth:
+            if pairs.n_frames != 1:
+                raise ReconError(f"--truth scores one pair; {args.inputs[0]} holds "
+                                 f"{pairs.n_frames}")
+            truth = truth_disparity(args.truth, calibration, args.truth_kind, args.truth_scale)
+
+            def per_frame(_name, cloud):
+                scores.append(score_disparity(cloud.disparity, truth, calibration))
+        bar = _LazyBar("pair", args.inputs[0])
+        with bar:
+            out = reconstruct_images(pairs, calibration, progress=bar.update,
+                                     per_frame=per_frame, started=bar.start, **common)
     with CloudReader(out) as clouds:
         print(summary_line(clouds))
-        warnings, pattern_missing = quality_warnings(clouds, settings)
+        warnings = quality_warnings(clouds, settings)
+    for score in scores:
+        print("\n".join(score.lines()))
     for warning in warnings:
         print(f"vbfe reconstruct: warning: {warning}", file=sys.stderr)
     if maps is not None:
-        print(f"disparity and depth maps ({maps.fmt}) in {maps.folder}")
+        print(f"disparity, depth and quality maps ({maps.fmt}) in {maps.folder}")
     if args.ply_dir:
         files = export_ply(out, args.ply_dir)
         print(f"{len(files)} PLY files in {args.ply_dir}")
-    return 1 if pattern_missing else 0
+    return 0

@@ -1,0 +1,281 @@
+"""Compiled per-pixel loops of the reconstruction (numba, cached on disk): the decoder's fringe
+runs, symbols and votes, the De Bruijn verification and the triangulation.
+
+Each loop reproduces, bit for bit, the numpy formulation it replaced (float32 arithmetic in
+numpy's order, including the pairwise summation of ``np.add.reduceat``), so outputs do not
+depend on which one ran. Compiled code is cached next to this file (``cache=True``); call
+:func:`warm_up` before any timed loop so the first frame does not pay for loading it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+PAIRWISE_BLOCK = 128  # numpy's PW_BLOCKSIZE
+
+# per-pixel outcome of matching and verification (the quality map)
+NO_MATCH = 0  # no disparity: SGBM found none, or the match is at or beyond infinity
+REJECTED = 1  # SGBM matched, but on another fringe than the left pixel's, with no repair
+UNVERIFIED = 2  # SGBM's match, kept where the pattern cannot be read (or without verification)
+KEPT = 3  # SGBM's match, on the left pixel's fringe
+CORRECTED = 4  # replaced by a nearby candidate on the left pixel's fringe
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_block(a, lo, n, k):
+    """``a[lo:lo+n, k]`` (``n <= PAIRWISE_BLOCK``) summed in numpy's pairwise order (float32)."""
+    if n < 8:
+        res = np.float32(0.0)
+        for i in range(lo, lo + n):
+            res += a[i, k]
+        return res
+    r0, r1, r2, r3 = a[lo, k], a[lo + 1, k], a[lo + 2, k], a[lo + 3, k]
+    r4, r5, r6, r7 = a[lo + 4, k], a[lo + 5, k], a[lo + 6, k], a[lo + 7, k]
+    i = lo + 8
+    stop = lo + n - n % 8
+    while i < stop:
+        r0 += a[i, k]
+        r1 += a[i + 1, k]
+        r2 += a[i + 2, k]
+        r3 += a[i + 3, k]
+        r4 += a[i + 4, k]
+        r5 += a[i + 5, k]
+        r6 += a[i + 6, k]
+        r7 += a[i + 7, k]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < lo + n:
+        res += a[i, k]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_sum(a, lo, n, k):
+    """``a[lo:lo+n, k]`` summed in numpy's pairwise order: halves of long runs recursively."""
+    if n <= PAIRWISE_BLOCK:
+        return _pairwise_block(a, lo, n, k)
+    half = n // 2
+    half -= half % 8
+    return _pairwise_sum(a, lo, half, k) + _pairwise_sum(a, lo + half, n - half, k)
+
+
+@njit(cache=True, nogil=True)
+def _run_sum(a, lo, n, k):
+    """``np.add.reduceat``'s sum of one run of column ``k`` of ``a`` (W×C): its first element
+    plus the pairwise rest."""
+    if n - 1 <= PAIRWISE_BLOCK:
+        return a[lo, k] + _pairwise_block(a, lo + 1, n - 1, k)
+    return a[lo, k] + _pairwise_sum(a, lo + 1, n - 1, k)
+
+
+@njit(cache=True, nogil=True)
+def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth, min_value,
+                min_purity, n_symbols, window, min_votes, row_step, index):
+    """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
+    decoded rows' brightness ``value`` (rows×W×1) and corrected ``colour`` (rows×W×3); each
+    decoded row fills the ``row_step`` image rows from its own down."""
+    rows, width = value.shape[:2]
+    height = index.shape[0]
+    depth = np.float32(boundary_depth)
+    purity_limit = np.float32(min_purity)
+    tiny = np.float32(1e-6)
+    starts = np.empty(width + 1, np.int64)
+    symbols = np.empty(width, np.int16)
+    first = np.empty(width, np.int32)
+    candidates = np.empty(window, np.int32)
+    for r in range(rows):
+        v = value[r]
+        row_colour = colour[r]
+        n = 1
+        starts[0] = 0
+        for x in range(1, width - 1):
+            c = v[x, 0]
+            if c < v[x - 1, 0] and c <= v[x + 1, 0] and c < depth * local_max[r, x]:
+                starts[n] = x
+                n += 1
+        starts[n] = width
+        for j in range(n):
+            lo = starts[j]
+            count = starts[j + 1] - lo
+            b, g, rd = (_run_sum(row_colour, lo, count, 0), _run_sum(row_colour, lo, count, 1),
+                        _run_sum(row_colour, lo, count, 2))
+            brightness = np.float64(_run_sum(v, lo, count, 0)) / count
+            channel, top = 0, b
+            if g > top:
+                channel, top = 1, g
+            if rd > top:
+                channel, top = 2, rd
+            second = b + g + rd - top - min(min(b, g), rd)
+            purity = (top - second) / max(top, tiny)
+            symbols[j] = -1 if (brightness < min_value or purity < purity_limit
+                                or count < 2) else channel_symbol[channel]
+        n_windows = n - window + 1
+        for w in range(max(n_windows, 0)):
+            code, weight, ok = 0, 1, True
+            for k in range(window):
+                s = symbols[w + k]
+                ok = ok and s >= 0
+                code += max(s, 0) * weight
+                weight *= n_symbols
+            first[w] = lookup[code] if ok else -1
+        for j in range(n):
+            for o in range(window):
+                w = j - o
+                candidates[o] = first[w] + o if 0 <= w < n_windows and first[w] >= 0 else -1
+            best, best_votes = -1, 0
+            for o in range(window):
+                if candidates[o] >= 0:
+                    votes = 0
+                    for p in range(window):
+                        votes += candidates[p] == candidates[o]
+                    if votes > best_votes:
+                        best, best_votes = candidates[o], votes
+            if best_votes < min_votes:
+                best = -1
+            for y in range(r * row_step, min((r + 1) * row_step, height)):
+                for x in range(starts[j], starts[j + 1]):
+                    index[y, x] = best
+
+
+@njit(cache=True, nogil=True)
+def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
+    """Sum of absolute corrected-colour differences over 1×3 windows around xl and xr."""
+    last = left_colour.shape[1] - 1
+    total = np.float32(0.0)
+    for dx in (-1, 0, 1):
+        a = min(max(xl + dx, 0), last)
+        b = min(max(xr + dx, 0), last)
+        s = np.float32(0.0)
+        for ch in range(3):
+            s += abs(left_colour[y_left, a, ch] - right_colour[y_right, b, ch])
+        total += s
+    return total
+
+
+@njit(cache=True, nogil=True)
+def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
+                  right_step, search_px, tolerance, neighbours, coded, out, status):
+    """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
+    ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` marks
+    where the pattern is readable enough that an unreadable left code rejects a match.
+    Returns the counts (SGBM matches, kept, corrected, rejected, unverified)."""
+    height, width = disparity.shape
+    counts = np.zeros(5, np.int64)
+    penalty = np.float32(1e-3)
+    n_shifts = 2 * search_px
+    for y in range(height):
+        for x in range(width):
+            d = disparity[y, x]
+            if not np.isfinite(d):
+                out[y, x] = np.nan
+                status[y, x] = NO_MATCH
+                continue
+            counts[0] += 1
+            code = left_index[y, x]
+            if code < 0:
+                if coded[y, x]:
+                    out[y, x] = np.nan
+                    status[y, x] = REJECTED
+                    counts[3] += 1
+                else:
+                    out[y, x] = d
+                    status[y, x] = UNVERIFIED
+                    counts[4] += 1
+                continue
+            xi = int(np.rint(np.float32(x) - d))
+            kept = False
+            if 0 <= xi < width:
+                for s in range(max(xi - tolerance, 0), min(xi + tolerance + 1, width)):
+                    kept = kept or right_index[y, s] == code
+            if kept:
+                out[y, x] = d
+                status[y, x] = KEPT
+                counts[1] += 1
+                continue
+            best, best_cost = np.float32(np.nan), np.inf
+            for k in range(n_shifts + len(neighbours)):
+                if k < n_shifts:
+                    step = k - search_px if k < search_px else k - search_px + 1
+                    candidate = d + np.float32(step)
+                else:
+                    offset = k - n_shifts
+                    candidate = disparity[min(max(y + neighbours[offset, 0], 0), height - 1),
+                                          min(max(x + neighbours[offset, 1], 0), width - 1)]
+                cost = np.inf
+                xr = np.float64(x) - np.float64(candidate)
+                if np.isfinite(xr):
+                    xr_i = int(np.rint(xr))
+                    if 0 <= xr_i < width and right_index[y, xr_i] == code:
+                        cost = np.float64(_colour_cost(left_colour, right_colour,
+                                                       y // left_step, y // right_step, x, xr_i))
+                shift = candidate - d
+                cost += np.float64(penalty * (abs(shift) if np.isfinite(shift)
+                                              else np.float32(0.0)))
+                if cost < best_cost:
+                    best, best_cost = candidate, cost
+            if np.isfinite(best_cost):
+                out[y, x] = best
+                status[y, x] = CORRECTED
+                counts[2] += 1
+            else:
+                out[y, x] = np.nan
+                status[y, x] = REJECTED
+                counts[3] += 1
+    return counts
+
+
+@njit(cache=True, nogil=True)
+def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px):
+    """Points (N×3 float32, m), colours (N×3 uint8) and verified flags (N bool) of the pixels
+    with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
+    ``x = (u-cx)z/f``, ``y = (v-cy)z/f``. Pixels at or beyond infinity get NaN and
+    ``NO_MATCH`` in ``disparity`` and ``status``."""
+    height, width = disparity.shape
+    doffs = np.float32(doffs_px)
+    n = 0
+    for v in range(height):
+        for u in range(width):
+            d = disparity[v, u]
+            if d > doffs:
+                n += 1
+            elif np.isfinite(d):
+                disparity[v, u] = np.nan
+                status[v, u] = NO_MATCH
+    points = np.empty((n, 3), np.float32)
+    colours = np.empty((n, 3), np.uint8)
+    verified = np.empty(n, np.bool_)
+    f = np.float32(f_px)
+    f_b = np.float32(f_px * baseline_m)
+    cx32, cy32 = np.float32(cx), np.float32(cy)
+    i = 0
+    for v in range(height):
+        y_over_z = (np.float32(v) - cy32) / f
+        for u in range(width):
+            d = disparity[v, u]
+            if d > doffs:
+                z = f_b / (d - doffs)
+                points[i, 0] = (np.float32(u) - cx32) / f * z
+                points[i, 1] = y_over_z * z
+                points[i, 2] = z
+                for ch in range(3):
+                    colours[i, ch] = image_rgb[v, u, ch]
+                verified[i] = status[v, u] >= KEPT
+                i += 1
+    return points, colours, verified
+
+
+def warm_up() -> None:
+    """Load (or, the first time, compile) every loop, so no timed call pays for it."""
+    value = np.ones((2, 8, 1), np.float32)
+    colour = np.ones((2, 8, 3), np.float32)
+    index = np.zeros((4, 8), np.int16)
+    decode_rows(value, colour, value[..., 0], np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
+                0.25, 3, 4, 2, 2, index)
+    disparity = np.ones((4, 8), np.float32)
+    status = np.zeros((4, 8), np.uint8)
+    verify_pixels(disparity, index, index, colour, colour, 2, 2, 1, 1,
+                  np.zeros((1, 2), np.int64), np.ones((4, 8), np.bool_), disparity.copy(),
+                  status)
+    triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0)
