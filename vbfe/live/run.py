@@ -21,7 +21,7 @@ from vbfe.acquire.recording.recorder import Recorder
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import Devices
 from vbfe.drivers.samples import ForceSample, StereoFrame
-from vbfe.estimate.dataset import force_target
+from vbfe.estimate.preparation import force_target
 from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
 from vbfe.live.mailbox import Mailbox
 from vbfe.recon import make_pattern
@@ -241,7 +241,7 @@ class LiveRun:
         with self._lock:
             kept = np.isin([e.frame_seq for e in self.estimates], recorded_seqs)
             estimates = [e for e, k in zip(self.estimates, kept) if k]
-        outputs = int(self.estimator.model.network.hparams["n_outputs"])
+        outputs = self.estimator.model.config.n_outputs
         return EstimateStream(
             force_n=np.array([e.force_n for e in estimates], np.float64).reshape(-1, outputs),
             frame_seq=np.array([e.frame_seq for e in estimates], np.int64),
