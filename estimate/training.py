@@ -56,6 +56,7 @@ class SplitFit:
     selected: str
     notes: list[str]
     histories: dict[str, Any]
+    fit_seconds: dict[str, float]  # wall time of each fit (baselines: all together)
 
 
 @dataclass
@@ -71,6 +72,7 @@ class TrainResult:
     history: list[dict[str, float]]
     skipped: dict[str, dict[str, int]]
     duration_s: float
+    fit_seconds: dict[str, float] = field(default_factory=dict)  # wall time per fit
     notes: list[str] = field(default_factory=list)
     cross_validation: dict[str, Any] | None = None
 
@@ -132,12 +134,14 @@ def _fit_networks(names: list[str], train_parts: Parts, val_parts: Parts, config
             network.load_state_dict(fitted["pointnet"].network.state_dict(), strict=False)
             epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
         deadline = time.monotonic() + budget if budget > 0 else None
+        started = time.perf_counter()
         outcome = fit_network(network, train_batches, check_batches, config, epochs, device,
                               rng, deadline, (lambda done, total, stage=stage:
                                               progress(stage, done, total)) if progress else None,
                               warm_start=bool(window))
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
-        histories[name] = {"history": outcome.history, "best_epoch": outcome.best_epoch,
+        histories[name] = {"fit_s": time.perf_counter() - started,
+                           "history": outcome.history, "best_epoch": outcome.best_epoch,
                            "stopped_by": outcome.stopped_by,
                            "start_val_loss": outcome.start_val_loss}
         if outcome.stopped_by == "time limit":
@@ -164,25 +168,32 @@ def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: 
                      "last kept); the MAEs below are training MAEs")
         val_parts = []
     names = candidate_names(config.model, config.temporal_frames > 0)
+    clock = time.perf_counter()
     estimators: dict[str, AnyEstimator] = dict(
         fit_baselines(train_parts, config.history_window, config.seed))
+    seconds = {"baselines": time.perf_counter() - clock}
     histories: dict[str, Any] = {}
     if {"pointnet", "temporal"} & set(names):
         networks, histories = _fit_networks(names, train_parts, val_parts, config, progress,
                                             notes)
         estimators.update(networks)
+        seconds.update({name: h["fit_s"] for name, h in histories.items()})
     if CANDIDATES["ridge"] in names:
+        clock = time.perf_counter()
         estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(train_parts, val_parts,
                                                                config.ridge_sizes)
+        seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
     if CANDIDATES["cnn"] in names:
+        clock = time.perf_counter()
         cnn, histories["cnn"] = fit_cnn(train_parts, val_parts, config.n_outputs,
                                         config.cnn_channels, config.cnn_epochs, config.seed)
         estimators[cnn.name] = cnn
+        seconds[cnn.name] = time.perf_counter() - clock
     check = val_parts or train_parts
     val_mae = {name: frames_mae(e.predict_session, check) for name, e in estimators.items()}
     selected = min(names, key=lambda name: val_mae[name])
     notes.append(_selection_note(selected, names, val_mae, bool(val_parts)))
-    return SplitFit(split, estimators, val_mae, selected, notes, histories)
+    return SplitFit(split, estimators, val_mae, selected, notes, histories, seconds)
 
 
 def _selection_note(selected: str, names: list[str], val_mae: dict[str, float],
@@ -244,7 +255,8 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     record = {
         "split": fit.split.to_dict(), "split_description": fit.split.describe(),
         "selected": fit.selected, "validation_mae_n": fit.val_mae_n, "notes": fit.notes,
-        "histories": fit.histories, "skipped": skipped, "threads": config.threads,
+        "histories": fit.histories, "fit_seconds": fit.fit_seconds, "skipped": skipped,
+        "threads": config.threads,
         "conditions": {s.name: s.conditions for s in prepared}, "cross_validation": cv,
     }
     model = ForceModel(config=config, estimators=fit.estimators, selected=fit.selected,
@@ -254,4 +266,4 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
         model_path=path, split=fit.split, selected=fit.selected, val_mae_n=fit.val_mae_n,
         epochs_run=len(pointnet["history"]), best_epoch=pointnet["best_epoch"],
         history=pointnet["history"], skipped=skipped, duration_s=time.monotonic() - started,
-        notes=fit.notes, cross_validation=cv)
+        fit_seconds=fit.fit_seconds, notes=fit.notes, cross_validation=cv)

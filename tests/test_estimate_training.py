@@ -2,6 +2,7 @@
 
 import csv
 import json
+import re
 
 import h5py
 import numpy as np
@@ -14,7 +15,7 @@ from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.dataset import prepare_session
-from vbfe.estimate.synthetic import synthetic_sessions
+from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 
@@ -24,7 +25,8 @@ SMALL = dict(fps=4, points_per_side=20)
 def tiny_config(**kw):
     values = dict(epochs=30, batch_size=16, n_points=64, patience=10, learning_rate=3e-3,
                   conv_channels=[16, 32, 64], head_channels=[32], dropout=0.1,
-                  val_fraction=1 / 3, seed=0, threads=1, cnn_epochs=15, cnn_channels=[4, 8])
+                  val_fraction=1 / 3, seed=0, threads=1, cnn_epochs=15, cnn_channels=[4, 8],
+                  history_frames=0)
     values.update(kw)
     return TrainConfig(**values)
 
@@ -33,7 +35,7 @@ def tiny_config(**kw):
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("model") / "model.pt"
     result = train(synthetic_sessions(repeats=3, seed=1, prefix="train", **SMALL), out,
-                   tiny_config())
+                   tiny_config(history_frames=6))
     return out, result
 
 
@@ -240,3 +242,52 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
         np.testing.assert_allclose(model.predict_session(prepared, "temporal"),
                                    model.predict_session(prepared, "pointnet"), rtol=1e-5,
                                    atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def clouds_file(tmp_path_factory):
+    """One synthetic session (95 frames) as a clouds file of `vbfe import`, and a tiny rig."""
+    from vbfe.estimate.importing import write_clouds
+
+    folder = tmp_path_factory.mktemp("cli")
+    s = synthetic_session("press", 80.0, 0.005, np.random.default_rng(7), fps=10,
+                          points_per_side=12)
+    path = write_clouds(folder / "press.clouds.h5", s.clouds, s.times_ns, s.forces_n,
+                        {"label": "press"}, {"folder": "synthetic"})
+    rig = folder / "rig.toml"
+    rig.write_text("[train]\nepochs = 2\nbatch_size = 8\nn_points = 32\nthreads = 1\n"
+                   "conv_channels = [8, 16]\nhead_channels = [8]\ncnn_epochs = 3\n"
+                   "history_frames = 0\ngap_frames = 3\n")
+    return path, rig
+
+
+def test_cli_time_split_by_stated_frame_ranges(clouds_file, tmp_path, capsys):
+    path, rig = clouds_file
+    model = tmp_path / "m.pt"
+    assert main(["train", str(path), "--out", str(model), "--config", str(rig), "--train",
+                 "0:60", "--val", "66:80", "--test", "86:95", "--model", "ridge"]) == 0
+    out = capsys.readouterr().out
+    assert "press.clouds.h5 train 0:60 val 66:80 test 86:95" in out
+    assert "ships ridge_height_map" in out and "forced by --model" in out
+    assert load_model(model).split.blocks["test"][str(path)] == [[86, 95]]
+    assert main(["evaluate", str(model), str(path), "--out", str(tmp_path / "r")]) == 0
+    assert "over 9 frames" in capsys.readouterr().out  # the stated test range only
+    assert main(["train", str(path), "--out", str(tmp_path / "bad.pt"), "--config", str(rig),
+                 "--train", "0:60", "--val", "50:80"]) == 2
+    assert "overlap" in capsys.readouterr().err
+
+
+def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file, tmp_path,
+                                                                     capsys):
+    path, rig = clouds_file
+    model = tmp_path / "cv.pt"
+    assert main(["train", str(path), "--out", str(model), "--config", str(rig), "--folds",
+                 "3"]) == 0
+    out = capsys.readouterr().out
+    folds = [line for line in out.splitlines() if line.startswith("fold ")]
+    assert len(folds) == 3 and all("test " in line and "gap 3 frames" in line for line in folds)
+    assert "3-fold blocked cross-validation, test MAE mean ± sd (N):" in out
+    for method in ("selected", "pointnet", "ridge_height_map", "cnn_depth_change", "mean"):
+        assert re.search(rf"{method}: \d+\.\d+ ± \d+\.\d+", out), method
+    cv = load_model(model).record["cross_validation"]
+    assert len(cv["folds"]) == 3 and cv["summary"]["mean"]["sd_mae_n"] >= 0
