@@ -291,3 +291,18 @@ def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file,
         assert re.search(rf"{method}: \d+\.\d+ ± \d+\.\d+", out), method
     cv = load_model(model).record["cross_validation"]
     assert len(cv["folds"]) == 3 and cv["summary"]["mean"]["sd_mae_n"] >= 0
+
+
+def test_a_shipped_model_that_loses_to_a_baseline_is_flagged(tmp_path):
+    sessions = synthetic_sessions(repeats=2, seed=8, prefix="lose", fps=2, points_per_side=12)
+    result = train(sessions, tmp_path / "lose.pt",
+                   tiny_config(epochs=1, model="pointnet", learning_rate=1e-5))
+    scores = result.val_mae_n
+    assert set(scores) == {"mean", "linear_displacement", "hooke", "pointnet"}
+    assert scores["pointnet"] > scores["linear_displacement"]  # one epoch barely moves it
+    warning = [n for n in result.notes if n.startswith("warning: selected model: pointnet")]
+    assert warning and "LOSES to the baseline" in warning[0]
+    report = evaluate(result.model_path, synthetic_sessions(repeats=1, seed=9, **SMALL),
+                      tmp_path / "eval")
+    assert report.selected == "pointnet"
+    assert "LOSES to the baseline" in (tmp_path / "eval" / "report.md").read_text()

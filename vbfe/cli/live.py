@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
     torch.set_num_threads(settings.torch_threads)
     model = load_model(args.model)
+    print(f"model {args.model}: {model.selected} (selected by its training run)")
     calibration = load_calibration(args.calib)
     estimator = FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
                                verify=not args.no_verify and settings.verify,
