@@ -36,23 +36,26 @@ class DepthChangeImage:
                                                  return_distances=False, return_indices=True)
         self._rest = mean[tuple(nearest)].ravel()
 
-    def _bin(self, points: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-cell sum of ``values`` and count of the points inside the grid (flat arrays)."""
+    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat cell index of every point and whether it lies inside the grid."""
         ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
         inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
-        cell = ij[inside, 0] * self.cells + ij[inside, 1]
+        return np.where(inside, ij[:, 0] * self.cells + ij[:, 1], 0), inside
+
+    def _bin(self, points: np.ndarray, values: np.ndarray,
+             cells: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per-cell sum of ``values`` and count of the points inside the grid (flat arrays)."""
+        cell, inside = cells or self._cells(points)
         n = self.cells * self.cells
-        return (np.bincount(cell, values[inside], minlength=n),
-                np.bincount(cell, minlength=n).astype(np.float64))
+        return (np.bincount(cell[inside], values[inside], minlength=n),
+                np.bincount(cell[inside], minlength=n).astype(np.float64))
 
     def sums_counts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sum of depth change, point count) per cell (cells × cells each, float32) of a
         cloud's finite points (N×3, metres)."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
-        inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
-        change = points[:, 2] - self._rest[np.where(inside, ij[:, 0] * self.cells + ij[:, 1], 0)]
-        total, count = self._bin(points, change)
+        cells = self._cells(points)
+        total, count = self._bin(points, points[:, 2] - self._rest[cells[0]], cells)
         shape = (self.cells, self.cells)
         return total.reshape(shape).astype(np.float32), count.reshape(shape).astype(np.float32)
 
