@@ -44,7 +44,7 @@ def test_training_writes_a_model_with_its_record(trained):
     assert result.model_path == path and path.is_file()
     assert 1 <= result.best_epoch <= result.epochs_run <= 30
     model = load_model(path)
-    assert model.config == tiny_config()
+    assert model.config == tiny_config(history_frames=6)
     split = model.record["split"]
     assert len(split["train"]) == 6 and len(split["val"]) == 3
     assert not set(split["train"]) & set(split["val"])
