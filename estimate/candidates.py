@@ -9,9 +9,8 @@ depth-change image (``image_models.py``). Every estimator, candidate or baseline
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, Union
+from typing import Any, Union
 
 import numpy as np
 import torch
@@ -24,15 +23,6 @@ from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 
 CANDIDATES = {"pointnet": "pointnet", "temporal": "temporal", "ridge": "ridge_height_map",
               "cnn": "cnn_depth_change"}
-
-
-class Estimator(Protocol):
-    name: str
-
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray: ...
-
-    def to_dict(self) -> dict[str, Any]: ...
 
 
 @dataclass
@@ -92,9 +82,3 @@ def candidate_names(model: str, temporal: bool) -> list[str]:
     if model == "temporal" and not temporal:
         raise EstimateError("--model temporal needs temporal_frames >= 2 (--temporal-frames)")
     return [CANDIDATES[model]]
-
-
-def window_span(estimators: Sequence[Any]) -> int:
-    """Frames back the estimators read (0: the frame alone)."""
-    return max([max(e.window, default=0) for e in estimators if isinstance(e, NetworkEstimator)]
-               + [max(getattr(e, "offsets", ()), default=0) for e in estimators], default=0)

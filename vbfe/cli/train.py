@@ -4,11 +4,11 @@ cross-validate."""
 from __future__ import annotations
 
 import argparse
-import sys
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `train` subcommand."""
