@@ -1,12 +1,16 @@
-"""Evaluating a trained model and its baselines on sessions, like the paper's Table I.
+"""Evaluating a trained model's estimators on sessions, like the paper's Table I.
 
 Errors are taken per frame as the length of the force error vector (the absolute error when
-the model regresses |F|): MAE, RMSE and σ (standard deviation of the absolute error), overall and
-per condition (stiffness × pull speed).
+the model regresses one number): MAE, RMSE and σ (standard deviation of the absolute error),
+overall and per condition (stiffness × pull speed), with 95 % intervals of the overall MAE and
+RMSE from a block bootstrap over time (``bootstrap_intervals``: neighbouring frames are nearly
+copies of each other, so frames are resampled in contiguous blocks, the same blocks for every
+method). Every method's prediction of every scored frame is written to ``predictions.csv``.
 """
 
 from __future__ import annotations
 
+import csv
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -14,11 +18,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel, load_model
+from vbfe.estimate.preparation import target_label
 from vbfe.estimate.report import plot_scatter, plot_session, safe_stem, write_json, write_tables
 from vbfe.estimate.sources import SessionLike
+
+BOOTSTRAP_BLOCKS = 20  # about this many time blocks over all scored frames
+BOOTSTRAP_RESAMPLES = 1000
 
 
 def error_stats(predicted_n: np.ndarray, measured_n: np.ndarray) -> dict[str, float]:
@@ -29,30 +38,57 @@ def error_stats(predicted_n: np.ndarray, measured_n: np.ndarray) -> dict[str, fl
             "sd_abs_error_n": float(error.std())}
 
 
+def time_blocks(lengths: Sequence[int], n_blocks: int = BOOTSTRAP_BLOCKS) -> list[np.ndarray]:
+    """Contiguous blocks of frame positions (into the concatenated sessions of ``lengths``),
+    never across sessions, of about ``total / n_blocks`` frames each."""
+    size = max(1, int(round(sum(lengths) / n_blocks)))
+    blocks, start = [], 0
+    for n in lengths:
+        blocks += [np.arange(start + a, start + min(a + size, n)) for a in range(0, n, size)]
+        start += n
+    return blocks
+
+
+def bootstrap_intervals(errors: dict[str, np.ndarray], blocks: list[np.ndarray],
+                        seed: int = 0) -> dict[str, dict[str, list[float]]]:
+    """95 % percentile intervals of MAE and RMSE per method, resampling time ``blocks``."""
+    rng = np.random.default_rng(seed)
+    draws = [np.concatenate([blocks[i] for i in rng.integers(0, len(blocks), len(blocks))])
+             for _ in range(BOOTSTRAP_RESAMPLES)]
+    out = {}
+    for method, error in errors.items():
+        mae = [error[d].mean() for d in draws]
+        rmse = [np.sqrt((error[d] ** 2).mean()) for d in draws]
+        out[method] = {"mae_ci95_n": np.percentile(mae, [2.5, 97.5]).tolist(),
+                       "rmse_ci95_n": np.percentile(rmse, [2.5, 97.5]).tolist()}
+    return out
+
+
 @dataclass
 class EvaluationReport:
     """Numbers and files of one evaluation."""
 
     out_dir: Path
-    metrics: dict[str, dict[str, Any]]  # method → {"overall": stats, "per_condition": {...}}
+    metrics: dict[str, dict[str, Any]]  # method → {"overall": stats + CIs, "per_condition": ...}
     sessions: list[str]
     seen_in_training: list[str]  # evaluated sessions the model was trained/validated on
     skipped: dict[str, dict[str, int]]
+    selected: str = ""
     files: list[Path] = field(default_factory=list)
     split_description: str = ""  # how the model's training data was split
-    # session → {"times_ns", "measured_n", method: predicted force} over the scored frames
+    # session → {"times_ns", "frame_index", "measured_n", method: predicted force}
     frames: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     def mae_n(self, method: str = "pointnet") -> float:
-        """Overall MAE of one method (``pointnet``, ``temporal``, ``mean``,
-        ``linear_displacement``, ``hooke``, ``ridge_height_map``)."""
-        return float(self.metrics[method]["overall"]["mae_n"])
+        """Overall MAE of one method (a candidate, a baseline, or ``selected``)."""
+        return float(self.metrics[self.selected if method == "selected" else method]
+                     ["overall"]["mae_n"])
 
 
 def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np.ndarray, bool]:
     """Frames of ``session`` to score and whether they were used in training.
 
-    A session that the model's time split cut into blocks is scored on its test blocks only;
+    A session that the model's time split cut into ranges is scored on its test range only;
     if it has none, all its frames are scored and flagged as seen in training.
     """
     split = model.split
@@ -65,12 +101,31 @@ def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np
                                                                              session.name)
 
 
+def write_predictions_csv(path: Path, frames: dict[str, dict[str, np.ndarray]],
+                          methods: Sequence[str], n_outputs: int) -> Path:
+    """One row per scored frame: session, frame, time, measured and every method's force."""
+    columns = [f"_{k}" for k in range(n_outputs)] if n_outputs > 1 else [""]
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        writer = csv.writer(f)
+        writer.writerow(["session", "frame", "time_s",
+                         *(f"{name}{c}_n" for name in ("measured", *methods) for c in columns)])
+        for session, data in frames.items():
+            t0 = data["times_ns"][0] if len(data["times_ns"]) else 0
+            for i in range(len(data["times_ns"])):
+                values = [v for name in ("measured_n", *methods) for v in data[name][i]]
+                writer.writerow([session, int(data["frame_index"][i]),
+                                 f"{(data['times_ns'][i] - t0) / 1e9:.6f}",
+                                 *(f"{v:.6g}" for v in values)])
+    return path
+
+
 def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out_dir: str | Path,
              progress: ProgressFn | None = None) -> EvaluationReport:
-    """Evaluate a model file and its baselines; writes metrics.json, report.md/.html and PNGs.
+    """Evaluate every estimator of a model file; writes metrics.json, predictions.csv,
+    report.md/.html and PNGs.
 
     With ``sessions=None`` the sessions in the model's recorded test split are used. Sessions
-    of a time split are scored on their held-out test blocks only. Torch's thread count is
+    of a time split are scored on their held-out test range only. Torch's thread count is
     left as the caller set it.
     """
     model = load_model(model_path)
@@ -82,6 +137,8 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     prepared = prepare_sessions(sessions, model.config, progress)
+    methods = [model.selected, *(m for m in model.estimators if m != model.selected)]
+    label = target_label(model.config.target)
 
     predictions: dict[str, list[np.ndarray]] = defaultdict(list)
     measured, labels, plots, seen_in_training = [], [], [], []
@@ -90,63 +147,71 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
         positions, seen = _held_out_positions(model, session)
         if seen:
             seen_in_training.append(session.name)
-        per_method = {"pointnet": model.predict_session(session)}
-        if model.temporal is not None:
-            per_method["temporal"] = model.predict_session_temporal(session)
-        per_method.update({name: b.predict_session(session)
-                           for name, b in model.baselines.items()})
-        per_method = {method: force[positions] for method, force in per_method.items()}
+        per_method = {m: model.predict_session(session, m, positions) for m in methods}
         for method, force in per_method.items():
             predictions[method].append(force)
         measured.append(session.targets_n[positions])
         frames[session.name] = {"times_ns": session.times_ns[positions],
+                                "frame_index": session.frame_index[positions],
                                 "measured_n": session.targets_n[positions], **per_method}
         labels += [session.condition] * len(positions)
         plots.append(plot_session(out_dir / f"force_{k:02d}_{safe_stem(session.name)}.png",
                                   f"{session.name} ({session.condition})",
                                   session.times_ns[positions], session.targets_n[positions],
-                                  per_method))
+                                  per_method, label, model.selected))
         if progress is not None:
             progress("predict", k + 1, len(prepared))
 
     truth = np.concatenate(measured)
     label_array = np.asarray(labels)
+    errors = {m: np.linalg.norm(np.concatenate(p) - truth, axis=1)
+              for m, p in predictions.items()}
+    intervals = bootstrap_intervals(errors, time_blocks([len(m) for m in measured]))
     metrics: dict[str, dict[str, Any]] = {}
     for method, parts in predictions.items():
         force = np.concatenate(parts)
         metrics[method] = {
-            "overall": error_stats(force, truth),
-            "per_condition": {label: error_stats(force[label_array == label],
-                                                 truth[label_array == label])
-                              for label in sorted(set(labels))}}
-    plots.append(plot_scatter(out_dir / "scatter_pointnet.png", truth,
-                              np.concatenate(predictions["pointnet"]), labels))
+            "overall": {**error_stats(force, truth), **intervals[method]},
+            "per_condition": {c: error_stats(force[label_array == c], truth[label_array == c])
+                              for c in sorted(set(labels))}}
+    plots.append(plot_scatter(out_dir / "scatter_selected.png", truth,
+                              np.concatenate(predictions[model.selected]), labels, label,
+                              model.selected))
 
     names = [s.name for s in prepared]
     skipped = skipped_counts(prepared)
     split = model.split
     split_note = (f"training {split.describe()}"
-                  + ("; scored on the held-out test blocks only" if split.kind == "time" else ""))
+                  + ("; scored on the held-out test ranges only" if split.kind == "time" else ""))
     notes = [f"model {Path(model_path).name} (vbfe {model.record.get('vbfe_version')}), "
-             f"target {model.config.target}, {model.config.n_points} points per cloud",
+             f"target {model.config.target} ({label})",
+             f"selected model: {model.selected}; validation MAE per method (N): " + ", ".join(
+                 f"{m} {v:.3f}" for m, v in model.record.get("validation_mae_n", {}).items()),
+             *(n for n in model.record.get("notes", []) if n.startswith("warning")),
              split_note,
-             "baselines fitted on the training frames only; Hooke uses one fitted stiffness "
-             f"k̂ = {model.baselines['hooke'].slope.round(2).tolist()} N/m for all conditions",
-             f"frames skipped (empty/NaN clouds): {sum(v['skipped'] for v in skipped.values())}"]
-    if model.temporal is not None:
-        notes.append(f"temporal model: PointNet encoder over the rest frame and a causal window "
-                     f"of {model.config.temporal_frames} frames, offsets "
-                     f"{model.config.temporal_window} frames back")
+             "MAE/RMSE 95 % intervals: bootstrap over contiguous time blocks "
+             f"({BOOTSTRAP_RESAMPLES} resamples of {len(time_blocks([len(m) for m in measured]))}"
+             " blocks)",
+             f"frames not scored: {sum(v['no_force'] for v in skipped.values())} without a "
+             f"force, {sum(v['no_cloud'] for v in skipped.values())} with too few points in "
+             "the region of interest"]
+    if "hooke" in model.estimators:
+        notes.append("baselines fitted on the training frames only; Hooke uses one fitted "
+                     f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m")
     if seen_in_training:
         notes.append(f"WARNING: {len(seen_in_training)} evaluated session(s) were used in "
                      "training; these numbers are not held-out")
+    csv_path = write_predictions_csv(out_dir / "predictions.csv", frames, methods,
+                                     model.config.n_outputs)
     metrics_path = write_json(out_dir / "metrics.json", {
-        "model": str(model_path), "sessions": names, "seen_in_training": seen_in_training,
+        "model": str(model_path), "selected": model.selected, "target": model.config.target,
+        "sessions": names, "seen_in_training": seen_in_training,
         "split": {"kind": split.kind, "gap_frames": split.gap_frames,
-                  "description": split.describe()},
+                  "description": split.describe(), "blocks": split.blocks},
         "skipped": skipped, "units": "N", "metrics": metrics})
     md_path, html_path = write_tables(out_dir, metrics, notes, plots)
     return EvaluationReport(out_dir=out_dir, metrics=metrics, sessions=names,
                             seen_in_training=seen_in_training, skipped=skipped,
-                            files=[metrics_path, md_path, html_path, *plots],
+                            selected=model.selected,
+                            files=[metrics_path, csv_path, md_path, html_path, *plots],
                             split_description=split_note, frames=frames)

@@ -55,9 +55,11 @@ class HistoryBaseline:
                 h = np.maximum(h, 0.0)
         return h + self.y_mean
 
-    def predict_session(self, session: PreparedSession) -> np.ndarray:
+    def predict_session(self, session: PreparedSession,
+                        positions: np.ndarray | None = None) -> np.ndarray:
         """Predicted force (used frames × outputs) of a prepared session."""
-        return self.predict(history_features(session.displacement_m, self.offsets))
+        history = history_features(session.displacement_m, self.offsets)
+        return self.predict(history if positions is None else history[positions])
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "kind": "history_mlp", "offsets": list(self.offsets),

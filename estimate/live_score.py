@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.acquire import SessionReader
-from vbfe.estimate.dataset import force_target
+from vbfe.estimate.preparation import force_target, target_label
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.evaluation import error_stats
 from vbfe.estimate.report import plot_session, write_json
@@ -54,5 +54,6 @@ def score_live_stream(session_path: str | Path, out_dir: str | Path | None = Non
         out.mkdir(parents=True, exist_ok=True)
         result["files"] = [str(write_json(out / "live_metrics.json", result)), str(plot_session(
             out / "live_force.png", f"{Path(session_path).name}: live estimate vs trocar",
-            times[rows[usable]], measured[usable], {"live": stream.force_n[usable]}))]
+            times[rows[usable]], measured[usable], {"live": stream.force_n[usable]},
+            target_label(target), "live"))]
     return result

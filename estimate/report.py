@@ -20,7 +20,8 @@ from vbfe.files import save_figure, write_bytes_atomic
 
 METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
-                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on height map",
+                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on depth-change thumbnail",
+                 "cnn_depth_change": "CNN on depth-change image",
                  "mlp_displacement_history": "MLP on displacement history"}
 
 
@@ -30,7 +31,8 @@ def write_json(path: Path, data: dict[str, Any]) -> Path:
 
 
 def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str], list[list[str]]]:
-    """Header and rows (overall, then each condition) of ``MAE (σ)`` or ``RMSE`` per method."""
+    """Header and rows (overall with its 95 % interval, then each condition) of ``MAE (σ)`` or
+    ``RMSE`` per method."""
     methods = list(metrics)
     header = ["Condition", "Frames", *(METHOD_LABELS.get(m, m) for m in methods)]
     first = metrics[methods[0]]
@@ -40,8 +42,10 @@ def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str]
         cells = []
         for m in methods:
             s = metrics[m]["overall"] if label == "all" else metrics[m]["per_condition"][label]
-            cells.append(f"{s['mae_n']:.3f} ({s['sd_abs_error_n']:.3f})" if key == "mae"
-                         else f"{s['rmse_n']:.3f}")
+            cell = (f"{s['mae_n']:.3f} ({s['sd_abs_error_n']:.3f})" if key == "mae"
+                    else f"{s['rmse_n']:.3f}")
+            interval = s.get(f"{key}_ci95_n")
+            cells.append(cell + (f" [{interval[0]:.3f}, {interval[1]:.3f}]" if interval else ""))
         rows.append([label, str(stats["n_frames"]), *cells])
     return header, rows
 
@@ -62,8 +66,8 @@ def html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 def write_tables(out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Sequence[str],
                  plots: Sequence[Path]) -> tuple[Path, Path]:
     """Write report.md and report.html: MAE (σ) and RMSE tables (newtons) plus notes and plots."""
-    sections = [("MAE (σ of absolute error), N", metric_rows(metrics, "mae")),
-                ("RMSE, N", metric_rows(metrics, "rmse"))]
+    sections = [("MAE (σ of absolute error) [95 % interval], N", metric_rows(metrics, "mae")),
+                ("RMSE [95 % interval], N", metric_rows(metrics, "rmse"))]
     md = ["# Force estimation report", ""]
     page = ["<html><head><meta charset='utf-8'><title>Force estimation report</title></head>"
             "<body><h1>Force estimation report</h1>"]
@@ -82,23 +86,27 @@ def write_tables(out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Seque
     return md_path, html_path
 
 
-def _magnitude(force_n: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(np.asarray(force_n).reshape(len(force_n), -1), axis=1)
+def _plotted(force_n: np.ndarray) -> np.ndarray:
+    """One number per frame: the value itself (one output, signed), else the vector's length."""
+    force = np.asarray(force_n).reshape(len(force_n), -1)
+    return force[:, 0] if force.shape[1] == 1 else np.linalg.norm(force, axis=1)
 
 
 def plot_session(path: Path, title: str, times_ns: np.ndarray, measured_n: np.ndarray,
-                 predictions: dict[str, np.ndarray]) -> Path:
-    """Force magnitude versus time: measured and every method's prediction, as a PNG."""
+                 predictions: dict[str, np.ndarray], ylabel: str = "|F| (N)",
+                 highlight: str = "pointnet") -> Path:
+    """Force versus time (``ylabel``: what one number per frame is): measured and every
+    method's prediction, ``highlight`` drawn solid, as a PNG."""
     fig = Figure(figsize=(8, 4), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    t_s = (np.asarray(times_ns) - times_ns[0]) / 1e9
-    ax.plot(t_s, _magnitude(measured_n), color="black", lw=2, label="measured (trocar)")
+    t_s = (np.asarray(times_ns) - times_ns[0]) / 1e9 if len(times_ns) else np.zeros(0)
+    ax.plot(t_s, _plotted(measured_n), color="black", lw=2, label="measured (trocar)")
     for method, force in predictions.items():
-        style = {"lw": 1.5} if method == "pointnet" else {"lw": 1, "ls": "--"}
-        ax.plot(t_s, _magnitude(force), label=METHOD_LABELS.get(method, method), **style)
+        style = {"lw": 1.5} if method == highlight else {"lw": 1, "ls": "--"}
+        ax.plot(t_s, _plotted(force), label=METHOD_LABELS.get(method, method), **style)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("|F| (N)")
+    ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -107,20 +115,22 @@ def plot_session(path: Path, title: str, times_ns: np.ndarray, measured_n: np.nd
 
 
 def plot_scatter(path: Path, measured_n: np.ndarray, predicted_n: np.ndarray,
-                 labels: Sequence[str]) -> Path:
-    """PointNet-predicted versus measured |F|, one colour per condition, with the identity line."""
+                 labels: Sequence[str], axis: str = "|F| (N)", method: str = "pointnet") -> Path:
+    """Predicted versus measured force (``axis``: what is plotted), one colour per condition,
+    with the identity line."""
     fig = Figure(figsize=(5, 5), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    measured, predicted = _magnitude(measured_n), _magnitude(predicted_n)
+    measured, predicted = _plotted(measured_n), _plotted(predicted_n)
     labels = np.asarray(labels)
     for label in sorted(set(labels)):
         mask = labels == label
         ax.scatter(measured[mask], predicted[mask], s=4, alpha=0.5, label=label)
+    low = float(min(measured.min(), predicted.min(), 0.0))
     top = float(max(measured.max(), predicted.max(), 1e-3))
-    ax.plot([0, top], [0, top], "k--", lw=1)
-    ax.set_xlabel("measured |F| (N)")
-    ax.set_ylabel("PointNet |F| (N)")
+    ax.plot([low, top], [low, top], "k--", lw=1)
+    ax.set_xlabel(f"measured {axis}")
+    ax.set_ylabel(f"{METHOD_LABELS.get(method, method)} {axis}")
     ax.legend(fontsize=7, markerscale=3)
     fig.tight_layout()
     return save_figure(fig, path)

@@ -15,6 +15,8 @@ AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
 ROI_KINDS = ("all", "radius", "box")
 SPLITS = ("session", "time")
+# model choices: "auto" (best on validation) or one candidate (see ``candidates.py``)
+MODELS = ("auto", "pointnet", "temporal", "ridge", "cnn")
 DEVICES = ("auto", "cpu", "cuda")
 
 
@@ -45,9 +47,13 @@ class TrainConfig:
     frame_stride: int = setting(1, ge=1)  # use every k-th frame of each session
     val_fraction: float = setting(0.2, ge=0, lt=1)
     test_fraction: float = setting(0.0, ge=0, lt=1)
-    split: Literal[SPLITS] = "session"  # "session": whole sessions per part; "time": blocks
-    time_blocks: int = setting(5, ge=1)  # contiguous blocks per session for the time split
+    split: Literal[SPLITS] = "session"  # "session": whole sessions per part; "time": ranges
     gap_frames: int = setting(30, ge=0)  # frames left out at every boundary between parts
+    train_frames: list[int] = setting([])  # time split: stated [start, stop) frame ranges
+    val_frames: list[int] = setting([])
+    test_frames: list[int] = setting([])
+    folds: int = setting(0, ge=0)  # blocked cross-validation folds (0: none)
+    model: Literal[MODELS] = "auto"  # the model shipped: best on validation, or one forced
     val_max_frames: int = setting(2048, ge=1)  # fixed validation subsample
     seed: int = 0
     conv_channels: list[int] = setting([64, 128, 1024])
@@ -55,14 +61,18 @@ class TrainConfig:
     dropout: float = setting(0.3, ge=0, lt=1)
     global_features: bool = True  # feed the removed centroid and D_max to the head
     rest_depth: bool = True  # each point also carries its depth change vs the rest frame
-    time_limit_s: float = setting(0.0, ge=0)  # stop training after this wall time (0 = no limit)
-    threads: int = setting(2, ge=1)  # torch CPU threads (1 is faster on shared cores)
+    time_limit_s: float = setting(0.0, ge=0)  # guard: warn and stop a network's training
+    # after this wall time (0 = no limit); training is otherwise the same on any machine
+    threads: int = setting(2, ge=1)  # torch CPU threads while training (fixed: determinism)
     device: Literal[DEVICES] = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
     temporal_frames: int = setting(0, ge=0)  # temporal model: k frames in its causal window
     temporal_span_frames: int = setting(10, ge=1)  # oldest to newest frame of the window
     temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it
     # starts from the trained PointNet's encoder, so it needs fewer
-    ridge_cells: int = setting(16, ge=2)  # ridge baseline: height map relative to rest, cells²
+    image_cells: int = setting(32, ge=2)  # depth-change image: cells × cells over x, y
+    ridge_sizes: list[int] = setting([4, 8, 16, 32])  # ridge thumbnails (divide image_cells)
+    cnn_channels: list[int] = setting([8, 16, 32])  # small CNN on the depth-change image
+    cnn_epochs: int = setting(40, ge=1)
     history_frames: int = setting(6, ge=0)  # displacement-history baseline: frames (0: off)
     history_span_frames: int = setting(20, ge=1)  # oldest to newest frame of its window
 
@@ -81,19 +91,32 @@ class TrainConfig:
             if getattr(self, key) not in allowed:
                 raise EstimateError(f"[train] {key} must be one of {allowed}, "
                                     f"not {getattr(self, key)!r}")
-        if self.time_blocks < 2 or self.gap_frames < 0:
-            raise EstimateError("[train] needs time_blocks >= 2 and gap_frames >= 0")
+        if self.model not in MODELS:
+            raise EstimateError(f"[train] model must be one of {MODELS}, not {self.model!r}")
+        if any(self.image_cells % size for size in self.ridge_sizes) or not self.ridge_sizes:
+            raise EstimateError(f"[train] ridge_sizes {self.ridge_sizes} must divide image_cells "
+                                f"{self.image_cells}")
+        for part in ("train", "val", "test"):
+            stated = getattr(self, f"{part}_frames")
+            if stated and (len(stated) != 2 or not 0 <= stated[0] < stated[1]):
+                raise EstimateError(f"[train] {part}_frames must be [start, stop) with "
+                                    "0 <= start < stop")
+        if (self.val_frames or self.test_frames) and not self.train_frames:
+            raise EstimateError("stated frame ranges need the training range too (--train)")
+        if self.train_frames and self.folds:
+            raise EstimateError("give either frame ranges (--train/--val/--test) or --folds")
         for window in ("temporal", "history"):
             self._check_window(window)
         if self.temporal_epochs < 0:
             raise EstimateError("[train] temporal_epochs must be >= 0 (0: as many as epochs)")
-        if self.ridge_cells < 2 or self.val_max_frames < 1:
-            raise EstimateError("[train] needs ridge_cells >= 2 and val_max_frames >= 1")
-        for key in ("conv_channels", "head_channels"):
+        if self.val_max_frames < 1:
+            raise EstimateError("[train] needs val_max_frames >= 1")
+        for key in ("conv_channels", "head_channels", "cnn_channels"):
             widths = getattr(self, key)
-            if (key == "conv_channels" and not widths) or any(w < 1 for w in widths):
+            needs_one = key != "head_channels"
+            if (needs_one and not widths) or any(w < 1 for w in widths):
                 raise EstimateError(f"[train] {key} = {widths}: give layer widths >= 1"
-                                    + (" (at least one layer)" if key == "conv_channels" else ""))
+                                    + (" (at least one layer)" if needs_one else ""))
 
     def _check_window(self, name: str) -> None:
         """A causal window (``{name}_frames`` over ``{name}_span_frames``) is off or >= 2 frames."""

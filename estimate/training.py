@@ -1,54 +1,62 @@
-"""Training the PointNet force regressor (and the temporal model) on recorded or in-memory sessions.
+"""Training: every candidate fitted on the training part, the best on validation shipped.
 
-``train`` prepares the sessions, splits them (by session or by time blocks, see
-``dataset.split_sessions``), fits the baselines on the training frames, trains with NAdam on an
-MSE loss (force scaled by its training standard deviation) under a per-step cosine learning
-rate, keeps the network of the epoch with the lowest validation loss (measured on a fixed
-validation subsample with fixed point draws) and writes everything to a model file (see
-``model_file.py``). Without enough validation frames it says so, trains the configured number
-of epochs and keeps the last. The time limit is checked after every batch, where the
-schedule's length is also re-sized to the steps the remaining time allows, so the learning
-rate anneals by the time limit.
-With ``temporal_frames > 0`` the temporal model is trained the same way after PointNet
-(each gets half of the time limit), starting as the trained PointNet with its motion
-correction at zero, for ``temporal_epochs``; its starting weights compete in the best-epoch
-choice, so on the validation frames it is never worse than PointNet.
+``train`` prepares the sessions, splits them (``splits.py``: by session, by time, by stated
+frame ranges), fits the baselines and every candidate (``candidates.py``) on the training
+frames, scores all of them on the validation frames (MAE of the force error vector), selects
+the candidate with the lowest validation MAE (``[train] model = "auto"``) or the one forced,
+says so when the selected model loses to a baseline, and writes everything to a model file
+(``model_file.py``). With ``folds`` ≥ 3 it first runs blocked cross-validation in time
+(``splits.split_folds``): the whole procedure, selection included, per fold, every method
+scored on the fold's test block; the mean ± sd per method is printed and stored.
+
+Reproducible: epochs and seeds are fixed by the config and torch runs on ``threads`` CPU
+threads while training (its reductions are then the same on a loaded or a quiet machine), so
+the same command on the same data writes the same model. The time limit only guards: when it
+stops a network, a warning says so.
 """
 
 from __future__ import annotations
 
-import copy
-import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from vbfe.estimate.baselines import fit_baselines
-from vbfe.estimate.dataset import (FrameBatches, PreparedSession, ProgressFn, SessionSplit,
-                                   prepare_sessions, skipped_counts, split_sessions)
+from vbfe.estimate.candidates import (CANDIDATES, AnyEstimator, NetworkEstimator,
+                                      candidate_names)
+from vbfe.estimate.dataset import (FrameBatches, PreparedSession, ProgressFn, prepare_sessions,
+                                   skipped_counts)
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.model_file import ForceModel, save_model
-from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
+from vbfe.estimate.network_training import build_network, fit_network, resolve_device
 from vbfe.estimate.sources import SessionLike
+from vbfe.estimate.splits import (SessionSplit, split_by_ranges, split_by_session,
+                                  split_by_time, split_folds)
 from vbfe.estimate.train_config import TrainConfig
 
-MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
+MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping, no selection
+
+Parts = list[tuple[PreparedSession, np.ndarray]]
 
 
 @dataclass
-class FitOutcome:
-    """How one network's training went."""
+class SplitFit:
+    """Every estimator fitted on one split's training part, scored on its validation part."""
 
-    history: list[dict[str, float]]
-    best_epoch: int
-    best_val_loss: float
-    val_mae_n: float
-    stopped_by: str  # "epochs", "patience" or "time limit"
-    start_val_loss: float = float("nan")  # of the starting weights (warm start only)
+    split: SessionSplit
+    estimators: dict[str, AnyEstimator]
+    val_mae_n: dict[str, float]  # validation MAE (training MAE without validation frames)
+    selected: str
+    notes: list[str]
+    histories: dict[str, Any]
+    fit_seconds: dict[str, float]  # wall time of each fit (baselines: all together)
 
 
 @dataclass
@@ -57,242 +65,205 @@ class TrainResult:
 
     model_path: Path
     split: SessionSplit
-    epochs_run: int
+    selected: str
+    val_mae_n: dict[str, float]  # every method's validation MAE, newtons
+    epochs_run: int  # PointNet's (0 when it was not trained)
     best_epoch: int
-    best_val_loss: float  # MSE of force / training force std (dimensionless)
-    val_mae_n: float  # PointNet MAE on the validation frames (training frames if none)
-    baseline_val_mae_n: dict[str, float]
     history: list[dict[str, float]]
     skipped: dict[str, dict[str, int]]
     duration_s: float
-    temporal_val_mae_n: float | None = None
+    fit_seconds: dict[str, float] = field(default_factory=dict)  # wall time per fit
     notes: list[str] = field(default_factory=list)
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` → CUDA when torch sees a GPU, else CPU; ``cuda`` without a GPU is an error."""
-    if name == "cuda" and not torch.cuda.is_available():
-        raise EstimateError("--device cuda: torch sees no CUDA device here; use --device cpu "
-                            "or auto")
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    return torch.device(name)
+    cross_validation: dict[str, Any] | None = None
 
 
 def use_threads(threads: int) -> None:
-    """Set torch's CPU threads from the config (the commands call this; ``train`` does not)."""
+    """Set torch's CPU threads (the commands call this for evaluation and live)."""
     if threads > 0:
         torch.set_num_threads(threads)
 
 
-def _build_network(config: TrainConfig, train_batches: FrameBatches,
-                   temporal: bool) -> PointNetRegressor:
-    hparams = dict(n_outputs=config.n_outputs, conv_channels=config.conv_channels,
-                   head_channels=config.head_channels, dropout=config.dropout,
-                   global_features=config.global_features, rest_depth=config.rest_depth)
-    network = (TemporalPointNet(n_frames=config.temporal_frames, **hparams) if temporal
-               else PointNetRegressor(**hparams))
-    targets = torch.from_numpy(train_batches.targets)
-    with torch.no_grad():
-        features = torch.cat([network.cloud_features(points)
-                              for points, _ in train_batches.batches(256, rng=None)])
-    depth_std = (float(train_batches.pools[train_batches.frames, :, 3].std())
-                 if config.rest_depth else 1.0)
-    network.set_normalization(targets.mean(0), targets.std(0, unbiased=False),
-                              features.mean(0), features.std(0, unbiased=False), depth_std)
-    return network
+@contextmanager
+def _training_threads(threads: int) -> Iterator[None]:
+    """Torch on ``threads`` CPU threads while training, the caller's count restored after."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
-def _mean_loss(network: PointNetRegressor, batches: FrameBatches, batch_size: int,
-               device: torch.device) -> tuple[float, float]:
-    """(scaled MSE, MAE of the error vector in newtons) over all frames, fixed point draws."""
-    network.eval()
-    squared, absolute, n = 0.0, 0.0, 0
-    with torch.no_grad():
-        for points, y in batches.batches(batch_size, rng=None):
-            error = network(points.to(device)) - y.to(device)
-            squared += float(((error / network.target_std) ** 2).mean(1).sum())
-            absolute += float(error.norm(dim=1).sum())
-            n += len(y)
-    return squared / n, absolute / n
-
-
-class _CosineSteps:
-    """Per-step cosine learning-rate factor whose total number of steps can be re-sized."""
-
-    def __init__(self, total_steps: int) -> None:
-        self.total_steps = max(total_steps, 1)
-
-    def __call__(self, step: int) -> float:
-        return 0.5 * (1.0 + math.cos(math.pi * min(step / self.total_steps, 1.0)))
-
-
-def _fit(network: PointNetRegressor, train_batches: FrameBatches,
-         check_batches: FrameBatches | None, config: TrainConfig, epochs: int,
-         device: torch.device, rng: np.random.Generator, deadline: float | None,
-         progress: Callable[[int, int], None] | None, warm_start: bool = False) -> FitOutcome:
-    """Train ``network`` in place; it ends with the best (or, without validation, last) weights.
-
-    With ``warm_start`` the starting weights compete too (best epoch 0): a network that starts
-    from a trained one is never handed back worse on the validation frames than it started.
-    """
-    network.to(device)
-    optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
-    steps_per_epoch = max(1, sum(1 for k in range(0, len(train_batches), config.batch_size)
-                                 if len(train_batches) - k >= 2))
-    planned_steps = epochs * steps_per_epoch
-    cosine = _CosineSteps(planned_steps)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, cosine)
-    history: list[dict[str, float]] = []
-    best_loss, best_epoch, best_state = float("inf"), -1, None
-    start = {"epoch": 0}
-    if warm_start and check_batches is not None:
-        start["val_loss"], start["val_mae_n"] = _mean_loss(
-            network, check_batches, 4 * config.batch_size, device)
-        best_loss, best_epoch = start["val_loss"], 0
-        best_state = copy.deepcopy(network.state_dict())
-    stopped_by, steps = "epochs", 0
-    fit_start = time.monotonic()  # per-step time below includes the validation passes
-    for epoch in range(1, epochs + 1):
-        network.train()
-        total, count = 0.0, 0
-        for points, y in train_batches.batches(config.batch_size, rng):
-            if len(y) < 2:  # batch norm needs two samples
-                continue
-            points, y = points.to(device), y.to(device)
-            loss = (((network(points) - y) / network.target_std) ** 2).mean()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
-            schedule.step()
-            steps += 1
-            total += loss.item() * len(y)
-            count += len(y)
-            if deadline is not None:
-                now = time.monotonic()
-                if now > deadline:
-                    stopped_by = "time limit"
-                    break
-                # anneal over the steps the remaining time allows, re-sized after every step
-                step_s = (now - fit_start) / steps
-                affordable = steps + int((deadline - now) / step_s)
-                cosine.total_steps = max(min(planned_steps, affordable), steps, 1)
-        entry = {"epoch": epoch, "train_loss": total / max(count, 1),
-                 "lr": optimizer.param_groups[0]["lr"]}
-        if check_batches is not None:
-            entry["val_loss"], entry["val_mae_n"] = _mean_loss(
-                network, check_batches, 4 * config.batch_size, device)
-            if entry["val_loss"] < best_loss:
-                best_loss, best_epoch = entry["val_loss"], epoch
-                best_state = copy.deepcopy(network.state_dict())
-        history.append(entry)
-        if progress is not None:
-            progress(epoch, epochs)
-        if stopped_by == "time limit":
-            break
-        if check_batches is not None and epoch - max(best_epoch, 0) >= config.patience:
-            stopped_by = "patience"
-            break
-    if best_state is None:  # no validation (or no finite validation loss): keep the last epoch
-        best_epoch, best_state = len(history), copy.deepcopy(network.state_dict())
-    network.load_state_dict(best_state)
-    network.to("cpu").eval()
-    best = history[best_epoch - 1] if best_epoch else start
-    return FitOutcome(history=history, best_epoch=best_epoch,
-                      best_val_loss=best.get("val_loss", float("nan")),
-                      val_mae_n=best.get("val_mae_n", float("nan")), stopped_by=stopped_by,
-                      start_val_loss=start.get("val_loss", float("nan")))
-
-
-def _frames_mae(predict: Callable[[PreparedSession], np.ndarray],
-                parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> float:
-    errors = [np.linalg.norm(predict(s)[p] - s.targets_n[p], axis=1) for s, p in parts]
+def frames_mae(predict: Any, parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> float:
+    """MAE (newtons) of ``predict(session, positions)`` over (session, positions) parts."""
+    errors = [np.linalg.norm(predict(s, p) - s.targets_n[p], axis=1) for s, p in parts]
     return float(np.concatenate(errors).mean())
 
 
-def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig | None = None,
-          progress: ProgressFn | None = None) -> TrainResult:
-    """Train a force regressor on sessions (paths with clouds, imported clouds files, or
-    ``SessionClouds``).
+def make_split(prepared: Sequence[PreparedSession], config: TrainConfig) -> SessionSplit:
+    """The split the config states: frame ranges, time (with ``folds``: always), or session."""
+    if config.train_frames:
+        return split_by_ranges(prepared, {"train": config.train_frames,
+                                          "val": config.val_frames, "test": config.test_frames})
+    if config.split == "time" or config.folds:
+        return split_by_time(prepared, config.val_fraction, config.test_fraction,
+                             config.gap_frames)
+    return split_by_session(prepared, config.val_fraction, config.test_fraction, config.seed)
 
-    ``progress(stage, done, total)`` is called per prepared session (stage ``"sessions"``) and
-    per epoch (``"epochs"``, then ``"temporal epochs"``). Returns a ``TrainResult``; the model
-    is written to ``out``. Torch's thread count is left as the caller set it.
-    """
-    config = config or TrainConfig()
-    started = time.monotonic()
+
+def _fit_networks(names: list[str], train_parts: Parts, val_parts: Parts, config: TrainConfig,
+                  progress: ProgressFn | None, notes: list[str]
+                  ) -> tuple[dict[str, NetworkEstimator], dict[str, Any]]:
+    """PointNet, then (when asked) the temporal model started from it."""
     device = resolve_device(config.device)
-    torch.manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-
-    prepared = prepare_sessions(sessions, config, progress)
-    by_name = {s.name: s for s in prepared}
-    if len(by_name) != len(prepared):
-        raise EstimateError("the same session was given twice; give each session once")
-    split = split_sessions(prepared, config)
-    train_parts = split.frames("train", prepared)
-    val_parts = split.frames("val", prepared)
-    n_val = sum(len(p) for _, p in val_parts)
-    notes = [split.describe()]
-    if n_val < MIN_VAL_FRAMES:
-        notes.append(f"warning: too little data for a validation set ({n_val} frames; one "
-                     f"session, or too few for --val-fraction): no early stopping, trained the "
-                     f"fixed {config.epochs} epochs and kept the last; the MAE below is the "
-                     f"training MAE")
-        val_parts = []
-    baselines = fit_baselines(train_parts, config.history_window, config.seed)
-    check_parts = val_parts or train_parts
-
-    budget = config.time_limit_s / (2 if config.temporal_frames else 1)
+    torch.manual_seed(config.seed)
     windows = {"pointnet": ()}
-    if config.temporal_frames:
-        windows["temporal"] = config.temporal_window
-    networks, outcomes = {}, {}
+    if "temporal" in names:
+        windows["temporal"] = tuple(config.temporal_window)
+    budget = config.time_limit_s / len(windows)
+    fitted: dict[str, NetworkEstimator] = {}
+    histories: dict[str, Any] = {}
     for name, window in windows.items():
         train_batches = FrameBatches(train_parts, config.n_points, window)
         check_batches = (FrameBatches(val_parts, config.n_points, window,
                                       max_frames=config.val_max_frames) if val_parts else None)
-        network = _build_network(config, train_batches, temporal=bool(window))
+        network = build_network(config, train_batches, temporal=bool(window))
         epochs, stage = config.epochs, "epochs"
         if window:  # start as the trained single-frame network, motion correction at zero
-            network.load_state_dict(networks["pointnet"].state_dict(), strict=False)
+            network.load_state_dict(fitted["pointnet"].network.state_dict(), strict=False)
             epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
         deadline = time.monotonic() + budget if budget > 0 else None
-        outcomes[name] = _fit(network, train_batches, check_batches, config, epochs, device,
+        started = time.perf_counter()
+        outcome = fit_network(network, train_batches, check_batches, config, epochs, device,
                               rng, deadline, (lambda done, total, stage=stage:
                                               progress(stage, done, total)) if progress else None,
                               warm_start=bool(window))
-        networks[name] = network
-        if outcomes[name].stopped_by == "time limit":
-            notes.append(f"{name}: stopped by the time limit after "
-                         f"{len(outcomes[name].history)} epoch(s)")
+        fitted[name] = NetworkEstimator(network, config.n_points, window, name)
+        histories[name] = {"fit_s": time.perf_counter() - started,
+                           "history": outcome.history, "best_epoch": outcome.best_epoch,
+                           "stopped_by": outcome.stopped_by,
+                           "start_val_loss": outcome.start_val_loss}
+        if outcome.stopped_by == "time limit":
+            notes.append(f"warning: {name} was stopped by the time limit ({config.time_limit_s:g}"
+                         f" s) after {len(outcome.history)} of {epochs} epochs: this model "
+                         "depends on the machine's speed; raise --time-limit or set it to 0")
+    return fitted, histories
 
+
+def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: TrainConfig,
+              progress: ProgressFn | None = None) -> SplitFit:
+    """Fit baselines and candidates on ``split``'s training part, score all on validation and
+    select the shipped model."""
+    train_parts = split.frames("train", prepared)
+    if not train_parts:
+        raise EstimateError("the split leaves no training frame; widen --train or lower "
+                            "--val-fraction/--test-fraction")
+    val_parts = split.frames("val", prepared)
+    n_val = sum(len(p) for _, p in val_parts)
+    notes = [split.describe()]
+    if n_val < MIN_VAL_FRAMES:
+        notes.append(f"warning: too little data for a validation set ({n_val} frames): no early "
+                     f"stopping, no selection on held-out frames (fixed {config.epochs} epochs, "
+                     "last kept); the MAEs below are training MAEs")
+        val_parts = []
+    names = candidate_names(config.model, config.temporal_frames > 0)
+    clock = time.perf_counter()
+    estimators: dict[str, AnyEstimator] = dict(
+        fit_baselines(train_parts, config.history_window, config.seed))
+    seconds = {"baselines": time.perf_counter() - clock}
+    histories: dict[str, Any] = {}
+    if {"pointnet", "temporal"} & set(names):
+        networks, histories = _fit_networks(names, train_parts, val_parts, config, progress,
+                                            notes)
+        estimators.update(networks)
+        seconds.update({name: h["fit_s"] for name, h in histories.items()})
+    if CANDIDATES["ridge"] in names:
+        clock = time.perf_counter()
+        estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(train_parts, val_parts,
+                                                               config.ridge_sizes)
+        seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
+    if CANDIDATES["cnn"] in names:
+        clock = time.perf_counter()
+        cnn, histories["cnn"] = fit_cnn(train_parts, val_parts, config.n_outputs,
+                                        config.cnn_channels, config.cnn_epochs, config.seed)
+        estimators[cnn.name] = cnn
+        seconds[cnn.name] = time.perf_counter() - clock
+    check = val_parts or train_parts
+    val_mae = {name: frames_mae(e.predict_session, check) for name, e in estimators.items()}
+    selected = min(names, key=lambda name: val_mae[name])
+    notes.append(_selection_note(selected, names, val_mae, bool(val_parts)))
+    return SplitFit(split, estimators, val_mae, selected, notes, histories, seconds)
+
+
+def _selection_note(selected: str, names: list[str], val_mae: dict[str, float],
+                    validated: bool) -> str:
+    """Which model ships and why; a warning when a baseline beats it on validation."""
+    where = "validation" if validated else "training"
+    baselines = {n: v for n, v in val_mae.items() if n not in CANDIDATES.values()}
+    best_baseline = min(baselines, key=baselines.get)
+    how = "forced by --model" if len(names) == 1 else f"best of {len(names)} candidates"
+    line = f"selected model: {selected} ({how}), {where} MAE {val_mae[selected]:.3f} N"
+    if val_mae[selected] > baselines[best_baseline]:
+        return (f"warning: {line} LOSES to the baseline {best_baseline} "
+                f"({baselines[best_baseline]:.3f} N on {where})")
+    return f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
+
+
+def cross_validate(prepared: Sequence[PreparedSession], config: TrainConfig,
+                   progress: ProgressFn | None = None) -> dict[str, Any]:
+    """Blocked K-fold cross-validation in time: per fold the whole fit and selection, every
+    method's test MAE; summary mean ± sd per method (``selected``: whatever each fold chose)."""
+    folds = []
+    splits = split_folds(prepared, config.folds, config.gap_frames)
+    for k, split in enumerate(splits):
+        fit = fit_split(prepared, split, config)
+        test = split.frames("test", prepared)
+        mae = {name: frames_mae(e.predict_session, test) for name, e in fit.estimators.items()}
+        mae["selected"] = mae[fit.selected]
+        folds.append({"split": split.to_dict(), "description": split.describe(),
+                      "selected": fit.selected, "test_mae_n": mae,
+                      "n_test_frames": int(sum(len(p) for _, p in test))})
+        if progress is not None:
+            progress("folds", k + 1, len(splits))
+    methods = list(folds[0]["test_mae_n"])
+    summary = {m: {"mean_mae_n": float(np.mean([f["test_mae_n"][m] for f in folds])),
+                   "sd_mae_n": float(np.std([f["test_mae_n"][m] for f in folds], ddof=1))}
+               for m in methods}
+    return {"folds": folds, "summary": summary, "gap_frames": config.gap_frames}
+
+
+def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig | None = None,
+          progress: ProgressFn | None = None) -> TrainResult:
+    """Train on sessions (paths with clouds, imported clouds files, or ``SessionClouds``) and
+    write the model file to ``out``.
+
+    ``progress(stage, done, total)`` is called per prepared session (``"sessions"``), per
+    epoch (``"epochs"``, ``"temporal epochs"``) and per cross-validation fold (``"folds"``).
+    Torch runs on ``config.threads`` threads inside and the caller's count is restored.
+    """
+    config = config or TrainConfig()
+    started = time.monotonic()
+    with _training_threads(config.threads), torch.random.fork_rng(devices=[]):
+        prepared = prepare_sessions(sessions, config, progress)
+        if len({s.name for s in prepared}) != len(prepared):
+            raise EstimateError("the same session was given twice; give each session once")
+        cv = cross_validate(prepared, config, progress) if config.folds else None
+        fit = fit_split(prepared, make_split(prepared, config), config, progress)
     skipped = skipped_counts(prepared)
-    pointnet = outcomes["pointnet"]
+    pointnet = fit.histories.get("pointnet", {"history": [], "best_epoch": 0})
     record = {
-        "split": split.to_dict(), "split_description": split.describe(),
-        "early_stopping_on": "val" if val_parts else "none (too little validation data)",
-        "device": str(device), "notes": notes,
-        "normalization": {"target_mean_n": networks["pointnet"].target_mean.tolist(),
-                          "target_std_n": networks["pointnet"].target_std.tolist()},
-        "history": pointnet.history, "best_epoch": pointnet.best_epoch, "skipped": skipped,
-        "conditions": {s.name: s.conditions for s in prepared},
+        "split": fit.split.to_dict(), "split_description": fit.split.describe(),
+        "selected": fit.selected, "validation_mae_n": fit.val_mae_n, "notes": fit.notes,
+        "histories": fit.histories, "fit_seconds": fit.fit_seconds, "skipped": skipped,
+        "threads": config.threads,
+        "conditions": {s.name: s.conditions for s in prepared}, "cross_validation": cv,
     }
-    if "temporal" in outcomes:
-        record["temporal"] = {"window": config.temporal_window,
-                              "history": outcomes["temporal"].history,
-                              "best_epoch": outcomes["temporal"].best_epoch,
-                              "start_val_loss": outcomes["temporal"].start_val_loss}
-    model = ForceModel(networks["pointnet"], config, baselines, record,
-                       temporal=networks.get("temporal"))
+    model = ForceModel(config=config, estimators=fit.estimators, selected=fit.selected,
+                       record=record)
     path = save_model(out, model)
-    method_mae = {name: _frames_mae(b.predict_session, check_parts)
-                  for name, b in baselines.items()}
-    temporal_mae = (_frames_mae(model.predict_session_temporal, check_parts)
-                    if model.temporal is not None else None)
     return TrainResult(
-        model_path=path, split=split, epochs_run=len(pointnet.history),
-        best_epoch=pointnet.best_epoch, best_val_loss=pointnet.best_val_loss,
-        val_mae_n=_frames_mae(model.predict_session, check_parts),
-        baseline_val_mae_n=method_mae, history=pointnet.history, skipped=skipped,
-        duration_s=time.monotonic() - started, temporal_val_mae_n=temporal_mae, notes=notes)
+        model_path=path, split=fit.split, selected=fit.selected, val_mae_n=fit.val_mae_n,
+        epochs_run=len(pointnet["history"]), best_epoch=pointnet["best_epoch"],
+        history=pointnet["history"], skipped=skipped, duration_s=time.monotonic() - started,
+        fit_seconds=fit.fit_seconds, notes=fit.notes, cross_validation=cv)

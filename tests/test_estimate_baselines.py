@@ -2,19 +2,23 @@
 
 import numpy as np
 
-from vbfe.estimate.baselines import (AffineBaseline, RidgeBaseline, baseline_from_dict,
-                                    fit_baselines, fit_ridge)
+from vbfe.estimate.baselines import AffineBaseline, baseline_from_dict, fit_baselines
+from vbfe.estimate.candidates import estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.image_models import RidgeThumbnail, fit_ridge, fit_ridge_thumbnails
 
 
 def prepared(name, displacement_m, force_n, condition):
     n = len(displacement_m)
-    return PreparedSession(name=name, conditions=condition, times_ns=np.arange(n, dtype=np.int64),
+    d = np.nan_to_num(np.asarray(displacement_m, float))
+    return PreparedSession(name=name, conditions=condition,
+                           frame_index=np.arange(n), times_ns=np.arange(n, dtype=np.int64),
                            targets_n=np.asarray(force_n, float).reshape(n, -1),
                            pools=np.zeros((n, 4, 3), np.float32),
                            displacement_m=np.asarray(displacement_m, float),
-                           heights_m=np.nan_to_num(np.asarray(displacement_m, float)).reshape(n, 1) * [1, 0.5],
-                           n_frames_total=n, n_skipped=0)
+                           image_sum=np.repeat(d[:, None, None], 4, 1).repeat(4, 2),
+                           image_count=np.ones((n, 4, 4), np.float32),
+                           n_frames_total=n, n_no_cloud=0, n_no_force=0)
 
 
 def all_frames(sessions):
@@ -27,7 +31,7 @@ def test_fitted_baselines_recover_known_relations():
                 prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
     sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
     fitted = fit_baselines(all_frames(sessions))
-    assert set(fitted) == {"mean", "linear_displacement", "hooke", "ridge_height_map"}
+    assert set(fitted) == {"mean", "linear_displacement", "hooke"}
     np.testing.assert_allclose(fitted["hooke"].slope, [120.0], rtol=1e-9)
     np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
     np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
@@ -51,20 +55,23 @@ def test_baseline_round_trips_through_a_dict():
                                   [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]])
 
 
-def test_ridge_on_height_maps_recovers_a_linear_map_and_round_trips():
+def test_ridge_picks_the_thumbnail_size_and_penalty_on_validation_and_round_trips():
+    # force reads one 2×2 quadrant of a 4×4 image: a 2×2 thumbnail sees it whole, a 1×1
+    # thumbnail mixes it with the noise of the other quadrants
     rng = np.random.default_rng(0)
-    heights = rng.normal(0, 1e-3, (400, 16))
-    weights = rng.normal(0, 1.0, 16) * 1e3
-    force = heights @ weights + 2.0 + rng.normal(0, 0.01, 400)
-    session = prepared("r", np.zeros(400), force, {})
-    session.heights_m = heights
-    train, test = np.arange(300), np.arange(300, 400)
-    ridge = fit_baselines([(session, train)])["ridge_height_map"]
-    predicted = ridge.predict_session(session)[test, 0]
+    n = 400
+    image = rng.normal(0, 1e-3, (n, 4, 4))
+    force = 1e3 * image[:, :2, :2].sum(axis=(1, 2)) + 2.0
+    session = prepared("r", np.zeros(n), force, {})
+    session.image_sum, session.image_count = image, np.ones((n, 4, 4))
+    train, val, test = np.arange(250), np.arange(270, 330), np.arange(350, 400)
+    ridge = fit_ridge_thumbnails([(session, train)], [(session, val)], [1, 2, 4])
+    assert ridge.size in (2, 4)
+    predicted = ridge.predict_session(session, test)[:, 0]
     assert np.abs(predicted - force[test]).mean() < 0.05 * np.abs(force - force.mean()).mean()
-    again = baseline_from_dict(ridge.to_dict())
+    again = estimator_from_dict(ridge.to_dict())
+    assert isinstance(again, RidgeThumbnail)
     np.testing.assert_allclose(again.predict_session(session), ridge.predict_session(session))
-    assert isinstance(again, RidgeBaseline)
 
 
 def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():
@@ -76,8 +83,8 @@ def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():
     groups = np.repeat([0, 1, 2], 100)
     maps = rng.normal(0, 1.0, (3, 16)) * 1e3
     force = np.einsum("ij,ij->i", heights, maps[groups]) + 2.0
-    within = fit_ridge(heights, force[:, None])
-    across = fit_ridge(heights, force[:, None], groups)
+    within = fit_ridge(heights, force[:, None])[0]
+    across = fit_ridge(heights, force[:, None], groups)[0]
     assert across.alpha > 100 * within.alpha
     unseen = rng.normal(0, 1e-3, (200, 16))
     truth = unseen @ (rng.normal(0, 1.0, 16) * 1e3) + 2.0

@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
-from vbfe.estimate.dataset import (FrameBatches, SessionSplit, crop_roi, force_target,
-                                   prepare_session, prepare_sessions, sample_points,
-                                   split_by_session, split_by_time)
+from vbfe.estimate.dataset import FrameBatches, prepare_session, prepare_sessions
+from vbfe.estimate.depth_image import DepthChangeImage, thumbnails
+from vbfe.estimate.preparation import crop_roi, force_target, sample_points
+from vbfe.estimate.splits import (SessionSplit, split_by_ranges, split_by_session,
+                                  split_by_time, split_folds)
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import SessionClouds
@@ -141,23 +143,70 @@ def _positions(split, part, session):
     return set(split.positions(part, session).tolist())
 
 
-def test_time_split_leaves_a_gap_between_parts_and_never_shares_frames():
+def test_time_split_is_train_then_val_then_test_with_gaps_stated_as_frame_ranges():
     session = prepare_session(synthetic_session("one", 80.0, 0.005, np.random.default_rng(4),
                                                 fps=30, points_per_side=10), small_config())
-    split = split_by_time([session], val_fraction=0.2, test_fraction=0.2, n_blocks=5,
-                          gap_frames=12, seed=3)
+    n = session.n_used
+    split = split_by_time([session], val_fraction=0.2, test_fraction=0.2, gap_frames=12)
     assert split.kind == "time" and split.train == split.val == split.test == ["one"]
+    # one contiguous range per part, in time order: a press cannot hide in training
+    train_r, val_r, test_r = (split.blocks[p]["one"] for p in ("train", "val", "test"))
+    assert len(train_r) == len(val_r) == len(test_r) == 1
+    assert train_r[0][0] == 0 and test_r[0][1] == n
+    assert val_r[0][0] - train_r[0][1] == 12 and test_r[0][0] - val_r[0][1] == 12  # left out
     train, val, test = (_positions(split, p, session) for p in ("train", "val", "test"))
-    assert train and val and test and not (train & val or train & test or val & test)
-    held_out = np.array(sorted(val | test))
-    for i in train:  # no training frame within the gap of a held-out frame
-        assert np.abs(held_out - i).min() > 12
-    for i in val:
-        assert np.abs(np.array(sorted(test)) - i).min() > 12
-    block = session.n_used // 5
-    assert block - 12 <= len(test) <= block + 1
+    assert max(train) < min(val) and max(val) < min(test) and len(test) == n - int(0.8 * n)
     again = SessionSplit.from_dict(split.to_dict())
-    assert _positions(again, "test", session) == test and "gap 12 frames" in again.describe()
+    assert _positions(again, "test", session) == test
+    assert f"test {test_r[0][0]}:{n}" in again.describe() and "gap 12" in again.describe()
+
+
+def test_stated_ranges_are_frame_numbers_and_must_not_overlap():
+    raw = synthetic_session("r", 80.0, 0.005, np.random.default_rng(4), fps=30,
+                            points_per_side=10)
+    raw.clouds[5] = np.full((30, 3), np.nan)  # unusable: positions and frame numbers differ
+    session = prepare_session(raw, small_config())
+    split = split_by_ranges([session], {"train": [0, 40], "val": [50, 60], "test": [70, 90]})
+    assert session.frame_index[sorted(_positions(split, "val", session))].tolist() == \
+        list(range(50, 60))
+    assert split.blocks["train"]["r"] == [[0, 40]]  # as stated (frame 5 is simply not used)
+    with pytest.raises(EstimateError, match="overlap"):
+        split_by_ranges([session], {"train": [0, 40], "val": [30, 60], "test": []})
+    with pytest.raises(EstimateError, match="no usable frame in the training range"):
+        split_by_ranges([session], {"train": [5000, 6000], "val": [], "test": []})
+
+
+def test_folds_test_every_block_once_with_gaps():
+    session = prepare_session(synthetic_session("f", 80.0, 0.005, np.random.default_rng(4),
+                                                fps=30, points_per_side=10), small_config())
+    splits = split_folds([session], 5, gap_frames=3)
+    tested = [_positions(s, "test", session) for s in splits]
+    assert set().union(*tested) == set(range(session.n_used))
+    assert sum(len(t) for t in tested) == session.n_used
+    for split, test in zip(splits, tested):
+        train, val = _positions(split, "train", session), _positions(split, "val", session)
+        assert train and val and not (train & val or train & test or val & test)
+        for i in train:
+            assert min(abs(j - i) for j in val | test) > 3
+    with pytest.raises(EstimateError, match="at least 3 folds"):
+        split_folds([session], 2, 0)
+
+
+def test_depth_change_image_and_its_thumbnails():
+    side = np.linspace(-0.01, 0.01, 64)
+    gx, gy = [g.ravel() for g in np.meshgrid(side, side)]
+    rest = np.column_stack([gx, gy, np.full(gx.shape, 0.08)])
+    image = DepthChangeImage(rest, 8)
+    pressed = rest.copy()
+    pressed[(gx > 0) & (gy > 0), 2] -= 0.002  # one quadrant 2 mm closer
+    total, count = image.sums_counts(pressed)
+    change = np.where(count > 0, total / np.maximum(count, 1), 0)
+    assert count.sum() > 0.9 * len(rest)
+    np.testing.assert_allclose(np.sort(np.unique(change.round(6))), [-0.002, 0.0], atol=1e-9)
+    two = thumbnails(total[None], count[None], 2)[0]
+    np.testing.assert_allclose(np.sort(two), [-0.002, 0, 0, 0], atol=2e-4)
+    np.testing.assert_allclose(thumbnails(total[None], count[None], 8)[0], change.ravel(),
+                               atol=1e-9)
 
 
 def test_temporal_window_is_causal_and_starts_with_the_rest_frame():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 
@@ -99,24 +100,29 @@ def test_depth_import_trains_and_evaluates_with_a_time_split(depth_dataset, tmp_
                    "--val-fraction", "0.2", "--test-fraction", "0.2", "--temporal-frames", "3",
                    "--target", "magnitude")
     assert trained.returncode == 0, trained.stderr
-    assert "split by time blocks inside sessions, gap 10 frames" in trained.stdout
+    assert "split by frame ranges [start:stop) in time, gap 10 frames" in trained.stdout
+    ranges = re.search(r"tissue.clouds.h5 train 0:(\d+) val (\d+):(\d+) test (\d+):300",
+                       trained.stdout)
+    assert ranges, trained.stdout  # train, then validation, then test, 10-frame gaps
+    stops = [int(v) for v in ranges.groups()]
+    assert stops[1] - stops[0] == 10 and stops[3] - stops[2] == 10
+    assert "selected model:" in trained.stdout
     # another spelling of the same file is still recognised as the time-split session
     evaluated = vbfe("evaluate", str(model), f"{tmp_path}/./{data.name}", "--out", str(report),
                      "--config",
                      str(depth_dataset / "rig.toml"))
     assert evaluated.returncode == 0, evaluated.stderr
     text = (report / "report.md").read_text()
-    assert "split by time blocks" in text and "gap 10 frames" in text
-    assert "held-out test blocks" in text and "porcine liver" in text
+    assert "split by frame ranges" in text and "gap 10 frames" in text
+    assert "held-out test ranges" in text and "porcine liver" in text
     metrics = json.loads((report / "metrics.json").read_text())
-    assert metrics["split"] == {"kind": "time", "gap_frames": 10,
-                                "description": metrics["split"]["description"]}
+    assert metrics["split"]["kind"] == "time" and metrics["split"]["gap_frames"] == 10
     assert metrics["seen_in_training"] == []
     methods = metrics["metrics"]
     assert set(methods) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
-                            "ridge_height_map", "mlp_displacement_history"}
-    # one test block of five, less nothing (test blocks keep their frames; gaps come out of
-    # the lower parts), out of 300 frames
+                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change"}
+    # the last fifth, less nothing (the test range keeps its frames; gaps come out of the
+    # lower parts), out of 300 frames
     assert methods["mean"]["overall"]["n_frames"] == 60
     mae = {m: methods[m]["overall"]["mae_n"] for m in methods}
     assert mae["ridge_height_map"] < 0.3 * mae["mean"]  # the depth maps carry the force

@@ -62,7 +62,8 @@ def rig(tmp_path_factory):
     folder = tmp_path_factory.mktemp("live")
     model = folder / "model.pt"
     train_config = TrainConfig(epochs=8, batch_size=16, n_points=64, conv_channels=[16, 32, 64],
-                               head_channels=[32], val_fraction=1 / 3, seed=0, threads=1)
+                               head_channels=[32], val_fraction=1 / 3, seed=0, threads=1,
+                               cnn_epochs=5, history_frames=0)
     train(synthetic_sessions(repeats=1, seed=1, fps=4, points_per_side=20), model, train_config)
     bench = {"width": 320, "height": 180, "fps": 15.0, "distortion": False, "seed": 3}
     toml = folder / "rig.toml"

@@ -44,6 +44,7 @@ n_points = 32
 conv_channels = [8, 16]
 head_channels = [8]
 threads = 1
+cnn_epochs = 2
 """
 RECORD_S = "0.4"
 
@@ -395,34 +396,49 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
         return path
 
     for key in payload:
-        optional = key in ("vbfe_version", "created_unix_ns", "temporal")
+        optional = key in ("vbfe_version", "created_unix_ns")
         yield f"delete {key}", save({k: v for k, v in payload.items() if k != key}), not optional
-    state = payload["state_dict"]
+    estimators = payload["estimators"]
+
+    def with_pointnet(**changes: object) -> dict:
+        return {**payload, "estimators": {**estimators,
+                                          "pointnet": {**estimators["pointnet"], **changes}}}
+    state = estimators["pointnet"]["state_dict"]
     for key in list(state)[::3]:  # BatchNorm rebuilds a missing batch counter: harmless
         yield (f"delete weight {key}",
-               save({**payload, "state_dict": {k: v for k, v in state.items() if k != key}}),
+               save(with_pointnet(state_dict={k: v for k, v in state.items() if k != key})),
                not key.endswith("num_batches_tracked"))
     for key in [k for k in state if state[k].dtype.is_floating_point][::3]:
         yield (f"{key} wrong shape",
-               save({**payload, "state_dict": {**state, key: torch.zeros(2, 2, 2)}}), True)
+               save(with_pointnet(state_dict={**state, key: torch.zeros(2, 2, 2)})), True)
         nan = state[key].clone()
         nan.view(-1)[0] = float("nan")
-        yield f"NaN in {key}", save({**payload, "state_dict": {**state, key: nan}}), True
+        yield f"NaN in {key}", save(with_pointnet(state_dict={**state, key: nan})), True
+    hparams = estimators["pointnet"]["hparams"]
     for key, value in (("conv_channels", [4, 4]), ("n_outputs", 3), ("dropout", "high"),
                        ("unknown", 1)):
-        yield (f"hparams {key}={value!r}",
-               save({**payload, "hparams": {**payload["hparams"], key: value}}), True)
-    yield "hparams not a dict", save({**payload, "hparams": [1, 2]}), True
+        yield (f"hparams {key}={value!r}", save(with_pointnet(hparams={**hparams, key: value})),
+               True)
+    yield "hparams not a dict", save(with_pointnet(hparams=[1, 2])), True
+    yield "state_dict not a dict", save(with_pointnet(state_dict=[1])), True
     for key, value in (("n_points", "many"), ("target", "torque"), ("unknown_key", 1)):
         yield (f"config {key}={value!r}",
                save({**payload, "config": {**payload["config"], key: value}}), True)
-    yield "baselines broken", save({**payload, "baselines": {"mean": {"x": 1}}}), True
-    history = payload["baselines"]["mlp_displacement_history"]
+    yield "baselines broken", save({**payload, "estimators": {**estimators,
+                                                              "mean": {"x": 1}}}), True
+    yield ("selected model missing",
+           save({**payload, "selected": "ridge_height_map",
+                 "estimators": {k: v for k, v in estimators.items()
+                                if k != "ridge_height_map"}}), True)
+    for name in ("ridge_height_map", "cnn_depth_change"):
+        yield (f"{name} broken", save({**payload, "estimators": {
+            **estimators, name: {**estimators[name], "kind": estimators[name]["kind"],
+                                 "size" if name.startswith("ridge") else "state_dict": "abc"}}}),
+               True)
+    history = estimators["mlp_displacement_history"]
     yield ("history baseline layers broken",
-           save({**payload, "baselines": {**payload["baselines"],
-                                          "mlp_displacement_history": {**history,
-                                                                       "layers": "abc"}}}), True)
-    yield "state_dict not a dict", save({**payload, "state_dict": [1]}), True
+           save({**payload, "estimators": {**estimators, "mlp_displacement_history": {
+               **history, "layers": "abc"}}}), True)
     data = valid.read_bytes()
     for fraction in (0.0, 0.3, 0.9):
         path = out()

@@ -331,7 +331,7 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
         rows.append(frames)
     phase = np.concatenate(phases)
     measured = np.concatenate([f["measured_n"] for f in rows])
-    methods = [m for m in rows[0] if m not in ("times_ns", "measured_n")]
+    methods = [m for m in rows[0] if m not in ("times_ns", "frame_index", "measured_n")]
     return {method: {name: error_stats(np.concatenate([f[method] for f in rows])[phase == code],
                                        measured[phase == code])
                      for code, name in PHASES.items() if (phase == code).any()}

@@ -13,8 +13,10 @@ from vbfe.config import section
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `evaluate` subcommand."""
     parser = sub.add_parser("evaluate", help="evaluate a trained model and the baselines",
-                            description="MAE, RMSE and σ of the model and baselines, overall "
-                            "and per condition; writes metrics.json, report.md/.html and plots. "
+                            description="MAE, RMSE (with 95 % block-bootstrap intervals) and σ "
+                            "of the selected model, every other candidate and the baselines, "
+                            "overall and per condition; writes metrics.json, predictions.csv "
+                            "(per frame), report.md/.html and plots. "
                             "Without sessions, the model's recorded test split is used. With "
                             "--live SESSION.h5, scores the estimates that `vbfe live --record` "
                             "stored in the session against its trocar.")
@@ -70,11 +72,17 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bars.close()
     for method, numbers in report.metrics.items():
-        overall = numbers["overall"]
-        print(f"{method:>20}: MAE {overall['mae_n']:.3f} N (σ {overall['sd_abs_error_n']:.3f}), "
-              f"RMSE {overall['rmse_n']:.3f} N over {overall['n_frames']} frames")
+        o = numbers["overall"]
+        shipped = " (selected)" if method == report.selected else ""
+        print(f"{method + shipped:>35}: MAE {o['mae_n']:.3f} N [95 % {o['mae_ci95_n'][0]:.3f}, "
+              f"{o['mae_ci95_n'][1]:.3f}], RMSE {o['rmse_n']:.3f} N [{o['rmse_ci95_n'][0]:.3f}, "
+              f"{o['rmse_ci95_n'][1]:.3f}] over {o['n_frames']} frames")
     print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")
+    skipped = {key: sum(v[key] for v in report.skipped.values()) for key in ("no_force", "no_cloud")}
+    print(f"frames not scored: {skipped['no_force']} without a force, {skipped['no_cloud']} with "
+          "too few points in the region of interest")
+    print(f"per-frame predictions: {report.out_dir / 'predictions.csv'}")
     print(f"report: {report.out_dir / 'report.md'}")
     return 0

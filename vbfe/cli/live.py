@@ -53,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
         raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
                         "(0, 1], e.g. 0.5")
     calibration = load_calibration(args.calib)
-    estimator = live_estimator(config, settings, load_model(args.model), calibration,
+    model = load_model(args.model)
+    print(f"model {args.model}: {model.selected} (selected by its training run)")
+    estimator = live_estimator(config, settings, model, calibration,
                                args.scale, not args.no_verify, args.device)
     live = live_run(config, estimator, calibration, args.calib, args.record, str(args.model))
     live.start(args.duration if args.record else None)

@@ -12,8 +12,8 @@ import torch
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.samples import StereoFrame
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import ForceModel
-from vbfe.estimate.rest_depth import RestDepth
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
@@ -41,8 +41,9 @@ class FrameEstimator:
     """Reconstructs a frame (optionally at ``scale`` of the calibrated size) and runs the model.
 
     The reconstructor (rectification maps, matcher) is built once and reused for every frame;
-    the model runs on ``device`` (``"cpu"`` or ``"cuda"``). A model trained with ``rest_depth``
-    reads every cloud against the run's first usable cloud, so start with the tissue at rest.
+    the model's selected estimator (``estimate.inference.FramePredictor``) reads every cloud
+    against the run's first usable cloud, so start with the tissue at rest; a network runs on
+    ``device`` (``"cpu"`` or ``"cuda"``).
     """
 
     def __init__(self, model: ForceModel, calibration: Calibration,
@@ -54,9 +55,10 @@ class FrameEstimator:
         self.full_size = calibration.image_size
         self.reconstructor = Reconstructor(calibration.scaled(scale) if scale != 1.0
                                            else calibration, sgbm_params, verify=verify)
-        model.network.to(torch.device(device))
-        self._rng = np.random.default_rng(seed)
-        self._rest: RestDepth | None = None  # the run's first usable cloud, when the model needs it
+        network = getattr(model.estimators[model.selected], "network", None)
+        if network is not None:
+            network.to(torch.device(device))
+        self._predictor = FramePredictor(model, seed)
 
     def _prepare(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
         if self.scale == 1.0:
@@ -73,12 +75,9 @@ class FrameEstimator:
         cloud = self.reconstructor.process(left, right)
         t2 = time.perf_counter()
         try:
-            if self._rest is None and self.model.network.rest_depth:
-                self._rest = self.model.rest_reference(cloud.points)
-            force = self.model.predict_points(self.model.prepare_cloud(cloud.points, self._rng,
-                                                                       self._rest)[None])[0]
+            force = self._predictor.predict(cloud.points)
         except EstimateError:  # too few points inside the model's region of interest
-            force = np.full(self.model.network.hparams["n_outputs"], np.nan)
+            force = np.full(self.model.config.n_outputs, np.nan)
         t3 = time.perf_counter()
         return LiveEstimate(force_n=np.asarray(force, np.float64), frame_seq=frame.seq,
                             t_frame_host_ns=frame.t_host_ns, t_ready_host_ns=time.monotonic_ns(),

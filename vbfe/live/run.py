@@ -28,7 +28,7 @@ from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
-from vbfe.estimate.dataset import force_target
+from vbfe.estimate.preparation import force_target
 from vbfe.estimate.model_file import ForceModel
 from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
@@ -236,7 +236,7 @@ class LiveRun(Listener):
         with self._lock:
             kept = np.isin([e.frame_seq for e in self.estimates], recorded_seqs)
             estimates = [e for e, k in zip(self.estimates, kept) if k]
-        outputs = int(self.estimator.model.network.hparams["n_outputs"])
+        outputs = self.estimator.model.config.n_outputs
         return EstimateStream(
             force_n=np.array([e.force_n for e in estimates], np.float64).reshape(-1, outputs),
             frame_seq=np.array([e.frame_seq for e in estimates], np.int64),

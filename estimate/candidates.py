@@ -1,0 +1,84 @@
+"""The estimators that compete to be the shipped model, and how each is stored.
+
+Candidates (``--model`` name → method name in reports): ``pointnet`` (the paper's network,
+the reference method), ``temporal`` (PointNet over a causal window, when ``temporal_frames``
+≥ 2), ``ridge`` (``ridge_height_map``) and ``cnn`` (``cnn_depth_change``), the last two on the
+depth-change image (``image_models.py``). Every estimator, candidate or baseline, answers
+``predict_session(session, positions=None)`` and ``to_dict()``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Union
+
+import numpy as np
+import torch
+
+from vbfe.estimate.baselines import Baseline, baseline_from_dict
+from vbfe.estimate.dataset import FrameBatches, PreparedSession
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
+from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
+
+CANDIDATES = {"pointnet": "pointnet", "temporal": "temporal", "ridge": "ridge_height_map",
+              "cnn": "cnn_depth_change"}
+
+
+@dataclass
+class NetworkEstimator:
+    """PointNet (``window`` empty) or the temporal model (``window``: offsets back) on the
+    first ``n_points`` of each frame's pool (fixed draws)."""
+
+    network: PointNetRegressor
+    n_points: int
+    window: tuple[int, ...] = ()
+    name: str = "pointnet"
+
+    def predict_session(self, session: PreparedSession, positions: np.ndarray | None = None,
+                        batch_size: int = 32) -> np.ndarray:
+        """Force (frames × outputs) of a prepared session's used frames."""
+        p = np.arange(session.n_used) if positions is None else np.asarray(positions)
+        frames = FrameBatches([(session, p)], self.n_points, self.window)
+        self.network.eval()
+        device = next(self.network.parameters()).device
+        with torch.no_grad():
+            return np.concatenate([self.network(points.to(device)).cpu().double().numpy()
+                                   for points, _ in frames.batches(batch_size, rng=None)])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "kind": "network", "hparams": self.network.hparams,
+                "state_dict": self.network.state_dict(), "n_points": self.n_points,
+                "window": list(self.window)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "NetworkEstimator":
+        kind = TemporalPointNet if "n_frames" in d["hparams"] else PointNetRegressor
+        network = kind(**d["hparams"])
+        state = d["state_dict"]
+        bad = [k for k, v in state.items() if not isinstance(v, torch.Tensor)
+               or (v.is_floating_point() and not torch.isfinite(v).all())]
+        if bad:
+            raise EstimateError(f"weight {bad[0]!r} is not finite or not a tensor")
+        network.load_state_dict(state)
+        return cls(network.eval(), int(d["n_points"]), tuple(int(o) for o in d["window"]),
+                   d["name"])
+
+
+AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, Baseline]
+_KINDS = {"network": NetworkEstimator.from_dict, "ridge": RidgeThumbnail.from_dict,
+          "cnn": CnnEstimator.from_dict}
+
+
+def estimator_from_dict(d: dict[str, Any]) -> AnyEstimator:
+    """Rebuild an estimator stored by its ``to_dict``."""
+    return _KINDS.get(d.get("kind"), baseline_from_dict)(d)
+
+
+def candidate_names(model: str, temporal: bool) -> list[str]:
+    """Method names to fit for ``--model`` (``auto``: all; temporal only when configured)."""
+    if model == "auto":
+        return [name for key, name in CANDIDATES.items() if key != "temporal" or temporal]
+    if model == "temporal" and not temporal:
+        raise EstimateError("--model temporal needs temporal_frames >= 2 (--temporal-frames)")
+    return [CANDIDATES[model]]

@@ -1,0 +1,53 @@
+"""Force from raw clouds, one at a time, with the model a training run selected (vbfe live).
+
+The run's first usable cloud is its rest reference (start with the tissue at rest); every
+cloud goes through the same ``FramePreparer`` as in training, and the selected estimator reads
+the newest frame (the temporal model: its causal window, frames before the run's start
+repeating the rest frame, as in training).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.model_file import ForceModel
+from vbfe.estimate.preparation import FrameFeatures, FramePreparer
+
+
+class FramePredictor:
+    """Predicts the force of successive clouds of one run with the model's selected method."""
+
+    def __init__(self, model: ForceModel, seed: int = 0) -> None:
+        self.model = model
+        self.method = model.selected
+        estimator = model.estimators[model.selected]
+        self._span = max([*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())],
+                         default=0)
+        self._rng = np.random.default_rng(seed)
+        self._preparer: FramePreparer | None = None
+        self._frames: list[FrameFeatures] = []  # the rest frame, then the newest frames
+
+    @property
+    def n_outputs(self) -> int:
+        return self.model.config.n_outputs
+
+    def predict(self, points: np.ndarray) -> np.ndarray:
+        """Force (outputs,) of one raw cloud (N×3, may hold NaN); ``EstimateError`` when it has
+        too few points inside the model's region of interest."""
+        config = self.model.config
+        if self._preparer is None:
+            self._preparer = FramePreparer(points, config)
+        cropped = self._preparer.cropped(points)
+        if cropped is None:
+            raise EstimateError("the cloud has too few finite points inside the model's region "
+                                "of interest; check the reconstruction or the [train] roi")
+        self._frames.append(self._preparer.features(cropped, config.n_points, self._rng))
+        if len(self._frames) > self._span + 2:
+            del self._frames[1]
+        n = len(self._frames)
+        session = PreparedSession.from_features(
+            "live", {}, self._frames, np.arange(n), np.arange(n),
+            np.zeros((n, self.n_outputs)), config, n_frames_total=n)
+        return self.model.predict_session(session, positions=np.array([n - 1]))[0]
