@@ -1,0 +1,49 @@
+"""`vbfe import` on public real recordings (not vendored: no licence; see tests/data/README.md).
+
+Set ``VBFE_REALDATA`` to a folder holding ``learning-to-see-forces/data`` (the ``data/``
+folder of github.com/gaocong13/Learning-to-See-Forces); the test skips otherwise. Nothing is
+fetched at test time.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vbfe.estimate.sources import ImportedClouds
+
+ROOT = Path(os.environ.get("VBFE_REALDATA", "/nonexistent")) / "learning-to-see-forces" / "data"
+KINECT_V1_DEPTH = {"fx": 582.6245, "fy": 582.6910, "cx": 313.0448, "cy": 238.4439}  # the authors'
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(
+    not (ROOT / "depthimage1-1" / "data1000.png").exists(),
+    reason="set VBFE_REALDATA to a folder with learning-to-see-forces/data (see docs/importing.md)")]
+
+
+def test_learning_to_see_forces_imports_in_frame_order(tmp_path):
+    out = tmp_path / "ltsf.clouds.h5"
+    result = subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", "import", "depth", str(ROOT / "depthimage1-1"),
+         "--forces", str(ROOT / "Force_ori" / "data1-1-z.txt"), "--force-columns", "0",
+         "--fps", "30", *(a for k, v in KINECT_V1_DEPTH.items() for a in (f"--{k}", str(v))),
+         "--depth-scale", "0.001", "--crop-origin", "0", "0", "--pixel-step", "5",
+         "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "1000 frames, 1000 with a force" in result.stdout
+    forces = np.loadtxt(ROOT / "Force_ori" / "data1-1-z.txt")
+    source = ImportedClouds(out)
+    try:
+        np.testing.assert_allclose(source.force_at_frames()[:, 2], forces)
+        for i in (9, 99, 999):  # data10, data100, data1000: frames 9, 99, 999 (not text order)
+            depth = cv2.imread(str(ROOT / "depthimage1-1" / f"data{i + 1}.png"),
+                               cv2.IMREAD_UNCHANGED)[::5, ::5]
+            z = np.sort(depth[(depth > 0) & (depth < 65535)].ravel() * 1e-3)
+            np.testing.assert_allclose(np.sort(source.cloud(i)[:, 2]), z, rtol=1e-6)
+    finally:
+        source.close()
