@@ -86,7 +86,7 @@ class SimBench:
                  protocol: Literal["traction", "sync", "freehand"] = "traction",
                  sync_taps: int = 20, sync_duration_s: float = 20.0,
                  tap_force_n: float = 1.0, freehand_duration_s: float = 15.0,
-                 freehand_stiffness_n_per_m: tuple[float, float] = (40.0, 200.0),
+                 freehand_stiffness_n_per_m: tuple[float, float] = (70.0, 95.0),
                  projector_latency_ms: float = 0.0,
                  exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
         if scene not in SCENES:
@@ -243,7 +243,8 @@ class SimBench:
                     "taps": len(p.tap_times_s), "thickness_m": s.thickness_m,
                     "scene": self.scene, "seed": self.seed, "simulated": True}
         if isinstance(p, FreehandProtocol):
-            return {"protocol": "freehand", "stiffness_n_per_m": p.stiffness_n_per_m,
+            return {"protocol": "freehand", "label": f"freehand {p.stiffness_n_per_m:.0f} N/m",
+                    "stiffness_n_per_m": p.stiffness_n_per_m,
                     "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
                     "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
                     "scene": self.scene, "seed": self.seed, "simulated": True}
