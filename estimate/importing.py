@@ -158,6 +158,9 @@ def read_ply(path: str | Path) -> np.ndarray:
     if order is None:
         raise EstimateError(f"{path}: unknown PLY format {fmt!r}")
     dtype = np.dtype([(name, order + t) for name, t in fields])
+    if len(data) - body_start < count * dtype.itemsize:
+        raise EstimateError(f"{path}: the file ends before its {count} declared vertices "
+                            "(truncated)")
     vertices = np.frombuffer(data, dtype=dtype, count=count, offset=body_start)
     return np.column_stack([vertices[a].astype(np.float64) for a in "xyz"])
 

@@ -267,6 +267,10 @@ def bad_inputs(case, folder, tmp):
         write_random(forces)
     elif case == "corrupt npy":
         (frames / "c1.npy").write_bytes((frames / "c1.npy").read_bytes()[:90])
+    elif case == "truncated ply":
+        write_ply(frames / "c3.ply", np.full((50, 3), 0.1))
+        (frames / "c3.ply").write_bytes((frames / "c3.ply").read_bytes()[:-100])
+        forces.write_text("t,f\n0,1\n0.1,2\n0.2,3\n0.3,4\n")
     elif case in ("random-bytes png", "mixed sizes"):
         depth = tmp / "depth"
         depth.mkdir()
@@ -297,6 +301,7 @@ def bad_inputs(case, folder, tmp):
     ("NaN time", "force time 2 of 3 is not a number"),
     ("random-bytes force table", "not a text table"),
     ("corrupt npy", "c1.npy is not a readable .npy"),
+    ("truncated ply", "c3.ply: the file ends before its 50 declared vertices"),
     ("random-bytes png", "data2.png is unreadable"),
     ("mixed sizes", "data12.png is 9x6 but data1.png is 8x6"),
     ("crop without origin", "--crop-origin"),
