@@ -7,10 +7,9 @@ depth) and an optional pixel region of interest; files are taken in natural orde
 before ``data10``) and depths outside a range are dropped. Forces come from a text table
 (:mod:`vbfe.estimate.tables`): a time column (resampled linearly at the frame times, NaN
 outside the force record), a frame-index column (0 = first frame file), or one row per frame.
-The clouds are
-written with recon's ``CloudWriter`` (the format of ``vbfe reconstruct``'s sidecars); the forces
-at the frames and the conditions go in a ``labels`` group of the same file (see
-docs/importing.md).
+The clouds are written with recon's ``CloudWriter`` (the format of ``vbfe reconstruct``'s
+sidecars); the forces at the frames and the conditions go in a ``labels`` group of the same
+file (see docs/importing.md).
 """
 
 from __future__ import annotations
@@ -373,7 +372,8 @@ def import_frames(kind: str, folder: str | Path, out: str | Path, forces: ForceT
                             "and units (frame and force times must share a clock) or the frame "
                             "column")
     source = {"kind": kind, "folder": str(folder), "files": [p.name for p in files],
-              "forces_csv": str(forces.path), "depth_range_m": list(depth_range_m),
+              "forces_csv": str(forces.path),
+              "depth_range_m": [d if math.isfinite(d) else None for d in depth_range_m],
               "camera": None if camera is None else camera.__dict__}
     conditions = {"label": condition} if condition else {}
     path = write_clouds(out, (_in_range(c, depth_range_m) for c in clouds), times, force,
