@@ -38,9 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--time-unit", default="s", help="s (default), ms, us or ns, for the "
                         "force and frame times")
     parser.add_argument("--fps", type=float, help="frame i is at i / FPS seconds")
-    parser.add_argument("--frame-times", type=Path, metavar="CSV",
-                        help="CSV with one time per frame file (same clock as the forces)")
-    parser.add_argument("--frame-time-column", help="column of --frame-times")
+    parser.add_argument("--frame-times", type=Path, metavar="TABLE",
+                        help="table (like --forces) with one time per frame file, on the "
+                        "forces' clock")
+    parser.add_argument("--frame-time-column", help="column of --frame-times (name or number)")
     parser.add_argument("--condition", help="label of the recording's condition in reports")
     parser.add_argument("--min-depth", type=float, default=-math.inf, metavar="M",
                         help="drop points nearer than M metres (z)")
