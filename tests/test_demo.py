@@ -79,11 +79,35 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     assert mae["temporal"] <= 0.8 * mae["mean"]
     best_baseline = min(mae["linear_displacement"], mae["hooke"])
     assert min(mae["pointnet"], mae["temporal"]) <= 1.05 * best_baseline
-    # the displacement's recent course tells pull from hold and the pull's speed, which no
-    # function of the current displacement can (quick run: 0.32 N against 0.49 N for Hooke)
-    assert mae["mlp_displacement_history"] <= 0.8 * best_baseline
+    # the displacement's recent course tells pull from hold, which no function of the current
+    # displacement can; trained with freehand trials too it reads the paper's timing less
+    # (quick runs: 0.38-0.39 N against 0.47-0.48 N for Hooke; 0.32 N trained on paper alone)
+    assert mae["mlp_displacement_history"] <= 0.9 * best_baseline
     phases = force["per_phase"]["pointnet"]
     assert set(phases) == {"pull", "hold"} and phases["hold"]["n_frames"] > 0
+
+
+def test_held_out_freehand_trials_are_reported_apart(numbers, demo_out):
+    force, freehand = numbers["force"], numbers["force"]["freehand"]
+    trained = [s for s in force["train_sessions"] if s.startswith("freehand")]
+    assert len(trained) == 2 and len(freehand["test_sessions"]) == 1
+    assert not set(freehand["test_sessions"]) & set(force["train_sessions"])
+    metrics = freehand["metrics"]
+    assert set(metrics) == set(force["metrics"])  # every method evaluated, on both sets
+    mae = {method: metrics[method]["overall"]["mae_n"] for method in metrics}
+    best = freehand["best"]
+    assert best["mae_n"] == min(v for m, v in mae.items() if m != "mean")
+    assert best["ratio_to_mean"] == pytest.approx(best["mae_n"] / mae["mean"])
+    # quick run (one 6 s held-out trial): Hooke's law 0.16 N, 0.34x the mean predictor
+    # (0.48 N); the MLP on the displacement history, best on the paper's protocol by its
+    # timing, 0.47 N here. (Three trained and two held-out 8 s trials: the temporal model
+    # 0.30 N, 0.42x the mean predictor's 0.72 N; the MLP 0.58 N.)
+    assert best["ratio_to_mean"] <= 0.5
+    assert mae["mlp_displacement_history"] > 1.5 * best["mae_n"]
+    assert {"pull", "hold"} <= set(freehand["per_phase"]["mean"])
+    html = (demo_out / "index.html").read_text()
+    assert "Force estimation on held-out freehand trials" in html
+    assert "freehand held-out MAE, best method" in html
 
 
 def test_report_links_every_plot_and_shows_the_verdicts(demo_out):

@@ -196,3 +196,133 @@ def test_an_eight_bit_png_is_refused(tmp_path, capsys):
                  "--time-column", "t", "--fps", "1", "--fx", "5", "--fy", "5", "--cx", "4",
                  "--cy", "4", "--depth-scale", "0.001"]) == 2
     assert "16-bit" in capsys.readouterr().err
+
+
+CROP_FX, CROP_CX, CROP_CY, CROP_ORIGIN = 500.0, 320.0, 240.0, (200, 150)
+
+
+@pytest.fixture(scope="module")
+def unpadded_recording(tmp_path_factory):
+    """12 cropped 8×6 depth frames named data1 … data12 (frame i at 500 + 10 i mm, one pixel
+    saturated, one missing), forces in a headerless whitespace file of one column."""
+    folder = tmp_path_factory.mktemp("unpadded")
+    (folder / "depth").mkdir()
+    for i in range(1, 13):
+        depth = np.full((6, 8), 500 + 10 * i, np.uint16)
+        depth[0, 0], depth[1, 1] = 65535, 0
+        cv2.imwrite(str(folder / "depth" / f"data{i}.png"), depth)
+    (folder / "force.txt").write_text("".join(f"  {0.25 * i:.8f}\n" for i in range(1, 13)))
+    return folder
+
+
+def crop_import_args(folder, out, *extra):
+    return ["import", "depth", str(folder / "depth"), "--forces", str(folder / "force.txt"),
+            "--force-columns", "0", "--fps", "30", "--fx", str(CROP_FX), "--fy", str(CROP_FX),
+            "--cx", str(CROP_CX), "--cy", str(CROP_CY), "--depth-scale", "0.001",
+            "--out", str(out), *extra]
+
+
+def test_a_real_style_recording_imports_as_it_comes(unpadded_recording, tmp_path):
+    """Natural order, a crop keeping the camera's principal point, saturated and missing depth
+    masked, a depth range, a headerless one-column force file with a scale: one CLI call."""
+    out = tmp_path / "r.clouds.h5"
+    result = vbfe(*crop_import_args(unpadded_recording, out, "--crop-origin",
+                                    *map(str, CROP_ORIGIN), "--force-scale", "-2",
+                                    "--min-depth", "0.515", "--max-depth", "0.6"))
+    assert result.returncode == 0, result.stderr
+    assert "row i of force.txt is frame i" in result.stdout
+    assert "12 frames, 12 with a force" in result.stdout
+    source = ImportedClouds(out)
+    try:
+        for i in range(12):  # file data{i+1}: frame i at 510 + 10 i mm, kept from 520 to 600
+            cloud = source.cloud(i)
+            assert len(cloud) == (46 if 1 <= i <= 9 else 0)  # 48 pixels less the invalid two
+            if len(cloud):
+                np.testing.assert_allclose(cloud[:, 2], 0.51 + 0.01 * i, rtol=1e-6)
+        z, (v, u) = 0.52, np.mgrid[0:6, 0:8]
+        valid = np.ones((6, 8), bool)
+        valid[0, 0] = valid[1, 1] = False
+        expected = np.column_stack([(u[valid] + CROP_ORIGIN[0] - CROP_CX) * z / CROP_FX,
+                                    (v[valid] + CROP_ORIGIN[1] - CROP_CY) * z / CROP_FX])
+        np.testing.assert_allclose(np.sort(source.cloud(1)[:, :2], axis=0),
+                                   np.sort(expected, axis=0), rtol=1e-5)
+        np.testing.assert_allclose(source.force_at_frames()[:, 2], -0.5 * np.arange(1, 13))
+    finally:
+        source.close()
+
+
+def write_random(path, size=400):
+    path.write_bytes(np.random.default_rng(7).integers(0, 256, size, np.uint8).tobytes())
+
+
+def bad_inputs(case, folder, tmp):
+    """Arguments of one bad import (``folder``: the unpadded recording, ``tmp``: scratch)."""
+    frames = tmp / "frames"
+    frames.mkdir()
+    forces = tmp / "forces.csv"
+    forces.write_text("t,f\n0,1\n0.1,2\n0.2,3\n")
+    clouds = ["import", "clouds", str(frames), "--forces", str(forces), "--force-columns", "f",
+              "--time-column", "t", "--fps", "10", "--out", str(tmp / "x.clouds.h5")]
+    for i in range(3):
+        np.save(frames / f"c{i}.npy", np.full((5, 3), 0.1))
+    if case == "unsorted times":
+        forces.write_text("t,f\n0,1\n0.2,2\n0.1,3\n")
+    elif case == "NaN time":
+        forces.write_text("t,f\n0,1\nnan,2\n0.2,3\n")
+    elif case == "random-bytes force table":
+        write_random(forces)
+    elif case == "corrupt npy":
+        (frames / "c1.npy").write_bytes((frames / "c1.npy").read_bytes()[:90])
+    elif case == "truncated ply":
+        write_ply(frames / "c3.ply", np.full((50, 3), 0.1))
+        (frames / "c3.ply").write_bytes((frames / "c3.ply").read_bytes()[:-100])
+        forces.write_text("t,f\n0,1\n0.1,2\n0.2,3\n0.3,4\n")
+    elif case in ("random-bytes png", "mixed sizes"):
+        depth = tmp / "depth"
+        depth.mkdir()
+        for i, shape in enumerate([(6, 8)] * 11 + [(6, 9)]):
+            cv2.imwrite(str(depth / f"data{i + 1}.png"), np.full(shape, 500, np.uint16))
+        if case == "random-bytes png":
+            write_random(depth / "data2.png")
+        args = crop_import_args(folder, tmp / "x.clouds.h5", "--crop-origin", "0", "0")
+        args[2] = str(depth)
+        return args
+    elif case == "crop without origin":
+        return crop_import_args(folder, tmp / "x.clouds.h5")
+    elif case == "headerless named column":
+        return [a if a != "0" else "force" for a in crop_import_args(
+            folder, tmp / "x.clouds.h5", "--crop-origin", "1", "1")]
+    elif case == "rows are not frames":
+        (tmp / "short.txt").write_text("1\n2\n")
+        args = crop_import_args(folder, tmp / "x.clouds.h5", "--crop-origin", "0", "0")
+        args[args.index("--forces") + 1] = str(tmp / "short.txt")
+        return args
+    elif case == "existing output":
+        (tmp / "x.clouds.h5").write_bytes(b"keep me")
+    return clouds
+
+
+@pytest.mark.parametrize("case, message", [
+    ("unsorted times", "force time 3 is earlier than force time 2"),
+    ("NaN time", "force time 2 of 3 is not a number"),
+    ("random-bytes force table", "not a text table"),
+    ("corrupt npy", "c1.npy is not a readable .npy"),
+    ("truncated ply", "c3.ply: the file ends before its 50 declared vertices"),
+    ("random-bytes png", "data2.png is unreadable"),
+    ("mixed sizes", "data12.png is 9x6 but data1.png is 8x6"),
+    ("crop without origin", "--crop-origin"),
+    ("headerless named column", "no header row"),
+    ("rows are not frames", "2 rows for 12 frames"),
+    ("existing output", "--overwrite"),
+])
+def test_bad_recordings_are_one_line_errors(unpadded_recording, tmp_path, capfd, case, message):
+    args = bad_inputs(case, unpadded_recording, tmp_path)
+    kept = (tmp_path / "x.clouds.h5").read_bytes() if case == "existing output" else None
+    assert main(args) == 2
+    err = capfd.readouterr().err.strip()  # file-descriptor level: OpenCV's own warnings too
+    assert err.startswith("vbfe import: error:") and message in err and "\n" not in err, err
+    if kept is None:
+        assert not (tmp_path / "x.clouds.h5").exists()
+        assert not list(tmp_path.glob("*.part"))
+    else:
+        assert (tmp_path / "x.clouds.h5").read_bytes() == kept

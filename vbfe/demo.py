@@ -1,8 +1,11 @@
 """``vbfe demo``: the whole pipeline on the simulated bench, scored against the bench's truth.
 
 Print a board → capture calibration views → calibrate the endoscope and the projector →
-record traction sessions over the paper's conditions → verify sync (passively on them, and on
-one sync protocol session of taps and flashes) → reconstruct → train → evaluate → one ``index.html`` with every number next to its truth and the paper's figures.
+record traction sessions over the paper's conditions and freehand trials (varying speed,
+releases, holds at random forces, stiffness and grasp drawn per trial) → verify sync (passively
+on the paper's sessions, and on one sync protocol session of taps and flashes) → reconstruct →
+train on both → evaluate held-out paper sessions and held-out freehand trials apart → one
+``index.html`` with every number next to its truth and the paper's figures.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from vbfe.config import load_config
+from vbfe.drivers.sim.freehand import RELEASE
+from vbfe.drivers.sim.mechanics import HOLD, PULL
 
 StageFn = Callable[[str, int], Callable[[int], None]]  # (stage name, total) -> step(n)
 
@@ -45,10 +50,15 @@ class DemoPlan:
     temporal_epochs: int  # it starts from PointNet's encoder, so it needs fewer epochs
     split: str  # how training picks its validation frames: "session" or "time" blocks
     gap_frames: int  # time split: frames left out between blocks
+    freehand_trials: int  # freehand trials trained on
+    freehand_test_trials: int  # freehand trials held out (reported apart)
+    freehand_s: float  # length of a freehand trial
 
     @classmethod
     def full(cls) -> "DemoPlan":
-        """The full demo: six trials per paper condition (about ten minutes on two cores).
+        """The full demo: six trials per paper condition (about ten minutes on two cores
+        without freehand trials) and nine freehand trials of 15 s, six trained on and three
+        held out (about three quarters more frames: not yet timed).
 
         The camera runs at 10 fps instead of the paper's 30 Hz and PointNet's shared MLP is
         32-64-256 wide instead of 64-128-1024, so that recording, reconstruction and training
@@ -59,18 +69,21 @@ class DemoPlan:
                    projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
                    recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
-                   temporal_epochs=20, protocol_s=20.0, split="session", gap_frames=0)
+                   temporal_epochs=20, protocol_s=20.0, split="session", gap_frames=0,
+                   freehand_trials=6, freehand_test_trials=3, freehand_s=15.0)
 
     @classmethod
     def quick(cls) -> "DemoPlan":
-        """A small run for tests (under two minutes). With one training session per
+        """A small run for tests (about 140 s of CPU). With one training session per
         condition, validation takes time blocks inside them (a held-out session would take a
-        whole condition out of training)."""
+        whole condition out of training). Two short freehand trials are trained on and one is
+        held out: enough to check the freehand report, not to measure it (the full run does)."""
         return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
                    projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
                    conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
                    recon_check_frames=1, temporal_frames=2, temporal_span_frames=5,
-                   temporal_epochs=15, protocol_s=10.0, split="time", gap_frames=4)
+                   temporal_epochs=15, protocol_s=10.0, split="time", gap_frames=4,
+                   freehand_trials=2, freehand_test_trials=1, freehand_s=6.0)
 
 
 @dataclass
@@ -134,9 +147,14 @@ def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> 
     return numbers
 
 
+FREEHAND = "freehand"  # name prefix of the freehand trials' sessions
+FREEHAND_FIRST_SEED = 101
+
+
 def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
                  stage: StageFn) -> list[Path]:
-    """One session per paper condition and repeat, each a new trial (seed)."""
+    """One session per paper condition and repeat, then the freehand trials; each a new trial
+    (seed)."""
     from vbfe.acquire import record_session
     from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
     from vbfe.truth import trial_duration_s
@@ -144,20 +162,30 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
     sessions = []
     folder = out / "sessions"
     folder.mkdir(parents=True, exist_ok=True)
-    runs = [(k, v, r) for k, v in PAPER_CONDITIONS.items() for r in range(plan.repeats)]
+    runs = [({"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": seed},
+             f"k{k:g}_v{v:g}_r{r}", f"simulated traction trial {r} at {k:g} N/m, {v:g} m/s")
+            for seed, (k, v, r) in enumerate(((k, v, r) for k, v in PAPER_CONDITIONS.items()
+                                              for r in range(plan.repeats)), start=1)]
+    runs += [({"protocol": FREEHAND, "freehand_duration_s": plan.freehand_s,
+               "seed": FREEHAND_FIRST_SEED + r}, f"{FREEHAND}_r{r}",
+              f"simulated freehand traction trial {r}")
+             for r in range(plan.freehand_trials + plan.freehand_test_trials)]
     step = stage("record sessions", len(runs))
-    for seed, (stiffness, speed, repeat) in enumerate(runs, start=1):
+    for bench, name, notes in runs:
         run_config = copy.deepcopy(config)
-        run_config["bench"].update(stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed,
-                                   seed=seed)
-        path = folder / f"k{stiffness:g}_v{speed:g}_r{repeat}.h5"
+        run_config["bench"].update(bench)
+        path = folder / f"{name}.h5"
         path.unlink(missing_ok=True)
         record_session(run_config, path, duration_s=trial_duration_s(run_config),
-                       operator="vbfe demo", notes=f"simulated traction trial {repeat} at {stiffness:g} N/m, "
-                             f"{speed:g} m/s", calibration_yaml=calibration_yaml)
+                       operator="vbfe demo", notes=notes, calibration_yaml=calibration_yaml)
         sessions.append(path)
         step(1)
     return sessions
+
+
+def is_freehand(session: Path) -> bool:
+    """Whether a demo session is a freehand trial (by its name)."""
+    return session.stem.startswith(FREEHAND)
 
 
 def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any]:
@@ -280,13 +308,16 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
 
 def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict,
                    stage: StageFn) -> dict[str, Any]:
-    """Train PointNet on most sessions, evaluate it and the baselines on held-out sessions."""
+    """Train on most paper sessions and freehand trials; evaluate every method the evaluation
+    returns on the held-out paper sessions and, apart, on the held-out freehand trials."""
     from vbfe.estimate.evaluation import evaluate
     from vbfe.estimate.train_config import TrainConfig
     from vbfe.estimate.training import train, use_threads
 
-    held_out = [s for s in sessions if s.stem.endswith(f"_r{plan.repeats - 1}")]
-    training = [s for s in sessions if s not in held_out]
+    paper = [s for s in sessions if not is_freehand(s)]
+    held_out = [s for s in paper if s.stem.endswith(f"_r{plan.repeats - 1}")]
+    held_out_freehand = [s for s in sessions if is_freehand(s)][plan.freehand_trials:]
+    training = [s for s in sessions if s not in held_out + held_out_freehand]
     train_config = TrainConfig.from_table(
         config["train"], epochs=plan.epochs, n_points=plan.n_points,
         frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
@@ -306,19 +337,34 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
     model_path = out / "model.pt"
     result = train(training, model_path, train_config, progress)
     report = evaluate(model_path, held_out, out / "evaluation", progress)
+    freehand = evaluate(model_path, held_out_freehand, out / "evaluation-freehand", progress)
     return {"train_sessions": [s.stem for s in training],
             "test_sessions": [s.stem for s in held_out],
             "train_seconds": result.duration_s, "epochs_run": result.epochs_run,
             "metrics": report.metrics, "per_phase": phase_metrics(report, held_out),
-            "plots": [str(p) for p in report.files if str(p).endswith(".png")]}
+            "plots": [str(p) for p in report.files if str(p).endswith(".png")],
+            "freehand": {"test_sessions": [s.stem for s in held_out_freehand],
+                         "metrics": freehand.metrics,
+                         "per_phase": phase_metrics(freehand, held_out_freehand),
+                         "best": best_method(freehand.metrics),
+                         "plots": [str(p) for p in freehand.files if str(p).endswith(".png")]}}
 
 
-PHASES = {1: "pull", 2: "hold"}  # the bench's per-frame truth ``phase`` (0 is rest)
+def best_method(metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The method with the lowest overall MAE other than the mean predictor, its MAE and its
+    ratio to the mean predictor's."""
+    mae = {m: float(v["overall"]["mae_n"]) for m, v in metrics.items()}
+    method = min((m for m in mae if m != "mean"), key=mae.__getitem__)
+    return {"method": method, "mae_n": mae[method], "mean_mae_n": mae["mean"],
+            "ratio_to_mean": mae[method] / mae["mean"]}
+
+
+PHASES = {PULL: "pull", HOLD: "hold", RELEASE: "release"}  # the bench's per-frame truth ``phase``
 
 
 def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict[str, float]]]:
-    """Per method, the errors of the evaluated frames during the pull and during the hold
-    (phases from the bench's truth, matched to the scored frames by frame time)."""
+    """Per method, the errors of the evaluated frames in each phase of the trial (pull, hold,
+    release; from the bench's truth, matched to the scored frames by frame time)."""
     from vbfe.acquire import SessionReader
     from vbfe.estimate.evaluation import error_stats
 
@@ -353,7 +399,7 @@ def run_demo(out_dir: str | Path = "vbfe-demo", quick: bool = False,
     result.numbers["calibration"] = calibrate_stage(config, out, plan, stage)
     yaml_text = load_calibration(result.numbers["calibration"]["files"]["calibration"]).to_yaml_text()
     sessions = record_stage(config, out, plan, yaml_text, stage)
-    result.numbers["sync"] = sync_stage(sessions, out, stage)
+    result.numbers["sync"] = sync_stage([s for s in sessions if not is_freehand(s)], out, stage)
     result.numbers["sync_protocol"] = protocol_stage(config, out, plan, stage)
     result.numbers["reconstruction"] = reconstruct_stage(sessions, plan, config, stage)
     result.numbers["force"] = estimate_stage(sessions, out, plan, config, stage)

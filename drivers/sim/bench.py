@@ -11,7 +11,7 @@ import inspect
 import math
 import threading
 import time
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.board_scene import BoardScene, board_target
 from vbfe.drivers.sim.clocks import DeviceClock, Transport
 from vbfe.drivers.sim.devices import SimCamera, SimProjector, SimTrocar
+from vbfe.drivers.sim.freehand import FreehandProtocol
 from vbfe.drivers.sim.mechanics import TapProtocol, TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
@@ -29,10 +30,10 @@ from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo
 from vbfe.settings import parse_kwargs
 
 SCENES = ("tissue", "plane", "board")
-PROTOCOLS = ("traction", "sync")
+PROTOCOLS = ("traction", "sync", "freehand")
 FORCE_RANGE_N = 5.0  # TRF85D measuring range
 _STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport", "force_noise",
-            "texture", "board", "taps", "projector")
+            "texture", "board", "taps", "projector", "freehand")
 
 
 MAX_PIXELS = 8192 * 8192  # per camera image: larger is a typo, not a camera
@@ -51,7 +52,11 @@ class SimBench:
     when the first device is opened.
 
     ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
-    ``sync_duration_s``, peak about ``tap_force_n``). Frames integrate the projector's light
+    ``sync_duration_s``, peak about ``tap_force_n``); ``protocol = "freehand"`` by a
+    hand-guided trial of ``freehand_duration_s`` (:mod:`vbfe.drivers.sim.freehand`: varying
+    speed, pauses, partial releases, holds at random levels up to ``target_force_n``) on a
+    stiffness drawn per seed, log-uniform in ``freehand_stiffness_n_per_m`` (which replaces
+    ``stiffness_n_per_m``). Frames integrate the projector's light
     over ``exposure_ms`` (rows offset by ``line_time_us``: rolling shutter); a pattern lights
     the scene ``projector_latency_ms`` after its command, so a flash's true latency on the
     frames' clock is ``image_latency_ms + projector_latency_ms``.
@@ -80,8 +85,11 @@ class SimBench:
                  subsurface_blur_mm: float = 0.0, specular: float = 0.0,
                  crosstalk: float = 0.0, projector_gamma: float = 1.0, vignetting: float = 0.0,
                  motion_blur_exposure_ms: float = 0.0,
-                 protocol: str = "traction", sync_taps: int = 20, sync_duration_s: float = 20.0,
-                 tap_force_n: float = 1.0, projector_latency_ms: float = 0.0,
+                 protocol: Literal["traction", "sync", "freehand"] = "traction",
+                 sync_taps: int = 20, sync_duration_s: float = 20.0,
+                 tap_force_n: float = 1.0, freehand_duration_s: float = 15.0,
+                 freehand_stiffness_n_per_m: tuple[float, float] = (70.0, 95.0),
+                 projector_latency_ms: float = 0.0,
                  exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
@@ -92,6 +100,12 @@ class SimBench:
                               f"of at most {MAX_PIXELS // 10**6} megapixels")
         if protocol not in PROTOCOLS:
             raise DeviceError(f"[bench] protocol must be one of {PROTOCOLS}, got {protocol!r}")
+        if protocol == "freehand" and not (
+                0 < freehand_stiffness_n_per_m[0] <= freehand_stiffness_n_per_m[1]
+                and freehand_duration_s >= 2.0 and target_force_n >= 1.0):
+            raise DeviceError("[bench] freehand protocol: freehand_stiffness_n_per_m must be "
+                              "[low, high] with 0 < low <= high, freehand_duration_s >= 2 and "
+                              "target_force_n >= 1")
         if not 0 <= exposure_ms <= 1e3 / fps or projector_latency_ms < 0 or line_time_us < 0:
             raise DeviceError("[bench] exposure_ms must be within [0, 1000/fps]; "
                               "projector_latency_ms and line_time_us must not be negative")
@@ -132,6 +146,9 @@ class SimBench:
         if protocol == "sync":
             protocol = TapProtocol.random(rngs["taps"], sync_taps, sync_duration_s,
                                           stiffness_n_per_m, tap_force_n)
+        elif protocol == "freehand":
+            protocol = _freehand(rngs["freehand"], freehand_stiffness_n_per_m,
+                                 freehand_duration_s, target_force_n, rest_s)
         else:
             protocol = TractionProtocol(stiffness_n_per_m, pull_speed_m_per_s, target_force_n,
                                         rest_s, hold_s)
@@ -217,11 +234,21 @@ class SimBench:
         return cls(rig=rig, **params)
 
     @classmethod
-    def protocol_from_config(cls, table: dict[str, Any]) -> TractionProtocol:
-        """The traction protocol a ``[bench]`` table sets, without building the bench."""
+    def duration_from_config(cls, table: dict[str, Any]) -> float:
+        """How long the trial a ``[bench]`` table sets lasts, without building the bench."""
         defaults = inspect.signature(cls.__init__).parameters
-        return TractionProtocol(*(table.get(k, defaults[k].default) for k in (
-            "stiffness_n_per_m", "pull_speed_m_per_s", "target_force_n", "rest_s", "hold_s")))
+        value = {k: table.get(k, p.default) for k, p in defaults.items() if k != "self"}
+        if value["protocol"] == "sync":
+            return float(value["sync_duration_s"])
+        if value["protocol"] == "freehand":
+            rng = np.random.default_rng(np.random.SeedSequence(value["seed"]).spawn(
+                len(_STREAMS))[_STREAMS.index("freehand")])
+            return _freehand(rng, value["freehand_stiffness_n_per_m"],
+                             value["freehand_duration_s"], value["target_force_n"],
+                             value["rest_s"]).duration_s()
+        return TractionProtocol(*(value[k] for k in (
+            "stiffness_n_per_m", "pull_speed_m_per_s", "target_force_n", "rest_s",
+            "hold_s"))).duration_s()
 
     def conditions(self) -> dict[str, Any]:
         """Experimental conditions of the trial, for session metadata."""
@@ -230,14 +257,20 @@ class SimBench:
             return {"protocol": "sync", "stiffness_n_per_m": p.stiffness_n_per_m,
                     "taps": len(p.tap_times_s), "thickness_m": s.thickness_m,
                     "scene": self.scene, "seed": self.seed, "simulated": True}
+        if isinstance(p, FreehandProtocol):
+            return {"protocol": "freehand", "label": f"freehand {p.stiffness_n_per_m:.0f} N/m",
+                    "stiffness_n_per_m": p.stiffness_n_per_m,
+                    "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
+                    "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
+                    "scene": self.scene, "seed": self.seed, "simulated": True}
         return {"stiffness_n_per_m": p.stiffness_n_per_m, "pull_speed_m_per_s": p.pull_speed_m_per_s,
                 "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
                 "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
                 "scene": self.scene, "seed": self.seed, "simulated": True}
 
     def duration_s(self) -> float:
-        """Length of one traction trial (rest, pull until the target force, hold) or of the sync
-        protocol session."""
+        """Length of one traction trial (rest, pull until the target force, hold), of the
+        freehand trial or of the sync protocol session."""
         return self.trial.protocol.duration_s()
 
     # -- devices --------------------------------------------------------------------------
@@ -434,6 +467,13 @@ class SimBench:
         ``proj_uv_left``, ``valid_left`` (see :meth:`StereoRenderer.truth`)."""
         true_ns = int(self.camera_clock.true_ns(int(frame_t_device_ns)))
         return self.renderer.truth(self.surface_at(true_ns))
+
+
+def _freehand(rng: np.random.Generator, stiffness_range: tuple[float, float], duration_s: float,
+              target_force_n: float, rest_s: float) -> FreehandProtocol:
+    """The freehand trial of a seed: stiffness log-uniform in ``stiffness_range``, then steps."""
+    stiffness = float(np.exp(rng.uniform(*np.log(stiffness_range))))
+    return FreehandProtocol.random(rng, stiffness, duration_s, target_force_n, rest_s)
 
 
 def _mix(parts: list[tuple[np.ndarray, np.ndarray | float]]) -> np.ndarray:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +31,7 @@ from vbfe.drivers.sim.tissue import MembraneLoad
 
 PAPER_CONDITIONS = {40.0: 0.01, 80.0: 0.005, 200.0: 0.002}  # stiffness N/m → pull speed m/s
 
-REST, PULL, HOLD = 0, 1, 2  # phases
+REST, PULL, HOLD = 0, 1, 2  # phases (the sync protocol adds TAP, the freehand one RELEASE)
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,10 @@ class TractionProtocol:
     def duration_s(self) -> float:
         """One trial: rest, pull, hold."""
         return self.rest_s + self.pull_duration_s() + self.hold_s
+
+    def max_displacement_m(self) -> float:
+        """The largest grasper displacement: the hold creeps towards ``F/k``."""
+        return self.target_force_n / self.stiffness_n_per_m
 
     def state(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasper displacement (m), force (N) and phase at trial times ``t_s`` (s).
@@ -115,13 +120,13 @@ class TissueSample:
 class Trial:
     """A traction trial: protocol × grasp → force and tissue load over time."""
 
-    protocol: TractionProtocol
+    protocol: Any  # TractionProtocol, TapProtocol or freehand.FreehandProtocol
     sample: TissueSample
     deformation_scale: float = 0.15
     radius_ref_m: float = 0.015
 
     def __post_init__(self) -> None:
-        peak = self.load(self.protocol.target_force_n / self.protocol.stiffness_n_per_m)
+        peak = self.load(self.protocol.max_displacement_m())
         if peak.max_lateral_strain() >= 0.85:
             raise DeviceError(
                 f"[bench] target_force_n={self.protocol.target_force_n} N at stiffness "
@@ -198,6 +203,10 @@ class TapProtocol:
     def duration_s(self) -> float:
         """Length of the protocol session."""
         return self.session_s
+
+    def max_displacement_m(self) -> float:
+        """The largest grasper displacement (the tissue follows elastically)."""
+        return self.target_force_n / self.stiffness_n_per_m
 
     def state(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grasper displacement (m), force (N) and phase (REST or TAP) at times ``t_s``."""

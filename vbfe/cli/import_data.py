@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from vbfe.cli.common import positive
@@ -18,25 +19,36 @@ def register(sub: argparse._SubParsersAction) -> None:
         "`vbfe train` and `vbfe evaluate` take like a reconstructed session. See "
         "docs/importing.md.")
     parser.add_argument("kind", choices=("clouds", "depth"), help="what the frames are")
-    parser.add_argument("frames", metavar="FOLDER", help="frame files, in file-name order")
-    parser.add_argument("--forces", required=True, type=Path, metavar="CSV",
-                        help="force CSV with a header row")
+    parser.add_argument("frames", metavar="FOLDER",
+                        help="frame files, in natural order of their names (data2 before data10)")
+    parser.add_argument("--forces", required=True, type=Path, metavar="TABLE",
+                        help="force table: CSV with a header row, or headerless columns "
+                        "separated by commas or whitespace")
     parser.add_argument("--out", required=True, metavar="OUT.clouds.h5")
     parser.add_argument("--force-columns", required=True, metavar="FX,FY,FZ",
-                        help="one or three force column names")
+                        help="one or three force columns, by name or number (0 = first)")
     parser.add_argument("--force-unit", default="N", help="N (default), mN, kN, gf, kgf, lbf")
+    parser.add_argument("--force-scale", type=float, default=1.0, metavar="FACTOR",
+                        help="multiply the forces by FACTOR (e.g. sensor counts to the unit, "
+                        "-1 to flip the sign; default 1)")
     parser.add_argument("--force-axis", default="z", choices=("x", "y", "z"),
                         help="axis a single force column is stored on (default z)")
-    key = parser.add_mutually_exclusive_group(required=True)
-    key.add_argument("--time-column", help="CSV column of force sample times")
-    key.add_argument("--frame-column", help="CSV column of frame indices (0 = first file)")
+    key = parser.add_mutually_exclusive_group()
+    key.add_argument("--time-column", help="column of force sample times")
+    key.add_argument("--frame-column", help="column of frame indices (0 = first file); "
+                     "with neither, row i of the table is frame i")
     parser.add_argument("--time-unit", default="s", help="s (default), ms, us or ns, for the "
                         "force and frame times")
     parser.add_argument("--fps", type=positive(float), help="frame i is at i / FPS seconds")
-    parser.add_argument("--frame-times", type=Path, metavar="CSV",
-                        help="CSV with one time per frame file (same clock as the forces)")
-    parser.add_argument("--frame-time-column", help="column of --frame-times")
+    parser.add_argument("--frame-times", type=Path, metavar="TABLE",
+                        help="table (like --forces) with one time per frame file, on the "
+                        "forces' clock")
+    parser.add_argument("--frame-time-column", help="column of --frame-times (name or number)")
     parser.add_argument("--condition", help="label of the recording's condition in reports")
+    parser.add_argument("--min-depth", type=float, default=-math.inf, metavar="M",
+                        help="drop points nearer than M metres (z)")
+    parser.add_argument("--max-depth", type=float, default=math.inf, metavar="M",
+                        help="drop points farther than M metres (z)")
     depth = parser.add_argument_group("depth images")
     for name in ("fx", "fy", "cx", "cy"):
         depth.add_argument(f"--{name}", type=float, help="intrinsics, pixels")
@@ -45,7 +57,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                        help="pixel region of interest (X1, Y1 exclusive)")
     depth.add_argument("--pixel-step", type=positive(int), default=1, help="use every k-th pixel")
-    add_overwrite_option(parser)
+    depth.add_argument("--crop-origin", type=int, nargs=2, metavar=("X", "Y"),
+                       help="the images are crops of the camera's image starting at pixel "
+                       "(X, Y); --cx/--cy stay the camera's (may lie outside the crop)")
     parser.set_defaults(func=run)
 
 
@@ -64,13 +78,17 @@ def run(args: argparse.Namespace) -> int:
         if missing:
             raise EstimateError(f"depth frames need {' '.join(missing)}")
         camera = DepthCamera(args.fx, args.fy, args.cx, args.cy, args.depth_scale,
-                             tuple(args.roi) if args.roi else None, args.pixel_step)
+                             tuple(args.roi) if args.roi else None, args.pixel_step,
+                             tuple(args.crop_origin) if args.crop_origin else None)
     forces = ForceTable(args.forces, tuple(c.strip() for c in args.force_columns.split(",")),
                         args.force_unit, args.time_column, args.time_unit, args.frame_column,
-                        args.force_axis)
+                        args.force_axis, args.force_scale)
     path, n_frames, with_force = import_frames(
         args.kind, args.frames, args.out, forces, fps=args.fps, frame_times_csv=args.frame_times,
-        frame_time_column=args.frame_time_column, camera=camera, condition=args.condition)
+        frame_time_column=args.frame_time_column, camera=camera, condition=args.condition,
+        depth_range_m=(args.min_depth, args.max_depth), overwrite=args.overwrite)
+    if args.time_column is None and args.frame_column is None:
+        print(f"forces: row i of {args.forces.name} is frame i")
     print(f"wrote {path}: {n_frames} frames, {with_force} with a force")
     if with_force < n_frames:
         print(f"{n_frames - with_force} frames have no force (outside the force record) and "

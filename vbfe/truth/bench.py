@@ -20,8 +20,8 @@ def true_rig(config: dict[str, dict[str, Any]]) -> StereoRig:
 
 
 def trial_duration_s(config: dict[str, dict[str, Any]]) -> float:
-    """How long the traction trial of the configuration's bench lasts (no bench is built)."""
-    return SimBench.protocol_from_config(config.get("bench", {})).duration_s()
+    """How long the trial of the configuration's bench lasts (no bench is built)."""
+    return SimBench.duration_from_config(config.get("bench", {}))
 
 
 def session_bench(reader: SessionReader) -> SimBench:
