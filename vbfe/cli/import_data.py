@@ -1,30 +1,36 @@
-"""`vbfe import`: external point clouds or depth images + a force CSV → a clouds file to train on."""
+"""`vbfe import`: external point clouds or depth images + a force CSV → a clouds file to train
+on; a robot's bag (MCAP, rosbag2, ROS 1) → a session."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from vbfe.cli.common import progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `import` subcommand."""
     parser = sub.add_parser(
-        "import", help="import external point clouds or depth images with a force CSV",
+        "import", help="import external clouds or depth images with a force CSV, or a bag",
         description="Turn a folder of frames (KIND clouds: *.ply/*.npy point clouds in metres; "
         "KIND depth: 16-bit PNG depth images) and a force CSV into OUT.clouds.h5, which "
-        "`vbfe train` and `vbfe evaluate` take like a reconstructed session. See "
-        "docs/importing.md.")
-    parser.add_argument("kind", choices=("clouds", "depth"), help="what the frames are")
-    parser.add_argument("frames", metavar="FOLDER", help="frame files, in file-name order")
-    parser.add_argument("--forces", required=True, type=Path, metavar="CSV",
-                        help="force CSV with a header row")
-    parser.add_argument("--out", required=True, metavar="OUT.clouds.h5")
-    parser.add_argument("--force-columns", required=True, metavar="FX,FY,FZ",
-                        help="one or three force column names")
+        "`vbfe train` and `vbfe evaluate` take like a reconstructed session (see "
+        "docs/importing.md); or (KIND bag) a ROS bag — MCAP file, rosbag2 folder or ROS 1 "
+        ".bag — into a session OUT.h5 (see docs/bags.md).")
+    parser.add_argument("kind", choices=("clouds", "depth", "bag"), help="what the input is")
+    parser.add_argument("frames", metavar="FOLDER|BAG",
+                        help="frame files, in file-name order; or the bag")
+    parser.add_argument("--forces", type=Path, metavar="CSV",
+                        help="force CSV with a header row (clouds, depth)")
+    parser.add_argument("--out", "-o", required=True, metavar="OUT.clouds.h5|OUT.h5")
+    parser.add_argument("--force-columns", metavar="FX,FY,FZ",
+                        help="one or three force column names (clouds, depth)")
     parser.add_argument("--force-unit", default="N", help="N (default), mN, kN, gf, kgf, lbf")
     parser.add_argument("--force-axis", default="z", choices=("x", "y", "z"),
                         help="axis a single force column is stored on (default z)")
-    key = parser.add_mutually_exclusive_group(required=True)
+    key = parser.add_mutually_exclusive_group()
     key.add_argument("--time-column", help="CSV column of force sample times")
     key.add_argument("--frame-column", help="CSV column of frame indices (0 = first file)")
     parser.add_argument("--time-unit", default="s", help="s (default), ms, us or ns, for the "
@@ -42,12 +48,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--roi", type=int, nargs=4, metavar=("X0", "Y0", "X1", "Y1"),
                        help="pixel region of interest (X1, Y1 exclusive)")
     depth.add_argument("--pixel-step", type=int, default=1, help="use every k-th pixel")
+    bag = parser.add_argument_group("bags (topics found by type and name when not given)")
+    bag.add_argument("--left", metavar="TOPIC", help="left image topic (Image or "
+                     "CompressedImage)")
+    bag.add_argument("--right", metavar="TOPIC", help="right image topic")
+    bag.add_argument("--image", metavar="TOPIC", help="one topic with both eyes side by side")
+    bag.add_argument("--force", metavar="TOPIC", help="WrenchStamped, Wrench or Vector3Stamped "
+                     "topic")
+    bag.add_argument("--left-info", metavar="TOPIC", help="left camera_info (default: beside "
+                     "the image topic)")
+    bag.add_argument("--right-info", metavar="TOPIC", help="right camera_info")
+    bag.add_argument("--pair-tolerance-ms", type=float, default=5.0,
+                     help="left and right stamps closer than this make a frame (default 5)")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Import and print what was written."""
+    if args.kind == "bag":
+        return run_bag(args)
     from vbfe.estimate.errors import EstimateError
+
+    missing = [flag for flag, value in (("--forces", args.forces),
+                                        ("--force-columns", args.force_columns)) if not value]
+    if not (args.time_column or args.frame_column):
+        missing.append("--time-column or --frame-column")
+    if missing:
+        raise EstimateError(f"{args.kind} frames need {', '.join(missing)}")
     from vbfe.estimate.importing import DepthCamera, ForceTable, import_frames
 
     camera = None
@@ -69,4 +97,32 @@ def run(args: argparse.Namespace) -> int:
     if with_force < n_frames:
         print(f"{n_frames - with_force} frames have no force (outside the force record) and "
               "will be skipped in training")
+    return 0
+
+
+def run_bag(args: argparse.Namespace) -> int:
+    """Import a bag as a session and print what was written."""
+    from vbfe.bags.importing import TopicChoice, import_bag
+
+    check_outputs([args.out], [args.frames], args.overwrite)
+    given = TopicChoice(args.left, args.right, args.image, args.force, args.left_info,
+                        args.right_info, args.pair_tolerance_ms / 1e3)
+    bar = None
+
+    def on_progress(frames: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = progress(desc="import", unit="frame")
+        bar.update(frames - bar.n)
+    try:
+        summary = import_bag(args.frames, args.out, given, on_progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    print(f"wrote {summary.path}: {summary.frames} stereo frames, {summary.forces} force "
+          f"samples; calibration: {summary.calibration}")
+    print("topics: " + ", ".join(f"{k} {v}" for k, v in summary.topics.items()))
+    if summary.unpaired_images:
+        print(f"{summary.unpaired_images} images had no partner within "
+              f"{args.pair_tolerance_ms:g} ms and were left out")
     return 0

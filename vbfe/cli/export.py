@@ -1,0 +1,50 @@
+"""`vbfe export`: a session as MCAP with ROS 2 messages (Foxglove, Rerun, ROS 2 tools)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from vbfe.cli.common import progress
+from vbfe.cli.outputs import add_overwrite_option, check_outputs
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `export` subcommand."""
+    parser = sub.add_parser(
+        "export", help="write a session as MCAP (ROS 2 messages) for Foxglove, Rerun, ROS 2",
+        description="Write every stream of SESSION.h5 as ROS 2 messages into one MCAP file: "
+        "images (lossless sensor_msgs/Image, or the camera's own JPEG as CompressedImage), "
+        "camera_info from the stored calibration, the trocar as WrenchStamped, point clouds "
+        "from a clouds file, projector events, gaps and live estimates; Unix timestamps from "
+        "the session's clock pairs. See docs/bags.md. (`vbfe calibrate export` writes a "
+        "calibration alone as ROS / Kalibr / OpenCV files.)")
+    parser.add_argument("session", metavar="SESSION.h5")
+    parser.add_argument("--format", choices=("mcap",), default="mcap",
+                        help="output format (mcap, the rosbag2 default)")
+    parser.add_argument("-o", "--out", type=Path, default=None, metavar="OUT.mcap",
+                        help="output file (default: SESSION.mcap beside the session)")
+    parser.add_argument("--clouds", type=Path, default=None, metavar="X.clouds.h5",
+                        help="also write these point clouds as sensor_msgs/PointCloud2")
+    parser.add_argument("--compression", choices=("zstd", "lz4"), default="zstd",
+                        help="chunk compression (default zstd)")
+    add_overwrite_option(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Export and print what was written."""
+    from vbfe.bags.export import export_mcap
+
+    session = Path(args.session)
+    out = args.out or session.with_suffix(".mcap")
+    check_outputs([out], [session, args.clouds], args.overwrite)
+    with progress(desc="export", unit="frame") as bar:
+        def on_progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+        summary = export_mcap(session, out, args.clouds, args.compression, on_progress)
+    topics = ", ".join(f"{topic} {n}" for topic, n in sorted(summary.messages.items()))
+    print(f"wrote {summary.path}: {sum(summary.messages.values())} messages over "
+          f"{(summary.end_ns - summary.start_ns) / 1e9:.2f} s ({topics})")
+    return 0

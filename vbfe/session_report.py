@@ -1,0 +1,1 @@
+def write_session_report(*a): raise NotImplementedError
