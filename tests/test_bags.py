@@ -265,6 +265,20 @@ def test_reconstruct_works_on_an_imported_bag(sessions, tmp_path):
             densities.append(reader.frame_table("valid_fraction"))
     assert len(densities[0]) == 30 and np.median(densities[0]) > 0.2
     np.testing.assert_allclose(densities[0], densities[1], atol=0.01)
+    # the clouds go out as PointCloud2: x, y, z float32 and packed rgb, every point
+    mcap = tmp_path / "with_clouds.mcap"
+    assert main(["export", str(out), "-o", str(mcap), "--clouds",
+                 str(tmp_path / "robot.clouds.h5")]) == 0
+    clouds = [d for topic, _, d in _decoded(mcap)[1] if topic == "/stereo/points"]
+    with CloudReader(tmp_path / "robot.clouds.h5") as reader:
+        assert len(clouds) == reader.n_frames
+        points, colors = reader.cloud(5)
+    data = np.frombuffer(bytes(clouds[5].data), np.float32).reshape(-1, 4)
+    assert clouds[5].width == len(points) and clouds[5].point_step == 16
+    np.testing.assert_array_equal(data[:, :3], points)
+    rgb = data[:, 3].view(np.uint32)
+    np.testing.assert_array_equal(np.column_stack([rgb >> 16, (rgb >> 8) & 255, rgb & 255]),
+                                  colors)
 
 
 def test_ambiguous_topics_are_listed(sessions, tmp_path, capsys):
