@@ -39,7 +39,7 @@ def sessions(tmp_path_factory):
     store_estimates(paths["raw"], EstimateStream(
         force_n=np.linspace(0, 1, n)[:, None], frame_seq=seq, t_frame_host_ns=t_host,
         t_ready_host_ns=t_host + 20_000_000, stage_s=np.full((n, 1), 0.02), stages=["model"],
-        attrs={"target": "magnitude", "outputs": ["|F|"]}))
+        attrs={"target": "magnitude", "outputs": 1}))
     return paths
 
 
@@ -92,6 +92,7 @@ def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_p
         assert log_times == sorted(log_times), topic
     estimates = by_topic["/vbfe/estimate"]
     assert len(estimates) == n and estimates[-1][1].force_n == [1.0]
+    assert estimates[0][1].axes == ["|F|"] and estimates[0][1].target == "magnitude"
     assert by_topic["/projector/events"][0][1].pattern == "debruijn-hsv"
     info = by_topic["/stereo/right/camera_info"][0][1]
     assert info.p[3] < 0 and info.distortion_model == "plumb_bob"  # P2[0,3] = -f·B

@@ -41,7 +41,7 @@ def dataset(tmp_path_factory):
     store_estimates(bench, EstimateStream(
         force_n=(force + 0.05)[:, None], frame_seq=seq, t_frame_host_ns=t_host,
         t_ready_host_ns=t_host + 30_000_000, stage_s=np.full((len(seq), 1), 0.03),
-        stages=["model"], attrs={"target": "magnitude", "outputs": ["|F|"]}))
+        stages=["model"], attrs={"target": "magnitude", "outputs": 1}))
     assert main(["reconstruct", str(bench), "--workers", "1", "--no-verify"]) == 0
 
     gappy = folder / "sub" / "gappy.h5"

@@ -249,24 +249,25 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
     if e is None or not len(e):
         page.paragraph("No live estimates (sessions recorded by `vbfe live --record` have them).")
         return
+    from vbfe.estimate.dataset import force_target
+
     _, _, seq = r.stream_times("camera")
     rows = {int(s): i for i, s in enumerate(seq)}
     at = np.array([rows.get(int(s), -1) for s in e.frame_seq])
     known = at >= 0
-    trocar = r.force_at_frames()
+    target = str(e.attrs.get("target", "magnitude"))
     measured = np.full(len(e), np.nan)
-    target_is_magnitude = e.force_n.shape[1] == 1
     if known.any():
-        values = trocar[at[known]]
-        measured[known] = (np.linalg.norm(values, axis=1) if target_is_magnitude
-                           else values[:, -1])
-    estimated = e.force_n[:, 0] if target_is_magnitude else e.force_n[:, -1]
+        values = force_target(r.force_at_frames()[at[known]], target)
+        measured[known] = np.linalg.norm(values, axis=1) if values.shape[1] > 1 else values[:, 0]
+    estimated = (np.linalg.norm(e.force_n, axis=1) if e.force_n.shape[1] > 1
+                 else e.force_n[:, 0])
     t = (r.frame_times_ns()[np.clip(at, 0, None)] - t0) / 1e9
     fig, ax = _figure(10, 2.8)
     ax.plot(t[known], measured[known], color="black", label="trocar")
     ax.plot(t[known], estimated[known], ".", ms=3, label="live estimate")
     ax.set_xlabel("time since the first frame (s)")
-    ax.set_ylabel("|F| (N)" if target_is_magnitude else "F (N)")
+    ax.set_ylabel(f"{'|F|' if target in ('magnitude', 'xyz') else 'F' + target} (N)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -46,12 +46,6 @@ def schema_text(msgtype: str) -> str:
     return typestore().generate_msgdef(msgtype, ros_version=2)[0]
 
 
-def stamp(t_ns: int) -> dict[str, int]:
-    """A ``builtin_interfaces/Time`` from Unix nanoseconds."""
-    t_ns = int(t_ns)
-    return {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}
-
-
 def stamp_ns(value: object) -> int:
     """Unix nanoseconds of a ``builtin_interfaces/Time`` (ROS 1 or 2, as rosbags reads it)."""
     return int(value.sec) * 10**9 + int(getattr(value, "nanosec", getattr(value, "nsec", 0)))
