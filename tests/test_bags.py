@@ -58,7 +58,8 @@ def _stamp(header):
 
 def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_path):
     out = tmp_path / "raw.mcap"
-    assert main(["export", str(sessions["raw"]), "--format", "mcap", "-o", str(out)]) == 0
+    assert main(["export", str(sessions["raw"]), "--format", "mcap", "-o", str(out),
+                 "--compression", "zstd"]) == 0
     summary, messages = _decoded(out)
     assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
     assert summary.statistics.message_count == len(messages)
@@ -100,7 +101,7 @@ def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_p
 
 def test_jpeg_session_exports_the_stored_jpeg_bytes(sessions, tmp_path):
     out = tmp_path / "jpeg.mcap"
-    assert main(["export", str(sessions["jpeg"]), "-o", str(out), "--compression", "lz4"]) == 0
+    assert main(["export", str(sessions["jpeg"]), "-o", str(out)]) == 0  # lz4 by default
     summary, messages = _decoded(out)
     assert {c.compression for c in summary.chunk_indexes} == {"lz4"}
     left = [d for topic, _, d in messages if topic == "/stereo/left/image_raw/compressed"]

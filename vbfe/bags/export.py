@@ -261,7 +261,7 @@ def _cloud_writer(clouds: Any, t_unix: np.ndarray, reader: SessionReader,
 
 
 def export_mcap(session_path: str | Path, out_path: str | Path,
-                clouds_path: str | Path | None = None, compression: str = "zstd",
+                clouds_path: str | Path | None = None, compression: str = "lz4",
                 on_progress: Callable[[int, int], None] | None = None) -> ExportSummary:
     """Write the session (and optionally its clouds) to ``out_path`` as MCAP, in time order,
     under a temporary name renamed when complete. ``on_progress(done, total)`` per frame."""
