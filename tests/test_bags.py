@@ -301,3 +301,15 @@ def test_ambiguous_topics_are_listed(sessions, tmp_path, capsys):
     assert "/stereo/right/image_raw (Image)" in err[1] and "--left and --right" in err[1]
     assert "does not exist" in err[2]
     assert not (tmp_path / "y.h5").exists() and not (tmp_path / "z.h5").exists()
+
+
+@pytest.mark.parametrize("path", ["rosbag2_talker", "rosbag2_talker/talker.mcap"])
+def test_a_rosbag2_recording_written_by_ros2_without_images_is_refused_in_one_line(
+        tmp_path, capsys, path):
+    bag = Path(__file__).parent / "data" / path
+    assert main(["import", "bag", str(bag), "-o", str(tmp_path / "x.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vbfe import: error: the bag has no image topics (sensor_msgs/Image or "
+                   "CompressedImage); its topics: /parameter_events (ParameterEvent), "
+                   "/rosout (Log), /topic (String)"]
+    assert not (tmp_path / "x.h5").exists()

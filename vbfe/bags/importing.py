@@ -113,6 +113,9 @@ def choose_topics(topics: dict[str, str], given: TopicChoice) -> TopicChoice:
             raise BagError(f"{flag} {topic}: no such topic; the bag has "
                            f"{', '.join(sorted(topics)) or 'no topics'}")
     images = sorted(t for t, m in topics.items() if m in IMAGE_TYPES)
+    if not images:
+        raise BagError("the bag has no image topics (sensor_msgs/Image or CompressedImage); "
+                       f"its topics: {_listing(topics, tuple(topics.values()))}")
     if choice.image is None and (choice.left is None or choice.right is None):
         lefts = [t for t in images if "left" in t.lower() and t != choice.right]
         rights = [t for t in images if "right" in t.lower() and t != choice.left]
