@@ -313,3 +313,43 @@ def test_a_rosbag2_recording_written_by_ros2_without_images_is_refused_in_one_li
                    "CompressedImage); its topics: /parameter_events (ParameterEvent), "
                    "/rosout (Log), /topic (String)"]
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_side_by_side_topic_in_a_rosbag2_mcap_folder(sessions, tmp_path, capsys):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    bag = tmp_path / "sbs_bag"
+    with SessionReader(sessions["raw"]) as reader, \
+            Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        image = writer.add_connection("/endoscope/image_raw", "sensor_msgs/msg/Image",
+                                      typestore=store)
+        force = writer.add_connection("/ft/wrench", "geometry_msgs/msg/WrenchStamped",
+                                      typestore=store)
+        frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + 1_700_000_000 * 10**9
+        for i, frame in enumerate(reader.iter_frames()):
+            t = int(frame_t[i])
+            header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](
+                sec=t // 10**9, nanosec=t % 10**9), frame_id="endoscope")
+            both = np.hstack([frame.left, frame.right])
+            writer.write(image, t, store.serialize_cdr(types["sensor_msgs/msg/Image"](
+                header=header, height=90, width=320, encoding="bgr8", is_bigendian=0,
+                step=960, data=both.reshape(-1)), "sensor_msgs/msg/Image"))
+            vector = types["geometry_msgs/msg/Vector3"]
+            writer.write(force, t, store.serialize_cdr(types["geometry_msgs/msg/WrenchStamped"](
+                header=header, wrench=types["geometry_msgs/msg/Wrench"](
+                    force=vector(0.0, 0.0, float(i)), torque=vector(0.0, 0.0, 0.0))),
+                "geometry_msgs/msg/WrenchStamped"))
+    out = tmp_path / "sbs.h5"
+    assert main(["import", "bag", str(bag), "-o", str(out)]) == 2  # one image topic: which?
+    assert "--image for one side-by-side topic" in capsys.readouterr().err
+    assert main(["import", "bag", str(bag), "-o", str(out), "--image",
+                 "/endoscope/image_raw"]) == 0
+    assert "calibration: none" in capsys.readouterr().out
+    with SessionReader(sessions["raw"]) as a, SessionReader(out) as b:
+        assert b.n_frames == a.n_frames and b.frame_size == (160, 90)
+        assert np.array_equal(b.frame(7).left, a.frame(7).left)
+        assert np.array_equal(b.frame(7).right, a.frame(7).right)
+        np.testing.assert_array_equal(b.forces_n()[:, 2], np.arange(a.n_frames))
+        assert b.calibration_yaml() is None
