@@ -223,9 +223,8 @@ class _SessionSink:
     """Writes paired frames and force samples through :class:`SessionWriter`, created at the
     first frame (its size and storage known then)."""
 
-    def __init__(self, out: Path, metadata: dict[str, Any], force_axes: list[str],
-                 calibration_yaml: str | None) -> None:
-        self.out, self.metadata, self.force_axes = out, metadata, force_axes
+    def __init__(self, out: Path, metadata: dict[str, Any], calibration_yaml: str | None) -> None:
+        self.out, self.metadata = out, metadata
         self.calibration_yaml = calibration_yaml
         self.unpaired = 0
         self.writer: SessionWriter | None = None
@@ -267,7 +266,7 @@ class _SessionSink:
         if self.writer is None:
             height, width = frame.left.shape[:2]
             self.writer = SessionWriter(self.out, (width, height), compression, self.metadata,
-                                        self.calibration_yaml, force_axes=self.force_axes)
+                                        self.calibration_yaml)  # force axes x, y, z
         if frame.left.shape != frame.right.shape:
             raise BagError(f"frame {self.frames}: the left image is {frame.left.shape[:2]}, the "
                            f"right {frame.right.shape[:2]}; vbfe needs equal eyes")
@@ -316,8 +315,7 @@ def import_bag(bag_path: str | Path, out_path: str | Path, given: TopicChoice,
                                         if isinstance(v, str)}}
         metadata.setdefault("protocol", {"kind": "traction"})
         calibration, how = _calibration(reader, topics, choice)
-        sink = _SessionSink(tmp, metadata, session.get("force_axes", ["x", "y", "z"]),
-                            calibration)
+        sink = _SessionSink(tmp, metadata, calibration)
         try:
             _copy_messages(reader, topics, choice, sink, on_progress)
             if sink.writer is None:
