@@ -353,3 +353,16 @@ def test_side_by_side_topic_in_a_rosbag2_mcap_folder(sessions, tmp_path, capsys)
         assert np.array_equal(b.frame(7).right, a.frame(7).right)
         np.testing.assert_array_equal(b.forces_n()[:, 2], np.arange(a.n_frames))
         assert b.calibration_yaml() is None
+
+
+def test_damaged_bag_is_one_line_and_leaves_nothing(sessions, tmp_path, capsys):
+    bag = tmp_path / "raw.mcap"
+    assert main(["export", str(sessions["raw"]), "-o", str(bag)]) == 0
+    data = bytearray(bag.read_bytes())
+    data[len(data) // 3:len(data) // 3 + 2000] = bytes(2000)  # inside a compressed chunk
+    bag.write_bytes(bytes(data))
+    capsys.readouterr()
+    assert main(["import", "bag", str(bag), "-o", str(tmp_path / "x.h5")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and "raw.mcap is damaged" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["raw.mcap"]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import struct
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -23,6 +24,9 @@ from typing import Any
 import cv2
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as Rosbag1ReaderError
+from rosbags.rosbag2 import ReaderError as Rosbag2ReaderError
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from vbfe.acquire import SessionWriter, finalize_session
@@ -34,6 +38,9 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 FORCE_TYPES = ("geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/Wrench",
                "geometry_msgs/msg/Vector3Stamped")
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+_READ_ERRORS = (AnyReaderError, Rosbag1ReaderError, Rosbag2ReaderError, SerdeError)
+# what rosbags and its decompressors raise on damaged data met while reading messages
+_DAMAGED = (*_READ_ERRORS, RuntimeError, OSError, EOFError, struct.error, ValueError)
 _HOST_START_NS = 10**12  # the bag's first message sits at this host time (1000 s)
 _FLUSH_FRAMES = 64
 _CHANNELS = {"bgr8": (3, None), "rgb8": (3, cv2.COLOR_RGB2BGR), "mono8": (1, cv2.COLOR_GRAY2BGR),
@@ -73,10 +80,10 @@ def open_bag(path: str | Path) -> Iterator[AnyReader]:
     path = Path(path)
     if not path.exists():
         raise BagError(f"bag {path} does not exist")
-    reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
     try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (AnyReaderError, OSError, ValueError, KeyError) as exc:
+    except (*_READ_ERRORS, OSError, ValueError, KeyError) as exc:
         raise BagError(f"{path} cannot be read as an MCAP file, rosbag2 folder or ROS 1 bag: "
                        f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     try:
@@ -305,6 +312,16 @@ def import_bag(bag_path: str | Path, out_path: str | Path, given: TopicChoice,
     renamed when complete); ``on_progress(frames)`` as frames are written."""
     out_path = Path(out_path)
     tmp = out_path.with_name(f".{out_path.name}.partial")
+    try:
+        return _import(bag_path, out_path, tmp, given, on_progress)
+    except _DAMAGED as exc:
+        tmp.unlink(missing_ok=True)
+        raise BagError(f"{bag_path} is damaged and cannot be read to the end "
+                       f"({type(exc).__name__}: {exc})") from None
+
+
+def _import(bag_path: str | Path, out_path: Path, tmp: Path, given: TopicChoice,
+            on_progress: Callable[[int], None] | None) -> ImportSummary:
     with open_bag(bag_path) as reader:
         topics = topic_types(reader)
         choice = choose_topics(topics, given)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import progress
+from vbfe.cli.common import LazyProgress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
@@ -40,10 +40,7 @@ def run(args: argparse.Namespace) -> int:
     session = Path(args.session)
     out = args.out or session.with_suffix(".mcap")
     check_outputs([out], [session, args.clouds], args.overwrite)
-    with progress(desc="export", unit="frame") as bar:
-        def on_progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.update(done - bar.n)
+    with LazyProgress("export", "frame") as on_progress:
         summary = export_mcap(session, out, args.clouds, args.compression, on_progress)
     topics = ", ".join(f"{topic} {n}" for topic, n in sorted(summary.messages.items()))
     print(f"wrote {summary.path}: {sum(summary.messages.values())} messages over "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import progress
+from vbfe.cli.common import LazyProgress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
@@ -107,18 +107,8 @@ def run_bag(args: argparse.Namespace) -> int:
     check_outputs([args.out], [args.frames], args.overwrite)
     given = TopicChoice(args.left, args.right, args.image, args.force, args.left_info,
                         args.right_info, args.pair_tolerance_ms / 1e3)
-    bar = None
-
-    def on_progress(frames: int) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = progress(desc="import", unit="frame")
-        bar.update(frames - bar.n)
-    try:
+    with LazyProgress("import", "frame") as on_progress:
         summary = import_bag(args.frames, args.out, given, on_progress)
-    finally:
-        if bar is not None:
-            bar.close()
     print(f"wrote {summary.path}: {summary.frames} stereo frames, {summary.forces} force "
           f"samples; calibration: {summary.calibration}")
     print("topics: " + ", ".join(f"{k} {v}" for k, v in summary.topics.items()))
