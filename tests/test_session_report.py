@@ -59,15 +59,20 @@ def dataset(tmp_path_factory):
     return folder, bench, gappy
 
 
+@pytest.fixture(scope="module")
+def bench_page(dataset, tmp_path_factory):
+    """The report page of the bench session, written once through the CLI."""
+    out = tmp_path_factory.mktemp("page") / "bench.html"
+    assert main(["report", str(dataset[1]), "-o", str(out)]) == 0
+    return out
+
+
 def _img_sources(page):
     return re.findall(r'<img src="([^"]*)"', page)
 
 
-def test_session_page_has_every_section_and_is_self_contained(dataset, tmp_path):
-    _, bench, _ = dataset
-    out = tmp_path / "bench.html"
-    assert main(["report", str(bench), "-o", str(out)]) == 0
-    page = out.read_text()
+def test_session_page_has_every_section_and_is_self_contained(bench_page):
+    page = bench_page.read_text()
     for section in SECTIONS[1:]:
         assert f"<h2>{section}</h2>" in page
     sources = _img_sources(page)
@@ -104,14 +109,11 @@ def test_dataset_report_links_every_session_page(dataset, tmp_path):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (apt-get install "
                     "chromium) - the page is not rendered")
-def test_page_renders_in_headless_chromium(dataset, tmp_path):
-    _, bench, _ = dataset
-    out = tmp_path / "bench.html"
-    assert main(["report", str(bench), "-o", str(out)]) == 0
+def test_page_renders_in_headless_chromium(bench_page, tmp_path):
     shot = tmp_path / "shot.png"
     subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
                     "--hide-scrollbars", f"--screenshot={shot}", "--window-size=1100,4000",
-                    out.as_uri()], check=True, capture_output=True, timeout=60)
+                    bench_page.as_uri()], check=True, capture_output=True, timeout=60)
     image = cv2.imread(str(shot))
     assert image.shape[:2] == (4000, 1100)
     rows = np.flatnonzero((image < 200).any(axis=(1, 2)))  # rows with something drawn
