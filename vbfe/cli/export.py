@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from vbfe.cli.common import LazyProgress
-from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.cli.outputs import add_session_output_options, session_and_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,17 +18,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "from a clouds file, projector events, gaps and live estimates; Unix timestamps from "
         "the session's clock pairs. See docs/bags.md. (`vbfe calibrate export` writes a "
         "calibration alone as ROS / Kalibr / OpenCV files.)")
-    parser.add_argument("session", metavar="SESSION.h5")
+    add_session_output_options(parser, ".mcap", "output file", "also write these point "
+                               "clouds as sensor_msgs/PointCloud2")
     parser.add_argument("--format", choices=("mcap",), default="mcap",
                         help="output format (mcap, the rosbag2 default)")
-    parser.add_argument("-o", "--out", type=Path, default=None, metavar="OUT.mcap",
-                        help="output file (default: SESSION.mcap beside the session)")
-    parser.add_argument("--clouds", type=Path, default=None, metavar="X.clouds.h5",
-                        help="also write these point clouds as sensor_msgs/PointCloud2")
     parser.add_argument("--compression", choices=("lz4", "zstd"), default="lz4",
                         help="chunk compression: lz4 (default, fast) or zstd (smaller files, "
                         "about twice the time)")
-    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -37,9 +32,7 @@ def run(args: argparse.Namespace) -> int:
     """Export and print what was written."""
     from vbfe.bags.export import export_mcap
 
-    session = Path(args.session)
-    out = args.out or session.with_suffix(".mcap")
-    check_outputs([out], [session, args.clouds], args.overwrite)
+    session, out = session_and_output(args, ".mcap")
     with LazyProgress("export", "frame") as on_progress:
         summary = export_mcap(session, out, args.clouds, args.compression, on_progress)
     topics = ", ".join(f"{topic} {n}" for topic, n in sorted(summary.messages.items()))

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.cli.outputs import add_session_output_options, session_and_output
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,12 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "trace and its gaps, frame thumbnails, per-stream rate and jitter, clock fits, "
         "projector events, the sync verdict, the calibration, reconstruction density (from "
         "SESSION.clouds.h5 when present) and live estimates against the trocar.")
-    parser.add_argument("session", metavar="SESSION.h5")
-    parser.add_argument("-o", "--out", type=Path, default=None, metavar="PAGE.html",
-                        help="output page (default: SESSION.html beside the session)")
-    parser.add_argument("--clouds", type=Path, default=None, metavar="X.clouds.h5",
-                        help="clouds file (default: SESSION.clouds.h5 when it exists)")
-    add_overwrite_option(parser)
+    add_session_output_options(parser, ".html", "output page", "clouds file (default: "
+                               "SESSION.clouds.h5 when it exists)")
     parser.set_defaults(func=run)
 
 
@@ -29,8 +24,6 @@ def run(args: argparse.Namespace) -> int:
     """Write the page and print its path."""
     from vbfe.session_report import write_session_report
 
-    session = Path(args.session)
-    out = args.out or session.with_suffix(".html")
-    check_outputs([out], [session, args.clouds], args.overwrite)
+    session, out = session_and_output(args, ".html")
     print(f"wrote {write_session_report(session, out, args.clouds)}")
     return 0
