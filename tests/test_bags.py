@@ -267,6 +267,12 @@ def test_reconstruct_works_on_an_imported_bag(sessions, tmp_path):
             densities.append(reader.frame_table("valid_fraction"))
     assert len(densities[0]) == 30 and np.median(densities[0]) > 0.2
     np.testing.assert_allclose(densities[0], densities[1], atol=0.01)
+    # the quality page of the robot's recording, with its clouds and camera_info calibration
+    assert main(["report", str(out), "--clouds", str(tmp_path / "robot.clouds.h5")]) == 0
+    page = out.with_suffix(".html").read_text()
+    assert "median density" in page and "B</td><td>4.0000 mm" in page
+    with SessionReader(sessions["raw"]) as reader:  # the robot's wrench samples, all of them
+        assert f"<td>force samples</td><td>{len(reader.forces_n())}</td>" in page
     # the clouds go out as PointCloud2: x, y, z float32 and packed rgb, every point
     mcap = tmp_path / "with_clouds.mcap"
     assert main(["export", str(out), "-o", str(mcap), "--clouds",
