@@ -38,7 +38,8 @@ def _matrix(name: str, M: np.ndarray) -> str:
     return f"{name}:\n  rows: {M.shape[0]}\n  cols: {M.shape[1]}\n  data: {_numbers(M)}\n"
 
 
-def _ros_model(D: np.ndarray) -> str:
+def ros_distortion_model(D: np.ndarray) -> str:
+    """ROS camera_info distortion model of OpenCV coefficients D."""
     if D.size == 5:
         return "plumb_bob"
     if D.size == 8:
@@ -52,7 +53,7 @@ def ros_camera_info(name: str, size: tuple[int, int], K: np.ndarray, D: np.ndarr
     """One eye's ``camera_info`` YAML text (camera_calibration_parsers layout)."""
     return (f"image_width: {size[0]}\nimage_height: {size[1]}\ncamera_name: {name}\n"
             + _matrix("camera_matrix", K)
-            + f"distortion_model: {_ros_model(D)}\n"
+            + f"distortion_model: {ros_distortion_model(D)}\n"
             + _matrix("distortion_coefficients", D.reshape(1, -1))
             + _matrix("rectification_matrix", R) + _matrix("projection_matrix", P))
 

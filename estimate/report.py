@@ -5,7 +5,6 @@ Plots are drawn with matplotlib's Agg canvas directly (no pyplot state, no displ
 
 from __future__ import annotations
 
-import html
 import json
 import re
 from collections.abc import Sequence
@@ -17,6 +16,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from vbfe.files import save_figure, write_bytes_atomic
+from vbfe.report import HtmlReport
 
 METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
@@ -56,34 +56,27 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
-def html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    return f"<table border='1' cellpadding='4'><tr>{head}</tr>{body}</table>"
-
-
 def write_tables(out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Sequence[str],
                  plots: Sequence[Path]) -> tuple[Path, Path]:
     """Write report.md and report.html: MAE (σ) and RMSE tables (newtons) plus notes and plots."""
     sections = [("MAE (σ of absolute error) [95 % interval], N", metric_rows(metrics, "mae")),
                 ("RMSE [95 % interval], N", metric_rows(metrics, "rmse"))]
     md = ["# Force estimation report", ""]
-    page = ["<html><head><meta charset='utf-8'><title>Force estimation report</title></head>"
-            "<body><h1>Force estimation report</h1>"]
+    page = HtmlReport("Force estimation report")
     for title, (header, rows) in sections:
         md += [f"## {title}", "", markdown_table(header, rows), ""]
-        page.append(f"<h2>{html.escape(title)}</h2>{html_table(header, rows)}")
+        page.heading(title)
+        page.table(header, rows)
     md += ["## Notes", "", *(f"- {n}" for n in notes), "", "## Plots", ""]
     md += [f"![{p.stem}]({p.name})" for p in plots]
-    page.append("<h2>Notes</h2><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
-                + "</ul><h2>Plots</h2>")
-    page += [f"<p><img src='{html.escape(p.name)}' alt='{html.escape(p.stem)}'></p>" for p in plots]
-    page.append("</body></html>")
-    md_path, html_path = out_dir / "report.md", out_dir / "report.html"
+    page.heading("Notes")
+    page.bullets(notes)
+    page.heading("Plots")
+    for plot in plots:
+        page.image(plot, plot.stem, plot.parent)
+    md_path = out_dir / "report.md"
     write_bytes_atomic(md_path, "\n".join(md) + "\n")
-    write_bytes_atomic(html_path, "\n".join(page) + "\n")
-    return md_path, html_path
+    return md_path, page.write(out_dir / "report.html")
 
 
 def _plotted(force_n: np.ndarray) -> np.ndarray:

@@ -9,7 +9,8 @@ from vbfe.config import ConfigError, load_config
 
 from vbfe.cli.main import build_parser, main
 
-SUBCOMMANDS = ["devices", "record", "view", "inspect", "verify-sync", "calibrate", "reconstruct",
+SUBCOMMANDS = ["devices", "record", "view", "inspect", "report", "verify-sync", "calibrate",
+               "reconstruct", "import", "export",
                "train", "evaluate", "demo"]
 
 

@@ -295,6 +295,21 @@ class SessionReader:
             raise SessionError(f"frame {i} of {self.path} is damaged: dataset "
                                f"{data.name} cannot be read ({read_failure_reason(exc)})") from None
 
+    def encoded_frame(self, i: int) -> tuple[bytes, bytes] | None:
+        """The stored JPEG bytes (left, right) of frame ``i`` of an ``mjpeg`` session (the
+        camera's own when it sent them), or None for raw sessions."""
+        if self.encoding != "jpeg":
+            return None
+        blobs = []
+        for eye in ("left", "right"):
+            offset, length = self._jpeg_index[eye][i]
+            try:
+                blobs.append(self._image_data[eye][offset:offset + length].tobytes())
+            except OSError as exc:
+                raise SessionError(f"frame {i} of {self.path} is damaged: "
+                                   f"{read_failure_reason(exc)}") from None
+        return blobs[0], blobs[1]
+
     def frame(self, i: int) -> StereoFrame:
         """Frame ``i`` with its recorded device and host timestamps (not clock-corrected)."""
         if not -self.n_frames <= i < self.n_frames:

@@ -225,9 +225,12 @@ class SessionWriter:
                                        GAP_REASONS.index(reason), last_seq, next_seq, t_host_ns,
                                        count]], dtype=np.int64))
 
-    def flush(self) -> dict[str, int]:
-        """Make everything appended so far durable and visible to readers; returns the counts."""
-        _append(self._wall, np.array([[time.time_ns(), time.monotonic_ns()]], dtype=np.int64))
+    def flush(self, clock_pair: tuple[int, int] | None = None) -> dict[str, int]:
+        """Make everything appended so far durable and visible to readers; returns the counts.
+        The (UTC, host) clock pair stored is now's, or ``clock_pair`` for data whose host
+        clock is not this machine's (an imported recording)."""
+        pair = clock_pair if clock_pair is not None else (time.time_ns(), time.monotonic_ns())
+        _append(self._wall, np.array([pair], dtype=np.int64))
         self._file.flush()
         self.flushed_counts = dict(self.counts)
         return self.flushed_counts
@@ -254,10 +257,10 @@ class SessionWriter:
             ctypes.pythonapi.Py_IncRef(ctypes.py_object(self))  # never deallocated, never closed
             return False
 
-    def close(self) -> None:
-        """Flush and close the file (idempotent)."""
+    def close(self, clock_pair: tuple[int, int] | None = None) -> None:
+        """Flush (see :meth:`flush`) and close the file (idempotent)."""
         if self._file.id.valid:
-            self.flush()
+            self.flush(clock_pair)
             self._file.close()
         self._release_reserve()
 

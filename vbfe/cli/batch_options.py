@@ -6,13 +6,12 @@ import argparse
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 from vbfe.batch.errors import BatchError
 from vbfe.batch.executors import EXECUTORS, TaskOutcome, run_tasks
+from vbfe.batch.settings import batch_settings as settings_of_table
 from vbfe.cli.common import progress
-from vbfe.settings import parse_table
 
 
 def add_batch_options(parser: argparse.ArgumentParser) -> None:
@@ -26,18 +25,9 @@ def add_batch_options(parser: argparse.ArgumentParser) -> None:
                        help="Ray cluster to join (default: [batch] ray_address, else a local Ray)")
 
 
-@dataclass(frozen=True)
-class BatchSettings:
-    """The ``[batch]`` table."""
-
-    executor: Literal[EXECUTORS] = "local"
-    ray_address: str = ""  # "": a local Ray
-
-
 def batch_settings(args: argparse.Namespace, table: dict[str, Any]) -> tuple[str, str | None]:
     """The executor and Ray address: command-line options over the ``[batch]`` table."""
-    settings = parse_table(BatchSettings, table, "batch")
-    return args.executor or settings.executor, args.ray_address or settings.ray_address or None
+    return settings_of_table(table, args.executor, args.ray_address)
 
 
 def run_batch(task: Callable[[str], Any], sessions: Sequence[Path], executor: str,

@@ -47,6 +47,27 @@ def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm
                 mininterval=0.5)
 
 
+class LazyProgress:
+    """A progress bar opened at its first update, so a command that fails before doing any
+    work prints only its error line (context manager)."""
+
+    def __init__(self, desc: str, unit: str) -> None:
+        self.desc, self.unit = desc, unit
+        self._bar: tqdm | None = None
+
+    def __call__(self, done: int, total: int | None = None) -> None:
+        if self._bar is None:
+            self._bar = progress(total=total, desc=self.desc, unit=self.unit)
+        self._bar.update(done - self._bar.n)
+
+    def __enter__(self) -> "LazyProgress":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
 STAGE_UNITS = {"sessions": "session", "epochs": "epoch", "predict": "session"}
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.config import section
 
@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("folder", metavar="DIR")
     parser.add_argument("--manifest", metavar="FILE.csv", default=None,
                         help="write the rows to this CSV (paths relative to its folder)")
+    parser.add_argument("--report", nargs="?", const="", default=None, metavar="FOLDER",
+                        help="write an HTML page over the sessions, linking a page per session, "
+                        "into FOLDER (default DIR/report)")
     add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
@@ -42,10 +45,10 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.recon.matching import SgbmParams
 
     manifest = Path(args.manifest) if args.manifest else None
-    if manifest is not None:
-        if manifest.suffix != ".csv":
-            raise BatchError(f"manifest {manifest} must end in .csv")
-        check_outputs([manifest], [], args.overwrite)
+    if manifest is not None and manifest.suffix != ".csv":
+        raise BatchError(f"manifest {manifest} must end in .csv")
+    report = None if args.report is None else Path(args.report or Path(args.folder) / "report")
+    check_outputs([manifest], overwrite=args.overwrite, directories=[report])
     params = SgbmParams.from_config(section(config_from(args), "sgbm"))
     entries = scan_dataset(args.folder, params,
                            relative_to=manifest.parent if manifest else args.folder)
@@ -58,4 +61,12 @@ def run(args: argparse.Namespace) -> int:
           f"clouds, {len(unreadable)} unreadable")
     if manifest is not None:
         print(f"manifest written to {write_manifest(manifest, entries)}")
+    if report is not None:
+        from vbfe.batch.dataset_report import write_dataset_report
+
+        with progress(total=len(entries), desc="report", unit="session") as bar:
+            index = write_dataset_report(args.folder, entries, report,
+                                         manifest.parent if manifest else None,
+                                         lambda done, total: bar.update(done - bar.n))
+        print(f"report written to {index}")
     return 1 if unreadable else 0

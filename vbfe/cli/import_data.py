@@ -1,4 +1,5 @@
-"""`vbfe import`: external point clouds or depth images + a force CSV → a clouds file to train on."""
+"""`vbfe import`: external point clouds or depth images + a force CSV → a clouds file to train
+on; a robot's bag (MCAP, rosbag2, ROS 1) → a session."""
 
 from __future__ import annotations
 
@@ -6,27 +7,30 @@ import argparse
 import math
 from pathlib import Path
 
-from vbfe.cli.common import positive
+from vbfe.cli.common import LazyProgress, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `import` subcommand."""
     parser = sub.add_parser(
-        "import", help="import external point clouds or depth images with a force CSV",
+        "import", help="import external clouds or depth images with a force CSV, or a bag",
         description="Turn a folder of frames (KIND clouds: *.ply/*.npy point clouds in metres; "
         "KIND depth: 16-bit PNG depth images) and a force CSV into OUT.clouds.h5, which "
-        "`vbfe train` and `vbfe evaluate` take like a reconstructed session. See "
-        "docs/importing.md.")
-    parser.add_argument("kind", choices=("clouds", "depth"), help="what the frames are")
-    parser.add_argument("frames", metavar="FOLDER",
-                        help="frame files, in natural order of their names (data2 before data10)")
-    parser.add_argument("--forces", required=True, type=Path, metavar="TABLE",
-                        help="force table: CSV with a header row, or headerless columns "
-                        "separated by commas or whitespace")
-    parser.add_argument("--out", required=True, metavar="OUT.clouds.h5")
-    parser.add_argument("--force-columns", required=True, metavar="FX,FY,FZ",
-                        help="one or three force columns, by name or number (0 = first)")
+        "`vbfe train` and `vbfe evaluate` take like a reconstructed session (see "
+        "docs/importing.md); or (KIND bag) a ROS bag — MCAP file, rosbag2 folder or ROS 1 "
+        ".bag — into a session OUT.h5 (see docs/bags.md).")
+    parser.add_argument("kind", choices=("clouds", "depth", "bag"), help="what the input is")
+    parser.add_argument("frames", metavar="FOLDER|BAG",
+                        help="frame files, in natural order of their names (data2 before "
+                        "data10); or the bag")
+    parser.add_argument("--forces", type=Path, metavar="TABLE",
+                        help="force table (clouds, depth): CSV with a header row, or headerless "
+                        "columns separated by commas or whitespace")
+    parser.add_argument("--out", "-o", required=True, metavar="OUT.clouds.h5|OUT.h5")
+    parser.add_argument("--force-columns", metavar="FX,FY,FZ",
+                        help="one or three force columns, by name or number (0 = first; "
+                        "clouds, depth)")
     parser.add_argument("--force-unit", default="N", help="N (default), mN, kN, gf, kgf, lbf")
     parser.add_argument("--force-scale", type=float, default=1.0, metavar="FACTOR",
                         help="multiply the forces by FACTOR (e.g. sensor counts to the unit, "
@@ -60,12 +64,32 @@ def register(sub: argparse._SubParsersAction) -> None:
     depth.add_argument("--crop-origin", type=int, nargs=2, metavar=("X", "Y"),
                        help="the images are crops of the camera's image starting at pixel "
                        "(X, Y); --cx/--cy stay the camera's (may lie outside the crop)")
+    bag = parser.add_argument_group("bags (topics found by type and name when not given)")
+    bag.add_argument("--left", metavar="TOPIC", help="left image topic (Image or "
+                     "CompressedImage)")
+    bag.add_argument("--right", metavar="TOPIC", help="right image topic")
+    bag.add_argument("--image", metavar="TOPIC", help="one topic with both eyes side by side")
+    bag.add_argument("--force", metavar="TOPIC", help="WrenchStamped, Wrench or Vector3Stamped "
+                     "topic")
+    bag.add_argument("--left-info", metavar="TOPIC", help="left camera_info (default: beside "
+                     "the image topic)")
+    bag.add_argument("--right-info", metavar="TOPIC", help="right camera_info")
+    bag.add_argument("--pair-tolerance-ms", type=float, default=5.0,
+                     help="left and right stamps closer than this make a frame (default 5)")
+    add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Import and print what was written."""
+    if args.kind == "bag":
+        return run_bag(args)
     from vbfe.estimate.errors import EstimateError
+
+    missing = [flag for flag, value in (("--forces", args.forces),
+                                        ("--force-columns", args.force_columns)) if not value]
+    if missing:
+        raise EstimateError(f"{args.kind} frames need {', '.join(missing)}")
     from vbfe.estimate.importing import DepthCamera, ForceTable, import_frames
 
     check_outputs([args.out], [args.frames, args.forces, args.frame_times], args.overwrite,
@@ -93,4 +117,22 @@ def run(args: argparse.Namespace) -> int:
     if with_force < n_frames:
         print(f"{n_frames - with_force} frames have no force (outside the force record) and "
               "will be skipped in training")
+    return 0
+
+
+def run_bag(args: argparse.Namespace) -> int:
+    """Import a bag as a session and print what was written."""
+    from vbfe.bags.importing import TopicChoice, import_bag
+
+    check_outputs([args.out], [args.frames], args.overwrite)
+    given = TopicChoice(args.left, args.right, args.image, args.force, args.left_info,
+                        args.right_info, args.pair_tolerance_ms / 1e3)
+    with LazyProgress("import", "frame") as on_progress:
+        summary = import_bag(args.frames, args.out, given, on_progress)
+    print(f"wrote {summary.path}: {summary.frames} stereo frames, {summary.forces} force "
+          f"samples; calibration: {summary.calibration}")
+    print("topics: " + ", ".join(f"{k} {v}" for k, v in summary.topics.items()))
+    if summary.unpaired_images:
+        print(f"{summary.unpaired_images} images had no partner within "
+              f"{args.pair_tolerance_ms:g} ms and were left out")
     return 0

@@ -49,6 +49,29 @@ def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -
     return out
 
 
+def add_session_output_options(parser: argparse.ArgumentParser, suffix: str, what: str,
+                               clouds_help: str) -> None:
+    """``SESSION.h5``, ``-o/--out`` (default: the session's name with ``suffix`` beside it),
+    ``--clouds X.clouds.h5`` and ``--overwrite``: a command that turns one session into one
+    file; :func:`session_and_output` reads them back, checked."""
+    parser.add_argument("session", metavar="SESSION.h5")
+    parser.add_argument("-o", "--out", type=Path, default=None, metavar=f"OUT{suffix}",
+                        help=f"{what} (default: SESSION{suffix} beside the session)")
+    parser.add_argument("--clouds", type=Path, default=None, metavar="X.clouds.h5",
+                        help=clouds_help)
+    add_overwrite_option(parser)
+
+
+def session_and_output(args: argparse.Namespace, suffix: str) -> tuple[Path, Path]:
+    """The session and the output of :func:`add_session_output_options`, after
+    :func:`check_outputs` (the output is neither the session nor the clouds file)."""
+    session = Path(args.session)
+    out = args.out or session.with_suffix(suffix)
+    check_outputs([out], [session, args.clouds], args.overwrite)
+    return session, out
+
+
+
 def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
                   overwrite: bool = False, directories: Iterable[str | Path | None] = (),
                   writes: Writes = "file", sidecars: bool = True) -> None:
