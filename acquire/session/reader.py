@@ -24,6 +24,9 @@ import numpy as np
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.acquire.session.extra_streams import (RecordedStream, read_events, read_stream,
+                                                stream_names)
+from vbfe.acquire.session.resample import resample_at
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates, write_estimates
 from vbfe.acquire.session.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
@@ -367,13 +370,50 @@ class SessionReader:
     def gaps(self) -> list[dict[str, Any]]:
         """Gaps the recorder marked (queue overflow, device disconnected), as dicts."""
         rows = self._read("gaps")
+        streams = [text(s) for s in self._file["gaps"].attrs.get("streams", STREAMS)]
         out = []
         for row in rows:
             gap = dict(zip(GAP_COLUMNS, (int(v) for v in row)))
-            gap["stream"] = STREAMS[gap["stream"]]
+            gap["stream"] = streams[gap["stream"]]
             gap["reason"] = GAP_REASONS[gap["reason"]]
             out.append(gap)
         return out
+
+    # -- extra streams (``[streams]``) and event marks ----------------------------------------
+    def stream_names(self) -> list[str]:
+        """Names of the extra streams recorded with the session (``[streams]`` keys)."""
+        return stream_names(self._file)
+
+    def stream(self, name: str) -> RecordedStream:
+        """An extra stream (e.g. ``"robot"``): values or marker text, host and source times,
+        channel names and units, time-correction history."""
+        if name not in self.stream_names():
+            raise SessionError(f"{self.path} has no stream {name!r}; it has "
+                               f"{', '.join(self.stream_names()) or 'no extra streams'}")
+        try:
+            return read_stream(self._file, name)
+        except (OSError, KeyError, ValueError) as exc:
+            raise SessionError(f"cannot read stream {name} from {self.path} (damaged?): "
+                               f"{read_failure_reason(exc)}") from None
+
+    def at_frames(self, name: str, max_gap_s: float | None = None) -> np.ndarray:
+        """A numeric extra stream at each frame's synchronized time: ``(n_frames, channels)``,
+        interpolated; NaN outside the stream or inside a gap longer than ``max_gap_s`` (default:
+        five sample periods of its nominal rate, else 50 ms)."""
+        stream = self.stream(name)
+        if stream.markers:
+            raise SessionError(f"stream {name} of {self.path} holds event markers, not values; "
+                               "read them with events()")
+        if max_gap_s is None:
+            rate = float(stream.attrs.get("nominal_rate_hz", 0.0))
+            max_gap_s = 5 / rate if rate > 0 else 0.05
+        return resample_at(stream.t_host_ns, stream.values, self.frame_times_ns(),
+                           max_gap_s * 1e9)
+
+    def events(self) -> list[dict[str, Any]]:
+        """Every event mark by host time: ``{"t_host_ns", "source", "text"}`` (source
+        ``"mark"`` for ``vbfe mark``, else the marker stream's name)."""
+        return read_events(self._file)
 
     def clock_pairs(self) -> np.ndarray:
         """``(n, 2)`` pairs of (UTC ns, host monotonic ns) taken at every flush."""

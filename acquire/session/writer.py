@@ -33,10 +33,13 @@ from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.session.layout import (COMPRESSIONS, FORMAT_NAME, GAP_COLUMNS, GAP_REASONS,
                                  JPEG_QUALITY, PATTERN_NAME_DTYPE, SCHEMA_VERSION, STREAMS,
                                  image_filter)
+from vbfe.acquire.session.extra_streams import ExtraStreams
+from vbfe.acquire.session.extra_streams import keep_consistent_rows as keep_extra_rows
+from vbfe.acquire.session.h5series import TIME_CHUNK, append, series
 from vbfe.acquire.session.reader import consistent_rows, open_session_file
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.drivers.streams.chunk import StreamChunk, StreamInfo
 
-_TIME_CHUNK = 4096
 _JPEG_CHUNK = 1 << 20
 _RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
 
@@ -54,21 +57,6 @@ def _reserve_space(directory: Path) -> int | None:
     return fd
 
 
-def _series(group: h5py.Group, name: str, dtype: Any, width: int | None = None,
-            chunk: int = _TIME_CHUNK, **kwargs: Any) -> h5py.Dataset:
-    shape, maxshape, chunks = (0,), (None,), (chunk,)
-    if width is not None:
-        shape, maxshape, chunks = (0, width), (None, width), (chunk, width)
-    return group.create_dataset(name, shape=shape, maxshape=maxshape, chunks=chunks, dtype=dtype,
-                                fletcher32=True, **kwargs)
-
-
-def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
-    n = ds.shape[0]
-    ds.resize(n + len(values), axis=0)
-    ds[n:] = values
-
-
 def _encode_jpeg(image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
@@ -81,7 +69,8 @@ class SessionWriter:
 
     def __init__(self, path: str | Path, frame_size: tuple[int, int], compression: str = "lzf",
                  metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
-                 force_axes: Sequence[str] = ("x", "y", "z"), flush_interval_s: float = 1.0) -> None:
+                 force_axes: Sequence[str] = ("x", "y", "z"), flush_interval_s: float = 1.0,
+                 extra_streams: Sequence[StreamInfo] = ()) -> None:
         if compression not in COMPRESSIONS:
             raise SessionError(f"unknown compression {compression!r} for {path}; choose one of "
                                f"{COMPRESSIONS}")
@@ -113,8 +102,8 @@ class SessionWriter:
         self._jpeg: dict[str, tuple[h5py.Dataset, h5py.Dataset]] = {}
         for eye in ("left", "right"):
             if compression == "mjpeg":
-                self._jpeg[eye] = (_series(cam, f"{eye}_jpeg", np.uint8, chunk=_JPEG_CHUNK),
-                                   _series(cam, f"{eye}_jpeg_index", np.int64, width=2, chunk=256))
+                self._jpeg[eye] = (series(cam, f"{eye}_jpeg", np.uint8, chunk=_JPEG_CHUNK),
+                                   series(cam, f"{eye}_jpeg_index", np.int64, width=2, chunk=256))
             else:
                 self._images[eye] = cam.create_dataset(
                     eye, shape=(0, height, width, 3), maxshape=(None, height, width, 3),
@@ -123,35 +112,37 @@ class SessionWriter:
                     # flush has only metadata and the small time series left to write
                     rdcc_nbytes=0, rdcc_w0=1.0, **image_filter(compression))
         force = f.create_group("force")
-        self._force_n = _series(force, "force_n", np.float64, width=len(force_axes))
+        self._force_n = series(force, "force_n", np.float64, width=len(force_axes))
         self._force_n.attrs.update({"units": "N", "axes": list(force_axes)})
         proj = f.create_group("projector")
-        self._pattern = _series(proj, "pattern", PATTERN_NAME_DTYPE, chunk=64)
-        self._frame_id = _series(proj, "frame_id", np.int64, chunk=64)
+        self._pattern = series(proj, "pattern", PATTERN_NAME_DTYPE, chunk=64)
+        self._frame_id = series(proj, "frame_id", np.int64, chunk=64)
         self._times = {}
-        for name, group, chunk in (("camera", cam, 256), ("force", force, _TIME_CHUNK),
+        for name, group, chunk in (("camera", cam, 256), ("force", force, TIME_CHUNK),
                                    ("projector", proj, 64)):
-            self._times[name] = tuple(_series(group, key, np.int64, chunk=chunk)
+            self._times[name] = tuple(series(group, key, np.int64, chunk=chunk)
                                       for key in ("t_device_ns", "t_host_ns", "seq"))
             for key in ("t_device_ns", "t_host_ns"):
                 group[key].attrs["units"] = "ns"
-        self._gaps = _series(f, "gaps", np.int64, width=len(GAP_COLUMNS), chunk=64)
-        self._gaps.attrs.update({"columns": list(GAP_COLUMNS), "streams": list(STREAMS),
+        self._gaps = series(f, "gaps", np.int64, width=len(GAP_COLUMNS), chunk=64)
+        self._gap_streams = [*STREAMS, *(info.name for info in extra_streams)]
+        self._gaps.attrs.update({"columns": list(GAP_COLUMNS), "streams": self._gap_streams,
                                  "reasons": list(GAP_REASONS)})
-        self._wall = _series(f, "clock_pairs", np.int64, width=2, chunk=64)
+        self.extra = ExtraStreams(f, extra_streams)
+        self._wall = series(f, "clock_pairs", np.int64, width=2, chunk=64)
         self._wall.attrs["columns"] = ["t_utc_ns", "t_host_ns"]
         if calibration_yaml is not None:
             f.create_dataset("calibration_yaml", data=calibration_yaml,
                              dtype=h5py.string_dtype())
         f.swmr_mode = True
         self.counts = {name: 0 for name in STREAMS}
-        self.flushed_counts = dict(self.counts)
+        self.flushed_counts = {**self.counts, **self.extra.counts}
 
     def _append_times(self, stream: str, samples: Sequence[Any]) -> None:
         t_dev, t_host, seq = self._times[stream]
-        _append(t_dev, np.array([s.t_device_ns for s in samples], dtype=np.int64))
-        _append(t_host, np.array([s.t_host_ns for s in samples], dtype=np.int64))
-        _append(seq, np.array([s.seq for s in samples], dtype=np.int64))
+        append(t_dev, np.array([s.t_device_ns for s in samples], dtype=np.int64))
+        append(t_host, np.array([s.t_host_ns for s in samples], dtype=np.int64))
+        append(seq, np.array([s.seq for s in samples], dtype=np.int64))
         self.counts[stream] += len(samples)
 
     def append_frames(self, frames: Sequence[StereoFrame]) -> None:
@@ -167,8 +158,8 @@ class SessionWriter:
                 start = data.shape[0]
                 lengths = np.array([len(b) for b in blobs], dtype=np.int64)
                 offsets = start + np.concatenate([[0], np.cumsum(lengths)[:-1]])
-                _append(data, np.frombuffer(b"".join(blobs), dtype=np.uint8))
-                _append(index, np.stack([offsets, lengths], axis=1))
+                append(data, np.frombuffer(b"".join(blobs), dtype=np.uint8))
+                append(index, np.stack([offsets, lengths], axis=1))
                 self.bytes_written += int(lengths.sum())
         else:
             expected = self._images["left"].shape[1:]
@@ -188,7 +179,7 @@ class SessionWriter:
         """Append a batch of force samples."""
         if not samples:
             return
-        _append(self._force_n, np.array([s.force_n for s in samples], dtype=np.float64))
+        append(self._force_n, np.array([s.force_n for s in samples], dtype=np.float64))
         self.bytes_written += len(samples) * (self._force_n.shape[1] * 8 + 24)
         self._append_times("force", samples)
 
@@ -196,22 +187,30 @@ class SessionWriter:
         """Append projector events (pattern shown, frame ID)."""
         if not events:
             return
-        _append(self._pattern, np.array([e.pattern.encode()[:64] for e in events],
+        append(self._pattern, np.array([e.pattern.encode()[:64] for e in events],
                                         dtype=PATTERN_NAME_DTYPE))
-        _append(self._frame_id, np.array([e.frame_id for e in events], dtype=np.int64))
+        append(self._frame_id, np.array([e.frame_id for e in events], dtype=np.int64))
         self._append_times("projector", events)
+
+    def append_chunks(self, chunks: Sequence[StreamChunk]) -> None:
+        """Append chunks of the extra streams."""
+        self.bytes_written += self.extra.append(chunks)
+
+    def add_mark(self, text: str, t_host_ns: int) -> None:
+        """Add an event mark (``vbfe mark``) at host time ``t_host_ns``."""
+        self.extra.mark(text, t_host_ns)
 
     def add_gap(self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int,
                 count: int) -> None:
         """Mark a gap in a stream: samples lost between ``last_seq`` and ``next_seq``."""
-        _append(self._gaps, np.array([[STREAMS.index(stream), GAP_REASONS.index(reason),
+        append(self._gaps, np.array([[self._gap_streams.index(stream), GAP_REASONS.index(reason),
                                        last_seq, next_seq, t_host_ns, count]], dtype=np.int64))
 
     def flush(self) -> dict[str, int]:
         """Make everything appended so far durable and visible to readers; returns the counts."""
-        _append(self._wall, np.array([[time.time_ns(), time.monotonic_ns()]], dtype=np.int64))
+        append(self._wall, np.array([[time.time_ns(), time.monotonic_ns()]], dtype=np.int64))
         self._file.flush()
-        self.flushed_counts = dict(self.counts)
+        self.flushed_counts = {**self.counts, **self.extra.counts}
         return self.flushed_counts
 
     def _release_reserve(self) -> None:
@@ -330,7 +329,7 @@ def recover_session(path: str | Path, out_path: str | Path,
             dst.attrs.update(dict(src.attrs))
             for name in src:
                 src.copy(src[name], dst, name=name)
-            dropped = _keep_consistent_rows(dst)
+            dropped = {**_keep_consistent_rows(dst), **keep_extra_rows(dst)}
             _finish(dst, {"end_reason": "recovered: the recording was interrupted",
                           "recovered_from": str(Path(path).absolute()),
                           **{f"{s}_recovery_dropped": n for s, n in dropped.items()}}, None)

@@ -9,11 +9,11 @@ from collections.abc import Sequence
 
 from vbfe import __version__
 from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, import_data, inspect, live,
-                      reconstruct, record, train, verify_sync, view)
+                      mark, reconstruct, record, train, verify_sync, view)
 from vbfe.config import ConfigError
 from vbfe.errors import VbfeError
 
-COMMANDS = (devices, record, view, inspect, verify_sync, calibrate, dataset, reconstruct,
+COMMANDS = (devices, record, mark, view, inspect, verify_sync, calibrate, dataset, reconstruct,
             import_data, train, evaluate, live, demo)
 
 

@@ -1,0 +1,83 @@
+"""Extra streams and event marks in the session file: written, read back, inspected, recovered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vbfe.acquire import SessionError, SessionReader, SessionWriter, finalize_session, \
+    recover_session
+from vbfe.acquire.session.inspect import inspect_session
+from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers.streams.chunk import StreamChunk, StreamInfo
+
+ROBOT = StreamInfo(name="robot", lsl_name="KUKA", type="RobotState", source_id="kuka-1",
+                   hostname="ctrl", channels=("j1", "j2"), units=("rad", "rad"),
+                   nominal_rate_hz=1000.0, markers=False, info_xml="<info/>")
+MARKS = StreamInfo(name="script", lsl_name="Psychopy", type="Markers", source_id="ps",
+                   hostname="stim", channels=("marker",), units=("",), nominal_rate_hz=0.0,
+                   markers=True)
+
+
+def _chunk(stream: str, values: np.ndarray, t_ns: np.ndarray, seq: int,
+           corrections: tuple = ()) -> StreamChunk:
+    return StreamChunk(stream=stream, values=values, sample_t_device_ns=t_ns - 5000,
+                       sample_t_host_ns=t_ns, seq=seq, t_received_ns=int(t_ns[-1]) + 10**6,
+                       corrections=corrections)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    path = tmp_path_factory.mktemp("streams") / "s.h5"
+    t0 = 10**12
+    writer = SessionWriter(path, (32, 16), extra_streams=[ROBOT, MARKS])
+    image = np.zeros((16, 32, 3), np.uint8)
+    writer.append_frames([StereoFrame(image, image, k, t0 + k * 10**8, t0 + k * 10**8)
+                          for k in range(11)])  # 10 Hz for 1 s
+    t_robot = t0 + np.arange(0, 1001) * 10**6  # 1 kHz over the same second
+    joints = np.stack([np.arange(1001) * 1e-3, -np.arange(1001) * 1e-3], axis=1)
+    writer.append_chunks([_chunk("robot", joints[:500], t_robot[:500], 0, ((t0, 5000),)),
+                          _chunk("robot", joints[500:], t_robot[500:], 500, ((t0 + 5e8, 5000),))])
+    writer.append_chunks([_chunk("script", np.array([["trial 1"]]), np.array([t0 + 2 * 10**8]),
+                                 0)])
+    writer.add_mark("grasp ✓", t0 + 3 * 10**8)
+    writer.add_gap("robot", "queue full", 499, 500, t0 + 5 * 10**8, 0)
+    writer.close()
+    finalize_session(path, {"end_reason": "duration reached"})
+    return path, t0
+
+
+def test_streams_and_events_read_back(session) -> None:
+    path, t0 = session
+    with SessionReader(path) as reader:
+        assert reader.stream_names() == ["robot", "script"]
+        robot = reader.stream("robot")
+        assert robot.channels == ["j1", "j2"] and robot.units == ["rad", "rad"]
+        assert len(robot) == 1001 and list(robot.seq[:3]) == [0, 1, 2] and robot.seq[-1] == 1000
+        assert np.all(robot.t_host_ns - robot.t_device_ns == 5000)
+        assert robot.corrections.tolist() == [[t0, 5000], [t0 + 500_000_000, 5000]]
+        assert robot.attrs["lsl_name"] == "KUKA" and robot.attrs["info_xml"] == "<info/>"
+        at_frames = reader.at_frames("robot")
+        assert at_frames.shape == (11, 2)
+        frame_t = reader.frame_times_ns()
+        np.testing.assert_allclose(at_frames[:, 0], (frame_t - t0) / 1e9, atol=1e-9)
+        assert reader.events() == [
+            {"t_host_ns": t0 + 2 * 10**8, "source": "script", "text": "trial 1"},
+            {"t_host_ns": t0 + 3 * 10**8, "source": "mark", "text": "grasp ✓"}]
+        assert reader.gaps()[0]["stream"] == "robot"
+        with pytest.raises(SessionError, match="holds event markers"):
+            reader.at_frames("script")
+        with pytest.raises(SessionError, match="has no stream 'arm'; it has robot, script"):
+            reader.stream("arm")
+    text = inspect_session(path).text()
+    assert "stream    robot: 1001 samples at 1000.0 Hz (nominal 1000)" in text
+    assert "channels j1 [rad], j2 [rad]" in text and "time correction +0.005 ms" in text
+    assert "script: 1 markers" in text and "mark: grasp ✓" in text
+
+
+def test_recovered_copy_keeps_the_streams(session, tmp_path) -> None:
+    path, _ = session
+    out, dropped = recover_session(path, tmp_path / "copy.h5")
+    assert dropped["robot"] == 0 and dropped["script"] == 0
+    with SessionReader(out) as reader:
+        assert len(reader.stream("robot")) == 1001 and len(reader.events()) == 2
