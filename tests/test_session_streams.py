@@ -81,3 +81,23 @@ def test_recovered_copy_keeps_the_streams(session, tmp_path) -> None:
     assert dropped["robot"] == 0 and dropped["script"] == 0
     with SessionReader(out) as reader:
         assert len(reader.stream("robot")) == 1001 and len(reader.events()) == 2
+
+
+def test_view_plots_numeric_streams_under_the_force(session, tmp_path) -> None:
+    import cv2
+
+    from tests.test_acquire_view import _has_colour
+    from vbfe.acquire.viewer import STREAM_PENS, ReplayViewer, grab_png
+
+    path, _ = session
+    with SessionReader(path) as reader:
+        window = ReplayViewer(reader)
+        window.show()
+        assert len(window.stream_plots) == 1  # robot; the marker stream is not plotted
+        plot = window.stream_plots[0]
+        assert plot.geometry().top() >= window.plot.geometry().bottom()
+        image = cv2.imread(str(grab_png(window, tmp_path / "view.png")))
+        geo = plot.geometry()
+        region = image[geo.top():geo.bottom(), geo.left():geo.right()]
+        assert _has_colour(region, STREAM_PENS[0]) and _has_colour(region, STREAM_PENS[1])
+        window.dispose()
