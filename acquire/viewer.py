@@ -100,8 +100,9 @@ class ViewerWindow(QtWidgets.QWidget):
     def mark_events(self, events: list[tuple[float, str]]) -> None:
         """Vertical labelled lines on the force plot at event times (s)."""
         for t_s, text in events:
-            self.plot.addItem(pg.InfiniteLine(t_s, angle=90, pen=pg.mkPen("#808080", dash=[4, 4]),
-                                              label=text, labelOpts={"position": 0.9, "color": "#404040"}))
+            self.plot.addItem(pg.InfiniteLine(
+                t_s, angle=90, pen=pg.mkPen("#808080", dash=[4, 4]), label=text,
+                labelOpts={"position": 0.9, "color": "#404040"}))
 
 
 class ReplayViewer(ViewerWindow):
