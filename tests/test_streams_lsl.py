@@ -13,7 +13,7 @@ from vbfe.config import ConfigError
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.streams import StreamSpec, stream_specs
 from vbfe.drivers.streams.lsl import LslStream
-from vbfe.drivers.streams.opening import open_streams, streams_from_config
+from vbfe.drivers.streams.opening import missing_streams, streams_from_config
 
 
 def _read_all(stream: LslStream, until: float) -> list:
@@ -97,11 +97,16 @@ def test_required_missing_is_refused_optional_is_a_warning() -> None:
     config = {"streams": {"robot": {"name": name, "resolve_timeout_s": 0.3},
                           "marks": {"name": name + "-m", "required": False,
                                     "resolve_timeout_s": 0.3}}}
+    streams = streams_from_config(config)
     with pytest.raises(DeviceError, match=f"robot \\(LSL name='{name}'\\) was not found"):
-        open_streams(streams_from_config(config))
-    del config["streams"]["robot"]
-    opened, warnings = open_streams(streams_from_config(config))
-    assert opened == [] and len(warnings) == 1 and "optional stream marks" in warnings[0]
+        streams["robot"].open()
+    streams["marks"].open()  # an optional stream missing: open, not read, one warning
+    assert streams["marks"].is_open and streams["marks"].stream is None
+    assert streams["robot"].stream == "robot"
+    warning, = missing_streams(streams.values())
+    assert warning.startswith(f"optional stream marks (LSL name='{name}-m') was not found")
+    assert warning.endswith("recording without it")
+    streams["marks"].close()
 
 
 def test_two_matching_streams_are_ambiguous() -> None:

@@ -27,6 +27,7 @@ from vbfe.drivers.streams.settings import StreamSpec
 _CHUNK_SAMPLES = 4096
 _OPEN_TIMEOUT_S = 5.0
 _FIRST_CORRECTION_TIMEOUT_S = 2.0
+_AMBIGUITY_WAIT_S = 0.25  # after the first match, how long to listen for a second one
 _GAP_PERIODS = 1.5  # a stamp step longer than this many sample periods counts as a gap
 _LOG_CONFIG = "[log]\nlevel = -3\n"  # liblsl prints only fatal errors; vbfe reports the rest
 _USER_CONFIGS = ("lsl_api.cfg", "~/lsl_api/lsl_api.cfg", "/etc/lsl_api/lsl_api.cfg")
@@ -78,6 +79,8 @@ def resolve(spec: StreamSpec) -> Any:
     none or several (then naming their source ids) are found."""
     found = pylsl().resolve_bypred(spec.predicate(), minimum=1,
                                    timeout=spec.resolve_timeout_s)
+    if found:  # the first answer ends the wait: listen a little longer for a second publisher
+        found += pylsl().resolve_bypred(spec.predicate(), minimum=2, timeout=_AMBIGUITY_WAIT_S)
     if not found:
         raise DeviceError(f"stream {spec.describe()} was not found on the network within "
                           f"{spec.resolve_timeout_s:g} s; start its publisher (or mark it "
@@ -100,7 +103,7 @@ class LslStream(Device):
 
     def __init__(self, spec: StreamSpec, correction_interval_s: float = 5.0) -> None:
         self.spec = spec
-        self.stream = spec.key
+        self.missing: str | None = None  # why an optional stream was not opened
         self.correction_interval_s = correction_interval_s
         self.stats = StreamStats()
         self.info: StreamInfo | None = None
@@ -115,9 +118,22 @@ class LslStream(Device):
     def label(self) -> str:
         return f"LSL stream {self.spec.describe()}"
 
+    @property
+    def stream(self) -> str | None:
+        """The session's name for the stream; ``None`` while an optional stream is missing
+        (an acquisition reads only devices that name a stream)."""
+        return None if self.missing else self.spec.key
+
     def _open(self) -> None:
         lsl = pylsl()
-        found = resolve(self.spec)
+        self.missing = None
+        try:
+            found = resolve(self.spec)
+        except DeviceError as exc:
+            if self.spec.required:
+                raise
+            self.missing = f"optional {exc}; recording without it"
+            return
         self._inlet = lsl.StreamInlet(found, max_buflen=360, recover=True,
                                       processing_flags=lsl.proc_none)
         try:
@@ -148,6 +164,8 @@ class LslStream(Device):
     def read(self, timeout_s: float = 1.0) -> StreamChunk | None:
         """The samples that arrived within ``timeout_s`` (at least one), or ``None``."""
         self.require_open()
+        if self._inlet is None:
+            raise DeviceError(self.missing)
         if time.monotonic() >= self._next_correction:
             self._measure_correction(0.0)
         try:
@@ -191,7 +209,7 @@ class LslStream(Device):
     def describe(self) -> dict[str, Any]:
         """JSON-able: what was asked for, what was found, the latest clock correction."""
         out: dict[str, Any] = {"backend": "lsl", "predicate": self.spec.predicate(),
-                               "required": self.spec.required}
+                               "required": self.spec.required, "missing": self.missing}
         if self.info is not None:
             out.update({k: v for k, v in vars(self.info).items() if k != "info_xml"})
             out["correction_ns"] = self._correction_ns
