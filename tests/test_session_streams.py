@@ -101,3 +101,28 @@ def test_view_plots_numeric_streams_under_the_force(session, tmp_path) -> None:
         region = image[geo.top():geo.bottom(), geo.left():geo.right()]
         assert _has_colour(region, STREAM_PENS[0]) and _has_colour(region, STREAM_PENS[1])
         window.dispose()
+
+
+def test_a_robot_stream_checks_the_clocks_at_the_force_corners(session, tmp_path) -> None:
+    from vbfe.acquire.sync.streams import stream_offset
+    from vbfe.drivers.samples import ForceSample
+
+    rng = np.random.default_rng(0)
+    t0, onset_s, lag_s = 10**12, 2.0, 0.004
+    t = np.arange(4000) / 1000  # 4 s at 1 kHz: rest, then a pull from 2 s
+    force = np.clip(t - onset_s, 0, None) + rng.normal(0, 0.002, len(t))
+    joint = 0.05 * np.clip(t - onset_s - lag_s, 0, None) + rng.normal(0, 1e-5, len(t))
+    t_ns = t0 + np.round(t * 1e9).astype(np.int64)
+    path = tmp_path / "pull.h5"
+    writer = SessionWriter(path, (32, 16), extra_streams=[ROBOT])
+    writer.append_forces([ForceSample(np.array([0.0, 0.0, f]), k, int(tk), int(tk))
+                          for k, (f, tk) in enumerate(zip(force, t_ns))])
+    writer.append_chunks([_chunk("robot", np.stack([joint, np.zeros_like(joint)], axis=1),
+                                 t_ns, 0)])
+    writer.close()
+    with SessionReader(path) as reader:
+        estimate = stream_offset(reader, "robot")
+    with SessionReader(session[0]) as reader, pytest.raises(SessionError, match="no motion"):
+        stream_offset(reader, "script")
+    assert estimate.ci95_s[0] <= lag_s <= estimate.ci95_s[1]
+    assert abs(estimate.offset_s - lag_s) < 0.002 and estimate.std_s < 0.002
