@@ -1,7 +1,7 @@
 """pyqtgraph viewer: left/right images, force plot and drop counters — replay or live.
 
-``ReplayViewer(reader)`` scrubs a recorded session with a time slider; ``LiveViewer(devices)``
-polls open devices and scrolls the force plot. ``view_session(path)`` / ``view_live(config)``
+``ReplayViewer(reader)`` scrubs a recorded session with a time slider; ``LiveViewer(acquisition)``
+listens to a running acquisition and scrolls the force plot. ``view_session(path)`` / ``view_live(config)``
 run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
 """
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 import signal
 import threading
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,10 +18,11 @@ import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtCore, QtWidgets
 
+from vbfe.acquire.recording.acquisition import Acquisition
+from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.session.reader import SessionReader
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.qt_app import dispose_widget, qt_application
-from vbfe.drivers.registry import Devices
+from vbfe.drivers.samples import ForceSample, StereoFrame
 
 FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
 STREAM_PENS = ("#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45", "#469990", "#9a6324")
@@ -146,41 +148,54 @@ class ReplayViewer(ViewerWindow):
                             + self._counters)
 
 
-class LiveViewer(ViewerWindow):
-    """Show open devices live: newest frame pair, the last seconds of force, drop counters."""
+class _Newest(Listener):
+    """The newest frame and the last seconds of force, for the GUI thread to poll."""
 
-    def __init__(self, devices: Devices, window_s: float = LIVE_WINDOW_S) -> None:
-        super().__init__("vbfe view — live", list(getattr(devices.trocar, "axes", ("x", "y", "z"))))
-        self.devices = devices
+    def __init__(self, n_samples: int) -> None:
+        self.frame: StereoFrame | None = None
+        self.samples: deque[ForceSample] = deque(maxlen=n_samples)
+
+    def on_frames(self, frames: Sequence[StereoFrame]) -> None:
+        self.frame = frames[-1]
+
+    def on_samples(self, samples: Sequence[ForceSample]) -> None:
+        self.samples.extend(samples)
+
+
+class LiveViewer(ViewerWindow):
+    """Show an acquisition live: newest frame pair, the last seconds of force, drop counters.
+    Made before the acquisition starts (it adds its listener)."""
+
+    def __init__(self, acquisition: Acquisition, window_s: float = LIVE_WINDOW_S) -> None:
+        trocar = acquisition.rig.trocar
+        super().__init__("vbfe view — live", list(trocar.axes))
+        self.acquisition = acquisition
         self.slider.hide()
-        n = int(window_s * max(getattr(devices.trocar, "rate_hz", 1000.0), 1.0))
-        self._t: deque[int] = deque(maxlen=n)
-        self._f: deque[np.ndarray] = deque(maxlen=n)
+        self._newest = acquisition.add(_Newest(int(window_s * max(trocar.rate_hz, 1.0))))
+        self._shown: StereoFrame | None = None
         self.error: str | None = None
         self.timer = QtCore.QTimer(self)
         self.timer.timeout.connect(self.poll)
 
     def poll(self) -> None:
-        """Read what the devices have now and refresh the display."""
-        try:
-            frame = self.devices.camera.read(0.0)
-            while (sample := self.devices.trocar.read(0.0)) is not None:
-                self._t.append(sample.t_host_ns)
-                self._f.append(sample.force_n)
-                if len(self._t) == self._t.maxlen:
-                    break
-        except DeviceError as exc:
-            self.error = str(exc)
+        """Show what the acquisition has now."""
+        reason = self.acquisition.finished()
+        if reason and reason != "duration reached":
+            self.error = reason
             self.timer.stop()
-            self.status.setText(f"device gone: {exc}")
+            self.status.setText(f"device gone: {reason}")
             return
-        if frame is not None:
+        frame = self._newest.frame
+        if frame is not None and frame is not self._shown:
             self.show_images(frame.left, frame.right)
-        if self._t:
-            t = np.array(self._t)
-            self.show_force((t - t[-1]) / 1e9, np.array(self._f))
+            self._shown = frame
+        samples = list(self._newest.samples)
+        if samples:
+            t = np.array([s.t_host_ns for s in samples])
+            self.show_force((t - t[-1]) / 1e9, np.array([s.force_n for s in samples]))
             self.cursor.setValue(0.0)
-        cam, tro = self.devices.camera.stats, self.devices.trocar.stats
+        rig = self.acquisition.rig
+        cam, tro = rig.camera.stats, rig.trocar.stats
         self.status.setText(f"camera: {cam.received} frames, {cam.dropped} dropped — trocar: "
                             f"{tro.received} samples, {tro.dropped} dropped, "
                             f"{tro.malformed} malformed")
@@ -224,15 +239,14 @@ def view_session(path: str | Path) -> int:
 
 
 def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
-    """Open the devices of a rig and show them live until the window closes."""
-    from vbfe.drivers.registry import open_devices
+    """Open the camera and trocar of a rig and show them live until the window closes."""
+    from vbfe.drivers.registry import open_rig
 
     app = qt_application()
-    devices = open_devices(config)
-    for device in (devices.camera, devices.trocar):
-        device.open()
+    acquisition = Acquisition(open_rig(config, families=("camera", "trocar")))
+    window = LiveViewer(acquisition)
+    acquisition.start()
     try:
-        window = LiveViewer(devices)
         window.show()
         window.timer.start(interval_ms)
         code = _exec_until_closed(app, window)
@@ -240,5 +254,4 @@ def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
         window.dispose()
         return code
     finally:
-        for device in (devices.camera, devices.trocar):
-            device.close()
+        acquisition.stop("window closed")

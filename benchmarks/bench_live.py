@@ -22,10 +22,13 @@ import cv2
 import numpy as np
 import torch
 
+from vbfe.acquire import Acquisition
 from vbfe.config import load_config, section
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
-from vbfe.drivers.registry import Devices, open_devices
+from vbfe.drivers.projector.pattern import make_pattern
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import Rig, RigOptions
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
@@ -77,25 +80,20 @@ class ReplayCapture:
 
 def rendered_frames(config: dict, n: int) -> list[np.ndarray]:
     """``n`` side-by-side frames of the bench's trial, rendered as fast as the bench can."""
-    config = {**config, "bench": {**config["bench"], "realtime": False}}
-    camera = open_devices(config, families=("camera",)).camera
-    camera.open()
-    try:
-        frames = [camera.read(5.0) for _ in range(n)]
-    finally:
-        camera.close()
+    with open_rig(config, RigOptions(realtime=False), ("camera",)) as rig:
+        frames = [rig.camera.read(5.0) for _ in range(n)]
     return [np.hstack([f.left, f.right]) for f in frames]
 
 
-def replay_devices(config: dict, frames: list[np.ndarray]) -> Devices:
+def replay_rig(config: dict, frames: list[np.ndarray]) -> Rig:
     """The bench's trocar and projector with a replaying endoscope in place of its camera."""
-    devices = open_devices(config, families=("trocar", "projector"))
+    rig = open_rig(config, RigOptions(realtime=True))
     height, width = frames[0].shape[0], frames[0].shape[1] // 2
     camera = OpenCVStereoCamera(device="replay", width=width, height=height, fps=FPS,
                                 fourcc="YUYV",
                                 capture_factory=lambda device: ReplayCapture(frames, FPS))
-    return Devices(camera=camera, trocar=devices.trocar, projector=devices.projector,
-                   bench=devices.bench)
+    rig.replace("camera", camera)
+    return rig
 
 
 def untrained_model(conv_channels: list[int]) -> ForceModel:
@@ -111,13 +109,13 @@ def measure(width: int, height: int, seconds: float, scale: float,
             conv_channels: list[int], render_live: bool) -> dict[str, float]:
     """Run live estimation on a real-time bench of this size for ``seconds``."""
     config = load_config()
-    config["bench"].update(width=width, height=height, fps=FPS, realtime=True)
-    devices = (open_devices(config) if render_live
-               else replay_devices(config, rendered_frames(config, REPLAY_FRAMES)))
+    config["bench"].update(width=width, height=height, fps=FPS)
+    rig = (open_rig(config, RigOptions(realtime=True)) if render_live
+           else replay_rig(config, rendered_frames(config, REPLAY_FRAMES)))
     calibration = calibration_from_rig(true_rig(config))
     estimator = FrameEstimator(untrained_model(conv_channels), calibration,
                                SgbmParams.from_config(section(config, "sgbm")), scale=scale)
-    run = LiveRun(devices, estimator)
+    run = LiveRun(Acquisition(rig, pattern=make_pattern), estimator)
     run.start()
     status = run_headless(run, seconds, lambda s: None)
     estimates = run.estimates[5:]  # the first few include warm-up

@@ -32,7 +32,7 @@ from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
-from vbfe.drivers.registry import Devices
+from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
@@ -174,7 +174,7 @@ def recorder_run(folder: Path, compression: str, frames: list, encoded: list | N
                  seconds: float) -> dict:
     """A real-time recording through the Recorder; returns counts, drops, CPU and size."""
     path = folder / f"rec-{compression}.h5"
-    devices = Devices(PregeneratedCamera(frames, encoded), PacedForce(), NullProjector())
+    devices = Rig(PregeneratedCamera(frames, encoded), PacedForce(), NullProjector())
     rec = Recorder(devices, path, compression=compression, min_free_bytes=0)
     cpu_start = time.process_time()
     rec.start()

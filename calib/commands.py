@@ -11,8 +11,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import copy
-
 import numpy as np
 
 from vbfe.calib.board import BoardSpec, write_board
@@ -35,7 +33,8 @@ from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_images, load_views
 from vbfe.config import section
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import RigOptions
 
 Config = dict[str, dict[str, Any]]
 
@@ -60,15 +59,6 @@ def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[
     return write_board(spec, out_stem)
 
 
-def _with_seed(config: Config, seed: int | None) -> Config:
-    """``config`` with the simulated bench's ``seed`` replaced (when ``seed`` is given)."""
-    if seed is None:
-        return config
-    config = copy.deepcopy(config)
-    config.setdefault("bench", {})["seed"] = int(seed)
-    return config
-
-
 def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int | None = None,
             on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
             **overrides: Any) -> CaptureResult:
@@ -79,9 +69,9 @@ def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int
     """
     spec = board_spec(config, **overrides)
     options = CaptureOptions.from_config(section(config, "calib"))
-    devices = open_devices(_with_seed(config, seed), ("camera",))
-    with devices.camera as camera:
-        return capture_views(camera_frames(camera, max_frames), spec, folder, options, on_view)
+    with open_rig(config, RigOptions(seed=seed), ("camera",)) as rig:
+        return capture_views(camera_frames(rig.camera, max_frames), spec, folder, options,
+                             on_view)
 
 
 def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: int | None = None,
@@ -89,9 +79,8 @@ def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: in
     """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
     write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
     options = GrayCaptureOptions.from_config(section(config, "calib"))
-    devices = open_devices(_with_seed(config, seed), ("camera", "projector"))
-    with devices.camera as camera, devices.projector as projector:
-        return capture_gray_code(camera, projector, folder, n_poses, options, on_event)
+    with open_rig(config, RigOptions(seed=seed), ("camera", "projector")) as rig:
+        return capture_gray_code(rig.camera, rig.projector, folder, n_poses, options, on_event)
 
 
 @dataclass
@@ -186,7 +175,7 @@ def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, i
     size = captured_projector_size(captures_folder)
     if size is not None:
         return size
-    projector = open_devices(config, ("projector",)).projector
+    projector = open_rig(config, families=("projector",)).projector
     if not (projector.width and projector.height):
         raise CalibrationError(f"the projector size is unknown ({captures_folder} has no "
                                "projector.json); set [calib] projector_width and "

@@ -1,96 +1,89 @@
-"""Backend lookup, in the manner of python-can's interface table.
+"""Backend lookup, in the manner of python-can's interface table, and :func:`open_rig`.
 
-A rig config names a ``backend`` per device family; the remaining keys of that table are the
-backend's constructor keyword arguments, checked against its signature before anything is
-built. ``sim`` backends share one :class:`SimBench` so the camera sees what the projector shows
-and what the trocar measures.
+A rig config names a ``backend`` per device family (``[camera]``, ``[trocar]``,
+``[projector]``); the remaining keys of that table are the backend's constructor keyword
+arguments, checked against its signature before anything is built. A backend listed in
+:data:`SHARED` builds, once per rig, state its devices share (the simulator's bench), from the
+whole rig config and the :class:`RigOptions`; its device factories take it as first argument.
+Adding a device kind: a family in :data:`BACKENDS` (and its config table), or a backend in a
+family; adding shared state: an entry in :data:`SHARED`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
-from dataclasses import dataclass
 from typing import Any
 
-from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.projector.base import Projector
-from vbfe.drivers.trocar.base import ForceSensor
+from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
+from vbfe.drivers.streams.opening import streams_from_config
 from vbfe.settings import parse_kwargs
 
 BACKENDS: dict[str, dict[str, str]] = {
     "camera": {"v4l2": "vbfe.drivers.camera.linuxpy_v4l2:LinuxpyStereoCamera",
-               "opencv": "vbfe.drivers.camera.opencv:OpenCVStereoCamera"},
-    "trocar": {"can": "vbfe.drivers.trocar.can_trocar:CanTrocar"},
-    "projector": {
-        "hdmi": "vbfe.drivers.projector.hdmi:HdmiProjector",
-        "serial": "vbfe.drivers.projector.serial_projector:SerialProjector",
-    },
+               "opencv": "vbfe.drivers.camera.opencv:OpenCVStereoCamera",
+               "sim": "vbfe.drivers.sim.backend:camera"},
+    "trocar": {"can": "vbfe.drivers.trocar.can_trocar:CanTrocar",
+               "sim": "vbfe.drivers.sim.backend:trocar"},
+    "projector": {"hdmi": "vbfe.drivers.projector.hdmi:HdmiProjector",
+                  "serial": "vbfe.drivers.projector.serial_projector:SerialProjector",
+                  "sim": "vbfe.drivers.sim.backend:projector"},
 }
+# backend -> factory(config, options) of the state its devices share within one rig
+SHARED: dict[str, str] = {"sim": "vbfe.drivers.sim.backend:SimBackend"}
+DEFAULT_BACKEND = "sim"
+FAMILIES = tuple(BACKENDS)
 
 
-FAMILIES = ("camera", "trocar", "projector")
+def _load(target: str) -> Any:
+    module_name, name = target.split(":")
+    return getattr(importlib.import_module(module_name), name)
 
 
-@dataclass
-class Devices:
-    """The devices of a rig, plus the simulated bench when any of them is simulated."""
-
-    camera: StereoCamera | None
-    trocar: ForceSensor | None
-    projector: Projector | None
-    bench: Any | None = None  # vbfe.drivers.sim.SimBench
-
-
-def _load(family: str, backend: str) -> type:
+def _factory(family: str, backend: str) -> Any:
     try:
-        target = BACKENDS[family][backend]
+        return _load(BACKENDS[family][backend])
     except KeyError:
-        known = sorted(BACKENDS[family]) + ["sim"]
-        raise DeviceError(f"unknown {family} backend {backend!r}; known: {known}") from None
-    module_name, class_name = target.split(":")
-    return getattr(importlib.import_module(module_name), class_name)
+        raise DeviceError(f"unknown {family} backend {backend!r}; known: "
+                          f"{sorted(BACKENDS[family])}") from None
 
 
 def device_options(family: str, table: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     """``(backend, keyword arguments)`` of a device table, checked against the backend's
     constructor: an unknown key or a value of the wrong type is a ConfigError naming both."""
     options = dict(table)
-    backend = options.pop("backend", "sim")
+    backend = options.pop("backend", DEFAULT_BACKEND)
     if not isinstance(backend, str):
         raise DeviceError(f"[{family}] backend must be a string, got {backend!r}")
-    if backend == "sim":
-        from vbfe.drivers.sim import SimBench
-
-        factory = getattr(SimBench, family)
-    else:
-        factory = _load(family, backend)
-    return backend, parse_kwargs(factory, options, family, where=f" (backend {backend})")
+    skip = ("shared",) if backend in SHARED else ()
+    return backend, parse_kwargs(_factory(family, backend), options, family,
+                                 where=f" (backend {backend})", skip=skip)
 
 
-def open_device(family: str, options: dict[str, Any], bench: Any | None = None) -> Any:
-    """Construct (not open) one device from its config table; ``sim`` needs the shared bench."""
-    backend, options = device_options(family, options)
-    if backend == "sim":
-        if bench is None:
-            raise DeviceError(f"{family} backend 'sim' needs a simulated bench")
-        return getattr(bench, family)(**options)
-    return _load(family, backend)(**options)
-
-
-def open_devices(config: dict[str, dict[str, Any]],
-                 families: tuple[str, ...] = FAMILIES) -> Devices:
-    """Construct the devices of ``families`` a rig config names (they still need opening); the
-    others are ``None``. Simulated ones share one bench built from the ``[bench]`` table. Every
-    device table is checked against its backend before anything is built."""
+def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions(),
+             families: tuple[str, ...] = FAMILIES) -> Rig:
+    """The rig of ``families`` a config names, built but not opened (``with open_rig(...) as
+    rig:`` opens every device, rolling back on failure, and closes them all). Every device
+    table is checked against its backend before anything is built. The whole rig also has the
+    ``[streams]`` (LSL streams, named by their keys), and then runs in real time: their samples
+    come on the host's own clock."""
     unknown = sorted(set(families) - set(FAMILIES))
     if unknown:
         raise DeviceError(f"unknown device families {unknown}; known: {list(FAMILIES)}")
-    backends = {f: device_options(f, config[f])[0] for f in families}
-    bench = None
-    if "sim" in backends.values():
-        from vbfe.drivers.sim import SimBench
-
-        bench = SimBench.from_config(config.get("bench", {}))
-    built = {f: open_device(f, config[f], bench) if f in families else None for f in FAMILIES}
-    return Devices(**built, bench=bench)
+    streams = streams_from_config(config) if set(families) == set(FAMILIES) else {}
+    if streams and options.realtime is None:
+        options = dataclasses.replace(options, realtime=True)
+    tables = {f: device_options(f, config.get(f, {})) for f in families}
+    shared: dict[str, SharedBackend] = {b: _load(SHARED[b])(config, options)
+                                        for b, _ in tables.values() if b in SHARED}
+    devices = {}
+    for family, (backend, kwargs) in tables.items():
+        factory = _factory(family, backend)
+        devices[family] = (factory(shared[backend], **kwargs) if backend in shared
+                           else factory(**kwargs))
+    return Rig(devices.get("camera"), devices.get("trocar"), devices.get("projector"),
+               others={**{f: d for f, d in devices.items() if f not in ("camera", "trocar",
+                                                                         "projector")},
+                       **streams},
+               shared=tuple(shared.values()))

@@ -29,7 +29,8 @@ RECORDER_SCRIPT = textwrap.dedent("""
 
     rec = Recorder(bar_devices(speed=2.0, width=160, height=120), sys.argv[1],
                    compression="blosc-lz4", flush_interval_s=0.2, min_free_bytes=0,
-                   pattern=np.zeros((48, 64, 3), np.uint8), on_flush=report)
+                   pattern=np.zeros((48, 64, 3), np.uint8), pattern_name="debruijn",
+                   on_flush=report)
     rec.start()
     rec.run(60.0)
 """)

@@ -16,7 +16,7 @@ from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
-from vbfe.drivers.registry import Devices
+from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
@@ -162,12 +162,12 @@ class RecordingProjector(Projector):
         pass
 
 
-def bar_devices(**camera_options) -> Devices:
+def bar_devices(**camera_options) -> Rig:
     """A camera, trocar and projector sharing the bar scene."""
     force_options = {k[6:]: camera_options.pop(k) for k in list(camera_options)
                      if k.startswith("force_")}
     force_options.setdefault("speed", camera_options.get("speed", 4.0))
-    return Devices(BarCamera(**camera_options), ProfileForce(**force_options),
+    return Rig(BarCamera(**camera_options), ProfileForce(**force_options),
                    RecordingProjector())
 
 

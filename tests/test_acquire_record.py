@@ -10,7 +10,7 @@ import pytest
 
 from tests.test_acquire_devices import bar_devices, bar_image, force_profile
 from vbfe.acquire import Recorder, SessionError, SessionReader, store_calibration
-import vbfe.acquire.recording.recorder as recorder_module
+import vbfe.acquire.recording.session_sink as sink_module
 
 CAM_OFFSET_NS = 5_000_000_000
 
@@ -158,7 +158,7 @@ def test_disk_filling_up_stops_and_finalizes_between_flushes(tmp_path, monkeypat
     devices = bar_devices()
     rec = Recorder(devices, path, flush_interval_s=10.0, min_free_bytes=1000)
     start = time.monotonic()
-    monkeypatch.setattr(recorder_module, "free_bytes",
+    monkeypatch.setattr(sink_module, "free_bytes",
                         lambda d: 10 if time.monotonic() - start > 1.0 else 10**9)
     rec.start()
     with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}.*finalized with"):
@@ -210,7 +210,7 @@ def test_a_camera_that_is_not_real_time_waits_for_the_writer_instead_of_dropping
     rec = Recorder(devices, path, compression="lzf", queue_size=1, min_free_bytes=0)
     rec.start()
     deadline = time.monotonic() + 60
-    while rec._writer.counts["camera"] < 400 and time.monotonic() < deadline:
+    while rec.update_stats().frames < 400 and time.monotonic() < deadline:
         time.sleep(0.05)
     stats = rec.stop()
     assert stats.dropped["camera"] == 0

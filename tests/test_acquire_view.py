@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import gc
+import time
 
 import cv2
 import numpy as np
 
 from tests.test_acquire_devices import bar_devices, write_bar_session
-from vbfe.acquire import SessionReader
+from vbfe.acquire import Acquisition, SessionReader
 from vbfe.acquire.viewer import FORCE_PENS, LiveViewer, ReplayViewer, grab_png
 
 
@@ -43,13 +44,13 @@ def test_replay_shows_frames_and_force_curve(tmp_path):
         gc.collect()
 
 
-def test_live_view_polls_devices_and_counts(tmp_path):
-    devices = bar_devices(speed=50.0)
-    devices.camera.open()
-    devices.trocar.open()
-    window = LiveViewer(devices)
+def test_live_view_polls_an_acquisition_and_counts(tmp_path):
+    acquisition = Acquisition(bar_devices(speed=50.0))
+    window = LiveViewer(acquisition)
+    acquisition.start()
     window.show()
     for _ in range(20):
+        time.sleep(0.01)
         window.poll()
     assert "camera:" in window.status.text() and window.error is None
     image = cv2.imread(str(grab_png(window, tmp_path / "live.png")))
@@ -58,5 +59,4 @@ def test_live_view_polls_devices_and_counts(tmp_path):
     window.dispose()
     del window
     gc.collect()
-    devices.camera.close()
-    devices.trocar.close()
+    acquisition.stop()

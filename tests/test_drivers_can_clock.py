@@ -19,7 +19,7 @@ import pytest
 from tests.test_acquire_devices import BarCamera, RecordingProjector
 from vbfe.acquire import Recorder, SessionReader
 from vbfe.acquire.session.clock import fit_clock
-from vbfe.drivers.registry import Devices
+from vbfe.drivers.rig import Rig
 from vbfe.drivers.trocar.can_clock import HOST_CLOCK
 from vbfe.drivers.trocar.can_trocar import CAN_ERR_CRTL, CanTrocar
 from vbfe.drivers.trocar.dbc import load_frame_format
@@ -141,7 +141,7 @@ def test_trocar_over_socketcan_on_vcan0_uses_kernel_receive_time():
 
 def test_recorded_session_stores_bus_errors_as_force_gaps(tmp_path):
     channel = f"vbfe-clock-{next(_channels)}"
-    devices = Devices(BarCamera(disconnect_after=20), CanTrocar(interface="virtual",
+    devices = Rig(BarCamera(disconnect_after=20), CanTrocar(interface="virtual",
                                                                 channel=channel),
                       RecordingProjector())
     rec = Recorder(devices, tmp_path / "s.h5", min_free_bytes=0)

@@ -16,7 +16,7 @@ from tests.test_acquire_devices import ProfileForce, RecordingProjector
 from vbfe.acquire import Recorder
 from vbfe.drivers.camera.linuxpy_v4l2 import LinuxpyStereoCamera
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.registry import Devices
+from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import JpegStereoFrame
 
 W, H = 64, 48
@@ -142,7 +142,7 @@ def test_side_by_side_yuyv_is_converted_and_split():
 
 
 def _recording(tmp_path, left, right, duration_s=None):
-    devices = Devices(stereo(left, right, controls=MANUAL), ProfileForce(speed=1.0),
+    devices = Rig(stereo(left, right, controls=MANUAL), ProfileForce(speed=1.0),
                       RecordingProjector())
     rec = Recorder(devices, tmp_path / "s.h5", compression="mjpeg", min_free_bytes=0)
     rec.start()

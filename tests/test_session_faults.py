@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import write_bar_session
-from vbfe.acquire import Recorder, RecorderStats, SessionError, SessionReader
+from vbfe.acquire import Recorder, AcquisitionStats, SessionError, SessionReader
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
 from vbfe.config import load_config
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.registry import open_rig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # small and quick to render
@@ -283,10 +283,10 @@ def test_ctrl_c_twice_and_sigterm_stop_and_finalize(tmp_path, signals, reason):
 def test_a_second_ctrl_c_while_stopping_is_ignored_with_a_message(tmp_path, capsys):
     config = load_config(rig(tmp_path, SMALL_BENCH))
     path = tmp_path / "s.h5"
-    recorder = session_recorder(config, path, open_devices(config))
+    recorder = session_recorder(config, path, open_rig(config))
     sent: list[int] = []
 
-    def ctrl_c_twice(rec: Recorder, stats: RecorderStats) -> None:
+    def ctrl_c_twice(rec: Recorder, stats: AcquisitionStats) -> None:
         if stats.frames > 0 and not sent:
             for _ in range(2):  # the handler runs in between: the second finds it stopping
                 sent.append(os.getpid())

@@ -8,7 +8,7 @@ import pytest
 
 from vbfe.config import ConfigError, load_config
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.registry import open_rig
 from vbfe.drivers.sim import SimBench
 
 
@@ -117,11 +117,12 @@ def test_render_truth_matches_the_rig():
 
 def test_config_builds_the_bench_and_refuses_unknown_keys():
     config = load_config()
-    devices = open_devices(config)
-    assert isinstance(devices.bench, SimBench)
-    assert (devices.camera.width, devices.camera.height) == (config["bench"]["width"],
-                                                             config["bench"]["height"])
-    assert devices.bench.duration_s() > 5.0
+    rig = open_rig(config)
+    assert isinstance(rig.truth, SimBench)
+    assert (rig.camera.width, rig.camera.height) == (config["bench"]["width"],
+                                                     config["bench"]["height"])
+    assert rig.truth.duration_s() > 5.0
+    assert rig.describe()["conditions"]["simulated"] is True
     with pytest.raises(ConfigError, match="stifness"):
         SimBench.from_config({"stifness_n_per_m": 40.0})
     with pytest.raises(DeviceError, match="no options"):

@@ -9,7 +9,7 @@ import numpy as np
 
 from vbfe.acquire import Recorder, SessionReader
 from vbfe.config import load_config
-from vbfe.drivers.registry import open_devices
+from vbfe.drivers.registry import open_rig
 from vbfe.drivers.projector.pattern import make_pattern
 
 RIG = """
@@ -28,7 +28,7 @@ min_free_gb = 0.0
 
 def _record(config: dict, path, slow_writer: bool) -> None:
     """Record 1.2 s; ``slow_writer`` stalls the writer at every flush to shift thread timing."""
-    devices = open_devices(config)
+    devices = open_rig(config)
     stall = (lambda stats: time.sleep(0.15)) if slow_writer else None
     projector = devices.projector
     recorder = Recorder(devices, path, flush_interval_s=0.05 if slow_writer else 1.0,

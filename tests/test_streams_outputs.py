@@ -104,8 +104,8 @@ class _Recording:
     def mark(self, text: str, t_host_ns: int) -> None:
         self.marks.append((t_host_ns, text))
 
-    def stop(self) -> str:
-        return f"{self.path}: stopped"
+    def stop(self, reason: str = "stopped by remote control") -> str:
+        return f"{self.path}: {reason}"
 
 
 def test_remote_control_server_answers_like_labrecorder(tmp_path: Path) -> None:

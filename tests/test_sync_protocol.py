@@ -86,12 +86,12 @@ def test_synchronised_rig_passes_directly(tmp_path, seed):
 def test_a_one_frame_latency_jump_halfway_is_reported(tmp_path, monkeypatch):
     config = bench_config(7)
 
-    def lagging_devices(cfg):
-        devices = registry.open_devices(cfg)
-        devices.camera = LaggingCamera(devices.camera, from_seq=300)  # frame 300 of 600
-        return devices
+    def lagging_rig(cfg, options):
+        rig = registry.open_rig(cfg, options)
+        rig.replace("camera", LaggingCamera(rig.camera, from_seq=300))  # frame 300 of 600
+        return rig
 
-    monkeypatch.setattr(record_module, "open_devices", lagging_devices)
+    monkeypatch.setattr(record_module, "open_rig", lagging_rig)
     path = tmp_path / "jump.h5"
     record_protocol(path, config, 7)
     report = verify_sync(path, settings=ProtocolSettings.from_config(config), store=False)

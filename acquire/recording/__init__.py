@@ -1,2 +1,2 @@
-"""Recording: device reader threads, the writer thread, the record command's rig setup, the
-``[record]`` settings and the sync protocol session."""
+"""Recording: the acquisition (device reader threads, dispatch to listeners), the session sink,
+the record command's rig setup, the ``[record]`` settings and the sync protocol session."""

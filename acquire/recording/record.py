@@ -7,12 +7,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, store_analysis
+from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+from vbfe.acquire.recording.listener import Listener
+from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.settings import record_settings
-from vbfe.acquire.recording.recorder import Recorder, RecorderStats
+from vbfe.acquire.session.annotate import store_analysis
+from vbfe.acquire.session.layout import StreamSpec
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
-from vbfe.drivers.registry import Devices, open_devices
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import Rig, RigOptions
+from vbfe.drivers.streams.opening import missing_streams
 
 if TYPE_CHECKING:
     from vbfe.acquire.recording.sync_session import SyncProtocol
@@ -22,70 +28,90 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    duration_s: float | None = None, operator: str = "", notes: str = "",
                    conditions: dict[str, Any] | None = None, compression: str | None = None,
                    calibration_yaml: str | None = None,
-                   on_progress: Callable[[RecorderStats], None] | None = None,
+                   on_progress: Callable[[AcquisitionStats], None] | None = None,
                    tare: bool = False, overwrite: bool = False,
                    protocol: SyncProtocol | None = None,
                    calibration_size: tuple[int, int] | None = None,
-                   calibration_name: str = "the calibration") -> RecorderStats:
+                   calibration_name: str = "the calibration",
+                   on_warning: Callable[[str], None] | None = None) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
     is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
-    stored). Simulated benches add their conditions, description and per-frame ground truth to
+    stored). Simulated rigs add their conditions, description and per-frame ground truth to
     the session. An existing ``path`` is refused unless ``overwrite``. ``calibration_size``
     (the calibration's image size) must match the camera's, checked before recording starts.
 
     With a sync ``protocol`` the projector flashes and the taps are counted while recording
     (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
     non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
-    correction."""
+    correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found."""
     settings = record_settings(config)
+    options = RigOptions()
     if protocol is not None:
-        config = protocol.bench_config(config)
-        duration_s = protocol.duration_s
-    devices = open_devices(config)
-    camera_size = (devices.camera.width, devices.camera.height)
-    if calibration_size is not None and tuple(calibration_size) != camera_size:
-        raise SessionError(f"{calibration_name} is for {calibration_size[0]}x"
-                           f"{calibration_size[1]} images but the camera gives {camera_size[0]}x"
-                           f"{camera_size[1]}; calibrate at this resolution or change the "
-                           "camera's size")
-    recorder = session_recorder(config, path, devices, operator, notes, conditions,
-                                compression, calibration_yaml, overwrite, protocol)
+        options, duration_s = protocol.rig_options(), protocol.duration_s
+    rig = open_rig(config, options)
+    check_camera_size(rig, calibration_size, calibration_name)
+    listeners = ((protocol,) if protocol else ()) + (
+        (MissingStreams(on_warning),) if on_warning else ())
+    recorder = session_recorder(config, path, rig, operator, notes, conditions,
+                                compression, calibration_yaml, overwrite, listeners)
+    if protocol is not None:
+        recorder.metadata["protocol"] = protocol.describe()
     if tare:
         n = settings.tare_samples
-        devices.trocar.open()  # the recorder's open keeps it open
+        rig.trocar.open()  # the recorder's open keeps it open
         try:
-            offset = devices.trocar.tare(n)
+            offset = rig.trocar.tare(n)
         except DeviceError:
-            devices.trocar.close()
+            rig.trocar.close()
             raise
         recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
-    recorder.start()
-    stats = recorder.run(duration_s, on_progress, on_tick=protocol.tick if protocol else None)
+    stats = recorder.run(duration_s, on_progress)
     if settings.frame_time_correction_s:
         store_analysis(path, {FRAME_CORRECTION_ATTR:
                               int(round(settings.frame_time_correction_s * 1e9))})
     return stats
 
 
-def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, devices: Devices,
+def check_camera_size(rig: Rig, calibration_size: tuple[int, int] | None,
+                      calibration_name: str = "the calibration") -> None:
+    """SessionError unless the calibration (when given) is of the camera's image size."""
+    camera_size = (rig.camera.width, rig.camera.height)
+    if calibration_size is not None and tuple(calibration_size) != camera_size:
+        raise SessionError(f"{calibration_name} is for {calibration_size[0]}x"
+                           f"{calibration_size[1]} images but the camera gives {camera_size[0]}x"
+                           f"{camera_size[1]}; calibrate at this resolution or change the "
+                           "camera's size")
+
+
+def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, rig: Rig,
                      operator: str = "", notes: str = "",
                      conditions: dict[str, Any] | None = None, compression: str | None = None,
                      calibration_yaml: str | None = None, overwrite: bool = False,
-                     protocol: SyncProtocol | None = None) -> Recorder:
-    """The recorder :func:`record_session` uses, over given devices (which may be wrapped,
-    e.g. by a live estimator that sees every frame); not started yet."""
+                     listeners: tuple[Listener, ...] = (),
+                     streams: tuple[StreamSpec, ...] = ()) -> Recorder:
+    """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
+    pattern, a traction session's metadata) over ``rig``, with further ``listeners`` and
+    extra ``streams``; not started yet."""
     settings = record_settings(config)
     metadata: dict[str, Any] = {"operator": operator, "notes": notes,
                                 "conditions": dict(conditions or {}),
-                                "protocol": protocol.describe() if protocol else {"kind": "traction"}}
-    if devices.bench is not None:
-        metadata["conditions"] = {**devices.bench.conditions(), **metadata["conditions"]}
-        metadata["bench"] = devices.bench.describe()
-    return Recorder(devices, path, compression=compression or settings.compression,
+                                "protocol": {"kind": "traction"}}
+    return Recorder(rig, path, compression=compression or settings.compression,
                     flush_interval_s=settings.flush_interval_s,
                     metadata=metadata, calibration_yaml=calibration_yaml,
                     queue_size=settings.queue_size,
                     min_free_bytes=int(settings.min_free_gb * 1e9),
-                    pattern=make_pattern, pattern_name="debruijn-hsv", overwrite=overwrite,
-                    on_forces=protocol.tap_counter.feed if protocol else None)
+                    pattern=make_pattern, overwrite=overwrite, listeners=listeners,
+                    streams=streams)
+
+
+class MissingStreams(Listener):
+    """Reports each optional ``[streams]`` entry that was not found, once the rig is open."""
+
+    def __init__(self, report: Callable[[str], None]) -> None:
+        self.report = report
+
+    def on_start(self, acquisition: Acquisition) -> None:
+        for warning in missing_streams(acquisition.rig.devices.values()):
+            self.report(warning)

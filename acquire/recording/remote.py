@@ -20,15 +20,20 @@ from __future__ import annotations
 
 import contextlib
 import re
+import signal
 import socket
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.recording.record import check_camera_size, session_recorder
+from vbfe.acquire.session.extra_streams import marks_stream
+from vbfe.drivers.registry import open_rig
+from vbfe.errors import VbfeError
 
 DEFAULT_PORT = 22345  # LabRecorder's RCSPort
 DEFAULT_TEMPLATE = "exp%n/block_%b.h5"  # LabRecorder's legacy default
@@ -87,7 +92,45 @@ class Recording(Protocol):
 
     def mark(self, text: str, t_host_ns: int) -> None: ...
 
-    def stop(self) -> str: ...  # stop, finalize; a one-line summary
+    def stop(self, reason: str = ...) -> str: ...  # stop, finalize; a one-line summary
+
+
+class RemoteRecording:
+    """A recording started by remote control: the config's rig recorded into ``path`` (with
+    the session's event marks) in a thread of its own until :meth:`stop`; ``options`` go to
+    :func:`~vbfe.acquire.recording.record.session_recorder`."""
+
+    def __init__(self, config: dict[str, dict[str, Any]], path: Path,
+                 calibration_size: tuple[int, int] | None = None,
+                 calibration_name: str = "the calibration", **options: Any) -> None:
+        rig = open_rig(config)
+        check_camera_size(rig, calibration_size, calibration_name)
+        self.recorder = session_recorder(config, path, rig, streams=(marks_stream(),), **options)
+        self.error: BaseException | None = None
+        self.recorder.start()
+        self._thread = threading.Thread(target=self._run, name="vbfe-remote-recording",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self.recorder.run()
+        except Exception as exc:  # noqa: BLE001 - reported by stop()
+            self.error = exc
+
+    def mark(self, text: str, t_host_ns: int) -> None:
+        """An event mark at host time ``t_host_ns``."""
+        self.recorder.sink.mark(text, t_host_ns)
+
+    def stop(self, reason: str = "stopped by remote control") -> str:
+        """Stop, finalize; a one-line summary (SessionError when the recording failed)."""
+        self.recorder.request_stop(reason)
+        self._thread.join()
+        if self.error is not None:
+            raise SessionError(f"recording {self.recorder.path} failed: {self.error}")
+        stats = self.recorder.stats
+        return (f"{self.recorder.path}: {stats.frames} frames, {stats.samples} force samples, "
+                f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}")
 
 
 class RemoteSessions:
@@ -142,12 +185,12 @@ class RemoteSessions:
         self._recording, self._path = self._begin(path), path
         self._say(f"remote: recording {path}")
 
-    def close(self) -> None:
+    def close(self, reason: str = "stopped by operator") -> None:
         """Stop a recording still running (the server is going away)."""
         with self._lock:
             if self._recording is not None:
                 recording, self._recording = self._recording, None
-                self._say(f"remote: {recording.stop()}")
+                self._say(f"remote: {recording.stop(reason)}")
                 self.finished.append(self._path)
 
 
@@ -188,7 +231,7 @@ class RemoteControl:
                         self.sessions.handle(parse_command(raw.decode("utf-8", "replace")),
                                              t_host_ns)
                         reply = "OK"
-                    except SessionError as exc:
+                    except VbfeError as exc:  # bad command, missing device, full disk, …
                         reply = f"ERROR {exc}"
                 try:
                     client.sendall(reply.encode())
@@ -202,6 +245,25 @@ class RemoteControl:
             self._server.shutdown(socket.SHUT_RDWR)  # wakes the thread blocked in accept()
         self._server.close()
         self._thread.join()
+
+
+def serve(server: RemoteControl, on_ready: Callable[[int], None]) -> None:
+    """Serve until Ctrl-C or SIGTERM (``on_ready(port)`` once listening), then stop a
+    recording still running (finalized) and the server."""
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        on_ready(server.port)
+        while True:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        server.close()
+        server.sessions.close()
 
 
 def send_command(line: str, port: int = DEFAULT_PORT, host: str = "127.0.0.1",

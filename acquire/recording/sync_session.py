@@ -9,18 +9,20 @@ measures the camera latency from the flashes and the image-force offset from the
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.recording.recorder import Recorder, RecorderStats
+from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+from vbfe.acquire.recording.listener import Listener
+from vbfe.drivers.projector.pattern import PATTERN_NAME
+from vbfe.drivers.rig import RigOptions, TapScript
 from vbfe.drivers.samples import ForceSample
 
-PATTERN_NAME = "debruijn-hsv"  # the pattern every session starts with
-DIM_NAME = "debruijn-hsv-dim"  # the flash's other pattern: the same, at DIM_LEVEL brightness
+DIM_NAME = f"{PATTERN_NAME}-dim"  # the flash's other pattern: the same, at DIM_LEVEL brightness
 DIM_LEVEL = 0.4
 MIN_FLASH_GAP_S = 0.8  # the analysis needs the light steady for this long around each switch
 _LEAD_S = 1.0  # no flash in the first second
@@ -58,7 +60,7 @@ class TapCounter:
         self._quiet_since_ns: int | None = None
         self._in_tap = False
 
-    def feed(self, samples: list[ForceSample]) -> None:
+    def feed(self, samples: Sequence[ForceSample]) -> None:
         """Look at a batch of force samples (any thread; one feeder at a time)."""
         for sample in samples:
             force = np.asarray(sample.force_n, np.float64)
@@ -83,8 +85,9 @@ class TapCounter:
 
 
 @dataclass
-class SyncProtocol:
-    """What a sync protocol session asks for, and its live state while recording."""
+class SyncProtocol(Listener):
+    """What a sync protocol session asks for, and, as a listener of the recording, its live
+    state: it counts the taps in the force stream and flashes the projector on schedule."""
 
     taps: int = 20
     flashes: int = 20
@@ -115,17 +118,17 @@ class SyncProtocol:
                 "duration_s": self.duration_s, "flash_patterns": [PATTERN_NAME, DIM_NAME],
                 "dim_level": DIM_LEVEL}
 
-    def bench_config(self, config: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        """The rig configuration with the simulated operator told to follow the protocol (the
-        ``[bench]`` table; real devices ignore it). The bench runs in real time: flashes are
-        timed on the host clock, which a bench running faster than real time outpaces (late
-        flashes crowd out the last ones)."""
-        config = copy.deepcopy(config)
-        config.setdefault("bench", {}).update(protocol="sync", sync_taps=self.taps,
-                                              sync_duration_s=self.duration_s, realtime=True)
-        return config
+    def rig_options(self) -> RigOptions:
+        """How the rig runs the protocol: a simulated operator taps as asked, in real time
+        (flashes are timed on the host clock, which a simulation running faster than real
+        time outpaces: late flashes would crowd out the last ones)."""
+        return RigOptions(realtime=True, taps=TapScript(self.taps, self.duration_s))
 
-    def tick(self, recorder: Recorder, stats: RecorderStats) -> None:
+    def on_samples(self, samples: Sequence[ForceSample]) -> None:
+        """Count the taps."""
+        self.tap_counter.feed(samples)
+
+    def on_tick(self, acquisition: Acquisition, stats: AcquisitionStats) -> None:
         """Flash when the session's clock (the newest frame read, against the first frame
         recorded) reaches the next scheduled instant and :data:`MIN_FLASH_GAP_S` has passed
         since the previous flash's host time."""
@@ -138,9 +141,9 @@ class SyncProtocol:
         if self._last_flash_ns is not None and now_ns < self._last_flash_ns + MIN_FLASH_GAP_S * 1e9:
             return
         if self._patterns is None:
-            self._patterns = (recorder.pattern, dim(recorder.pattern))
+            self._patterns = (acquisition.pattern, dim(acquisition.pattern))
         self.shown += 1
-        event = recorder.show(self._patterns[self.shown % 2],
+        event = acquisition.show(self._patterns[self.shown % 2],
                               DIM_NAME if self.shown % 2 else PATTERN_NAME)
         self._last_flash_ns = event.t_host_ns
 

@@ -24,11 +24,11 @@ import numpy as np
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.h5attrs import plain_attrs, text
-from vbfe.acquire.session.extra_streams import (RecordedStream, read_events, read_stream,
-                                                stream_names)
+from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
 from vbfe.acquire.session.resample import resample_at
-from vbfe.acquire.session.estimates import EstimateStream, read_estimates, write_estimates
-from vbfe.acquire.session.layout import FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION, STREAMS
+from vbfe.acquire.session.estimates import EstimateStream, read_estimates
+from vbfe.acquire.session.layout import (FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION,
+                                         STREAMS, TIME_COLUMNS, StreamSpec, session_streams)
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
@@ -73,7 +73,7 @@ def consistent_rows(group: h5py.Group) -> int:
     """Rows of a stream group whose data and timestamps were all written: the shortest of its
     datasets, cut before the first row without a host time after one with it (a write cut
     short by a full disk can leave rows that exist but were never filled: zeros)."""
-    lengths = [group[k].shape[0] for k in ("t_device_ns", "t_host_ns", "seq")]
+    lengths = [group[k].shape[0] for k in TIME_COLUMNS]
     n = min(lengths)
     is_set = group["t_host_ns"][:n] > 0
     first = int(np.argmax(is_set)) if is_set.any() else n
@@ -120,7 +120,8 @@ def read_failure_reason(exc: BaseException) -> str:
     return text
 
 
-def _check_session(f: h5py.File, path: Path) -> None:
+def check_session(f: h5py.File, path: Path) -> None:
+    """Refuse a file that is not a vbfe session or is of a newer schema (closing it)."""
     if f.attrs.get("format") != FORMAT_NAME:
         f.close()
         raise SessionError(f"{path} is an HDF5 file but not a vbfe session (no "
@@ -132,18 +133,12 @@ def _check_session(f: h5py.File, path: Path) -> None:
                            f"understands ({SCHEMA_VERSION}); update vbfe")
 
 
-# (dataset, dimensions, dtype kind): "i" integer, "f" float, "u" uint8 image data, "S" bytes
-_TIME_DATASETS = [(f"{stream}/{key}", 1, "i") for stream in STREAMS
-                  for key in ("t_device_ns", "t_host_ns", "seq")]
-_LAYOUT = [*_TIME_DATASETS, ("force/force_n", 2, "f"), ("projector/pattern", 1, "S"),
-           ("projector/frame_id", 1, "i"), ("gaps", 2, "i"), ("clock_pairs", 2, "i")]
-_IMAGES = {"raw": [("camera/left", 4, "u"), ("camera/right", 4, "u")],
-           "jpeg": [("camera/left_jpeg", 1, "u"), ("camera/right_jpeg", 1, "u"),
-                    ("camera/left_jpeg_index", 2, "i"), ("camera/right_jpeg_index", 2, "i")]}
+_KINDS = {"i": "iu", "f": "f", "u": "u", "S": "S", "T": "OST"}  # layout kind -> dtype kinds read
 
 
-def _check_layout(f: h5py.File, path: Path) -> str:
-    """Check the datasets and attributes a reader needs; returns the image encoding."""
+def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]]:
+    """Check the datasets and attributes a reader needs, as the layout table says; returns the
+    image encoding and the file's streams."""
     damaged = "the session file is damaged; record it again or restore a copy"
     camera = f.get("camera")
     if not isinstance(camera, h5py.Group):
@@ -154,28 +149,33 @@ def _check_layout(f: h5py.File, path: Path) -> str:
             raise SessionError(f"{path}: camera attribute {attr!r} is missing or not a positive "
                                f"integer ({value!r}): {damaged}")
     encoding = str(camera.attrs.get("encoding", "raw"))
-    if encoding not in _IMAGES:
+    if encoding not in ("raw", "jpeg"):
         raise SessionError(f"{path}: unknown camera encoding {encoding!r}: {damaged}")
-    for name, ndim, kind in [*_LAYOUT, *_IMAGES[encoding]]:
+    try:
+        streams = session_streams(f)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise SessionError(f"{path}: the declared extra streams cannot be read ({exc}): "
+                           f"{damaged}") from None
+    datasets = [d for spec in streams for d in spec.datasets()]
+    datasets += [("gaps", 2, "i"), ("clock_pairs", 2, "i")]
+    for name, ndim, kind in datasets:
         ds = f.get(name)
         if not isinstance(ds, h5py.Dataset):
             raise SessionError(f"{path} has no dataset {name!r}: {damaged}")
-        if ds.ndim != ndim or ds.dtype.kind not in {"i": "iu", "f": "f", "u": "u",
-                                                    "S": "S"}[kind]:
+        if ds.ndim != ndim or ds.dtype.kind not in _KINDS[kind]:
             raise SessionError(f"{path}: dataset {name!r} is {ds.dtype} {ds.shape}, not the "
                                f"session layout's: {damaged}")
-    width, height = int(camera.attrs["width"]), int(camera.attrs["height"])
-    for eye in ("left", "right"):
-        if encoding == "raw" and camera[eye].shape[1:] != (height, width, 3):
-            raise SessionError(f"{path}: camera/{eye} holds {camera[eye].shape[1:]} images, "
-                               f"the session says {width}x{height}: {damaged}")
-    if f["force/force_n"].shape[1] != len(f["force/force_n"].attrs.get("axes", "xyz")):
-        raise SessionError(f"{path}: force/force_n has {f['force/force_n'].shape[1]} columns, "
-                           f"not one per force axis: {damaged}")
+    for spec in streams:
+        for column in spec.columns:
+            stored = f[f"{spec.name}/{column.name}"].shape[1:]
+            if stored != column.shape:
+                what = ("images" if column.image else "columns")
+                raise SessionError(f"{path}: {spec.name}/{column.name} holds {stored} {what}, "
+                                   f"the session says {column.shape}: {damaged}")
     if f["gaps"].shape[1] != len(GAP_COLUMNS) or f["clock_pairs"].shape[1] != 2:
         raise SessionError(f"{path}: gaps or clock_pairs has the wrong number of columns: "
                            f"{damaged}")
-    return encoding
+    return encoding, streams
 
 
 class SessionReader:
@@ -196,20 +196,15 @@ class SessionReader:
             raise
 
     def _open(self) -> None:
-        _check_session(self._file, self.path)
+        check_session(self._file, self.path)
         f = self._file
         self.complete = bool(f.attrs.get("complete", False)) and self.closed_cleanly
-        self.encoding = _check_layout(f, self.path)
+        self.encoding, streams = _check_layout(f, self.path)
+        self.streams = {spec.name: spec for spec in streams}
         self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
         cam = f["camera"]
-        image_keys = (("left_jpeg_index", "right_jpeg_index") if self.encoding == "jpeg"
-                      else ("left", "right"))
-        self._lengths = {s: consistent_rows(f[s]) for s in STREAMS}
-        self._lengths["camera"] = min([self._lengths["camera"]]
-                                      + [cam[k].shape[0] for k in image_keys])
-        self._lengths["force"] = min(self._lengths["force"], f["force/force_n"].shape[0])
-        self._lengths["projector"] = min(self._lengths["projector"], f["projector/pattern"].shape[0],
-                                         f["projector/frame_id"].shape[0])
+        self._lengths = {spec.name: min([consistent_rows(f[spec.name])] + [
+            f[spec.name][c.name].shape[0] for c in spec.columns]) for spec in streams}
         self._fits: dict[str, ClockFit] = {}
         self._times: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._image_data = {eye: cam[f"{eye}_jpeg" if self.encoding == "jpeg" else eye]
@@ -296,12 +291,29 @@ class SessionReader:
 
     # -- raw streams ----------------------------------------------------------------------
     def stream_times(self, stream: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Recorded ``(t_device_ns, t_host_ns, seq)`` of one stream (camera, force, projector)."""
+        """Recorded ``(t_device_ns, t_host_ns, seq)`` of one stream (camera, force, projector
+        or an extra stream)."""
         if stream not in self._times:
-            n = self._lengths[stream]
-            self._times[stream] = tuple(self._read(f"{stream}/{k}", n)
-                                        for k in ("t_device_ns", "t_host_ns", "seq"))
+            n = self.stream_length(stream)
+            self._times[stream] = tuple(self._read(f"{stream}/{k}", n) for k in TIME_COLUMNS)
         return self._times[stream]
+
+    def stream_length(self, stream: str) -> int:
+        """Complete records of ``stream``."""
+        if stream not in self._lengths:
+            raise SessionError(f"{self.path} has no stream {stream!r} (streams: "
+                               f"{list(self.streams)})")
+        return self._lengths[stream]
+
+    def stream_column(self, stream: str, column: str) -> np.ndarray:
+        """One data column of a stream (e.g. an extra stream's ``values``), complete rows."""
+        spec = self.streams.get(stream)
+        if spec is None or column not in [c.name for c in spec.columns]:
+            raise SessionError(f"{self.path} has no column {column!r} in stream {stream!r}")
+        values = self._read(f"{stream}/{column}", self.stream_length(stream))
+        if values.dtype.kind == "O":  # text
+            return np.array([text(v) for v in values], dtype=object)
+        return values
 
     def clock_fit(self, stream: str) -> ClockFit:
         """The device-to-host clock fit of a stream (stored at close, recomputed otherwise)."""
@@ -340,61 +352,38 @@ class SessionReader:
         Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
         get NaN rather than an invented value.
         """
-        t_frames = self.frame_times_ns()
-        t_force, forces = self.force_times_ns(), self.forces_n()
-        out = np.full((len(t_frames), forces.shape[1] if forces.ndim == 2 else 3), np.nan)
-        if len(t_force) < 2 or len(t_frames) == 0:
-            return out
-        order = np.argsort(t_force, kind="stable")
-        t_force, forces = t_force[order], forces[order]
-        x = (t_frames - t_force[0]).astype(np.float64)
-        xp = (t_force - t_force[0]).astype(np.float64)
-        for axis in range(forces.shape[1]):
-            out[:, axis] = np.interp(x, xp, forces[:, axis], left=np.nan, right=np.nan)
-        right = np.clip(np.searchsorted(xp, x), 1, len(xp) - 1)
-        too_wide = (xp[right] - xp[right - 1]) > max_gap_s * 1e9
-        out[too_wide] = np.nan
-        return out
-
-    # -- events, gaps, metadata ---------------------------------------------------------
-    def projector_events(self) -> list[ProjectorEvent]:
-        """Projector events in recording order."""
-        n = self._lengths["projector"]
-        t_dev, t_host, seq = self.stream_times("projector")
-        names = self._read("projector/pattern", n)
-        ids = self._read("projector/frame_id", n)
-        return [ProjectorEvent(pattern=names[i].decode(), frame_id=int(ids[i]), seq=int(seq[i]),
-                               t_host_ns=int(t_host[i]), t_device_ns=int(t_dev[i]))
-                for i in range(n)]
-
-    def gaps(self) -> list[dict[str, Any]]:
-        """Gaps the recorder marked (queue overflow, device disconnected), as dicts."""
-        rows = self._read("gaps")
-        streams = [text(s) for s in self._file["gaps"].attrs.get("streams", STREAMS)]
-        out = []
-        for row in rows:
-            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row)))
-            gap["stream"] = streams[gap["stream"]]
-            gap["reason"] = GAP_REASONS[gap["reason"]]
-            out.append(gap)
-        return out
+        forces = self.forces_n().reshape(-1, len(self.force_axes))
+        return resample_at(self.force_times_ns(), forces, self.frame_times_ns(),
+                           max_gap_s * 1e9)
 
     # -- extra streams (``[streams]``) and event marks ----------------------------------------
     def stream_names(self) -> list[str]:
-        """Names of the extra streams recorded with the session (``[streams]`` keys)."""
-        return stream_names(self._file)
+        """Names of the extra streams recorded with the session (e.g. ``[streams]`` keys)."""
+        return [name for name in self.streams if name not in STREAMS and name != MARKS]
 
     def stream(self, name: str) -> RecordedStream:
-        """An extra stream (e.g. ``"robot"``): values or marker text, host and source times,
-        channel names and units, time-correction history."""
+        """An extra stream (e.g. ``"robot"``): values or marker text, host and publisher times,
+        channel names and units, the time corrections measured while recording."""
         if name not in self.stream_names():
             raise SessionError(f"{self.path} has no stream {name!r}; it has "
                                f"{', '.join(self.stream_names()) or 'no extra streams'}")
+        column = self.streams[name].columns[0].name
+        attrs = plain_attrs(self._file[f"{name}/{column}"].attrs)
+        data = self.stream_column(name, column)
+        t_device, t_host, seq = self.stream_times(name)
         try:
-            return read_stream(self._file, name)
-        except (OSError, KeyError, ValueError) as exc:
-            raise SessionError(f"cannot read stream {name} from {self.path} (damaged?): "
-                               f"{read_failure_reason(exc)}") from None
+            at_end = json.loads(self.attrs.get("devices_at_end_json", "{}")).get(name, {})
+        except (json.JSONDecodeError, AttributeError):
+            at_end = {}
+        channels = [str(c) for c in attrs.pop("channels", [column])]
+        return RecordedStream(
+            name=name, channels=channels,
+            units=[str(u) for u in attrs.pop("channel_units", [attrs.get("units", "")])],
+            t_host_ns=t_host, t_device_ns=t_device, seq=seq,
+            values=None if column == "text" else data.reshape(len(seq), -1),
+            text=data if column == "text" else None,
+            corrections=np.array(at_end.get("time_corrections", []), np.int64).reshape(-1, 2),
+            attrs=attrs)
 
     def at_frames(self, name: str, max_gap_s: float | None = None) -> np.ndarray:
         """A numeric extra stream at each frame's synchronized time: ``(n_frames, channels)``,
@@ -413,7 +402,38 @@ class SessionReader:
     def events(self) -> list[dict[str, Any]]:
         """Every event mark by host time: ``{"t_host_ns", "source", "text"}`` (source
         ``"mark"`` for ``vbfe mark``, else the marker stream's name)."""
-        return read_events(self._file)
+        events = []
+        marker_streams = [n for n, spec in self.streams.items()
+                          if n not in STREAMS and [c.name for c in spec.columns] == ["text"]]
+        for name in marker_streams:
+            t_host = self.stream_times(name)[1]
+            events += [{"t_host_ns": int(t), "source": "mark" if name == MARKS else name,
+                        "text": str(text)}
+                       for t, text in zip(t_host, self.stream_column(name, "text"))]
+        return sorted(events, key=lambda e: e["t_host_ns"])
+
+    # -- events, gaps, metadata ---------------------------------------------------------
+    def projector_events(self) -> list[ProjectorEvent]:
+        """Projector events in recording order."""
+        n = self._lengths["projector"]
+        t_dev, t_host, seq = self.stream_times("projector")
+        names = self._read("projector/pattern", n)
+        ids = self._read("projector/frame_id", n)
+        return [ProjectorEvent(pattern=names[i].decode(), frame_id=int(ids[i]), seq=int(seq[i]),
+                               t_host_ns=int(t_host[i]), t_device_ns=int(t_dev[i]))
+                for i in range(n)]
+
+    def gaps(self) -> list[dict[str, Any]]:
+        """Gaps the recorder marked (queue overflow, device disconnected), as dicts."""
+        rows = self._read("gaps")
+        streams = [text(v) for v in self._file["gaps"].attrs.get("streams", STREAMS)]
+        out = []
+        for row in rows:
+            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row)))
+            gap["stream"] = streams[gap["stream"]]
+            gap["reason"] = GAP_REASONS[gap["reason"]]
+            out.append(gap)
+        return out
 
     def clock_pairs(self) -> np.ndarray:
         """``(n, 2)`` pairs of (UTC ns, host monotonic ns) taken at every flush."""
@@ -469,30 +489,3 @@ class SessionReader:
         if group is None:
             return {}
         return plain_attrs(group.attrs)
-
-
-def store_calibration(session_path: str | Path, yaml_text: str) -> None:
-    """Put (or replace) the calibration YAML text of an existing session."""
-    store_analysis(session_path, {}, calibration_yaml=yaml_text)
-
-
-def store_analysis(session_path: str | Path, values: dict[str, Any],
-                   calibration_yaml: str | None = None) -> None:
-    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
-        _check_session(f, Path(session_path))
-        if calibration_yaml is not None:
-            if "calibration_yaml" in f:
-                del f["calibration_yaml"]
-            f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
-        if values:
-            f.require_group("analysis").attrs.update(values)
-
-
-def store_estimates(session_path: str | Path, stream: EstimateStream) -> None:
-    """Write (or replace) the live estimate stream of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
-        _check_session(f, Path(session_path))
-        write_estimates(f, stream)

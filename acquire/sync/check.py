@@ -22,7 +22,8 @@ import numpy as np
 
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader, store_analysis
+from vbfe.acquire.session.annotate import store_analysis
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components

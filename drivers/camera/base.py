@@ -16,6 +16,7 @@ class StereoCamera(SampleStream[StereoFrame]):
     own sequence number; sequence jumps are counted as dropped frames here.
     """
 
+    stream = "camera"  # the session stream an acquisition reads it into
     width: int  # of one eye, pixels
     height: int
     fps: float

@@ -21,6 +21,7 @@ from vbfe.drivers.errors import DeviceError
 N_SYMBOLS = 3  # red, green, blue
 WINDOW = 4  # De Bruijn window length: B(3, 4) has 81 symbols
 DEFAULT_FRINGES = 64
+PATTERN_NAME = "debruijn-hsv"  # how projector events and sessions name make_pattern's image
 SYMBOL_CHANNEL_BGR = (2, 1, 0)  # symbol -> BGR channel index (red, green, blue)
 
 

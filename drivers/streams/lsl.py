@@ -10,6 +10,7 @@ liblsl's own post-processing stays off: the raw stamps are stored beside the map
 
 from __future__ import annotations
 
+import collections
 import functools
 import os
 import time
@@ -18,11 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.drivers.device import Device
+from vbfe.drivers.device import SampleStream
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.samples import StreamStats
-from vbfe.drivers.streams.chunk import StreamChunk, StreamInfo
-from vbfe.drivers.streams.settings import StreamSpec
+from vbfe.drivers.streams.records import StreamInfo, StreamSample
+from vbfe.drivers.streams.settings import StreamSource
 
 _CHUNK_SAMPLES = 4096
 _OPEN_TIMEOUT_S = 5.0
@@ -74,63 +74,65 @@ def describe_info(key: str, info: Any) -> StreamInfo:
                       info_xml=info.as_xml())
 
 
-def resolve(spec: StreamSpec) -> Any:
-    """The one LSL stream ``spec`` names, within its ``resolve_timeout_s``; DeviceError when
+def resolve(source: StreamSource) -> Any:
+    """The one LSL stream ``source`` names, within its ``resolve_timeout_s``; DeviceError when
     none or several (then naming their source ids) are found."""
-    found = pylsl().resolve_bypred(spec.predicate(), minimum=1,
-                                   timeout=spec.resolve_timeout_s)
+    found = pylsl().resolve_bypred(source.predicate(), minimum=1,
+                                   timeout=source.resolve_timeout_s)
     if found:  # the first answer ends the wait: listen a little longer for a second publisher
-        found += pylsl().resolve_bypred(spec.predicate(), minimum=2, timeout=_AMBIGUITY_WAIT_S)
+        found += pylsl().resolve_bypred(source.predicate(), minimum=2, timeout=_AMBIGUITY_WAIT_S)
     if not found:
-        raise DeviceError(f"stream {spec.describe()} was not found on the network within "
-                          f"{spec.resolve_timeout_s:g} s; start its publisher (or mark it "
+        raise DeviceError(f"stream {source.describe()} was not found on the network within "
+                          f"{source.resolve_timeout_s:g} s; start its publisher (or mark it "
                           "required = false)")
     uids = {info.uid() for info in found}
     if len(uids) > 1:
         ids = ", ".join(sorted(repr(f"{i.source_id()}@{i.hostname()}") for i in found))
-        raise DeviceError(f"stream {spec.describe()} matches {len(uids)} LSL streams ({ids}); "
+        raise DeviceError(f"stream {source.describe()} matches {len(uids)} LSL streams ({ids}); "
                           "add its source_id to tell them apart")
     return found[0]
 
 
-class LslStream(Device):
-    """One extra stream read from LSL; ``read`` returns a :class:`StreamChunk` or ``None``.
+class LslStream(SampleStream[StreamSample]):
+    """One extra stream read from LSL, sample by sample (pulled in chunks underneath).
 
-    ``stats.received`` counts samples; ``stats.dropped`` and ``stats.gaps`` count samples a
-    regular-rate stream's time stamps show missing (a step over 1.5 sample periods). Each chunk
-    carries the time corrections measured since the previous one. ``stream`` is the session's
-    name for it (what an acquisition files its records under)."""
+    ``stats.dropped`` and ``stats.gaps`` count samples a regular-rate stream's time stamps show
+    missing (a step over 1.5 sample periods): LSL has no sequence numbers, so ``seq`` counts
+    the samples received. ``time_corrections`` is the history of ``(t_host_ns,
+    correction_ns)`` measurements (in :meth:`describe`, stored with the session). ``stream``
+    is the session's name for it (what an acquisition files its records under)."""
 
-    def __init__(self, spec: StreamSpec, correction_interval_s: float = 5.0) -> None:
-        self.spec = spec
+    def __init__(self, source: StreamSource, correction_interval_s: float = 5.0) -> None:
+        super().__init__()
+        self.source = source
         self.missing: str | None = None  # why an optional stream was not opened
         self.correction_interval_s = correction_interval_s
-        self.stats = StreamStats()
         self.info: StreamInfo | None = None
+        self.time_corrections: list[tuple[int, int]] = []
         self._inlet: Any = None
+        self._buffer: collections.deque[StreamSample] = collections.deque()
         self._seq = 0
         self._last_stamp_ns: int | None = None
         self._correction_ns = 0
-        self._corrections: list[tuple[int, int]] = []
         self._next_correction = 0.0
 
     @property
     def label(self) -> str:
-        return f"LSL stream {self.spec.describe()}"
+        return f"LSL stream {self.source.describe()}"
 
     @property
     def stream(self) -> str | None:
         """The session's name for the stream; ``None`` while an optional stream is missing
         (an acquisition reads only devices that name a stream)."""
-        return None if self.missing else self.spec.key
+        return None if self.missing else self.source.key
 
     def _open(self) -> None:
         lsl = pylsl()
         self.missing = None
         try:
-            found = resolve(self.spec)
+            found = resolve(self.source)
         except DeviceError as exc:
-            if self.spec.required:
+            if self.source.required:
                 raise
             self.missing = f"optional {exc}; recording without it"
             return
@@ -138,13 +140,15 @@ class LslStream(Device):
                                       processing_flags=lsl.proc_none)
         try:
             self._inlet.open_stream(timeout=_OPEN_TIMEOUT_S)
-            self.info = describe_info(self.spec.key, self._inlet.info(timeout=_OPEN_TIMEOUT_S))
+            self.info = describe_info(self.source.key, self._inlet.info(timeout=_OPEN_TIMEOUT_S))
+            self.time_corrections = []
             self._measure_correction(_FIRST_CORRECTION_TIMEOUT_S)
         except (TimeoutError, lsl.util.LostError) as exc:
             self._inlet = None
             raise DeviceError(f"{self.label}: found but it does not answer ({exc}); is its "
                               "publisher still running?") from None
-        self.stats, self._seq, self._last_stamp_ns = StreamStats(), 0, None
+        self._buffer.clear()
+        self._seq, self._last_stamp_ns = 0, None
 
     def _close(self) -> None:
         inlet, self._inlet = self._inlet, None
@@ -158,38 +162,37 @@ class LslStream(Device):
         except TimeoutError:
             return
         self._correction_ns = host_ns(correction_s)
-        self._corrections.append((time.monotonic_ns(), self._correction_ns))
+        self.time_corrections.append((time.monotonic_ns(), self._correction_ns))
         self._next_correction = time.monotonic() + self.correction_interval_s
 
-    def read(self, timeout_s: float = 1.0) -> StreamChunk | None:
-        """The samples that arrived within ``timeout_s`` (at least one), or ``None``."""
-        self.require_open()
+    def _read_sample(self, timeout_s: float) -> StreamSample | None:
         if self._inlet is None:
-            raise DeviceError(self.missing)
+            raise DeviceError(self.missing or f"{self.label} is not open")
+        if not self._buffer:
+            self._pull(timeout_s)
+        return self._buffer.popleft() if self._buffer else None
+
+    def _pull(self, timeout_s: float) -> None:
+        """Pull what arrived within ``timeout_s`` into the buffer, mapped to the host clock."""
         if time.monotonic() >= self._next_correction:
             self._measure_correction(0.0)
-        try:
-            values, stamps = self._inlet.pull_chunk(timeout=timeout_s, max_samples=_CHUNK_SAMPLES,
-                                                    min_samples=1, as_numpy=True)
-        except pylsl().util.LostError as exc:  # only without recovery; kept for clarity
-            raise DeviceError(f"{self.label} was lost: {exc}") from None
+        values, stamps = self._inlet.pull_chunk(timeout=timeout_s, max_samples=_CHUNK_SAMPLES,
+                                                min_samples=1, as_numpy=True)
         if len(stamps) == 0:
-            return None
-        received = time.monotonic_ns()
+            return
         t_device = np.round(np.asarray(stamps, np.float64) * 1e9).astype(np.int64)
-        if self.info.markers:
-            values = np.array([[v.decode("utf-8", "replace") for v in row] for row in values],
-                              dtype=str).reshape(len(t_device), -1)
-        else:
-            values = np.asarray(values, np.float64).reshape(len(t_device), -1)
+        t_host = t_device + self._correction_ns
         self._count_gaps(t_device)
-        chunk = StreamChunk(stream=self.spec.key, values=values, sample_t_device_ns=t_device,
-                            sample_t_host_ns=t_device + self._correction_ns, seq=self._seq,
-                            t_received_ns=received, corrections=tuple(self._corrections))
-        self._corrections = []
+        if self.info.markers:
+            rows = [("\t".join(v.decode("utf-8", "replace") for v in row), None)
+                    for row in values]
+        else:
+            rows = [(None, row) for row in np.asarray(values, np.float64).reshape(
+                len(t_device), -1)]
+        self._buffer.extend(StreamSample(values=row, text=text, seq=self._seq + i,
+                                     t_device_ns=int(td), t_host_ns=int(th))
+                        for i, ((text, row), td, th) in enumerate(zip(rows, t_device, t_host)))
         self._seq += len(t_device)
-        self.stats.received += len(t_device)
-        return chunk
 
     def _count_gaps(self, t_device: np.ndarray) -> None:
         rate = self.info.nominal_rate_hz
@@ -198,19 +201,17 @@ class LslStream(Device):
         stamps = t_device if self._last_stamp_ns is None else np.concatenate(
             [[self._last_stamp_ns], t_device])
         period = 1e9 / rate
-        steps = np.diff(stamps)
         offset = self._seq - (0 if self._last_stamp_ns is None else 1)
-        for i in np.flatnonzero(steps > _GAP_PERIODS * period):
-            lost = int(round(steps[i] / period)) - 1
-            self.stats.dropped += lost
+        for i in np.flatnonzero(np.diff(stamps) > _GAP_PERIODS * period):
+            self.stats.dropped += int(round((stamps[i + 1] - stamps[i]) / period)) - 1
             self.stats.gaps.append((offset + int(i), offset + int(i) + 1))
         self._last_stamp_ns = int(t_device[-1])
 
     def describe(self) -> dict[str, Any]:
-        """JSON-able: what was asked for, what was found, the latest clock correction."""
-        out: dict[str, Any] = {"backend": "lsl", "predicate": self.spec.predicate(),
-                               "required": self.spec.required, "missing": self.missing}
+        """JSON-able: what was asked for, what was found, the clock corrections measured."""
+        out: dict[str, Any] = {"backend": "lsl", "predicate": self.source.predicate(),
+                               "required": self.source.required, "missing": self.missing}
         if self.info is not None:
             out.update({k: v for k, v in vars(self.info).items() if k != "info_xml"})
-            out["correction_ns"] = self._correction_ns
+            out["time_corrections"] = [list(c) for c in self.time_corrections]
         return out

@@ -6,14 +6,14 @@ from collections.abc import Iterable
 from typing import Any
 
 from vbfe.drivers.streams.lsl import LslStream
-from vbfe.drivers.streams.settings import stream_specs
+from vbfe.drivers.streams.settings import stream_sources
 
 
 def streams_from_config(config: dict[str, dict[str, Any]]) -> dict[str, LslStream]:
     """The extra streams a rig config names, by session name (built, not opened; ConfigError
     when the table is wrong). Opening resolves them: a required one missing raises
     DeviceError naming it, an optional one stays unread (:func:`missing_streams`)."""
-    return {spec.key: LslStream(spec) for spec in stream_specs(config)}
+    return {source.key: LslStream(source) for source in stream_sources(config)}
 
 
 def missing_streams(devices: Iterable[Any]) -> list[str]:

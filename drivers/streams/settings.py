@@ -22,7 +22,7 @@ _KEY = re.compile(r"[a-z][a-z0-9_]{0,31}")
 
 
 @dataclass(frozen=True)
-class StreamSpec:
+class StreamSource:
     """One ``[streams.<key>]`` table: how to find the stream and whether it must be there."""
 
     key: str = ""  # the session's name for the stream (the table's key; not a config key)
@@ -45,9 +45,9 @@ class StreamSpec:
         return f"{self.key} (LSL {self.predicate().replace(' and ', ', ')})"
 
 
-def stream_specs(config: dict[str, dict[str, Any]]) -> list[StreamSpec]:
+def stream_sources(config: dict[str, dict[str, Any]]) -> list[StreamSource]:
     """The ``[streams]`` table of a rig config, checked (ConfigError naming table and key)."""
-    specs = []
+    sources = []
     for key, table in config.get("streams", {}).items():
         where = f"streams.{key}"
         if not isinstance(table, dict):
@@ -58,13 +58,13 @@ def stream_specs(config: dict[str, dict[str, Any]]) -> list[StreamSpec]:
                               f"letters, digits and _ (not one of {', '.join(RESERVED)})")
         if "key" in table:
             raise ConfigError(f"unknown key 'key' in [{where}]; the table's name is the key")
-        spec = parse_table(StreamSpec, {**table, "key": key}, where)
-        if not spec.predicate():
+        source = parse_table(StreamSource, {**table, "key": key}, where)
+        if not source.predicate():
             raise ConfigError(f"[{where}] names no stream: give its LSL name, type or "
                               "source_id")
-        for field, value in (("name", spec.name), ("type", spec.type),
-                             ("source_id", spec.source_id)):
+        for field, value in (("name", source.name), ("type", source.type),
+                             ("source_id", source.source_id)):
             if "'" in value:
                 raise ConfigError(f"[{where}] {field} = {value!r} must not contain a quote")
-        specs.append(spec)
-    return specs
+        sources.append(source)
+    return sources

@@ -21,6 +21,7 @@ class ForceSensor(SampleStream[ForceSample]):
     ``offset_n``.
     """
 
+    stream = "force"  # the session stream an acquisition reads it into
     rate_hz: float
     axes: tuple[str, ...] = ("x", "y", "z")
 

@@ -41,13 +41,11 @@ def run(args: argparse.Namespace) -> int:
     """Run live estimation and print the summary."""
     import torch
 
-    from vbfe.acquire.recording.record import session_recorder
     from vbfe.calib.calibration import load_calibration
-    from vbfe.drivers.registry import open_devices
     from vbfe.estimate.model_file import load_model
     from vbfe.live.estimator import FrameEstimator
     from vbfe.live.errors import LiveError
-    from vbfe.live.run import LiveRun, run_headless
+    from vbfe.live.run import live_run, run_headless
     from vbfe.live.settings import live_settings
     from vbfe.recon.matching import SgbmParams
 
@@ -66,17 +64,8 @@ def run(args: argparse.Namespace) -> int:
     estimator = FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
                                verify=not args.no_verify and settings.verify,
                                scale=args.scale or settings.scale, device=device)
-    config["bench"]["realtime"] = True  # live means the camera's own pace, on the bench too
-    devices = open_devices(config)
-    width, height = calibration.image_size
-    if (devices.camera.width, devices.camera.height) != (width, height):
-        raise LiveError(f"the camera delivers {devices.camera.width}x{devices.camera.height} but "
-                        f"{args.calib} is for {width}x{height}; use the calibration of this mode")
-    live = LiveRun(devices, estimator, model_name=str(args.model))
-    recorder = (session_recorder(config, args.record, live.devices,
-                                 calibration_yaml=calibration.to_yaml_text())
-                if args.record else None)
-    live.start(recorder, args.duration)
+    live = live_run(config, estimator, calibration, args.calib, args.record, str(args.model))
+    live.start(args.duration if args.record else None)
     if args.headless:
         status = run_headless(live, args.duration, lambda s: print(s.line(), flush=True),
                               settings.status_interval_s)

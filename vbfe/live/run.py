@@ -1,49 +1,37 @@
-"""A live run: devices (recorded or not) feed the newest frame to the estimator, the trocar's
-samples to a short history, and the estimates come out with their latency and error.
+"""A live run: a listener of the rig's acquisition hands the newest frame to the estimator and
+the trocar's samples to a short history; the estimates come out with their latency and error.
 
-With a session path, the rig is recorded as by ``vbfe record`` (the devices are tapped, not
-taken over) and the estimate stream is stored in the session when the run ends.
+With a session path the acquisition is a recorder (the rig is recorded as by ``vbfe record``)
+and the estimate stream is stored in the session when the run ends.
 """
 
 from __future__ import annotations
 
 import collections
-import contextlib
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from vbfe.acquire import EstimateStream, SessionReader, store_estimates
+from vbfe.acquire import Acquisition, EstimateStream, Listener, SessionReader, store_estimates
+from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
-from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.registry import Devices
+from vbfe.calib.calibration import Calibration
+from vbfe.drivers.projector.pattern import make_pattern
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.estimate.dataset import force_target
+from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
 from vbfe.live.mailbox import Mailbox
-from vbfe.recon import make_pattern
 
 _READ_TIMEOUT_S = 0.2
 FORCE_HISTORY_S = 30.0
-
-
-class _Tap:
-    """A device proxy that hands every item it reads to ``on_item``; all else is the device's."""
-
-    def __init__(self, device: Any, on_item: Callable[[Any], None]) -> None:
-        self._device, self._on_item = device, on_item
-
-    def read(self, timeout_s: float = 1.0) -> Any:
-        item = self._device.read(timeout_s)
-        if item is not None:
-            self._on_item(item)
-        return item
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._device, name)
 
 
 @dataclass
@@ -72,106 +60,91 @@ class LiveStatus:
                 f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N")
 
 
-class LiveRun:
-    """Run the estimator on a rig's newest frames until :meth:`stop`.
+def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
+             calibration: Calibration, calibration_name: str, record: str | Path | None = None,
+             model_name: str = "") -> LiveRun:
+    """The live run over the config's rig, run at the camera's own pace (a simulated one in
+    real time too), recording into ``record`` when given; not started yet. The calibration
+    must be of the camera's mode."""
+    rig = open_rig(config, RigOptions(realtime=True))
+    width, height = calibration.image_size
+    if (rig.camera.width, rig.camera.height) != (width, height):
+        raise LiveError(f"the camera delivers {rig.camera.width}x{rig.camera.height} but "
+                        f"{calibration_name} is for {width}x{height}; use the calibration of "
+                        "this mode")
+    acquisition = (session_recorder(config, record, rig,
+                                    calibration_yaml=calibration.to_yaml_text())
+                   if record else Acquisition(rig, pattern=make_pattern))
+    return LiveRun(acquisition, estimator, model_name)
 
-    A recorder given to :meth:`start` must be built over ``self.devices`` (the tapped
-    devices); it then owns them, else this run opens them and shows the pattern itself.
-    """
 
-    def __init__(self, devices: Devices, estimator: FrameEstimator, model_name: str = "") -> None:
+class LiveRun(Listener):
+    """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
+    itself as a listener; with a :class:`Recorder` the run is recorded)."""
+
+    def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
+                 model_name: str = "") -> None:
+        acquisition.add(self)
+        self.acquisition = acquisition
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
         self._frames: Mailbox[StereoFrame] = Mailbox()
-        rate = float(getattr(devices.trocar, "rate_hz", 1000.0) or 1000.0)
+        rate = float(acquisition.rig.trocar.rate_hz or 1000.0)
         self._forces: collections.deque = collections.deque(maxlen=int(rate * FORCE_HISTORY_S))
-        self.devices = Devices(camera=_Tap(devices.camera, self._frames.put),
-                               trocar=_Tap(devices.trocar, self._forces.append),
-                               projector=devices.projector, bench=devices.bench)
         self.estimates: list[LiveEstimate] = []
         self._trocar_at_estimates: list[float] = []
         self._lock = threading.Lock()
         self._halt = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._recorder: Recorder | None = None
-        self._recorder_done = threading.Event()
+        self._thread: threading.Thread | None = None
         self.error: str | None = None
         self._t0 = 0.0
 
     # -- lifecycle --------------------------------------------------------------------------
-    def start(self, recorder: Recorder | None = None, duration_s: float | None = None) -> None:
-        """Start reading (through ``recorder`` when given) and estimating."""
+    def start(self, duration_s: float | None = None) -> None:
+        """Start the acquisition (keeping ``duration_s`` of frames when given) and estimating."""
         self._t0 = time.monotonic()
-        self._recorder = recorder
-        if recorder is not None:
-            recorder.start()
-            self._spawn(self._record, recorder, duration_s)
-        else:
-            self._open_devices()
-            self._spawn(self._pump, self.devices.camera)
-            self._spawn(self._pump, self.devices.trocar)
-        self._spawn(self._estimate_loop)
+        self.acquisition.start(duration_s)
 
     def running(self) -> bool:
-        """False once the recording ended (duration, device gone) or a pump failed."""
-        return not (self._halt.is_set() or self._recorder_done.is_set())
+        """False once the acquisition ended (duration, device gone)."""
+        return self.acquisition.running()
 
     def stop(self, reason: str = "stopped by operator") -> LiveStatus:
-        """Stop reading and estimating; with a recorder, finalize the session and store the
-        estimate stream in it."""
-        if self._recorder is not None:
-            if not self._recorder_done.is_set():
-                self._recorder.request_stop(reason)
-            self._recorder_done.wait()
-        self._halt.set()
-        for thread in self._threads:
-            thread.join()
-        if self._recorder is None:
-            for device in (self.devices.camera, self.devices.trocar, self.devices.projector):
-                with contextlib.suppress(DeviceError):
-                    device.close()
+        """Stop the acquisition and the estimator; when recording, store the estimate stream
+        in the finalized session. A failure, or a device lost without a recording, is kept in
+        ``error``."""
+        lost = self.acquisition.lost()
+        try:
+            self.acquisition.stop(reason)
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = str(exc)
+        recording = isinstance(self.acquisition, Recorder)
+        if lost and not recording and self.error is None:
+            self.error = lost
         status = self.status()
-        if self._recorder is not None and self.error is None:
-            with SessionReader(self._recorder.path) as reader:
+        if recording and self.error is None:
+            with SessionReader(self.acquisition.path) as reader:
                 recorded = reader.stream_times("camera")[2][:reader.n_frames]
-            store_estimates(self._recorder.path, self.stream(status, recorded))
+            store_estimates(self.acquisition.path, self.stream(status, recorded))
         return status
 
-    # -- threads ------------------------------------------------------------------------------
-    def _spawn(self, target: Callable[..., None], *args: Any) -> None:
-        thread = threading.Thread(target=target, args=args, daemon=True,
-                                  name=f"vbfe-live-{target.__name__.strip('_')}")
-        self._threads.append(thread)
-        thread.start()
+    # -- listener hooks ---------------------------------------------------------------------
+    def on_start(self, acquisition: Acquisition) -> None:
+        self._thread = threading.Thread(target=self._estimate_loop, daemon=True,
+                                        name="vbfe-live-estimate")
+        self._thread.start()
 
-    def _open_devices(self) -> None:
-        opened = []
-        try:
-            for device in (self.devices.camera, self.devices.trocar, self.devices.projector):
-                device.open()
-                opened.append(device)
-        except DeviceError:
-            for device in opened:
-                device.close()
-            raise
-        projector = self.devices.projector
-        projector.show(make_pattern(projector.width, projector.height), "debruijn-hsv")
+    def on_frames(self, frames: Sequence[StereoFrame]) -> None:
+        for frame in frames:
+            self._frames.put(frame)
 
-    def _record(self, recorder: Recorder, duration_s: float | None) -> None:
-        try:
-            recorder.run(duration_s)
-        except Exception as exc:  # noqa: BLE001 - reported by the command after stop()
-            self.error = str(exc)
-        finally:
-            self._recorder_done.set()
+    def on_samples(self, samples: Sequence[ForceSample]) -> None:
+        self._forces.extend(samples)
 
-    def _pump(self, device: Any) -> None:
-        while not self._halt.is_set():
-            try:
-                device.read(_READ_TIMEOUT_S)
-            except DeviceError as exc:
-                self.error = str(exc)
-                self._halt.set()
+    def on_stop(self, acquisition: Acquisition) -> None:
+        self._halt.set()
+        if self._thread is not None:
+            self._thread.join()
 
     def _estimate_loop(self) -> None:
         while not self._halt.is_set():

@@ -1,0 +1,72 @@
+"""What an acquisition hands its records to: the :class:`Listener` base and the :class:`Gap`."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+
+if TYPE_CHECKING:
+    from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Records of ``stream`` lost between ``last_seq`` and ``next_seq`` (-1: not known)."""
+
+    stream: str
+    reason: str  # one of the session layout's gap reasons
+    last_seq: int
+    next_seq: int
+    t_host_ns: int
+    count: int
+
+
+class Listener:
+    """A consumer of an acquisition; override the hooks you need (here they do nothing).
+
+    ``on_start``, ``on_tick`` and ``on_stop`` run in the controlling thread (the one calling
+    ``start``, ``run`` and ``stop``); the record hooks run in the acquisition's dispatch thread,
+    in the order listeners were added, one batch at a time, and must be quick (hand heavy work
+    to a thread of your own, as the live estimator's mailbox does). An exception in a record
+    hook stops the acquisition; ``stop`` raises it after every listener's ``on_stop``.
+    """
+
+    def on_start(self, acquisition: "Acquisition") -> None:
+        """The rig is open and about to be read."""
+
+    def on_records(self, stream: str, records: Sequence[Any]) -> None:
+        """A batch of one stream, in arrival order. Here: ``camera`` → :meth:`on_frames`,
+        ``force`` → :meth:`on_samples`, ``projector`` → :meth:`on_events`; override (and call
+        ``super()``) for the streams of further device kinds."""
+        if stream == "camera":
+            self.on_frames(records)
+        elif stream == "force":
+            self.on_samples(records)
+        elif stream == "projector":
+            self.on_events(records)
+
+    def on_frames(self, frames: Sequence[StereoFrame]) -> None:
+        """Stereo frames kept by the acquisition."""
+
+    def on_samples(self, samples: Sequence[ForceSample]) -> None:
+        """Force samples kept by the acquisition."""
+
+    def on_events(self, events: Sequence[ProjectorEvent]) -> None:
+        """Patterns the projector showed."""
+
+    def on_gap(self, gap: Gap) -> None:
+        """Records lost (queue full, device disconnected, a bus error the device reported)."""
+
+    def on_round(self) -> None:
+        """After each dispatch round (about every 20 ms at most): periodic work such as flushes."""
+
+    def on_tick(self, acquisition: "Acquisition", stats: "AcquisitionStats") -> None:
+        """Every 50 ms while :meth:`Acquisition.run` runs, in its thread (e.g. to show
+        patterns with ``acquisition.show``)."""
+
+    def on_stop(self, acquisition: "Acquisition") -> None:
+        """Reading has ended and every record was dispatched; ``acquisition.stats.end_reason``
+        says why and ``acquisition.error`` holds a failure of a record hook, if any."""

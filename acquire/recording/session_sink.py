@@ -1,0 +1,256 @@
+"""The session sink: the listener that writes an acquisition into one session file.
+
+Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so the data lost to
+a crash (flush time, queued records and scheduling delays included) stays within it. Free space
+is checked continuously (on the clock and by volume written); below a quarter of
+``min_free_bytes`` the acquisition is halted and the session finalized. A write failure (full
+disk, I/O error) halts it and leaves the file as of its last flush. At the end the file is
+finalized with the drop counters, the devices' final description and, on a simulated rig, the
+per-frame ground truth.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from vbfe.acquire.errors import SessionError
+from vbfe.acquire.recording.listener import Gap, Listener
+from vbfe.acquire.recording.storage import check_destination, free_bytes
+from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
+from vbfe.acquire.session.layout import StreamSpec
+from vbfe.acquire.session.writer import SessionWriter, finalize_session
+
+from vbfe.drivers.streams.records import StreamInfo
+
+if TYPE_CHECKING:
+    from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+
+_SPACE_CHECK_S = 0.25  # free space is read this often, and after every eighth of the stop
+# margin (a quarter of min_free_bytes) written, however fast the frames come
+_MIN_SPACE_CHECK_BYTES = 1 << 20
+_FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
+
+
+def _is_write_failure(exc: BaseException) -> bool:
+    """An expected failure of the file (h5py raises RuntimeError for some failed flushes)."""
+    return isinstance(exc, (OSError, SessionError)) or (
+        isinstance(exc, RuntimeError) and "errno =" in str(exc))
+
+
+def _failure_reason(exc: BaseException) -> str:
+    """A short reason for a failed write (HDF5 messages embed errno and buffer addresses)."""
+    errno = getattr(exc, "errno", None)
+    if not errno:
+        found = re.search(r"errno = (\d+)", str(exc))
+        errno = int(found.group(1)) if found else None
+    return os.strerror(errno) if errno else str(exc)[:200]
+
+
+def _merged_metadata(given: dict[str, Any], described: dict[str, Any]) -> dict[str, Any]:
+    """The session metadata: what the command gave over what the rig describes (its devices
+    and backend facts such as a simulated trial's conditions; dicts merged, given keys win)."""
+    out = dict(given)
+    for key, value in described.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = {**value, **out[key]}
+        else:
+            out.setdefault(key, value)
+    return out
+
+
+@dataclass(frozen=True)
+class Mark:
+    """An event mark (``vbfe mark``): its text and host time."""
+
+    text: str
+    seq: int
+    t_device_ns: int  # the marks stream's clock is the host's
+    t_host_ns: int
+
+
+class SessionSink(Listener):
+    """Write every record of an acquisition into the new session file ``path``.
+
+    ``streams`` are the specs of streams beyond the core ones (camera, force, projector) that
+    the rig's further devices feed; the rig's LSL streams (devices with an ``info``) are added
+    when it starts. With a :func:`marks_stream` among them, :meth:`mark` puts event marks into
+    the session from any thread. ``on_flush(stats)`` is called after each flush (dispatch
+    thread). The destination is checked (folder, free space, ``overwrite``) when the sink is
+    made.
+    """
+
+    def __init__(self, path: str | Path, compression: str = "lzf", flush_interval_s: float = 1.0,
+                 metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
+                 min_free_bytes: int = 1 << 30, overwrite: bool = False,
+                 on_flush: Callable[["AcquisitionStats"], None] | None = None,
+                 streams: Sequence[StreamSpec] = ()) -> None:
+        if flush_interval_s <= 0:
+            raise SessionError(f"flush_interval_s must be positive, got {flush_interval_s}")
+        self.path = check_destination(path, min_free_bytes, overwrite)
+        self.compression = compression
+        self.flush_interval_s = flush_interval_s
+        self.metadata = dict(metadata or {})
+        self.calibration_yaml = calibration_yaml
+        self.min_free_bytes = min_free_bytes
+        self.on_flush = on_flush
+        self.streams = tuple(streams)
+        self._acquisition: Acquisition | None = None
+        self._writer: SessionWriter | None = None
+        self._error: BaseException | None = None
+        self._fault: str | None = None  # a reason to stop, reported after finalizing
+        self._flush_cost_s = 0.0  # longest recent flush
+        self._next_flush = self._next_space_check = 0.0
+        self._checked_at_bytes = 0
+        self._frame_t_device: list[int] = []
+        self._marks: list[Mark] = []
+        self._marks_lock = threading.Lock()
+
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Note a failure of the file (then re-raised: it stops the acquisition)."""
+        try:
+            yield
+        except Exception as exc:
+            self._error = exc
+            raise
+
+    # -- listener hooks -------------------------------------------------------------------
+    def on_start(self, acquisition: "Acquisition") -> None:
+        rig = acquisition.rig
+        self._acquisition = acquisition
+        self.metadata = _merged_metadata(self.metadata, rig.describe())
+        self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
+                              if isinstance(getattr(device, "info", None), StreamInfo))
+        self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
+                                     self.compression, self.metadata, self.calibration_yaml,
+                                     rig.trocar.axes, self.flush_interval_s, self.streams)
+        self._next_flush = time.monotonic() + self._flush_period_s()
+
+    def on_records(self, stream: str, records: Sequence[Any]) -> None:
+        with self._writing():
+            if stream == "camera":
+                self._frame_t_device.extend(fr.t_device_ns for fr in records)
+            self._writer.append(stream, records)
+
+    def on_gap(self, gap: Gap) -> None:
+        with self._writing():
+            self._writer.add_gap(gap.stream, gap.reason, gap.last_seq, gap.next_seq,
+                                 gap.t_host_ns, gap.count)
+
+    def mark(self, text: str, t_host_ns: int) -> None:
+        """Put an event mark at host time ``t_host_ns`` into the session (any thread; written
+        by the dispatch thread within a round)."""
+        if MARKS not in (spec.name for spec in self.streams):
+            raise SessionError(f"{self.path} records no event marks (no {MARKS!r} stream)")
+        with self._marks_lock:
+            self._marks.append(Mark(text, len(self._marks), t_host_ns, t_host_ns))
+
+    def _write_marks(self) -> None:
+        if MARKS not in self._writer.streams:
+            return
+        with self._marks_lock:
+            written = self._writer.counts.get(MARKS, 0)
+            pending = self._marks[written:]
+        self._writer.append(MARKS, pending)
+
+    def on_round(self) -> None:
+        writer, stats = self._writer, self._acquisition.stats
+        with self._writing():
+            self._write_marks()
+            now = time.monotonic()
+            if now >= self._next_flush:  # on the clock: a slow flush does not shift the next
+                self._flush()
+                self._next_flush += self._flush_period_s()
+                if self._next_flush <= time.monotonic():
+                    self._next_flush = time.monotonic()
+            check_every = max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
+            if (now >= self._next_space_check
+                    or writer.bytes_written - self._checked_at_bytes >= check_every):
+                self._check_space()
+                self._next_space_check = now + _SPACE_CHECK_S
+                self._checked_at_bytes = writer.bytes_written
+        stats.bytes_written = writer.bytes_written
+
+    def on_stop(self, acquisition: "Acquisition") -> None:
+        writer, stats = self._writer, acquisition.stats
+        if self._error is None:
+            with contextlib.suppress(Exception), self._writing():
+                self._write_marks()
+                writer.close()
+        stats.flushed, stats.bytes_written = dict(writer.flushed_counts), writer.bytes_written
+        if self._error is not None:
+            closed = writer.abort()
+            if not _is_write_failure(self._error):
+                raise self._error  # a bug: keep its traceback
+            reason = _failure_reason(self._error)
+            if closed and free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
+                with contextlib.suppress(SessionError, OSError, RuntimeError):
+                    finalize_session(self.path, self._final_attrs(acquisition,
+                                                                  f"write failed: {reason}"))
+            raise SessionError(f"writing {self.path} failed ({reason}); recording stopped, the "
+                               "file keeps what was written before the failure (see `vbfe "
+                               f"inspect {self.path}`)") from None
+        finalize_session(self.path, self._final_attrs(acquisition), self._truth(acquisition))
+        if self._fault is not None:
+            raise SessionError(f"{self._fault}; recording stopped and {self.path} finalized with "
+                               f"{stats.frames} frames")
+
+    # -- internals ------------------------------------------------------------------------
+    def _flush_period_s(self) -> float:
+        """Time between flush starts. A crash loses at most one period plus the flush itself,
+        the records still queued and any delay of the dispatch under load: flushes start every
+        half interval (sooner when they are slow), leaving the other half for the rest."""
+        interval = self.flush_interval_s
+        return max(interval / 4, interval / 2 - self._flush_cost_s)
+
+    def _flush(self) -> None:
+        started = time.monotonic()
+        self._writer.flush()
+        cost = time.monotonic() - started
+        self._flush_cost_s = max(cost, 0.9 * self._flush_cost_s)  # slow flushes count for a while
+        stats = self._acquisition.update_stats()
+        stats.flushed, stats.bytes_written = dict(self._writer.flushed_counts), \
+            self._writer.bytes_written
+        if self.on_flush is not None:
+            self.on_flush(stats)
+
+    def _check_space(self) -> None:
+        """Halt the acquisition (the session is then finalized) when free space falls below a
+        quarter of ``min_free_bytes``."""
+        free = free_bytes(self.path.parent)
+        if free < self.min_free_bytes // 4 and self._fault is None:
+            self._fault = (f"disk almost full: {free / 1e9:.3f} GB left on {self.path.parent} "
+                           f"(limit {self.min_free_bytes / 4e9:.3f} GB, a quarter of min_free_gb)")
+            self._acquisition.halt(self._fault)
+
+    def _final_attrs(self, acquisition: "Acquisition",
+                     end_reason: str | None = None) -> dict[str, Any]:
+        stats = acquisition.stats
+        attrs: dict[str, Any] = {"end_reason": end_reason or stats.end_reason}
+        readers = dict(acquisition.rig.streams())
+        for stream, device in readers.items():
+            attrs[f"{stream}_queue_dropped"] = stats.queue_dropped.get(stream, 0)
+            attrs[f"{stream}_device_dropped"] = int(device.stats.dropped)
+            attrs[f"{stream}_device_malformed"] = int(device.stats.malformed)
+            attrs[f"{stream}_device_errors"] = int(device.stats.errors)
+        attrs["devices_at_end_json"] = json.dumps(  # e.g. the trocar's clock, decided at frame 1
+            {name: d.describe() for name, d in acquisition.rig.devices.items()
+             if d in readers.values()}, default=str)
+        return attrs
+
+    def _truth(self, acquisition: "Acquisition") -> dict[str, np.ndarray] | None:
+        truth = acquisition.rig.truth
+        if truth is None or not self._frame_t_device:
+            return None
+        return truth.session_truth(np.array(self._frame_t_device, dtype=np.int64))
