@@ -6,6 +6,7 @@ import json
 import socket
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pylsl
@@ -29,7 +30,8 @@ def _estimate(seq: int, force: list[float], latency_s: float = 0.04) -> LiveEsti
 
 def test_lsl_output_publishes_estimates_and_trocar() -> None:
     source = f"vbfe-test-{time.monotonic_ns()}"
-    output = LslOutput("xyz", trocar_rate_hz=1000.0, source_id=source)
+    output = LslOutput("xyz", source_id=source)
+    output.on_start(SimpleNamespace(rig=SimpleNamespace(trocar=SimpleNamespace(rate_hz=1000.0))))
     inlets = {}
     for name in ("vbfe-estimate", "vbfe-trocar"):
         found = pylsl.resolve_bypred(f"name='{name}' and source_id='{source}-{name[5:]}'",
@@ -46,7 +48,7 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
     estimate = _estimate(7, [0.5, -1.0, 2.0])
     output.on_estimate(estimate)
     now = time.monotonic_ns()
-    output.on_forces([ForceSample(np.array([0.1, 0.2, 0.3]), k, 0, now + k * 1_000_000)
+    output.on_samples([ForceSample(np.array([0.1, 0.2, 0.3]), k, 0, now + k * 1_000_000)
                       for k in range(5)])
     sample, stamp = inlets["vbfe-estimate"].pull_sample(timeout=5.0)
     assert sample[:3] == [0.5, -1.0, 2.0] and sample[4] == pytest.approx(0.04)
@@ -54,7 +56,8 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
     values, stamps = inlets["vbfe-trocar"].pull_chunk(timeout=5.0, max_samples=5, min_samples=5)
     assert len(values) == 5 and values[0] == pytest.approx([0.1, 0.2, 0.3])
     assert stamps[4] - stamps[0] == pytest.approx(0.004, abs=1e-6)
-    output.close()
+    assert inlets["vbfe-trocar"].info().nominal_srate() == 1000.0
+    output.on_stop(None)
 
 
 def test_udp_output_sends_one_json_datagram_per_estimate() -> None:
@@ -68,7 +71,7 @@ def test_udp_output_sends_one_json_datagram_per_estimate() -> None:
     assert first["frame_seq"] == 3 and first["force_n"] == [1.25]
     assert first["t_ready_host_ns"] - first["t_frame_host_ns"] == pytest.approx(4e7, abs=2)
     assert second["force_n"] == [None] and second["target"] == "magnitude"
-    output.close()
+    output.on_stop(None)
     receiver.close()
     for bad in ("localhost", "host:0", ":9870", "h:70000", "h:x"):
         with pytest.raises(LiveError, match="is not HOST:PORT"):

@@ -1,6 +1,7 @@
 """Live outputs for other programs: each estimate (and the trocar's force) on an LSL outlet,
-or as one JSON datagram per estimate over UDP. Both are listeners of the live run: they are
-handed every estimate and every batch of trocar samples, and never block the estimator."""
+or as one JSON datagram per estimate over UDP. Both are listeners of the acquisition (the
+trocar's samples, the rig's opening and closing) and of the live run's estimates
+(:meth:`on_estimate`, called by its estimator thread); neither blocks."""
 
 from __future__ import annotations
 
@@ -15,12 +16,22 @@ import numpy as np
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.streams.lsl import pylsl
 from vbfe.live.errors import LiveError
+from vbfe.acquire import Listener
 
 if TYPE_CHECKING:
+    from vbfe.acquire import Acquisition
     from vbfe.live.estimator import LiveEstimate
 
 ESTIMATE_STREAM = "vbfe-estimate"
 TROCAR_STREAM = "vbfe-trocar"
+
+
+class EstimateOutput(Listener):
+    """A listener of the acquisition that also receives every estimate (from the estimator's
+    thread: it must not block)."""
+
+    def on_estimate(self, estimate: LiveEstimate) -> None:
+        """One new estimate."""
 
 
 def target_channels(target: str) -> list[str]:
@@ -46,22 +57,28 @@ def _outlet(name: str, stream_type: str, channels: Sequence[tuple[str, str]], ra
     return lsl.StreamOutlet(info, chunk_size=1)
 
 
-class LslOutput:
-    """Two LSL outlets: ``vbfe-estimate`` (type ``Force``, irregular: the force values, the
-    source frame's capture time ``t_frame_s`` and ``latency_s``, stamped with the frame's
-    capture time on the host clock) and ``vbfe-trocar`` (type ``Force``, the trocar's x, y, z
-    in newtons at its rate, stamped with each sample's host time)."""
+class LslOutput(EstimateOutput):
+    """Two LSL outlets while the rig runs: ``vbfe-estimate`` (type ``Force``, irregular: the
+    force values, the source frame's capture time ``t_frame_s`` and ``latency_s``, stamped
+    with the frame's capture time on the host clock) and ``vbfe-trocar`` (type ``Force``, the
+    trocar's x, y, z in newtons at its rate, each sample stamped with its host time); their
+    source ids are ``<source_id>-estimate`` and ``<source_id>-trocar``."""
 
-    def __init__(self, target: str, trocar_rate_hz: float,
-                 source_id: str = f"vbfe@{socket.gethostname()}") -> None:
-        names = target_channels(target)
+    def __init__(self, target: str, source_id: str = f"vbfe@{socket.gethostname()}") -> None:
+        self.target, self.source_id = target, source_id
+        self.estimate: Any = None
+        self.trocar: Any = None
+
+    def on_start(self, acquisition: Acquisition) -> None:
+        names = target_channels(self.target)
         self.estimate = _outlet(ESTIMATE_STREAM, "Force",
                                 [(n, "N") for n in names] + [("t_frame_s", "s"),
                                                              ("latency_s", "s")],
-                                pylsl().IRREGULAR_RATE, f"{source_id}-estimate")
+                                pylsl().IRREGULAR_RATE, f"{self.source_id}-estimate")
         self.trocar = _outlet(TROCAR_STREAM, "Force", [("force_x", "N"), ("force_y", "N"),
                                                        ("force_z", "N")],
-                              trocar_rate_hz, f"{source_id}-trocar")
+                              float(acquisition.rig.trocar.rate_hz or 0.0),
+                              f"{self.source_id}-trocar")
 
     def on_estimate(self, estimate: LiveEstimate) -> None:
         """Publish one estimate (time stamp: its frame's capture time)."""
@@ -69,13 +86,13 @@ class LslOutput:
         self.estimate.push_sample([*estimate.force_n.tolist(), t_frame_s, estimate.latency_s],
                                   t_frame_s)
 
-    def on_forces(self, samples: Sequence[ForceSample]) -> None:
+    def on_samples(self, samples: Sequence[ForceSample]) -> None:
         """Publish trocar samples (each stamped with its host time)."""
         if samples:
             self.trocar.push_chunk(np.array([s.force_n for s in samples], np.float64),
                                    [s.t_host_ns / 1e9 for s in samples])
 
-    def close(self) -> None:
+    def on_stop(self, acquisition: Acquisition) -> None:
         """Withdraw both outlets."""
         self.estimate = self.trocar = None
 
@@ -89,7 +106,7 @@ def udp_address(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-class UdpOutput:
+class UdpOutput(EstimateOutput):
     """One JSON datagram per estimate to ``host:port``::
 
         {"frame_seq": 12, "t_frame_host_ns": ..., "t_ready_host_ns": ..., "latency_s": 0.041,
@@ -120,9 +137,6 @@ class UdpOutput:
         except OSError:
             pass  # nobody listening yet (ICMP port unreachable) or buffer full: a lost datagram
 
-    def on_forces(self, samples: Sequence[ForceSample]) -> None:
-        """Trocar samples are not sent over UDP."""
-
-    def close(self) -> None:
+    def on_stop(self, acquisition: Acquisition) -> None:
         """Close the socket."""
         self._sock.close()
