@@ -2,6 +2,7 @@
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+from vbfe.acquire.recording.frame_feed import FrameFeed, frame_feed
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.record import record_session
 from vbfe.acquire.recording.recorder import Recorder
@@ -14,7 +15,7 @@ from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.session.recovery import recover_session
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 
-__all__ = ["Acquisition", "AcquisitionStats", "ClockFit", "Column", "EstimateStream", "Gap", "Listener",
+__all__ = ["Acquisition", "AcquisitionStats", "ClockFit", "Column", "EstimateStream", "FrameFeed", "Gap", "Listener",
            "Recorder", "SessionError", "SessionReader", "SessionSink", "SessionWriter", "StreamSpec",
-           "finalize_session", "fit_clock", "record_session", "recover_session",
+           "finalize_session", "fit_clock", "frame_feed", "record_session", "recover_session",
            "store_analysis", "store_calibration", "store_estimates"]

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
@@ -115,11 +116,10 @@ def check_calibration(stored: Calibration, new: Calibration | None = None,
     if views is not None:
         if spec is None:
             raise CalibrationError("checking fresh views needs the board description")
-        size = check_sizes(views)
-        if size != stored.image_size:
-            raise CalibrationError(f"{views.source}: views are {size[0]}x{size[1]} but the stored "
-                                   f"calibration is for {stored.image_size[0]}x"
-                                   f"{stored.image_size[1]}")
+        mismatch = size_mismatch(f"{views.source} has", check_sizes(views),
+                                 "the stored calibration", stored.image_size)
+        if mismatch:
+            raise CalibrationError(mismatch)
         detector = BoardDetector(spec)
         board_points = spec.object_points()
         epi, scales = [], []

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.acquire.recording.frame_feed import frame_feed
 from vbfe.calib.board import BoardSpec, write_board
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.camera import CameraOptions
@@ -69,9 +70,8 @@ def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int
     """
     spec = board_spec(config, **overrides)
     options = CaptureOptions.from_config(section(config, "calib"))
-    with open_rig(config, RigOptions(seed=seed), ("camera",)) as rig:
-        return capture_views(camera_frames(rig.camera, max_frames), spec, folder, options,
-                             on_view)
+    with frame_feed(open_rig(config, RigOptions(seed=seed), ("camera",))) as frames:
+        return capture_views(camera_frames(frames, max_frames), spec, folder, options, on_view)
 
 
 def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: int | None = None,
@@ -79,6 +79,8 @@ def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: in
     """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
     write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
     options = GrayCaptureOptions.from_config(section(config, "calib"))
+    # lock-step (show, then read the frames after it): the camera is read directly, so a
+    # simulated one renders no frame ahead of the pattern shown
     with open_rig(config, RigOptions(seed=seed), ("camera", "projector")) as rig:
         return capture_gray_code(rig.camera, rig.projector, folder, n_poses, options, on_event)
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
@@ -136,10 +137,10 @@ def calibrate_projector(captures: list[GrayCodeCapture], spec: BoardSpec,
     board_points = spec.object_points()
     obj, cam_pts, proj_pts, used = [], [], [], []
     for i, capture in enumerate(captures):
-        if (capture.white.shape[1], capture.white.shape[0]) != camera.image_size:
-            raise CalibrationError(f"pose {i}: images are {capture.white.shape[1]}x"
-                                   f"{capture.white.shape[0]}, the camera calibration is for "
-                                   f"{camera.image_size[0]}x{camera.image_size[1]}")
+        mismatch = size_mismatch(f"pose {i} has", capture.white.shape[1::-1],
+                                 "the camera calibration", camera.image_size)
+        if mismatch:
+            raise CalibrationError(mismatch)
         det = detector.detect(capture.white)
         if len(det) < options.min_corners:
             continue

@@ -23,11 +23,12 @@ import h5py
 import numpy as np
 
 from vbfe import __version__
+from vbfe.acquire.resample import resample_at
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
-from vbfe.recon.clouds import CloudWriter, session_fingerprint
+from vbfe.recon.clouds import CloudWriter
 
-IMPORT_SOURCE = "vbfe import"
+IMPORT_SOURCE = "import"  # the clouds file's source_kind
 FORCE_UNITS_N = {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": 9.80665e-3, "kgf": 9.80665,
                  "lbf": 4.4482216152605}
 TIME_UNITS_NS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
@@ -202,13 +203,9 @@ class ForceTable:
             out[index[inside].astype(int)] = values[inside]
             return out
         t_ns = table[key] * TIME_UNITS_NS[self.time_unit]
-        order = np.argsort(t_ns, kind="stable")
-        t_ns, values = t_ns[order], values[order]
         if len(t_ns) < 2:
             raise EstimateError(f"{self.path} needs at least two force samples to resample")
-        for a in range(3):
-            out[:, a] = np.interp(frame_times_ns, t_ns, values[:, a], left=np.nan, right=np.nan)
-        return out
+        return resample_at(frame_times_ns, np.round(t_ns).astype(np.int64), values)
 
 
 def frame_times(n_frames: int, fps: float | None, times_csv: Path | None, column: str | None,
@@ -238,11 +235,9 @@ def write_clouds(out: str | Path, clouds: Sequence[np.ndarray], times_ns: np.nda
         raise EstimateError(f"--out {out.name}: name the imported file *{CLOUDS_SUFFIX}")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".part")
-    attrs = {"session_path": str(source.get("folder", "")),
-             "session_fingerprint": session_fingerprint(0, (np.asarray(times_ns),)),
-             "verify": False, "sgbm_json": "{}", "software_version": __version__,
-             "source": IMPORT_SOURCE, "source_json": json.dumps(source)}
-    writer = CloudWriter(tmp, attrs, calibration_yaml=json.dumps(source.get("camera", {})))
+    attrs = {"source_kind": IMPORT_SOURCE, "session_path": str(source.get("folder", "")),
+             "software_version": __version__, "source_json": json.dumps(source)}
+    writer = CloudWriter(tmp, attrs, calibration_yaml=None)  # no stereo calibration made them
     try:
         for i, (points, t_ns) in enumerate(zip(clouds, times_ns)):
             points = np.asarray(points, np.float32).reshape(-1, 3)

@@ -69,7 +69,8 @@ def is_cloud_file(path: str | Path) -> bool:
 class CloudWriter:
     """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
 
-    def __init__(self, path: str | Path, attrs: dict[str, object], calibration_yaml: str) -> None:
+    def __init__(self, path: str | Path, attrs: dict[str, object],
+                 calibration_yaml: str | None) -> None:
         self.path = Path(path)
         try:
             self._file = h5py.File(self.path, "w")
@@ -78,7 +79,9 @@ class CloudWriter:
         f = self._file
         f.attrs.update({"format": FORMAT_NAME, "format_version": FORMAT_VERSION,
                         "complete": False, **attrs})
-        f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
+        if calibration_yaml is not None:  # clouds imported from elsewhere have none
+            f.create_dataset("calibration_yaml", data=calibration_yaml,
+                             dtype=h5py.string_dtype())
         f.create_dataset("points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3),
                          compression="lzf").attrs["units"] = "m"
         f.create_dataset("colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3),

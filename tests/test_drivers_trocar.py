@@ -12,7 +12,7 @@ import pytest
 
 from tests.fakes.trocar import FakeTrocar
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.registry import open_device
+from vbfe.drivers.registry import open_rig
 from vbfe.drivers.trocar.can_trocar import CanTrocar
 from vbfe.drivers.trocar.dbc import checksum, default_dbc_path, load_frame_format
 
@@ -160,9 +160,10 @@ def test_rig_config_with_own_dbc_lacking_counter_and_checksum(tmp_path):
     own.write_text("\n".join(line for line in text.splitlines()
                              if "Counter" not in line and "Checksum" not in line))
     channel = _channel()
-    trocar = open_device("trocar", {"backend": "can", "interface": "virtual", "channel": channel,
-                                    "dbc": str(own), "message": "Plain", "counter_signal": "",
-                                    "checksum_signal": "", "rate_hz": 500.0})
+    trocar = open_rig({"trocar": {"backend": "can", "interface": "virtual", "channel": channel,
+                                  "dbc": str(own), "message": "Plain", "counter_signal": "",
+                                  "checksum_signal": "", "rate_hz": 500.0}},
+                      families=("trocar",)).trocar
     plain = load_frame_format(own, "Plain", counter_signal=None, checksum_signal=None)
     with trocar, can.Bus(interface="virtual", channel=channel) as sender:
         sent_from_ns = time.time_ns()

@@ -192,6 +192,7 @@ class Acquisition:
         self._pumps: list[_Pump] = []
         self._dispatcher: threading.Thread | None = None
         self._started = self._stopped = False
+        self.paced = False  # the camera is not real time: readers wait for room, nothing drops
         self._frame_t_host = [0, 0]  # first, last kept
         self._span_limit_ns: int | None = None
         self._span_reached = threading.Event()
@@ -224,13 +225,13 @@ class Acquisition:
             self.rig.close()
             raise
         streams = dict(self.rig.streams())
-        paced = any(d.describe().get("realtime") is False for s, d in streams.items()
-                    if s == "camera")
+        self.paced = any(d.describe().get("realtime") is False for s, d in streams.items()
+                         if s == "camera")
         for stream, device in streams.items():
             size = self._queue_size * (1 if stream == "camera" else _SAMPLE_QUEUE_FACTOR)
             self._queues[stream] = queue.Queue(maxsize=size)
             self._pumps.append(_Pump(stream, device, self._queues[stream], self._control,
-                                     self._halt, paced,
+                                     self._halt, self.paced,
                                      (lambda: None) if stream == "camera" else self._reached_end_ns))
         self._dispatcher = threading.Thread(target=self._dispatch_loop, name="vbfe-dispatch",
                                             daemon=True)
@@ -306,6 +307,11 @@ class Acquisition:
         """``"<stream> disconnected: <why>"`` once a device is gone, else ``None``."""
         dead = [p for p in self._pumps if p.error is not None]
         return f"{dead[0].stream} disconnected: {dead[0].error}" if dead else None
+
+    @property
+    def halted(self) -> bool:
+        """Whether reading is stopping or has stopped."""
+        return self._halt.is_set()
 
     def running(self) -> bool:
         """Whether the acquisition is still reading (no end condition met yet)."""

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.recorder import Recorder
@@ -76,12 +77,11 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
 def check_camera_size(rig: Rig, calibration_size: tuple[int, int] | None,
                       calibration_name: str = "the calibration") -> None:
     """SessionError unless the calibration (when given) is of the camera's image size."""
-    camera_size = (rig.camera.width, rig.camera.height)
-    if calibration_size is not None and tuple(calibration_size) != camera_size:
-        raise SessionError(f"{calibration_name} is for {calibration_size[0]}x"
-                           f"{calibration_size[1]} images but the camera gives {camera_size[0]}x"
-                           f"{camera_size[1]}; calibrate at this resolution or change the "
-                           "camera's size")
+    if calibration_size is not None:
+        mismatch = size_mismatch("the camera gives", (rig.camera.width, rig.camera.height),
+                                 calibration_name, calibration_size)
+        if mismatch:
+            raise SessionError(mismatch)
 
 
 def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, rig: Rig,

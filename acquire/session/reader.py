@@ -23,9 +23,9 @@ import numpy as np
 
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
+from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
-from vbfe.acquire.session.resample import resample_at
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.layout import (FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION,
                                          STREAMS, TIME_COLUMNS, StreamSpec, session_streams)
@@ -352,8 +352,7 @@ class SessionReader:
         Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
         get NaN rather than an invented value.
         """
-        forces = self.forces_n().reshape(-1, len(self.force_axes))
-        return resample_at(self.force_times_ns(), forces, self.frame_times_ns(),
+        return resample_at(self.frame_times_ns(), self.force_times_ns(), self.forces_n(),
                            max_gap_s * 1e9)
 
     # -- extra streams (``[streams]``) and event marks ----------------------------------------
@@ -396,7 +395,7 @@ class SessionReader:
         if max_gap_s is None:
             rate = float(stream.attrs.get("nominal_rate_hz", 0.0))
             max_gap_s = 5 / rate if rate > 0 else 0.05
-        return resample_at(stream.t_host_ns, stream.values, self.frame_times_ns(),
+        return resample_at(self.frame_times_ns(), stream.t_host_ns, stream.values,
                            max_gap_s * 1e9)
 
     def events(self) -> list[dict[str, Any]]:

@@ -2,8 +2,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.samples import StereoFrame
+
+
+def first_frame_after(read: Callable[[float], StereoFrame | None], t_host_ns: int,
+                      timeout_s: float) -> StereoFrame | None:
+    """The first frame ``read`` gives that arrived at or after host time ``t_host_ns`` (older
+    ones are dropped, e.g. while a new projector pattern settles); ``None`` on a timeout."""
+    while True:
+        frame = read(timeout_s)
+        if frame is None or frame.t_host_ns >= t_host_ns:
+            return frame
 
 
 class StereoCamera(SampleStream[StereoFrame]):
@@ -25,10 +37,7 @@ class StereoCamera(SampleStream[StereoFrame]):
         """The first frame that arrived at or after host time ``t_host_ns`` (older ones are
         read and dropped, e.g. while a new projector pattern settles); ``None`` when a read
         times out."""
-        while True:
-            frame = self.read(timeout_s)
-            if frame is None or frame.t_host_ns >= t_host_ns:
-                return frame
+        return first_frame_after(self.read, t_host_ns, timeout_s)
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""

@@ -336,7 +336,7 @@ def run_color(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     config = config_from(args)
     settle_s = calib_settings(section(config, "calib")).projector_settle_s
-    with open_rig(config, families=("camera", "projector")) as rig:
+    with open_rig(config, families=("camera", "projector")) as rig:  # lock-step: read directly
         model = capture_color_model(rig.camera, rig.projector, frames=args.frames,
                                     settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)

@@ -18,8 +18,10 @@ from typing import Any, Callable
 import numpy as np
 
 from vbfe.acquire import Acquisition, EstimateStream, Listener, SessionReader, store_estimates
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
+from vbfe.acquire.resample import resample_at
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
@@ -68,11 +70,10 @@ def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
     real time too), recording into ``record`` when given, handing every estimate to
     ``outputs``; not started yet. The calibration must be of the camera's mode."""
     rig = open_rig(config, RigOptions(realtime=True))
-    width, height = calibration.image_size
-    if (rig.camera.width, rig.camera.height) != (width, height):
-        raise LiveError(f"the camera delivers {rig.camera.width}x{rig.camera.height} but "
-                        f"{calibration_name} is for {width}x{height}; use the calibration of "
-                        "this mode")
+    mismatch = size_mismatch("the camera delivers", (rig.camera.width, rig.camera.height),
+                             calibration_name, calibration.image_size)
+    if mismatch:
+        raise LiveError(mismatch)
     acquisition = (session_recorder(config, record, rig,
                                     calibration_yaml=calibration.to_yaml_text())
                    if record else Acquisition(rig, pattern=make_pattern))
@@ -171,12 +172,11 @@ class LiveRun(Listener):
     def _trocar_at(self, t_host_ns: int) -> float:
         """The trocar's force (in the model's target, as one number) at a host time."""
         samples: list[ForceSample] = list(self._forces)
-        if len(samples) < 2 or not samples[0].t_host_ns <= t_host_ns <= samples[-1].t_host_ns:
+        if len(samples) < 2:
             return float("nan")
-        t = np.array([s.t_host_ns for s in samples], np.float64)
-        forces = np.array([s.force_n for s in samples], np.float64)
-        force = np.array([np.interp(t_host_ns, t, forces[:, k]) for k in range(3)])
-        return self._scalar(force_target(force[None], self.target)[0])
+        force = resample_at(np.array([t_host_ns]), np.array([s.t_host_ns for s in samples]),
+                            np.array([s.force_n for s in samples]))
+        return self._scalar(force_target(force, self.target)[0])
 
     def status(self) -> LiveStatus:
         """Counts, rate, latency and running error so far."""
