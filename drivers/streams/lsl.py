@@ -1,11 +1,12 @@
-"""An LSL inlet as a rig device: resolved at open, read in chunks on the host clock.
+"""An LSL inlet as a rig device: resolved at open, read sample by sample on the host clock.
 
 LSL time stamps are the publisher's ``local_clock()`` (on Linux the monotonic clock, vbfe's
-host clock). Each chunk is mapped to this host by adding the stream's latest
+host clock). Each pulled chunk is mapped to this host by adding the stream's latest
 ``time_correction()`` (zero for a publisher on this machine, its clock offset for one on
 another), which is re-measured every ``correction_interval_s``; the measurements are kept apart
-from the data (each chunk's ``corrections``) so the session stores how the mapping was made.
-liblsl's own post-processing stays off: the raw stamps are stored beside the mapped ones.
+from the data (``LslStream.time_corrections``, in its description) so the session stores how
+the mapping was made. liblsl's own post-processing stays off: the raw stamps are stored beside
+the mapped ones.
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ def resolve(source: StreamSource) -> Any:
                           "required = false)")
     uids = {info.uid() for info in found}
     if len(uids) > 1:
-        ids = ", ".join(sorted(repr(f"{i.source_id()}@{i.hostname()}") for i in found))
+        ids = ", ".join(sorted({repr(f"{i.source_id()}@{i.hostname()}") for i in found}))
         raise DeviceError(f"stream {source.describe()} matches {len(uids)} LSL streams ({ids}); "
                           "add its source_id to tell them apart")
     return found[0]
