@@ -128,11 +128,11 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
                        "{participant:P003} {task:pull} {run:2}") == "OK"
             assert say("start") == "OK"
             started = time.monotonic()
-            time.sleep(1.5)
+            time.sleep(0.5)
             mark = subprocess.run(vbfe("mark", "grasp begins", "--port", port),
                                   capture_output=True, text=True, timeout=60)
             assert mark.returncode == 0, mark.stderr
-            time.sleep(1.0)
+            time.sleep(0.5)
             assert say("stop") == "OK"  # answered once the session is finalized
             stopped = time.monotonic()
     finally:
@@ -142,7 +142,7 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
     path = tmp_path / "sub-P003" / "pull_run-002.h5"
     with SessionReader(path) as reader:
         assert reader.complete and reader.attrs["end_reason"] == "stopped by remote control"
-        assert 2.5 * 10 <= reader.n_frames <= (stopped - started) * 10 + 1
+        assert 10 <= reader.n_frames <= (stopped - started) * 10 + 1
         (event,) = reader.events()
         frames_t = reader.frame_times_ns()
     assert event["source"] == "mark" and event["text"] == "grasp begins"
