@@ -25,6 +25,7 @@ from vbfe.drivers.qt_app import dispose_widget, qt_application
 from vbfe.drivers.samples import ForceSample, StereoFrame
 
 FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
+STREAM_PENS = ("#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45", "#469990", "#9a6324")
 LIVE_WINDOW_S = 10.0
 
 
@@ -62,6 +63,7 @@ class ViewerWindow(QtWidgets.QWidget):
         layout.addWidget(self.slider)
         self.status = QtWidgets.QLabel()
         layout.addWidget(self.status)
+        self.stream_plots: list[pg.PlotWidget] = []
 
     def dispose(self) -> None:
         """Close and delete the window now (see :func:`dispose_widget`)."""
@@ -77,6 +79,33 @@ class ViewerWindow(QtWidgets.QWidget):
         for axis, curve in enumerate(self.curves):
             curve.setData(t_s, forces_n[:, axis])
 
+    def add_stream_plot(self, name: str, t_s: np.ndarray, values: np.ndarray,
+                        channels: list[str], units: list[str]) -> pg.PlotWidget:
+        """A plot of an extra stream's channels under the force, on the same time axis (the
+        unit axis is labelled when all channels share one), with its own cursor."""
+        plot = pg.PlotWidget(background="w")
+        plot.setXLink(self.plot)
+        shared = set(units)
+        plot.setLabel("left", name, units=shared.pop() if len(shared) == 1 else None)
+        plot.addLegend(offset=(5, 5))
+        for k, channel in enumerate(channels):
+            plot.plot(t_s, values[:, k], pen=pg.mkPen(STREAM_PENS[k % len(STREAM_PENS)],
+                                                      width=1), name=channel)
+        cursor = pg.InfiniteLine(angle=90, pen=pg.mkPen("k", width=1))
+        plot.addItem(cursor)
+        self.cursor.sigPositionChanged.connect(lambda line: cursor.setValue(line.value()))
+        self.layout().insertWidget(self.layout().indexOf(self.plot) + 1 + len(self.stream_plots),
+                                   plot, stretch=1)
+        self.stream_plots.append(plot)
+        return plot
+
+    def mark_events(self, events: list[tuple[float, str]]) -> None:
+        """Vertical labelled lines on the force plot at event times (s)."""
+        for t_s, text in events:
+            self.plot.addItem(pg.InfiniteLine(
+                t_s, angle=90, pen=pg.mkPen("#808080", dash=[4, 4]), label=text,
+                labelOpts={"position": 0.9, "color": "#404040"}))
+
 
 class ReplayViewer(ViewerWindow):
     """Replay a session: the slider picks a frame; the cursor marks its time on the force plot."""
@@ -88,6 +117,13 @@ class ReplayViewer(ViewerWindow):
         forces = reader.forces_n()
         if len(forces):
             self.show_force((reader.force_times_ns() - self._t0()) / 1e9, forces)
+        for name in reader.stream_names():
+            stream = reader.stream(name)
+            if not stream.markers and len(stream):
+                self.add_stream_plot(name, (stream.t_host_ns - self._t0()) / 1e9, stream.values,
+                                     stream.channels, stream.units)
+        self.mark_events([((e["t_host_ns"] - self._t0()) / 1e9, e["text"])
+                          for e in reader.events()])
         self.slider.setRange(0, max(reader.n_frames - 1, 0))
         self.slider.valueChanged.connect(self.show_frame)
         gaps = len(reader.gaps())

@@ -11,11 +11,13 @@ family; adding shared state: an entry in :data:`SHARED`.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from typing import Any
 
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
+from vbfe.drivers.streams.opening import streams_from_config
 from vbfe.settings import parse_kwargs
 
 BACKENDS: dict[str, dict[str, str]] = {
@@ -63,10 +65,15 @@ def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions
              families: tuple[str, ...] = FAMILIES) -> Rig:
     """The rig of ``families`` a config names, built but not opened (``with open_rig(...) as
     rig:`` opens every device, rolling back on failure, and closes them all). Every device
-    table is checked against its backend before anything is built."""
+    table is checked against its backend before anything is built. The whole rig also has the
+    ``[streams]`` (LSL streams, named by their keys), and then runs in real time: their samples
+    come on the host's own clock."""
     unknown = sorted(set(families) - set(FAMILIES))
     if unknown:
         raise DeviceError(f"unknown device families {unknown}; known: {list(FAMILIES)}")
+    streams = streams_from_config(config) if set(families) == set(FAMILIES) else {}
+    if streams and options.realtime is None:
+        options = dataclasses.replace(options, realtime=True)
     tables = {f: device_options(f, config.get(f, {})) for f in families}
     shared: dict[str, SharedBackend] = {b: _load(SHARED[b])(config, options)
                                         for b, _ in tables.values() if b in SHARED}
@@ -76,6 +83,7 @@ def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions
         devices[family] = (factory(shared[backend], **kwargs) if backend in shared
                            else factory(**kwargs))
     return Rig(devices.get("camera"), devices.get("trocar"), devices.get("projector"),
-               others={f: d for f, d in devices.items() if f not in ("camera", "trocar",
-                                                                      "projector")},
+               others={**{f: d for f, d in devices.items() if f not in ("camera", "trocar",
+                                                                         "projector")},
+                       **streams},
                shared=tuple(shared.values()))

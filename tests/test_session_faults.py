@@ -326,15 +326,19 @@ def test_live_view_runs_a_minute_while_a_paced_bench_records_a_minute_without_dr
 
 
 def test_sigkill_loses_at_most_one_flush_interval(tmp_path):
-    """Ten real-time recordings killed at random moments; the next one starts while the
-    previous one records, so start-up costs overlap."""
+    """Ten real-time recordings, with a 1 kHz LSL robot stream, killed at random moments; the
+    next one starts while the previous one records, so start-up costs overlap."""
+    from tests.fakes.lsl_outlets import FakeRobot, unique
+
     rng = np.random.default_rng(20)
+    robot = FakeRobot(unique("robot")).start()
     config = rig(tmp_path, SMALL_BENCH + "fps = 15.0\nrealtime = true\n"
-                 "[record]\nflush_interval_s = 1.0\n")
+                 "[record]\nflush_interval_s = 1.0\n"
+                 f'[streams.robot]\nname = "{robot.name}"\n')
     delays = rng.uniform(0.5, 3.0, 10)
     paths = [tmp_path / f"k{k}.h5" for k in range(10)]
     procs = [vbfe("record", str(paths[0]), "--config", config)]
-    losses = []
+    losses, robot_losses = [], []
     for k, delay in enumerate(delays):
         if k + 1 < len(paths):
             procs.append(vbfe("record", str(paths[k + 1]), "--config", config))
@@ -346,9 +350,14 @@ def test_sigkill_loses_at_most_one_flush_interval(tmp_path):
         with SessionReader(paths[k]) as s:
             assert not s.closed_cleanly
             last = max(s.stream_times("camera")[1][-1], s.stream_times("force")[1][-1])
+            robot_last = s.stream_times("robot")[1][-1]
         losses.append((t_kill - last) / 1e9)
-    print("SIGKILL loss (s):", " ".join(f"{x:.3f}" for x in sorted(losses)))
+        robot_losses.append((t_kill - robot_last) / 1e9)
+    robot.stop()
+    print("SIGKILL loss (s):", " ".join(f"{x:.3f}" for x in sorted(losses)),
+          "robot:", " ".join(f"{x:.3f}" for x in sorted(robot_losses)))
     assert 0 <= min(losses) and max(losses) <= 1.0, losses
+    assert 0 <= min(robot_losses) and max(robot_losses) <= 1.0, robot_losses
 
 
 def test_hdmi_projector_records(tmp_path):

@@ -8,18 +8,20 @@ from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.image_size import size_mismatch
-from vbfe.acquire.recording.acquisition import AcquisitionStats
+from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.session.annotate import store_analysis
+from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
+from vbfe.drivers.streams.opening import missing_streams
 
 if TYPE_CHECKING:
-    from vbfe.acquire.recording.listener import Listener
     from vbfe.acquire.recording.sync_session import SyncProtocol
 
 
@@ -31,7 +33,8 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
                    tare: bool = False, overwrite: bool = False,
                    protocol: SyncProtocol | None = None,
                    calibration_size: tuple[int, int] | None = None,
-                   calibration_name: str = "the calibration") -> AcquisitionStats:
+                   calibration_name: str = "the calibration",
+                   on_warning: Callable[[str], None] | None = None) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
     is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
@@ -42,20 +45,17 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     With a sync ``protocol`` the projector flashes and the taps are counted while recording
     (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
     non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
-    correction."""
+    correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found."""
     settings = record_settings(config)
     options = RigOptions()
     if protocol is not None:
         options, duration_s = protocol.rig_options(), protocol.duration_s
     rig = open_rig(config, options)
-    if calibration_size is not None:
-        mismatch = size_mismatch("the camera gives", (rig.camera.width, rig.camera.height),
-                                 calibration_name, calibration_size)
-        if mismatch:
-            raise SessionError(mismatch)
+    check_camera_size(rig, calibration_size, calibration_name)
+    listeners = ((protocol,) if protocol else ()) + (
+        (MissingStreams(on_warning),) if on_warning else ())
     recorder = session_recorder(config, path, rig, operator, notes, conditions,
-                                compression, calibration_yaml, overwrite,
-                                (protocol,) if protocol else ())
+                                compression, calibration_yaml, overwrite, listeners)
     if protocol is not None:
         recorder.metadata["protocol"] = protocol.describe()
     if tare:
@@ -74,14 +74,25 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     return stats
 
 
+def check_camera_size(rig: Rig, calibration_size: tuple[int, int] | None,
+                      calibration_name: str = "the calibration") -> None:
+    """SessionError unless the calibration (when given) is of the camera's image size."""
+    if calibration_size is not None:
+        mismatch = size_mismatch("the camera gives", (rig.camera.width, rig.camera.height),
+                                 calibration_name, calibration_size)
+        if mismatch:
+            raise SessionError(mismatch)
+
+
 def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, rig: Rig,
                      operator: str = "", notes: str = "",
                      conditions: dict[str, Any] | None = None, compression: str | None = None,
                      calibration_yaml: str | None = None, overwrite: bool = False,
-                     listeners: tuple[Listener, ...] = ()) -> Recorder:
+                     listeners: tuple[Listener, ...] = (),
+                     streams: tuple[StreamSpec, ...] = ()) -> Recorder:
     """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
-    pattern, a traction session's metadata) over ``rig``, with further ``listeners``; not
-    started yet."""
+    pattern, a traction session's metadata) over ``rig``, with further ``listeners`` and
+    extra ``streams``; not started yet."""
     settings = record_settings(config)
     metadata: dict[str, Any] = {"operator": operator, "notes": notes,
                                 "conditions": dict(conditions or {}),
@@ -91,4 +102,16 @@ def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, rig: R
                     metadata=metadata, calibration_yaml=calibration_yaml,
                     queue_size=settings.queue_size,
                     min_free_bytes=int(settings.min_free_gb * 1e9),
-                    pattern=make_pattern, overwrite=overwrite, listeners=listeners)
+                    pattern=make_pattern, overwrite=overwrite, listeners=listeners,
+                    streams=streams)
+
+
+class MissingStreams(Listener):
+    """Reports each optional ``[streams]`` entry that was not found, once the rig is open."""
+
+    def __init__(self, report: Callable[[str], None]) -> None:
+        self.report = report
+
+    def on_start(self, acquisition: Acquisition) -> None:
+        for warning in missing_streams(acquisition.rig.devices.values()):
+            self.report(warning)

@@ -15,8 +15,10 @@ import contextlib
 import json
 import os
 import re
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,8 +27,11 @@ import numpy as np
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
+from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
 from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
+
+from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:
     from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
@@ -64,11 +69,23 @@ def _merged_metadata(given: dict[str, Any], described: dict[str, Any]) -> dict[s
     return out
 
 
+@dataclass(frozen=True)
+class Mark:
+    """An event mark (``vbfe mark``): its text and host time."""
+
+    text: str
+    seq: int
+    t_device_ns: int  # the marks stream's clock is the host's
+    t_host_ns: int
+
+
 class SessionSink(Listener):
     """Write every record of an acquisition into the new session file ``path``.
 
     ``streams`` are the specs of streams beyond the core ones (camera, force, projector) that
-    the rig's further devices feed. ``on_flush(stats)`` is called after each flush (dispatch
+    the rig's further devices feed; the rig's LSL streams (devices with an ``info``) are added
+    when it starts. With a :func:`marks_stream` among them, :meth:`mark` puts event marks into
+    the session from any thread. ``on_flush(stats)`` is called after each flush (dispatch
     thread). The destination is checked (folder, free space, ``overwrite``) when the sink is
     made.
     """
@@ -96,6 +113,8 @@ class SessionSink(Listener):
         self._next_flush = self._next_space_check = 0.0
         self._checked_at_bytes = 0
         self._frame_t_device: list[int] = []
+        self._marks: list[Mark] = []
+        self._marks_lock = threading.Lock()
 
     @contextlib.contextmanager
     def _writing(self) -> Iterator[None]:
@@ -111,6 +130,8 @@ class SessionSink(Listener):
         rig = acquisition.rig
         self._acquisition = acquisition
         self.metadata = _merged_metadata(self.metadata, rig.describe())
+        self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
+                              if isinstance(getattr(device, "info", None), StreamInfo))
         self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
                                      self.compression, self.metadata, self.calibration_yaml,
                                      rig.trocar.axes, self.flush_interval_s, self.streams)
@@ -127,9 +148,26 @@ class SessionSink(Listener):
             self._writer.add_gap(gap.stream, gap.reason, gap.last_seq, gap.next_seq,
                                  gap.t_host_ns, gap.count)
 
+    def mark(self, text: str, t_host_ns: int) -> None:
+        """Put an event mark at host time ``t_host_ns`` into the session (any thread; written
+        by the dispatch thread within a round)."""
+        if MARKS not in (spec.name for spec in self.streams):
+            raise SessionError(f"{self.path} records no event marks (no {MARKS!r} stream)")
+        with self._marks_lock:
+            self._marks.append(Mark(text, len(self._marks), t_host_ns, t_host_ns))
+
+    def _write_marks(self) -> None:
+        if MARKS not in self._writer.streams:
+            return
+        with self._marks_lock:
+            written = self._writer.counts.get(MARKS, 0)
+            pending = self._marks[written:]
+        self._writer.append(MARKS, pending)
+
     def on_round(self) -> None:
         writer, stats = self._writer, self._acquisition.stats
         with self._writing():
+            self._write_marks()
             now = time.monotonic()
             if now >= self._next_flush:  # on the clock: a slow flush does not shift the next
                 self._flush()
@@ -148,6 +186,7 @@ class SessionSink(Listener):
         writer, stats = self._writer, acquisition.stats
         if self._error is None:
             with contextlib.suppress(Exception), self._writing():
+                self._write_marks()
                 writer.close()
         stats.flushed, stats.bytes_written = dict(writer.flushed_counts), writer.bytes_written
         if self._error is not None:

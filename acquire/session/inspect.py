@@ -12,6 +12,7 @@ import numpy as np
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.clock import ClockFit
 from vbfe.acquire.session.estimates import EstimateStream
+from vbfe.acquire.session.extra_streams import RecordedStream
 from vbfe.acquire.session.reader import SessionReader
 
 
@@ -35,6 +36,22 @@ class SessionSummary:
     truth_names: list[str]
     analysis: dict[str, Any] = field(default_factory=dict)
     estimates: EstimateStream | None = None
+    streams: list[RecordedStream] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+    def _stream_line(self, s: RecordedStream) -> str:
+        span_s = (s.t_host_ns[-1] - s.t_host_ns[0]) / 1e9 if len(s) > 1 else 0.0
+        rate = (len(s) - 1) / span_s if span_s > 0 else 0.0
+        nominal = float(s.attrs.get("nominal_rate_hz", 0.0))
+        lost = sum(int(self.attrs.get(f"{s.name}_{k}_dropped", 0)) for k in ("device", "queue"))
+        channels = ", ".join(f"{c} [{u}]" if u else c for c, u in zip(s.channels, s.units))
+        correction = (f"; time correction {s.corrections[-1, 1] / 1e6:+.3f} ms"
+                      if len(s.corrections) else "")
+        what = ("markers" if s.markers else
+                f"samples at {rate:.1f} Hz (nominal {nominal:g}), lost {lost} "
+                f"({100 * lost / max(len(s) + lost, 1):.2f}%)")
+        return (f"stream    {s.name}: {len(s)} {what}; LSL {s.attrs.get('lsl_name')!r} "
+                f"from {s.attrs.get('hostname') or '?'}{correction}; channels {channels}")
 
     def text(self) -> str:
         """The summary as lines of text."""
@@ -79,6 +96,13 @@ class SessionSummary:
         for stream in ("camera", "force"):
             for last, nxt in self.audits[stream].gaps[:10]:
                 lines.append(f"gap       {stream}: sequence jumps {last} -> {nxt}")
+        lines += [self._stream_line(s) for s in self.streams]
+        start_ns = int(a.get("start_host_ns", 0))
+        for event in self.events[:20]:
+            lines.append(f"event     {(event['t_host_ns'] - start_ns) / 1e9:8.3f} s "
+                         f"{event['source']}: {event['text']}")
+        if len(self.events) > 20:
+            lines.append(f"event     … {len(self.events) - 20} more")
         lines.append(f"calib     {'stored' if self.has_calibration else 'none'}")
         if self.truth_names:
             lines.append(f"truth     {', '.join(self.truth_names)}")
@@ -114,4 +138,5 @@ def inspect_session(path: str | Path) -> SessionSummary:
             clocks={stream: s.clock_fit(stream) for stream in ("camera", "force", "projector")},
             gaps=s.gaps(), patterns=[e.pattern for e in s.projector_events()],
             has_calibration=s.calibration_yaml() is not None, truth_names=s.truth_names(),
-            analysis=s.analysis(), estimates=s.estimates())
+            analysis=s.analysis(), estimates=s.estimates(),
+            streams=[s.stream(name) for name in s.stream_names()], events=s.events())

@@ -26,6 +26,7 @@ from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.layout import (FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION,
                                          STREAMS, TIME_COLUMNS, StreamSpec, session_streams)
@@ -390,6 +391,62 @@ class SessionReader:
         """
         return resample_at(self.frame_times_ns(), self.force_times_ns(), self.forces_n(),
                            max_gap_s * 1e9)
+
+    # -- extra streams (``[streams]``) and event marks ----------------------------------------
+    def stream_names(self) -> list[str]:
+        """Names of the extra streams recorded with the session (e.g. ``[streams]`` keys)."""
+        return [name for name in self.streams if name not in STREAMS and name != MARKS]
+
+    def stream(self, name: str) -> RecordedStream:
+        """An extra stream (e.g. ``"robot"``): values or marker text, host and publisher times,
+        channel names and units, the time corrections measured while recording."""
+        if name not in self.stream_names():
+            raise SessionError(f"{self.path} has no stream {name!r}; it has "
+                               f"{', '.join(self.stream_names()) or 'no extra streams'}")
+        column = self.streams[name].columns[0].name
+        attrs = plain_attrs(self._file[f"{name}/{column}"].attrs)
+        data = self.stream_column(name, column)
+        t_device, t_host, seq = self.stream_times(name)
+        try:
+            at_end = json.loads(self.attrs.get("devices_at_end_json", "{}")).get(name, {})
+        except (json.JSONDecodeError, AttributeError):
+            at_end = {}
+        channels = [str(c) for c in attrs.pop("channels", [column])]
+        return RecordedStream(
+            name=name, channels=channels,
+            units=[str(u) for u in attrs.pop("channel_units", [attrs.get("units", "")])],
+            t_host_ns=t_host, t_device_ns=t_device, seq=seq,
+            values=None if column == "text" else data.reshape(len(seq), -1),
+            text=data if column == "text" else None,
+            corrections=np.array(at_end.get("time_corrections", []), np.int64).reshape(-1, 2),
+            attrs=attrs)
+
+    def at_frames(self, name: str, max_gap_s: float | None = None) -> np.ndarray:
+        """A numeric extra stream at each frame's synchronized time: ``(n_frames, channels)``,
+        interpolated; NaN outside the stream or inside a gap longer than ``max_gap_s`` (default:
+        five sample periods of its nominal rate, else 50 ms)."""
+        stream = self.stream(name)
+        if stream.markers:
+            raise SessionError(f"stream {name} of {self.path} holds event markers, not values; "
+                               "read them with events()")
+        if max_gap_s is None:
+            rate = float(stream.attrs.get("nominal_rate_hz", 0.0))
+            max_gap_s = 5 / rate if rate > 0 else 0.05
+        return resample_at(self.frame_times_ns(), stream.t_host_ns, stream.values,
+                           max_gap_s * 1e9)
+
+    def events(self) -> list[dict[str, Any]]:
+        """Every event mark by host time: ``{"t_host_ns", "source", "text"}`` (source
+        ``"mark"`` for ``vbfe mark``, else the marker stream's name)."""
+        events = []
+        marker_streams = [n for n, spec in self.streams.items()
+                          if n not in STREAMS and [c.name for c in spec.columns] == ["text"]]
+        for name in marker_streams:
+            t_host = self.stream_times(name)[1]
+            events += [{"t_host_ns": int(t), "source": "mark" if name == MARKS else name,
+                        "text": str(text)}
+                       for t, text in zip(t_host, self.stream_column(name, "text"))]
+        return sorted(events, key=lambda e: e["t_host_ns"])
 
     # -- events, gaps, metadata ---------------------------------------------------------
     def projector_events(self) -> list[ProjectorEvent]:

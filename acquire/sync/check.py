@@ -27,6 +27,7 @@ from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.acquire.sync.streams import stream_offset
 from vbfe.files import save_figure
 from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
@@ -68,6 +69,8 @@ class SyncReport:
     reasons: list[str] = field(default_factory=list)
     plot_path: Path | None = None
     protocol: ProtocolResult | None = None  # a sync protocol session's flashes, taps, drifts
+    streams: dict[str, OffsetEstimate | str] = field(default_factory=dict)  # extra stream:
+    # its motion's lag behind the force (a third clock), or why it could not be measured
 
     @property
     def passed(self) -> bool:
@@ -89,6 +92,12 @@ class SyncReport:
                  f"{1e3 * self.residual_offset_s:+.2f} ms"]
         if self.protocol is not None:
             lines += _protocol_lines(self.protocol)
+        for name, found in self.streams.items():
+            lines.append(f"stream     {name} - force = {1e3 * found.offset_s:+.2f} ms ± "
+                         f"{1e3 * found.std_s:.2f} ms ({found.corners} corners; image - {name} "
+                         f"= {1e3 * (e.offset_s - found.offset_s):+.2f} ms)"
+                         if isinstance(found, OffsetEstimate) else
+                         f"stream     {name}: no clock check ({found})")
         for stream, ppm in self.drift_ppm.items():
             lines.append(f"clock      {stream}: drift {ppm:+.1f} ± "
                          f"{self.drift_uncertainty_ppm[stream]:.1f} ppm vs host, jitter "
@@ -120,6 +129,9 @@ class SyncReport:
                 "sync_force_drop_fraction": self.audits["force"].drop_fraction,
                 "sync_limits": json.dumps(self.limits.__dict__),
                 FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
+                "sync_stream_offsets_s": json.dumps(
+                    {n: [f.offset_s, f.std_s] for n, f in self.streams.items()
+                     if isinstance(f, OffsetEstimate)}),
                 **(_protocol_attrs(self.protocol) if self.protocol is not None else {})}
 
 
@@ -268,6 +280,13 @@ def _verdict(estimate: OffsetEstimate, residual: float, protocol: ProtocolResult
     return (INCONCLUSIVE, doubts) if doubts else (PASS, [])
 
 
+def _stream_check(reader: SessionReader, name: str, max_lag_s: float) -> OffsetEstimate | str:
+    try:
+        return stream_offset(reader, name, max_lag_s)
+    except SessionError as exc:
+        return str(exc)
+
+
 def verify_sync(path: str | Path, limits: SyncLimits | None = None,
                 plot_path: str | Path | None = None, store: bool = True,
                 apply_correction: bool = False, max_lag_s: float = 0.25,
@@ -293,6 +312,8 @@ def verify_sync(path: str | Path, limits: SyncLimits | None = None,
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}
+        streams = {name: _stream_check(reader, name, max_lag_s) for name in reader.stream_names()
+                   if not reader.stream(name).markers}
     applied = estimate.offset_s if apply_correction else 0.0
     residual = estimate.offset_s - applied
     verdict, reasons = _verdict(estimate, residual, protocol, audits, limits)
@@ -302,7 +323,8 @@ def verify_sync(path: str | Path, limits: SyncLimits | None = None,
                         drift_uncertainty_ppm={s: f.drift_uncertainty_ppm for s, f in fits.items()},
                         jitter_s={s: f.jitter_ns / 1e9 for s, f in fits.items()},
                         audits=audits, limits=limits, verdict=verdict, reasons=reasons,
-                        plot_path=Path(plot_path) if plot_path else None, protocol=protocol)
+                        plot_path=Path(plot_path) if plot_path else None, protocol=protocol,
+                        streams=streams)
     if report.plot_path is not None:
         _plot(report.plot_path, report)
     if store:

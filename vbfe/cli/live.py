@@ -28,6 +28,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--duration", type=positive(float), default=None, metavar="SECONDS",
                         help="stop after this long (default: until closed or Ctrl-C)")
     parser.add_argument("--headless", action="store_true", help="status lines instead of a window")
+    parser.add_argument("--lsl", nargs="?", const="", default=None, metavar="SOURCE_ID",
+                        help="publish the estimates (LSL stream vbfe-estimate) and the trocar "
+                        "(vbfe-trocar) for other programs; SOURCE_ID tells two vbfe apart "
+                        "(default vbfe@HOST; docs/streams.md)")
+    parser.add_argument("--udp", metavar="HOST:PORT", default=None,
+                        help="also send one JSON datagram per estimate to HOST:PORT")
     parser.add_argument("--scale", type=positive(float), default=None,
                         help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
     parser.add_argument("--no-verify", action="store_true",
@@ -43,12 +49,14 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.calib.calibration import load_calibration
     from vbfe.estimate.model_file import load_model
     from vbfe.live.errors import LiveError
+    from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
     from vbfe.live.run import live_estimator, live_run, run_headless
     from vbfe.live.settings import live_settings
 
     check_outputs([args.record], [args.model, args.calib], writes="session")  # a new file
     config = config_from(args)
     settings = live_settings(section(config, "live"))
+    udp = udp_address(args.udp) if args.udp is not None else None
     if args.scale is not None and args.scale > 1:
         raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
                         "(0, 1], e.g. 0.5")
@@ -57,7 +65,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(config, settings, model, calibration,
                                args.scale, not args.no_verify, args.device)
-    live = live_run(config, estimator, calibration, args.calib, args.record, str(args.model))
+    outputs = []
+    if args.lsl is not None:
+        outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))
+    if udp is not None:
+        outputs.append(UdpOutput(udp, model.config.target))
+    live = live_run(config, estimator, calibration, args.calib, args.record, str(args.model),
+                    outputs)
     live.start(args.duration if args.record else None)
     if args.headless:
         status = run_headless(live, args.duration, lambda s: print(s.line(), flush=True),

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 
 from vbfe.acquire import AcquisitionStats, record_session
+from vbfe.acquire.recording.remote import (DEFAULT_PORT, RemoteControl, RemoteRecording,
+                                           RemoteSessions, serve)
 from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.cli.common import add_config_option, config_from, progress
@@ -17,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the `record` subcommand."""
     parser = sub.add_parser("record", help="record a session (stereo video + force + projector) "
                             "until Ctrl-C or --duration")
-    parser.add_argument("output", metavar="SESSION.h5", help="new session file")
+    parser.add_argument("output", metavar="SESSION.h5", nargs="?", default=None,
+                        help="new session file (not with --remote)")
     parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
                         help="stop after this many seconds of video (default: Ctrl-C)")
     parser.add_argument("--operator", default="", help="who recorded")
@@ -41,6 +45,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="projector flashes (sync protocol)")
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of the random flash times (sync protocol; default: fresh)")
+    parser.add_argument("--remote", type=int, default=None, metavar="PORT",
+                        help=f"wait for LabRecorder's remote-control commands on this TCP port "
+                        f"(its default: {DEFAULT_PORT}; 0: any free port) and record whenever "
+                        "told to (docs/streams.md); Ctrl-C to quit")
+    parser.add_argument("--remote-bind", default="127.0.0.1", metavar="ADDRESS",
+                        help="address the remote-control port listens on (default: localhost "
+                        "only; 0.0.0.0 for every interface)")
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -70,13 +81,23 @@ def _conditions(pairs: list[str]) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
-    check_outputs([args.output], [args.calib], args.overwrite, writes="session")
+    if args.remote is not None:
+        if args.output or args.duration or args.protocol != "traction" or args.tare:
+            raise VbfeError("--remote records into the files the `filename` command names, "
+                            "until `stop`: drop SESSION.h5, --duration, --protocol and --tare")
+    elif args.output is None:
+        raise VbfeError("name the new session file (SESSION.h5), or wait for remote-control "
+                        "commands with --remote PORT")
+    check_outputs([args.output] if args.output else [], [args.calib], args.overwrite,
+                  writes="session")
     calibration, calibration_size = None, None
     if args.calib:
         from vbfe.calib.calibration import Calibration  # checked before anything is recorded
 
         loaded = Calibration.load(args.calib)
         calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size
+    if args.remote is not None:
+        return _run_remote(args, calibration, calibration_size)
     protocol = None
     if args.protocol == "sync":
         protocol = SyncProtocol(taps=args.taps, flashes=args.flashes,
@@ -98,13 +119,34 @@ def run(args: argparse.Namespace) -> int:
                                compression=args.compression, calibration_yaml=calibration,
                                on_progress=show, tare=args.tare, overwrite=args.overwrite,
                                protocol=protocol, calibration_size=calibration_size,
-                               calibration_name=args.calib)
+                               calibration_name=args.calib,
+                               on_warning=lambda w: print(f"vbfe record: warning: {w}",
+                                                          file=sys.stderr))
         show(stats)
     finally:
         bar.close()
-    print(f"{args.output}: {stats.frames} frames, {stats.samples} force samples, "
+    extra = "".join(f", {stream} {n} samples" for stream, n in stats.counts.items()
+                    if stream not in ("camera", "force", "projector"))
+    print(f"{args.output}: {stats.frames} frames, {stats.samples} force samples{extra}, "
           f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}")
     if protocol is not None:
         print(f"sync protocol: collected {protocol.progress()}; check it with "
               f"`vbfe verify-sync {args.output}`")
+    return 0
+
+
+def _run_remote(args: argparse.Namespace, calibration: str | None,
+                calibration_size: tuple[int, int] | None) -> int:
+    """Serve LabRecorder's commands: each start..stop records one session."""
+    begin = partial(RemoteRecording, config_from(args), operator=args.operator, notes=args.notes,
+                    conditions=_conditions(args.condition), compression=args.compression,
+                    calibration_yaml=calibration, calibration_size=calibration_size,
+                    calibration_name=args.calib, overwrite=args.overwrite)
+    sessions = RemoteSessions(begin, args.overwrite, on_message=lambda m: print(m, flush=True))
+    server = RemoteControl(sessions, args.remote, args.remote_bind)
+    serve(server, lambda port: print(f"remote control: listening on {args.remote_bind}:{port} "
+                                     "(filename, start, stop, update, select all, mark; Ctrl-C "
+                                     "quits)", flush=True))
+    print(f"remote control: {len(sessions.finished)} session(s) recorded"
+          + "".join(f"\n  {path}" for path in sessions.finished))
     return 0

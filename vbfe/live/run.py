@@ -35,6 +35,7 @@ from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
 from vbfe.live.mailbox import Mailbox
 from vbfe.live.settings import LiveSettings
 from vbfe.recon.matching import SgbmParams
+from vbfe.live.outputs import EstimateOutput
 
 _READ_TIMEOUT_S = 0.2
 FORCE_HISTORY_S = 30.0
@@ -86,10 +87,10 @@ def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, mo
 
 def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
              calibration: Calibration, calibration_name: str, record: str | Path | None = None,
-             model_name: str = "") -> LiveRun:
+             model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> LiveRun:
     """The live run over the config's rig, run at the camera's own pace (a simulated one in
-    real time too), recording into ``record`` when given; not started yet. The calibration
-    must be of the camera's mode."""
+    real time too), recording into ``record`` when given, handing every estimate to
+    ``outputs``; not started yet. The calibration must be of the camera's mode."""
     rig = open_rig(config, RigOptions(realtime=True))
     mismatch = size_mismatch("the camera delivers", (rig.camera.width, rig.camera.height),
                              calibration_name, calibration.image_size)
@@ -98,16 +99,20 @@ def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
     acquisition = (session_recorder(config, record, rig,
                                     calibration_yaml=calibration.to_yaml_text())
                    if record else Acquisition(rig, pattern=make_pattern))
-    return LiveRun(acquisition, estimator, model_name)
+    return LiveRun(acquisition, estimator, model_name, outputs)
 
 
 class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
-    itself as a listener; with a :class:`Recorder` the run is recorded)."""
+    itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
+    recorded)."""
 
     def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
-                 model_name: str = "") -> None:
+                 model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> None:
         acquisition.add(self)
+        for output in outputs:
+            acquisition.add(output)
+        self.outputs = tuple(outputs)
         self.acquisition = acquisition
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
@@ -179,6 +184,8 @@ class LiveRun(Listener):
             with self._lock:
                 self.estimates.append(estimate)
                 self._trocar_at_estimates.append(trocar)
+            for output in self.outputs:
+                output.on_estimate(estimate)
 
     # -- what is seen ---------------------------------------------------------------------------
     def _scalar(self, force: np.ndarray) -> float:

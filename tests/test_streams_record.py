@@ -1,0 +1,149 @@
+"""`vbfe record` with the lab's other streams, driven as a lab would: a 1 kHz robot outlet and
+an experiment script's marker outlet on loopback, a session recorded beside the bench in real
+time, and a recording driven through LabRecorder's remote-control commands."""
+
+from __future__ import annotations
+
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
+from vbfe.acquire import SessionReader
+
+BENCH = "[bench]\nwidth = 320\nheight = 180\nfps = 10.0\ndistortion = false\nrealtime = true\n"
+RECORD_S = 10.0
+
+
+def vbfe(*args: object) -> list[str]:
+    return [sys.executable, "-m", "vbfe.cli.main", *map(str, args)]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """10 s of the bench with a 1 kHz robot stream and a marker stream."""
+    folder = tmp_path_factory.mktemp("streams")
+    robot, marks = FakeRobot(unique("robot")), MarkerOutlet(unique("script"))
+    toml = folder / "rig.toml"
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n'
+                    f'[streams.script]\nname = "{marks.name}"\nrequired = false\n')
+    path = folder / "s.h5"
+    with robot:
+        proc = subprocess.Popen(vbfe("record", path, "--duration", RECORD_S, "--config", toml),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert marks.outlet.wait_for_consumers(60.0), "the recorder never subscribed"
+        for k in range(5):
+            time.sleep(1.0)
+            marks.mark(f"trial {k + 1} start")
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    return path, robot, marks, out
+
+
+def test_session_holds_the_bench_the_robot_and_the_markers(recorded) -> None:
+    path, robot, marks, out = recorded
+    with SessionReader(path) as reader:
+        assert reader.complete and reader.stream_names() == ["robot", "script"]
+        stream = reader.stream("robot")
+        frames_t = reader.frame_times_ns()
+        at_frames = reader.at_frames("robot")
+        events = reader.events()
+        attrs = reader.attrs
+        camera_seq, force_seq = reader.stream_times("camera")[2], reader.stream_times("force")[2]
+    assert stream.channels[0] == "joint1_position" and stream.units == ["rad"] * 7
+    # robot: each recorded sample is the one the robot pushed nearest in time, on the host
+    # clock (<= 1 ms), and every sample between the first and the last recorded one is there
+    due = robot.due_times_ns()
+    index = np.clip(np.searchsorted(due, stream.t_host_ns - 500_000), 0, len(due) - 1)
+    assert np.max(np.abs(stream.t_host_ns - due[index])) <= 1_000_000
+    loss = 1 - len(np.unique(index)) / (index[-1] - index[0] + 1)
+    assert loss <= 0.001 and attrs["robot_device_dropped"] == 0
+    assert len(stream) >= 0.95 * RECORD_S * 1000
+    # it spans every frame
+    assert stream.t_host_ns[0] <= frames_t[0] and stream.t_host_ns[-1] >= frames_t[-1]
+    # at_frames: one row per frame, the robot's state at each frame's time
+    assert at_frames.shape == (len(frames_t), 7) and np.isfinite(at_frames).all()
+    # (the joints move at most 0.31 rad/s: 1 ms of clock disagreement is 3.1e-4 rad)
+    np.testing.assert_allclose(at_frames, robot.value(frames_t), atol=3.2e-4)
+    # the recorder lost nothing of the bench either (a simulated camera rendering in real time
+    # on a loaded machine may skip a frame itself: device-side, counted, not the recorder's)
+    assert attrs["camera_queue_dropped"] == attrs["force_queue_dropped"] == 0
+    assert 1 - len(force_seq) / (force_seq[-1] - force_seq[0] + 1) <= 0.001
+    assert len(camera_seq) >= 0.95 * RECORD_S * 10
+    # markers: every one, at the host time it was sent (<= 1 ms)
+    script = [e for e in events if e["source"] == "script"]
+    assert [e["text"] for e in script] == [text for _, text in marks.sent]
+    sent_t = np.array([t for t, _ in marks.sent])
+    assert np.max(np.abs(np.array([e["t_host_ns"] for e in script]) - sent_t)) <= 1_000_000
+    print(f"robot loss {100 * loss:.3f} %, clock agreement max "
+          f"{np.max(np.abs(stream.t_host_ns - due[index])) / 1e6:.3f} ms")
+
+
+def test_inspect_lists_the_streams(recorded) -> None:
+    path, robot, _, _ = recorded
+    result = subprocess.run(vbfe("inspect", path), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"stream    robot: \d+ samples at 1000\.\d Hz \(nominal 1000\), lost 0 ",
+                     result.stdout)
+    assert f"LSL '{robot.name}'" in result.stdout
+    assert "script: 5 markers" in result.stdout and "script: trial 3 start" in result.stdout
+
+
+def test_a_required_stream_missing_is_one_line(tmp_path: Path) -> None:
+    toml = tmp_path / "rig.toml"
+    name = unique("nobody")
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{name}"\nresolve_timeout_s = 0.5\n')
+    result = subprocess.run(vbfe("record", tmp_path / "s.h5", "--duration", 1, "--config", toml),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"vbfe record: error: stream robot (LSL name='{name}') was not found on the network "
+        "within 0.5 s; start its publisher (or mark it required = false)")
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
+    toml = tmp_path / "rig.toml"
+    toml.write_text(BENCH)
+    proc = subprocess.Popen(vbfe("record", "--remote", 0, "--config", toml),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        port = int(re.search(r"listening on 127\.0\.0\.1:(\d+)", line).group(1))
+        with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+            def say(command: str) -> str:
+                sock.sendall(command.encode() + b"\n")
+                return sock.recv(4096).decode()
+
+            assert say("select all") == "OK"
+            assert say(f"filename {{root:{tmp_path}}} {{template:sub-%p/%b_run-%r.xdf}} "
+                       "{participant:P003} {task:pull} {run:2}") == "OK"
+            assert say("start") == "OK"
+            started = time.monotonic()
+            time.sleep(0.5)
+            mark = subprocess.run(vbfe("mark", "grasp begins", "--port", port),
+                                  capture_output=True, text=True, timeout=60)
+            assert mark.returncode == 0, mark.stderr
+            time.sleep(0.5)
+            assert say("stop") == "OK"  # answered once the session is finalized
+            stopped = time.monotonic()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    path = tmp_path / "sub-P003" / "pull_run-002.h5"
+    with SessionReader(path) as reader:
+        assert reader.complete and reader.attrs["end_reason"] == "stopped by remote control"
+        assert 10 <= reader.n_frames <= (stopped - started) * 10 + 1
+        (event,) = reader.events()
+        frames_t = reader.frame_times_ns()
+    assert event["source"] == "mark" and event["text"] == "grasp begins"
+    assert frames_t[0] < event["t_host_ns"] < frames_t[-1]
