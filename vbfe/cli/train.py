@@ -4,7 +4,6 @@ cross-validate."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from, positive
