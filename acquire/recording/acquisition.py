@@ -222,16 +222,21 @@ class Acquisition:
         if duration_s is not None:
             self._set_duration(duration_s)
         self.rig.open()
+        started: list[Listener] = []
         try:
             self._show_initial_pattern()
             self._t_start = time.monotonic()
             self._started = True
-            started: list[Listener] = []
             for listener in self.listeners:
                 listener.on_start(self)
                 started.append(listener)
         except BaseException:
+            self._stopped = True  # nothing was read: the listeners started are stopped here
+            self._halt.set()
             self.rig.close()
+            for listener in started:
+                with contextlib.suppress(Exception):
+                    listener.on_stop(self)
             raise
         streams = dict(self.rig.streams())
         self.paced = any(d.describe().get("realtime") is False for s, d in streams.items()
