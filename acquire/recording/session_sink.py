@@ -25,7 +25,7 @@ import numpy as np
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
-from vbfe.acquire.session.layout import StreamSpec
+from vbfe.acquire.session.layout import STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 
 if TYPE_CHECKING:
@@ -110,6 +110,11 @@ class SessionSink(Listener):
     def on_start(self, acquisition: "Acquisition") -> None:
         rig = acquisition.rig
         self._acquisition = acquisition
+        known = {*STREAMS, *(spec.name for spec in self.streams)}
+        missing = sorted(stream for stream, _ in rig.streams() if stream not in known)
+        if missing:
+            raise SessionError(f"the rig's streams {missing} have no session stream to go to; "
+                               "give their specs to the recorder (streams=...)")
         self.metadata = _merged_metadata(self.metadata, rig.describe())
         self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
                                      self.compression, self.metadata, self.calibration_yaml,
