@@ -212,7 +212,7 @@ class SessionSink(Listener):
             attrs[f"{stream}_device_errors"] = int(device.stats.errors)
         attrs["devices_at_end_json"] = json.dumps(  # e.g. the trocar's clock, decided at frame 1
             {name: d.describe() for name, d in acquisition.rig.devices.items()
-             if d in readers.values()}, default=str)
+             if d.stream is not None}, default=str)
         return attrs
 
     def _truth(self, acquisition: "Acquisition") -> dict[str, np.ndarray] | None:
