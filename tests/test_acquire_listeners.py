@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import bar_devices
-from vbfe.acquire import (Acquisition, Listener, Recorder, SessionReader, SessionWriter,
-                          recover_session)
+from vbfe.acquire import (Acquisition, Listener, Recorder, SessionError, SessionReader,
+                          SessionWriter, recover_session)
 from vbfe.acquire.session.layout import marker_stream, vector_stream
 from vbfe.config import load_config
 from vbfe.drivers.device import SampleStream
@@ -51,6 +51,7 @@ def test_a_failing_listener_stops_the_acquisition_and_the_session_is_finalized(t
     with pytest.raises(ValueError, match="a bug in a listener"):
         recorder.run(5.0)
     assert not any(d.is_open for d in recorder.rig.devices.values())
+    assert recorder.rig.truth is None  # no simulated backend: no truth
     with SessionReader(tmp_path / "s.h5") as session:
         assert session.complete and session.n_frames < 5 * 30
 
@@ -111,6 +112,9 @@ class FakeRobot(SampleStream[Kinematics]):
 def test_a_further_device_kind_is_recorded_as_an_extra_stream_and_read_back(tmp_path):
     rig = bar_devices(speed=8.0)
     rig.devices["robot"] = FakeRobot()
+    with pytest.raises(SessionError, match=r"\['robot'\] have no session stream"):
+        Recorder(rig, tmp_path / "no-spec.h5", min_free_bytes=0).run(1.0)
+    assert not rig.camera.is_open
     spec = vector_stream("robot", [f"q{i}" for i in range(7)], units="rad")
     with Recorder(rig, tmp_path / "s.h5", min_free_bytes=0, streams=(spec,)) as recorder:
         recorder.run(1.0)
