@@ -270,8 +270,8 @@ def run_camera(args: argparse.Namespace) -> int:
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
-    check_outputs([args.out], [args.source, args.store_in, *(args.intrinsics or ())],
-                  args.overwrite)
+    check_outputs([args.out], [args.source, args.store_in, args.left_glob, args.right_glob,
+                               *(args.intrinsics or ())], args.overwrite)
     config, board = _config_and_board(args)
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     with progress(desc="detecting corners", unit="view") as bar:
