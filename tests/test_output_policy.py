@@ -23,7 +23,8 @@ APPENDS = {"calibrate capture", "calibrate projector-capture"}  # add files, nev
 NEW_FILES_ONLY = {"live"}  # --record makes a new session; nothing to overwrite
 
 
-def leaf_commands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
+def leaf_commands(parser: argparse.ArgumentParser,
+                  prefix: str = "") -> dict[str, argparse.ArgumentParser]:
     """Every runnable (sub)command of ``parser``, as 'calibrate color' → its parser."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     if not subs:

@@ -87,7 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = actions.add_parser("capture", help="keep views of the board at new poses (PNG pairs)")
     p.add_argument("folder", help="folder for view_NNN_left.png / view_NNN_right.png")
-    p.add_argument("--max-frames", type=positive(int), default=200, help="stop after this many frames")
+    p.add_argument("--max-frames", type=positive(int), default=200,
+                   help="stop after this many frames")
     p.add_argument("--headless", action="store_true",
                    help="no preview window (corners and coverage): print coverage bars as text")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
@@ -99,7 +100,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                            help="show the Gray-code sequence at board poses, keep the camera's "
                            "images (pose_NNN/ folders for 'projector')")
     p.add_argument("out", help="folder for pose_NNN/ (new poses go after those already there)")
-    p.add_argument("--poses", type=positive(int), default=8, help="board poses to capture (default 8)")
+    p.add_argument("--poses", type=positive(int), default=8,
+                   help="board poses to capture (default 8)")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
     add_config_option(p)
     p.set_defaults(func=run_projector_capture)
@@ -130,7 +132,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--right", metavar="GLOB", dest="right_glob", help="right images (glob)")
     p.add_argument("--intrinsics", nargs=2, metavar=("LEFT.yaml", "RIGHT.yaml"),
                    help="fix the intrinsics to these 'calibrate camera' files")
-    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
+    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None,
+                   metavar="MM",
                    help="refuse a baseline far from this (default: [calib] nominal_baseline_mm; "
                    "0 = not checked)")
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
@@ -172,7 +175,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", help="folder of fresh view pairs (or a session)")
     p.add_argument("--max-depth-error-mm", type=positive(float), default=None,
                    help="limit at the working distance (default: [calib] table)")
-    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None, metavar="MM",
+    p.add_argument("--nominal-baseline-mm", type=positive(float, zero=True), default=None,
+                   metavar="MM",
                    help="NO-GO for a baseline far from this (default: [calib] table)")
     _board_options(p)
     add_config_option(p)
@@ -182,7 +186,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("calibration", help="calibration YAML to add color_mixing/color_offset to")
     p.add_argument("-o", "--out", default=None, help="write here instead of in place (in place "
                    "needs --overwrite)")
-    p.add_argument("--frames", type=positive(int), default=3, help="frames averaged per projection")
+    p.add_argument("--frames", type=positive(int), default=3,
+                   help="frames averaged per projection")
     add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_color)
