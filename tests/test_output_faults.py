@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from vbfe.acquire import SessionReader, record_session
+from vbfe.acquire import SessionReader, record_session, store_analysis
 from vbfe.cli.main import main
 from vbfe.config import load_config
-from vbfe.files import atomic_path
+from vbfe.files import OutputError, atomic_path
 from vbfe.truth import calibration_from_rig, true_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -152,6 +152,8 @@ def test_a_second_writer_is_refused_naming_the_first_and_readers_follow_the_reco
     assert main(["record", str(path), "--overwrite", "--duration", "0.2", "--config",
                  str(rig)]) == 2
     one_error(capsys.readouterr().err, str(path), f"process {first.pid}")
+    with pytest.raises(OutputError, match=f"process {first.pid}"):  # any other writer too
+        store_analysis(path, {"note": "written meanwhile"})
 
     manifest = tmp_path / "m.csv"  # the growing session, listed three times
     manifest.write_text("path\nx.h5\nx.h5\n./x.h5\n")

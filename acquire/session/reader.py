@@ -21,7 +21,7 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.files import is_hdf5
+from vbfe.files import WriterLock, is_hdf5
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.h5attrs import plain_attrs, text
@@ -460,9 +460,9 @@ def store_calibration(session_path: str | Path, yaml_text: str) -> None:
 
 def store_analysis(session_path: str | Path, values: dict[str, Any],
                    calibration_yaml: str | None = None) -> None:
-    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
+    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session
+    (refused, naming the process, while another one writes it)."""
+    with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
         _check_session(f, Path(session_path))
         if calibration_yaml is not None:
             if "calibration_yaml" in f:
@@ -474,7 +474,6 @@ def store_analysis(session_path: str | Path, values: dict[str, Any],
 
 def store_estimates(session_path: str | Path, stream: EstimateStream) -> None:
     """Write (or replace) the live estimate stream of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
+    with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
         _check_session(f, Path(session_path))
         write_estimates(f, stream)
