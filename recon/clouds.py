@@ -26,8 +26,10 @@ Layout (all per-frame arrays share the frame order of the session):
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 from pathlib import Path
 from types import TracebackType
 
@@ -137,7 +139,11 @@ class CloudWriter:
         return self.path
 
     def abort(self) -> None:
-        """Close without marking complete (the caller removes the file)."""
+        """Close without marking complete (the caller removes the file). The file is first cut
+        to nothing: after a write failed on a full disk, that gives HDF5 the room to write out
+        its caches, where closing would otherwise fail again and crash the process later."""
+        with contextlib.suppress(OSError, ValueError):
+            os.ftruncate(self._file.id.get_vfd_handle(), 0)
         self._file.close()
 
 

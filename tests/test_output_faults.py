@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from vbfe.acquire import SessionReader, record_session
+from vbfe.acquire import SessionReader, record_session, store_analysis
 from vbfe.cli.main import main
 from vbfe.config import load_config
-from vbfe.files import atomic_path
+from vbfe.files import OutputError, atomic_path
 from vbfe.truth import calibration_from_rig, true_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -104,24 +104,33 @@ def test_full_and_read_only_folders_give_one_line_exit_2_and_leave_nothing(sessi
     assert leftovers(full) == [] and leftovers(ro) == []
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signals_stop_reconstruct_and_its_workers_within_a_second(session, tmp_path, sig, code):
-    out = tmp_path / "c.clouds.h5"
-    proc = vbfe("reconstruct", session, "--out", out, "--workers", "2")
+@pytest.mark.parametrize("command, sig, code", [("reconstruct", signal.SIGINT, 130),
+                                                ("reconstruct", signal.SIGTERM, 143),
+                                                ("verify-sync", signal.SIGTERM, 143)])
+def test_signals_stop_commands_and_their_workers_within_a_second(session, tmp_path, command,
+                                                                  sig, code):
+    if command == "reconstruct":
+        proc = vbfe("reconstruct", session, "--out", tmp_path / "c.clouds.h5", "--workers", "2")
+    else:  # two sessions checked in two worker processes, each writing its plot
+        for name in ("a.h5", "b.h5"):
+            (tmp_path / name).write_bytes(session.read_bytes())
+        proc = vbfe("verify-sync", tmp_path / "a.h5", tmp_path / "b.h5", "--workers", "2")
+    before = sorted(tmp_path.iterdir())
     deadline = time.monotonic() + 60
-    while not list(tmp_path.glob(".c.clouds.h5.*.partial")) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.5)  # workers busy with frames
-    workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
-                             text=True).stdout.split()
-    assert workers and proc.poll() is None
+    workers: list[str] = []
+    while len(workers) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+        workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                 text=True).stdout.split()
+    time.sleep(1.0)  # workers busy
+    assert proc.poll() is None
     sent = time.monotonic()
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=30)
     assert time.monotonic() - sent < 2.0  # a second on a quiet machine
     assert proc.returncode == code, err
     one_error(err, "interrupted" if sig == signal.SIGINT else "terminated")
-    assert list(tmp_path.iterdir()) == []
+    assert sorted(tmp_path.iterdir()) == before  # no output, no temporary file
     time.sleep(0.2)
     alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()
              and "Z" not in Path(f"/proc/{pid}/stat").read_text().split()[2]]
@@ -143,6 +152,8 @@ def test_a_second_writer_is_refused_naming_the_first_and_readers_follow_the_reco
     assert main(["record", str(path), "--overwrite", "--duration", "0.2", "--config",
                  str(rig)]) == 2
     one_error(capsys.readouterr().err, str(path), f"process {first.pid}")
+    with pytest.raises(OutputError, match=f"process {first.pid}"):  # any other writer too
+        store_analysis(path, {"note": "written meanwhile"})
 
     manifest = tmp_path / "m.csv"  # the growing session, listed three times
     manifest.write_text("path\nx.h5\nx.h5\n./x.h5\n")

@@ -23,7 +23,8 @@ APPENDS = {"calibrate capture", "calibrate projector-capture"}  # add files, nev
 NEW_FILES_ONLY = {"live"}  # --record makes a new session; nothing to overwrite
 
 
-def leaf_commands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
+def leaf_commands(parser: argparse.ArgumentParser,
+                  prefix: str = "") -> dict[str, argparse.ArgumentParser]:
     """Every runnable (sub)command of ``parser``, as 'calibrate color' → its parser."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     if not subs:
@@ -72,7 +73,8 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
                               "--overwrite"],
                              ["calibrate", "camera", v, "-o", o]),
         "calibrate stereo": (["calibrate", "stereo", v, "-o", o],
-                             ["calibrate", "stereo", v, "-o", f"{v}/view_000_left.png",
+                             ["calibrate", "stereo", "--left", f"{v}/*_left.png", "--right",
+                              f"{v}/*_right.png", "-o", f"{v}/view_000_left.png",
                               "--overwrite"],
                              ["calibrate", "stereo", v, "-o", o]),
         "calibrate export": (["calibrate", "export", f"{d}/cal.yaml", "--format", "kalibr",

@@ -9,6 +9,7 @@ import h5py
 
 from vbfe.acquire.session.estimates import EstimateStream, write_estimates
 from vbfe.acquire.session.reader import check_session, open_session_file
+from vbfe.files import WriterLock
 
 
 def store_calibration(session_path: str | Path, yaml_text: str) -> None:
@@ -18,9 +19,9 @@ def store_calibration(session_path: str | Path, yaml_text: str) -> None:
 
 def store_analysis(session_path: str | Path, values: dict[str, Any],
                    calibration_yaml: str | None = None) -> None:
-    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
+    """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session
+    (refused, naming the process, while another one writes it)."""
+    with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
         check_session(f, Path(session_path))
         if calibration_yaml is not None:
             if "calibration_yaml" in f:
@@ -32,7 +33,6 @@ def store_analysis(session_path: str | Path, values: dict[str, Any],
 
 def store_estimates(session_path: str | Path, stream: EstimateStream) -> None:
     """Write (or replace) the live estimate stream of a closed session."""
-    f, _ = open_session_file(session_path, "r+")
-    with f:
+    with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
         check_session(f, Path(session_path))
         write_estimates(f, stream)

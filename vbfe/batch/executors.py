@@ -38,9 +38,9 @@ def _call(fn: Callable[[str], Any], item: str) -> tuple[bool, Any]:
     try:
         return True, fn(item)
     except VbfeError as exc:
-        return False, str(exc)
+        return False, " ".join(str(exc).split())  # one line, whatever HDF5 put in it
     except Exception as exc:  # noqa: BLE001 - a batch reports every failure and goes on
-        return False, f"{type(exc).__name__}: {exc}"
+        return False, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
 
 
 def _child(fn: Callable[[str], Any], item: str,

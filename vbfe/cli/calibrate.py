@@ -123,7 +123,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = actions.add_parser("capture", help="keep views of the board at new poses (PNG pairs)")
     p.add_argument("folder", help="folder for view_NNN_left.png / view_NNN_right.png")
-    p.add_argument("--max-frames", type=positive(int), default=200, help="stop after this many frames")
+    p.add_argument("--max-frames", type=positive(int), default=200,
+                   help="stop after this many frames")
     p.add_argument("--headless", action="store_true",
                    help="no preview window (corners and coverage): print coverage bars as text")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
@@ -135,7 +136,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                            help="show the Gray-code sequence at board poses, keep the camera's "
                            "images (pose_NNN/ folders for 'projector')")
     p.add_argument("out", help="folder for pose_NNN/ (new poses go after those already there)")
-    p.add_argument("--poses", type=positive(int), default=8, help="board poses to capture (default 8)")
+    p.add_argument("--poses", type=positive(int), default=8,
+                   help="board poses to capture (default 8)")
     p.add_argument("--seed", type=int, default=None, help="simulated bench: pose seed")
     add_config_option(p)
     p.set_defaults(func=run_projector_capture)
@@ -332,8 +334,8 @@ def run_camera(args: argparse.Namespace) -> int:
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary."""
-    check_outputs([args.out], [args.source, args.store_in, *(args.intrinsics or ())],
-                  args.overwrite)
+    check_outputs([args.out], [args.source, args.store_in, args.left_glob, args.right_glob,
+                               *(args.intrinsics or ())], args.overwrite)
     config, board = _config_and_board(args)
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     with progress(desc="detecting corners", unit="view") as bar:

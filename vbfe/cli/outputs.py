@@ -7,6 +7,7 @@ and the ``X.clouds.h5`` sidecar of every session, so none of them can be an outp
 from __future__ import annotations
 
 import argparse
+import glob
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -24,15 +25,17 @@ def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
 
 
 def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -> list[Path]:
-    """Every file the inputs stand for: themselves, the sessions of manifests (``*.csv`` with a
-    ``path`` column) and
-    (with ``sidecars``) the clouds sidecar of every session."""
+    """Every file the inputs stand for: themselves (or the files a glob matches), the sessions
+    of manifests (``*.csv`` with a ``path`` column) and (with ``sidecars``) the clouds sidecar
+    of every session."""
     from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import MANIFEST_SUFFIX, read_manifest
     from vbfe.recon.clouds import sidecar_path
 
     out: list[Path] = []
     for item in (Path(p) for p in inputs if p is not None):
+        if not item.exists() and glob.has_magic(str(item)):  # a quoted glob of images
+            out.extend(Path(p) for p in glob.glob(str(item)))
         out.append(item)
         listed: list[Path] = []
         if item.suffix == MANIFEST_SUFFIX and item.is_file():

@@ -49,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--temporal-frames", type=int, metavar="K",
                         help="also train the temporal model on a causal window of K frames")
     parser.add_argument("--device", metavar="auto|cpu|cuda", help="cpu (default), cuda, or auto")
-    parser.add_argument("--time-limit", type=positive(float), dest="time_limit_s", metavar="SECONDS")
+    parser.add_argument("--time-limit", type=positive(float), dest="time_limit_s",
+                        metavar="SECONDS")
     parser.add_argument("--seed", type=int)
     add_overwrite_option(parser)
     add_config_option(parser)
