@@ -14,8 +14,8 @@ from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.errors import ReconError
-from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
+from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
 from vbfe.recon.verify import verify_disparity
