@@ -188,7 +188,9 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
             kept = False
             if 0 <= xi < width:
                 for s in range(max(xi - tolerance, 0), min(xi + tolerance + 1, width)):
-                    kept = kept or right_index[y, s] == code
+                    if right_index[y, s] == code:
+                        kept = True
+                        break
             if kept:
                 out[y, x] = d
                 status[y, x] = KEPT

@@ -12,10 +12,10 @@ from vbfe.calib.calibration import Calibration
 from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
-from vbfe.recon.decode import FringeDecoder
+from vbfe.recon.decode import FringeCode, FringeDecoder
 from vbfe.recon.errors import ReconError
-from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
+from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
 from vbfe.recon.verify import verify_disparity
@@ -81,9 +81,9 @@ class Reconstructor:
         kernels.warm_up()
 
     def _overlap(self) -> ThreadPoolExecutor:
-        """The one background thread SGBM runs in while the codes are decoded."""
+        """The one background thread the codes are decoded in while SGBM runs."""
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sgbm")
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode")
         return self._pool
 
     def _check_size(self, left: np.ndarray, right: np.ndarray) -> None:
@@ -99,6 +99,11 @@ class Reconstructor:
                  ) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
+    def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
+        """Fringe codes of both rectified views (the right with the left's fringe width)."""
+        left_code = self.decoder.decode(left)
+        return left_code, self.decoder.decode(right, period_px=left_code.period_px)
+
     def rectified_disparity(self, left: np.ndarray, right: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
         """Rectified left image, disparity (px, NaN invalid), outcome per pixel (the status
@@ -112,14 +117,14 @@ class Reconstructor:
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
-        # with several OpenCV threads, decode while SGBM runs (both release the GIL): the
-        # single-threaded decoding then shares the cores SGBM leaves idle
-        matching = self._overlap().submit(sgbm_disparity, rect_left, rect_right, self.params,
-                                          self._matcher) if cv2.getNumThreads() > 1 else None
-        left_code = self.decoder.decode(rect_left)
-        right_code = self.decoder.decode(rect_right, period_px=left_code.period_px)
-        disparity = (matching.result() if matching is not None else
-                     sgbm_disparity(rect_left, rect_right, self.params, self._matcher))
+        # with several OpenCV threads, decode in the background while SGBM runs here (both
+        # release the GIL): SGBM keeps OpenCV's thread pool (called from another thread it
+        # would run on one core), and the decoding fills the time its threads leave idle
+        codes = self._overlap().submit(self._decode, rect_left, rect_right) \
+            if cv2.getNumThreads() > 1 else None
+        disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
+        left_code, right_code = (codes.result() if codes is not None else
+                                 self._decode(rect_left, rect_right))
         quality = {"edge_fraction": edge_fraction(disparity, self.params)}
         disparity, status, counts = verify_disparity(disparity, left_code, right_code,
                                                      self.params.verify_search_px)

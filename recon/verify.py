@@ -24,13 +24,16 @@ NEIGHBOUR_OFFSETS = np.array(((0, -4), (0, 4), (-4, 0), (4, 0), (0, -8), (0, 8),
                              np.int64)
 REGION_FRINGES = 4  # side, in fringe widths, of the square over which readability is judged
 MIN_REGION_READABLE = 0.5  # share of readable codes that makes a square solidly coded
+# how far, in fringe widths, the coded region reaches beyond them (over glare and shadows
+# within the projection: 4 let 0.5 % bad pixels through under strong specularity, 8 none)
+REGION_REACH_FRINGES = 8
 
 
 def coded_region(code: FringeCode) -> np.ndarray:
-    """Where the pattern is read (bool H×W): within ``REGION_FRINGES`` fringe widths of a
-    square of that side in which at least ``MIN_REGION_READABLE`` of the codes are readable
-    (so the unreadable run ends at the image's sides and fringe boundaries stay inside).
-    Judged on cells of half a fringe width."""
+    """Where the pattern is read (bool H×W): within ``REGION_REACH_FRINGES`` fringe widths of
+    a square of ``REGION_FRINGES`` fringes in which at least ``MIN_REGION_READABLE`` of the
+    codes are readable (so fringe boundaries, the unreadable run ends at the image's sides and
+    glare or shadows inside the projection stay inside). Judged on cells of half a fringe."""
     height, width = code.index.shape
     cell = max(1, int(code.period_px // 2))
     cells = (max(1, width // cell), max(1, height // cell))
@@ -39,7 +42,8 @@ def coded_region(code: FringeCode) -> np.ndarray:
     side = 2 * REGION_FRINGES + 1  # in cells
     share = cv2.blur(readable, (side, side), borderType=cv2.BORDER_REPLICATE)
     solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)
-    near = cv2.dilate(solid, np.ones((2 * side - 1, 2 * side - 1), np.uint8))
+    reach = 2 * 2 * REGION_REACH_FRINGES + 1  # cells are half a fringe wide
+    near = cv2.dilate(solid, np.ones((reach, reach), np.uint8))
     return cv2.resize(near, (width, height), interpolation=cv2.INTER_NEAREST) > 0
 
 
