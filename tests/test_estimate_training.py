@@ -232,6 +232,9 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
                                temporal_epochs=4, model="temporal"))
     model = load_model(result.model_path)
     assert model.selected == "temporal" and "forced by --model" in " ".join(result.notes)
+    live = FramePredictor(model)  # vbfe live keeps the causal window of the shipped model
+    forces = [live.predict(cloud) for cloud in sessions[0].clouds]
+    assert all(f.shape == (1,) and np.isfinite(f).all() for f in forces)
     temporal = model.record["histories"]["temporal"]
     assert len(temporal["history"]) >= 1 and temporal["start_val_loss"] > 0
     best = temporal["best_epoch"]
