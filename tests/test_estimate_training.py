@@ -294,6 +294,8 @@ def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file,
         assert re.search(rf"{method}: \d+\.\d+ ± \d+\.\d+", out), method
     cv = load_model(model).record["cross_validation"]
     assert len(cv["folds"]) == 3 and cv["summary"]["mean"]["sd_mae_n"] >= 0
+    assert main(["train", str(path), "--out", str(tmp_path / "two.pt"), "--folds", "2"]) == 2
+    assert "at least 3" in capsys.readouterr().err and not (tmp_path / "two.pt").exists()
 
 
 def test_a_shipped_model_that_loses_to_a_baseline_is_flagged(tmp_path):
