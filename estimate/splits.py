@@ -230,8 +230,7 @@ def split_folds(sessions: Sequence[FramedSession], folds: int, gap_frames: int
     blocks; fold k tests on block k, validates on block k − 1 (block 1 for the first fold)
     and trains on the rest, with the gap cut at every boundary."""
     if folds < 3:
-        raise EstimateError(f"--folds {folds}: blocked cross-validation needs at least 3 folds "
-                            "(test, validation and training blocks)")
+        raise EstimateError(f"--folds {folds}: blocked cross-validation needs at least 3 folds")
     splits = []
     for k in range(folds):
         labels = []

@@ -103,6 +103,9 @@ class TrainConfig:
                                     "0 <= start < stop")
         if (self.val_frames or self.test_frames) and not self.train_frames:
             raise EstimateError("stated frame ranges need the training range too (--train)")
+        if self.folds in (1, 2):
+            raise EstimateError(f"--folds {self.folds}: blocked cross-validation needs at least 3 "
+                                "folds (test, validation and training blocks), or 0 for none")
         if self.train_frames and self.folds:
             raise EstimateError("give either frame ranges (--train/--val/--test) or --folds")
         for window in ("temporal", "history"):

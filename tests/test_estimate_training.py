@@ -232,6 +232,9 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
                                temporal_epochs=4, model="temporal"))
     model = load_model(result.model_path)
     assert model.selected == "temporal" and "forced by --model" in " ".join(result.notes)
+    live = FramePredictor(model)  # vbfe live keeps the causal window of the shipped model
+    forces = [live.predict(cloud) for cloud in sessions[0].clouds]
+    assert all(f.shape == (1,) and np.isfinite(f).all() for f in forces)
     temporal = model.record["histories"]["temporal"]
     assert len(temporal["history"]) >= 1 and temporal["start_val_loss"] > 0
     best = temporal["best_epoch"]
@@ -291,6 +294,8 @@ def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file,
         assert re.search(rf"{method}: \d+\.\d+ ± \d+\.\d+", out), method
     cv = load_model(model).record["cross_validation"]
     assert len(cv["folds"]) == 3 and cv["summary"]["mean"]["sd_mae_n"] >= 0
+    assert main(["train", str(path), "--out", str(tmp_path / "two.pt"), "--folds", "2"]) == 2
+    assert "at least 3" in capsys.readouterr().err and not (tmp_path / "two.pt").exists()
 
 
 def test_a_shipped_model_that_loses_to_a_baseline_is_flagged(tmp_path):
