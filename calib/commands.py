@@ -79,10 +79,9 @@ def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: in
     """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
     write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
     options = GrayCaptureOptions.from_config(section(config, "calib"))
-    # lock-step (show, then read the frames after it): the camera is read directly, so a
-    # simulated one renders no frame ahead of the pattern shown
-    with open_rig(config, RigOptions(seed=seed), ("camera", "projector")) as rig:
-        return capture_gray_code(rig.camera, rig.projector, folder, n_poses, options, on_event)
+    rig = open_rig(config, RigOptions(seed=seed), ("camera", "projector"))
+    with frame_feed(rig) as frames:
+        return capture_gray_code(frames, rig.projector, folder, n_poses, options, on_event)
 
 
 @dataclass

@@ -168,7 +168,7 @@ def bar_devices(**camera_options) -> Rig:
                      if k.startswith("force_")}
     force_options.setdefault("speed", camera_options.get("speed", 4.0))
     return Rig(BarCamera(**camera_options), ProfileForce(**force_options),
-                   RecordingProjector())
+               RecordingProjector())
 
 
 def write_bar_session(path, seconds: float = 7.0, compression: str = "lzf", **options) -> None:

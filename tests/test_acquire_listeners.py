@@ -51,6 +51,7 @@ def test_a_failing_listener_stops_the_acquisition_and_the_session_is_finalized(t
     with pytest.raises(ValueError, match="a bug in a listener"):
         recorder.run(5.0)
     assert not any(d.is_open for d in recorder.rig.devices.values())
+    assert recorder.rig.truth is None  # no simulated backend: no truth
     with SessionReader(tmp_path / "s.h5") as session:
         assert session.complete and session.n_frames < 5 * 30
 

@@ -141,9 +141,8 @@ def test_trocar_over_socketcan_on_vcan0_uses_kernel_receive_time():
 
 def test_recorded_session_stores_bus_errors_as_force_gaps(tmp_path):
     channel = f"vbfe-clock-{next(_channels)}"
-    devices = Rig(BarCamera(disconnect_after=20), CanTrocar(interface="virtual",
-                                                                channel=channel),
-                      RecordingProjector())
+    devices = Rig(BarCamera(disconnect_after=20),
+                  CanTrocar(interface="virtual", channel=channel), RecordingProjector())
     rec = Recorder(devices, tmp_path / "s.h5", min_free_bytes=0)
     rec.start()
     with can.Bus(interface="virtual", channel=channel) as bus:

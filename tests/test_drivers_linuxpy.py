@@ -143,7 +143,7 @@ def test_side_by_side_yuyv_is_converted_and_split():
 
 def _recording(tmp_path, left, right, duration_s=None):
     devices = Rig(stereo(left, right, controls=MANUAL), ProfileForce(speed=1.0),
-                      RecordingProjector())
+                  RecordingProjector())
     rec = Recorder(devices, tmp_path / "s.h5", compression="mjpeg", min_free_bytes=0)
     rec.start()
     return rec.run(duration_s), tmp_path / "s.h5"

@@ -84,12 +84,14 @@ class _Pump(threading.Thread):
 
     def __init__(self, stream: str, device: Any, out: queue.Queue, control: queue.Queue,
                  stop: threading.Event, paced: bool = False,
-                 read_until_ns: Callable[[], int | None] = lambda: None) -> None:
+                 read_until_ns: Callable[[], int | None] = lambda: None,
+                 demand: threading.Semaphore | None = None) -> None:
         super().__init__(name=f"vbfe-read-{stream}", daemon=True)
         self.stream, self._device, self._out = stream, device, out
         self._control, self._halt = control, stop
         self.paced = paced
         self._read_until_ns = read_until_ns
+        self._demand = demand  # read only when a consumer asked (one read per release)
         self.dropped = 0
         self.last_seq = -1
         self.last_t_host_ns = 0  # host time of the newest item read
@@ -113,6 +115,8 @@ class _Pump(threading.Thread):
     def run(self) -> None:
         burst = 0
         while not self._done():
+            if self._demand is not None and not self._demand.acquire(timeout=_READ_TIMEOUT_S):
+                continue
             try:
                 item = self._device.read(_READ_TIMEOUT_S)
             except DeviceError as exc:
@@ -122,6 +126,8 @@ class _Pump(threading.Thread):
             for mark in self._device.stats.take_marks():  # bus errors the device reported
                 self._gap(mark.reason, mark.last_seq, mark.next_seq, mark.t_host_ns, mark.count)
             if item is None:
+                if self._demand is not None:
+                    self._demand.release()  # still owed
                 continue
             self.last_t_host_ns = item.t_host_ns
             try:
@@ -172,11 +178,13 @@ class Acquisition:
     :meth:`start` / :meth:`stop` yourself. :meth:`start` opens the rig and :meth:`stop` closes
     it. When the rig has a projector, ``pattern`` (an image, or a function of the opened
     projector's ``(width, height)`` that makes one) is shown at the start as ``pattern_name``.
+    ``on_demand``: the camera is read only when asked (:meth:`demand`, one frame each), for
+    consumers in lock-step with the projector (show, then the frames after it).
     """
 
     def __init__(self, rig: Rig, pattern: PatternSource | None = None,
                  pattern_name: str = PATTERN_NAME, queue_size: int = 256,
-                 listeners: tuple[Listener, ...] = ()) -> None:
+                 listeners: tuple[Listener, ...] = (), on_demand: bool = False) -> None:
         self.rig = rig
         self.pattern, self.pattern_name = pattern, pattern_name
         self.listeners: list[Listener] = list(listeners)
@@ -184,6 +192,7 @@ class Acquisition:
         self.error: BaseException | None = None  # a record hook's failure, raised by stop()
         self.what = "the acquisition"  # how the Ctrl-C message names what is being finished
         self._queue_size = queue_size
+        self._demand = threading.Semaphore(0) if on_demand else None
         self._queues: dict[str, queue.Queue] = {}
         self._control: queue.Queue = queue.Queue()
         self._halt = threading.Event()
@@ -213,16 +222,21 @@ class Acquisition:
         if duration_s is not None:
             self._set_duration(duration_s)
         self.rig.open()
+        started: list[Listener] = []
         try:
             self._show_initial_pattern()
             self._t_start = time.monotonic()
             self._started = True
-            started: list[Listener] = []
             for listener in self.listeners:
                 listener.on_start(self)
                 started.append(listener)
         except BaseException:
+            self._stopped = True  # nothing was read: the listeners started are stopped here
+            self._halt.set()
             self.rig.close()
+            for listener in started:
+                with contextlib.suppress(Exception):
+                    listener.on_stop(self)
             raise
         streams = dict(self.rig.streams())
         self.paced = any(d.describe().get("realtime") is False for s, d in streams.items()
@@ -232,7 +246,8 @@ class Acquisition:
             self._queues[stream] = queue.Queue(maxsize=size)
             self._pumps.append(_Pump(stream, device, self._queues[stream], self._control,
                                      self._halt, self.paced,
-                                     (lambda: None) if stream == "camera" else self._reached_end_ns))
+                                     (lambda: None) if stream == "camera" else self._reached_end_ns,
+                                     self._demand if stream == "camera" else None))
         self._dispatcher = threading.Thread(target=self._dispatch_loop, name="vbfe-dispatch",
                                             daemon=True)
         self._dispatcher.start()
@@ -246,6 +261,11 @@ class Acquisition:
         if callable(self.pattern):  # sized now that the projector is open (an HDMI screen's)
             self.pattern = self.pattern(projector.width, projector.height)
         self.show(self.pattern, self.pattern_name)
+
+    def demand(self) -> None:
+        """Ask an ``on_demand`` acquisition for one more camera frame."""
+        if self._demand is not None:
+            self._demand.release()
 
     def show(self, pattern: np.ndarray, name: str) -> ProjectorEvent:
         """Put ``pattern`` on the projector now and dispatch the event (call from the thread

@@ -1,5 +1,6 @@
 """The frames of an acquisition for a consumer that reads them one by one, like a camera
-(calibration captures: ``calibrate capture``, ``projector-capture``, ``color``)."""
+(calibration captures: ``calibrate capture``, ``projector-capture``, ``color``): each read asks
+for one frame, so the camera runs in lock-step with the consumer, as when read directly."""
 
 from __future__ import annotations
 
@@ -42,6 +43,7 @@ class FrameFeed(Listener):
         as a simulation rendering each frame, is waited for as when read directly);
         DeviceError once the camera is gone."""
         acquisition = self._acquisition
+        acquisition.demand()
         deadline = time.monotonic() + timeout_s
         while True:
             with contextlib.suppress(queue.Empty):
@@ -59,8 +61,8 @@ class FrameFeed(Listener):
 
 @contextlib.contextmanager
 def frame_feed(rig: Rig) -> Iterator[FrameFeed]:
-    """Run an acquisition of ``rig`` (opened and closed around the block) and yield the feed
-    of its frames; the camera reads at most a frame ahead of the consumer."""
+    """Run an acquisition of ``rig`` (opened and closed around the block) that reads the camera
+    on demand, and yield the feed of its frames."""
     feed = FrameFeed()
-    with Acquisition(rig, queue_size=1, listeners=(feed,)):
+    with Acquisition(rig, queue_size=1, listeners=(feed,), on_demand=True):
         yield feed

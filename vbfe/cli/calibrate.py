@@ -328,6 +328,7 @@ def run_check(args: argparse.Namespace) -> int:
 def run_color(args: argparse.Namespace) -> int:
     """Project flat colours, fit the crosstalk model and store it in the calibration."""
     from vbfe.calib.calibration import load_calibration
+    from vbfe.acquire import frame_feed
     from vbfe.drivers.registry import open_rig
     from vbfe.recon.color import capture_color_model
 
@@ -336,8 +337,9 @@ def run_color(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     config = config_from(args)
     settle_s = calib_settings(section(config, "calib")).projector_settle_s
-    with open_rig(config, families=("camera", "projector")) as rig:  # lock-step: read directly
-        model = capture_color_model(rig.camera, rig.projector, frames=args.frames,
+    rig = open_rig(config, families=("camera", "projector"))
+    with frame_feed(rig) as frames:
+        model = capture_color_model(frames, rig.projector, frames=args.frames,
                                     settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)
     rows = "; ".join(" ".join(f"{v:.3f}" for v in row) for row in model.mixing)

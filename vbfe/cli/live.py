@@ -45,33 +45,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run live estimation and print the summary."""
-    import torch
-
     from vbfe.calib.calibration import load_calibration
     from vbfe.estimate.model_file import load_model
-    from vbfe.live.estimator import FrameEstimator
     from vbfe.live.errors import LiveError
     from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
-    from vbfe.live.run import live_run, run_headless
+    from vbfe.live.run import live_estimator, live_run, run_headless
     from vbfe.live.settings import live_settings
-    from vbfe.recon.matching import SgbmParams
 
     config = config_from(args)
     settings = live_settings(section(config, "live"))
     udp = udp_address(args.udp) if args.udp is not None else None
     if args.duration is not None and args.duration <= 0:
         raise LiveError(f"--duration must be positive, got {args.duration}")
-    device = args.device or settings.device
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    elif device == "cuda" and not torch.cuda.is_available():
-        raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
-    torch.set_num_threads(settings.torch_threads)
-    model = load_model(args.model)
     calibration = load_calibration(args.calib)
-    estimator = FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
-                               verify=not args.no_verify and settings.verify,
-                               scale=args.scale or settings.scale, device=device)
+    model = load_model(args.model)
+    estimator = live_estimator(config, settings, model, calibration, args.scale,
+                               not args.no_verify, args.device)
     outputs = []
     if args.lsl is not None:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))

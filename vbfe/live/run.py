@@ -23,15 +23,19 @@ from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
 from vbfe.calib.calibration import Calibration
+from vbfe.config import section
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.estimate.dataset import force_target
+from vbfe.estimate.model_file import ForceModel
 from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
 from vbfe.live.mailbox import Mailbox
 from vbfe.live.outputs import EstimateOutput
+from vbfe.live.settings import LiveSettings
+from vbfe.recon.matching import SgbmParams
 
 _READ_TIMEOUT_S = 0.2
 FORCE_HISTORY_S = 30.0
@@ -61,6 +65,24 @@ class LiveStatus:
                 f"{self.latency_p50_ms:5.1f} ms p95 {self.latency_p95_ms:5.1f} ms | skipped "
                 f"{self.skipped} of {self.frames} frames | {mae} | estimate "
                 f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N")
+
+
+def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, model: ForceModel,
+                   calibration: Calibration, scale: float | None = None, verify: bool = True,
+                   device: str | None = None) -> FrameEstimator:
+    """The estimator of a live run: ``[sgbm]``, the ``[live]`` defaults where ``scale`` and
+    ``device`` are not given (``auto``: CUDA when torch sees it), torch's thread count."""
+    import torch
+
+    device = device or settings.device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and not torch.cuda.is_available():
+        raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
+    torch.set_num_threads(settings.torch_threads)
+    return FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
+                          verify=verify and settings.verify, scale=scale or settings.scale,
+                          device=device)
 
 
 def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
