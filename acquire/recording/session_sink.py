@@ -30,7 +30,6 @@ from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
 from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
-
 from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:
