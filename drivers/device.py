@@ -22,8 +22,11 @@ S = TypeVar("S")  # a sample type with a ``seq`` attribute
 
 
 class Device(abc.ABC):
-    """A device that is acquired by ``open`` and released by ``close`` (both idempotent)."""
+    """A device that is acquired by ``open`` and released by ``close`` (both idempotent).
+    ``stream`` names the session stream a readable device feeds (``None``: not read by an
+    acquisition, e.g. a projector)."""
 
+    stream: str | None = None
     _is_open = False
 
     @property

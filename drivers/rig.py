@@ -62,9 +62,9 @@ class Rig:
     """Named devices opened and closed together (``with rig:`` or :meth:`open`/:meth:`close`).
 
     ``camera``, ``trocar`` and ``projector`` are the well-known ones (``None`` when absent);
-    ``others`` adds devices of further kinds under their own names. Every device that has a
-    ``stream`` attribute and a ``read`` method is read by an acquisition (see
-    :class:`vbfe.acquire.Acquisition`).
+    ``others`` adds devices of further kinds under their own names. Every device with a
+    ``stream`` name (a :class:`~vbfe.drivers.device.SampleStream`) is read by an acquisition
+    (see :class:`vbfe.acquire.Acquisition`).
     """
 
     def __init__(self, camera: StereoCamera | None = None, trocar: ForceSensor | None = None,
@@ -112,9 +112,8 @@ class Rig:
     def streams(self) -> Iterator[tuple[str, Any]]:
         """``(stream name, device)`` of the devices an acquisition reads."""
         for device in self.devices.values():
-            stream = getattr(device, "stream", None)
-            if stream is not None and callable(getattr(device, "read", None)):
-                yield stream, device
+            if device.stream is not None:
+                yield device.stream, device
 
     def describe(self) -> dict[str, Any]:
         """``{"devices": {name: device.describe()}}`` plus every shared backend's facts."""

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import bar_devices
-from vbfe.acquire import (Acquisition, Listener, Recorder, SessionReader, SessionWriter,
-                          recover_session)
+from vbfe.acquire import (Acquisition, Listener, Recorder, SessionError, SessionReader,
+                          SessionWriter, recover_session)
 from vbfe.acquire.session.layout import marker_stream, vector_stream
 from vbfe.config import load_config
 from vbfe.drivers.device import SampleStream
@@ -112,6 +112,9 @@ class FakeRobot(SampleStream[Kinematics]):
 def test_a_further_device_kind_is_recorded_as_an_extra_stream_and_read_back(tmp_path):
     rig = bar_devices(speed=8.0)
     rig.devices["robot"] = FakeRobot()
+    with pytest.raises(SessionError, match=r"\['robot'\] have no session stream"):
+        Recorder(rig, tmp_path / "no-spec.h5", min_free_bytes=0).run(1.0)
+    assert not rig.camera.is_open
     spec = vector_stream("robot", [f"q{i}" for i in range(7)], units="rad")
     with Recorder(rig, tmp_path / "s.h5", min_free_bytes=0, streams=(spec,)) as recorder:
         recorder.run(1.0)

@@ -28,7 +28,7 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
-from vbfe.acquire.session.layout import StreamSpec
+from vbfe.acquire.session.layout import STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 from vbfe.drivers.streams.records import StreamInfo
 
@@ -128,9 +128,14 @@ class SessionSink(Listener):
     def on_start(self, acquisition: "Acquisition") -> None:
         rig = acquisition.rig
         self._acquisition = acquisition
-        self.metadata = _merged_metadata(self.metadata, rig.describe())
         self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
                               if isinstance(getattr(device, "info", None), StreamInfo))
+        known = {*STREAMS, *(spec.name for spec in self.streams)}
+        missing = sorted(stream for stream, _ in rig.streams() if stream not in known)
+        if missing:
+            raise SessionError(f"the rig's streams {missing} have no session stream to go to; "
+                               "give their specs to the recorder (streams=...)")
+        self.metadata = _merged_metadata(self.metadata, rig.describe())
         self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
                                      self.compression, self.metadata, self.calibration_yaml,
                                      rig.trocar.axes, self.flush_interval_s, self.streams)
@@ -245,7 +250,7 @@ class SessionSink(Listener):
             attrs[f"{stream}_device_errors"] = int(device.stats.errors)
         attrs["devices_at_end_json"] = json.dumps(  # e.g. the trocar's clock, decided at frame 1
             {name: d.describe() for name, d in acquisition.rig.devices.items()
-             if d in readers.values()}, default=str)
+             if d.stream is not None}, default=str)
         return attrs
 
     def _truth(self, acquisition: "Acquisition") -> dict[str, np.ndarray] | None:
