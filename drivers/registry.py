@@ -82,8 +82,12 @@ def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions
         factory = _factory(family, backend)
         devices[family] = (factory(shared[backend], **kwargs) if backend in shared
                            else factory(**kwargs))
-    return Rig(devices.get("camera"), devices.get("trocar"), devices.get("projector"),
-               others={**{f: d for f, d in devices.items() if f not in ("camera", "trocar",
-                                                                         "projector")},
-                       **streams},
-               shared=tuple(shared.values()))
+    rig = Rig(devices.get("camera"), devices.get("trocar"), devices.get("projector"),
+              others={**{f: d for f, d in devices.items() if f not in ("camera", "trocar",
+                                                                        "projector")},
+                      **streams},
+              shared=tuple(shared.values()))
+    # streams open first (resolving takes a second): a simulated bench's clock starts when its
+    # first device opens, and its trocar would deliver that second as a backlog
+    rig.devices = {**streams, **rig.devices}
+    return rig

@@ -185,3 +185,35 @@ def test_live_publishes_estimates_over_lsl_and_udp(rig):
     assert len(matched) >= 3  # the same estimates came over UDP
     for d in matched:
         assert d["force_n"][0] == pytest.approx(by_frame_time[d["t_frame_host_ns"]][0])
+
+
+def test_the_m_key_marks_the_live_recording(rig, tmp_path):
+    import time
+
+    from pyqtgraph.Qt import QtCore, QtTest, QtWidgets
+
+    from vbfe.calib.calibration import load_calibration
+    from vbfe.estimate.model_file import load_model
+    from vbfe.live.estimator import FrameEstimator
+    from vbfe.live.run import live_run
+    from vbfe.live.viewer import LiveEstimateWindow
+
+    folder, model, calib, toml = rig
+    calibration = load_calibration(calib)
+    estimator = FrameEstimator(load_model(model), calibration, scale=0.5)
+    run = live_run(load_config(toml), estimator, calibration, str(calib), tmp_path / "m.h5")
+    run.start(1.5)
+    window = LiveEstimateWindow(run, None)
+    t_before = time.monotonic_ns()
+    QtTest.QTest.keyClick(window, QtCore.Qt.Key.Key_M)
+    t_after = time.monotonic_ns()
+    while run.running():
+        QtWidgets.QApplication.processEvents()
+        time.sleep(0.05)
+    window.close()
+    run.stop()
+    assert window.note == " | mark 1"
+    with SessionReader(tmp_path / "m.h5") as reader:
+        (event,) = reader.events()
+    assert event["source"] == "mark" and event["text"] == "key M 1"
+    assert t_before <= event["t_host_ns"] <= t_after

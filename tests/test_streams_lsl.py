@@ -27,12 +27,13 @@ def _read_all(stream: LslStream, until: float) -> list:
 
 def test_streams_table_is_checked() -> None:
     specs = stream_sources({"streams": {"robot": {"name": "KUKA", "type": "RobotState"},
-                                      "marks": {"type": "Markers", "required": False}}})
+                                      "script": {"type": "Markers", "required": False}}})
     assert [(s.key, s.predicate(), s.required) for s in specs] == [
-        ("robot", "name='KUKA' and type='RobotState'", True), ("marks", "type='Markers'", False)]
+        ("robot", "name='KUKA' and type='RobotState'", True), ("script", "type='Markers'", False)]
     for table, words in (({"robot": {}}, "names no stream"),
                          ({"robot": {"name": "a", "rate": 3}}, "unknown key 'rate'"),
                          ({"camera": {"name": "a"}}, "cannot name a session stream"),
+                         ({"marks": {"name": "a"}}, "cannot name a session stream"),
                          ({"Robot": {"name": "a"}}, "cannot name a session stream"),
                          ({"robot": {"name": "a'b"}}, "must not contain a quote"),
                          ({"robot": {"name": "a", "required": "yes"}}, "true or false"),
@@ -96,18 +97,18 @@ def test_markers_arrive_as_text() -> None:
 def test_required_missing_is_refused_optional_is_a_warning() -> None:
     name = unique("absent")
     config = {"streams": {"robot": {"name": name, "resolve_timeout_s": 0.3},
-                          "marks": {"name": name + "-m", "required": False,
-                                    "resolve_timeout_s": 0.3}}}
+                          "script": {"name": name + "-m", "required": False,
+                                     "resolve_timeout_s": 0.3}}}
     streams = streams_from_config(config)
     with pytest.raises(DeviceError, match=f"robot \\(LSL name='{name}'\\) was not found"):
         streams["robot"].open()
-    streams["marks"].open()  # an optional stream missing: open, not read, one warning
-    assert streams["marks"].is_open and streams["marks"].stream is None
+    streams["script"].open()  # an optional stream missing: open, not read, one warning
+    assert streams["script"].is_open and streams["script"].stream is None
     assert streams["robot"].stream == "robot"
     warning, = missing_streams(streams.values())
-    assert warning.startswith(f"optional stream marks (LSL name='{name}-m') was not found")
+    assert warning.startswith(f"optional stream script (LSL name='{name}-m') was not found")
     assert warning.endswith("recording without it")
-    streams["marks"].close()
+    streams["script"].close()
 
 
 def test_two_matching_streams_are_ambiguous() -> None:

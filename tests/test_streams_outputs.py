@@ -82,12 +82,14 @@ def test_udp_output_sends_one_json_datagram_per_estimate() -> None:
 def test_commands_parse_as_labrecorder_sends_them() -> None:
     assert parse_command("start\n") == Command("start")
     assert parse_command("select all") == Command("select", "all")
-    line = ("filename {root:/data/study} {template:exp%n\\%p_block_%b.xdf} {run:2} "
-            "{participant:P003} {task:MemoryGuided}")
+    # the example of LabRecorder's README (Remote Control), byte for byte
+    line = (b"filename {root:C:\\Data\\} {template:exp%n\\%p_block_%b.xdf} {run:2} "
+            b"{participant:P003} {task:MemoryGuided}\n").decode()
     command = parse_command(line)
-    assert command.options == {"root": "/data/study", "template": "exp%n\\%p_block_%b.xdf",
+    assert command.options == {"root": "C:\\Data\\", "template": "exp%n\\%p_block_%b.xdf",
                                "run": "2", "participant": "P003", "task": "MemoryGuided"}
-    assert session_path({**command.options, "template": "exp%n/%p_block_%b.xdf"}) == Path(
+    assert session_path({**command.options, "root": "/data/study",
+                         "template": "exp%n/%p_block_%b.xdf"}) == Path(
         "/data/study/exp002/P003_block_MemoryGuided.h5")
     assert session_path({"root": "/d", "template": "sub-%p/ses-%s/%m_run-%r.xdf",
                          "participant": "7", "session": "1", "modality": "beh"}) == Path(

@@ -66,12 +66,15 @@ def test_session_holds_the_bench_the_robot_and_the_markers(recorded) -> None:
     loss = 1 - len(np.unique(index)) / (index[-1] - index[0] + 1)
     assert loss <= 0.001 and attrs["robot_device_dropped"] == 0
     assert len(stream) >= 0.95 * RECORD_S * 1000
-    # it spans every frame
-    assert stream.t_host_ns[0] <= frames_t[0] and stream.t_host_ns[-1] >= frames_t[-1]
-    # at_frames: one row per frame, the robot's state at each frame's time
-    assert at_frames.shape == (len(frames_t), 7) and np.isfinite(at_frames).all()
+    # it spans the frames: like the force, it is kept up to the recording's end (the first
+    # frame's arrival + the duration), which the last frame's fitted time may pass by a jitter
+    assert stream.t_host_ns[0] <= frames_t[0] and stream.t_host_ns[-1] >= frames_t[-1] - 5e6
+    inside = frames_t <= stream.t_host_ns[-1]
+    assert inside.sum() >= len(frames_t) - 1
+    # at_frames: one row per frame, the robot's state at each frame's time (NaN past its end)
+    assert at_frames.shape == (len(frames_t), 7) and np.isfinite(at_frames[inside]).all()
     # (the joints move at most 0.31 rad/s: 1 ms of clock disagreement is 3.1e-4 rad)
-    np.testing.assert_allclose(at_frames, robot.value(frames_t), atol=3.2e-4)
+    np.testing.assert_allclose(at_frames[inside], robot.value(frames_t[inside]), atol=3.2e-4)
     # the recorder lost nothing of the bench either (a simulated camera rendering in real time
     # on a loaded machine may skip a frame itself: device-side, counted, not the recorder's)
     assert attrs["camera_queue_dropped"] == attrs["force_queue_dropped"] == 0

@@ -30,7 +30,6 @@ from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
 from vbfe.acquire.session.layout import STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
-
 from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:
@@ -129,14 +128,14 @@ class SessionSink(Listener):
     def on_start(self, acquisition: "Acquisition") -> None:
         rig = acquisition.rig
         self._acquisition = acquisition
+        self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
+                              if isinstance(getattr(device, "info", None), StreamInfo))
         known = {*STREAMS, *(spec.name for spec in self.streams)}
         missing = sorted(stream for stream, _ in rig.streams() if stream not in known)
         if missing:
             raise SessionError(f"the rig's streams {missing} have no session stream to go to; "
                                "give their specs to the recorder (streams=...)")
         self.metadata = _merged_metadata(self.metadata, rig.describe())
-        self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
-                              if isinstance(getattr(device, "info", None), StreamInfo))
         self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
                                      self.compression, self.metadata, self.calibration_yaml,
                                      rig.trocar.axes, self.flush_interval_s, self.streams)

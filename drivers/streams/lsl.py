@@ -84,8 +84,7 @@ def resolve(source: StreamSource) -> Any:
         found += pylsl().resolve_bypred(source.predicate(), minimum=2, timeout=_AMBIGUITY_WAIT_S)
     if not found:
         raise DeviceError(f"stream {source.describe()} was not found on the network within "
-                          f"{source.resolve_timeout_s:g} s; start its publisher (or mark it "
-                          "required = false)")
+                          f"{source.resolve_timeout_s:g} s")
     uids = {info.uid() for info in found}
     if len(uids) > 1:
         ids = ", ".join(sorted({repr(f"{i.source_id()}@{i.hostname()}") for i in found}))
@@ -134,7 +133,8 @@ class LslStream(SampleStream[StreamSample]):
             found = resolve(self.source)
         except DeviceError as exc:
             if self.source.required:
-                raise
+                raise DeviceError(f"{exc}; start its publisher (or mark it required = false)"
+                                  ) from None
             self.missing = f"optional {exc}; recording without it"
             return
         self._inlet = lsl.StreamInlet(found, max_buflen=360, recover=True,

@@ -16,8 +16,8 @@ from typing import Any, Literal
 from vbfe.config import ConfigError
 from vbfe.settings import parse_table, setting
 
-RESERVED = ("camera", "force", "projector", "estimate", "events", "gaps", "clock", "truth",
-            "analysis", "streams")
+RESERVED = ("camera", "force", "projector", "estimate", "marks", "gaps", "clock", "clock_pairs",
+            "truth", "analysis", "calibration_yaml")  # the session's own groups and datasets
 _KEY = re.compile(r"[a-z][a-z0-9_]{0,31}")
 
 

@@ -120,8 +120,8 @@ def run(args: argparse.Namespace) -> int:
                                on_progress=show, tare=args.tare, overwrite=args.overwrite,
                                protocol=protocol, calibration_size=calibration_size,
                                calibration_name=args.calib,
-                               on_warning=lambda w: print(f"vbfe record: warning: {w}",
-                                                          file=sys.stderr))
+                               on_warning=lambda w: bar.write(f"vbfe record: warning: {w}",
+                                                              file=sys.stderr))
         show(stats)
     finally:
         bar.close()

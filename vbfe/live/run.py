@@ -22,6 +22,7 @@ from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
+from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration
 from vbfe.config import section
 from vbfe.drivers.projector.pattern import make_pattern
@@ -33,9 +34,9 @@ from vbfe.estimate.model_file import ForceModel
 from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
 from vbfe.live.mailbox import Mailbox
+from vbfe.live.outputs import EstimateOutput
 from vbfe.live.settings import LiveSettings
 from vbfe.recon.matching import SgbmParams
-from vbfe.live.outputs import EstimateOutput
 
 _READ_TIMEOUT_S = 0.2
 FORCE_HISTORY_S = 30.0
@@ -97,7 +98,8 @@ def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
     if mismatch:
         raise LiveError(mismatch)
     acquisition = (session_recorder(config, record, rig,
-                                    calibration_yaml=calibration.to_yaml_text())
+                                    calibration_yaml=calibration.to_yaml_text(),
+                                    streams=(marks_stream(),))
                    if record else Acquisition(rig, pattern=make_pattern))
     return LiveRun(acquisition, estimator, model_name, outputs)
 
@@ -155,6 +157,13 @@ class LiveRun(Listener):
                 recorded = reader.stream_times("camera")[2][:reader.n_frames]
             store_estimates(self.acquisition.path, self.stream(status, recorded))
         return status
+
+    def mark(self, text: str) -> bool:
+        """Put an event mark at the host's now into the recording; False when not recording."""
+        if not isinstance(self.acquisition, Recorder):
+            return False
+        self.acquisition.sink.mark(text, time.monotonic_ns())
+        return True
 
     # -- listener hooks ---------------------------------------------------------------------
     def on_start(self, acquisition: Acquisition) -> None:

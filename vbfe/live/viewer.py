@@ -5,7 +5,7 @@ the run), so the estimator threads never touch a widget."""
 from __future__ import annotations
 
 import pyqtgraph as pg
-from pyqtgraph.Qt import QtCore, QtWidgets
+from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
 from vbfe.live.run import LiveRun, LiveStatus
 
@@ -13,7 +13,8 @@ WINDOW_S = 10.0
 
 
 class LiveEstimateWindow(QtWidgets.QWidget):
-    """Plot of the last ``WINDOW_S`` seconds and a status line; closes at ``duration_s``."""
+    """Plot of the last ``WINDOW_S`` seconds and a status line; closes at ``duration_s``. The
+    M key puts an event mark ("key M <n>") into the recording (``vbfe live --record``)."""
 
     def __init__(self, run: LiveRun, duration_s: float | None = None,
                  interval_ms: int = 100) -> None:
@@ -35,6 +36,8 @@ class LiveEstimateWindow(QtWidgets.QWidget):
         self.status_label = QtWidgets.QLabel()
         layout.addWidget(self.status_label)
         self.last_status: LiveStatus | None = None
+        self.marks = 0
+        self.note = ""
         self.timer = QtCore.QTimer(self)
         self.timer.timeout.connect(self.refresh)
         self.timer.start(interval_ms)
@@ -45,10 +48,21 @@ class LiveEstimateWindow(QtWidgets.QWidget):
         self.trocar.setData(t_trc, trc)
         self.estimate.setData(t_est, est)
         self.last_status = self.run.status()
-        self.status_label.setText(self.last_status.line())
+        self.status_label.setText(self.last_status.line() + self.note)
         done = self.duration_s is not None and self.last_status.wall_s >= self.duration_s
         if done or not self.run.running():
             self.close()
+
+    def keyPressEvent(self, event: QtGui.QKeyEvent) -> None:  # noqa: N802 - Qt's name
+        """M marks an event in the recording."""
+        if event.key() != QtCore.Qt.Key.Key_M:
+            super().keyPressEvent(event)
+            return
+        if self.run.mark(f"key M {self.marks + 1}"):
+            self.marks += 1
+            self.note = f" | mark {self.marks}"
+        else:
+            self.note = " | marks need --record"
 
     def closeEvent(self, event: object) -> None:  # noqa: N802 - Qt's name
         """Stop polling when the window goes."""
