@@ -163,9 +163,10 @@ def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: 
     n_val = sum(len(p) for _, p in val_parts)
     notes = [split.describe()]
     if n_val < MIN_VAL_FRAMES:
-        notes.append(f"warning: too little data for a validation set ({n_val} frames): no early "
-                     f"stopping, no selection on held-out frames (fixed {config.epochs} epochs, "
-                     "last kept); the MAEs below are training MAEs")
+        notes.append(f"warning: too little data for a validation set ({n_val} frames; one "
+                     f"session, or too few for --val-fraction/--val): no early stopping, no "
+                     f"selection on held-out frames (fixed {config.epochs} epochs, last kept); "
+                     "the MAEs below are training MAEs")
         val_parts = []
     names = candidate_names(config.model, config.temporal_frames > 0)
     clock = time.perf_counter()

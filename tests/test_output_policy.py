@@ -18,7 +18,7 @@ import pytest
 from tests.test_acquire_devices import write_bar_session
 from vbfe.cli.main import build_parser, main
 
-READ_ONLY = {"devices", "view", "calibrate check"}
+READ_ONLY = {"devices", "view", "calibrate check", "mark"}  # mark: the recorder writes
 APPENDS = {"calibrate capture", "calibrate projector-capture"}  # add files, never replace one
 NEW_FILES_ONLY = {"live"}  # --record makes a new session; nothing to overwrite
 
@@ -87,6 +87,14 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
                             ["calibrate", "color", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml",
                              "--overwrite"],
                             ["calibrate", "color", f"{d}/cal.yaml", "-o", o]),
+        "calibrate import": (["calibrate", "import", f"{d}/cal.yaml", "-o", o],
+                             ["calibrate", "import", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml",
+                              "--overwrite"],
+                             ["calibrate", "import", f"{d}/cal.yaml", "-o", o]),
+        "export": (["export", s, "-o", o], ["export", s, "-o", s, "--overwrite"],
+                   ["export", f"{d}/model.pt", "-o", o]),
+        "report": (["report", s, "-o", o], ["report", s, "-o", s, "--overwrite"],
+                   ["report", f"{d}/model.pt", "-o", o]),
         "calibrate projector": (["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml",
                                  "-o", o],
                                 ["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml",
@@ -285,8 +293,8 @@ def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(input
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5"]
 
 
-@pytest.mark.parametrize("rows, words", [("0,1\n0.2,2\n0.1,3\n", "must increase"),
-                                         ("0,1\nnan,2\n0.2,3\n", "missing or infinite")])
+@pytest.mark.parametrize("rows, words", [("0,1\n0.2,2\n0.1,3\n", "not in order"),
+                                         ("0,1\nnan,2\n0.2,3\n", "not a number")])
 def test_import_refuses_force_times_out_of_order_or_missing(tmp_path, capsys, rows, words):
     import numpy as np
 

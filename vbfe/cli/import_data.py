@@ -124,7 +124,7 @@ def run_bag(args: argparse.Namespace) -> int:
     """Import a bag as a session and print what was written."""
     from vbfe.bags.importing import TopicChoice, import_bag
 
-    check_outputs([args.out], [args.frames], args.overwrite)
+    check_outputs([args.out], [args.frames], args.overwrite, writes="session")
     given = TopicChoice(args.left, args.right, args.image, args.force, args.left_info,
                         args.right_info, args.pair_tolerance_ms / 1e3)
     with LazyProgress("import", "frame") as on_progress:

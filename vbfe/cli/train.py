@@ -4,6 +4,7 @@ cross-validate."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from, positive
@@ -82,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bars.close()
     for note in result.notes:
-        print(note)
+        print(note, file=sys.stderr if note.startswith("warning:") else sys.stdout)
     print("validation MAE (N): " + ", ".join(f"{name} {mae:.3f}"
                                              for name, mae in result.val_mae_n.items()))
     if result.cross_validation:
