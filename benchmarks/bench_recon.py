@@ -84,7 +84,7 @@ def stage_profile(reconstructor: Reconstructor, left: np.ndarray, right: np.ndar
         "verify": lambda: verify_disparity(disparity, left_code, right_code,
                                            params.verify_search_px),
         "triangulate": lambda: kernels.triangulate(verified.copy(), status.copy(), rgb, cal.f,
-                                                   cal.B, cal.cx, cal.cy, 0.0)}
+                                                   cal.B, cal.cx, cal.cy, 0.0, cal.fy)}
     return timings_s(stages, repeats, time.thread_time)
 
 

@@ -229,11 +229,11 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
 
 
 @njit(cache=True, nogil=True)
-def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px):
+def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px, fy_px):
     """Points (N×3 float32, m), colours (N×3 uint8) and verified flags (N bool) of the pixels
     with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
-    ``x = (u-cx)z/f``, ``y = (v-cy)z/f``. Pixels at or beyond infinity get NaN and
-    ``NO_MATCH`` in ``disparity`` and ``status``."""
+    ``x = (u-cx)z/f``, ``y = (v-cy)z/fy`` (``f``: the rectified focal length in x). Pixels at or
+    beyond infinity get NaN and ``NO_MATCH`` in ``disparity`` and ``status``."""
     height, width = disparity.shape
     doffs = np.float32(doffs_px)
     n = 0
@@ -249,11 +249,12 @@ def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px
     colours = np.empty((n, 3), np.uint8)
     verified = np.empty(n, np.bool_)
     f = np.float32(f_px)
+    fy = np.float32(fy_px)
     f_b = np.float32(f_px * baseline_m)
     cx32, cy32 = np.float32(cx), np.float32(cy)
     i = 0
     for v in range(height):
-        y_over_z = (np.float32(v) - cy32) / f
+        y_over_z = (np.float32(v) - cy32) / fy
         for u in range(width):
             d = disparity[v, u]
             if d > doffs:
@@ -280,4 +281,4 @@ def warm_up() -> None:
     verify_pixels(disparity, index, index, colour, colour, 2, 2, 1, 1,
                   np.zeros((1, 2), np.int64), np.ones((4, 8), np.bool_), disparity.copy(),
                   status)
-    triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0)
+    triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)

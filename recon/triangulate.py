@@ -137,7 +137,7 @@ class Reconstructor:
         cal = self.calibration
         points, colors, verified = kernels.triangulate(
             disparity, status, cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB), cal.f, cal.B,
-            cal.cx, cal.cy, self._doffs)
+            cal.cx, cal.cy, self._doffs, cal.fy)
         counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,

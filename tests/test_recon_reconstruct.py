@@ -92,18 +92,18 @@ def test_injected_whole_fringe_errors_are_corrected_or_rejected(scene):
     assert valid[block].sum() < np.isfinite(kept[block]).sum()
 
 
-def test_triangulation_follows_z_equals_f_b_over_d_minus_doffs():
+def test_triangulation_follows_z_equals_f_b_over_d_minus_doffs_and_y_its_own_focal_length():
     disparity = np.full((3, 4), 20.0, np.float32)
     disparity[0, 0] = np.nan
     disparity[2, 3] = 1.5  # at or beyond infinity with doffs = 2: no point
     status = np.full((3, 4), KEPT, np.uint8)
     image = np.arange(36, dtype=np.uint8).reshape(3, 4, 3)
     points, colours, verified = triangulate(disparity, status, image, 500.0, 0.004, 1.5, 1.0,
-                                            2.0)
+                                            2.0, 400.0)
     assert points.shape == (10, 3) and verified.all()
     np.testing.assert_allclose(points[:, 2], 500 * 0.004 / 18, rtol=1e-6)
     z = 500 * 0.004 / 18
-    np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 500, z],
+    np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 400, z],
                                rtol=1e-6)
     assert np.array_equal(colours[0], image[0, 1])
     assert np.isnan(disparity[2, 3]) and status[2, 3] == 0
