@@ -66,8 +66,8 @@ class DemoPlan:
         frames of the same trial.
         """
         return cls(width=640, height=360, fps=10.0, hold_s=3.0, calibration_frames=120,
-                   projector_poses=8, repeats=6, epochs=40, n_points=512, frame_stride=1,
-                   conv_channels=[32, 64, 256], time_limit_s=240.0, threads=2,
+                   projector_poses=8, repeats=6, epochs=20, n_points=512, frame_stride=1,
+                   conv_channels=[32, 64, 256], time_limit_s=0.0, threads=2,
                    recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
                    temporal_epochs=20, protocol_s=20.0, split="session", gap_frames=0,
                    freehand_trials=6, freehand_test_trials=3, freehand_s=15.0)

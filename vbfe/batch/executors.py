@@ -48,7 +48,10 @@ def _child(fn: Callable[[str], Any], item: str,
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     signal.signal(signal.SIGTERM, lambda signum, frame: raise_for(signum))  # cleanups run
     die_with_parent()
-    conn.send(_call(fn, item))
+    try:
+        conn.send(_call(fn, item))
+    except KeyboardInterrupt:  # the parent's SIGTERM (Terminated): cleanups ran, no traceback
+        raise SystemExit(128 + signal.SIGTERM) from None
     conn.close()
 
 
