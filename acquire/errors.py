@@ -1,6 +1,6 @@
 """Expected failures of the session recorder and reader."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class SessionError(VbfeError):

@@ -18,7 +18,7 @@ from pathlib import Path
 from vbfe.acquire import record_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.tasks import ReconstructTask
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.recon import SgbmParams
 from vbfe.truth import calibration_from_rig, true_rig
 

@@ -21,7 +21,7 @@ from vbfe.calib.commands import projector_capture
 from vbfe.calib.projector import calibrate_projector, load_captures
 from vbfe.calib.stereo import calibrate_stereo
 from vbfe.calib.views import ViewSet
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
 from vbfe.drivers.sim.rig import default_rig

@@ -143,7 +143,7 @@ def training_throughput(reference: float, conv: list[int], head: list[int], k: i
 def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: int) -> list[Path]:
     """Record and reconstruct simulated-bench sessions for every stiffness × speed condition."""
     from vbfe.acquire import record_session
-    from vbfe.config import default_config
+    from vbfe.common.config import default_config
     from vbfe.drivers.sim import SimBench
     from vbfe.recon import reconstruct_session
     from vbfe.truth import calibration_from_rig

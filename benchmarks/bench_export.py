@@ -17,7 +17,7 @@ from pathlib import Path
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.bags.export import export_mcap
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.truth import calibration_from_rig, true_rig
 
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from vbfe.acquire import Acquisition
-from vbfe.config import load_config, section
+from vbfe.common.config import load_config, section
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern

@@ -28,7 +28,7 @@ import pylsl
 
 from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
 from vbfe.acquire import SessionReader
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 
 BENCH = {"width": 320, "height": 180, "fps": 10.0, "distortion": False, "realtime": True,
          "seed": 3}

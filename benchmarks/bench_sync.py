@@ -31,7 +31,7 @@ from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.acquire.recording.sync_session import SyncProtocol
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 

@@ -13,7 +13,7 @@ import numpy as np
 from vbfe.calib.chessboard import detect_chessboard
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, calib_settings, from_table
-from vbfe.files import save_figure, write_bytes_atomic
+from vbfe.common.files import save_figure, write_bytes_atomic
 
 
 TARGETS = ("charuco", "chessboard")

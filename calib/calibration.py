@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.files import write_bytes_atomic
+from vbfe.common.files import write_bytes_atomic
 
 FORMAT_VERSION = 1
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.files import write_bytes_atomic
+from vbfe.common.files import write_bytes_atomic
 
 CAMERA_FORMAT = "vbfe-camera"
 

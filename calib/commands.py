@@ -1,6 +1,6 @@
 """The ``vbfe calibrate`` commands as Python functions (the CLI only parses and shows progress).
 
-Each takes the rig configuration (``vbfe.config.load_config``) for the board and thresholds of
+Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and thresholds of
 its ``[calib]`` table.
 """
 
@@ -34,7 +34,7 @@ from vbfe.calib.projector_capture import (GrayCaptureOptions, capture_gray_code,
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_images, load_views
-from vbfe.config import section
+from vbfe.common.config import section
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 

@@ -1,6 +1,6 @@
 """Expected calibration failures."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class CalibrationError(VbfeError):

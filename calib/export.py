@@ -12,7 +12,7 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.errors import CalibrationError
-from vbfe.files import write_bytes_atomic
+from vbfe.common.files import write_bytes_atomic
 
 FORMATS = ("ros", "kalibr", "opencv", "middlebury")
 

@@ -10,8 +10,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
-from vbfe.config import default_config
-from vbfe.settings import parse_table
+from vbfe.common.config import default_config
+from vbfe.common.settings import parse_table
 
 T = TypeVar("T")
 

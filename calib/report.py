@@ -12,8 +12,8 @@ from vbfe.calib.calibration import Calibration
 from vbfe.calib.stereo import StereoResult
 from vbfe.calib.uncertainty import UncertaintyMap
 from vbfe.calib.views import ViewSet
-from vbfe.files import save_figure
-from vbfe.report import HtmlReport
+from vbfe.common.files import save_figure
+from vbfe.common.report import HtmlReport
 
 
 def epipolar_overlay(calibration: Calibration, left: np.ndarray, right: np.ndarray,

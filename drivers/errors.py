@@ -1,6 +1,6 @@
 """Expected device failures."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class DeviceError(VbfeError):

@@ -18,7 +18,7 @@ from typing import Any
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
 from vbfe.drivers.streams.opening import streams_from_config
-from vbfe.settings import parse_kwargs
+from vbfe.common.settings import parse_kwargs
 
 BACKENDS: dict[str, dict[str, str]] = {
     "camera": {"v4l2": "vbfe.drivers.camera.linuxpy_v4l2:LinuxpyStereoCamera",

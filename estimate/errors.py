@@ -1,6 +1,6 @@
 """Expected failures of force estimation (missing clouds, bad model file, empty dataset)."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class EstimateError(VbfeError):

@@ -29,7 +29,7 @@ import numpy as np
 from vbfe import __version__
 from vbfe.acquire.resample import resample_at
 from vbfe.estimate.errors import EstimateError
-from vbfe.files import commit, partial_path
+from vbfe.common.files import commit, partial_path
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.estimate.tables import read_table
 from vbfe.recon.clouds import CloudWriter

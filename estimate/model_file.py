@@ -18,14 +18,14 @@ import numpy as np
 import torch
 
 from vbfe import __version__
-from vbfe.config import ConfigError
+from vbfe.common.config import ConfigError
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.splits import SessionSplit
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.files import atomic_path
-from vbfe.settings import parse_table
+from vbfe.common.files import atomic_path
+from vbfe.common.settings import parse_table
 
 FORMAT = "vbfe-force-model"
 FORMAT_VERSION = 2

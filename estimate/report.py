@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from vbfe.files import save_figure, write_bytes_atomic
-from vbfe.report import HtmlReport
+from vbfe.common.files import save_figure, write_bytes_atomic
+from vbfe.common.report import HtmlReport
 
 METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",

@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire import SessionReader
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 from vbfe.estimate.errors import EstimateError
 from vbfe.recon import CloudReader, sidecar_path
 

@@ -9,7 +9,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vbfe.estimate.errors import EstimateError
-from vbfe.settings import parse_table, setting
+from vbfe.common.settings import parse_table, setting
 
 AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))

@@ -37,7 +37,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
-from vbfe.files import require_free_space
+from vbfe.common.files import require_free_space
 from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"

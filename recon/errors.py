@@ -1,6 +1,6 @@
 """Expected failures of reconstruction."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class ReconError(VbfeError):

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from vbfe.recon.errors import ReconError
-from vbfe.settings import parse_table, setting
+from vbfe.common.settings import parse_table, setting
 
 MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
          "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}

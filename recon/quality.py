@@ -17,7 +17,7 @@ from vbfe.calib.calibration import Calibration
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
-from vbfe.settings import parse_table, setting
+from vbfe.common.settings import parse_table, setting
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 COST_BYTES = 2  # StereoSGBM's CostType (short)

@@ -17,8 +17,8 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
-from vbfe.files import commit, partial_path
-from vbfe.signals import die_with_parent, stop_workers_on_signals
+from vbfe.common.files import commit, partial_path
+from vbfe.common.signals import die_with_parent, stop_workers_on_signals
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError

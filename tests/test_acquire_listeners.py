@@ -13,7 +13,7 @@ from tests.test_acquire_devices import bar_devices
 from vbfe.acquire import (Acquisition, Listener, Recorder, SessionError, SessionReader,
                           SessionWriter, recover_session)
 from vbfe.acquire.session.layout import marker_stream, vector_stream
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until

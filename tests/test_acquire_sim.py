@@ -8,7 +8,7 @@ import pytest
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import verify_sync
 from vbfe.cli.main import main
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 
 RIG = """
 [bench]

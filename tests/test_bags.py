@@ -13,7 +13,7 @@ from rosbags.typesys import Stores, get_typestore
 from vbfe.acquire import EstimateStream, SessionReader, record_session, store_analysis, store_estimates
 from vbfe.calib.calibration import Calibration
 from vbfe.cli.main import main
-from vbfe.config import default_config
+from vbfe.common.config import default_config
 from vbfe.truth import calibration_from_rig, true_rig
 
 CORRECTION_NS = 7_000_000

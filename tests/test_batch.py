@@ -13,7 +13,7 @@ from vbfe.acquire import record_session
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.manifest import read_manifest
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.recon import CloudReader, sidecar_path
 from vbfe.truth import calibration_from_rig, true_rig
 

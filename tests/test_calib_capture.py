@@ -11,7 +11,7 @@ from vbfe.calib.board import BoardSpec
 from vbfe.calib.capture import ViewCollector, coverage_text
 from vbfe.calib.views import load_views
 from vbfe.cli.main import main
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.sim.board_scene import motion_blur
 from vbfe.drivers.sim.charuco_scene import render_board_views
 from vbfe.drivers.sim.rig import default_rig

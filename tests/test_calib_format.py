@@ -18,7 +18,7 @@ from vbfe.calib.gates import GateLimits
 from vbfe.calib.projector import ProjectorOptions
 from vbfe.calib.projector_capture import GrayCaptureOptions
 from vbfe.calib.stereo import StereoOptions
-from vbfe.config import default_config
+from vbfe.common.config import default_config
 from vbfe.cli.main import main
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig

@@ -13,7 +13,7 @@ from vbfe.calib.errors import CalibrationError
 from vbfe.calib.projector import (GrayCodeCapture, calibrate_projector, load_captures,
                                   save_captures, with_projector)
 from vbfe.calib.commands import projector_capture
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.truth import board_config, calibration_from_rig, true_rig
 
 SPEC = BoardSpec()

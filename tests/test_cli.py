@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from vbfe.config import ConfigError, load_config
+from vbfe.common.config import ConfigError, load_config
 
 from vbfe.cli.main import build_parser, main
 

@@ -7,7 +7,7 @@ import pytest
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
-from vbfe.config import default_config
+from vbfe.common.config import default_config
 from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.train_config import TrainConfig

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionReader
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from vbfe.cli.main import main
-from vbfe.config import default_config, read_toml
+from vbfe.common.config import default_config, read_toml
 
 SMALL_RIG = """\
 [bench]

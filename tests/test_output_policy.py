@@ -1,4 +1,4 @@
-"""The output policy (vbfe.files) for every command that writes, enumerated from the real
+"""The output policy (vbfe.common.files) for every command that writes, enumerated from the real
 argument parser so that a new command cannot be forgotten: an existing output is refused
 without --overwrite, an output that is one of the command's inputs is refused even with it, and
 a failing command leaves nothing behind. Most cases call the CLI's ``main`` in this process

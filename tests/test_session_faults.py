@@ -21,7 +21,7 @@ from vbfe.acquire import Recorder, AcquisitionStats, SessionError, SessionReader
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.registry import open_rig
 
 REPO = Path(__file__).resolve().parents[1]

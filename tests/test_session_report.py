@@ -13,7 +13,7 @@ import pytest
 from vbfe.acquire import (EstimateStream, SessionReader, SessionWriter, finalize_session,
                           record_session, store_analysis, store_estimates)
 from vbfe.cli.main import main
-from vbfe.config import default_config
+from vbfe.common.config import default_config
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.session_report import SECTIONS
 from vbfe.truth import calibration_from_rig, true_rig

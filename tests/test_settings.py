@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from vbfe.calib.calibration import Calibration
-from vbfe.config import ConfigError
+from vbfe.common.config import ConfigError
 from vbfe.truth import calibration_from_rig
 from vbfe.drivers.sim.rig import default_rig
-from vbfe.settings import parse_kwargs, parse_table, setting
+from vbfe.common.settings import parse_kwargs, parse_table, setting
 
 # (table, command reading it, an unknown key, a wrong-typed known key)
 TABLES = [("record", ["record", "{tmp}/s.h5", "--duration", "0.1"], "compresion",

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from vbfe.config import ConfigError, load_config
+from vbfe.common.config import ConfigError, load_config
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.sim import SimBench

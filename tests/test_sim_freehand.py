@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vbfe.config import ConfigError
+from vbfe.common.config import ConfigError
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.freehand import RELEASE, FreehandProtocol

@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire import Recorder, SessionReader
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.projector.pattern import make_pattern
 

@@ -9,7 +9,7 @@ import pylsl
 import pytest
 
 from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
-from vbfe.config import ConfigError
+from vbfe.common.config import ConfigError
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.streams import StreamSource, stream_sources
 from vbfe.drivers.streams.lsl import LslStream

@@ -15,7 +15,7 @@ from vbfe.acquire.recording import record as record_module
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
 from vbfe.acquire.recording.sync_session import SyncProtocol
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers import registry
 
 SEEDS = [1, 2, 3]  # each protocol session records 20 s in real time; benchmarks/bench_sync.py

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 from vbfe.drivers.sim.freehand import RELEASE
 from vbfe.drivers.sim.mechanics import HOLD, PULL
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from vbfe.report import HtmlReport
+from vbfe.common.report import HtmlReport
 
 # Acceptance limits the demo is judged by (the issues' "done when" figures).
 CALIB_INTRINSIC_LIMIT = 0.005  # f, cx, cy within 0.5 %

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from vbfe.acquire import SessionReader
 from vbfe.acquire.session.audit import audit_sequence
-from vbfe.report import HtmlReport, png_bytes
+from vbfe.common.report import HtmlReport, png_bytes
 
 THUMBNAILS = 8
 THUMBNAIL_WIDTH = 200

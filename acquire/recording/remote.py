@@ -33,7 +33,7 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.record import check_camera_size, session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.drivers.registry import open_rig
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 DEFAULT_PORT = 22345  # LabRecorder's RCSPort
 DEFAULT_TEMPLATE = "exp%n/block_%b.h5"  # LabRecorder's legacy default

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from vbfe.acquire.session.layout import COMPRESSIONS
-from vbfe.settings import parse_table, setting
+from vbfe.common.settings import parse_table, setting
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import h5py
 
 from vbfe.acquire.session.estimates import EstimateStream, write_estimates
 from vbfe.acquire.session.reader import check_session, open_session_file
-from vbfe.files import WriterLock
+from vbfe.common.files import WriterLock
 
 
 def store_calibration(session_path: str | Path, yaml_text: str) -> None:

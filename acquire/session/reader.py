@@ -21,7 +21,7 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.files import is_hdf5
+from vbfe.common.files import is_hdf5
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at

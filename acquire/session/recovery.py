@@ -12,7 +12,7 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.layout import FORMAT_NAME, session_streams
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
 from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
-from vbfe.files import commit, partial_path, require_free_space
+from vbfe.common.files import commit, partial_path, require_free_space
 
 
 def _trim(group: h5py.Group, keys: Sequence[str], n: int) -> int:

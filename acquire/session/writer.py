@@ -35,7 +35,7 @@ from vbfe.acquire.session.layout import (COMPRESSIONS, EXTRA_STREAMS_ATTR, FORMA
                                          image_filter, session_streams)
 from vbfe.acquire.session.reader import consistent_rows
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
-from vbfe.files import WriterLock
+from vbfe.common.files import WriterLock
 
 _JPEG_CHUNK = 1 << 20
 RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk

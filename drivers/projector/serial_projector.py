@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import serial
 
-from vbfe.config import read_toml
+from vbfe.common.config import read_toml
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 

@@ -27,7 +27,7 @@ from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
-from vbfe.settings import parse_kwargs
+from vbfe.common.settings import parse_kwargs
 
 SCENES = ("tissue", "plane", "board")
 PROTOCOLS = ("traction", "sync", "freehand")

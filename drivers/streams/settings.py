@@ -13,8 +13,8 @@ import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from vbfe.config import ConfigError
-from vbfe.settings import parse_table, setting
+from vbfe.common.config import ConfigError
+from vbfe.common.settings import parse_table, setting
 
 RESERVED = ("camera", "force", "projector", "estimate", "marks", "gaps", "clock", "clock_pairs",
             "truth", "analysis", "calibration_yaml")  # the session's own groups and datasets

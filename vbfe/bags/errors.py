@@ -1,6 +1,6 @@
 """The error of the bag export and import."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class BagError(VbfeError):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from vbfe.acquire.errors import SessionError
 from vbfe.batch.manifest import SessionEntry
-from vbfe.report import HtmlReport, Link
+from vbfe.common.report import HtmlReport, Link
 
 COLUMNS = (("status", "status"), ("condition", "condition"), ("operator", "operator"),
            ("date_utc", "date (UTC)"), ("duration_s", "duration (s)"), ("frames", "frames"),

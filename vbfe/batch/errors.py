@@ -1,6 +1,6 @@
 """The error of the batch layer."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class BatchError(VbfeError):

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from vbfe.batch.errors import BatchError
-from vbfe.errors import VbfeError
-from vbfe.signals import die_with_parent, raise_for
+from vbfe.common.errors import VbfeError
+from vbfe.common.signals import die_with_parent, raise_for
 
 EXECUTORS = ("local", "ray")
 

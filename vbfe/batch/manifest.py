@@ -19,7 +19,7 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.batch.errors import BatchError
-from vbfe.files import atomic_path
+from vbfe.common.files import atomic_path
 from vbfe.recon.freshness import clouds_status, text_hash
 from vbfe.recon.matching import SgbmParams
 

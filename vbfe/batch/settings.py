@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from vbfe.batch.executors import EXECUTORS
-from vbfe.settings import parse_table
+from vbfe.common.settings import parse_table
 
 
 @dataclass(frozen=True)

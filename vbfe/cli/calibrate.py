@@ -19,7 +19,7 @@ from vbfe.calib.report import summary_rows
 from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.config import section
+from vbfe.common.config import section
 
 _BOARD_KEYS = ("target", "squares_x", "squares_y", "inner_corners", "square_mm", "marker_mm",
                "dictionary", "legacy")

@@ -10,7 +10,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from vbfe.config import load_config
+from vbfe.common.config import load_config
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:

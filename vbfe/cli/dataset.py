@@ -7,7 +7,7 @@ from pathlib import Path
 
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.config import section
+from vbfe.common.config import section
 
 SHOWN = (("path", 28), ("status", 10), ("condition", 44), ("operator", 8), ("date_utc", 19),
          ("duration_s", 8), ("frames", 6), ("frame_drops", 5), ("force_drops", 5),

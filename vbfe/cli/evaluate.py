@@ -7,7 +7,7 @@ import argparse
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.config import section
+from vbfe.common.config import section
 
 
 def register(sub: argparse._SubParsersAction) -> None:

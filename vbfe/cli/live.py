@@ -7,7 +7,7 @@ import sys
 
 from vbfe.cli.common import add_config_option, config_from, positive
 from vbfe.cli.outputs import check_outputs
-from vbfe.config import section
+from vbfe.common.config import section
 
 DEVICES = ("auto", "cpu", "cuda")
 

@@ -10,10 +10,10 @@ from collections.abc import Sequence
 from vbfe import __version__
 from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, export, import_data, inspect,
                       live, mark, reconstruct, record, report, train, verify_sync, view)
-from vbfe.config import ConfigError
-from vbfe.errors import VbfeError
-from vbfe.files import os_error_text
-from vbfe.signals import Terminated, sigterm_as_interrupt
+from vbfe.common.config import ConfigError
+from vbfe.common.errors import VbfeError
+from vbfe.common.files import os_error_text
+from vbfe.common.signals import Terminated, sigterm_as_interrupt
 
 COMMANDS = (devices, record, mark, view, inspect, report, verify_sync, calibrate, dataset,
             reconstruct, import_data, export, train, evaluate, live, demo)

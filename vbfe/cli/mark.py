@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.acquire.recording.remote import DEFAULT_PORT, send_command
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 def register(sub: argparse._SubParsersAction) -> None:

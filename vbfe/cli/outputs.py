@@ -1,4 +1,4 @@
-"""The one check every command runs on its outputs before doing any work (see vbfe.files).
+"""The one check every command runs on its outputs before doing any work (see vbfe.common.files).
 
 The inputs a command names are expanded to everything it reads: the sessions a manifest lists
 and the ``X.clouds.h5`` sidecar of every session, so none of them can be an output.
@@ -11,8 +11,8 @@ import glob
 from collections.abc import Iterable
 from pathlib import Path
 
-from vbfe.files import OutputError, Writes
-from vbfe.files import check_outputs as _check
+from vbfe.common.files import OutputError, Writes
+from vbfe.common.files import check_outputs as _check
 
 __all__ = ["OutputError", "add_overwrite_option", "check_outputs", "command_inputs"]
 
@@ -78,6 +78,6 @@ def session_and_output(args: argparse.Namespace, suffix: str) -> tuple[Path, Pat
 def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
                   overwrite: bool = False, directories: Iterable[str | Path | None] = (),
                   writes: Writes = "file", sidecars: bool = True) -> None:
-    """:func:`vbfe.files.check_outputs` against everything the inputs stand for (without the
+    """:func:`vbfe.common.files.check_outputs` against everything the inputs stand for (without the
     sessions' sidecars when ``sidecars`` is false: a command that writes them)."""
     _check(outputs, command_inputs(inputs, sidecars), overwrite, directories, writes)

@@ -10,7 +10,7 @@ from pathlib import Path
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.config import section
+from vbfe.common.config import section
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 

@@ -13,7 +13,7 @@ from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from vbfe.cli.common import StageProgress, add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.config import section
-from vbfe.files import require_free_space
+from vbfe.common.config import section
+from vbfe.common.files import require_free_space
 
 MODEL_FREE_BYTES = 64 << 20  # a model file with its baselines and training record, with room
 

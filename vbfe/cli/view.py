@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from vbfe.cli.common import add_config_option, config_from
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 def register(sub: argparse._SubParsersAction) -> None:

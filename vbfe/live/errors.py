@@ -1,6 +1,6 @@
 """The error of live estimation."""
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class LiveError(VbfeError):

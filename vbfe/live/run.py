@@ -24,7 +24,7 @@ from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration
-from vbfe.config import section
+from vbfe.common.config import section
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions

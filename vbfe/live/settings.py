@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from vbfe.settings import parse_table, setting
+from vbfe.common.settings import parse_table, setting
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from typing import Any
 from vbfe.acquire import SessionReader
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.rig import StereoRig
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 
 class TruthError(VbfeError):

@@ -2,7 +2,7 @@
 
 :func:`parse_table` builds a dataclass whose fields are the table's keys; :func:`parse_kwargs`
 checks a table meant as keyword arguments of a callable (a device backend, the simulated bench)
-against its signature and annotations. Both raise :class:`~vbfe.config.ConfigError` with one
+against its signature and annotations. Both raise :class:`~vbfe.common.config.ConfigError` with one
 line naming the table and the key: an unknown key (with the known ones), a value of the wrong
 type, a value outside its range or not among its choices. Ranges come from :func:`setting`.
 """
@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from vbfe.config import ConfigError
+from vbfe.common.config import ConfigError
 
 T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)

@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -18,7 +18,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, Literal
 
-from vbfe.errors import VbfeError
+from vbfe.common.errors import VbfeError
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 PARTIAL_SUFFIX = ".partial"
