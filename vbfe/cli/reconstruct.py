@@ -7,8 +7,10 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from tqdm import tqdm
+
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, positive, progress
+from vbfe.cli.common import LazyProgress, add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import section
 
@@ -141,28 +143,24 @@ def _run_batch(args: argparse.Namespace, config: dict, params: object, settings:
     return 0
 
 
-class _LazyBar:
-    """A progress bar shown once the work starts (nothing on stderr before a refusal)."""
+class _LazyBar(LazyProgress):
+    """The reconstruction's bar, opened once the work starts (nothing on stderr before a
+    refusal), saying when the session is still being recorded."""
 
     def __init__(self, unit: str, source: str) -> None:
-        self.unit, self.source, self._bar = unit, source, None
+        super().__init__("reconstruct", unit)
+        self.source, self._done = source, 0
 
     def start(self, total: int, partial: bool) -> None:
-        self._bar = progress(total=total, desc="reconstruct", unit=self.unit)
+        self(0, total)
         if partial:
-            self._bar.write(f"vbfe reconstruct: {self.source} is still being recorded: "
-                            f"reconstructing its {total} frames flushed so far (the output is "
-                            f"marked partial)", file=sys.stderr)
+            tqdm.write(f"vbfe reconstruct: {self.source} is still being recorded: "
+                       f"reconstructing its {total} frames flushed so far (the output is "
+                       "marked partial)", file=sys.stderr)
 
     def update(self, n: int) -> None:
-        self._bar.update(n)
-
-    def __enter__(self) -> "_LazyBar":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._bar is not None:
-            self._bar.close()
+        self._done += n
+        self(self._done)
 
 
 def run(args: argparse.Namespace) -> int:
