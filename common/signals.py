@@ -5,10 +5,10 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
-import multiprocessing
 import signal
 import threading
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from typing import NoReturn
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -49,13 +49,31 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+def _break_pool(pool: ProcessPoolExecutor) -> bool:
+    """Kill ``pool``'s workers and let its manager thread see them gone. A worker killed half
+    way through sending a result (clouds are large) leaves a partial message in the result
+    pipe, and the manager thread then waits for the rest forever (CPython 3.11): once the
+    workers are dead, closing the parent's copy of the pipe's write end turns that wait into
+    end-of-file, and the pool reports itself broken. False: it had no workers."""
+    children = list((getattr(pool, "_processes", None) or {}).values())
+    for child in children:
+        child.terminate()
+    for child in children:
+        child.join(timeout=5.0)
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
+    if writer is not None and not any(child.is_alive() for child in children):
+        writer.close()
+    return bool(children)
+
+
 @contextlib.contextmanager
-def stop_workers_on_signals() -> Iterator[None]:
-    """While worker processes compute for this block, SIGINT and SIGTERM terminate them at once
+def stop_pool_on_signals(pool: ProcessPoolExecutor) -> Iterator[None]:
+    """While ``pool``'s workers compute for this block, SIGINT and SIGTERM kill them at once
     and the block ends with KeyboardInterrupt or :class:`Terminated`, whatever exception the
-    broken pool raised. (An exception raised from a handler lands wherever the main thread
-    is, and Python swallows it inside a finalizer: the run then went on to the end.) Signals
-    that are ignored stay ignored; outside the main thread this does nothing."""
+    broken pool raised. (The handler raises only while the pool has no workers: an exception
+    raised from a handler lands wherever the main thread is, and Python swallows it inside a
+    finalizer.)
+    Signals that are ignored stay ignored; outside the main thread this does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -63,10 +81,7 @@ def stop_workers_on_signals() -> Iterator[None]:
 
     def on_signal(signum: int, frame: object) -> None:
         received.append(signum)
-        children = multiprocessing.active_children()
-        for child in children:
-            child.terminate()
-        if not children:
+        if not _break_pool(pool):
             raise_for(signum)
 
     previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}

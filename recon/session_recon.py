@@ -18,7 +18,7 @@ import numpy as np
 from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
 from vbfe.common.files import commit, partial_path
-from vbfe.common.signals import die_with_parent, stop_workers_on_signals
+from vbfe.common.signals import die_with_parent, stop_pool_on_signals
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.errors import ReconError
@@ -94,7 +94,7 @@ def _results(source: str | ImagePairs, calibration: Calibration, params: SgbmPar
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker, initargs=(*init_args, 1, True))
     try:
-        with stop_workers_on_signals():
+        with stop_pool_on_signals(pool):
             yield from pool.map(_process_frame, range(n_frames), chunksize=2)
     finally:  # on Ctrl-C or an error, drop the frames not started yet
         pool.shutdown(wait=True, cancel_futures=True)
