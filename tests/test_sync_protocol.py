@@ -72,7 +72,7 @@ def test_protocol_session_measures_37_ms_and_passes_once_corrected(tmp_path, see
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("seed", SEEDS[:1])  # the offset's accuracy is measured above
 def test_synchronised_rig_passes_directly(tmp_path, seed):
     config = bench_config(seed + 10, force_latency_ms=45.0)
     path = tmp_path / "sync.h5"
