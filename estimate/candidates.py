@@ -6,7 +6,7 @@ the reference method), ``temporal`` (PointNet over a causal window, when ``tempo
 depth-change image (``image_models.py``), and ``ensemble`` (``ensemble_cnn_hooke``): the mean of
 the CNN's and Hooke's law's forces. The two err on different trials (the CNN where the image
 looks unlike its training trials, Hooke where the visible depth change under-reads a pull
-that is mostly sideways), so their mean errs less than either on held-out freehand trials.
+that is mostly sideways): their mean errs less than either unless one of them fails.
 Every estimator, candidate or baseline, answers ``predict_session(session, positions=None)``
 and ``to_dict()``.
 """
