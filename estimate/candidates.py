@@ -3,8 +3,12 @@
 Candidates (``--model`` name → method name in reports): ``pointnet`` (the paper's network,
 the reference method), ``temporal`` (PointNet over a causal window, when ``temporal_frames``
 ≥ 2), ``ridge`` (``ridge_height_map``) and ``cnn`` (``cnn_depth_change``), the last two on the
-depth-change image (``image_models.py``). Every estimator, candidate or baseline, answers
-``predict_session(session, positions=None)`` and ``to_dict()``.
+depth-change image (``image_models.py``), and ``ensemble`` (``ensemble_cnn_hooke``): the mean of
+the CNN's and Hooke's law's forces. The two err on different trials (the CNN where the image
+looks unlike its training trials, Hooke where the visible depth change under-reads a pull
+that is mostly sideways): their mean errs less than either unless one of them fails.
+Every estimator, candidate or baseline, answers ``predict_session(session, positions=None)``
+and ``to_dict()``.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 
 CANDIDATES = {"pointnet": "pointnet", "temporal": "temporal", "ridge": "ridge_height_map",
-              "cnn": "cnn_depth_change"}
+              "cnn": "cnn_depth_change", "ensemble": "ensemble_cnn_hooke"}
+ENSEMBLE_MEMBERS = (CANDIDATES["cnn"], "hooke")
 
 
 @dataclass
@@ -65,9 +70,32 @@ class NetworkEstimator:
                    d["name"])
 
 
-AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, Baseline]
+@dataclass
+class MeanEnsemble:
+    """The mean of its members' forces (each stored whole, so the ensemble stands alone)."""
+
+    members: tuple[Any, ...]
+    name: str = CANDIDATES["ensemble"]
+
+    def predict_session(self, session: PreparedSession,
+                        positions: np.ndarray | None = None) -> np.ndarray:
+        """Force (frames × outputs) of a prepared session's used frames."""
+        return np.mean([m.predict_session(session, positions) for m in self.members], axis=0)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "kind": "ensemble",
+                "members": [m.to_dict() for m in self.members]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "MeanEnsemble":
+        if not d.get("members"):
+            raise EstimateError(f"ensemble {d.get('name')!r} has no members")
+        return cls(tuple(estimator_from_dict(m) for m in d["members"]), d["name"])
+
+
+AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, MeanEnsemble, Baseline]
 _KINDS = {"network": NetworkEstimator.from_dict, "ridge": RidgeThumbnail.from_dict,
-          "cnn": CnnEstimator.from_dict}
+          "cnn": CnnEstimator.from_dict, "ensemble": MeanEnsemble.from_dict}
 
 
 def estimator_from_dict(d: dict[str, Any]) -> AnyEstimator:

@@ -22,6 +22,7 @@ METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
                  "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on depth-change thumbnail",
                  "cnn_depth_change": "CNN on depth-change image",
+                 "ensemble_cnn_hooke": "Mean of CNN and Hooke",
                  "mlp_displacement_history": "MLP on displacement history"}
 
 

@@ -28,8 +28,8 @@ import numpy as np
 import torch
 
 from vbfe.estimate.baselines import fit_baselines
-from vbfe.estimate.candidates import (CANDIDATES, AnyEstimator, NetworkEstimator,
-                                      candidate_names)
+from vbfe.estimate.candidates import (CANDIDATES, ENSEMBLE_MEMBERS, AnyEstimator,
+                                      MeanEnsemble, NetworkEstimator, candidate_names)
 from vbfe.estimate.dataset import (FrameBatches, PreparedSession, ProgressFn, prepare_sessions,
                                    skipped_counts)
 from vbfe.estimate.errors import EstimateError
@@ -184,12 +184,15 @@ def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: 
         estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(train_parts, val_parts,
                                                                config.ridge_sizes)
         seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
-    if CANDIDATES["cnn"] in names:
+    if {CANDIDATES["cnn"], CANDIDATES["ensemble"]} & set(names):  # the ensemble needs the CNN
         clock = time.perf_counter()
         cnn, histories["cnn"] = fit_cnn(train_parts, val_parts, config.n_outputs,
                                         config.cnn_channels, config.cnn_epochs, config.seed)
         estimators[cnn.name] = cnn
         seconds[cnn.name] = time.perf_counter() - clock
+    if CANDIDATES["ensemble"] in names:
+        estimators[CANDIDATES["ensemble"]] = MeanEnsemble(
+            tuple(estimators[m] for m in ENSEMBLE_MEMBERS))
     check = val_parts or train_parts
     val_mae = {name: frames_mae(e.predict_session, check) for name, e in estimators.items()}
     selected = min(names, key=lambda name: val_mae[name])

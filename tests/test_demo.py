@@ -65,7 +65,8 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     assert not set(force["train_sessions"]) & set(force["test_sessions"])
     metrics = force["metrics"]
     assert set(metrics) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
-                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change"}
+                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change",
+                       "ensemble_cnn_hooke"}
     assert len(metrics["pointnet"]["per_condition"]) == 3
     mae = {method: metrics[method]["overall"]["mae_n"] for method in metrics}
     # The clouds carry the force: peak displacement alone (deterministic, fitted on the

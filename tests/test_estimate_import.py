@@ -120,7 +120,8 @@ def test_depth_import_trains_and_evaluates_with_a_time_split(depth_dataset, tmp_
     assert metrics["seen_in_training"] == []
     methods = metrics["metrics"]
     assert set(methods) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
-                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change"}
+                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change",
+                            "ensemble_cnn_hooke"}
     # the last fifth, less nothing (the test range keeps its frames; gaps come out of the
     # lower parts), out of 300 frames
     assert methods["mean"]["overall"]["n_frames"] == 60

@@ -51,13 +51,12 @@ def test_training_writes_a_model_with_its_record(trained):
     assert model.record["vbfe_version"]
     assert set(model.baselines) == {"mean", "linear_displacement", "hooke",
                                    "mlp_displacement_history"}
-    assert set(model.estimators) == set(model.baselines) | {"pointnet", "ridge_height_map",
-                                                             "cnn_depth_change"}
+    candidates = {"pointnet", "ridge_height_map", "cnn_depth_change", "ensemble_cnn_hooke"}
+    assert set(model.estimators) == set(model.baselines) | candidates
     # the shipped model is the candidate with the lowest validation MAE, every score stored
     scores = model.record["validation_mae_n"]
     assert set(scores) == set(model.estimators) and result.val_mae_n == scores
-    assert model.selected == result.selected == min(
-        ("pointnet", "ridge_height_map", "cnn_depth_change"), key=scores.get)
+    assert model.selected == result.selected == min(candidates, key=scores.get)
     assert model.split.kind == "session"
     session = synthetic_sessions(repeats=1, **SMALL)[0]
     predictor = FramePredictor(model)
@@ -87,7 +86,15 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert set(metrics["metrics"]) == {"pointnet", "mean", "linear_displacement", "hooke",
                                        "ridge_height_map", "mlp_displacement_history",
-                                       "cnn_depth_change"}
+                                       "cnn_depth_change", "ensemble_cnn_hooke"}
+    # the ensemble, read back from the model file, is the mean of its two members' forces
+    with open(tmp_path / "eval" / "predictions.csv", newline="") as f:
+        scored = list(csv.DictReader(f))
+    force = {m: np.array([float(r[f"{m}_n"]) for r in scored])
+             for m in ("ensemble_cnn_hooke", "cnn_depth_change", "hooke")}
+    assert force["ensemble_cnn_hooke"] == pytest.approx(
+        (force["cnn_depth_change"] + force["hooke"]) / 2, rel=1e-4, abs=1e-5)
+    assert not np.allclose(force["cnn_depth_change"], force["hooke"])
     for stats in metrics["metrics"].values():
         low, high = stats["overall"]["mae_ci95_n"]
         assert low < stats["overall"]["mae_n"] < high

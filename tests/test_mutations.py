@@ -435,6 +435,9 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
             **estimators, name: {**estimators[name], "kind": estimators[name]["kind"],
                                  "size" if name.startswith("ridge") else "state_dict": "abc"}}}),
                True)
+    yield ("ensemble without members", save({**payload, "estimators": {
+        **estimators, "ensemble_cnn_hooke": {**estimators["ensemble_cnn_hooke"],
+                                             "members": []}}}), True)
     history = estimators["mlp_displacement_history"]
     yield ("history baseline layers broken",
            save({**payload, "estimators": {**estimators, "mlp_displacement_history": {

@@ -25,6 +25,8 @@ PAPER_MAE_N = {"40": 0.4055, "80": 0.4748, "200": 0.8044}  # Table I, per stiffn
 METHODS = (("pointnet", "PointNet (modified)"), ("temporal", "temporal PointNet"),
            ("mean", "mean predictor"), ("linear_displacement", "linear in peak displacement"),
            ("hooke", "Hooke's law"), ("ridge_height_map", "ridge on height map"),
+           ("cnn_depth_change", "CNN on depth-change image"),
+           ("ensemble_cnn_hooke", "mean of CNN and Hooke's law"),
            ("mlp_displacement_history", "MLP on displacement history"))
 
 

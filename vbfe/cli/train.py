@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("train", help="train the force estimators on reconstructed sessions",
                             description="Fit every candidate (PointNet, the temporal model, "
                             "ridge on depth-change thumbnails, a small CNN on the depth-change "
-                            "image) and the baselines on the training part, and ship the "
+                            "image, the mean of that CNN and Hooke's law) and the baselines on the training part, and ship the "
                             "candidate with the lowest validation MAE (or the one --model "
                             "forces). Each session needs its <session>.clouds.h5 sidecar (run "
                             "`vbfe reconstruct` first) or is a clouds file from `vbfe import`. "
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--learning-rate", type=float)
     parser.add_argument("--target", metavar="magnitude|xyz|AXIS",
                         help="regress |F|, the 3 axes, or one signed axis (x, -z, ...)")
-    parser.add_argument("--model", metavar="auto|pointnet|temporal|ridge|cnn",
+    parser.add_argument("--model", metavar="auto|pointnet|temporal|ridge|cnn|ensemble",
                         help="auto (default): the candidate best on validation; else force one")
     parser.add_argument("--split", metavar="session|time", help="hold out whole sessions (default) or "
                         "the end of each session in time (train, then validation, then test)")
