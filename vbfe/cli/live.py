@@ -36,6 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="also send one JSON datagram per estimate to HOST:PORT")
     parser.add_argument("--scale", type=positive(float), default=None,
                         help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
+    parser.add_argument("--row-scale", type=positive(float), default=None,
+                        help="match this fraction of the (scaled) rows, at full width (e.g. 0.5: "
+                        "half the matching cost, same depth resolution)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip the De Bruijn verification (faster, bare SGBM)")
     parser.add_argument("--device", choices=DEVICES, default=None,
@@ -57,14 +60,16 @@ def run(args: argparse.Namespace) -> int:
     config = config_from(args)
     settings = live_settings(section(config, "live"))
     udp = udp_address(args.udp) if args.udp is not None else None
-    if args.scale is not None and args.scale > 1:
-        raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
-                        "(0, 1], e.g. 0.5")
+    for option, value in (("--scale", args.scale), ("--row-scale", args.row_scale)):
+        if value is not None and value > 1:
+            raise LiveError(f"{option} {value}: give a fraction of the camera resolution in "
+                            "(0, 1], e.g. 0.5")
     calibration = load_calibration(args.calib)
     model = load_model(args.model)
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(config, settings, model, calibration,
-                               args.scale, not args.no_verify, args.device)
+                               args.scale, not args.no_verify, args.device, args.row_scale)
+    print(estimator.describe())
     outputs = []
     if args.lsl is not None:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))
