@@ -10,17 +10,20 @@ thread counts.
 
 ``--background-load N`` runs every configuration twice, without and then beside N busy
 processes (a lab PC also runs the recorder and the viewer); ``--record`` adds runs that also
-record the session (HDF5, as ``vbfe live --record``). The endoscope is the real OpenCV camera
+record the session (HDF5, as ``vbfe live --record``). ``--scale``, ``--row-scale`` and the
+thread counts default to the ``[live]`` table, as in ``vbfe live``. The endoscope is the real OpenCV camera
 driver reading a capture that replays frames the bench rendered beforehand, paced on the host
 clock: a real endoscope's frames cost the host nothing to make, while the bench's live
 rendering would take a large share of the two cores (``--render-live`` measures that instead).
 Run: ``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--row-scale 1.0]
-[--background-load 1] [--record] [--sizes 640x360,1280x720] [--render-live]``.
+[--background-load 1] [--record [--compression blosc-lz4]] [--sizes 640x360,1280x720]
+[--render-live]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import subprocess
 import sys
@@ -31,8 +34,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-
 from vbfe.acquire import Acquisition
+from vbfe.acquire.recording.record import session_recorder
+from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.common.config import load_config, section
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
@@ -43,11 +47,11 @@ from vbfe.estimate.candidates import NetworkEstimator
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.acquire.recording.record import session_recorder
-from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.live.estimator import STAGES, FrameEstimator
-from vbfe.live.run import LiveRun, run_headless
 from vbfe.recon import SgbmParams
+
+from vbfe.live.estimator import STAGES, FrameEstimator
+from vbfe.live.run import LiveRun, run_headless, use_threads
+from vbfe.live.settings import live_settings
 from vbfe.truth import calibration_from_rig, true_rig
 
 SIZES = ((640, 360), (1280, 720))
@@ -63,7 +67,7 @@ class ReplayCapture:
         self.frames, self.period_ns = frames, 1e9 / fps
         self.fps, self._start_ns, self._seq = fps, time.monotonic_ns(), -1
 
-    def isOpened(self) -> bool:  # noqa: N802 - cv2.VideoCapture's names
+    def isOpened(self) -> bool:
         return True
 
     def grab(self) -> bool:
@@ -158,28 +162,38 @@ def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--row-scale", type=float, default=1.0)
+    parser.add_argument("--scale", type=float, default=None, help="default: [live] scale")
+    parser.add_argument("--row-scale", type=float, default=None,
+                        help="default: [live] row_scale")
     parser.add_argument("--sizes", default="640x360,1280x720")
     parser.add_argument("--background-load", type=int, default=0, metavar="N",
                         help="also run each configuration beside N busy processes")
     parser.add_argument("--record", action="store_true",
                         help="also run each configuration recording the session")
+    parser.add_argument("--compression", default=None,
+                        help="of the recorded frames (default: [record] compression)")
     parser.add_argument("--paper-network", action="store_true",
                         help="PointNet 64-128-1024 instead of the demo's 32-64-256")
     parser.add_argument("--render-live", action="store_true",
                         help="the bench camera renders every frame in real time (costs CPU)")
-    parser.add_argument("--opencv-threads", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--opencv-threads", type=int, default=None,
+                        help="default: [live] opencv_threads (0: one per core)")
     args = parser.parse_args()
-    torch.set_num_threads(1)
-    cv2.setNumThreads(args.opencv_threads)
+    settings = live_settings(section(load_config(), "live"))
+    args.scale = args.scale or settings.scale
+    args.row_scale = args.row_scale or settings.row_scale
+    if args.opencv_threads is not None:
+        settings = dataclasses.replace(settings, opencv_threads=args.opencv_threads)
+    use_threads(settings)
     channels = [64, 128, 1024] if args.paper_network else [32, 64, 256]
     sizes = [tuple(int(v) for v in size.split("x")) for size in args.sizes.split(",")]
+    compression = args.compression or section(load_config(), "record")["compression"]
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
           f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
           f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
           f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
-          f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own threads")
+          f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
+          f"threads; recording compression {compression}")
     print(f"{'camera':>10} {'record':>6} {'busy':>4} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} "
           f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES))
     loads = [0] + ([args.background_load] if args.background_load else [])
@@ -187,6 +201,7 @@ def main() -> None:
         for width, height in sizes:
             config = load_config()
             config["bench"].update(width=width, height=height, fps=FPS)
+            config["record"]["compression"] = compression
             frames = None if args.render_live else rendered_frames(config, REPLAY_FRAMES)
             for record in [False] + ([True] if args.record else []):
                 for load in loads:

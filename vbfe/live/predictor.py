@@ -10,8 +10,6 @@ finite (``roi = "all"``) instead of copying the cloud first.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import torch
 
@@ -27,7 +25,6 @@ from vbfe.estimate.preparation import (
     sample_points,
 )
 from vbfe.estimate.rest_depth import RestDepth
-from vbfe.estimate.train_config import TrainConfig
 
 
 class LivePredictor:
@@ -38,9 +35,9 @@ class LivePredictor:
         self.model = model
         estimator = model.estimators[model.selected]
         self._pool_only = isinstance(estimator, NetworkEstimator)
-        # a single-frame network reads the newest pool alone: traced once, then called directly
-        self._network = (traced(estimator.network, model.config)
-                         if self._pool_only and not estimator.window else None)
+        # a single-frame network reads the newest pool alone: called directly
+        self._network = (estimator.network.eval() if self._pool_only and not estimator.window
+                         else None)
         self._device = (next(estimator.network.parameters()).device if self._pool_only
                         else None)
         self._span = max([*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())],
@@ -95,19 +92,6 @@ class LivePredictor:
             "live", {}, self._frames, np.arange(n), np.arange(n),
             np.zeros((n, config.n_outputs)), config, n_frames_total=n)
         return self.model.predict_session(session, positions=np.array([n - 1]))[0]
-
-
-def traced(network: torch.nn.Module, config: TrainConfig) -> torch.jit.ScriptModule:
-    """``network`` (in eval mode, on its device) traced with TorchScript for one cloud of
-    ``config.n_points`` points at a time: the same outputs to float rounding, with less of
-    Python's per-layer overhead (bench_live.py compares the two)."""
-    network.eval()
-    device = next(network.parameters()).device
-    example = torch.rand(1, config.n_points, 4 if config.rest_depth else 3, device=device)
-    with torch.no_grad(), warnings.catch_warnings():
-        # tracing unrolls the per-cloud loop of the diameter for this one cloud: as used here
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)
-        return torch.jit.freeze(torch.jit.trace(network, example))
 
 
 def _too_few() -> EstimateError:

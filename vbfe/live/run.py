@@ -69,13 +69,21 @@ class LiveStatus:
                 f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N")
 
 
+def use_threads(settings: LiveSettings) -> None:
+    """Size torch's and OpenCV's thread pools as ``[live]`` says (OpenCV's 0: one per core)."""
+    import cv2
+    import torch
+
+    torch.set_num_threads(settings.torch_threads)
+    cv2.setNumThreads(settings.opencv_threads or os.cpu_count() or 1)
+
+
 def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, model: ForceModel,
                    calibration: Calibration, scale: float | None = None, verify: bool = True,
                    device: str | None = None, row_scale: float | None = None) -> FrameEstimator:
     """The estimator of a live run: ``[sgbm]``, the ``[live]`` defaults where ``scale``,
     ``row_scale`` and ``device`` are not given (``auto``: CUDA when torch sees it), torch's
     and OpenCV's thread counts."""
-    import cv2
     import torch
 
     device = device or settings.device
@@ -83,8 +91,7 @@ def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, mo
         device = "cuda" if torch.cuda.is_available() else "cpu"
     elif device == "cuda" and not torch.cuda.is_available():
         raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
-    torch.set_num_threads(settings.torch_threads)
-    cv2.setNumThreads(settings.opencv_threads or os.cpu_count() or 1)
+    use_threads(settings)
     return FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
                           verify=verify and settings.verify, scale=scale or settings.scale,
                           device=device, row_scale=row_scale or settings.row_scale)
@@ -116,6 +123,8 @@ class LiveRun(Listener):
     def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
                  model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> None:
         acquisition.add(self)
+        # first of the listeners: each frame reaches the estimator before a recorder writes it
+        acquisition.listeners.insert(0, acquisition.listeners.pop())
         for output in outputs:
             acquisition.add(output)
         self.outputs = tuple(outputs)

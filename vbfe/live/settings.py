@@ -13,7 +13,7 @@ class LiveSettings:
     """Defaults of ``vbfe live`` (see vbfe/default_rig.toml)."""
 
     scale: float = setting(1.0, ge=0.1, le=1.0)
-    row_scale: float = setting(1.0, ge=0.1, le=1.0)
+    row_scale: float = setting(0.5, ge=0.1, le=1.0)
     verify: bool = True
     device: Literal["auto", "cpu", "cuda"] = "auto"
     torch_threads: int = setting(1, ge=1)
