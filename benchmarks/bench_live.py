@@ -141,7 +141,8 @@ def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale
                                row_scale=row_scale)
     acquisition = (session_recorder(config, record, rig, streams=(marks_stream(),))
                    if record else Acquisition(rig, pattern=make_pattern))
-    run = LiveRun(acquisition, estimator)
+    run = LiveRun(acquisition, estimator,
+                  max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s)
     run.start()
     cpu0, wall0 = time.process_time(), time.monotonic()
     status = run_headless(run, seconds, lambda s: None)

@@ -4,11 +4,17 @@ sequential, full-featured path."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
+import time
 
 import cv2
 import numpy as np
 import pytest
+from vbfe.acquire import Acquisition
+from vbfe.common.config import load_config
+from vbfe.drivers.registry import open_rig
+from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -25,6 +31,7 @@ from vbfe.recon.maps import depth_map_m
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork
 from vbfe.live.pipeline import Pipeline
 from vbfe.live.predictor import LivePredictor
+from vbfe.live.run import LiveRun
 from vbfe.truth import calibration_from_rig
 
 WAIT_S = 10.0  # generous: only a hung thread takes this long
@@ -196,3 +203,20 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
         lo_f, hi_f = np.percentile(full.points[:, axis], [5, 95])
         lo_h, hi_h = np.percentile(half.points[:, axis], [5, 95])
         assert abs(lo_h - lo_f) < 0.01 * (hi_f - lo_f) and abs(hi_h - hi_f) < 0.01 * (hi_f - lo_f)
+
+
+def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames):
+    frames, calibration = bench_frames
+    run = LiveRun(Acquisition(open_rig(load_config(), RigOptions(realtime=False))),
+                  FrameEstimator(_pointnet(), calibration), max_frame_age_s=0.25)
+    now = time.monotonic_ns()
+    late, fresh = (dataclasses.replace(frames[k], t_host_ns=t)
+                   for k, t in ((0, now - 10**9), (1, now)))
+    run.on_start(run.acquisition)
+    run.on_frames([late])
+    run.on_frames([fresh])
+    run.on_stop(run.acquisition)  # the frame in flight drains
+    status = run.status()
+    assert [e.frame_seq for e in run.estimates] == [1]
+    assert (status.frames, status.estimates, status.skipped) == (2, 1, 1)
+    assert not _live_threads()

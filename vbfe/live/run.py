@@ -37,7 +37,7 @@ from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
 from vbfe.live.pipeline import Pipeline
 from vbfe.live.outputs import EstimateOutput
-from vbfe.live.settings import LiveSettings
+from vbfe.live.settings import LiveSettings, live_settings
 from vbfe.recon.matching import SgbmParams
 
 FORCE_HISTORY_S = 30.0
@@ -50,7 +50,7 @@ class LiveStatus:
     wall_s: float
     frames: int  # frames the camera delivered
     estimates: int
-    skipped: int  # frames replaced by a newer one before a stage of the estimator took them
+    skipped: int  # frames replaced by a newer one before a stage took them, or come too late
     rate_hz: float  # estimates per second over the last few seconds
     latency_p50_ms: float
     latency_p95_ms: float
@@ -112,16 +112,23 @@ def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
                                     calibration_yaml=calibration.to_yaml_text(),
                                     streams=(marks_stream(),))
                    if record else Acquisition(rig, pattern=make_pattern))
-    return LiveRun(acquisition, estimator, model_name, outputs)
+    return LiveRun(acquisition, estimator, model_name, outputs,
+                   live_settings(section(config, "live")).max_frame_age_s)
 
 
 class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
     itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
-    recorded). The estimator's stages run as a :class:`Pipeline`, each on its own thread."""
+    recorded). The estimator's stages run as a :class:`Pipeline`, each on its own thread.
+
+    A frame that reaches the run more than ``max_frame_age_s`` after its capture (0: no
+    limit) is skipped: the acquisition is behind (a recorder short of CPU), and estimating
+    it would hold the recorder back further while giving a stale force.
+    """
 
     def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
-                 model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> None:
+                 model_name: str = "", outputs: Sequence[EstimateOutput] = (),
+                 max_frame_age_s: float = 0.25) -> None:
         acquisition.add(self)
         # first of the listeners: each frame reaches the estimator before a recorder writes it
         acquisition.listeners.insert(0, acquisition.listeners.pop())
@@ -132,7 +139,8 @@ class LiveRun(Listener):
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
         self._pipeline = Pipeline(estimator.stages(), self._record)
-        self._frames_seen = 0
+        self._frames_seen = self._frames_late = 0
+        self._max_age_ns = max_frame_age_s * 1e9 or float("inf")
         rate = float(acquisition.rig.trocar.rate_hz or 1000.0)
         self._forces: collections.deque = collections.deque(maxlen=int(rate * FORCE_HISTORY_S))
         self.estimates: list[LiveEstimate] = []
@@ -187,7 +195,10 @@ class LiveRun(Listener):
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:
         for frame in frames:
             self._frames_seen += 1
-            self._pipeline.put(FrameWork(frame))
+            if time.monotonic_ns() - frame.t_host_ns > self._max_age_ns:
+                self._frames_late += 1
+            else:
+                self._pipeline.put(FrameWork(frame))
 
     def on_samples(self, samples: Sequence[ForceSample]) -> None:
         self._forces.extend(samples)
@@ -242,7 +253,7 @@ class LiveRun(Listener):
         window = min(3.0, wall)
         return LiveStatus(
             wall_s=wall, frames=self._frames_seen, estimates=count,
-            skipped=self._pipeline.skipped, rate_hz=recent / window if window > 0 else 0.0,
+            skipped=self._pipeline.skipped + self._frames_late, rate_hz=recent / window if window > 0 else 0.0,
             latency_p50_ms=float(np.percentile(latency, 50)) if len(latency) else float("nan"),
             latency_p95_ms=float(np.percentile(latency, 95)) if len(latency) else float("nan"),
             mae_n=mae_sum / mae_count if mae_count else float("nan"), mae_count=mae_count,

@@ -19,6 +19,7 @@ class LiveSettings:
     torch_threads: int = setting(1, ge=1)
     opencv_threads: int = setting(0, ge=0)  # 0: one per core
     status_interval_s: float = setting(1.0, gt=0)
+    max_frame_age_s: float = setting(0.25, ge=0)  # later frames are skipped (0: no limit)
 
 
 def live_settings(table: dict[str, Any]) -> LiveSettings:
