@@ -17,9 +17,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "live", help="estimate force live from the endoscope with a trained model",
         description="Camera frames -> rectify -> SGBM + De Bruijn verification -> cloud -> "
-        "model -> force, continuously; the newest frame wins when the chain is slower than the "
-        "camera (skipped frames are counted). Shows the estimate over the trocar's force, or "
-        "prints a status line with --headless. Defaults come from the [live] table.")
+        "model -> force, continuously, each stage on its own thread; the newest frame wins "
+        "when a stage is slower than the camera (skipped frames are counted). Shows the "
+        "estimate over the trocar's force, or prints a status line with --headless. Defaults "
+        "come from the [live] table.")
     parser.add_argument("--model", required=True, metavar="MODEL.pt", help="from vbfe train")
     parser.add_argument("--calib", required=True, metavar="CALIB.yaml",
                         help="calibration of this camera mode (or a session that stores one)")
@@ -37,8 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--scale", type=positive(float), default=None,
                         help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
     parser.add_argument("--row-scale", type=positive(float), default=None,
-                        help="match this fraction of the (scaled) rows, at full width (e.g. 0.5: "
-                        "half the matching cost, same depth resolution)")
+                        help="match this fraction of the (scaled) rows, at full width ([live] "
+                        "default 0.5: rows averaged in pairs, half the matching cost, the same "
+                        "depth resolution; 1: every row)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip the De Bruijn verification (faster, bare SGBM)")
     parser.add_argument("--device", choices=DEVICES, default=None,
