@@ -149,6 +149,10 @@ def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale
     cores = (time.process_time() - cpu0) / (time.monotonic() - wall0)
     if run.error:
         raise SystemExit(f"live run failed: {run.error}")
+    if len(run.estimates) < 2:  # e.g. every frame came later than [live] max_frame_age_s
+        return {"rate": 0.0, "p50": float("nan"), "p95": float("nan"), "cores": cores,
+                "skipped": status.skipped / max(status.frames, 1),
+                **{name: float("nan") for name in STAGES}}
     settled = run.estimates[0].t_ready_host_ns + 1e9  # the first second includes warm-up
     estimates = [e for e in run.estimates if e.t_frame_host_ns >= settled]
     stages = np.array([e.stage_s for e in estimates]) * 1e3
