@@ -1,40 +1,57 @@
 """Live estimation on the simulated bench: achieved estimate rate and latency per stage.
 
-For each resolution a stereo endoscope delivers 30 fps in real time and the newest frame is
-reconstructed (SGBM + De Bruijn verification) and a PointNet (untrained weights: speed does not
-depend on them) estimates the force. Prints estimates/s, p50/p95 latency from frame capture
-(host time) to estimate, the median of each stage, and the share of frames skipped.
+For each resolution a stereo endoscope delivers 30 fps in real time and ``vbfe live``'s
+pipeline (reconstruct -> prepare -> model, each stage on its own thread, the newest frame
+winning) turns the newest frames into forces with the demo's PointNet (32-64-256 on 1024
+points with the rest depth change; untrained weights: speed does not depend on them). Prints
+estimates/s, p50/p95 latency from frame capture (host time) to estimate, the share of frames
+skipped, the median of each stage, the CPU the run used (cores), and the OpenCV and torch
+thread counts.
 
-The endoscope is the real OpenCV camera driver reading a capture that replays frames the
-bench rendered beforehand, paced on the host clock: a real endoscope's frames cost the host
-nothing to make, while the bench's live rendering would take a large share of the two cores
-(``--render-live`` measures that instead). Run:
-``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--render-live]``.
+``--background-load N`` runs every configuration twice, without and then beside N busy
+processes (a lab PC also runs the recorder and the viewer); ``--record`` adds runs that also
+record the session (HDF5, as ``vbfe live --record``). ``--scale``, ``--row-scale`` and the
+thread counts default to the ``[live]`` table, as in ``vbfe live``. The endoscope is the real OpenCV camera
+driver reading a capture that replays frames the bench rendered beforehand, paced on the host
+clock: a real endoscope's frames cost the host nothing to make, while the bench's live
+rendering would take a large share of the two cores (``--render-live`` measures that instead).
+Run: ``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--row-scale 1.0]
+[--background-load 1] [--record [--compression blosc-lz4]] [--sizes 640x360,1280x720]
+[--render-live]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
-
 from vbfe.acquire import Acquisition
+from vbfe.acquire.recording.record import session_recorder
+from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.common.config import load_config, section
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
+from vbfe.estimate.candidates import NetworkEstimator
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.live.estimator import STAGES, FrameEstimator
-from vbfe.live.run import LiveRun, run_headless
 from vbfe.recon import SgbmParams
+
+from vbfe.live.estimator import STAGES, FrameEstimator
+from vbfe.live.run import LiveRun, run_headless, use_threads
+from vbfe.live.settings import live_settings
 from vbfe.truth import calibration_from_rig, true_rig
 
 SIZES = ((640, 360), (1280, 720))
@@ -50,7 +67,7 @@ class ReplayCapture:
         self.frames, self.period_ns = frames, 1e9 / fps
         self.fps, self._start_ns, self._seq = fps, time.monotonic_ns(), -1
 
-    def isOpened(self) -> bool:  # noqa: N802 - cv2.VideoCapture's names
+    def isOpened(self) -> bool:
         return True
 
     def grab(self) -> bool:
@@ -102,52 +119,111 @@ def untrained_model(conv_channels: list[int]) -> ForceModel:
     config = TrainConfig(conv_channels=conv_channels)
     network = PointNetRegressor(conv_channels=conv_channels, head_channels=config.head_channels,
                                 rest_depth=config.rest_depth)
-    return ForceModel(network=network.eval(), config=config, baselines={})
+    return ForceModel(config=config, selected="pointnet",
+                      estimators={"pointnet": NetworkEstimator(network.eval(), config.n_points)})
 
 
-def measure(width: int, height: int, seconds: float, scale: float,
-            conv_channels: list[int], render_live: bool) -> dict[str, float]:
-    """Run live estimation on a real-time bench of this size for ``seconds``."""
-    config = load_config()
-    config["bench"].update(width=width, height=height, fps=FPS)
-    rig = (open_rig(config, RigOptions(realtime=True)) if render_live
-           else replay_rig(config, rendered_frames(config, REPLAY_FRAMES)))
+def busy_processes(n: int) -> list[subprocess.Popen]:
+    """``n`` processes that each keep one core busy until killed."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale: float,
+            row_scale: float, conv_channels: list[int], record: Path | None
+            ) -> dict[str, float]:
+    """Run live estimation on a real-time bench for ``seconds`` (replaying ``frames``, or
+    rendering live when None), recording into ``record`` when given."""
+    rig = (open_rig(config, RigOptions(realtime=True)) if frames is None
+           else replay_rig(config, frames))
     calibration = calibration_from_rig(true_rig(config))
     estimator = FrameEstimator(untrained_model(conv_channels), calibration,
-                               SgbmParams.from_config(section(config, "sgbm")), scale=scale)
-    run = LiveRun(Acquisition(rig, pattern=make_pattern), estimator)
+                               SgbmParams.from_config(section(config, "sgbm")), scale=scale,
+                               row_scale=row_scale)
+    acquisition = (session_recorder(config, record, rig, streams=(marks_stream(),))
+                   if record else Acquisition(rig, pattern=make_pattern))
+    run = LiveRun(acquisition, estimator,
+                  max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s)
     run.start()
+    cpu0, wall0 = time.process_time(), time.monotonic()
     status = run_headless(run, seconds, lambda s: None)
-    estimates = run.estimates[5:]  # the first few include warm-up
+    cores = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    if run.error:
+        raise SystemExit(f"live run failed: {run.error}")
+    if len(run.estimates) < 2:  # e.g. every frame came later than [live] max_frame_age_s
+        return {"rate": 0.0, "p50": float("nan"), "p95": float("nan"), "cores": cores,
+                "skipped": status.skipped / max(status.frames, 1),
+                **{name: float("nan") for name in STAGES}}
+    settled = run.estimates[0].t_ready_host_ns + 1e9  # the first second includes warm-up
+    estimates = [e for e in run.estimates if e.t_frame_host_ns >= settled]
     stages = np.array([e.stage_s for e in estimates]) * 1e3
     latency = np.array([e.latency_s for e in estimates]) * 1e3
     span_s = (estimates[-1].t_ready_host_ns - estimates[0].t_ready_host_ns) / 1e9
     return {"rate": (len(estimates) - 1) / span_s, "p50": float(np.percentile(latency, 50)),
             "p95": float(np.percentile(latency, 95)), "skipped": status.skipped / status.frames,
+            "cores": cores,
             **{name: float(np.median(stages[:, k])) for k, name in enumerate(STAGES)}}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--scale", type=float, default=None, help="default: [live] scale")
+    parser.add_argument("--row-scale", type=float, default=None,
+                        help="default: [live] row_scale")
+    parser.add_argument("--sizes", default="640x360,1280x720")
+    parser.add_argument("--background-load", type=int, default=0, metavar="N",
+                        help="also run each configuration beside N busy processes")
+    parser.add_argument("--record", action="store_true",
+                        help="also run each configuration recording the session")
+    parser.add_argument("--compression", default=None,
+                        help="of the recorded frames (default: [record] compression)")
     parser.add_argument("--paper-network", action="store_true",
                         help="PointNet 64-128-1024 instead of the demo's 32-64-256")
     parser.add_argument("--render-live", action="store_true",
                         help="the bench camera renders every frame in real time (costs CPU)")
+    parser.add_argument("--opencv-threads", type=int, default=None,
+                        help="default: [live] opencv_threads (0: one per core)")
     args = parser.parse_args()
-    torch.set_num_threads(1)
+    settings = live_settings(section(load_config(), "live"))
+    args.scale = args.scale or settings.scale
+    args.row_scale = args.row_scale or settings.row_scale
+    if args.opencv_threads is not None:
+        settings = dataclasses.replace(settings, opencv_threads=args.opencv_threads)
+    use_threads(settings)
     channels = [64, 128, 1024] if args.paper_network else [32, 64, 256]
+    sizes = [tuple(int(v) for v in size.split("x")) for size in args.sizes.split(",")]
+    compression = args.compression or section(load_config(), "record")["compression"]
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
-          f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, "
-          f"{'bench rendering live' if args.render_live else 'replayed bench frames'} at "
-          f"{FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads 1")
-    print(f"{'camera':>10} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} {'skipped':>8} "
-          + " ".join(f"{s + ' ms':>14}" for s in STAGES))
-    for width, height in SIZES:
-        r = measure(width, height, args.seconds, args.scale, channels, args.render_live)
-        print(f"{width:>5}x{height:<4} {r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} "
-              f"{r['skipped']:8.0%} " + " ".join(f"{r[s]:14.1f}" for s in STAGES))
+          f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
+          f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
+          f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
+          f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
+          f"threads; recording compression {compression}")
+    print(f"{'camera':>10} {'record':>6} {'busy':>4} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} "
+          f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES))
+    loads = [0] + ([args.background_load] if args.background_load else [])
+    with tempfile.TemporaryDirectory() as folder:
+        for width, height in sizes:
+            config = load_config()
+            config["bench"].update(width=width, height=height, fps=FPS)
+            config["record"]["compression"] = compression
+            frames = None if args.render_live else rendered_frames(config, REPLAY_FRAMES)
+            for record in [False] + ([True] if args.record else []):
+                for load in loads:
+                    busy = busy_processes(load)
+                    try:
+                        path = Path(folder) / f"live-{width}-{record}-{load}.h5"
+                        r = measure(config, frames, args.seconds, args.scale, args.row_scale,
+                                    channels, path if record else None)
+                    finally:
+                        for process in busy:
+                            process.kill()
+                            process.wait()
+                    print(f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
+                          f"{r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} {r['skipped']:7.0%} "
+                          f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
+                          flush=True)
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 if __name__ == "__main__":

@@ -205,14 +205,16 @@ class Calibration:
                                             cv2.CV_32FC1)
         return left, right
 
-    def scaled(self, scale: float) -> "Calibration":
+    def scaled(self, scale: float, scale_y: float | None = None) -> "Calibration":
         """The calibration of the same cameras with images resized by ``scale`` (e.g. 0.5 for
-        half resolution); pixel centres stay at integer coordinates, as in OpenCV."""
-        size = (round(self.image_size[0] * scale), round(self.image_size[1] * scale))
-        S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, scale, (scale - 1) / 2], [0, 0, 1]])
+        half resolution), rows by ``scale_y`` when given (anisotropic pixels); pixel centres
+        stay at integer coordinates, as in OpenCV."""
+        sy = scale if scale_y is None else scale_y
+        size = (round(self.image_size[0] * scale), round(self.image_size[1] * sy))
+        S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, sy, (sy - 1) / 2], [0, 0, 1]])
         P1, P2 = S @ self.P1, S @ self.P2
         tx = P2[0, 3] / P2[0, 0]  # −B, in metres
-        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs given as such
+        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs or unequal scales
         Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, aspect, 0, -P1[1, 2] * aspect],
                       [0, 0, 0, P1[0, 0]], [0, 0, -1 / tx, -self.doffs * scale / tx]])
         return self.replace(K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size,

@@ -58,17 +58,20 @@ class Reconstructor:
     """Reconstructs stereo frames with one calibration and one set of SGBM settings.
 
     A zero ``num_disparities`` is derived from the calibration's ``f·B`` and the depth range of
-    ``settings`` (the ``[recon]`` table); ``params`` holds the settings actually used.
+    ``settings`` (the ``[recon]`` table); ``params`` holds the settings actually used. The
+    fringe codes are decoded on a second thread while SGBM runs when ``overlap`` is true
+    (default: when OpenCV has several threads).
     """
 
     def __init__(self, calibration: Calibration, sgbm_params: SgbmParams | None = None,
                  verify: bool = True, n_fringes: int = DEFAULT_FRINGES,
-                 settings: ReconSettings | None = None) -> None:
+                 settings: ReconSettings | None = None, overlap: bool | None = None) -> None:
         self.calibration = calibration
         self.settings = settings or ReconSettings()
         self.params = params_for(calibration, sgbm_params or SgbmParams(), self.settings)
         check_disparity_range(self.params, calibration.image_size)
         self.verify = verify
+        self.overlap = overlap
         self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
                                      row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
@@ -117,11 +120,11 @@ class Reconstructor:
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
-        # with several OpenCV threads, decode in the background while SGBM runs here (both
-        # release the GIL): SGBM keeps OpenCV's thread pool (called from another thread it
-        # would run on one core), and the decoding fills the time its threads leave idle
-        codes = self._overlap().submit(self._decode, rect_left, rect_right) \
-            if cv2.getNumThreads() > 1 else None
+        # overlapping (by default with several OpenCV threads), decode in the background while
+        # SGBM runs here (both release the GIL): SGBM keeps OpenCV's thread pool (called from
+        # another thread it would run on one core), and the decoding fills the idle time
+        overlap = cv2.getNumThreads() > 1 if self.overlap is None else self.overlap
+        codes = self._overlap().submit(self._decode, rect_left, rect_right) if overlap else None
         disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
         left_code, right_code = (codes.result() if codes is not None else
                                  self._decode(rect_left, rect_right))

@@ -17,9 +17,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "live", help="estimate force live from the endoscope with a trained model",
         description="Camera frames -> rectify -> SGBM + De Bruijn verification -> cloud -> "
-        "model -> force, continuously; the newest frame wins when the chain is slower than the "
-        "camera (skipped frames are counted). Shows the estimate over the trocar's force, or "
-        "prints a status line with --headless. Defaults come from the [live] table.")
+        "model -> force, continuously, each stage on its own thread; the newest frame wins "
+        "when a stage is slower than the camera (skipped frames are counted). Shows the "
+        "estimate over the trocar's force, or prints a status line with --headless. Defaults "
+        "come from the [live] table.")
     parser.add_argument("--model", required=True, metavar="MODEL.pt", help="from vbfe train")
     parser.add_argument("--calib", required=True, metavar="CALIB.yaml",
                         help="calibration of this camera mode (or a session that stores one)")
@@ -36,6 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="also send one JSON datagram per estimate to HOST:PORT")
     parser.add_argument("--scale", type=positive(float), default=None,
                         help="reconstruct at this fraction of the camera resolution (e.g. 0.5)")
+    parser.add_argument("--row-scale", type=positive(float), default=None,
+                        help="match this fraction of the (scaled) rows, at full width ([live] "
+                        "default 0.5: rows averaged in pairs, half the matching cost, the same "
+                        "depth resolution; 1: every row)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip the De Bruijn verification (faster, bare SGBM)")
     parser.add_argument("--device", choices=DEVICES, default=None,
@@ -57,14 +62,16 @@ def run(args: argparse.Namespace) -> int:
     config = config_from(args)
     settings = live_settings(section(config, "live"))
     udp = udp_address(args.udp) if args.udp is not None else None
-    if args.scale is not None and args.scale > 1:
-        raise LiveError(f"--scale {args.scale}: give a fraction of the camera resolution in "
-                        "(0, 1], e.g. 0.5")
+    for option, value in (("--scale", args.scale), ("--row-scale", args.row_scale)):
+        if value is not None and value > 1:
+            raise LiveError(f"{option} {value}: give a fraction of the camera resolution in "
+                            "(0, 1], e.g. 0.5")
     calibration = load_calibration(args.calib)
     model = load_model(args.model)
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(config, settings, model, calibration,
-                               args.scale, not args.no_verify, args.device)
+                               args.scale, not args.no_verify, args.device, args.row_scale)
+    print(estimator.describe())
     outputs = []
     if args.lsl is not None:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))

@@ -1,9 +1,18 @@
-"""One frame to one force estimate: (downscale), reconstruct, model; each stage timed."""
+"""One frame to one force estimate in stages: reconstruct (downscale, rectify, match, verify,
+triangulate), prepare (the model's features) and model; each stage timed.
+
+The stages run one after the other (:meth:`FrameEstimator.estimate`) or each on its own thread
+(:meth:`FrameEstimator.stages` with :class:`vbfe.live.pipeline.Pipeline`); both give the same
+estimates for the same frames.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -12,12 +21,13 @@ import torch
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.samples import StereoFrame
 from vbfe.estimate.errors import EstimateError
-from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import ForceModel
+from vbfe.estimate.preparation import FrameFeatures
+from vbfe.live.predictor import LivePredictor
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
-STAGES = ("prepare", "reconstruct", "model")
+STAGES = ("scale", "reconstruct", "prepare", "model")
 
 
 @dataclass(frozen=True)
@@ -37,48 +47,99 @@ class LiveEstimate:
         return (self.t_ready_host_ns - self.t_frame_host_ns) / 1e9
 
 
+@dataclass
+class FrameWork:
+    """A frame on its way through the stages."""
+
+    frame: StereoFrame
+    stage_s: list[float] = field(default_factory=list)
+    points: np.ndarray | None = None
+    features: FrameFeatures | None = None  # None: too few points for the model
+
+
 class FrameEstimator:
-    """Reconstructs a frame (optionally at ``scale`` of the calibrated size) and runs the model.
+    """Reconstructs a frame (optionally at ``scale`` of the calibrated size, its rows at
+    ``row_scale`` of that) and runs the model.
 
     The reconstructor (rectification maps, matcher) is built once and reused for every frame;
-    the model's selected estimator (``estimate.inference.FramePredictor``) reads every cloud
-    against the run's first usable cloud, so start with the tissue at rest; a network runs on
-    ``device`` (``"cpu"`` or ``"cuda"``).
+    the model's selected estimator reads every cloud against the run's first usable cloud
+    (:class:`vbfe.live.predictor.LivePredictor`), so start with the tissue at rest; a network
+    runs on ``device`` (``"cpu"`` or ``"cuda"``). On a machine with several cores the
+    fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1 matches fewer rows (rows
+    averaged together) at the full width: the depth resolution, set by the disparity along
+    the rows, stays; the cloud has fewer points, and the model samples its own few from it.
     """
 
     def __init__(self, model: ForceModel, calibration: Calibration,
                  sgbm_params: SgbmParams | None = None, verify: bool = True, scale: float = 1.0,
-                 device: str = "cpu", seed: int = 0) -> None:
-        if not 0.1 <= scale <= 1.0:
-            raise EstimateError(f"live scale must be in 0.1 … 1.0, got {scale}")
-        self.model, self.scale = model, scale
+                 device: str = "cpu", seed: int = 0, row_scale: float = 1.0) -> None:
+        for name, value in (("scale", scale), ("row scale", row_scale)):
+            if not 0.1 <= value <= 1.0:
+                raise EstimateError(f"live {name} must be in 0.1 … 1.0, got {value}")
+        self.model, self.scale, self.row_scale = model, scale, row_scale
         self.full_size = calibration.image_size
-        self.reconstructor = Reconstructor(calibration.scaled(scale) if scale != 1.0
-                                           else calibration, sgbm_params, verify=verify)
+        params = sgbm_params or SgbmParams()
+        if row_scale != 1.0:  # the fringe code is read on rows as far apart as before
+            params = dataclasses.replace(
+                params, decode_row_step=max(1, round(params.decode_row_step * row_scale)))
+        self.reconstructor = Reconstructor(
+            calibration.scaled(scale, scale * row_scale) if (scale, row_scale) != (1.0, 1.0)
+            else calibration, params, verify=verify, overlap=(os.cpu_count() or 1) > 1)
         network = getattr(model.estimators[model.selected], "network", None)
         if network is not None:
             network.to(torch.device(device))
-        self._predictor = FramePredictor(model, seed)
+        self._predictor = LivePredictor(model, seed)
 
-    def _prepare(self, frame: StereoFrame) -> tuple[np.ndarray, np.ndarray]:
-        if self.scale == 1.0:
-            return frame.left, frame.right
-        size = self.reconstructor.calibration.image_size
-        return (cv2.resize(frame.left, size, interpolation=cv2.INTER_AREA),
-                cv2.resize(frame.right, size, interpolation=cv2.INTER_AREA))
+    def describe(self) -> str:
+        """One line: what is reconstructed, the stages and the thread counts used."""
+        width, height = self.reconstructor.calibration.image_size
+        return (f"reconstruct {width}x{height} of the camera's {self.full_size[0]}x"
+                f"{self.full_size[1]}; stages {' -> '.join(n for n, _ in self.stages())} on "
+                f"their own threads; OpenCV threads {cv2.getNumThreads()}, torch threads "
+                f"{torch.get_num_threads()}")
+
+    def stages(self) -> list[tuple[str, Callable[[FrameWork], FrameWork | LiveEstimate]]]:
+        """The (name, function) of each stage, in order, for a :class:`Pipeline` fed with
+        :class:`FrameWork` items."""
+        return [("reconstruct", self.reconstruct), ("prepare", self.prepare),
+                ("model", self.estimate_force)]
 
     def estimate(self, frame: StereoFrame) -> LiveEstimate:
         """The force estimate of one frame, with the duration of each stage."""
+        return self.estimate_force(self.prepare(self.reconstruct(FrameWork(frame))))
+
+    def reconstruct(self, work: FrameWork) -> FrameWork:
+        """Downscale (when asked) and reconstruct the frame's cloud."""
         t0 = time.perf_counter()
-        left, right = self._prepare(frame)
+        size = self.reconstructor.calibration.image_size
+        frame = work.frame
+        if size == self.full_size:
+            left, right = frame.left, frame.right
+        else:
+            left, right = (cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+                           for image in (frame.left, frame.right))
         t1 = time.perf_counter()
-        cloud = self.reconstructor.process(left, right)
-        t2 = time.perf_counter()
+        work.points = self.reconstructor.process(left, right).points
+        work.stage_s += [t1 - t0, time.perf_counter() - t1]
+        return work
+
+    def prepare(self, work: FrameWork) -> FrameWork:
+        """The model's features of the frame's cloud (none when it has too few points)."""
+        t0 = time.perf_counter()
         try:
-            force = self._predictor.predict(cloud.points)
+            work.features = self._predictor.prepare(work.points)
         except EstimateError:  # too few points inside the model's region of interest
-            force = np.full(self.model.config.n_outputs, np.nan)
-        t3 = time.perf_counter()
-        return LiveEstimate(force_n=np.asarray(force, np.float64), frame_seq=frame.seq,
-                            t_frame_host_ns=frame.t_host_ns, t_ready_host_ns=time.monotonic_ns(),
-                            stage_s=(t1 - t0, t2 - t1, t3 - t2), n_points=len(cloud.points))
+            work.features = None
+        work.stage_s.append(time.perf_counter() - t0)
+        return work
+
+    def estimate_force(self, work: FrameWork) -> LiveEstimate:
+        """The model's force from the prepared features (NaN without features)."""
+        t0 = time.perf_counter()
+        force = (self._predictor.model_force(work.features) if work.features is not None
+                 else np.full(self.model.config.n_outputs, np.nan))
+        t1 = time.perf_counter()
+        return LiveEstimate(force_n=np.asarray(force, np.float64), frame_seq=work.frame.seq,
+                            t_frame_host_ns=work.frame.t_host_ns,
+                            t_ready_host_ns=time.monotonic_ns(),
+                            stage_s=(*work.stage_s, t1 - t0), n_points=len(work.points))

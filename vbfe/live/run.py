@@ -7,7 +7,9 @@ and the estimate stream is stored in the session when the run ends.
 
 from __future__ import annotations
 
+import bisect
 import collections
+import os
 import threading
 import time
 from collections.abc import Sequence
@@ -32,13 +34,12 @@ from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.estimate.preparation import force_target
 from vbfe.estimate.model_file import ForceModel
 from vbfe.live.errors import LiveError
-from vbfe.live.estimator import STAGES, FrameEstimator, LiveEstimate
-from vbfe.live.mailbox import Mailbox
+from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
+from vbfe.live.pipeline import Pipeline
 from vbfe.live.outputs import EstimateOutput
-from vbfe.live.settings import LiveSettings
+from vbfe.live.settings import LiveSettings, live_settings
 from vbfe.recon.matching import SgbmParams
 
-_READ_TIMEOUT_S = 0.2
 FORCE_HISTORY_S = 30.0
 
 
@@ -49,7 +50,7 @@ class LiveStatus:
     wall_s: float
     frames: int  # frames the camera delivered
     estimates: int
-    skipped: int  # frames replaced by a newer one before the estimator took them
+    skipped: int  # frames replaced by a newer one before a stage took them, or come too late
     rate_hz: float  # estimates per second over the last few seconds
     latency_p50_ms: float
     latency_p95_ms: float
@@ -68,11 +69,21 @@ class LiveStatus:
                 f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N")
 
 
+def use_threads(settings: LiveSettings) -> None:
+    """Size torch's and OpenCV's thread pools as ``[live]`` says (OpenCV's 0: one per core)."""
+    import cv2
+    import torch
+
+    torch.set_num_threads(settings.torch_threads)
+    cv2.setNumThreads(settings.opencv_threads or os.cpu_count() or 1)
+
+
 def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, model: ForceModel,
                    calibration: Calibration, scale: float | None = None, verify: bool = True,
-                   device: str | None = None) -> FrameEstimator:
-    """The estimator of a live run: ``[sgbm]``, the ``[live]`` defaults where ``scale`` and
-    ``device`` are not given (``auto``: CUDA when torch sees it), torch's thread count."""
+                   device: str | None = None, row_scale: float | None = None) -> FrameEstimator:
+    """The estimator of a live run: ``[sgbm]``, the ``[live]`` defaults where ``scale``,
+    ``row_scale`` and ``device`` are not given (``auto``: CUDA when torch sees it), torch's
+    and OpenCV's thread counts."""
     import torch
 
     device = device or settings.device
@@ -80,10 +91,10 @@ def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, mo
         device = "cuda" if torch.cuda.is_available() else "cpu"
     elif device == "cuda" and not torch.cuda.is_available():
         raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
-    torch.set_num_threads(settings.torch_threads)
+    use_threads(settings)
     return FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
                           verify=verify and settings.verify, scale=scale or settings.scale,
-                          device=device)
+                          device=device, row_scale=row_scale or settings.row_scale)
 
 
 def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
@@ -101,31 +112,41 @@ def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
                                     calibration_yaml=calibration.to_yaml_text(),
                                     streams=(marks_stream(),))
                    if record else Acquisition(rig, pattern=make_pattern))
-    return LiveRun(acquisition, estimator, model_name, outputs)
+    return LiveRun(acquisition, estimator, model_name, outputs,
+                   live_settings(section(config, "live")).max_frame_age_s)
 
 
 class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
     itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
-    recorded)."""
+    recorded). The estimator's stages run as a :class:`Pipeline`, each on its own thread.
+
+    A frame that reaches the run more than ``max_frame_age_s`` after its capture (0: no
+    limit) is skipped: the acquisition is behind (a recorder short of CPU), and estimating
+    it would hold the recorder back further while giving a stale force.
+    """
 
     def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
-                 model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> None:
+                 model_name: str = "", outputs: Sequence[EstimateOutput] = (),
+                 max_frame_age_s: float = 0.25) -> None:
         acquisition.add(self)
+        # first of the listeners: each frame reaches the estimator before a recorder writes it
+        acquisition.listeners.insert(0, acquisition.listeners.pop())
         for output in outputs:
             acquisition.add(output)
         self.outputs = tuple(outputs)
         self.acquisition = acquisition
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
-        self._frames: Mailbox[StereoFrame] = Mailbox()
+        self._pipeline = Pipeline(estimator.stages(), self._record)
+        self._frames_seen = self._frames_late = 0
+        self._max_age_ns = max_frame_age_s * 1e9 or float("inf")
         rate = float(acquisition.rig.trocar.rate_hz or 1000.0)
         self._forces: collections.deque = collections.deque(maxlen=int(rate * FORCE_HISTORY_S))
         self.estimates: list[LiveEstimate] = []
         self._trocar_at_estimates: list[float] = []
+        self._abs_error_sum, self._abs_error_count = 0.0, 0
         self._lock = threading.Lock()
-        self._halt = threading.Event()
-        self._thread: threading.Thread | None = None
         self.error: str | None = None
         self._t0 = 0.0
 
@@ -136,8 +157,8 @@ class LiveRun(Listener):
         self.acquisition.start(duration_s)
 
     def running(self) -> bool:
-        """False once the acquisition ended (duration, device gone)."""
-        return self.acquisition.running()
+        """False once the acquisition ended (duration, device gone) or estimation failed."""
+        return self.acquisition.running() and self._pipeline.error is None
 
     def stop(self, reason: str = "stopped by operator") -> LiveStatus:
         """Stop the acquisition and the estimator; when recording, store the estimate stream
@@ -151,6 +172,8 @@ class LiveRun(Listener):
         recording = isinstance(self.acquisition, Recorder)
         if lost and not recording and self.error is None:
             self.error = lost
+        if self._pipeline.error is not None and self.error is None:
+            self.error = self._pipeline.error
         status = self.status()
         if recording and self.error is None:
             with SessionReader(self.acquisition.path) as reader:
@@ -167,84 +190,97 @@ class LiveRun(Listener):
 
     # -- listener hooks ---------------------------------------------------------------------
     def on_start(self, acquisition: Acquisition) -> None:
-        self._thread = threading.Thread(target=self._estimate_loop, daemon=True,
-                                        name="vbfe-live-estimate")
-        self._thread.start()
+        self._pipeline.start()
 
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:
         for frame in frames:
-            self._frames.put(frame)
+            self._frames_seen += 1
+            if time.monotonic_ns() - frame.t_host_ns > self._max_age_ns:
+                self._frames_late += 1
+            else:
+                self._pipeline.put(FrameWork(frame))
 
     def on_samples(self, samples: Sequence[ForceSample]) -> None:
         self._forces.extend(samples)
 
     def on_stop(self, acquisition: Acquisition) -> None:
-        self._halt.set()
-        if self._thread is not None:
-            self._thread.join()
+        self._pipeline.stop()
 
-    def _estimate_loop(self) -> None:
-        while not self._halt.is_set():
-            frame = self._frames.take(_READ_TIMEOUT_S)
-            if frame is None:
-                continue
-            estimate = self.estimator.estimate(frame)
-            trocar = self._trocar_at(estimate.t_frame_host_ns)
-            with self._lock:
-                self.estimates.append(estimate)
-                self._trocar_at_estimates.append(trocar)
-            for output in self.outputs:
-                output.on_estimate(estimate)
+    def _record(self, estimate: LiveEstimate) -> None:
+        """Keep an estimate (with the trocar's force at its frame) and hand it to the outputs
+        (on the pipeline's last thread)."""
+        trocar = self._trocar_at(estimate.t_frame_host_ns)
+        value = self._scalars(estimate.force_n[None])[0]
+        with self._lock:
+            self.estimates.append(estimate)
+            self._trocar_at_estimates.append(trocar)
+            if np.isfinite(value) and np.isfinite(trocar):
+                self._abs_error_sum += abs(value - trocar)
+                self._abs_error_count += 1
+        for output in self.outputs:
+            output.on_estimate(estimate)
 
-    # -- what is seen ---------------------------------------------------------------------------
-    def _scalar(self, force: np.ndarray) -> float:
-        return float(force[0]) if len(force) == 1 else float(np.linalg.norm(force))
+    # -- what is seen (cheap: the viewer and the status poll it while the pipeline runs) ----
+    def _scalars(self, forces: np.ndarray) -> np.ndarray:
+        """Forces (n × outputs) as one number each: the value, or the norm of x, y, z."""
+        return forces[:, 0] if forces.shape[1] == 1 else np.linalg.norm(forces, axis=1)
+
+    def _forces_since(self, t_host_ns: float) -> list[ForceSample]:
+        """The trocar samples from ``t_host_ns`` on, and the one before (host time order)."""
+        samples: list[ForceSample] = list(self._forces)
+        start = bisect.bisect_left(samples, t_host_ns, key=lambda s: s.t_host_ns)
+        return samples[max(0, start - 1):]
 
     def _trocar_at(self, t_host_ns: int) -> float:
         """The trocar's force (in the model's target, as one number) at a host time."""
-        samples: list[ForceSample] = list(self._forces)
+        samples = self._forces_since(t_host_ns)[:3]
         if len(samples) < 2:
             return float("nan")
         force = resample_at(np.array([t_host_ns]), np.array([s.t_host_ns for s in samples]),
                             np.array([s.force_n for s in samples]))
-        return self._scalar(force_target(force, self.target)[0])
+        return float(self._scalars(force_target(force, self.target))[0])
 
     def status(self) -> LiveStatus:
         """Counts, rate, latency and running error so far."""
+        now_ns = time.monotonic_ns()
         with self._lock:
-            estimates = list(self.estimates)
-            trocar = np.array(self._trocar_at_estimates, np.float64)
+            last = self.estimates[-300:]
+            count, trocar = len(self.estimates), self._trocar_at_estimates[-1:]
+            mae_sum, mae_count = self._abs_error_sum, self._abs_error_count
         wall = time.monotonic() - self._t0
-        latency = np.array([e.latency_s for e in estimates[-300:]]) * 1e3
-        recent = [e for e in estimates if e.t_ready_host_ns >= time.monotonic_ns() - 3e9]
+        latency = np.array([e.latency_s for e in last]) * 1e3
+        recent = sum(e.t_ready_host_ns >= now_ns - 3e9 for e in last)
         window = min(3.0, wall)
-        values = np.array([self._scalar(e.force_n) for e in estimates], np.float64)
-        ok = np.isfinite(values) & np.isfinite(trocar)
         return LiveStatus(
-            wall_s=wall, frames=self._frames.put_count, estimates=len(estimates),
-            skipped=self._frames.skipped, rate_hz=len(recent) / window if window > 0 else 0.0,
+            wall_s=wall, frames=self._frames_seen, estimates=count,
+            skipped=self._pipeline.skipped + self._frames_late, rate_hz=recent / window if window > 0 else 0.0,
             latency_p50_ms=float(np.percentile(latency, 50)) if len(latency) else float("nan"),
             latency_p95_ms=float(np.percentile(latency, 95)) if len(latency) else float("nan"),
-            mae_n=float(np.mean(np.abs(values[ok] - trocar[ok]))) if ok.any() else float("nan"),
-            mae_count=int(ok.sum()),
-            last_estimate_n=float(values[-1]) if len(values) else float("nan"),
-            last_trocar_n=float(trocar[-1]) if len(trocar) else float("nan"))
+            mae_n=mae_sum / mae_count if mae_count else float("nan"), mae_count=mae_count,
+            last_estimate_n=(float(self._scalars(last[-1].force_n[None])[0]) if last
+                             else float("nan")),
+            last_trocar_n=trocar[0] if trocar else float("nan"))
 
-    def curves(self, window_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def curves(self, window_s: float, max_points: int = 2000
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Estimate and trocar (model target as one number) against host time in seconds,
-        over the last ``window_s``: ``(t_est, est, t_trocar, trocar)``."""
-        with self._lock:
-            estimates = list(self.estimates)
-        samples = list(self._forces)
+        over the last ``window_s``: ``(t_est, est, t_trocar, trocar)``; each curve thinned
+        to at most ``max_points`` points."""
         now = time.monotonic_ns()
-        est = [(e.t_frame_host_ns, self._scalar(e.force_n)) for e in estimates
-               if e.t_frame_host_ns >= now - window_s * 1e9]
-        trc = samples[-int(len(samples) * min(1.0, window_s / FORCE_HISTORY_S)):]
-        t_trc = np.array([s.t_host_ns for s in trc], np.float64)
-        f_trc = (np.array([self._scalar(v) for v in force_target(
-            np.array([s.force_n for s in trc]), self.target)]) if trc else np.zeros(0))
-        t_est = np.array([t for t, _ in est], np.float64)
-        return ((t_est - now) / 1e9, np.array([v for _, v in est]), (t_trc - now) / 1e9, f_trc)
+        since = now - window_s * 1e9
+        with self._lock:
+            start = bisect.bisect_left(self.estimates, since, key=lambda e: e.t_frame_host_ns)
+            estimates = self.estimates[start:]
+        estimates = estimates[::len(estimates) // max_points + 1]
+        samples = self._forces_since(since)
+        samples = samples[::len(samples) // max_points + 1]
+        t_est = np.array([e.t_frame_host_ns for e in estimates], np.float64)
+        est = self._scalars(np.array([e.force_n for e in estimates], np.float64).reshape(
+            len(estimates), -1)) if estimates else np.zeros(0)
+        t_trc = np.array([s.t_host_ns for s in samples], np.float64)
+        trc = (self._scalars(force_target(np.array([s.force_n for s in samples]), self.target))
+               if samples else np.zeros(0))
+        return (t_est - now) / 1e9, est, (t_trc - now) / 1e9, trc
 
     def stream(self, status: LiveStatus, recorded_seqs: np.ndarray) -> EstimateStream:
         """The estimates of the recorded frames as the session's ``/estimate`` stream (a
@@ -263,6 +299,7 @@ class LiveRun(Listener):
             attrs={"target": self.target, "outputs": outputs, "frames_seen": status.frames,
                    "estimated": status.estimates, "of_unrecorded_frames": int((~kept).sum()),
                    "skipped_frames": status.skipped, "scale": self.estimator.scale,
+                   "row_scale": self.estimator.row_scale,
                    "running_mae_n": status.mae_n, "model": self.model_name})
 
 

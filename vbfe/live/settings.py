@@ -13,10 +13,13 @@ class LiveSettings:
     """Defaults of ``vbfe live`` (see vbfe/default_rig.toml)."""
 
     scale: float = setting(1.0, ge=0.1, le=1.0)
+    row_scale: float = setting(0.5, ge=0.1, le=1.0)
     verify: bool = True
     device: Literal["auto", "cpu", "cuda"] = "auto"
     torch_threads: int = setting(1, ge=1)
+    opencv_threads: int = setting(0, ge=0)  # 0: one per core
     status_interval_s: float = setting(1.0, gt=0)
+    max_frame_age_s: float = setting(0.25, ge=0)  # later frames are skipped (0: no limit)
 
 
 def live_settings(table: dict[str, Any]) -> LiveSettings:
