@@ -11,6 +11,7 @@ seen at full brightness. All images and vectors are in OpenCV's B, G, R channel 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -62,13 +63,21 @@ class ColorModel:
         without it the result is in grey levels.
         """
         offset = tuple(float(v) for v in self.offset) + (0.0,)
-        unmix = np.linalg.inv(self.mixing)
         if not albedo_window_px:
             signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
-            return cv2.transform(np.maximum(signal, 0.0), unmix.astype(np.float32))
+            return cv2.transform(np.maximum(signal, 0.0),
+                                 np.linalg.inv(self.mixing).astype(np.float32))
         signal = cv2.subtract(image, offset)  # saturates at 0 for uint8 images
         normalised = remove_base_color(signal, int(albedo_window_px))
-        return cv2.transform(normalised, (unmix * np.diag(self.mixing)).astype(np.float32))
+        unmix = self._albedo_unmix
+        return normalised if unmix is None else cv2.transform(normalised, unmix)
+
+    @functools.cached_property
+    def _albedo_unmix(self) -> np.ndarray | None:
+        """The unmixing of albedo-normalised colours (float32 3×3), None without crosstalk (the
+        identity, whose product changes no value: normalised colours are finite)."""
+        unmix = (np.linalg.inv(self.mixing) * np.diag(self.mixing)).astype(np.float32)
+        return None if np.array_equal(unmix, np.eye(3, dtype=np.float32)) else unmix
 
 
 def color_calibration_patterns(width: int, height: int) -> dict[str, np.ndarray]:

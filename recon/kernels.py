@@ -71,6 +71,43 @@ def _run_sum(a, lo, n, k):
 
 
 @njit(cache=True, nogil=True)
+def _short_run_sums(a, lo, n):
+    """``_run_sum`` of the three columns of ``a`` (W×3) at once, for runs of at most
+    ``PAIRWISE_BLOCK + 1`` (a fringe): one pass over the run, numpy's order per column."""
+    first, m = lo + 1, n - 1
+    if m < 8:
+        t0, t1, t2 = np.float32(0.0), np.float32(0.0), np.float32(0.0)
+        for i in range(first, first + m):
+            t0 += a[i, 0]
+            t1 += a[i, 1]
+            t2 += a[i, 2]
+        return a[lo, 0] + t0, a[lo, 1] + t1, a[lo, 2] + t2
+    b0, b1, b2, b3 = a[first, 0], a[first + 1, 0], a[first + 2, 0], a[first + 3, 0]
+    b4, b5, b6, b7 = a[first + 4, 0], a[first + 5, 0], a[first + 6, 0], a[first + 7, 0]
+    g0, g1, g2, g3 = a[first, 1], a[first + 1, 1], a[first + 2, 1], a[first + 3, 1]
+    g4, g5, g6, g7 = a[first + 4, 1], a[first + 5, 1], a[first + 6, 1], a[first + 7, 1]
+    r0, r1, r2, r3 = a[first, 2], a[first + 1, 2], a[first + 2, 2], a[first + 3, 2]
+    r4, r5, r6, r7 = a[first + 4, 2], a[first + 5, 2], a[first + 6, 2], a[first + 7, 2]
+    i = first + 8
+    stop = first + m - m % 8
+    while i < stop:
+        b0, b1, b2, b3 = b0 + a[i, 0], b1 + a[i + 1, 0], b2 + a[i + 2, 0], b3 + a[i + 3, 0]
+        b4, b5, b6, b7 = b4 + a[i + 4, 0], b5 + a[i + 5, 0], b6 + a[i + 6, 0], b7 + a[i + 7, 0]
+        g0, g1, g2, g3 = g0 + a[i, 1], g1 + a[i + 1, 1], g2 + a[i + 2, 1], g3 + a[i + 3, 1]
+        g4, g5, g6, g7 = g4 + a[i + 4, 1], g5 + a[i + 5, 1], g6 + a[i + 6, 1], g7 + a[i + 7, 1]
+        r0, r1, r2, r3 = r0 + a[i, 2], r1 + a[i + 1, 2], r2 + a[i + 2, 2], r3 + a[i + 3, 2]
+        r4, r5, r6, r7 = r4 + a[i + 4, 2], r5 + a[i + 5, 2], r6 + a[i + 6, 2], r7 + a[i + 7, 2]
+        i += 8
+    b = ((b0 + b1) + (b2 + b3)) + ((b4 + b5) + (b6 + b7))
+    g = ((g0 + g1) + (g2 + g3)) + ((g4 + g5) + (g6 + g7))
+    r = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < first + m:
+        b, g, r = b + a[i, 0], g + a[i, 1], r + a[i, 2]
+        i += 1
+    return a[lo, 0] + b, a[lo, 1] + g, a[lo, 2] + r
+
+
+@njit(cache=True, nogil=True)
 def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth, min_value,
                 min_purity, n_symbols, window, min_votes, row_step, index):
     """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
@@ -99,8 +136,11 @@ def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth
         for j in range(n):
             lo = starts[j]
             count = starts[j + 1] - lo
-            b, g, rd = (_run_sum(row_colour, lo, count, 0), _run_sum(row_colour, lo, count, 1),
-                        _run_sum(row_colour, lo, count, 2))
+            if count - 1 <= PAIRWISE_BLOCK:
+                b, g, rd = _short_run_sums(row_colour, lo, count)
+            else:
+                b, g, rd = (_run_sum(row_colour, lo, count, 0), _run_sum(row_colour, lo, count, 1),
+                            _run_sum(row_colour, lo, count, 2))
             brightness = np.float64(_run_sum(v, lo, count, 0)) / count
             channel, top = 0, b
             if g > top:
@@ -229,8 +269,8 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
 
 
 @njit(cache=True, nogil=True)
-def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px, fy_px):
-    """Points (N×3 float32, m), colours (N×3 uint8) and verified flags (N bool) of the pixels
+def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px):
+    """Points (N×3 float32, m), colours (N×3 uint8, RGB) and verified flags (N bool) of the pixels
     with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
     ``x = (u-cx)z/f``, ``y = (v-cy)z/fy`` (``f``: the rectified focal length in x). Pixels at or
     beyond infinity get NaN and ``NO_MATCH`` in ``disparity`` and ``status``."""
@@ -252,6 +292,9 @@ def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px
     fy = np.float32(fy_px)
     f_b = np.float32(f_px * baseline_m)
     cx32, cy32 = np.float32(cx), np.float32(cy)
+    x_over_z = np.empty(width, np.float32)
+    for u in range(width):
+        x_over_z[u] = (np.float32(u) - cx32) / f
     i = 0
     for v in range(height):
         y_over_z = (np.float32(v) - cy32) / fy
@@ -259,11 +302,11 @@ def triangulate(disparity, status, image_rgb, f_px, baseline_m, cx, cy, doffs_px
             d = disparity[v, u]
             if d > doffs:
                 z = f_b / (d - doffs)
-                points[i, 0] = (np.float32(u) - cx32) / f * z
+                points[i, 0] = x_over_z[u] * z
                 points[i, 1] = y_over_z * z
                 points[i, 2] = z
                 for ch in range(3):
-                    colours[i, ch] = image_rgb[v, u, ch]
+                    colours[i, ch] = image_bgr[v, u, 2 - ch]
                 verified[i] = status[v, u] >= KEPT
                 i += 1
     return points, colours, verified

@@ -136,8 +136,7 @@ class Reconstructor:
         rect_left, disparity, status, quality = self.rectified_disparity(left, right)
         cal = self.calibration
         points, colors, verified = kernels.triangulate(
-            disparity, status, cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB), cal.f, cal.B,
-            cal.cx, cal.cy, self._doffs, cal.fy)
+            disparity, status, rect_left, cal.f, cal.B, cal.cx, cal.cy, self._doffs, cal.fy)
         counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,
