@@ -21,6 +21,7 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
+from vbfe.recon import kernels
 from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
@@ -136,13 +137,17 @@ def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
     Over ``window_px`` (a few fringe widths) every channel sees both a fringe of its own colour
     at full brightness and a dark fringe boundary, so the local range is the surface's albedo
     times the projector's brightness and the local minimum is the ambient light. Regions whose
-    range is small compared with the image's (unlit background, shadows) stay dark.
+    range is small compared with the image's (unlit background, shadows) stay dark. ``signal``
+    is a uint8 B, G, R image; min and max are OpenCV's row erode and dilate by ``window_px | 1``
+    pixels, each smoothed by its box filter over that many pixels and 3 rows (compiled:
+    :func:`vbfe.recon.kernels.local_range`, the same values).
     """
-    kernel = np.ones((1, window_px | 1), np.uint8)
-    smooth = (window_px | 1, 3)
-    low = cv2.blur(cv2.erode(signal, kernel), smooth)
-    span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
-    floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
+    signal = np.ascontiguousarray(signal)
+    low, high = np.empty_like(signal), np.empty_like(signal)
+    kernels.local_range(signal, (window_px | 1) // 2, low, high)
+    span = high[::8, ::8].astype(np.float32) - low[::8, ::8]
+    floor = np.maximum(DARK_FRACTION * np.percentile(span.reshape(-1, 3), 99, axis=0),
                        MIN_SIGNAL).astype(np.float32)
-    span = cv2.max(span, (*floor.tolist(), 0.0))  # per channel; numpy's broadcast is 10x slower
-    return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)
+    normalised = np.empty(signal.shape, np.float32)
+    kernels.normalise_range(signal, low, high, floor, normalised)
+    return normalised

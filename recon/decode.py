@@ -76,9 +76,10 @@ class FringeDecoder:
         image = np.ascontiguousarray(image[::self.row_step])
         period = period_px or fringe_period_px(image)
         window = max(3, int(round(3.5 * period)))
-        colour = cv2.max(self.color_model.correct(image, albedo_window_px=window), 0.0)
+        colour = self.color_model.correct(image, albedo_window_px=window)
         # after crosstalk correction one channel carries the fringe: the sum is its value
-        value = cv2.transform(colour, np.ones((1, 3), np.float32))
+        value = np.empty(colour.shape[:2], np.float32)
+        kernels.clamp_and_sum(colour, value)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
         local_max = cv2.dilate(value, np.ones((1, max(3, int(round(period)) | 1)), np.uint8))
         index = np.empty((height, image.shape[1]), np.int16)

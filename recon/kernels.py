@@ -107,7 +107,7 @@ def _short_run_sums(a, lo, n):
     return a[lo, 0] + b, a[lo, 1] + g, a[lo, 2] + r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth, min_value,
                 min_purity, n_symbols, window, min_votes, row_step, index):
     """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
@@ -180,6 +180,153 @@ def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth
 
 
 @njit(cache=True, nogil=True)
+def _shifted_extrema(src_min, src_max, offset, n, dst_min, dst_max):
+    """``dst[j] = min/max(src[j], src[j + offset])`` for ``j < n`` (the shifted operand is a
+    view, so no index may wrap around and the loops vectorise)."""
+    a, b = src_min[:n], src_min[offset:offset + n]
+    for j in range(n):
+        dst_min[j] = min(a[j], b[j])
+    a, b = src_max[:n], src_max[offset:offset + n]
+    for j in range(n):
+        dst_max[j] = max(a[j], b[j])
+
+
+@njit(cache=True, nogil=True)
+def _row_extrema(row, half, ext_min, ext_max, tmp_min, tmp_max, low, high):
+    """OpenCV's erode and dilate of a flat B, G, R row by ``2·half + 1`` pixels (pixels beyond
+    the ends take no part), by doubling the span of running extrema."""
+    n = row.shape[0]
+    pad = 3 * half
+    size = 2 * half + 1
+    total = n + 2 * pad
+    min_tail, max_tail = ext_min[pad + n:total], ext_max[pad + n:total]
+    for j in range(pad):
+        ext_min[j] = min_tail[j] = 255
+        ext_max[j] = max_tail[j] = 0
+    min_body, max_body = ext_min[pad:pad + n], ext_max[pad:pad + n]
+    for j in range(n):
+        min_body[j] = max_body[j] = row[j]
+    span = 1  # the extrema at j are over span pixels from j
+    swapped = False
+    while 2 * span <= size:
+        total -= 3 * span
+        if swapped:
+            _shifted_extrema(tmp_min, tmp_max, 3 * span, total, ext_min, ext_max)
+        else:
+            _shifted_extrema(ext_min, ext_max, 3 * span, total, tmp_min, tmp_max)
+        swapped = not swapped
+        span *= 2
+    if swapped:
+        _shifted_extrema(tmp_min, tmp_max, 3 * (size - span), n, low, high)
+    else:
+        _shifted_extrema(ext_min, ext_max, 3 * (size - span), n, low, high)
+
+
+@njit(cache=True, nogil=True)
+def _reflect101(i, n):
+    """OpenCV's BORDER_REFLECT_101 index of ``i`` in ``0..n-1``."""
+    if n == 1:
+        return 0
+    while i < 0 or i >= n:
+        i = -i if i < 0 else 2 * n - 2 - i
+    return i
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _row_box_sums(row, half, padded, prefix, sums):
+    """Sums over ``2·half + 1`` pixels along a flat B, G, R row (int32), reflect-101 borders."""
+    n = row.shape[0]
+    width = n // 3
+    pad = 3 * half
+    body = padded[pad:pad + n]
+    for j in range(n):
+        body[j] = row[j]
+    for x in range(1, half + 1):
+        left, right = _reflect101(-x, width), _reflect101(width - 1 + x, width)
+        for c in range(3):
+            padded[pad - 3 * x + c] = row[3 * left + c]
+            padded[pad + n + 3 * (x - 1) + c] = row[3 * right + c]
+    prefix[0] = prefix[1] = prefix[2] = 0
+    for j in range(n + 2 * pad):
+        prefix[j + 3] = prefix[j] + padded[j]
+    ahead = prefix[3 * (2 * half + 1):]
+    for j in range(n):
+        sums[j] = ahead[j] - prefix[j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box_means(above, centre, below, area, out):
+    """OpenCV's uint8 box-filter mean from three rows of row sums: the sum over ``area`` pixels
+    rounded to the nearest integer (``area`` is odd, so there is no tie; float32 is exact here:
+    its error, < 3e-5, is far below the 1/(2·area) between a mean and a rounding boundary)."""
+    scale = np.float32(1.0 / (2 * area))
+    for j in range(out.shape[0]):
+        total = np.float32(2 * (above[j] + centre[j] + below[j]) + area)
+        out[j] = np.uint8(np.int32(total * scale))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def local_range(signal, half, low, high):
+    """``low`` and ``high`` (uint8, like ``signal``, rows×W×3): OpenCV's
+    ``blur(erode(signal, 1×k), (k, 3))`` and the same of ``dilate``, ``k = 2·half + 1``, with
+    its default borders; rows are filtered as they are needed (three at a time)."""
+    rows, width = signal.shape[:2]
+    n = 3 * width
+    flat, low_rows, high_rows = (signal.reshape(rows, n), low.reshape(rows, n),
+                                 high.reshape(rows, n))
+    ext_min, ext_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
+    tmp_min, tmp_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
+    row_low, row_high = np.empty(n, np.uint8), np.empty(n, np.uint8)
+    padded = np.empty(n + 6 * half, np.int32)
+    prefix = np.empty(n + 6 * half + 3, np.int32)
+    sums_low, sums_high = np.empty((3, n), np.int32), np.empty((3, n), np.int32)  # by row % 3
+    area = 3 * (2 * half + 1)
+    for r in range(rows):
+        for q in range(r if r == 0 else r + 1, min(r + 2, rows)):
+            _row_extrema(flat[q], half, ext_min, ext_max, tmp_min, tmp_max, row_low, row_high)
+            _row_box_sums(row_low, half, padded, prefix, sums_low[q % 3])
+            _row_box_sums(row_high, half, padded, prefix, sums_high[q % 3])
+        above, below = _reflect101(r - 1, rows) % 3, _reflect101(r + 1, rows) % 3
+        _box_means(sums_low[above], sums_low[r % 3], sums_low[below], area, low_rows[r])
+        _box_means(sums_high[above], sums_high[r % 3], sums_high[below], area, high_rows[r])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def normalise_range(signal, low, high, floor, out):
+    """``(signal - low) / max(high - low, floor)`` per channel, float32 (rows×W×3), as
+    OpenCV's subtract, max and divide compute it; ``floor`` (3 float32) is positive."""
+    rows, width = signal.shape[:2]
+    n = 3 * width
+    floors = np.empty(n, np.float32)
+    for j in range(n):
+        floors[j] = floor[j % 3]
+    flat, low_rows, high_rows, out_rows = (signal.reshape(rows, n), low.reshape(rows, n),
+                                           high.reshape(rows, n), out.reshape(rows, n))
+    for r in range(rows):
+        s, lo, hi, o = flat[r], low_rows[r], high_rows[r], out_rows[r]
+        for j in range(n):
+            base = np.float32(lo[j])
+            span = np.float32(hi[j]) - base
+            o[j] = (np.float32(s[j]) - base) / (span if span > floors[j] else floors[j])
+
+
+@njit(cache=True, nogil=True)
+def clamp_and_sum(colour, value):
+    """``colour = max(colour, 0)`` in place and ``value = (b + g) + r`` (float32, rows×W), as
+    OpenCV's max and channel-summing transform compute them."""
+    rows, width = colour.shape[:2]
+    zero = np.float32(0.0)
+    flat = colour.reshape(rows, 3 * width)
+    for r in range(rows):
+        c, v = flat[r], value[r]
+        for j in range(3 * width):
+            c[j] = c[j] if c[j] > zero else zero
+        for x in range(width):
+            v[x] = (c[3 * x] + c[3 * x + 1]) + c[3 * x + 2]
+
+
+
+@njit(cache=True, nogil=True)
 def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
     """Sum of absolute corrected-colour differences over 1×3 windows around xl and xr."""
     last = left_colour.shape[1] - 1
@@ -194,7 +341,7 @@ def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
                   right_step, search_px, tolerance, neighbours, coded, out, status):
     """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
@@ -202,39 +349,41 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
     where the pattern is readable enough that an unreadable left code rejects a match.
     Returns the counts (SGBM matches, kept, corrected, rejected, unverified)."""
     height, width = disparity.shape
-    counts = np.zeros(5, np.int64)
+    matches = kept = corrected = rejected = unverified = 0
     penalty = np.float32(1e-3)
     n_shifts = 2 * search_px
     for y in range(height):
+        d_row, code_row, right_row = disparity[y], left_index[y], right_index[y]
+        coded_row, out_row, status_row = coded[y], out[y], status[y]
         for x in range(width):
-            d = disparity[y, x]
+            d = d_row[x]
             if not np.isfinite(d):
-                out[y, x] = np.nan
-                status[y, x] = NO_MATCH
+                out_row[x] = np.nan
+                status_row[x] = NO_MATCH
                 continue
-            counts[0] += 1
-            code = left_index[y, x]
+            matches += 1
+            code = code_row[x]
             if code < 0:
-                if coded[y, x]:
-                    out[y, x] = np.nan
-                    status[y, x] = REJECTED
-                    counts[3] += 1
+                if coded_row[x]:
+                    out_row[x] = np.nan
+                    status_row[x] = REJECTED
+                    rejected += 1
                 else:
-                    out[y, x] = d
-                    status[y, x] = UNVERIFIED
-                    counts[4] += 1
+                    out_row[x] = d
+                    status_row[x] = UNVERIFIED
+                    unverified += 1
                 continue
             xi = int(np.rint(np.float32(x) - d))
-            kept = False
+            on_fringe = False
             if 0 <= xi < width:
                 for s in range(max(xi - tolerance, 0), min(xi + tolerance + 1, width)):
-                    if right_index[y, s] == code:
-                        kept = True
+                    if right_row[s] == code:
+                        on_fringe = True
                         break
-            if kept:
-                out[y, x] = d
-                status[y, x] = KEPT
-                counts[1] += 1
+            if on_fringe:
+                out_row[x] = d
+                status_row[x] = KEPT
+                kept += 1
                 continue
             best, best_cost = np.float32(np.nan), np.inf
             for k in range(n_shifts + len(neighbours)):
@@ -249,7 +398,7 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                 xr = np.float64(x) - np.float64(candidate)
                 if np.isfinite(xr):
                     xr_i = int(np.rint(xr))
-                    if 0 <= xr_i < width and right_index[y, xr_i] == code:
+                    if 0 <= xr_i < width and right_row[xr_i] == code:
                         cost = np.float64(_colour_cost(left_colour, right_colour,
                                                        y // left_step, y // right_step, x, xr_i))
                 shift = candidate - d
@@ -258,17 +407,17 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                 if cost < best_cost:
                     best, best_cost = candidate, cost
             if np.isfinite(best_cost):
-                out[y, x] = best
-                status[y, x] = CORRECTED
-                counts[2] += 1
+                out_row[x] = best
+                status_row[x] = CORRECTED
+                corrected += 1
             else:
-                out[y, x] = np.nan
-                status[y, x] = REJECTED
-                counts[3] += 1
-    return counts
+                out_row[x] = np.nan
+                status_row[x] = REJECTED
+                rejected += 1
+    return np.array((matches, kept, corrected, rejected, unverified), np.int64)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px):
     """Points (N×3 float32, m), colours (N×3 uint8, RGB) and verified flags (N bool) of the pixels
     with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
@@ -295,13 +444,16 @@ def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px
     x_over_z = np.empty(width, np.float32)
     for u in range(width):
         x_over_z[u] = (np.float32(u) - cx32) / f
+    z_row = np.empty(width, np.float32)
     i = 0
     for v in range(height):
         y_over_z = (np.float32(v) - cy32) / fy
+        d_row = disparity[v]
+        for u in range(width):  # vectorised; used where d > doffs
+            z_row[u] = f_b / (d_row[u] - doffs)
         for u in range(width):
-            d = disparity[v, u]
-            if d > doffs:
-                z = f_b / (d - doffs)
+            if d_row[u] > doffs:
+                z = z_row[u]
                 points[i, 0] = x_over_z[u] * z
                 points[i, 1] = y_over_z * z
                 points[i, 2] = z
