@@ -29,6 +29,8 @@ FLAT_BGR = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "blac
             "white": (255, 255, 255)}
 MIN_SIGNAL = 8.0  # grey levels above black for a pixel to take part in the estimate
 DARK_FRACTION = 0.25  # local contrast below this share of the image's contrast stays dark
+SPAN_PERCENTILE = 99  # the image's contrast: this percentile of the local ranges
+SPAN_STEP = 8  # of every n-th row and column
 
 
 @dataclass(frozen=True)
@@ -145,9 +147,27 @@ def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
     signal = np.ascontiguousarray(signal)
     low, high = np.empty_like(signal), np.empty_like(signal)
     kernels.local_range(signal, (window_px | 1) // 2, low, high)
-    span = high[::8, ::8].astype(np.float32) - low[::8, ::8]
-    floor = np.maximum(DARK_FRACTION * np.percentile(span.reshape(-1, 3), 99, axis=0),
-                       MIN_SIGNAL).astype(np.float32)
+    floor = np.maximum(DARK_FRACTION * _range_percentile(low, high), MIN_SIGNAL).astype(np.float32)
     normalised = np.empty(signal.shape, np.float32)
     kernels.normalise_range(signal, low, high, floor, normalised)
     return normalised
+
+
+def _range_percentile(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """``np.percentile`` (``SPAN_PERCENTILE``) per channel of ``high - low`` on every
+    ``SPAN_STEP``-th row and column (float32, 3): the two order statistics it interpolates
+    between are counted (compiled), the interpolation is numpy's own."""
+    n = len(range(0, low.shape[0], SPAN_STEP)) * len(range(0, low.shape[1], SPAN_STEP))
+    rank = int(np.floor((n - 1) * (SPAN_PERCENTILE / 100)))
+    stats = kernels.range_order_statistics(low, high, SPAN_STEP, rank)
+    return np.array([_percentile_between(n, rank, int(a), int(b)) for a, b in stats],
+                    np.float32)
+
+
+@functools.lru_cache(maxsize=4096)
+def _percentile_between(n: int, rank: int, below: int, above: int) -> np.float32:
+    """``np.percentile`` of ``n`` float32 values whose ``rank``-th and next smallest are
+    ``below`` and ``above`` (all it depends on)."""
+    values = np.full(n, above, np.float32)
+    values[:rank + 1] = below
+    return np.percentile(values, SPAN_PERCENTILE)

@@ -291,6 +291,29 @@ def local_range(signal, half, low, high):
         _box_means(sums_high[above], sums_high[r % 3], sums_high[below], area, high_rows[r])
 
 
+@njit(cache=True, nogil=True)
+def range_order_statistics(low, high, step, rank):
+    """Per channel, the ``rank``-th and next smallest of ``high - low`` (ints, 3×2) over every
+    ``step``-th row and column, by histogram (the values are integers in -255..255)."""
+    counts = np.zeros((3, 511), np.int64)
+    rows, width = low.shape[:2]
+    n = 0
+    for y in range(0, rows, step):
+        for x in range(0, width, step):
+            n += 1
+            for c in range(3):
+                counts[c, 255 + np.int32(high[y, x, c]) - np.int32(low[y, x, c])] += 1
+    stats = np.empty((3, 2), np.int64)
+    for c in range(3):
+        seen, k = 0, 0
+        for value in range(511):
+            seen += counts[c, value]
+            while k < 2 and seen > min(rank + k, n - 1):
+                stats[c, k] = value - 255
+                k += 1
+    return stats
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def normalise_range(signal, low, high, floor, out):
     """``(signal - low) / max(high - low, floor)`` per channel, float32 (rows×W×3), as
@@ -307,7 +330,8 @@ def normalise_range(signal, low, high, floor, out):
         for j in range(n):
             base = np.float32(lo[j])
             span = np.float32(hi[j]) - base
-            o[j] = (np.float32(s[j]) - base) / (span if span > floors[j] else floors[j])
+            span = span if span > floors[j] else floors[j]  # noqa: FURB136 (as OpenCV)
+            o[j] = (np.float32(s[j]) - base) / span
 
 
 @njit(cache=True, nogil=True)
@@ -320,10 +344,37 @@ def clamp_and_sum(colour, value):
     for r in range(rows):
         c, v = flat[r], value[r]
         for j in range(3 * width):
-            c[j] = c[j] if c[j] > zero else zero
+            c[j] = c[j] if c[j] > zero else zero  # noqa: FURB136 (OpenCV's select)
         for x in range(width):
             v[x] = (c[3 * x] + c[3 * x + 1]) + c[3 * x + 2]
 
+
+
+@njit(cache=True, nogil=True)
+def fixed_point_to_px(raw, scale, min_raw, out):
+    """StereoSGBM's fixed-point disparities (int16) in pixels (float32 ``raw · scale``, exact
+    for a power-of-two scale), NaN below ``min_raw`` (no match)."""
+    rows, width = raw.shape
+    factor = np.float32(scale)
+    for y in range(rows):
+        r, o = raw[y], out[y]
+        for x in range(width):
+            o[x] = np.float32(r[x]) * factor if r[x] >= min_raw else np.float32(np.nan)
+
+
+@njit(cache=True, nogil=True)
+def edge_counts(disparity, low, high):
+    """Matched pixels (finite disparity) and those at or below ``low`` or at or above
+    ``high``."""
+    rows, width = disparity.shape
+    matched = at_edge = 0
+    for y in range(rows):
+        d_row = disparity[y]
+        for x in range(width):
+            d = d_row[x]
+            matched += np.isfinite(d)
+            at_edge += (d <= low) | (d >= high)
+    return matched, at_edge
 
 
 @njit(cache=True, nogil=True)
@@ -477,3 +528,10 @@ def warm_up() -> None:
                   np.zeros((1, 2), np.int64), np.ones((4, 8), np.bool_), disparity.copy(),
                   status)
     triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    image = np.zeros((2, 8, 3), np.uint8)
+    local_range(image, 1, image.copy(), image.copy())
+    normalise_range(image, image, image, np.ones(3, np.float32), colour)
+    clamp_and_sum(colour, value[..., 0])
+    fixed_point_to_px(np.zeros((4, 8), np.int16), 1.0 / 16, 16.0, disparity)
+    edge_counts(disparity, np.float32(1.0), np.float32(2.0))
+    range_order_statistics(image, image, 8, 0)
