@@ -70,7 +70,8 @@ class ColorModel:
             signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
             return cv2.transform(np.maximum(signal, 0.0),
                                  np.linalg.inv(self.mixing).astype(np.float32))
-        signal = cv2.subtract(image, offset)  # saturates at 0 for uint8 images
+        # saturates at 0 for uint8 images; without an offset, a copy (or the image itself)
+        signal = cv2.subtract(image, offset) if any(offset) else np.ascontiguousarray(image)
         normalised = remove_base_color(signal, int(albedo_window_px))
         unmix = self._albedo_unmix
         return normalised if unmix is None else cv2.transform(normalised, unmix)

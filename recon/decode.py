@@ -73,7 +73,7 @@ class FringeDecoder:
     def decode(self, image: np.ndarray, period_px: float | None = None) -> FringeCode:
         """Fringe index of every pixel of a (rectified) BGR image."""
         height = image.shape[0]
-        image = np.ascontiguousarray(image[::self.row_step])
+        image = image[::self.row_step]
         period = period_px or fringe_period_px(image)
         window = max(3, int(round(3.5 * period)))
         colour = self.color_model.correct(image, albedo_window_px=window)
@@ -81,10 +81,8 @@ class FringeDecoder:
         value = np.empty(colour.shape[:2], np.float32)
         kernels.clamp_and_sum(colour, value)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
-        local_max = cv2.dilate(value, np.ones((1, max(3, int(round(period)) | 1)), np.uint8))
         index = np.empty((height, image.shape[1]), np.int16)
-        kernels.decode_rows(value[..., None], colour, local_max, self.lookup,
-                            self._channel_symbol,
-                            BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, N_SYMBOLS, WINDOW,
-                            MIN_VOTES, self.row_step, index)
+        kernels.decode_rows(value[..., None], colour, max(3, int(round(period)) | 1) // 2,
+                            self.lookup, self._channel_symbol, BOUNDARY_DEPTH, MIN_FRINGE_VALUE,
+                            MIN_PURITY, N_SYMBOLS, WINDOW, MIN_VOTES, self.row_step, index)
         return FringeCode(index=index, colour=colour, period_px=period, row_step=self.row_step)

@@ -107,12 +107,48 @@ def _short_run_sums(a, lo, n):
     return a[lo, 0] + b, a[lo, 1] + g, a[lo, 2] + r
 
 
+@njit(cache=True, nogil=True)
+def _shifted_max(src, offset, n, dst):
+    """``dst[j] = max(src[j], src[j + offset])`` for ``j < n`` (vectorised, as below)."""
+    a, b = src[:n], src[offset:offset + n]
+    for j in range(n):
+        dst[j] = max(a[j], b[j])
+
+
+@njit(cache=True, nogil=True)
+def _row_dilate(row, half, ext, tmp, out):
+    """OpenCV's dilate of a float32 row by ``2·half + 1`` pixels (pixels beyond the ends take
+    no part), by doubling the span of running maxima."""
+    n = out.shape[0]
+    size = 2 * half + 1
+    total = n + 2 * half
+    tail = ext[half + n:total]
+    for j in range(half):
+        ext[j] = tail[j] = -np.inf
+    body = ext[half:half + n]
+    for j in range(n):
+        body[j] = row[j]
+    span = 1
+    swapped = False
+    while 2 * span <= size:
+        total -= span
+        if swapped:
+            _shifted_max(tmp, span, total, ext)
+        else:
+            _shifted_max(ext, span, total, tmp)
+        swapped = not swapped
+        span *= 2
+    _shifted_max(tmp if swapped else ext, size - span, n, out)
+
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth, min_value,
+def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth, min_value,
                 min_purity, n_symbols, window, min_votes, row_step, index):
     """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
-    decoded rows' brightness ``value`` (rows×W×1) and corrected ``colour`` (rows×W×3); each
-    decoded row fills the ``row_step`` image rows from its own down."""
+    decoded rows' brightness ``value`` (rows×W×1) and corrected ``colour`` (rows×W×3); the
+    local maximum a boundary is judged against is over ``2·max_half + 1`` pixels (OpenCV's
+    dilate); each decoded row fills the ``row_step`` image rows from its own down."""
     rows, width = value.shape[:2]
     height = index.shape[0]
     depth = np.float32(boundary_depth)
@@ -122,14 +158,17 @@ def decode_rows(value, colour, local_max, lookup, channel_symbol, boundary_depth
     symbols = np.empty(width, np.int16)
     first = np.empty(width, np.int32)
     candidates = np.empty(window, np.int32)
+    ext, tmp, local_max = (np.empty(width + 2 * max_half, np.float32),
+                           np.empty(width + 2 * max_half, np.float32), np.empty(width, np.float32))
     for r in range(rows):
         v = value[r]
         row_colour = colour[r]
+        _row_dilate(v[:, 0], max_half, ext, tmp, local_max)
         n = 1
         starts[0] = 0
         for x in range(1, width - 1):
             c = v[x, 0]
-            if c < v[x - 1, 0] and c <= v[x + 1, 0] and c < depth * local_max[r, x]:
+            if c < v[x - 1, 0] and c <= v[x + 1, 0] and c < depth * local_max[x]:
                 starts[n] = x
                 n += 1
         starts[n] = width
@@ -520,7 +559,7 @@ def warm_up() -> None:
     value = np.ones((2, 8, 1), np.float32)
     colour = np.ones((2, 8, 3), np.float32)
     index = np.zeros((4, 8), np.int16)
-    decode_rows(value, colour, value[..., 0], np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
+    decode_rows(value, colour, 1, np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
                 0.25, 3, 4, 2, 2, index)
     disparity = np.ones((4, 8), np.float32)
     status = np.zeros((4, 8), np.uint8)
