@@ -163,6 +163,7 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
     for r in range(rows):
         v = value[r]
         row_colour = colour[r]
+        decoded = index[r * row_step]
         _row_dilate(v[:, 0], max_half, ext, tmp, local_max)
         n = 1
         starts[0] = 0
@@ -213,9 +214,13 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
                         best, best_votes = candidates[o], votes
             if best_votes < min_votes:
                 best = -1
-            for y in range(r * row_step, min((r + 1) * row_step, height)):
-                for x in range(starts[j], starts[j + 1]):
-                    index[y, x] = best
+            run = decoded[starts[j]:starts[j + 1]]
+            for x in range(run.shape[0]):
+                run[x] = best
+        for y in range(r * row_step + 1, min((r + 1) * row_step, height)):
+            below = index[y]
+            for x in range(width):
+                below[x] = decoded[x]
 
 
 @njit(cache=True, nogil=True)
