@@ -277,36 +277,30 @@ def _reflect101(i, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _row_box_sums(row, half, padded, prefix, sums):
-    """Sums over ``2·half + 1`` pixels along a flat B, G, R row (int32), reflect-101 borders."""
-    n = row.shape[0]
+def _box_mean_row(above, centre, below, half, padded, prefix, out):
+    """OpenCV's uint8 box filter over three rows and ``2·half + 1`` pixels (reflect-101
+    borders) of flat B, G, R rows: the sum over ``area`` pixels rounded to the nearest integer
+    (``area`` is odd, so there is no tie; float32 is exact here: its error, < 3e-5, is far
+    below the 1/(2·area) between a mean and a rounding boundary)."""
+    n = out.shape[0]
     width = n // 3
     pad = 3 * half
     body = padded[pad:pad + n]
     for j in range(n):
-        body[j] = row[j]
+        body[j] = np.int32(above[j]) + np.int32(centre[j]) + np.int32(below[j])
     for x in range(1, half + 1):
         left, right = _reflect101(-x, width), _reflect101(width - 1 + x, width)
         for c in range(3):
-            padded[pad - 3 * x + c] = row[3 * left + c]
-            padded[pad + n + 3 * (x - 1) + c] = row[3 * right + c]
+            padded[pad - 3 * x + c] = body[3 * left + c]
+            padded[pad + n + 3 * (x - 1) + c] = body[3 * right + c]
     prefix[0] = prefix[1] = prefix[2] = 0
     for j in range(n + 2 * pad):
         prefix[j + 3] = prefix[j] + padded[j]
     ahead = prefix[3 * (2 * half + 1):]
-    for j in range(n):
-        sums[j] = ahead[j] - prefix[j]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _box_means(above, centre, below, area, out):
-    """OpenCV's uint8 box-filter mean from three rows of row sums: the sum over ``area`` pixels
-    rounded to the nearest integer (``area`` is odd, so there is no tie; float32 is exact here:
-    its error, < 3e-5, is far below the 1/(2·area) between a mean and a rounding boundary)."""
+    area = 3 * (2 * half + 1)
     scale = np.float32(1.0 / (2 * area))
-    for j in range(out.shape[0]):
-        total = np.float32(2 * (above[j] + centre[j] + below[j]) + area)
-        out[j] = np.uint8(np.int32(total * scale))
+    for j in range(n):
+        out[j] = np.uint8(np.int32(np.float32(2 * (ahead[j] - prefix[j]) + area) * scale))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -320,19 +314,18 @@ def local_range(signal, half, low, high):
                                  high.reshape(rows, n))
     ext_min, ext_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
     tmp_min, tmp_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
-    row_low, row_high = np.empty(n, np.uint8), np.empty(n, np.uint8)
+    eroded, dilated = np.empty((3, n), np.uint8), np.empty((3, n), np.uint8)  # by row % 3
     padded = np.empty(n + 6 * half, np.int32)
     prefix = np.empty(n + 6 * half + 3, np.int32)
-    sums_low, sums_high = np.empty((3, n), np.int32), np.empty((3, n), np.int32)  # by row % 3
-    area = 3 * (2 * half + 1)
     for r in range(rows):
         for q in range(r if r == 0 else r + 1, min(r + 2, rows)):
-            _row_extrema(flat[q], half, ext_min, ext_max, tmp_min, tmp_max, row_low, row_high)
-            _row_box_sums(row_low, half, padded, prefix, sums_low[q % 3])
-            _row_box_sums(row_high, half, padded, prefix, sums_high[q % 3])
+            _row_extrema(flat[q], half, ext_min, ext_max, tmp_min, tmp_max, eroded[q % 3],
+                         dilated[q % 3])
         above, below = _reflect101(r - 1, rows) % 3, _reflect101(r + 1, rows) % 3
-        _box_means(sums_low[above], sums_low[r % 3], sums_low[below], area, low_rows[r])
-        _box_means(sums_high[above], sums_high[r % 3], sums_high[below], area, high_rows[r])
+        _box_mean_row(eroded[above], eroded[r % 3], eroded[below], half, padded, prefix,
+                      low_rows[r])
+        _box_mean_row(dilated[above], dilated[r % 3], dilated[below], half, padded, prefix,
+                      high_rows[r])
 
 
 @njit(cache=True, nogil=True)
