@@ -21,6 +21,10 @@ UNVERIFIED = 2  # SGBM's match, kept where the pattern cannot be read (or withou
 KEPT = 3  # SGBM's match, on the left pixel's fringe
 CORRECTED = 4  # replaced by a nearby candidate on the left pixel's fringe
 
+# a match is on the left pixel's fringe when a right pixel this close to it has its code
+# (fringe boundaries fall between pixels differently in the two views); compiled in as a constant
+BOUNDARY_TOLERANCE_PX = 1
+
 
 @njit(cache=True, nogil=True)
 def _pairwise_block(a, lo, n, k):
@@ -431,7 +435,7 @@ def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
-                  right_step, search_px, tolerance, neighbours, coded, out, status):
+                  right_step, search_px, neighbours, coded, out, status):
     """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
     ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` marks
     where the pattern is readable enough that an unreadable left code rejects a match.
@@ -440,6 +444,7 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
     matches = kept = corrected = rejected = unverified = 0
     penalty = np.float32(1e-3)
     n_shifts = 2 * search_px
+    last = width - 1
     for y in range(height):
         d_row, code_row, right_row = disparity[y], left_index[y], right_index[y]
         coded_row, out_row, status_row = coded[y], out[y], status[y]
@@ -463,11 +468,9 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                 continue
             xi = int(np.rint(np.float32(x) - d))
             on_fringe = False
-            if 0 <= xi < width:
-                for s in range(max(xi - tolerance, 0), min(xi + tolerance + 1, width)):
-                    if right_row[s] == code:
-                        on_fringe = True
-                        break
+            if 0 <= xi < width:  # clamped at the row's ends: the same pixels, some twice
+                for k in range(-BOUNDARY_TOLERANCE_PX, BOUNDARY_TOLERANCE_PX + 1):  # unrolled
+                    on_fringe |= right_row[min(max(xi + k, 0), last)] == code
             if on_fringe:
                 out_row[x] = d
                 status_row[x] = KEPT
@@ -561,7 +564,7 @@ def warm_up() -> None:
                 0.25, 3, 4, 2, 2, index)
     disparity = np.ones((4, 8), np.float32)
     status = np.zeros((4, 8), np.uint8)
-    verify_pixels(disparity, index, index, colour, colour, 2, 2, 1, 1,
+    verify_pixels(disparity, index, index, colour, colour, 2, 2, 1,
                   np.zeros((1, 2), np.int64), np.ones((4, 8), np.bool_), disparity.copy(),
                   status)
     triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)

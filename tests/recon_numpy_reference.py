@@ -9,7 +9,8 @@ import numpy as np
 from vbfe.drivers.projector.pattern import N_SYMBOLS, WINDOW
 from vbfe.recon.color import DARK_FRACTION, MIN_SIGNAL, ColorModel
 from vbfe.recon.decode import BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, MIN_VOTES, FringeDecoder
-from vbfe.recon.verify import BOUNDARY_TOLERANCE_PX, NEIGHBOUR_OFFSETS
+from vbfe.recon.kernels import BOUNDARY_TOLERANCE_PX
+from vbfe.recon.verify import NEIGHBOUR_OFFSETS
 
 
 def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) -> np.ndarray:
