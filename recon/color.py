@@ -65,16 +65,32 @@ class ColorModel:
         channel by its local range over that many pixels along the row (~3–4 fringe widths);
         without it the result is in grey levels.
         """
-        offset = tuple(float(v) for v in self.offset) + (0.0,)
         if not albedo_window_px:
+            offset = tuple(float(v) for v in self.offset) + (0.0,)
             signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
             return cv2.transform(np.maximum(signal, 0.0),
                                  np.linalg.inv(self.mixing).astype(np.float32))
-        # saturates at 0 for uint8 images; without an offset, a copy (or the image itself)
-        signal = cv2.subtract(image, offset) if any(offset) else np.ascontiguousarray(image)
-        normalised = remove_base_color(signal, int(albedo_window_px))
+        normalised = remove_base_color(self._signal(image), int(albedo_window_px))
         unmix = self._albedo_unmix
         return normalised if unmix is None else cv2.transform(normalised, unmix)
+
+    def fringe_colour(self, image: np.ndarray, albedo_window_px: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """``max(correct(image, albedo_window_px), 0)`` and its channel sum (float32 H×W): after
+        the correction one channel carries a fringe, and the sum is its brightness."""
+        value = np.empty(image.shape[:2], np.float32)
+        unmix = self._albedo_unmix
+        if unmix is None:  # clamped and summed as it is normalised
+            return remove_base_color(self._signal(image), int(albedo_window_px), value), value
+        colour = self.correct(image, albedo_window_px)
+        kernels.clamp_and_sum(colour, value)
+        return colour, value
+
+    def _signal(self, image: np.ndarray) -> np.ndarray:
+        """The uint8 image less the offset (saturating at 0); without an offset, a copy (or
+        the image itself)."""
+        offset = tuple(float(v) for v in self.offset) + (0.0,)
+        return cv2.subtract(image, offset) if any(offset) else np.ascontiguousarray(image)
 
     @functools.cached_property
     def _albedo_unmix(self) -> np.ndarray | None:
@@ -134,7 +150,8 @@ def capture_color_model(camera: StereoCamera, projector: Projector, frames: int 
     return estimate_color_model(captures)
 
 
-def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
+def remove_base_color(signal: np.ndarray, window_px: int,
+                      value: np.ndarray | None = None) -> np.ndarray:
     """Per-channel local contrast normalisation along rows: ``(C - min) / (max - min)``, float32.
 
     Over ``window_px`` (a few fringe widths) every channel sees both a fringe of its own colour
@@ -143,15 +160,20 @@ def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
     range is small compared with the image's (unlit background, shadows) stay dark. ``signal``
     is a uint8 B, G, R image; min and max are OpenCV's row erode and dilate by ``window_px | 1``
     pixels, each smoothed by its box filter over that many pixels and 3 rows (compiled:
-    :func:`vbfe.recon.kernels.local_range`, the same values).
+    :func:`vbfe.recon.kernels.local_range`, the same values). With ``value`` (float32 H×W) the
+    result is clamped at 0 and ``value`` receives its channel sums.
     """
     signal = np.ascontiguousarray(signal)
     low, high = np.empty_like(signal), np.empty_like(signal)
     kernels.local_range(signal, (window_px | 1) // 2, low, high)
     floor = np.maximum(DARK_FRACTION * _range_percentile(low, high), MIN_SIGNAL).astype(np.float32)
     normalised = np.empty(signal.shape, np.float32)
-    kernels.normalise_range(signal, low, high, floor, normalised)
+    kernels.normalise_range(signal, low, high, floor, normalised, value is not None,
+                            _NO_VALUE if value is None else value)
     return normalised
+
+
+_NO_VALUE = np.empty((0, 0), np.float32)  # remove_base_color without channel sums
 
 
 def _range_percentile(low: np.ndarray, high: np.ndarray) -> np.ndarray:

@@ -76,10 +76,7 @@ class FringeDecoder:
         image = image[::self.row_step]
         period = period_px or fringe_period_px(image)
         window = max(3, int(round(3.5 * period)))
-        colour = self.color_model.correct(image, albedo_window_px=window)
-        # after crosstalk correction one channel carries the fringe: the sum is its value
-        value = np.empty(colour.shape[:2], np.float32)
-        kernels.clamp_and_sum(colour, value)
+        colour, value = self.color_model.fringe_colour(image, window)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
         index = np.empty((height, image.shape[1]), np.int16)
         kernels.decode_rows(value[..., None], colour, max(3, int(round(period)) | 1) // 2,

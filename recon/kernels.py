@@ -356,9 +356,10 @@ def range_order_statistics(low, high, step, rank):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def normalise_range(signal, low, high, floor, out):
+def normalise_range(signal, low, high, floor, out, clamp, value):
     """``(signal - low) / max(high - low, floor)`` per channel, float32 (rows×W×3), as
-    OpenCV's subtract, max and divide compute it; ``floor`` (3 float32) is positive."""
+    OpenCV's subtract, max and divide compute it; ``floor`` (3 float32) is positive. With
+    ``clamp``, row by row as it is computed, :func:`clamp_and_sum` into ``value``."""
     rows, width = signal.shape[:2]
     n = 3 * width
     floors = np.empty(n, np.float32)
@@ -373,6 +374,8 @@ def normalise_range(signal, low, high, floor, out):
             span = np.float32(hi[j]) - base
             span = span if span > floors[j] else floors[j]  # noqa: FURB136 (as OpenCV)
             o[j] = (np.float32(s[j]) - base) / span
+        if clamp:
+            clamp_and_sum(out[r:r + 1], value[r:r + 1])
 
 
 @njit(cache=True, nogil=True)
@@ -570,7 +573,9 @@ def warm_up() -> None:
     triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     image = np.zeros((2, 8, 3), np.uint8)
     local_range(image, 1, image.copy(), image.copy())
-    normalise_range(image, image, image, np.ones(3, np.float32), colour)
+    for clamp in (False, True):
+        normalise_range(image, image, image, np.ones(3, np.float32), colour, clamp,
+                        value[..., 0])
     clamp_and_sum(colour, value[..., 0])
     fixed_point_to_px(np.zeros((4, 8), np.int16), 1.0 / 16, 16.0, disparity)
     edge_counts(disparity, np.float32(1.0), np.float32(2.0))
