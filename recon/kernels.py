@@ -1,10 +1,14 @@
-"""Compiled per-pixel loops of the reconstruction (numba, cached on disk): the decoder's fringe
-runs, symbols and votes, the De Bruijn verification and the triangulation.
+"""Compiled per-pixel loops of the reconstruction (numba, cached on disk): the decoder's colour
+normalisation, fringe runs, symbols and votes, SGBM's fixed-point conversion and edge share, the
+De Bruijn verification and the triangulation.
 
-Each loop reproduces, bit for bit, the numpy formulation it replaced (float32 arithmetic in
-numpy's order, including the pairwise summation of ``np.add.reduceat``), so outputs do not
-depend on which one ran. Compiled code is cached next to this file (``cache=True``); call
-:func:`warm_up` before any timed loop so the first frame does not pay for loading it.
+Each loop reproduces, bit for bit, the numpy/OpenCV formulation it replaced (float32 arithmetic
+in numpy's order, including the pairwise summation of ``np.add.reduceat``; OpenCV's filter
+borders and rounding), so outputs do not depend on which one ran (tests/recon_numpy_reference.py
+holds the formulations). Loops that divide use numba's numpy error model (no check for division
+by zero, which none of them can meet, so the loops vectorise). Compiled code is cached next to
+this file (``cache=True``); call :func:`warm_up` before any timed loop so the first frame does
+not pay for loading it.
 """
 
 from __future__ import annotations
