@@ -18,7 +18,7 @@ from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
-from vbfe.recon.verify import verify_disparity
+from vbfe.recon.verify import coded_region, verify_disparity
 
 
 @dataclass(frozen=True)
@@ -99,10 +99,13 @@ class Reconstructor:
                  ) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
-    def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
-        """Fringe codes of both rectified views (the right with the left's fringe width)."""
+    def _decode(self, left: np.ndarray, right: np.ndarray
+                ) -> tuple[FringeCode, FringeCode, np.ndarray, float]:
+        """Fringe codes of both rectified views (the right with the left's fringe width), the
+        left's coded region and its share of readable pixels: all that does not need SGBM."""
         left_code = self.decoder.decode(left)
-        return left_code, self.decoder.decode(right, period_px=left_code.period_px)
+        return (left_code, self.decoder.decode(right, period_px=left_code.period_px),
+                coded_region(left_code), decoded_fraction(left_code.index))
 
     def rectified_disparity(self, left: np.ndarray, right: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
@@ -117,18 +120,19 @@ class Reconstructor:
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
-        # with several OpenCV threads, decode in the background while SGBM runs here (both
-        # release the GIL): SGBM keeps OpenCV's thread pool (called from another thread it
-        # would run on one core), and the decoding fills the time its threads leave idle
+        # with several OpenCV threads, decode (and find the coded region) in the background
+        # while SGBM runs here (both release the GIL): SGBM keeps OpenCV's thread pool (called
+        # from another thread it would run on one core), and the decoding fills the time its
+        # threads leave idle
         codes = self._overlap().submit(self._decode, rect_left, rect_right) \
             if cv2.getNumThreads() > 1 else None
         disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-        left_code, right_code = (codes.result() if codes is not None else
-                                 self._decode(rect_left, rect_right))
-        quality = {"edge_fraction": edge_fraction(disparity, self.params)}
+        left_code, right_code, coded, decoded = (codes.result() if codes is not None else
+                                                 self._decode(rect_left, rect_right))
+        quality = {"edge_fraction": edge_fraction(disparity, self.params),
+                   "decoded_fraction": decoded}
         disparity, status, counts = verify_disparity(disparity, left_code, right_code,
-                                                     self.params.verify_search_px)
-        quality["decoded_fraction"] = decoded_fraction(left_code.index)
+                                                     self.params.verify_search_px, coded)
         return rect_left, disparity, status, {**quality, **counts}
 
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
