@@ -70,11 +70,15 @@ class FringeDecoder:
         self._channel_symbol = np.empty(3, np.int8)
         self._channel_symbol[list(SYMBOL_CHANNEL_BGR)] = np.arange(3)
 
+    def period_px(self, image: np.ndarray) -> float:
+        """Fringe width of a (rectified) image, on the rows that are decoded."""
+        return fringe_period_px(image[::self.row_step])
+
     def decode(self, image: np.ndarray, period_px: float | None = None) -> FringeCode:
         """Fringe index of every pixel of a (rectified) BGR image."""
         height = image.shape[0]
+        period = period_px or self.period_px(image)
         image = image[::self.row_step]
-        period = period_px or fringe_period_px(image)
         window = max(3, int(round(3.5 * period)))
         colour, value = self.color_model.fringe_colour(image, window)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))

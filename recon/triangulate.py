@@ -80,8 +80,11 @@ class Reconstructor:
                       for map_x, map_y in calibration.rectification_maps()]
         kernels.warm_up()
 
-    def _overlap(self) -> ThreadPoolExecutor:
-        """The one background thread the codes are decoded in while SGBM runs."""
+    def _second_thread(self) -> ThreadPoolExecutor | None:
+        """The thread the right view is decoded in while the left is decoded here, with several
+        OpenCV threads (None with one: everything then runs in the calling thread)."""
+        if cv2.getNumThreads() <= 1:
+            return None
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode")
         return self._pool
@@ -102,10 +105,17 @@ class Reconstructor:
     def _decode(self, left: np.ndarray, right: np.ndarray
                 ) -> tuple[FringeCode, FringeCode, np.ndarray, float]:
         """Fringe codes of both rectified views (the right with the left's fringe width), the
-        left's coded region and its share of readable pixels: all that does not need SGBM."""
-        left_code = self.decoder.decode(left)
-        return (left_code, self.decoder.decode(right, period_px=left_code.period_px),
-                coded_region(left_code), decoded_fraction(left_code.index))
+        left's coded region and its share of readable pixels. The two views are decoded at once
+        where OpenCV has several threads (the kernels release the GIL), before SGBM rather than
+        beside it: SGBM splits its rows evenly between the cores, so work beside it holds up
+        one half while the other waits."""
+        period = self.decoder.period_px(left)
+        pool = self._second_thread()
+        right_code = pool.submit(self.decoder.decode, right, period) if pool else None
+        left_code = self.decoder.decode(left, period)
+        coded, decoded = coded_region(left_code), decoded_fraction(left_code.index)
+        return (left_code, right_code.result() if pool else self.decoder.decode(right, period),
+                coded, decoded)
 
     def rectified_disparity(self, left: np.ndarray, right: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
@@ -120,15 +130,8 @@ class Reconstructor:
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
-        # with several OpenCV threads, decode (and find the coded region) in the background
-        # while SGBM runs here (both release the GIL): SGBM keeps OpenCV's thread pool (called
-        # from another thread it would run on one core), and the decoding fills the time its
-        # threads leave idle
-        codes = self._overlap().submit(self._decode, rect_left, rect_right) \
-            if cv2.getNumThreads() > 1 else None
+        left_code, right_code, coded, decoded = self._decode(rect_left, rect_right)
         disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-        left_code, right_code, coded, decoded = (codes.result() if codes is not None else
-                                                 self._decode(rect_left, rect_right))
         quality = {"edge_fraction": edge_fraction(disparity, self.params),
                    "decoded_fraction": decoded}
         disparity, status, counts = verify_disparity(disparity, left_code, right_code,
