@@ -71,7 +71,6 @@ def stage_profile(reconstructor: Reconstructor, left: np.ndarray, right: np.ndar
     disparity = sgbm_disparity(rect_left, rect_right, params, reconstructor._matcher)
     verified, status, _ = verify_disparity(disparity, left_code, right_code,
                                            params.verify_search_px)
-    rgb = cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB)
     cal = reconstructor.calibration
     stages = {
         "rectify": lambda: [reconstructor._rectify(image, maps)
@@ -83,7 +82,7 @@ def stage_profile(reconstructor: Reconstructor, left: np.ndarray, right: np.ndar
         "coded region": lambda: coded_region(left_code),
         "verify": lambda: verify_disparity(disparity, left_code, right_code,
                                            params.verify_search_px),
-        "triangulate": lambda: kernels.triangulate(verified.copy(), status.copy(), rgb, cal.f,
+        "triangulate": lambda: kernels.triangulate(verified.copy(), status.copy(), rect_left, cal.f,
                                                    cal.B, cal.cx, cal.cy, 0.0, cal.fy)}
     return timings_s(stages, repeats, time.thread_time)
 

@@ -11,6 +11,7 @@ seen at full brightness. All images and vectors are in OpenCV's B, G, R channel 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -20,6 +21,7 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
+from vbfe.recon import kernels
 from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
@@ -27,6 +29,8 @@ FLAT_BGR = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "blac
             "white": (255, 255, 255)}
 MIN_SIGNAL = 8.0  # grey levels above black for a pixel to take part in the estimate
 DARK_FRACTION = 0.25  # local contrast below this share of the image's contrast stays dark
+SPAN_PERCENTILE = 99  # the image's contrast: this percentile of the local ranges
+SPAN_STEP = 8  # of every n-th row and column
 
 
 @dataclass(frozen=True)
@@ -61,14 +65,39 @@ class ColorModel:
         channel by its local range over that many pixels along the row (~3–4 fringe widths);
         without it the result is in grey levels.
         """
-        offset = tuple(float(v) for v in self.offset) + (0.0,)
-        unmix = np.linalg.inv(self.mixing)
         if not albedo_window_px:
+            offset = tuple(float(v) for v in self.offset) + (0.0,)
             signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
-            return cv2.transform(np.maximum(signal, 0.0), unmix.astype(np.float32))
-        signal = cv2.subtract(image, offset)  # saturates at 0 for uint8 images
-        normalised = remove_base_color(signal, int(albedo_window_px))
-        return cv2.transform(normalised, (unmix * np.diag(self.mixing)).astype(np.float32))
+            return cv2.transform(np.maximum(signal, 0.0),
+                                 np.linalg.inv(self.mixing).astype(np.float32))
+        normalised = remove_base_color(self._signal(image), int(albedo_window_px))
+        unmix = self._albedo_unmix
+        return normalised if unmix is None else cv2.transform(normalised, unmix)
+
+    def fringe_colour(self, image: np.ndarray, albedo_window_px: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """``max(correct(image, albedo_window_px), 0)`` and its channel sum (float32 H×W): after
+        the correction one channel carries a fringe, and the sum is its brightness."""
+        value = np.empty(image.shape[:2], np.float32)
+        unmix = self._albedo_unmix
+        if unmix is None:  # clamped and summed as it is normalised
+            return remove_base_color(self._signal(image), int(albedo_window_px), value), value
+        colour = self.correct(image, albedo_window_px)
+        kernels.clamp_and_sum(colour, value)
+        return colour, value
+
+    def _signal(self, image: np.ndarray) -> np.ndarray:
+        """The uint8 image less the offset (saturating at 0); without an offset, a copy (or
+        the image itself)."""
+        offset = tuple(float(v) for v in self.offset) + (0.0,)
+        return cv2.subtract(image, offset) if any(offset) else np.ascontiguousarray(image)
+
+    @functools.cached_property
+    def _albedo_unmix(self) -> np.ndarray | None:
+        """The unmixing of albedo-normalised colours (float32 3×3), None without crosstalk (the
+        identity, whose product changes no value: normalised colours are finite)."""
+        unmix = (np.linalg.inv(self.mixing) * np.diag(self.mixing)).astype(np.float32)
+        return None if np.array_equal(unmix, np.eye(3, dtype=np.float32)) else unmix
 
 
 def color_calibration_patterns(width: int, height: int) -> dict[str, np.ndarray]:
@@ -121,19 +150,47 @@ def capture_color_model(camera: StereoCamera, projector: Projector, frames: int 
     return estimate_color_model(captures)
 
 
-def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
+def remove_base_color(signal: np.ndarray, window_px: int,
+                      value: np.ndarray | None = None) -> np.ndarray:
     """Per-channel local contrast normalisation along rows: ``(C - min) / (max - min)``, float32.
 
     Over ``window_px`` (a few fringe widths) every channel sees both a fringe of its own colour
     at full brightness and a dark fringe boundary, so the local range is the surface's albedo
     times the projector's brightness and the local minimum is the ambient light. Regions whose
-    range is small compared with the image's (unlit background, shadows) stay dark.
+    range is small compared with the image's (unlit background, shadows) stay dark. ``signal``
+    is a uint8 B, G, R image; min and max are OpenCV's row erode and dilate by ``window_px | 1``
+    pixels, each smoothed by its box filter over that many pixels and 3 rows (compiled:
+    :func:`vbfe.recon.kernels.local_range`, the same values). With ``value`` (float32 H×W) the
+    result is clamped at 0 and ``value`` receives its channel sums.
     """
-    kernel = np.ones((1, window_px | 1), np.uint8)
-    smooth = (window_px | 1, 3)
-    low = cv2.blur(cv2.erode(signal, kernel), smooth)
-    span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
-    floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
-                       MIN_SIGNAL).astype(np.float32)
-    span = cv2.max(span, (*floor.tolist(), 0.0))  # per channel; numpy's broadcast is 10x slower
-    return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)
+    signal = np.ascontiguousarray(signal)
+    low, high = np.empty_like(signal), np.empty_like(signal)
+    kernels.local_range(signal, (window_px | 1) // 2, low, high)
+    floor = np.maximum(DARK_FRACTION * _range_percentile(low, high), MIN_SIGNAL).astype(np.float32)
+    normalised = np.empty(signal.shape, np.float32)
+    kernels.normalise_range(signal, low, high, floor, normalised, value is not None,
+                            _NO_VALUE if value is None else value)
+    return normalised
+
+
+_NO_VALUE = np.empty((0, 0), np.float32)  # remove_base_color without channel sums
+
+
+def _range_percentile(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """``np.percentile`` (``SPAN_PERCENTILE``) per channel of ``high - low`` on every
+    ``SPAN_STEP``-th row and column (float32, 3): the two order statistics it interpolates
+    between are counted (compiled), the interpolation is numpy's own."""
+    n = len(range(0, low.shape[0], SPAN_STEP)) * len(range(0, low.shape[1], SPAN_STEP))
+    rank = int(np.floor((n - 1) * (SPAN_PERCENTILE / 100)))
+    stats = kernels.range_order_statistics(low, high, SPAN_STEP, rank)
+    return np.array([_percentile_between(n, rank, int(a), int(b)) for a, b in stats],
+                    np.float32)
+
+
+@functools.lru_cache(maxsize=4096)
+def _percentile_between(n: int, rank: int, below: int, above: int) -> np.float32:
+    """``np.percentile`` of ``n`` float32 values whose ``rank``-th and next smallest are
+    ``below`` and ``above`` (all it depends on)."""
+    values = np.full(n, above, np.float32)
+    values[:rank + 1] = below
+    return np.percentile(values, SPAN_PERCENTILE)

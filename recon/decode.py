@@ -70,20 +70,20 @@ class FringeDecoder:
         self._channel_symbol = np.empty(3, np.int8)
         self._channel_symbol[list(SYMBOL_CHANNEL_BGR)] = np.arange(3)
 
+    def period_px(self, image: np.ndarray) -> float:
+        """Fringe width of a (rectified) image, on the rows that are decoded."""
+        return fringe_period_px(image[::self.row_step])
+
     def decode(self, image: np.ndarray, period_px: float | None = None) -> FringeCode:
         """Fringe index of every pixel of a (rectified) BGR image."""
         height = image.shape[0]
-        image = np.ascontiguousarray(image[::self.row_step])
-        period = period_px or fringe_period_px(image)
+        period = period_px or self.period_px(image)
+        image = image[::self.row_step]
         window = max(3, int(round(3.5 * period)))
-        colour = cv2.max(self.color_model.correct(image, albedo_window_px=window), 0.0)
-        # after crosstalk correction one channel carries the fringe: the sum is its value
-        value = cv2.transform(colour, np.ones((1, 3), np.float32))
+        colour, value = self.color_model.fringe_colour(image, window)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
-        local_max = cv2.dilate(value, np.ones((1, max(3, int(round(period)) | 1)), np.uint8))
         index = np.empty((height, image.shape[1]), np.int16)
-        kernels.decode_rows(value[..., None], colour, local_max, self.lookup,
-                            self._channel_symbol,
-                            BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, N_SYMBOLS, WINDOW,
-                            MIN_VOTES, self.row_step, index)
+        kernels.decode_rows(value[..., None], colour, max(3, int(round(period)) | 1) // 2,
+                            self.lookup, self._channel_symbol, BOUNDARY_DEPTH, MIN_FRINGE_VALUE,
+                            MIN_PURITY, N_SYMBOLS, WINDOW, MIN_VOTES, self.row_step, index)
         return FringeCode(index=index, colour=colour, period_px=period, row_step=self.row_step)

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import cv2
 import numpy as np
 
+from vbfe.recon import kernels
 from vbfe.recon.errors import ReconError
 from vbfe.common.settings import parse_table, setting
 
@@ -74,16 +74,7 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,
     """Left-view disparity in pixels (float32); pixels without a match are ``NaN``."""
     matcher = matcher or params.create(left.shape[2] if left.ndim == 3 else 1)
     raw = matcher.compute(left, right)
-    # OpenCV's vectorised conversion and masked copy: numpy's take several times longer
-    disparity = cv2.multiply(raw, 1.0 / DISPARITY_SCALE, dtype=cv2.CV_32F)
-    unmatched = cv2.compare(raw, params.min_disparity * DISPARITY_SCALE, cv2.CMP_LT)
-    cv2.copyTo(_nan_image(raw.shape), unmatched, disparity)
+    disparity = np.empty(raw.shape, np.float32)
+    kernels.fixed_point_to_px(raw, 1.0 / DISPARITY_SCALE, params.min_disparity * DISPARITY_SCALE,
+                              disparity)
     return disparity
-
-
-@functools.lru_cache(maxsize=4)
-def _nan_image(shape: tuple[int, ...]) -> np.ndarray:
-    """A read-only all-NaN float32 image (the source of masked NaN copies)."""
-    image = np.full(shape, np.nan, np.float32)
-    image.flags.writeable = False
-    return image

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.recon import kernels
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
@@ -105,14 +106,11 @@ def check_disparity_range(params: SgbmParams, image_size: tuple[int, int]) -> No
 def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
     """Share of matched pixels within one pixel of either end of the disparity range: surfaces
     nearer or farther than the range covers pile up there (or are lost)."""
-    n_matched = np.count_nonzero(np.isfinite(disparity))
-    if not n_matched:
-        return 0.0
     low = params.min_disparity
     high = params.min_disparity + params.num_disparities - 1
     # comparisons with NaN are false: unmatched pixels count at neither end
-    at_edge = np.count_nonzero(disparity <= low + 1) + np.count_nonzero(disparity >= high - 1)
-    return float(at_edge / n_matched)
+    n_matched, at_edge = kernels.edge_counts(disparity, np.float32(low + 1), np.float32(high - 1))
+    return float(at_edge / n_matched) if n_matched else 0.0
 
 
 def decoded_fraction(index: np.ndarray) -> float:

@@ -18,7 +18,7 @@ from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
-from vbfe.recon.verify import verify_disparity
+from vbfe.recon.verify import coded_region, verify_disparity
 
 
 @dataclass(frozen=True)
@@ -58,20 +58,21 @@ class Reconstructor:
     """Reconstructs stereo frames with one calibration and one set of SGBM settings.
 
     A zero ``num_disparities`` is derived from the calibration's ``f·B`` and the depth range of
-    ``settings`` (the ``[recon]`` table); ``params`` holds the settings actually used. The
-    fringe codes are decoded on a second thread while SGBM runs when ``overlap`` is true
-    (default: when OpenCV has several threads).
+    ``settings`` (the ``[recon]`` table); ``params`` holds the settings actually used. The two
+    views are decoded on two threads at once when ``parallel_decode`` is true (default: when
+    OpenCV has several threads).
     """
 
     def __init__(self, calibration: Calibration, sgbm_params: SgbmParams | None = None,
                  verify: bool = True, n_fringes: int = DEFAULT_FRINGES,
-                 settings: ReconSettings | None = None, overlap: bool | None = None) -> None:
+                 settings: ReconSettings | None = None,
+                 parallel_decode: bool | None = None) -> None:
         self.calibration = calibration
         self.settings = settings or ReconSettings()
         self.params = params_for(calibration, sgbm_params or SgbmParams(), self.settings)
         check_disparity_range(self.params, calibration.image_size)
         self.verify = verify
-        self.overlap = overlap
+        self.parallel_decode = parallel_decode
         self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
                                      row_step=self.params.decode_row_step)
         self._matcher = self.params.create(3)
@@ -83,8 +84,13 @@ class Reconstructor:
                       for map_x, map_y in calibration.rectification_maps()]
         kernels.warm_up()
 
-    def _overlap(self) -> ThreadPoolExecutor:
-        """The one background thread the codes are decoded in while SGBM runs."""
+    def _second_thread(self) -> ThreadPoolExecutor | None:
+        """The thread the right view is decoded in while the left is decoded here (None without
+        ``parallel_decode``: everything then runs in the calling thread)."""
+        parallel = (cv2.getNumThreads() > 1 if self.parallel_decode is None
+                    else self.parallel_decode)
+        if not parallel:
+            return None
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode")
         return self._pool
@@ -102,10 +108,20 @@ class Reconstructor:
                  ) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
-    def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
-        """Fringe codes of both rectified views (the right with the left's fringe width)."""
-        left_code = self.decoder.decode(left)
-        return left_code, self.decoder.decode(right, period_px=left_code.period_px)
+    def _decode(self, left: np.ndarray, right: np.ndarray
+                ) -> tuple[FringeCode, FringeCode, np.ndarray, float]:
+        """Fringe codes of both rectified views (the right with the left's fringe width), the
+        left's coded region and its share of readable pixels. The two views are decoded at once
+        where OpenCV has several threads (the kernels release the GIL), before SGBM rather than
+        beside it: SGBM splits its rows evenly between the cores, so work beside it holds up
+        one half while the other waits."""
+        period = self.decoder.period_px(left)
+        pool = self._second_thread()
+        right_code = pool.submit(self.decoder.decode, right, period) if pool else None
+        left_code = self.decoder.decode(left, period)
+        coded, decoded = coded_region(left_code), decoded_fraction(left_code.index)
+        return (left_code, right_code.result() if pool else self.decoder.decode(right, period),
+                coded, decoded)
 
     def rectified_disparity(self, left: np.ndarray, right: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
@@ -120,18 +136,12 @@ class Reconstructor:
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             return rect_left, disparity, status, {
                 "edge_fraction": edge_fraction(disparity, self.params)}
-        # overlapping (by default with several OpenCV threads), decode in the background while
-        # SGBM runs here (both release the GIL): SGBM keeps OpenCV's thread pool (called from
-        # another thread it would run on one core), and the decoding fills the idle time
-        overlap = cv2.getNumThreads() > 1 if self.overlap is None else self.overlap
-        codes = self._overlap().submit(self._decode, rect_left, rect_right) if overlap else None
+        left_code, right_code, coded, decoded = self._decode(rect_left, rect_right)
         disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-        left_code, right_code = (codes.result() if codes is not None else
-                                 self._decode(rect_left, rect_right))
-        quality = {"edge_fraction": edge_fraction(disparity, self.params)}
+        quality = {"edge_fraction": edge_fraction(disparity, self.params),
+                   "decoded_fraction": decoded}
         disparity, status, counts = verify_disparity(disparity, left_code, right_code,
-                                                     self.params.verify_search_px)
-        quality["decoded_fraction"] = decoded_fraction(left_code.index)
+                                                     self.params.verify_search_px, coded)
         return rect_left, disparity, status, {**quality, **counts}
 
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
@@ -139,8 +149,7 @@ class Reconstructor:
         rect_left, disparity, status, quality = self.rectified_disparity(left, right)
         cal = self.calibration
         points, colors, verified = kernels.triangulate(
-            disparity, status, cv2.cvtColor(rect_left, cv2.COLOR_BGR2RGB), cal.f, cal.B,
-            cal.cx, cal.cy, self._doffs, cal.fy)
+            disparity, status, rect_left, cal.f, cal.B, cal.cx, cal.cy, self._doffs, cal.fy)
         counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,

@@ -19,7 +19,6 @@ import numpy as np
 from vbfe.recon import kernels
 from vbfe.recon.decode import FringeCode
 
-BOUNDARY_TOLERANCE_PX = 1
 NEIGHBOUR_OFFSETS = np.array(((0, -4), (0, 4), (-4, 0), (4, 0), (0, -8), (0, 8), (-8, 0), (8, 0)),
                              np.int64)
 REGION_FRINGES = 4  # side, in fringe widths, of the square over which readability is judged
@@ -63,6 +62,6 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
         coded = coded_region(left)
     counts = kernels.verify_pixels(disparity, left.index, right.index, left.colour,
                                    right.colour, left.row_step, right.row_step, search_px,
-                                   BOUNDARY_TOLERANCE_PX, NEIGHBOUR_OFFSETS, coded, out, status)
+                                   NEIGHBOUR_OFFSETS, coded, out, status)
     names = ("sgbm_matches", "kept", "corrected", "rejected", "unverified")
     return out, status, dict(zip(names, (int(c) for c in counts)))

@@ -1,13 +1,16 @@
-"""The numpy formulation of the decoder's run/symbol/vote step and of the De Bruijn
-verification that the compiled loops (``vbfe.recon.kernels``) replaced: the reference the tests
-hold them to, bit for bit."""
+"""The numpy/OpenCV formulation of the decoder (colour normalisation, run/symbol/vote step), of
+the De Bruijn verification, of SGBM's fixed-point conversion and of the edge share that the
+compiled loops (``vbfe.recon.kernels``) replaced: the reference the tests hold them to, bit for
+bit."""
 
 import cv2
 import numpy as np
 
 from vbfe.drivers.projector.pattern import N_SYMBOLS, WINDOW
+from vbfe.recon.color import DARK_FRACTION, MIN_SIGNAL, ColorModel
 from vbfe.recon.decode import BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, MIN_VOTES, FringeDecoder
-from vbfe.recon.verify import BOUNDARY_TOLERANCE_PX, NEIGHBOUR_OFFSETS
+from vbfe.recon.kernels import BOUNDARY_TOLERANCE_PX
+from vbfe.recon.verify import NEIGHBOUR_OFFSETS
 
 
 def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) -> np.ndarray:
@@ -15,7 +18,7 @@ def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) ->
     height = image.shape[0]
     image = np.ascontiguousarray(image[::decoder.row_step])
     window = max(3, int(round(3.5 * period_px)))
-    colour = decoder.color_model.correct(image, albedo_window_px=window)
+    colour = correct(decoder.color_model, image, window)
     np.maximum(colour, 0.0, out=colour)
     value = cv2.transform(colour, np.ones((1, 3), np.float32))
     value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period_px / 8))
@@ -42,6 +45,37 @@ def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) ->
     index = _vote(decoder.lookup, symbols, starts, image.shape[1])[labels].reshape(value.shape)
     return np.repeat(index, decoder.row_step, axis=0)[:height]
 
+
+
+def correct(model: ColorModel, image: np.ndarray, window_px: int) -> np.ndarray:
+    """``model.correct(image, albedo_window_px=window_px)`` with OpenCV."""
+    signal = cv2.subtract(image, tuple(float(v) for v in model.offset) + (0.0,))
+    unmix = np.linalg.inv(model.mixing) * np.diag(model.mixing)
+    return cv2.transform(remove_base_color(signal, window_px), unmix.astype(np.float32))
+
+
+def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
+    """``vbfe.recon.color.remove_base_color`` with OpenCV's filters and numpy's percentile."""
+    kernel = np.ones((1, window_px | 1), np.uint8)
+    smooth = (window_px | 1, 3)
+    low = cv2.blur(cv2.erode(signal, kernel), smooth)
+    span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
+    floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
+                       MIN_SIGNAL).astype(np.float32)
+    span = cv2.max(span, (*floor.tolist(), 0.0))
+    return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)
+
+
+def disparity_px(raw: np.ndarray, min_disparity: int) -> np.ndarray:
+    """StereoSGBM's fixed-point disparities in pixels, NaN below ``min_disparity``."""
+    return np.where(raw < min_disparity * 16, np.float32(np.nan), raw / np.float32(16))
+
+
+def edge_fraction(disparity: np.ndarray, low: int, high: int) -> float:
+    """Share of finite disparities within one pixel of either end of ``low..high``."""
+    matched = np.count_nonzero(np.isfinite(disparity))
+    at_edge = np.count_nonzero(disparity <= low + 1) + np.count_nonzero(disparity >= high - 1)
+    return float(at_edge / matched) if matched else 0.0
 
 def _vote(lookup, symbols, starts, width):
     n_segments = len(starts)

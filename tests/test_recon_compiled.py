@@ -1,5 +1,8 @@
-"""The compiled decoder and verification give exactly the numpy formulation's results on
-rendered frames (tests/recon_numpy_reference.py), including the repair of wrong matches."""
+"""The compiled decoder (colour normalisation included), verification, fixed-point conversion
+and edge share give exactly the numpy/OpenCV formulation's results on rendered frames
+(tests/recon_numpy_reference.py), including the repair of wrong matches."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,9 +11,12 @@ from tests import recon_numpy_reference as reference
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import Reconstructor, make_pattern
+from vbfe.recon import ColorModel, Reconstructor, make_pattern
+from vbfe.recon.color import remove_base_color
+from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.kernels import CORRECTED, KEPT, REJECTED
 from vbfe.recon.matching import sgbm_disparity
+from vbfe.recon.quality import edge_fraction
 from vbfe.recon.verify import verify_disparity
 from vbfe.truth import calibration_from_rig
 
@@ -56,3 +62,39 @@ def test_compiled_verification_gives_the_numpy_disparities(decoded):
         assert counts["corrected"] == np.count_nonzero(status == CORRECTED)
         assert counts["rejected"] == np.count_nonzero(status == REJECTED)
     assert counts["corrected"] > 1000 and counts["rejected"] > counts["corrected"] // 10
+
+
+def test_compiled_colour_normalisation_gives_opencvs_values(decoded):
+    _, pair, _, _, _ = decoded
+    rng = np.random.default_rng(5)
+    images = [np.ascontiguousarray(pair.left[::3]), np.ascontiguousarray(pair.right[::3]),
+              rng.integers(0, 256, (37, 101, 3), np.uint8),  # odd sizes, percentile ranks
+              rng.integers(0, 256, (1, 7, 3), np.uint8), rng.integers(0, 256, (2, 5, 3), np.uint8)]
+    for image in images:
+        for window in (3, 10, 31, 32, 224):  # windows wider than the image reflect again
+            assert np.array_equal(remove_base_color(image, window),
+                                  reference.remove_base_color(image, window)), (image.shape,
+                                                                                window)
+
+
+def test_compiled_decoder_with_crosstalk_gives_the_opencv_fringe_indices(decoded):
+    _, pair, left, _, _ = decoded
+    mixing = np.array([[0.8, 0.15, 0.05], [0.1, 0.8, 0.1], [0.05, 0.15, 0.8]])
+    decoder = FringeDecoder(ColorModel(mixing, np.array([4.0, 2.0, 3.0])))
+    expected = reference.decode_index(decoder, pair.left, left.period_px)
+    assert (expected >= 0).mean() > 0.3
+    assert np.array_equal(decoder.decode(pair.left, period_px=left.period_px).index, expected)
+
+
+def test_compiled_fixed_point_conversion_and_edge_share(decoded):
+    reconstructor, pair, _, _, disparity = decoded
+    params = reconstructor.params
+    raw = params.create(3).compute(pair.left, pair.right)
+    assert np.array_equal(disparity, reference.disparity_px(raw, params.min_disparity),
+                          equal_nan=True)
+    high = params.min_disparity + params.num_disparities - 1
+    for low_end in (params.min_disparity, int(np.nanmedian(disparity))):  # none, half at an end
+        shifted = replace(params, min_disparity=low_end)
+        expected = reference.edge_fraction(disparity, low_end, low_end + high - params.min_disparity)
+        assert edge_fraction(disparity, shifted) == expected
+    assert edge_fraction(disparity, replace(params, min_disparity=int(np.nanmedian(disparity)))) > 0.3

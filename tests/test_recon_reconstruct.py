@@ -105,7 +105,7 @@ def test_triangulation_follows_z_equals_f_b_over_d_minus_doffs_and_y_its_own_foc
     z = 500 * 0.004 / 18
     np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 400, z],
                                rtol=1e-6)
-    assert np.array_equal(colours[0], image[0, 1])
+    assert np.array_equal(colours[0], image[0, 1, ::-1])  # BGR image, RGB colours
     assert np.isnan(disparity[2, 3]) and status[2, 3] == 0
 
 

@@ -84,7 +84,7 @@ class FrameEstimator:
                 params, decode_row_step=max(1, round(params.decode_row_step * row_scale)))
         self.reconstructor = Reconstructor(
             calibration.scaled(scale, scale * row_scale) if (scale, row_scale) != (1.0, 1.0)
-            else calibration, params, verify=verify, overlap=(os.cpu_count() or 1) > 1)
+            else calibration, params, verify=verify, parallel_decode=(os.cpu_count() or 1) > 1)
         network = getattr(model.estimators[model.selected], "network", None)
         if network is not None:
             network.to(torch.device(device))
