@@ -126,7 +126,12 @@ def test_signals_stop_commands_and_their_workers_within_a_second(session, tmp_pa
     assert proc.poll() is None
     sent = time.monotonic()
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=30)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:  # hung: fail without leaving it to load the next tests
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail(f"vbfe {command} did not stop within 30 s of {sig.name}")
     assert time.monotonic() - sent < 2.0  # a second on a quiet machine
     assert proc.returncode == code, err
     one_error(err, "interrupted" if sig == signal.SIGINT else "terminated")
