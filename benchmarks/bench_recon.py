@@ -25,7 +25,7 @@ from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.recon import Reconstructor, SgbmParams, kernels, make_pattern
 from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.quality import ReconSettings
-from vbfe.recon.verify import coded_region, verify_disparity
+from vbfe.recon.verify import coded_grid, verify_disparity
 from vbfe.truth import calibration_from_rig, evaluate_against_truth
 
 WORKING_DISTANCE_M = 0.06
@@ -79,7 +79,7 @@ def stage_profile(reconstructor: Reconstructor, left: np.ndarray, right: np.ndar
                                                              reconstructor._matcher),
         "decode left": lambda: decoder.decode(rect_left),
         "decode right": lambda: decoder.decode(rect_right, period_px=left_code.period_px),
-        "coded region": lambda: coded_region(left_code),
+        "coded region": lambda: coded_grid(left_code),
         "verify": lambda: verify_disparity(disparity, left_code, right_code,
                                            params.verify_search_px),
         "triangulate": lambda: kernels.triangulate(verified.copy(), status.copy(), rect_left, cal.f,

@@ -442,19 +442,22 @@ def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
-                  right_step, search_px, neighbours, coded, out, status):
+                  right_step, search_px, neighbours, coded, coded_rows, coded_cols, first_row,
+                  end_row, out, status):
     """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
-    ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` marks
-    where the pattern is readable enough that an unreadable left code rejects a match.
-    Returns the counts (SGBM matches, kept, corrected, rejected, unverified)."""
+    ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` (uint8
+    cells; pixel ``(y, x)`` is cell ``(coded_rows[y], coded_cols[x])``) marks where the pattern
+    is readable enough that an unreadable left code rejects a match. Only rows
+    ``first_row:end_row`` are checked (and written). Returns their counts (SGBM matches, kept,
+    corrected, rejected, unverified)."""
     height, width = disparity.shape
     matches = kept = corrected = rejected = unverified = 0
     penalty = np.float32(1e-3)
     n_shifts = 2 * search_px
     last = width - 1
-    for y in range(height):
+    for y in range(first_row, end_row):
         d_row, code_row, right_row = disparity[y], left_index[y], right_index[y]
-        coded_row, out_row, status_row = coded[y], out[y], status[y]
+        coded_row, out_row, status_row = coded[coded_rows[y]], out[y], status[y]
         for x in range(width):
             d = d_row[x]
             if not np.isfinite(d):
@@ -464,7 +467,7 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
             matches += 1
             code = code_row[x]
             if code < 0:
-                if coded_row[x]:
+                if coded_row[coded_cols[x]]:
                     out_row[x] = np.nan
                     status_row[x] = REJECTED
                     rejected += 1
@@ -515,26 +518,31 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
     return np.array((matches, kept, corrected, rejected, unverified), np.int64)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px):
-    """Points (N×3 float32, m), colours (N×3 uint8, RGB) and verified flags (N bool) of the pixels
-    with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
-    ``x = (u-cx)z/f``, ``y = (v-cy)z/fy`` (``f``: the rectified focal length in x). Pixels at or
-    beyond infinity get NaN and ``NO_MATCH`` in ``disparity`` and ``status``."""
-    height, width = disparity.shape
+@njit(cache=True, nogil=True)
+def count_points(disparity, status, doffs_px, first_row, end_row):
+    """Number of pixels of rows ``first_row:end_row`` with a disparity beyond ``doffs_px``;
+    those at or beyond infinity get NaN and ``NO_MATCH`` in ``disparity`` and ``status``."""
     doffs = np.float32(doffs_px)
     n = 0
-    for v in range(height):
-        for u in range(width):
-            d = disparity[v, u]
+    for v in range(first_row, end_row):
+        d_row, status_row = disparity[v], status[v]
+        for u in range(disparity.shape[1]):
+            d = d_row[u]
             if d > doffs:
                 n += 1
             elif np.isfinite(d):
-                disparity[v, u] = np.nan
-                status[v, u] = NO_MATCH
-    points = np.empty((n, 3), np.float32)
-    colours = np.empty((n, 3), np.uint8)
-    verified = np.empty(n, np.bool_)
+                d_row[u] = np.nan
+                status_row[u] = NO_MATCH
+    return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def fill_points(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px,
+                first_row, end_row, points, colours, verified, start):
+    """Write the points of rows ``first_row:end_row`` (after :func:`count_points`) from index
+    ``start`` on (see :func:`triangulate`)."""
+    width = disparity.shape[1]
+    doffs = np.float32(doffs_px)
     f = np.float32(f_px)
     fy = np.float32(fy_px)
     f_b = np.float32(f_px * baseline_m)
@@ -543,8 +551,8 @@ def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px
     for u in range(width):
         x_over_z[u] = (np.float32(u) - cx32) / f
     z_row = np.empty(width, np.float32)
-    i = 0
-    for v in range(height):
+    i = start
+    for v in range(first_row, end_row):
         y_over_z = (np.float32(v) - cy32) / fy
         d_row = disparity[v]
         for u in range(width):  # vectorised; used where d > doffs
@@ -559,6 +567,21 @@ def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px
                     colours[i, ch] = image_bgr[v, u, 2 - ch]
                 verified[i] = status[v, u] >= KEPT
                 i += 1
+
+
+@njit(cache=True, nogil=True)
+def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px):
+    """Points (N×3 float32, m), colours (N×3 uint8, RGB) and verified flags (N bool) of the pixels
+    with a disparity beyond ``doffs_px``, in row-major order: ``z = fB/(d - doffs)``,
+    ``x = (u-cx)z/f``, ``y = (v-cy)z/fy`` (``f``: the rectified focal length in x). Pixels at or
+    beyond infinity get NaN and ``NO_MATCH`` in ``disparity`` and ``status``."""
+    height = disparity.shape[0]
+    n = count_points(disparity, status, doffs_px, 0, height)
+    points = np.empty((n, 3), np.float32)
+    colours = np.empty((n, 3), np.uint8)
+    verified = np.empty(n, np.bool_)
+    fill_points(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px, 0,
+                height, points, colours, verified, 0)
     return points, colours, verified
 
 
@@ -572,9 +595,14 @@ def warm_up() -> None:
     disparity = np.ones((4, 8), np.float32)
     status = np.zeros((4, 8), np.uint8)
     verify_pixels(disparity, index, index, colour, colour, 2, 2, 1,
-                  np.zeros((1, 2), np.int64), np.ones((4, 8), np.bool_), disparity.copy(),
-                  status)
-    triangulate(disparity, status, np.zeros((4, 8, 3), np.uint8), 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+                  np.zeros((1, 2), np.int64), np.ones((1, 1), np.uint8), np.zeros(4, np.int32),
+                  np.zeros(8, np.int32), 0, 4, disparity.copy(), status)
+    image_bgr = np.zeros((4, 8, 3), np.uint8)
+    triangulate(disparity, status, image_bgr, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    count_points(disparity, status, 0.0, 0, 4)
+    fill_points(disparity, status, image_bgr, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0, 4,
+                np.empty((32, 3), np.float32), np.empty((32, 3), np.uint8),
+                np.empty(32, np.bool_), 0)
     image = np.zeros((2, 8, 3), np.uint8)
     local_range(image, 1, image.copy(), image.copy())
     for clamp in (False, True):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -18,7 +19,7 @@ from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
 from vbfe.recon.matching import SgbmParams, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
-from vbfe.recon.verify import coded_region, verify_disparity
+from vbfe.recon.verify import CodedGrid, coded_grid, verify_disparity
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ class Reconstructor:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
     def _decode(self, left: np.ndarray, right: np.ndarray
-                ) -> tuple[FringeCode, FringeCode, np.ndarray, float]:
+                ) -> tuple[FringeCode, FringeCode, CodedGrid, float]:
         """Fringe codes of both rectified views (the right with the left's fringe width), the
         left's coded region and its share of readable pixels. The two views are decoded at once
         where OpenCV has several threads (the kernels release the GIL), before SGBM rather than
@@ -119,7 +120,7 @@ class Reconstructor:
         pool = self._second_thread()
         right_code = pool.submit(self.decoder.decode, right, period) if pool else None
         left_code = self.decoder.decode(left, period)
-        coded, decoded = coded_region(left_code), decoded_fraction(left_code.index)
+        coded, decoded = coded_grid(left_code), decoded_fraction(left_code.index)
         return (left_code, right_code.result() if pool else self.decoder.decode(right, period),
                 coded, decoded)
 
@@ -141,15 +142,36 @@ class Reconstructor:
         quality = {"edge_fraction": edge_fraction(disparity, self.params),
                    "decoded_fraction": decoded}
         disparity, status, counts = verify_disparity(disparity, left_code, right_code,
-                                                     self.params.verify_search_px, coded)
+                                                     self.params.verify_search_px, coded,
+                                                     self._second_thread())
         return rect_left, disparity, status, {**quality, **counts}
+
+    def _triangulate(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`vbfe.recon.kernels.triangulate`; with a second thread, the lower half of the
+        rows is counted and filled in it (the same points, in the same order)."""
+        cal = self.calibration
+        camera = (cal.f, cal.B, cal.cx, cal.cy, self._doffs, cal.fy)
+        pool = self._second_thread()
+        if pool is None:
+            return kernels.triangulate(disparity, status, rect_left, *camera)
+        height = disparity.shape[0]
+        split = height // 2
+        lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
+        n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
+        n = n_upper + lower.result()
+        points, colors, verified = (np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8),
+                                    np.empty(n, bool))
+        fill = functools.partial(kernels.fill_points, disparity, status, rect_left, *camera)
+        lower = pool.submit(fill, split, height, points, colors, verified, n_upper)
+        fill(0, split, points, colors, verified, 0)
+        lower.result()
+        return points, colors, verified
 
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         rect_left, disparity, status, quality = self.rectified_disparity(left, right)
-        cal = self.calibration
-        points, colors, verified = kernels.triangulate(
-            disparity, status, rect_left, cal.f, cal.B, cal.cx, cal.cy, self._doffs, cal.fy)
+        points, colors, verified = self._triangulate(rect_left, disparity, status)
         counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,

@@ -13,6 +13,10 @@ the pattern does not reach or cannot be read). The per-pixel loop is compiled
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -28,11 +32,39 @@ MIN_REGION_READABLE = 0.5  # share of readable codes that makes a square solidly
 REGION_REACH_FRINGES = 8
 
 
-def coded_region(code: FringeCode) -> np.ndarray:
-    """Where the pattern is read (bool H×W): within ``REGION_REACH_FRINGES`` fringe widths of
-    a square of ``REGION_FRINGES`` fringes in which at least ``MIN_REGION_READABLE`` of the
-    codes are readable (so fringe boundaries, the unreadable run ends at the image's sides and
-    glare or shadows inside the projection stay inside). Judged on cells of half a fringe."""
+@lru_cache(maxsize=16)
+def _nearest_source(n_source: int, n_target: int) -> np.ndarray:
+    """Source index of each target index in OpenCV's nearest-neighbour resize (taken from
+    OpenCV itself, by resizing a ramp)."""
+    ramp = np.arange(n_source, dtype=np.int32)[None]
+    source = cv2.resize(ramp, (n_target, 1), interpolation=cv2.INTER_NEAREST)[0]
+    source.flags.writeable = False
+    return source
+
+
+@dataclass(frozen=True)
+class CodedGrid:
+    """The coded region on a coarse grid: pixel ``(y, x)`` is coded where
+    ``cells[rows[y], cols[x]]`` is non-zero (so the full-size map is never built)."""
+
+    cells: np.ndarray  # uint8
+    rows: np.ndarray  # int32, one per image row
+    cols: np.ndarray  # int32, one per image column
+
+    @classmethod
+    def of_map(cls, coded: np.ndarray) -> "CodedGrid":
+        """A full-size bool map as a grid of one-pixel cells."""
+        height, width = coded.shape
+        return cls(np.ascontiguousarray(coded, dtype=bool).view(np.uint8),
+                   np.arange(height, dtype=np.int32), np.arange(width, dtype=np.int32))
+
+    def full(self) -> np.ndarray:
+        """The bool H×W map."""
+        return self.cells.take(self.rows, axis=0).take(self.cols, axis=1) > 0
+
+
+def coded_grid(code: FringeCode) -> CodedGrid:
+    """:func:`coded_region` on its grid of cells of half a fringe."""
     height, width = code.index.shape
     cell = max(1, int(code.period_px // 2))
     cells = (max(1, width // cell), max(1, height // cell))
@@ -43,25 +75,48 @@ def coded_region(code: FringeCode) -> np.ndarray:
     solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)
     reach = 2 * 2 * REGION_REACH_FRINGES + 1  # cells are half a fringe wide
     near = cv2.dilate(solid, np.ones((reach, reach), np.uint8))
-    return cv2.resize(near, (width, height), interpolation=cv2.INTER_NEAREST) > 0
+    return CodedGrid(near, _nearest_source(cells[1], height), _nearest_source(cells[0], width))
+
+
+def coded_region(code: FringeCode) -> np.ndarray:
+    """Where the pattern is read (bool H×W): within ``REGION_REACH_FRINGES`` fringe widths of
+    a square of ``REGION_FRINGES`` fringes in which at least ``MIN_REGION_READABLE`` of the
+    codes are readable (so fringe boundaries, the unreadable run ends at the image's sides and
+    glare or shadows inside the projection stay inside). Judged on cells of half a fringe."""
+    return coded_grid(code).full()
 
 
 def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
-                     search_px: int = 3, coded: np.ndarray | None = None
+                     search_px: int = 3, coded: np.ndarray | CodedGrid | None = None,
+                     pool: Executor | None = None
                      ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Verified disparity (float32, NaN where invalid), the outcome per pixel (uint8 codes of
     :mod:`vbfe.recon.kernels`: ``NO_MATCH``, ``REJECTED``, ``UNVERIFIED``, ``KEPT``,
     ``CORRECTED``) and counts of what happened.
 
     ``disparity`` is the left-view SGBM disparity in pixels, ``NaN`` where SGBM found none;
-    ``coded`` (default: :func:`coded_region` of the left code) is where the pattern is read.
+    ``coded`` (bool H×W or its :class:`CodedGrid`; default: :func:`coded_grid` of the left
+    code) is where the pattern is read. With a ``pool``, the lower half of the rows is checked
+    in it while this thread checks the upper half (the same results).
     """
     out = np.empty_like(disparity)
     status = np.empty(disparity.shape, np.uint8)
     if coded is None:
-        coded = coded_region(left)
-    counts = kernels.verify_pixels(disparity, left.index, right.index, left.colour,
-                                   right.colour, left.row_step, right.row_step, search_px,
-                                   NEIGHBOUR_OFFSETS, coded, out, status)
+        coded = coded_grid(left)
+    elif isinstance(coded, np.ndarray):
+        coded = CodedGrid.of_map(coded)
+    height = disparity.shape[0]
+    split = height // 2 if pool is not None else height
+
+    def check(first_row: int, end_row: int) -> np.ndarray:
+        return kernels.verify_pixels(disparity, left.index, right.index, left.colour,
+                                     right.colour, left.row_step, right.row_step, search_px,
+                                     NEIGHBOUR_OFFSETS, coded.cells, coded.rows, coded.cols,
+                                     first_row, end_row, out, status)
+
+    lower = pool.submit(check, split, height) if pool is not None else None
+    counts = check(0, split)
+    if lower is not None:
+        counts = counts + lower.result()
     names = ("sgbm_matches", "kept", "corrected", "rejected", "unverified")
     return out, status, dict(zip(names, (int(c) for c in counts)))

@@ -1,5 +1,5 @@
 """The numpy/OpenCV formulation of the decoder (colour normalisation, run/symbol/vote step), of
-the De Bruijn verification, of SGBM's fixed-point conversion and of the edge share that the
+the De Bruijn verification and its coded region, of SGBM's fixed-point conversion and of the edge share that the
 compiled loops (``vbfe.recon.kernels``) replaced: the reference the tests hold them to, bit for
 bit."""
 
@@ -10,7 +10,8 @@ from vbfe.drivers.projector.pattern import N_SYMBOLS, WINDOW
 from vbfe.recon.color import DARK_FRACTION, MIN_SIGNAL, ColorModel
 from vbfe.recon.decode import BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, MIN_VOTES, FringeDecoder
 from vbfe.recon.kernels import BOUNDARY_TOLERANCE_PX
-from vbfe.recon.verify import NEIGHBOUR_OFFSETS
+from vbfe.recon.verify import (MIN_REGION_READABLE, NEIGHBOUR_OFFSETS, REGION_FRINGES,
+                               REGION_REACH_FRINGES)
 
 
 def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) -> np.ndarray:
@@ -168,3 +169,17 @@ def _colour_cost(left, right, rows, xl, xr):
         b = right.colour[right_rows, np.clip(xr + dx, 0, width - 1)]
         total += np.abs(a - b).sum(axis=1)
     return total
+
+
+def coded_region(index: np.ndarray, period_px: float) -> np.ndarray:
+    """The coded region as a full-size map: cell grid resized back to the image with OpenCV."""
+    height, width = index.shape
+    cell = max(1, int(period_px // 2))
+    cells = (max(1, width // cell), max(1, height // cell))
+    readable = cv2.resize(cv2.compare(index, 0, cv2.CMP_GE), cells, interpolation=cv2.INTER_AREA)
+    side = 2 * REGION_FRINGES + 1
+    share = cv2.blur(readable, (side, side), borderType=cv2.BORDER_REPLICATE)
+    solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)
+    reach = 2 * 2 * REGION_REACH_FRINGES + 1
+    near = cv2.dilate(solid, np.ones((reach, reach), np.uint8))
+    return cv2.resize(near, (width, height), interpolation=cv2.INTER_NEAREST) > 0

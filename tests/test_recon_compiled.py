@@ -2,6 +2,7 @@
 and edge share give exactly the numpy/OpenCV formulation's results on rendered frames
 (tests/recon_numpy_reference.py), including the repair of wrong matches."""
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -17,7 +18,7 @@ from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.kernels import CORRECTED, KEPT, REJECTED
 from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.quality import edge_fraction
-from vbfe.recon.verify import verify_disparity
+from vbfe.recon.verify import coded_region, verify_disparity
 from vbfe.truth import calibration_from_rig
 
 
@@ -64,6 +65,26 @@ def test_compiled_verification_gives_the_numpy_disparities(decoded):
     assert counts["corrected"] > 1000 and counts["rejected"] > counts["corrected"] // 10
 
 
+def test_coded_region_on_its_cell_grid_and_verification_split_over_two_threads(decoded):
+    reconstructor, _, left, right, disparity = decoded
+    search = reconstructor.params.verify_search_px
+    index = left.index.copy()
+    index[:, :250] = -1  # half the image unreadable: the region has an edge
+    for period in (left.period_px, 5.3, 13.0):  # cells dividing the image and not
+        code = replace(left, index=index, period_px=period)
+        full = reference.coded_region(index, period)
+        assert 0.2 < full.mean() < 0.9
+        assert np.array_equal(coded_region(code), full)
+        by_grid = verify_disparity(disparity, code, right, search)
+        by_map = verify_disparity(disparity, code, right, search, full)
+        assert np.array_equal(by_grid[0], by_map[0], equal_nan=True)
+        assert np.array_equal(by_grid[1], by_map[1]) and by_grid[2] == by_map[2]
+        with ThreadPoolExecutor(1) as pool:
+            split = verify_disparity(disparity, code, right, search, pool=pool)
+        assert np.array_equal(split[0], by_map[0], equal_nan=True)
+        assert np.array_equal(split[1], by_map[1]) and split[2] == by_map[2]
+
+
 def test_compiled_colour_normalisation_gives_opencvs_values(decoded):
     _, pair, _, _, _ = decoded
     rng = np.random.default_rng(5)
@@ -98,3 +119,15 @@ def test_compiled_fixed_point_conversion_and_edge_share(decoded):
         expected = reference.edge_fraction(disparity, low_end, low_end + high - params.min_disparity)
         assert edge_fraction(disparity, shifted) == expected
     assert edge_fraction(disparity, replace(params, min_disparity=int(np.nanmedian(disparity)))) > 0.3
+
+
+def test_reconstruction_split_over_two_threads_gives_the_same_cloud(decoded):
+    reconstructor, pair, _, _, _ = decoded
+    alone = Reconstructor(reconstructor.calibration, parallel_decode=False)
+    together = Reconstructor(reconstructor.calibration, parallel_decode=True)
+    one, two = alone.process(pair.left, pair.right), together.process(pair.left, pair.right)
+    assert len(one.points) > 100_000
+    assert np.array_equal(one.disparity, two.disparity, equal_nan=True)
+    for name in ("points", "colors", "verified", "status"):
+        assert np.array_equal(getattr(one, name), getattr(two, name)), name
+    assert one.counts == two.counts and one.decoded_fraction == two.decoded_fraction
