@@ -25,7 +25,7 @@ class FramePredictor:
         estimator = model.estimators[model.selected]
         self._span = max([*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())],
                          default=0)
-        self._rng = np.random.default_rng(seed)
+        self.rng = np.random.default_rng(seed)  # the draws of every cloud's point pool
         self._preparer: FramePreparer | None = None
         self._frames: list[FrameFeatures] = []  # the rest frame, then the newest frames
 
@@ -33,21 +33,43 @@ class FramePredictor:
     def n_outputs(self) -> int:
         return self.model.config.n_outputs
 
-    def predict(self, points: np.ndarray) -> np.ndarray:
-        """Force (outputs,) of one raw cloud (N×3, may hold NaN); ``EstimateError`` when it has
-        too few points inside the model's region of interest."""
-        config = self.model.config
+    def preparer(self, points: np.ndarray) -> FramePreparer:
+        """The run's preparer; the first cloud given becomes the rest reference."""
         if self._preparer is None:
-            self._preparer = FramePreparer(points, config)
-        cropped = self._preparer.cropped(points)
+            self._preparer = FramePreparer(points, self.model.config)
+        return self._preparer
+
+    def cropped(self, points: np.ndarray) -> np.ndarray:
+        """The model's region of interest of one raw cloud (N×3, may hold NaN);
+        ``EstimateError`` when too few points are in it."""
+        cropped = self.preparer(points).cropped(points)
         if cropped is None:
-            raise EstimateError("the cloud has too few finite points inside the model's region "
-                                "of interest; check the reconstruction or the [train] roi")
-        self._frames.append(self._preparer.features(cropped, config.n_points, self._rng))
+            raise too_few_points()
+        return cropped
+
+    def features(self, points: np.ndarray) -> FrameFeatures:
+        """Every estimator's features of one raw cloud, as in training."""
+        return self.preparer(points).features(self.cropped(points), self.model.config.n_points,
+                                              self.rng)
+
+    def predict_features(self, features: FrameFeatures) -> np.ndarray:
+        """Force (outputs,) of the newest frame's features (after the frames before it)."""
+        self._frames.append(features)
         if len(self._frames) > self._span + 2:
             del self._frames[1]
         n = len(self._frames)
         session = PreparedSession.from_features(
             "live", {}, self._frames, np.arange(n), np.arange(n),
-            np.zeros((n, self.n_outputs)), config, n_frames_total=n)
+            np.zeros((n, self.n_outputs)), self.model.config, n_frames_total=n)
         return self.model.predict_session(session, positions=np.array([n - 1]))[0]
+
+    def predict(self, points: np.ndarray) -> np.ndarray:
+        """Force (outputs,) of one raw cloud (N×3, may hold NaN); ``EstimateError`` when it has
+        too few points inside the model's region of interest."""
+        return self.predict_features(self.features(points))
+
+
+def too_few_points() -> EstimateError:
+    """The error for a cloud with too few points inside the model's region of interest."""
+    return EstimateError("the cloud has too few finite points inside the model's region of "
+                         "interest; check the reconstruction or the [train] roi")

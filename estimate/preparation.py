@@ -94,7 +94,18 @@ class FramePreparer:
         """Features of a cropped cloud (from ``cropped``) with a pool of ``pool_size`` points."""
         pool = sample_points(cropped, pool_size, rng)
         total, count = self._image.sums_counts(cropped)
-        return FrameFeatures(
-            pool=self._rest.with_change(pool) if self._rest else pool.astype(np.float32),
-            displacement_m=self._grid.peak_displacement_m(cropped),
-            image_sum=total, image_count=count)
+        return FrameFeatures(pool=self._pool(pool),
+                             displacement_m=self._grid.peak_displacement_m(cropped),
+                             image_sum=total, image_count=count)
+
+    def pool_features(self, pool: np.ndarray) -> FrameFeatures:
+        """Features holding only a drawn point pool (a network reads nothing else): no
+        displacement, an empty depth-change image."""
+        cells = (self.config.image_cells,) * 2
+        return FrameFeatures(pool=self._pool(pool), displacement_m=float("nan"),
+                             image_sum=np.zeros(cells, np.float32),
+                             image_count=np.zeros(cells, np.float32))
+
+    def _pool(self, pool: np.ndarray) -> np.ndarray:
+        """The pool as the networks read it (with the rest depth change when configured)."""
+        return self._rest.with_change(pool) if self._rest else pool.astype(np.float32)
