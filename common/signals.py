@@ -72,8 +72,8 @@ def stop_pool_on_signals(pool: ProcessPoolExecutor) -> Iterator[None]:
     and the block ends with KeyboardInterrupt or :class:`Terminated`, whatever exception the
     broken pool raised. (The handler raises only while the pool has no workers: an exception
     raised from a handler lands wherever the main thread is, and Python swallows it inside a
-    finalizer.)
-    Signals that are ignored stay ignored; outside the main thread this does nothing."""
+    finalizer.) Signals that are ignored stay ignored; outside the main thread this does
+    nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
