@@ -36,7 +36,7 @@ class FringeCode:
     index: np.ndarray  # int16 H×W, absolute fringe index in the pattern, -1 unreadable
     colour: np.ndarray  # float32 (H/row_step)×W×3, crosstalk-corrected projected colour (BGR)
     period_px: float  # fringe width along the rows
-    row_step: int = 1  # colour holds every row_step-th image row
+    row_step: int = 1  # colour row k holds the middle row of image rows k·row_step … (k+1)·row_step - 1
 
 
 def fringe_period_px(image: np.ndarray) -> float:
@@ -60,25 +60,35 @@ class FringeDecoder:
     """Decodes fringe indices of rectified images for one pattern and colour model."""
 
     def __init__(self, color_model: ColorModel | None = None,
-                 n_fringes: int = DEFAULT_FRINGES, row_step: int = 3) -> None:
-        """``row_step`` > 1 decodes every n-th row and copies its code to the rows below it
-        (fringes run nearly vertically, and a match is accepted within ±1 px of the code, so
-        fringes tilted by less than about 1 px per ``row_step`` rows lose nothing)."""
+                 n_fringes: int = DEFAULT_FRINGES, row_step: int = 5) -> None:
+        """``row_step`` > 1 decodes the middle row of each block of ``row_step`` rows and copies
+        its code to the block's other rows (fringes run nearly vertically, and a match is
+        accepted within ±1 px of the code, so fringes tilted by less than about 1 px per
+        ``row_step // 2`` rows lose nothing)."""
         self.color_model = color_model or ColorModel.identity()
         self.row_step = max(1, int(row_step))
         self.lookup = code_lookup(fringe_symbols(n_fringes), N_SYMBOLS, WINDOW)
         self._channel_symbol = np.empty(3, np.int8)
         self._channel_symbol[list(SYMBOL_CHANNEL_BGR)] = np.arange(3)
 
+    def decoded_rows(self, image: np.ndarray) -> np.ndarray:
+        """The rows of ``image`` that are decoded: the middle row of each block of ``row_step``
+        rows (of a shorter last block, its middle row)."""
+        height, step = image.shape[0], self.row_step
+        if height % step == 0:
+            return image[(step - 1) // 2::step]
+        first = np.arange(0, height, step)
+        return image[first + (np.minimum(step, height - first) - 1) // 2]
+
     def period_px(self, image: np.ndarray) -> float:
         """Fringe width of a (rectified) image, on the rows that are decoded."""
-        return fringe_period_px(image[::self.row_step])
+        return fringe_period_px(self.decoded_rows(image))
 
     def decode(self, image: np.ndarray, period_px: float | None = None) -> FringeCode:
         """Fringe index of every pixel of a (rectified) BGR image."""
         height = image.shape[0]
         period = period_px or self.period_px(image)
-        image = image[::self.row_step]
+        image = self.decoded_rows(image)
         window = max(3, int(round(3.5 * period)))
         colour, value = self.color_model.fringe_colour(image, window)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))

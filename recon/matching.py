@@ -37,8 +37,8 @@ class SgbmParams:
     mode: Literal[MODE_NAMES] = "sgbm_3way"
     # ± pixels searched along the row when verification rejects a match
     verify_search_px: int = setting(3, ge=0)
-    # De Bruijn codes are decoded on every n-th row and copied below
-    decode_row_step: int = setting(3, ge=1)
+    # De Bruijn codes are decoded on the middle row of each block of n rows and copied to the rest
+    decode_row_step: int = setting(5, ge=1)
 
     @classmethod
     def from_config(cls, table: dict[str, Any]) -> "SgbmParams":

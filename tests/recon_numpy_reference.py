@@ -17,7 +17,10 @@ from vbfe.recon.verify import (MIN_REGION_READABLE, NEIGHBOUR_OFFSETS, REGION_FR
 def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) -> np.ndarray:
     """Fringe index map of ``image`` (as ``decoder.decode``) computed with numpy."""
     height = image.shape[0]
-    image = np.ascontiguousarray(image[::decoder.row_step])
+    step = decoder.row_step
+    middle = [min(first + (step - 1) // 2, (first + height - 1) // 2)
+              for first in range(0, height, step)]  # of each block of step rows
+    image = np.ascontiguousarray(image[middle])
     window = max(3, int(round(3.5 * period_px)))
     colour = correct(decoder.color_model, image, window)
     np.maximum(colour, 0.0, out=colour)

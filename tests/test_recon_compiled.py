@@ -46,6 +46,10 @@ def test_compiled_decoder_gives_the_numpy_fringe_indices(decoded):
     half_flat[:, 320:] = 90  # runs far longer than numpy's 128-element pairwise blocks
     assert np.array_equal(decoder.decode(half_flat, period_px=left.period_px).index,
                           reference.decode_index(decoder, half_flat, left.period_px))
+    shorter = pair.left[:357]  # the last block of row_step rows is shorter
+    assert decoder.row_step == 5
+    assert np.array_equal(decoder.decode(shorter, period_px=left.period_px).index,
+                          reference.decode_index(decoder, shorter, left.period_px))
 
 
 def test_compiled_verification_gives_the_numpy_disparities(decoded):
