@@ -440,18 +440,35 @@ def _colour_cost(left_colour, right_colour, y_left, y_right, xl, xr):
     return total
 
 
+@njit(cache=True, nogil=True)
+def _write_match(out_row, status_row, x, d, outcome, doffs):
+    """Write a match that verification let stand (``d`` finite): 1 if it makes a point
+    (``d > doffs``), else 0 with NaN and ``NO_MATCH`` written."""
+    if d > doffs:
+        out_row[x] = d
+        status_row[x] = outcome
+        return 1
+    out_row[x] = np.nan
+    status_row[x] = NO_MATCH
+    return 0
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
                   right_step, search_px, neighbours, coded, coded_rows, coded_cols, first_row,
-                  end_row, out, status):
+                  end_row, doffs_px, out, status):
     """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
     ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` (uint8
     cells; pixel ``(y, x)`` is cell ``(coded_rows[y], coded_cols[x])``) marks where the pattern
     is readable enough that an unreadable left code rejects a match. Only rows
-    ``first_row:end_row`` are checked (and written). Returns their counts (SGBM matches, kept,
-    corrected, rejected, unverified)."""
+    ``first_row:end_row`` are checked (and written). A disparity kept or chosen at or below
+    ``doffs_px`` (at or beyond infinity) is counted as the verification decided, then written
+    as NaN and ``NO_MATCH``, as :func:`count_points` does. Returns the rows' counts (SGBM
+    matches, kept, corrected, rejected, unverified, and points: pixels left with a disparity
+    beyond ``doffs_px``)."""
     height, width = disparity.shape
-    matches = kept = corrected = rejected = unverified = 0
+    matches = kept = corrected = rejected = unverified = points = 0
+    doffs = np.float32(doffs_px)
     penalty = np.float32(1e-3)
     n_shifts = 2 * search_px
     last = width - 1
@@ -472,9 +489,8 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                     status_row[x] = REJECTED
                     rejected += 1
                 else:
-                    out_row[x] = d
-                    status_row[x] = UNVERIFIED
                     unverified += 1
+                    points += _write_match(out_row, status_row, x, d, UNVERIFIED, doffs)
                 continue
             xi = int(np.rint(np.float32(x) - d))
             on_fringe = False
@@ -482,9 +498,8 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                 for k in range(-BOUNDARY_TOLERANCE_PX, BOUNDARY_TOLERANCE_PX + 1):  # unrolled
                     on_fringe |= right_row[min(max(xi + k, 0), last)] == code
             if on_fringe:
-                out_row[x] = d
-                status_row[x] = KEPT
                 kept += 1
+                points += _write_match(out_row, status_row, x, d, KEPT, doffs)
                 continue
             best, best_cost = np.float32(np.nan), np.inf
             for k in range(n_shifts + len(neighbours)):
@@ -508,14 +523,13 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                 if cost < best_cost:
                     best, best_cost = candidate, cost
             if np.isfinite(best_cost):
-                out_row[x] = best
-                status_row[x] = CORRECTED
                 corrected += 1
+                points += _write_match(out_row, status_row, x, best, CORRECTED, doffs)
             else:
                 out_row[x] = np.nan
                 status_row[x] = REJECTED
                 rejected += 1
-    return np.array((matches, kept, corrected, rejected, unverified), np.int64)
+    return np.array((matches, kept, corrected, rejected, unverified, points), np.int64)
 
 
 @njit(cache=True, nogil=True)
@@ -596,7 +610,7 @@ def warm_up() -> None:
     status = np.zeros((4, 8), np.uint8)
     verify_pixels(disparity, index, index, colour, colour, 2, 2, 1,
                   np.zeros((1, 2), np.int64), np.ones((1, 1), np.uint8), np.zeros(4, np.int32),
-                  np.zeros(8, np.int32), 0, 4, disparity.copy(), status)
+                  np.zeros(8, np.int32), 0, 4, 0.0, disparity.copy(), status)
     image_bgr = np.zeros((4, 8, 3), np.uint8)
     triangulate(disparity, status, image_bgr, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     count_points(disparity, status, 0.0, 0, 4)

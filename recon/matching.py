@@ -73,7 +73,11 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,
                    matcher: cv2.StereoSGBM | None = None) -> np.ndarray:
     """Left-view disparity in pixels (float32); pixels without a match are ``NaN``."""
     matcher = matcher or params.create(left.shape[2] if left.ndim == 3 else 1)
-    raw = matcher.compute(left, right)
+    return disparity_px(matcher.compute(left, right), params)
+
+
+def disparity_px(raw: np.ndarray, params: SgbmParams) -> np.ndarray:
+    """StereoSGBM's fixed-point output in pixels (float32), ``NaN`` where it found no match."""
     disparity = np.empty(raw.shape, np.float32)
     kernels.fixed_point_to_px(raw, 1.0 / DISPARITY_SCALE, params.min_disparity * DISPARITY_SCALE,
                               disparity)

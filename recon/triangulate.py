@@ -16,10 +16,10 @@ from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeCode, FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
-from vbfe.recon.matching import SgbmParams, sgbm_disparity
+from vbfe.recon.matching import SgbmParams, disparity_px, sgbm_disparity
 from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
                                 edge_fraction, params_for)
-from vbfe.recon.verify import CodedGrid, coded_grid, verify_disparity
+from vbfe.recon.verify import COUNT_NAMES, CodedGrid, coded_grid, verify_rows
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,11 @@ def _fixed_point_map(map_x: np.ndarray, map_y: np.ndarray
     return None if not fraction.any() and np.array_equal(xy, grid) else (xy, fraction)
 
 
+def _coded_region(code: FringeCode) -> tuple[CodedGrid, float]:
+    """The coded region of a view and its share of readable pixels."""
+    return coded_grid(code), decoded_fraction(code.index)
+
+
 class Reconstructor:
     """Reconstructs stereo frames with one calibration and one set of SGBM settings.
 
@@ -79,6 +84,8 @@ class Reconstructor:
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
         self._doffs = -calibration.doffs  # left minus right principal point x
+        self._camera = (calibration.f, calibration.B, calibration.cx, calibration.cy,
+                        self._doffs, calibration.fy)
         # computed once, in OpenCV's fast fixed-point form, reused for every frame; None
         # where rectification leaves the image as it is (an already-rectified pair)
         self._maps = [_fixed_point_map(map_x, map_y)
@@ -109,70 +116,92 @@ class Reconstructor:
                  ) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
-    def _decode(self, left: np.ndarray, right: np.ndarray
-                ) -> tuple[FringeCode, FringeCode, CodedGrid, float]:
-        """Fringe codes of both rectified views (the right with the left's fringe width), the
-        left's coded region and its share of readable pixels. The two views are decoded at once
-        where OpenCV has several threads (the kernels release the GIL), before SGBM rather than
-        beside it: SGBM splits its rows evenly between the cores, so work beside it holds up
-        one half while the other waits."""
+    def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
+        """Fringe codes of both rectified views (the right with the left's fringe width). The
+        two views are decoded at once where OpenCV has several threads (the kernels release the
+        GIL), before SGBM rather than beside it: SGBM splits its rows evenly between the cores,
+        so work beside it holds up one half while the other waits."""
         period = self.decoder.period_px(left)
         pool = self._second_thread()
         right_code = pool.submit(self.decoder.decode, right, period) if pool else None
         left_code = self.decoder.decode(left, period)
-        coded, decoded = coded_grid(left_code), decoded_fraction(left_code.index)
-        return (left_code, right_code.result() if pool else self.decoder.decode(right, period),
-                coded, decoded)
+        return left_code, right_code.result() if pool else self.decoder.decode(right, period)
 
-    def rectified_disparity(self, left: np.ndarray, right: np.ndarray
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
-        """Rectified left image, disparity (px, NaN invalid), outcome per pixel (the status
-        codes of :mod:`vbfe.recon.kernels`) and quality: the verification counts,
-        ``decoded_fraction`` and ``edge_fraction``."""
+    def _verify_and_triangulate(self, rect_left: np.ndarray, disparity: np.ndarray,
+                                left_code: FringeCode, right_code: FringeCode, coded: CodedGrid
+                                ) -> tuple[np.ndarray, np.ndarray, dict[str, int],
+                                           tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Verified disparity, outcome per pixel, the verification's counts and the cloud:
+        :func:`vbfe.recon.verify.verify_rows` (which also drops matches at or beyond infinity
+        and counts the points) then :func:`vbfe.recon.kernels.fill_points`. With a second
+        thread, the lower half of the rows is verified and filled in it (the same outcome, the
+        points in the same order)."""
+        out, status = np.empty_like(disparity), np.empty(disparity.shape, np.uint8)
+        check = functools.partial(verify_rows, disparity, left_code, right_code,
+                                  self.params.verify_search_px, coded, out=out, status=status,
+                                  doffs_px=self._doffs)
+        pool, height = self._second_thread(), disparity.shape[0]
+        split = height // 2 if pool is not None else height
+        lower = pool.submit(check, split, height) if pool is not None else None
+        upper = check(0, split)
+        counts = upper + lower.result() if lower is not None else upper
+        cloud = self._fill(rect_left, out, status, split, int(upper[-1]), int(counts[-1]), pool)
+        return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts))), cloud
+
+    def _triangulate(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`vbfe.recon.kernels.triangulate`; with a second thread, the lower half of the
+        rows is counted and filled in it (the same points, in the same order)."""
+        pool = self._second_thread()
+        if pool is None:
+            return kernels.triangulate(disparity, status, rect_left, *self._camera)
+        height = disparity.shape[0]
+        split = height // 2
+        lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
+        n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
+        return self._fill(rect_left, disparity, status, split, n_upper,
+                          n_upper + lower.result(), pool)
+
+    def _fill(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray,
+              split: int, n_upper: int, n: int, pool: ThreadPoolExecutor | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The ``n`` points, colours and verified flags of the counted pixels, those of rows
+        from ``split`` on (after ``n_upper`` points) in ``pool``."""
+        points, colors, verified = (np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8),
+                                    np.empty(n, bool))
+        fill = functools.partial(kernels.fill_points, disparity, status, rect_left, *self._camera)
+        height = disparity.shape[0]
+        lower = (pool.submit(fill, split, height, points, colors, verified, n_upper)
+                 if pool is not None and split < height else None)
+        fill(0, split, points, colors, verified, 0)
+        if lower is not None:
+            lower.result()
+        return points, colors, verified
+
+    def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
+        """Point cloud of one raw (unrectified) BGR stereo pair."""
         self._check_size(left, right)
         rect_left, rect_right = (self._rectify(image, maps)
                                  for image, maps in zip((left, right), self._maps))
         if not self.verify:
             disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
-            return rect_left, disparity, status, {
-                "edge_fraction": edge_fraction(disparity, self.params)}
-        left_code, right_code, coded, decoded = self._decode(rect_left, rect_right)
-        disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
-        quality = {"edge_fraction": edge_fraction(disparity, self.params),
-                   "decoded_fraction": decoded}
-        disparity, status, counts = verify_disparity(disparity, left_code, right_code,
-                                                     self.params.verify_search_px, coded,
-                                                     self._second_thread())
-        return rect_left, disparity, status, {**quality, **counts}
-
-    def _triangulate(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`vbfe.recon.kernels.triangulate`; with a second thread, the lower half of the
-        rows is counted and filled in it (the same points, in the same order)."""
-        cal = self.calibration
-        camera = (cal.f, cal.B, cal.cx, cal.cy, self._doffs, cal.fy)
-        pool = self._second_thread()
-        if pool is None:
-            return kernels.triangulate(disparity, status, rect_left, *camera)
-        height = disparity.shape[0]
-        split = height // 2
-        lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
-        n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
-        n = n_upper + lower.result()
-        points, colors, verified = (np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8),
-                                    np.empty(n, bool))
-        fill = functools.partial(kernels.fill_points, disparity, status, rect_left, *camera)
-        lower = pool.submit(fill, split, height, points, colors, verified, n_upper)
-        fill(0, split, points, colors, verified, 0)
-        lower.result()
-        return points, colors, verified
-
-    def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
-        """Point cloud of one raw (unrectified) BGR stereo pair."""
-        rect_left, disparity, status, quality = self.rectified_disparity(left, right)
-        points, colors, verified = self._triangulate(rect_left, disparity, status)
-        counts = {k: int(v) for k, v in quality.items() if not k.endswith("_fraction")}
+            quality = {"edge_fraction": edge_fraction(disparity, self.params)}
+            counts: dict[str, int] = {}
+            cloud = self._triangulate(rect_left, disparity, status)
+        else:
+            left_code, right_code = self._decode(rect_left, rect_right)
+            raw = self._matcher.compute(rect_left, rect_right)
+            # the left's coded region in the second thread while this one converts SGBM's output
+            pool = self._second_thread()
+            region = pool.submit(_coded_region, left_code) if pool is not None else None
+            disparity = disparity_px(raw, self.params)
+            quality = {"edge_fraction": edge_fraction(disparity, self.params)}
+            coded, quality["decoded_fraction"] = (region.result() if region is not None
+                                                  else _coded_region(left_code))
+            disparity, status, counts, cloud = self._verify_and_triangulate(
+                rect_left, disparity, left_code, right_code, coded)
+        points, colors, verified = cloud
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,
                           decoded_fraction=quality.get("decoded_fraction", float("nan")),

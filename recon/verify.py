@@ -13,6 +13,7 @@ the pattern does not reach or cannot be read). The per-pixel loop is compiled
 
 from __future__ import annotations
 
+import functools
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from functools import lru_cache
@@ -30,6 +31,8 @@ MIN_REGION_READABLE = 0.5  # share of readable codes that makes a square solidly
 # how far, in fringe widths, the coded region reaches beyond them (over glare and shadows
 # within the projection: 4 let 0.5 % bad pixels through under strong specularity, 8 none)
 REGION_REACH_FRINGES = 8
+# what verification counts (verify_rows adds the points left)
+COUNT_NAMES = ("sgbm_matches", "kept", "corrected", "rejected", "unverified")
 
 
 @lru_cache(maxsize=16)
@@ -86,6 +89,19 @@ def coded_region(code: FringeCode) -> np.ndarray:
     return coded_grid(code).full()
 
 
+def verify_rows(disparity: np.ndarray, left: FringeCode, right: FringeCode, search_px: int,
+                coded: CodedGrid, first_row: int, end_row: int, out: np.ndarray,
+                status: np.ndarray, doffs_px: float = -np.inf) -> np.ndarray:
+    """Verify rows ``first_row:end_row`` into ``out`` and ``status`` (see
+    :func:`verify_disparity`; matches at or below ``doffs_px``, at or beyond infinity, end as
+    ``NO_MATCH``). Returns their counts: SGBM matches, kept, corrected, rejected, unverified
+    and the pixels left with a disparity (the points they triangulate to)."""
+    return kernels.verify_pixels(disparity, left.index, right.index, left.colour, right.colour,
+                                 left.row_step, right.row_step, search_px, NEIGHBOUR_OFFSETS,
+                                 coded.cells, coded.rows, coded.cols, first_row, end_row,
+                                 doffs_px, out, status)
+
+
 def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
                      search_px: int = 3, coded: np.ndarray | CodedGrid | None = None,
                      pool: Executor | None = None
@@ -107,16 +123,9 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
         coded = CodedGrid.of_map(coded)
     height = disparity.shape[0]
     split = height // 2 if pool is not None else height
-
-    def check(first_row: int, end_row: int) -> np.ndarray:
-        return kernels.verify_pixels(disparity, left.index, right.index, left.colour,
-                                     right.colour, left.row_step, right.row_step, search_px,
-                                     NEIGHBOUR_OFFSETS, coded.cells, coded.rows, coded.cols,
-                                     first_row, end_row, out, status)
-
-    lower = pool.submit(check, split, height) if pool is not None else None
-    counts = check(0, split)
+    check = functools.partial(verify_rows, disparity, left, right, search_px, coded)
+    lower = pool.submit(check, split, height, out, status) if pool is not None else None
+    counts = check(0, split, out, status)
     if lower is not None:
         counts = counts + lower.result()
-    names = ("sgbm_matches", "kept", "corrected", "rejected", "unverified")
-    return out, status, dict(zip(names, (int(c) for c in counts)))
+    return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts)))

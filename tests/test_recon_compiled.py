@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from tests import recon_numpy_reference as reference
+from vbfe.calib.calibration import Calibration
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import ColorModel, Reconstructor, make_pattern
+from vbfe.recon import ColorModel, Reconstructor, kernels, make_pattern
 from vbfe.recon.color import remove_base_color
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.kernels import CORRECTED, KEPT, REJECTED
@@ -135,3 +136,27 @@ def test_reconstruction_split_over_two_threads_gives_the_same_cloud(decoded):
     for name in ("points", "colors", "verified", "status"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
     assert one.counts == two.counts and one.decoded_fraction == two.decoded_fraction
+
+
+def test_verification_drops_matches_beyond_infinity_as_triangulation_did(decoded):
+    reconstructor, pair, _, _, sgbm = decoded
+    cal = reconstructor.calibration
+    doffs = -float(np.round(np.nanmedian(sgbm)))  # about half the matches at or beyond infinity
+    shifted = Calibration.rectified(cal.f, cal.fy, cal.B, cal.cx, cal.cy, cal.image_size, doffs)
+    for parallel in (False, True):
+        fused = Reconstructor(shifted, reconstructor.params, parallel_decode=parallel)
+        cloud = fused.process(pair.left, pair.right)
+        left = fused.decoder.decode(pair.left)
+        right = fused.decoder.decode(pair.right, period_px=left.period_px)
+        disparity = sgbm_disparity(pair.left, pair.right, fused.params)
+        out, status, counts = verify_disparity(disparity, left, right,
+                                               fused.params.verify_search_px)
+        beyond = np.count_nonzero(out <= -doffs)
+        assert beyond > 10_000 and np.count_nonzero(out > -doffs) > 10_000
+        points, colors, verified = kernels.triangulate(out, status, pair.left, cal.f, cal.B,
+                                                       cal.cx, cal.cy, -doffs, cal.fy)
+        assert cloud.counts == counts
+        assert np.array_equal(cloud.disparity, out, equal_nan=True)
+        assert np.array_equal(cloud.status, status)
+        for name, expected in (("points", points), ("colors", colors), ("verified", verified)):
+            assert np.array_equal(getattr(cloud, name), expected), name
