@@ -36,7 +36,7 @@ class FringeCode:
     index: np.ndarray  # int16 H×W, absolute fringe index in the pattern, -1 unreadable
     colour: np.ndarray  # float32 (H/row_step)×W×3, crosstalk-corrected projected colour (BGR)
     period_px: float  # fringe width along the rows
-    row_step: int = 1  # colour row k holds the middle row of image rows k·row_step … (k+1)·row_step - 1
+    row_step: int = 1  # colour row k: the middle row of image rows k·row_step … (k+1)·row_step-1
 
 
 def fringe_period_px(image: np.ndarray) -> float:
