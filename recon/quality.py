@@ -113,9 +113,15 @@ def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
     return float(at_edge / n_matched) if n_matched else 0.0
 
 
-def decoded_fraction(index: np.ndarray) -> float:
-    """Share of pixels whose De Bruijn fringe index could be read (``index >= 0``)."""
-    return float(np.count_nonzero(index >= 0) / max(index.size, 1))
+def decoded_fraction(index: np.ndarray, row_step: int) -> float:
+    """Share of pixels whose De Bruijn fringe index could be read (``index >= 0``) in an index
+    whose blocks of ``row_step`` rows repeat their first row (as the decoder writes it): one row
+    per block is counted, weighted by the block's rows."""
+    readable = np.count_nonzero(index[::row_step] >= 0) * row_step
+    short = -index.shape[0] % row_step  # rows the last block lacks
+    if short:
+        readable -= short * np.count_nonzero(index[-1] >= 0)
+    return float(readable / max(index.size, 1))
 
 
 def _fraction_text(values: np.ndarray) -> str:

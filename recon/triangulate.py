@@ -57,7 +57,7 @@ def _fixed_point_map(map_x: np.ndarray, map_y: np.ndarray
 
 def _coded_region(code: FringeCode) -> tuple[CodedGrid, float]:
     """The coded region of a view and its share of readable pixels."""
-    return coded_grid(code), decoded_fraction(code.index)
+    return coded_grid(code), decoded_fraction(code.index, code.row_step)
 
 
 class Reconstructor:

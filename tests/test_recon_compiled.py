@@ -18,7 +18,7 @@ from vbfe.recon.color import remove_base_color
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.kernels import CORRECTED, KEPT, REJECTED
 from vbfe.recon.matching import sgbm_disparity
-from vbfe.recon.quality import edge_fraction
+from vbfe.recon.quality import decoded_fraction, edge_fraction
 from vbfe.recon.verify import coded_region, verify_disparity
 from vbfe.truth import calibration_from_rig
 
@@ -49,8 +49,11 @@ def test_compiled_decoder_gives_the_numpy_fringe_indices(decoded):
                           reference.decode_index(decoder, half_flat, left.period_px))
     shorter = pair.left[:357]  # the last block of row_step rows is shorter
     assert decoder.row_step == 5
-    assert np.array_equal(decoder.decode(shorter, period_px=left.period_px).index,
-                          reference.decode_index(decoder, shorter, left.period_px))
+    shorter_index = decoder.decode(shorter, period_px=left.period_px).index
+    assert np.array_equal(shorter_index, reference.decode_index(decoder, shorter, left.period_px))
+    for index in (left.index, right.index, shorter_index):  # counted on one row per block
+        expected_share = np.count_nonzero(index >= 0) / index.size
+        assert decoded_fraction(index, decoder.row_step) == expected_share
 
 
 def test_compiled_verification_gives_the_numpy_disparities(decoded):
