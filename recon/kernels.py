@@ -399,29 +399,24 @@ def clamp_and_sum(colour, value):
 
 
 @njit(cache=True, nogil=True)
-def fixed_point_to_px(raw, scale, min_raw, out):
+def fixed_point_to_px(raw, scale, min_raw, low, high, out):
     """StereoSGBM's fixed-point disparities (int16) in pixels (float32 ``raw · scale``, exact
-    for a power-of-two scale), NaN below ``min_raw`` (no match)."""
+    for a power-of-two scale), NaN below ``min_raw`` (no match). Returns the matched pixels and
+    those of them at or below ``low`` or at or above ``high`` (fixed point, like ``raw``; per-row
+    int32 counts keep the loop vectorised)."""
     rows, width = raw.shape
     factor = np.float32(scale)
-    for y in range(rows):
-        r, o = raw[y], out[y]
-        for x in range(width):
-            o[x] = np.float32(r[x]) * factor if r[x] >= min_raw else np.float32(np.nan)
-
-
-@njit(cache=True, nogil=True)
-def edge_counts(disparity, low, high):
-    """Matched pixels (finite disparity) and those at or below ``low`` or at or above
-    ``high``."""
-    rows, width = disparity.shape
     matched = at_edge = 0
     for y in range(rows):
-        d_row = disparity[y]
+        r, o = raw[y], out[y]
+        row_matched = row_edge = np.int32(0)
         for x in range(width):
-            d = d_row[x]
-            matched += np.isfinite(d)
-            at_edge += (d <= low) | (d >= high)
+            v = r[x]
+            o[x] = np.float32(v) * factor if v >= min_raw else np.float32(np.nan)
+            row_matched += np.int32(v >= min_raw)
+            row_edge += np.int32((v >= min_raw) & ((v <= low) | (v >= high)))
+        matched += row_matched
+        at_edge += row_edge
     return matched, at_edge
 
 
@@ -623,6 +618,6 @@ def warm_up() -> None:
         normalise_range(image, image, image, np.ones(3, np.float32), colour, clamp,
                         value[..., 0])
     clamp_and_sum(colour, value[..., 0])
-    fixed_point_to_px(np.zeros((4, 8), np.int16), 1.0 / 16, 16.0, disparity)
-    edge_counts(disparity, np.float32(1.0), np.float32(2.0))
+    fixed_point_to_px(np.zeros((4, 8), np.int16), 1.0 / 16, np.int16(16), np.int16(32),
+                      np.int16(48), disparity)
     range_order_statistics(image, image, 8, 0)

@@ -73,12 +73,19 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,
                    matcher: cv2.StereoSGBM | None = None) -> np.ndarray:
     """Left-view disparity in pixels (float32); pixels without a match are ``NaN``."""
     matcher = matcher or params.create(left.shape[2] if left.ndim == 3 else 1)
-    return disparity_px(matcher.compute(left, right), params)
+    return disparity_px(matcher.compute(left, right), params)[0]
 
 
-def disparity_px(raw: np.ndarray, params: SgbmParams) -> np.ndarray:
-    """StereoSGBM's fixed-point output in pixels (float32), ``NaN`` where it found no match."""
+def disparity_px(raw: np.ndarray, params: SgbmParams) -> tuple[np.ndarray, float]:
+    """StereoSGBM's fixed-point output in pixels (float32), ``NaN`` where it found no match, and
+    the share of matched pixels within one pixel of either end of the disparity range (edge
+    share): surfaces nearer or farther than the range covers pile up there (or are lost)."""
     disparity = np.empty(raw.shape, np.float32)
-    kernels.fixed_point_to_px(raw, 1.0 / DISPARITY_SCALE, params.min_disparity * DISPARITY_SCALE,
-                              disparity)
-    return disparity
+    low = params.min_disparity
+    high = params.min_disparity + params.num_disparities - 1
+    # d <= low + 1 is raw <= (low + 1)·scale exactly (raw / scale is exact in float32)
+    low_raw, edge_low, edge_high = (np.int16(v * DISPARITY_SCALE)
+                                    for v in (low, low + 1, high - 1))
+    matched, at_edge = kernels.fixed_point_to_px(raw, 1.0 / DISPARITY_SCALE, low_raw, edge_low,
+                                                 edge_high, disparity)
+    return disparity, float(at_edge / matched) if matched else 0.0

@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon import kernels
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
@@ -101,16 +100,6 @@ def check_disparity_range(params: SgbmParams, image_size: tuple[int, int]) -> No
                          f"{needed / 2**30:.1f} GiB of SGBM buffers, more than half of this "
                          f"machine's {2 * limit / 2**30:.1f} GiB; narrow it with {RANGE_FLAGS} "
                          f"or use mode sgbm_3way")
-
-
-def edge_fraction(disparity: np.ndarray, params: SgbmParams) -> float:
-    """Share of matched pixels within one pixel of either end of the disparity range: surfaces
-    nearer or farther than the range covers pile up there (or are lost)."""
-    low = params.min_disparity
-    high = params.min_disparity + params.num_disparities - 1
-    # comparisons with NaN are false: unmatched pixels count at neither end
-    n_matched, at_edge = kernels.edge_counts(disparity, np.float32(low + 1), np.float32(high - 1))
-    return float(at_edge / n_matched) if n_matched else 0.0
 
 
 def decoded_fraction(index: np.ndarray, row_step: int) -> float:

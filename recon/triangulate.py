@@ -16,9 +16,8 @@ from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeCode, FringeDecoder
 from vbfe.recon.errors import ReconError
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
-from vbfe.recon.matching import SgbmParams, disparity_px, sgbm_disparity
-from vbfe.recon.quality import (ReconSettings, check_disparity_range, decoded_fraction,
-                                edge_fraction, params_for)
+from vbfe.recon.matching import SgbmParams, disparity_px
+from vbfe.recon.quality import ReconSettings, check_disparity_range, decoded_fraction, params_for
 from vbfe.recon.verify import COUNT_NAMES, CodedGrid, coded_grid, verify_rows
 
 
@@ -184,9 +183,10 @@ class Reconstructor:
         rect_left, rect_right = (self._rectify(image, maps)
                                  for image, maps in zip((left, right), self._maps))
         if not self.verify:
-            disparity = sgbm_disparity(rect_left, rect_right, self.params, self._matcher)
+            disparity, edge = disparity_px(self._matcher.compute(rect_left, rect_right),
+                                           self.params)
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
-            quality = {"edge_fraction": edge_fraction(disparity, self.params)}
+            decoded = float("nan")
             counts: dict[str, int] = {}
             cloud = self._triangulate(rect_left, disparity, status)
         else:
@@ -195,14 +195,11 @@ class Reconstructor:
             # the left's coded region in the second thread while this one converts SGBM's output
             pool = self._second_thread()
             region = pool.submit(_coded_region, left_code) if pool is not None else None
-            disparity = disparity_px(raw, self.params)
-            quality = {"edge_fraction": edge_fraction(disparity, self.params)}
-            coded, quality["decoded_fraction"] = (region.result() if region is not None
-                                                  else _coded_region(left_code))
+            disparity, edge = disparity_px(raw, self.params)
+            coded, decoded = region.result() if region is not None else _coded_region(left_code)
             disparity, status, counts, cloud = self._verify_and_triangulate(
                 rect_left, disparity, left_code, right_code, coded)
         points, colors, verified = cloud
         return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
                           colors=colors, verified=verified, status=status, counts=counts,
-                          decoded_fraction=quality.get("decoded_fraction", float("nan")),
-                          edge_fraction=quality["edge_fraction"])
+                          decoded_fraction=decoded, edge_fraction=edge)

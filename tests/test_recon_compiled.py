@@ -17,8 +17,8 @@ from vbfe.recon import ColorModel, Reconstructor, kernels, make_pattern
 from vbfe.recon.color import remove_base_color
 from vbfe.recon.decode import FringeDecoder
 from vbfe.recon.kernels import CORRECTED, KEPT, REJECTED
-from vbfe.recon.matching import sgbm_disparity
-from vbfe.recon.quality import decoded_fraction, edge_fraction
+from vbfe.recon.matching import disparity_px, sgbm_disparity
+from vbfe.recon.quality import decoded_fraction
 from vbfe.recon.verify import coded_region, verify_disparity
 from vbfe.truth import calibration_from_rig
 
@@ -121,12 +121,14 @@ def test_compiled_fixed_point_conversion_and_edge_share(decoded):
     raw = params.create(3).compute(pair.left, pair.right)
     assert np.array_equal(disparity, reference.disparity_px(raw, params.min_disparity),
                           equal_nan=True)
-    high = params.min_disparity + params.num_disparities - 1
-    for low_end in (params.min_disparity, int(np.nanmedian(disparity))):  # none, half at an end
-        shifted = replace(params, min_disparity=low_end)
-        expected = reference.edge_fraction(disparity, low_end, low_end + high - params.min_disparity)
-        assert edge_fraction(disparity, shifted) == expected
-    assert edge_fraction(disparity, replace(params, min_disparity=int(np.nanmedian(disparity)))) > 0.3
+    low = params.min_disparity
+    shares = []
+    for high in (low + params.num_disparities - 1, int(np.nanmedian(disparity))):  # half at an end
+        converted, share = disparity_px(raw, replace(params, num_disparities=high - low + 1))
+        assert np.array_equal(converted, disparity, equal_nan=True)
+        assert share == reference.edge_fraction(disparity, low, high)
+        shares.append(share)
+    assert shares[1] > 0.3
 
 
 def test_reconstruction_split_over_two_threads_gives_the_same_cloud(decoded):
