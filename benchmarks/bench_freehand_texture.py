@@ -14,7 +14,8 @@ displacement (3D, and its depth component for the depth-only measure), then Hook
 (``F = k̂·d``, one slope over the training trials) on each measure, scored on held-out trials
 (``--test``, the demo's r6–r8 by default) and by leave-three-trials-out cross-validation over
 all trials, beside the mean predictor. No timing. Run:
-``python benchmarks/bench_freehand_texture.py --trials 18``.
+``python benchmarks/bench_freehand_texture.py --trials 18 --workers 2`` (``--remeasure`` after
+a change of the measures: they are kept beside each session).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -59,11 +61,12 @@ def record(folder: Path, trials: list[int]) -> None:
         print(f"recorded {path.name}", flush=True)
 
 
-def measure(path: Path) -> dict[str, np.ndarray]:
+def measure(path: Path, remeasure: bool = False) -> dict[str, np.ndarray]:
     """Per frame: force (N), depth-only and texture peak displacement, true visible
-    displacement and its depth component (m); kept beside the session and reused."""
+    displacement and its depth component (m); kept beside the session and reused unless
+    ``remeasure``."""
     kept = path.with_suffix(".measures.npz")
-    if kept.exists():
+    if kept.exists() and not remeasure:
         with np.load(kept) as stored:
             return dict(stored)
     source = open_source(path)
@@ -109,11 +112,16 @@ def main() -> None:
     parser.add_argument("--sessions", type=Path, default=Path("/tmp/vbfe-bench-texture"))
     parser.add_argument("--trials", type=int, default=18, help="freehand trials r0 … r(n-1)")
     parser.add_argument("--test", default="6,7,8", help="held-out trials (the demo's)")
+    parser.add_argument("--remeasure", action="store_true",
+                        help="measure again (after a change of the measures), not the kept ones")
+    parser.add_argument("--workers", type=int, default=1, help="trials measured at once")
     args = parser.parse_args()
     numbers = list(range(args.trials))
     test = [int(r) for r in args.test.split(",")]
     record(args.sessions, numbers)
-    trials = {r: measure(args.sessions / f"{FREEHAND}_r{r}.h5") for r in numbers}
+    paths = [args.sessions / f"{FREEHAND}_r{r}.h5" for r in numbers]
+    with ProcessPoolExecutor(args.workers) as pool:
+        trials = dict(zip(numbers, pool.map(measure, paths, [args.remeasure] * len(paths))))
     print(f"load average {os.getloadavg()[0]:.2f}")
     print("trial | texture gain vs 3D truth, residual sd (mm) | depth-only gain vs depth truth, "
           "residual sd (mm)")

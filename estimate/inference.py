@@ -39,7 +39,12 @@ class FramePredictor:
         """The run's preparer; the first cloud given (with its colours) becomes the rest
         reference."""
         if self._preparer is None:
-            self._preparer = FramePreparer(points, self.model.config, colors, self._texture)
+            preparer = FramePreparer(points, self.model.config, colors, self._texture)
+            if self._texture and preparer.texture is None:
+                raise EstimateError(f"the model's {self.method} reads the tissue's texture, but "
+                                    f"{preparer.texture_reason}; use a model trained without it "
+                                    "(vbfe train --model ...)")
+            self._preparer = preparer
         return self._preparer
 
     def cropped(self, points: np.ndarray) -> np.ndarray:

@@ -5,17 +5,17 @@ A depth-change image sees only the depth component of a pull; a pull 20–50° a
 moves the tissue mostly sideways. The tissue's own texture (vessels, mottling) moves with it,
 while the projected fringes stay fixed in the projector's frame and slide over it as depth
 changes. So the texture is read where the pattern does not reach: per point, the least lit
-colour channel divided by that channel's bright level in the rest cloud (ambient and crosstalk
-light times the albedo, free of the fringes and of the shading). Clouds are laid back on their
-camera's pixel grid (a triangulated point's ``x/z, y/z`` is its rectified pixel over ``f``; the
-grid step is the rest cloud's smallest step between neighbours in a row), dense optical flow
-(OpenCV's DIS) from the rest texture to the frame's gives every rest pixel's new pixel, and the
-3D displacement there is the frame's point at the new pixel minus the rest point. The feature
-is the largest displacement magnitude after a Gaussian smoothing of ``SMOOTH_PX`` pixels.
+colour channel over that channel's unlit level in the rest cloud (ambient light times the
+albedo: free of the fringes and of the shading). Clouds are laid back on their camera's pixel
+grid (a triangulated point's ``x/z, y/z`` is its rectified pixel over ``f``; the grid step is
+the rest cloud's median step between neighbours in a row), dense optical flow (OpenCV's DIS)
+from the rest texture to the frame's gives every rest pixel's new pixel, and the 3D
+displacement there is the frame's point at the new pixel minus the rest point (both point grids
+smoothed first: the matcher's depth errors repeat with the fringes). The feature is the largest
+magnitude of that field smoothed per component, away from the edges of the view.
 
-A cloud without colours (imported depth images) or an untextured surface has nothing to track:
-:meth:`TextureMotion.peak_displacement_m` then returns NaN and estimators that need it are
-skipped (``TextureMotion.from_rest`` says why).
+A cloud without colours (imported depth images) or a plain surface has nothing to track:
+:meth:`TextureMotion.from_rest` says why and the feature is NaN.
 """
 
 from __future__ import annotations
@@ -26,14 +26,29 @@ import numpy as np
 AMBIENT_PERCENTILE = 30  # a channel's unlit level: most of its points lie outside its fringes
 CONTRAST_PERCENTILES = (1, 99)  # rest texture range mapped to 0–255 for the flow
 TEXTURE_BAND_PX = (2.0, 16.0)  # the texture's contrast: band-pass between these blurs ...
-MIN_TEXTURE_CONTRAST = 0.03  # ... its sd over the mean; plain simulated tissue 0.015, textured 0.045
-SMOOTH_PX = 3.0  # Gaussian sigma of the displacement magnitude before its peak
+# ... its sd over the mean, at least this (plain bench silicone 0.008–0.011, textured 0.028–0.05)
+MIN_TEXTURE_CONTRAST = 0.018
+SMOOTH_PX = 6.0  # Gaussian sigma of the displacement field before the peak of its magnitude
+BORDER_PX = 20  # the peak is taken this far inside the seen pixels (the flow fails near edges)
+POINT_SMOOTH_PX = 6.0  # Gaussian sigma of the point grids before the displacement
 FILL_PX = 2.0  # holes of the pixel grid are filled by a normalised blur of this sigma
 MAX_GRID_PIXELS = 4_000_000
 
 
 def _normalised(points: np.ndarray) -> np.ndarray:
     return points[:, :2] / points[:, 2:3]
+
+
+def _smoothed(points: np.ndarray) -> np.ndarray:
+    """A grid of points (rows × cols × 3, NaN where none) smoothed by a normalised Gaussian of
+    ``POINT_SMOOTH_PX`` (the matcher's depth errors repeat with the fringes, a few pixels
+    apart); NaN where under half the neighbourhood is seen."""
+    seen = np.isfinite(points).all(axis=-1)
+    weight = cv2.GaussianBlur(seen.astype(np.float32), (0, 0), POINT_SMOOTH_PX)
+    total = cv2.GaussianBlur(np.where(seen[..., None], points, 0).astype(np.float32), (0, 0),
+                             POINT_SMOOTH_PX)
+    return np.where((weight > 0.5)[..., None], total / np.maximum(weight, 1e-6)[..., None],
+                    np.nan).astype(np.float32)
 
 
 def _filled(image: np.ndarray) -> np.ndarray:
@@ -55,7 +70,8 @@ class TextureMotion:
         cols, rows = (np.ceil((rest.max(axis=0) - self._lo) / step) + 3).astype(int)
         self._shape = (int(rows), int(cols))
         self._ambient = np.maximum(np.percentile(rest_colors, AMBIENT_PERCENTILE, axis=0), 1.0)
-        self._rest_xyz, texture = self._maps(rest_points, rest_colors)
+        rest_xyz, texture = self._maps(rest_points, rest_colors)
+        self._rest_xyz = _smoothed(rest_xyz)
         self._range = np.nanpercentile(texture, CONTRAST_PERCENTILES)
         filled, seen = _filled(texture), np.isfinite(texture)
         band = (cv2.GaussianBlur(filled, (0, 0), TEXTURE_BAND_PX[0])
@@ -101,7 +117,8 @@ class TextureMotion:
 
     def _grey(self, texture: np.ndarray) -> np.ndarray:
         low, high = self._range
-        return np.clip((_filled(texture) - low) * (255.0 / (high - low)), 0, 255).astype(np.uint8)
+        scale = 255.0 / max(float(high - low), 1e-6)
+        return np.clip((_filled(texture) - low) * scale, 0, 255).astype(np.uint8)
 
     def displacement_m(self, points: np.ndarray, colors: np.ndarray) -> np.ndarray:
         """3D displacement (rows × cols × 3, m, NaN where unseen) of every rest pixel."""
@@ -109,24 +126,27 @@ class TextureMotion:
         finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
         xyz, texture = self._maps(points[finite], np.asarray(colors, np.float32)[finite])
         flow = self._flow.calc(self._rest_texture, self._grey(texture), None)
-        moved = cv2.remap(xyz, self._cols + flow[..., 0], self._rows + flow[..., 1],
-                          cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+        moved = cv2.remap(_smoothed(xyz), self._cols + flow[..., 0], self._rows + flow[..., 1],
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                           borderValue=(np.nan,) * 3)
         return moved - self._rest_xyz
 
     def peak_displacement_m(self, points: np.ndarray, colors: np.ndarray | None) -> float:
-        """Largest smoothed 3D displacement magnitude (m) of a frame; NaN without colours."""
+        """Largest magnitude (m) of a frame's 3D displacement field smoothed per component (a
+        Gaussian of ``SMOOTH_PX``) over the pixels at least ``BORDER_PX`` inside what both
+        frames see (the flow is unreliable at the edges); NaN without colours or where nothing
+        is seen."""
         if colors is None or len(colors) != len(np.asarray(points).reshape(-1, 3)):
             return float("nan")
-        magnitude = np.linalg.norm(self.displacement_m(points, colors), axis=-1)
-        seen = np.isfinite(magnitude)
-        if not seen.any():
+        field = self.displacement_m(points, colors)
+        seen = np.isfinite(field).all(axis=-1)
+        inner = cv2.erode(seen.astype(np.uint8), np.ones((2 * BORDER_PX + 1,) * 2, np.uint8)) > 0
+        if not inner.any():
             return float("nan")
         weight = cv2.GaussianBlur(seen.astype(np.float32), (0, 0), SMOOTH_PX)
-        total = cv2.GaussianBlur(np.where(seen, magnitude, 0).astype(np.float32), (0, 0),
+        total = cv2.GaussianBlur(np.where(seen[..., None], field, 0).astype(np.float32), (0, 0),
                                  SMOOTH_PX)
-        smoothed = np.where(weight > 0.5, total / np.maximum(weight, 1e-6), 0.0)
-        return float(smoothed.max())
+        return float((np.linalg.norm(total[inner], axis=-1) / weight[inner]).max())
 
 
 def pixel_step(points: np.ndarray) -> float:
