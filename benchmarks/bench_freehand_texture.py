@@ -13,7 +13,8 @@ Printed per trial: each measure's gain and residual sd against the bench's true 
 displacement (3D, and its depth component for the depth-only measure), then Hooke's law
 (``F = k̂·d``, one slope over the training trials) on each measure, scored on held-out trials
 (``--test``, the demo's r6–r8 by default) and by leave-three-trials-out cross-validation over
-all trials, beside the mean predictor. No timing. Run:
+all trials, beside the mean predictor; last, the frame preparation's time per frame with and
+without the texture tracking (a ratio: the machine is shared). Run:
 ``python benchmarks/bench_freehand_texture.py --trials 18 --workers 2`` (``--remeasure`` after
 a change of the measures: they are kept beside each session).
 """
@@ -23,18 +24,21 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
 from vbfe.acquire import SessionReader, record_session
-from vbfe.demo import FREEHAND, FREEHAND_FIRST_SEED, DemoPlan, demo_config
 from vbfe.estimate.displacement import DisplacementGrid
+from vbfe.estimate.preparation import FramePreparer
 from vbfe.estimate.sources import open_source
 from vbfe.estimate.texture_motion import TextureMotion
+from vbfe.estimate.train_config import TrainConfig
 from vbfe.recon import CloudReader, SgbmParams, reconstruct_session
 from vbfe.recon.quality import ReconSettings
+
+from vbfe.demo import FREEHAND, FREEHAND_FIRST_SEED, DemoPlan, demo_config
 from vbfe.truth import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
 
@@ -95,6 +99,25 @@ def measure(path: Path, remeasure: bool = False) -> dict[str, np.ndarray]:
     return measures
 
 
+def feature_seconds(path: Path, frames: int = 40) -> tuple[float, float]:
+    """Seconds per frame of the whole frame preparation (``FramePreparer.features``, demo's
+    ``[train]`` settings) with and without the texture tracking, on one trial."""
+    config = TrainConfig.from_table(demo_config(DemoPlan.full())["train"])
+    pool = config.pool_factor * config.n_points
+    with CloudReader(path.with_name(path.stem + ".clouds.h5")) as clouds:
+        loaded = [clouds.cloud(i) for i in range(min(frames, clouds.n_frames))]
+    seconds = []
+    for texture in (True, False):
+        preparer = FramePreparer(loaded[0][0].astype(np.float64), config, loaded[0][1], texture)
+        rng = np.random.default_rng(0)
+        start = time.perf_counter()
+        for points, colors in loaded:
+            points = points.astype(np.float64)
+            preparer.features(preparer.cropped(points), pool, rng, points, colors)
+        seconds.append((time.perf_counter() - start) / len(loaded))
+    return seconds[0], seconds[1]
+
+
 def hooke_mae(trials: dict[int, dict[str, np.ndarray]], feature: str, train: list[int],
               test: list[int]) -> float:
     """Held-out MAE (N) of F = k̂·d fitted on ``train`` (``mean``: the mean predictor)."""
@@ -146,6 +169,10 @@ def main() -> None:
                       for f in folds])
         print(f"{label} | {hooke_mae(trials, feature, demo_train, test):.3f} | "
               f"{hooke_mae(trials, feature, train, test):.3f} | {cv:.3f}")
+    with_texture, without = feature_seconds(paths[test[0]])
+    print(f"frame preparation on r{test[0]}: {with_texture * 1e3:.0f} ms per frame with the "
+          f"texture, {without * 1e3:.0f} ms without ({with_texture / without:.2f}x); load "
+          f"average {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -85,7 +85,7 @@ class TextureMotion:
 
     @classmethod
     def from_rest(cls, points: np.ndarray,
-                  colors: np.ndarray | None) -> tuple["TextureMotion | None", str]:
+                  colors: np.ndarray | None) -> tuple[TextureMotion | None, str]:
         """Tracking against a rest cloud (N×3 m, N×3 colours), or ``None`` and the reason."""
         if colors is None or len(colors) != len(points):
             return None, "the clouds carry no colours"
