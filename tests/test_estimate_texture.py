@@ -3,6 +3,7 @@ projected pattern and reconstructed, and Hooke's law on the tracked 3D displacem
 
 import numpy as np
 import pytest
+from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import Plane, UniformAlbedo, tissue_texture
@@ -15,6 +16,7 @@ from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 from vbfe.recon import Reconstructor, make_pattern
 
+from vbfe.live.estimator import FrameEstimator
 from vbfe.truth import calibration_from_rig
 
 DISTANCE_M = 0.06
@@ -26,24 +28,30 @@ STIFFNESS_N_PER_M = 900.0  # force of each pose: this times its shift's length
 @pytest.fixture(scope="module")
 def shifted_clouds():
     """(points, colours) of a textured plane at each of ``SHIFTS_M`` (the texture moves with
-    it), rendered at 640×360 with the projected pattern and reconstructed; and of a plain
-    plane at rest."""
+    it), rendered at 640×360 with the projected pattern and reconstructed; of a plain plane at
+    rest; and the textured frames with their calibration."""
     rig = default_rig(640, 360)
     pattern = make_pattern(rig.projector.width, rig.projector.height)
-    reconstructor = Reconstructor(calibration_from_rig(rig))
+    calibration = calibration_from_rig(rig)
+    reconstructor = Reconstructor(calibration)
     texture = tissue_texture(np.random.default_rng(3))
 
-    def cloud(shift, albedo, seed):  # each frame its own sensor noise
+    def render(shift, albedo, seed):  # each frame its own sensor noise
         plane = Plane(np.eye(3), np.array([0.0, 0.0, DISTANCE_M]) + shift, texture=albedo)
         pair = render_scene(rig, plane, pattern, rng=np.random.default_rng(seed))
-        frame = reconstructor.process(pair.left, pair.right)
-        return frame.points, frame.colors
-    return ([cloud(shift, texture, seed) for seed, shift in enumerate(SHIFTS_M)],
-            cloud(SHIFTS_M[0], UniformAlbedo((0.72, 0.74, 0.95)), len(SHIFTS_M)))
+        return StereoFrame(left=pair.left, right=pair.right, seq=seed, t_device_ns=seed,
+                           t_host_ns=seed)
+
+    def cloud(frame):
+        reconstructed = reconstructor.process(frame.left, frame.right)
+        return reconstructed.points, reconstructed.colors
+    frames = [render(shift, texture, seed) for seed, shift in enumerate(SHIFTS_M)]
+    plain = render(SHIFTS_M[0], UniformAlbedo((0.72, 0.74, 0.95)), len(SHIFTS_M))
+    return [cloud(frame) for frame in frames], cloud(plain), (frames, calibration)
 
 
 def test_tracking_recovers_a_known_shift(shifted_clouds):
-    clouds, _ = shifted_clouds
+    clouds, _, _ = shifted_clouds
     motion, reason = TextureMotion.from_rest(*clouds[0])
     assert motion is not None, reason
     peaks = []
@@ -61,7 +69,7 @@ def test_tracking_recovers_a_known_shift(shifted_clouds):
 
 
 def test_plain_surfaces_and_clouds_without_colours_are_not_tracked(shifted_clouds):
-    clouds, (plain_points, plain_colors) = shifted_clouds
+    clouds, (plain_points, plain_colors), _ = shifted_clouds
     points, colors = clouds[0]
     assert TextureMotion.from_rest(points, None) == (None, "the clouds carry no colours")
     for rest in ((plain_points, plain_colors), (points, np.zeros_like(colors))):  # as imported
@@ -86,7 +94,7 @@ def _sessions(clouds, with_colours=True):
 
 
 def test_texture_hooke_is_trained_stored_and_used_frame_by_frame(shifted_clouds, tmp_path):
-    clouds, _ = shifted_clouds
+    clouds, _, (frames, calibration) = shifted_clouds
     config = TrainConfig(model="hooke_texture", val_fraction=1 / 3, history_frames=0, threads=1)
     result = train(_sessions(clouds), tmp_path / "model.pt", config)
     assert result.selected == "hooke_texture_3d"
@@ -101,13 +109,22 @@ def test_texture_hooke_is_trained_stored_and_used_frame_by_frame(shifted_clouds,
     forces = [predictor.predict(points, colors)[0] for points, colors in clouds]
     want = STIFFNESS_N_PER_M * np.linalg.norm(SHIFTS_M, axis=1)
     assert np.abs(np.array(forces) - want).mean() < 0.15 * want.mean()
+    # vbfe live reconstructs the frames itself and gives the same forces
+    live = FrameEstimator(model, calibration)
+    np.testing.assert_allclose([live.estimate(frame).force_n[0] for frame in frames], forces,
+                               rtol=1e-6)
+    # with its rows averaged in pairs ([live] row_scale = 0.5) the grid's rows are twice as
+    # far apart; the forces stay near the spring's (measured: 11 % of the mean force)
+    halved = FrameEstimator(model, calibration, row_scale=0.5)
+    forces = [halved.estimate(frame).force_n[0] for frame in frames]
+    assert np.abs(np.array(forces) - want).mean() < 0.2 * want.mean()
     with pytest.raises(EstimateError, match="reads the tissue's texture, but the clouds carry "
                                             "no colours"):
         FramePredictor(model).predict(clouds[0][0])
 
 
 def test_texture_hooke_needs_coloured_textured_clouds(shifted_clouds, tmp_path):
-    clouds, _ = shifted_clouds
+    clouds, _, _ = shifted_clouds
     config = TrainConfig(model="hooke_texture", val_fraction=1 / 3, history_frames=0, threads=1)
     with pytest.raises(EstimateError, match="needs training clouds with the colours"):
         train(_sessions(clouds, with_colours=False), tmp_path / "model.pt", config)
