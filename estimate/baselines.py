@@ -9,6 +9,8 @@ frame, see ``displacement.py``) to force as ``slope·d + intercept`` per output:
   training sessions; the per-condition stiffness is *not* given to it.
 
 Frames without a displacement (NaN) are left out of fitting and predicted with ``d = 0``.
+An affine estimator may read another per-frame displacement (``feature``): the candidate
+``hooke_texture_3d`` (``candidates.py``) reads the 3D displacement tracked in the texture.
 
 - ``mlp_displacement_history``: a small MLP on the causal window of peak displacements
   (``history_baseline.py``); left out when ``[train] history_frames`` is 0.
@@ -31,13 +33,18 @@ from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.history_baseline import HistoryBaseline, fit_history
 
 
+FEATURES = ("displacement_m", "texture_displacement_m")  # PreparedSession's displacements
+
+
 @dataclass(frozen=True)
 class AffineBaseline:
-    """Force = slope·displacement + intercept, one (slope, intercept) per output (newtons)."""
+    """Force = slope·displacement + intercept, one (slope, intercept) per output (newtons);
+    the displacement is the prepared session's ``feature``."""
 
     name: str
     slope: np.ndarray
     intercept: np.ndarray
+    feature: str = FEATURES[0]
 
     def predict(self, displacement_m: np.ndarray) -> np.ndarray:
         """Predicted force (frames × outputs) from peak displacements (frames)."""
@@ -47,16 +54,21 @@ class AffineBaseline:
     def predict_session(self, session: PreparedSession,
                         positions: np.ndarray | None = None) -> np.ndarray:
         """Predicted force (used frames × outputs) of a prepared session."""
-        d = session.displacement_m
+        d = getattr(session, self.feature)
         return self.predict(d if positions is None else d[positions])
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "slope": self.slope.tolist(),
-                "intercept": self.intercept.tolist()}
+                "intercept": self.intercept.tolist(), "feature": self.feature}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "AffineBaseline":
-        return cls(d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float))
+        feature = d.get("feature", FEATURES[0])  # model files before the texture feature
+        if feature not in FEATURES:
+            raise EstimateError(f"estimator {d.get('name')!r} reads an unknown feature "
+                                f"{feature!r} (known: {', '.join(FEATURES)})")
+        return cls(d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float),
+                   feature)
 
 
 Baseline = Union[AffineBaseline, HistoryBaseline]

@@ -3,10 +3,13 @@
 Candidates (``--model`` name → method name in reports): ``pointnet`` (the paper's network,
 the reference method), ``temporal`` (PointNet over a causal window, when ``temporal_frames``
 ≥ 2), ``ridge`` (``ridge_height_map``) and ``cnn`` (``cnn_depth_change``), the last two on the
-depth-change image (``image_models.py``), and ``ensemble`` (``ensemble_cnn_hooke``): the mean of
-the CNN's and Hooke's law's forces. The two err on different trials (the CNN where the image
-looks unlike its training trials, Hooke where the visible depth change under-reads a pull
-that is mostly sideways): their mean errs less than either unless one of them fails.
+depth-change image (``image_models.py``), ``ensemble`` (``ensemble_cnn_hooke``): the mean of
+the CNN's and Hooke's law's forces, and ``hooke_texture`` (``hooke_texture_3d``): Hooke's law
+on the peak 3D displacement tracked in the tissue's texture (``texture_motion.py``). The CNN and
+Hooke err on different trials (the CNN where the image looks unlike its training trials, Hooke
+where the visible depth change under-reads a pull that is mostly sideways): their mean errs
+less than either unless one of them fails. Tracking the texture sees the sideways part of a
+pull; without colours or texture in the training clouds that candidate is skipped.
 Every estimator, candidate or baseline, answers ``predict_session(session, positions=None)``
 and ``to_dict()``.
 """
@@ -19,14 +22,16 @@ from typing import Any, Union
 import numpy as np
 import torch
 
-from vbfe.estimate.baselines import Baseline, baseline_from_dict
+from vbfe.estimate.baselines import FITTERS, AffineBaseline, Baseline, baseline_from_dict
 from vbfe.estimate.dataset import FrameBatches, PreparedSession
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 
 CANDIDATES = {"pointnet": "pointnet", "temporal": "temporal", "ridge": "ridge_height_map",
-              "cnn": "cnn_depth_change", "ensemble": "ensemble_cnn_hooke"}
+              "cnn": "cnn_depth_change", "ensemble": "ensemble_cnn_hooke",
+              "hooke_texture": "hooke_texture_3d"}
+TEXTURE_FEATURE = "texture_displacement_m"
 ENSEMBLE_MEMBERS = (CANDIDATES["cnn"], "hooke")
 
 
@@ -110,3 +115,20 @@ def candidate_names(model: str, temporal: bool) -> list[str]:
     if model == "temporal" and not temporal:
         raise EstimateError("--model temporal needs temporal_frames >= 2 (--temporal-frames)")
     return [CANDIDATES[model]]
+
+
+def fit_texture_hooke(parts: list[tuple[PreparedSession, np.ndarray]]) -> AffineBaseline | None:
+    """Hooke's law on the texture's 3D displacement over the training frames that have one;
+    ``None`` when none has (clouds without colours, or an untextured surface)."""
+    d = np.concatenate([s.texture_displacement_m[p] for s, p in parts])
+    if not np.isfinite(d).any():
+        return None
+    y = np.concatenate([s.targets_n[p] for s, p in parts])
+    return AffineBaseline(CANDIDATES["hooke_texture"], *FITTERS["hooke"](d, y), TEXTURE_FEATURE)
+
+
+def reads_texture(estimator: AnyEstimator) -> bool:
+    """Whether an estimator (or a member of it) reads the texture displacement."""
+    members = getattr(estimator, "members", ())
+    return (getattr(estimator, "feature", None) == TEXTURE_FEATURE
+            or any(reads_texture(m) for m in members))

@@ -38,6 +38,7 @@ class PreparedSession:
     targets_n: np.ndarray  # used frames × outputs
     pools: np.ndarray  # used frames × pool × 3 (x, y, z; 4 with the rest depth change), float32, m
     displacement_m: np.ndarray  # peak surface displacement vs the first usable frame
+    texture_displacement_m: np.ndarray  # peak 3D displacement in the texture (NaN: none)
     image_sum: np.ndarray  # used frames × cells × cells: summed depth change vs rest (m)
     image_count: np.ndarray  # used frames × cells × cells: points per cell
     n_frames_total: int
@@ -73,6 +74,7 @@ class PreparedSession:
                    pools=(np.stack([f.pool for f in features]) if len(features)
                           else np.zeros((0, pool, channels), np.float32)),
                    displacement_m=stacked("displacement_m", (), np.float64),
+                   texture_displacement_m=stacked("texture_displacement_m", (), np.float64),
                    image_sum=stacked("image_sum", (cells, cells), np.float32),
                    image_count=stacked("image_count", (cells, cells), np.float32),
                    n_frames_total=n_frames_total, n_no_cloud=n_no_cloud, n_no_force=n_no_force)
@@ -95,10 +97,10 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
             # the first usable frame is the rest reference even when the stride skips it
             if i % config.frame_stride and preparer is not None:
                 continue
-            points = source.cloud(i)
+            points, colors = source.cloud(i), source.colors(i)
             if preparer is None:
                 try:
-                    preparer = FramePreparer(points, config)
+                    preparer = FramePreparer(points, config, colors)
                 except EstimateError:
                     preparer = None
             cropped = preparer.cropped(points) if preparer is not None else None
@@ -110,7 +112,7 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
                 no_force += 1
             else:
                 kept.append(i)
-                features.append(preparer.features(cropped, pool_size, rng))
+                features.append(preparer.features(cropped, pool_size, rng, points, colors))
         return PreparedSession.from_features(
             source.name, dict(source.conditions), features, np.asarray(kept, dtype=np.int64),
             times[kept], targets[kept], config,

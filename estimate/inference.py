@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel
@@ -26,6 +27,7 @@ class FramePredictor:
         self._span = max([*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())],
                          default=0)
         self.rng = np.random.default_rng(seed)  # the draws of every cloud's point pool
+        self._texture = reads_texture(estimator)  # only then is the texture tracked
         self._preparer: FramePreparer | None = None
         self._frames: list[FrameFeatures] = []  # the rest frame, then the newest frames
 
@@ -33,10 +35,16 @@ class FramePredictor:
     def n_outputs(self) -> int:
         return self.model.config.n_outputs
 
-    def preparer(self, points: np.ndarray) -> FramePreparer:
-        """The run's preparer; the first cloud given becomes the rest reference."""
+    def preparer(self, points: np.ndarray, colors: np.ndarray | None = None) -> FramePreparer:
+        """The run's preparer; the first cloud given (with its colours) becomes the rest
+        reference."""
         if self._preparer is None:
-            self._preparer = FramePreparer(points, self.model.config)
+            preparer = FramePreparer(points, self.model.config, colors, self._texture)
+            if self._texture and preparer.texture is None:
+                raise EstimateError(f"the model's {self.method} reads the tissue's texture, but "
+                                    f"{preparer.texture_reason}; use a model trained without it "
+                                    "(vbfe train --model ...)")
+            self._preparer = preparer
         return self._preparer
 
     def cropped(self, points: np.ndarray) -> np.ndarray:
@@ -47,10 +55,12 @@ class FramePredictor:
             raise too_few_points()
         return cropped
 
-    def features(self, points: np.ndarray) -> FrameFeatures:
-        """Every estimator's features of one raw cloud, as in training."""
-        return self.preparer(points).features(self.cropped(points), self.model.config.n_points,
-                                              self.rng)
+    def features(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
+        """The features of one raw cloud (and its points' colours), as in training (the
+        texture displacement only when the selected method reads it)."""
+        preparer = self.preparer(points, colors)
+        return preparer.features(self.cropped(points), self.model.config.n_points, self.rng,
+                                 points, colors)
 
     def predict_features(self, features: FrameFeatures) -> np.ndarray:
         """Force (outputs,) of the newest frame's features (after the frames before it)."""
@@ -63,10 +73,10 @@ class FramePredictor:
             np.zeros((n, self.n_outputs)), self.model.config, n_frames_total=n)
         return self.model.predict_session(session, positions=np.array([n - 1]))[0]
 
-    def predict(self, points: np.ndarray) -> np.ndarray:
-        """Force (outputs,) of one raw cloud (N×3, may hold NaN); ``EstimateError`` when it has
-        too few points inside the model's region of interest."""
-        return self.predict_features(self.features(points))
+    def predict(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
+        """Force (outputs,) of one raw cloud (N×3, may hold NaN; ``colors`` N×3 or ``None``);
+        ``EstimateError`` when it has too few points inside the model's region of interest."""
+        return self.predict_features(self.features(points, colors))
 
 
 def too_few_points() -> EstimateError:

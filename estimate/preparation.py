@@ -3,8 +3,10 @@
 A run (a session, or ``vbfe live``) starts at rest: its first usable cloud is the reference
 (``FramePreparer``). Every cloud is then cropped to the region of interest and turned into
 ``FrameFeatures``: a pool of points (with their depth change against the rest cloud when the
-PointNet uses it, ``rest_depth.py``), the peak surface displacement (``displacement.py``) and
-the depth-change image (``depth_image.py``).
+PointNet uses it, ``rest_depth.py``), the peak surface displacement (``displacement.py``), the
+depth-change image (``depth_image.py``) and, when the clouds carry the colours of a textured
+surface, the peak 3D displacement tracked in that texture (``texture_motion.py``, on the whole
+cloud, not only the region of interest).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from vbfe.estimate.depth_image import DepthChangeImage
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.rest_depth import RestDepth
+from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
 
 MIN_FRAME_POINTS = 8
@@ -69,12 +72,16 @@ class FrameFeatures:
     displacement_m: float  # peak surface displacement vs the rest cloud (NaN: none seen)
     image_sum: np.ndarray  # cells × cells: summed depth change (m) of the points in each cell
     image_count: np.ndarray  # cells × cells: points per cell
+    texture_displacement_m: float = float("nan")  # peak 3D displacement in the texture (NaN: none)
 
 
 class FramePreparer:
     """The features of every cloud of one run, measured against its rest (first usable) cloud."""
 
-    def __init__(self, rest_points: np.ndarray, config: TrainConfig) -> None:
+    def __init__(self, rest_points: np.ndarray, config: TrainConfig,
+                 rest_colors: np.ndarray | None = None, texture: bool = True) -> None:
+        """``rest_colors``: the rest cloud's colours (N×3); with ``texture`` the texture is
+        tracked when they show one (``texture_reason`` says why not otherwise)."""
         rest = crop_roi(rest_points, config)
         if len(rest) < MIN_FRAME_POINTS:
             raise EstimateError(f"the rest cloud has {len(rest)} points inside the region of "
@@ -83,20 +90,29 @@ class FramePreparer:
         self._grid = DisplacementGrid(rest)
         self._image = DepthChangeImage(rest, config.image_cells)
         self._rest = RestDepth(rest) if config.rest_depth else None
+        self.texture: TextureMotion | None = None
+        self.texture_reason = "texture tracking was not asked for"
+        if texture:
+            self.texture, self.texture_reason = TextureMotion.from_rest(rest_points, rest_colors)
 
     def cropped(self, points: np.ndarray) -> np.ndarray | None:
         """The cloud's points inside the ROI, or ``None`` when too few to use."""
         cropped = crop_roi(points, self.config)
         return cropped if len(cropped) >= MIN_FRAME_POINTS else None
 
-    def features(self, cropped: np.ndarray, pool_size: int,
-                 rng: np.random.Generator) -> FrameFeatures:
-        """Features of a cropped cloud (from ``cropped``) with a pool of ``pool_size`` points."""
+    def features(self, cropped: np.ndarray, pool_size: int, rng: np.random.Generator,
+                 points: np.ndarray | None = None,
+                 colors: np.ndarray | None = None) -> FrameFeatures:
+        """Features of a cropped cloud (from ``cropped``) with a pool of ``pool_size`` points;
+        the texture displacement from the whole cloud ``points`` and its ``colors``."""
         pool = sample_points(cropped, pool_size, rng)
         total, count = self._image.sums_counts(cropped)
+        texture = (self.texture.peak_displacement_m(points, colors)
+                   if self.texture is not None and points is not None else float("nan"))
         return FrameFeatures(pool=self._pool(pool),
                              displacement_m=self._grid.peak_displacement_m(cropped),
-                             image_sum=total, image_count=count)
+                             image_sum=total, image_count=count,
+                             texture_displacement_m=texture)
 
     def pool_features(self, pool: np.ndarray) -> FrameFeatures:
         """Features holding only a drawn point pool (a network reads nothing else): no

@@ -23,6 +23,7 @@ METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
                  "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on depth-change thumbnail",
                  "cnn_depth_change": "CNN on depth-change image",
                  "ensemble_cnn_hooke": "Mean of CNN and Hooke",
+                 "hooke_texture_3d": "Hooke on texture 3D displacement",
                  "mlp_displacement_history": "MLP on displacement history"}
 
 

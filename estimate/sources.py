@@ -2,7 +2,8 @@
 written by ``vbfe import`` (``*.clouds.h5`` with a ``labels`` group), or clouds in memory.
 
 All kinds answer the same questions (name, conditions, frame times, force at each frame, the
-point cloud of frame ``i``), so dataset building never cares which one it reads.
+point cloud of frame ``i`` and its points' colours, ``None`` when it has none), so dataset
+building never cares which one it reads.
 """
 
 from __future__ import annotations
@@ -34,18 +35,21 @@ class CloudSource(Protocol):
     def frame_times_ns(self) -> np.ndarray: ...
     def force_at_frames(self) -> np.ndarray: ...
     def cloud(self, i: int) -> np.ndarray: ...
+    def colors(self, i: int) -> np.ndarray | None: ...
     def close(self) -> None: ...
 
 
 @dataclass
 class SessionClouds:
-    """A session held in memory: ``clouds[i]`` is an N_i×3 array in metres (may be empty/NaN)."""
+    """A session held in memory: ``clouds[i]`` is an N_i×3 array in metres (may be empty/NaN),
+    ``point_colors[i]`` its points' colours (N_i×3 RGB; ``None``: no colours)."""
 
     name: str
     clouds: list[np.ndarray]
     forces_n: np.ndarray  # n_frames × 3, newtons, at each frame's time
     times_ns: np.ndarray  # n_frames, int64
     conditions: dict[str, Any] = field(default_factory=dict)
+    point_colors: list[np.ndarray] | None = None
 
     @property
     def n_frames(self) -> int:
@@ -60,8 +64,26 @@ class SessionClouds:
     def cloud(self, i: int) -> np.ndarray:
         return np.asarray(self.clouds[i], dtype=np.float64)
 
+    def colors(self, i: int) -> np.ndarray | None:
+        return None if self.point_colors is None else np.asarray(self.point_colors[i])
+
     def close(self) -> None:
         pass
+
+
+class _LastFrame:
+    """A clouds file's frames, the newest one read kept: its points and colours are asked for
+    one after the other."""
+
+    def __init__(self, reader: CloudReader) -> None:
+        self.reader = reader
+        self._index = -1
+        self._frame: tuple[np.ndarray, np.ndarray] = (np.empty((0, 3)), np.empty((0, 3)))
+
+    def __call__(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        if i != self._index:
+            self._frame, self._index = self.reader.cloud(i), i
+        return self._frame
 
 
 def clouds_path_for(session_path: str | Path) -> Path:
@@ -86,6 +108,7 @@ class RecordedSession:
             self._clouds = CloudReader(clouds)
         except VbfeError as exc:
             raise EstimateError(f"cannot read {self.path} / {clouds.name}: {exc}") from exc
+        self._frame = _LastFrame(self._clouds)
         if self._clouds.n_frames != self._session.n_frames:
             self.close()
             raise EstimateError(f"{clouds} has {self._clouds.n_frames} clouds but {self.path} has "
@@ -101,8 +124,10 @@ class RecordedSession:
         return np.asarray(self._session.force_at_frames(), dtype=np.float64)
 
     def cloud(self, i: int) -> np.ndarray:
-        points, _colours = self._clouds.cloud(i)
-        return np.asarray(points, dtype=np.float64)
+        return np.asarray(self._frame(i)[0], dtype=np.float64)
+
+    def colors(self, i: int) -> np.ndarray | None:
+        return self._frame(i)[1]
 
     def close(self) -> None:
         for reader in (getattr(self, "_clouds", None), getattr(self, "_session", None)):
@@ -130,6 +155,7 @@ class ImportedClouds:
             self._clouds = CloudReader(self.path)
         except VbfeError as exc:
             raise EstimateError(f"cannot read {self.path}: {exc}") from exc
+        self._frame = _LastFrame(self._clouds)
         self.name = str(self.path)
         self.n_frames = self._clouds.n_frames
         if len(self._forces) != self.n_frames:
@@ -144,7 +170,10 @@ class ImportedClouds:
         return self._forces
 
     def cloud(self, i: int) -> np.ndarray:
-        return np.asarray(self._clouds.cloud(i)[0], dtype=np.float64)
+        return np.asarray(self._frame(i)[0], dtype=np.float64)
+
+    def colors(self, i: int) -> np.ndarray | None:
+        return self._frame(i)[1]
 
     def close(self) -> None:
         self._clouds.close()

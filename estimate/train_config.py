@@ -16,7 +16,7 @@ TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
 ROI_KINDS = ("all", "radius", "box")
 SPLITS = ("session", "time")
 # model choices: "auto" (best on validation) or one candidate (see ``candidates.py``)
-MODELS = ("auto", "pointnet", "temporal", "ridge", "cnn", "ensemble")
+MODELS = ("auto", "pointnet", "temporal", "ridge", "cnn", "ensemble", "hooke_texture")
 DEVICES = ("auto", "cpu", "cuda")
 
 

@@ -29,7 +29,8 @@ import torch
 
 from vbfe.estimate.baselines import fit_baselines
 from vbfe.estimate.candidates import (CANDIDATES, ENSEMBLE_MEMBERS, AnyEstimator,
-                                      MeanEnsemble, NetworkEstimator, candidate_names)
+                                      MeanEnsemble, NetworkEstimator, candidate_names,
+                                      fit_texture_hooke)
 from vbfe.estimate.dataset import (FrameBatches, PreparedSession, ProgressFn, prepare_sessions,
                                    skipped_counts)
 from vbfe.estimate.errors import EstimateError
@@ -193,6 +194,18 @@ def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: 
     if CANDIDATES["ensemble"] in names:
         estimators[CANDIDATES["ensemble"]] = MeanEnsemble(
             tuple(estimators[m] for m in ENSEMBLE_MEMBERS))
+    if CANDIDATES["hooke_texture"] in names:
+        texture_hooke = fit_texture_hooke(train_parts)
+        if texture_hooke is None:
+            names.remove(CANDIDATES["hooke_texture"])
+            notes.append(f"{CANDIDATES['hooke_texture']} skipped: no training frame has a texture"
+                         " displacement (the clouds carry no colours, or the surface shows no "
+                         "texture to track)")
+            if not names:
+                raise EstimateError("--model hooke_texture needs training clouds with the "
+                                    "colours of a textured surface; choose another --model")
+        else:
+            estimators[texture_hooke.name] = texture_hooke
     check = val_parts or train_parts
     val_mae = {name: frames_mae(e.predict_session, check) for name, e in estimators.items()}
     selected = min(names, key=lambda name: val_mae[name])

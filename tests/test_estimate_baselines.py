@@ -16,6 +16,7 @@ def prepared(name, displacement_m, force_n, condition):
                            targets_n=np.asarray(force_n, float).reshape(n, -1),
                            pools=np.zeros((n, 4, 3), np.float32),
                            displacement_m=np.asarray(displacement_m, float),
+                           texture_displacement_m=np.full(n, np.nan),
                            image_sum=np.repeat(d[:, None, None], 4, 1).repeat(4, 2),
                            image_count=np.ones((n, 4, 4), np.float32),
                            n_frames_total=n, n_no_cloud=0, n_no_force=0)

@@ -154,7 +154,9 @@ FREEHAND_FIRST_SEED = 101
 def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
                  stage: StageFn) -> list[Path]:
     """One session per paper condition and repeat, then the freehand trials; each a new trial
-    (seed)."""
+    (seed). The freehand trials' tissue is textured (vessels, mottling), as real tissue is:
+    the texture shows the sideways part of a pull (``hooke_texture_3d``); the paper sessions
+    keep the plain silicone of the paper's phantom."""
     from vbfe.acquire import record_session
     from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
     from vbfe.truth import trial_duration_s
@@ -167,8 +169,8 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
             for seed, (k, v, r) in enumerate(((k, v, r) for k, v in PAPER_CONDITIONS.items()
                                               for r in range(plan.repeats)), start=1)]
     runs += [({"protocol": FREEHAND, "freehand_duration_s": plan.freehand_s,
-               "seed": FREEHAND_FIRST_SEED + r}, f"{FREEHAND}_r{r}",
-              f"simulated freehand traction trial {r}")
+               "seed": FREEHAND_FIRST_SEED + r, "textured": True}, f"{FREEHAND}_r{r}",
+              f"simulated freehand traction trial {r} on textured tissue")
              for r in range(plan.freehand_trials + plan.freehand_test_trials)]
     step = stage("record sessions", len(runs))
     for bench, name, notes in runs:

@@ -27,6 +27,7 @@ METHODS = (("pointnet", "PointNet (modified)"), ("temporal", "temporal PointNet"
            ("hooke", "Hooke's law"), ("ridge_height_map", "ridge on height map"),
            ("cnn_depth_change", "CNN on depth-change image"),
            ("ensemble_cnn_hooke", "mean of CNN and Hooke's law"),
+           ("hooke_texture_3d", "Hooke's law on the 3D displacement tracked in the texture"),
            ("mlp_displacement_history", "MLP on displacement history"))
 
 

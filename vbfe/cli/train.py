@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--learning-rate", type=float)
     parser.add_argument("--target", metavar="magnitude|xyz|AXIS",
                         help="regress |F|, the 3 axes, or one signed axis (x, -z, ...)")
-    parser.add_argument("--model", metavar="auto|pointnet|temporal|ridge|cnn|ensemble",
+    parser.add_argument("--model", metavar="auto|pointnet|temporal|ridge|cnn|ensemble|hooke_texture",
                         help="auto (default): the candidate best on validation; else force one")
     parser.add_argument("--split", metavar="session|time", help="hold out whole sessions (default) or "
                         "the end of each session in time (train, then validation, then test)")

@@ -54,6 +54,7 @@ class FrameWork:
     frame: StereoFrame
     stage_s: list[float] = field(default_factory=list)
     points: np.ndarray | None = None
+    colors: np.ndarray | None = None  # the points' colours (texture tracking)
     features: FrameFeatures | None = None  # None: too few points for the model
 
 
@@ -119,7 +120,8 @@ class FrameEstimator:
             left, right = (cv2.resize(image, size, interpolation=cv2.INTER_AREA)
                            for image in (frame.left, frame.right))
         t1 = time.perf_counter()
-        work.points = self.reconstructor.process(left, right).points
+        cloud = self.reconstructor.process(left, right)
+        work.points, work.colors = cloud.points, cloud.colors
         work.stage_s += [t1 - t0, time.perf_counter() - t1]
         return work
 
@@ -127,7 +129,7 @@ class FrameEstimator:
         """The model's features of the frame's cloud (none when it has too few points)."""
         t0 = time.perf_counter()
         try:
-            work.features = self._predictor.prepare(work.points)
+            work.features = self._predictor.prepare(work.points, work.colors)
         except EstimateError:  # too few points inside the model's region of interest
             work.features = None
         work.stage_s.append(time.perf_counter() - t0)

@@ -34,11 +34,12 @@ class LivePredictor:
         self._device = (next(estimator.network.parameters()).device if self._pool_only
                         else None)
 
-    def prepare(self, points: np.ndarray) -> FrameFeatures:
-        """The features of one raw cloud (N×3, may hold NaN); ``EstimateError`` when it has
-        too few points inside the model's region of interest."""
+    def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
+        """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or
+        ``None``); ``EstimateError`` when it has too few points inside the model's region of
+        interest."""
         if not self._pool_only:
-            return self._full.features(points)
+            return self._full.features(points, colors)
         preparer = self._full.preparer(points)
         pool_size = self.model.config.n_points  # as FramePredictor draws
         if self.model.config.roi == "all" and np.isfinite(points).all():

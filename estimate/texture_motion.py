@@ -1,0 +1,172 @@
+"""3D surface displacement from the tissue's texture: where the grasped tissue has moved, not
+only how far its depth has changed.
+
+A depth-change image sees only the depth component of a pull; a pull 20–50° above the surface
+moves the tissue mostly sideways. The tissue's own texture (vessels, mottling) moves with it,
+while the projected fringes stay fixed in the projector's frame and slide over it as depth
+changes. So the texture is read where the pattern does not reach: per point, the least lit
+colour channel over that channel's unlit level in the rest cloud (ambient light times the
+albedo: free of the fringes and of the shading). Clouds are laid back on their camera's pixel
+grid (a triangulated point's ``x/z, y/z`` is its rectified pixel over ``f``; the grid step is
+the rest cloud's median step between neighbours in a row), dense optical flow (OpenCV's DIS)
+from the rest texture to the frame's gives every rest pixel's new pixel, and the 3D
+displacement there is the frame's point at the new pixel minus the rest point (both point grids
+smoothed first: the matcher's depth errors repeat with the fringes). The feature is the largest
+magnitude of that field smoothed per component, away from the edges of the view.
+
+A cloud without colours (imported depth images) or a plain surface has nothing to track:
+:meth:`TextureMotion.from_rest` says why and the feature is NaN.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+AMBIENT_PERCENTILE = 30  # a channel's unlit level: most of its points lie outside its fringes
+CONTRAST_PERCENTILES = (1, 99)  # rest texture range mapped to 0–255 for the flow
+TEXTURE_BAND_PX = (2.0, 16.0)  # the texture's contrast: band-pass between these blurs ...
+# ... its sd over the mean, at least this (plain bench silicone 0.008–0.011, textured 0.028–0.05)
+MIN_TEXTURE_CONTRAST = 0.018
+SMOOTH_PX = 6.0  # Gaussian sigma of the displacement field before the peak of its magnitude
+BORDER_PX = 20  # the peak is taken this far inside the seen pixels (the flow fails near edges)
+POINT_SMOOTH_PX = 6.0  # Gaussian sigma of the point grids before the displacement
+FILL_PX = 2.0  # holes of the pixel grid are filled by a normalised blur of this sigma
+MAX_GRID_PIXELS = 4_000_000
+
+
+def _normalised(points: np.ndarray) -> np.ndarray:
+    return points[:, :2] / points[:, 2:3]
+
+
+def _blur(image: np.ndarray, sigma_px: float, aspect: float) -> np.ndarray:
+    """Gaussian of ``sigma_px`` grid columns, the same length along the rows (``aspect``:
+    a column's width over a row's height, 0.5 when rows were averaged in pairs)."""
+    return cv2.GaussianBlur(image, (0, 0), sigmaX=sigma_px, sigmaY=max(sigma_px * aspect, 0.3))
+
+
+def _normalised_blur(values: np.ndarray, seen: np.ndarray, sigma_px: float,
+                     aspect: float) -> tuple[np.ndarray, np.ndarray]:
+    """Blur of the seen ``values`` (0 elsewhere) and of the seen mask (its weight)."""
+    mask = seen.astype(np.float32)
+    filled = np.where(seen[..., None] if values.ndim == 3 else seen, values, 0)
+    return _blur(filled.astype(np.float32), sigma_px, aspect), _blur(mask, sigma_px, aspect)
+
+
+class TextureMotion:
+    """Texture tracking against a rest cloud; build it with :meth:`from_rest`."""
+
+    def __init__(self, rest_points: np.ndarray, rest_colors: np.ndarray,
+                 step: tuple[float, float]) -> None:
+        rest = _normalised(rest_points)
+        self._step = np.asarray(step, np.float64)  # grid pitch along x and y (in x/z, y/z)
+        self._aspect = float(self._step[0] / self._step[1])
+        self._lo = rest.min(axis=0) - 2 * self._step
+        cols, rows = (np.ceil((rest.max(axis=0) - self._lo) / self._step) + 3).astype(int)
+        self._shape = (int(rows), int(cols))
+        self._ambient = np.maximum(np.percentile(rest_colors, AMBIENT_PERCENTILE, axis=0), 1.0)
+        rest_xyz, texture = self._maps(rest_points, rest_colors)
+        self._rest_xyz = self._smoothed(rest_xyz)
+        self._range = np.nanpercentile(texture, CONTRAST_PERCENTILES)
+        filled, seen = self._filled(texture), np.isfinite(texture)
+        band = (_blur(filled, TEXTURE_BAND_PX[0], self._aspect)
+                - _blur(filled, TEXTURE_BAND_PX[1], self._aspect))
+        mean = float(texture[seen].mean()) if seen.any() else 0.0
+        self.contrast = float(band[seen].std() / mean) if mean > 0 else 0.0
+        self._rest_texture = self._grey(texture)
+        self._flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        grid = np.mgrid[0:self._shape[0], 0:self._shape[1]].astype(np.float32)
+        self._rows, self._cols = grid[0], grid[1]
+        border = (2 * max(1, round(BORDER_PX * self._aspect)) + 1, 2 * BORDER_PX + 1)
+        self._border = np.ones(border, np.uint8)
+
+    @classmethod
+    def from_rest(cls, points: np.ndarray,
+                  colors: np.ndarray | None) -> tuple[TextureMotion | None, str]:
+        """Tracking against a rest cloud (N×3 m, N×3 colours), or ``None`` and the reason."""
+        if colors is None or len(colors) != len(points):
+            return None, "the clouds carry no colours"
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
+        points, colors = points[finite], np.asarray(colors, np.float32)[finite]
+        step = pixel_steps(points)
+        if not np.isfinite(step).all():
+            return None, "the rest cloud is not laid out on a camera's pixel grid"
+        span = _normalised(points).max(axis=0) - _normalised(points).min(axis=0)
+        if np.prod(span / np.asarray(step) + 5) > MAX_GRID_PIXELS:
+            return None, "the rest cloud's pixel grid is too large"
+        motion = cls(points, colors, step)
+        if not motion.contrast >= MIN_TEXTURE_CONTRAST:
+            return None, (f"the surface shows no texture to track (contrast {motion.contrast:.3f}"
+                          f" < {MIN_TEXTURE_CONTRAST})")
+        return motion, ""
+
+    def _maps(self, points: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points (rows × cols × 3, NaN where none) and texture (rows × cols) on the grid."""
+        ij = np.rint((_normalised(points) - self._lo) / self._step).astype(np.int64)
+        inside = ((ij >= 0) & (ij < np.array(self._shape[::-1]))).all(axis=1)
+        col, row = ij[inside, 0], ij[inside, 1]
+        xyz = np.full(self._shape + (3,), np.nan, np.float32)
+        texture = np.full(self._shape, np.nan, np.float32)
+        xyz[row, col] = points[inside]
+        texture[row, col] = (np.asarray(colors, np.float32)[inside] / self._ambient).min(axis=1)
+        return xyz, texture
+
+    def _smoothed(self, points: np.ndarray) -> np.ndarray:
+        """A point grid (NaN where none) smoothed by a normalised Gaussian of
+        ``POINT_SMOOTH_PX`` (the matcher's depth errors repeat with the fringes, a few pixels
+        apart); NaN where under half the neighbourhood is seen."""
+        total, weight = _normalised_blur(points, np.isfinite(points).all(axis=-1),
+                                         POINT_SMOOTH_PX, self._aspect)
+        return np.where((weight > 0.5)[..., None], total / np.maximum(weight, 1e-6)[..., None],
+                        np.nan).astype(np.float32)
+
+    def _filled(self, image: np.ndarray) -> np.ndarray:
+        """NaN holes filled from their neighbours (normalised Gaussian blur of ``FILL_PX``)."""
+        seen = np.isfinite(image)
+        total, weight = _normalised_blur(image, seen, FILL_PX, self._aspect)
+        return np.where(seen, image, total / np.maximum(weight, 1e-6)).astype(np.float32)
+
+    def _grey(self, texture: np.ndarray) -> np.ndarray:
+        low, high = self._range
+        scale = 255.0 / max(float(high - low), 1e-6)
+        return np.clip((self._filled(texture) - low) * scale, 0, 255).astype(np.uint8)
+
+    def displacement_m(self, points: np.ndarray, colors: np.ndarray) -> np.ndarray:
+        """3D displacement (rows × cols × 3, m, NaN where unseen) of every rest pixel."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
+        xyz, texture = self._maps(points[finite], np.asarray(colors, np.float32)[finite])
+        flow = self._flow.calc(self._rest_texture, self._grey(texture), None)
+        moved = cv2.remap(self._smoothed(xyz), self._cols + flow[..., 0],
+                          self._rows + flow[..., 1], cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
+        return moved - self._rest_xyz
+
+    def peak_displacement_m(self, points: np.ndarray, colors: np.ndarray | None) -> float:
+        """Largest magnitude (m) of a frame's 3D displacement field smoothed per component (a
+        Gaussian of ``SMOOTH_PX``) over the pixels at least ``BORDER_PX`` inside what both
+        frames see (the flow is unreliable at the edges); NaN without colours or where nothing
+        is seen."""
+        if colors is None or len(colors) != len(np.asarray(points).reshape(-1, 3)):
+            return float("nan")
+        field = self.displacement_m(points, colors)
+        seen = np.isfinite(field).all(axis=-1)
+        inner = cv2.erode(seen.astype(np.uint8), self._border) > 0
+        if not inner.any():
+            return float("nan")
+        total, weight = _normalised_blur(field, seen, SMOOTH_PX, self._aspect)
+        return float((np.linalg.norm(total[inner], axis=-1) / weight[inner]).max())
+
+
+def pixel_steps(points: np.ndarray) -> tuple[float, float]:
+    """The pixel pitch (in ``x/z``, ``y/z``) of a cloud triangulated row by row on a rectified
+    pixel grid: along a row the median step between consecutive points, across rows the median
+    step from a row's last point to the next row's first (NaN when the points are no grid)."""
+    step = np.diff(_normalised(points), axis=0)
+    along = step[(step[:, 0] > 0) & (np.abs(step[:, 1]) < 0.25 * step[:, 0]), 0]
+    if len(along) < 16:
+        return float("nan"), float("nan")
+    pitch = float(np.median(along))
+    across = step[(step[:, 0] < 0) & (step[:, 1] > 0.5 * pitch), 1]
+    return pitch, float(np.median(across)) if len(across) >= 4 else float("nan")

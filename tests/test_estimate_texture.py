@@ -1,0 +1,131 @@
+"""Texture tracking: a textured surface moved sideways by a known shift, rendered with the
+projected pattern and reconstructed, and Hooke's law on the tracked 3D displacement."""
+
+import numpy as np
+import pytest
+from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers.sim.render import render_scene
+from vbfe.drivers.sim.rig import default_rig
+from vbfe.drivers.sim.tissue import Plane, UniformAlbedo, tissue_texture
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.inference import FramePredictor
+from vbfe.estimate.model_file import load_model
+from vbfe.estimate.sources import SessionClouds
+from vbfe.estimate.texture_motion import TextureMotion
+from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate.training import train
+from vbfe.recon import Reconstructor, make_pattern
+
+from vbfe.live.estimator import FrameEstimator
+from vbfe.truth import calibration_from_rig
+
+DISTANCE_M = 0.06
+SHIFTS_M = np.array([[0.0, 0.0, 0.0], [0.4e-3, -0.3e-3, 0.0], [1.2e-3, -0.6e-3, 0.0],
+                     [-1.0e-3, 1.8e-3, 0.4e-3]])  # the first is the rest pose
+STIFFNESS_N_PER_M = 900.0  # force of each pose: this times its shift's length
+
+
+@pytest.fixture(scope="module")
+def shifted_clouds():
+    """(points, colours) of a textured plane at each of ``SHIFTS_M`` (the texture moves with
+    it), rendered at 640×360 with the projected pattern and reconstructed; of a plain plane at
+    rest; and the textured frames with their calibration."""
+    rig = default_rig(640, 360)
+    pattern = make_pattern(rig.projector.width, rig.projector.height)
+    calibration = calibration_from_rig(rig)
+    reconstructor = Reconstructor(calibration)
+    texture = tissue_texture(np.random.default_rng(3))
+
+    def render(shift, albedo, seed):  # each frame its own sensor noise
+        plane = Plane(np.eye(3), np.array([0.0, 0.0, DISTANCE_M]) + shift, texture=albedo)
+        pair = render_scene(rig, plane, pattern, rng=np.random.default_rng(seed))
+        return StereoFrame(left=pair.left, right=pair.right, seq=seed, t_device_ns=seed,
+                           t_host_ns=seed)
+
+    def cloud(frame):
+        reconstructed = reconstructor.process(frame.left, frame.right)
+        return reconstructed.points, reconstructed.colors
+    frames = [render(shift, texture, seed) for seed, shift in enumerate(SHIFTS_M)]
+    plain = render(SHIFTS_M[0], UniformAlbedo((0.72, 0.74, 0.95)), len(SHIFTS_M))
+    return [cloud(frame) for frame in frames], cloud(plain), (frames, calibration)
+
+
+def test_tracking_recovers_a_known_shift(shifted_clouds):
+    clouds, _, _ = shifted_clouds
+    motion, reason = TextureMotion.from_rest(*clouds[0])
+    assert motion is not None, reason
+    peaks = []
+    for (points, colors), shift in zip(clouds[1:], SHIFTS_M[1:]):
+        field = motion.displacement_m(points, colors)
+        seen = np.isfinite(field).all(axis=-1)
+        assert seen.mean() > 0.8
+        # the whole surface moved by the shift: sideways (what a depth map cannot see) and in
+        # depth, each within a fifth of a millimetre (a pixel is 0.13 mm at 60 mm)
+        np.testing.assert_allclose(np.median(field[seen], axis=0), shift, atol=2e-4)
+        peaks.append(motion.peak_displacement_m(points, colors))
+    lengths = np.linalg.norm(SHIFTS_M[1:], axis=1)
+    assert np.all(np.argsort(peaks) == np.argsort(lengths))
+    assert np.all((np.array(peaks) > 0.9 * lengths) & (np.array(peaks) < 1.6 * lengths))
+
+
+def test_plain_surfaces_and_clouds_without_colours_are_not_tracked(shifted_clouds):
+    clouds, (plain_points, plain_colors), _ = shifted_clouds
+    points, colors = clouds[0]
+    assert TextureMotion.from_rest(points, None) == (None, "the clouds carry no colours")
+    for rest in ((plain_points, plain_colors), (points, np.zeros_like(colors))):  # as imported
+        motion, reason = TextureMotion.from_rest(*rest)
+        assert motion is None and reason.startswith("the surface shows no texture to track")
+    motion, _ = TextureMotion.from_rest(points, colors)
+    assert np.isnan(motion.peak_displacement_m(*clouds[1][:1], None))
+
+
+def _sessions(clouds, with_colours=True):
+    """Three sessions through the shifted poses in different orders, from rest, with the
+    force of a spring pulled by each shift."""
+    sessions = []
+    for k, order in enumerate(([0, 1, 2, 3], [0, 3, 2, 1], [0, 2, 3, 1])):
+        force = STIFFNESS_N_PER_M * np.linalg.norm(SHIFTS_M[order], axis=1)
+        sessions.append(SessionClouds(
+            f"plane{k}", [clouds[i][0] for i in order],
+            np.column_stack([force, np.zeros((len(order), 2))]),
+            np.arange(len(order), dtype=np.int64) * 10**8,
+            point_colors=[clouds[i][1] for i in order] if with_colours else None))
+    return sessions
+
+
+def test_texture_hooke_is_trained_stored_and_used_frame_by_frame(shifted_clouds, tmp_path):
+    clouds, _, (frames, calibration) = shifted_clouds
+    config = TrainConfig(model="hooke_texture", val_fraction=1 / 3, history_frames=0, threads=1)
+    result = train(_sessions(clouds), tmp_path / "model.pt", config)
+    assert result.selected == "hooke_texture_3d"
+    # the shifts are mostly sideways: the depth-only Hooke's law cannot follow the force
+    assert result.val_mae_n["hooke_texture_3d"] < 0.4 * result.val_mae_n["hooke"]
+    model = load_model(result.model_path)
+    estimator = model.estimators["hooke_texture_3d"]
+    # read back from the file: Hooke's law on the texture (its peak over-reads a little)
+    assert estimator.feature == "texture_displacement_m" and estimator.intercept == 0
+    assert 0.5 * STIFFNESS_N_PER_M < estimator.slope[0] < 1.1 * STIFFNESS_N_PER_M
+    predictor = FramePredictor(model)
+    forces = [predictor.predict(points, colors)[0] for points, colors in clouds]
+    want = STIFFNESS_N_PER_M * np.linalg.norm(SHIFTS_M, axis=1)
+    assert np.abs(np.array(forces) - want).mean() < 0.15 * want.mean()
+    # vbfe live reconstructs the frames itself and gives the same forces
+    live = FrameEstimator(model, calibration)
+    np.testing.assert_allclose([live.estimate(frame).force_n[0] for frame in frames], forces,
+                               rtol=1e-6)
+    # with its rows averaged in pairs ([live] row_scale = 0.5) the grid's rows are twice as
+    # far apart; the forces stay near the spring's (measured: 11 % of the mean force)
+    halved = FrameEstimator(model, calibration, row_scale=0.5)
+    forces = [halved.estimate(frame).force_n[0] for frame in frames]
+    assert np.abs(np.array(forces) - want).mean() < 0.2 * want.mean()
+    with pytest.raises(EstimateError, match="reads the tissue's texture, but the clouds carry "
+                                            "no colours"):
+        FramePredictor(model).predict(clouds[0][0])
+
+
+def test_texture_hooke_needs_coloured_textured_clouds(shifted_clouds, tmp_path):
+    clouds, _, _ = shifted_clouds
+    config = TrainConfig(model="hooke_texture", val_fraction=1 / 3, history_frames=0, threads=1)
+    with pytest.raises(EstimateError, match="needs training clouds with the colours"):
+        train(_sessions(clouds, with_colours=False), tmp_path / "model.pt", config)
+    assert not (tmp_path / "model.pt").exists()
