@@ -80,8 +80,10 @@ class PreparedSession:
                    n_frames_total=n_frames_total, n_no_cloud=n_no_cloud, n_no_force=n_no_force)
 
 
-def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
-    """Read one session (path with clouds sidecar, imported clouds, or ``SessionClouds``)."""
+def prepare_session(item: SessionLike, config: TrainConfig,
+                    texture: bool = True) -> PreparedSession:
+    """Read one session (path with clouds sidecar, imported clouds, or ``SessionClouds``);
+    the tissue's texture is tracked only with ``texture`` (a method reads it)."""
     source = open_source(item)
     try:
         targets = force_target(source.force_at_frames(), config.target)
@@ -100,7 +102,7 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
             points, colors = source.cloud(i), source.colors(i)
             if preparer is None:
                 try:
-                    preparer = FramePreparer(points, config, colors)
+                    preparer = FramePreparer(points, config, colors, texture)
                 except EstimateError:
                     preparer = None
             cropped = preparer.cropped(points) if preparer is not None else None
@@ -123,11 +125,13 @@ def prepare_session(item: SessionLike, config: TrainConfig) -> PreparedSession:
 
 
 def prepare_sessions(items: Sequence[SessionLike], config: TrainConfig,
-                     progress: ProgressFn | None = None) -> list[PreparedSession]:
-    """Prepare several sessions; an error names the session that has no usable frame."""
+                     progress: ProgressFn | None = None,
+                     texture: bool = True) -> list[PreparedSession]:
+    """Prepare several sessions (the texture tracked only with ``texture``); an error names
+    the session that has no usable frame."""
     prepared = []
     for k, item in enumerate(items):
-        session = prepare_session(item, config)
+        session = prepare_session(item, config, texture)
         if session.n_used == 0:
             raise EstimateError(f"session {session.name} has no usable frame ({session.n_no_cloud}"
                                 f" frames with too few points in the ROI, {session.n_no_force} "

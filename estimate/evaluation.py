@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel, load_model
@@ -136,7 +137,8 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
                                 "to evaluate")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    prepared = prepare_sessions(sessions, model.config, progress)
+    prepared = prepare_sessions(sessions, model.config, progress,
+                                texture=any(map(reads_texture, model.estimators.values())))
     methods = [model.selected, *(m for m in model.estimators if m != model.selected)]
     label = target_label(model.config.target)
 

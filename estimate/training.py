@@ -262,7 +262,10 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     config = config or TrainConfig()
     started = time.monotonic()
     with _training_threads(config.threads), torch.random.fork_rng(devices=[]):
-        prepared = prepare_sessions(sessions, config, progress)
+        # tracking the texture triples a frame's preparation: only for the candidate reading it
+        texture = CANDIDATES["hooke_texture"] in candidate_names(config.model,
+                                                                 config.temporal_frames > 0)
+        prepared = prepare_sessions(sessions, config, progress, texture)
         if len({s.name for s in prepared}) != len(prepared):
             raise EstimateError("the same session was given twice; give each session once")
         cv = cross_validate(prepared, config, progress) if config.folds else None
