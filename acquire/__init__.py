@@ -15,7 +15,27 @@ from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.session.recovery import recover_session
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 
-__all__ = ["Acquisition", "AcquisitionStats", "ClockFit", "Column", "EstimateStream", "FrameFeed", "Gap", "Listener",
-           "Recorder", "SessionError", "SessionReader", "SessionSink", "SessionWriter", "StreamSpec",
-           "finalize_session", "fit_clock", "frame_feed", "record_session", "recover_session",
-           "store_analysis", "store_calibration", "store_estimates"]
+__all__ = [
+    "Acquisition",
+    "AcquisitionStats",
+    "ClockFit",
+    "Column",
+    "EstimateStream",
+    "FrameFeed",
+    "Gap",
+    "Listener",
+    "Recorder",
+    "SessionError",
+    "SessionReader",
+    "SessionSink",
+    "SessionWriter",
+    "StreamSpec",
+    "finalize_session",
+    "fit_clock",
+    "frame_feed",
+    "record_session",
+    "recover_session",
+    "store_analysis",
+    "store_calibration",
+    "store_estimates",
+]

@@ -5,8 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 
-def resample_at(times_ns: np.ndarray, sample_times_ns: np.ndarray, values: np.ndarray,
-                max_gap_ns: float | None = None) -> np.ndarray:
+def resample_at(
+    times_ns: np.ndarray,
+    sample_times_ns: np.ndarray,
+    values: np.ndarray,
+    max_gap_ns: float | None = None,
+) -> np.ndarray:
     """``values`` (n × k, at ``sample_times_ns``, any order) linearly interpolated at
     ``times_ns``: NaN outside the samples, and inside a gap longer than ``max_gap_ns``, rather
     than an invented value. Returns ``(len(times_ns), k)``."""

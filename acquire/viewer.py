@@ -54,8 +54,10 @@ class ViewerWindow(QtWidgets.QWidget):
         self.plot.setLabel("left", "force", units="N")
         self.plot.setLabel("bottom", "time", units="s")
         self.plot.addLegend(offset=(5, 5))
-        self.curves = [self.plot.plot(pen=pg.mkPen(FORCE_PENS[i % 3], width=2), name=f"F{a}")
-                       for i, a in enumerate(axes)]
+        self.curves = [
+            self.plot.plot(pen=pg.mkPen(FORCE_PENS[i % 3], width=2), name=f"F{a}")
+            for i, a in enumerate(axes)
+        ]
         self.cursor = pg.InfiniteLine(angle=90, pen=pg.mkPen("k", width=1))
         self.plot.addItem(self.cursor)
         layout.addWidget(self.plot, stretch=2)
@@ -71,7 +73,7 @@ class ViewerWindow(QtWidgets.QWidget):
 
     def show_images(self, left: np.ndarray, right: np.ndarray) -> None:
         """Display a BGR stereo pair."""
-        for item, image in zip(self.image_items, (left, right)):
+        for item, image in zip(self.image_items, (left, right), strict=False):
             item.setImage(_rgb(image), autoLevels=False, levels=(0, 255))
 
     def show_force(self, t_s: np.ndarray, forces_n: np.ndarray) -> None:
@@ -79,8 +81,9 @@ class ViewerWindow(QtWidgets.QWidget):
         for axis, curve in enumerate(self.curves):
             curve.setData(t_s, forces_n[:, axis])
 
-    def add_stream_plot(self, name: str, t_s: np.ndarray, values: np.ndarray,
-                        channels: list[str], units: list[str]) -> pg.PlotWidget:
+    def add_stream_plot(
+        self, name: str, t_s: np.ndarray, values: np.ndarray, channels: list[str], units: list[str]
+    ) -> pg.PlotWidget:
         """A plot of an extra stream's channels under the force, on the same time axis (the
         unit axis is labelled when all channels share one), with its own cursor."""
         plot = pg.PlotWidget(background="w")
@@ -89,22 +92,33 @@ class ViewerWindow(QtWidgets.QWidget):
         plot.setLabel("left", name, units=shared.pop() if len(shared) == 1 else None)
         plot.addLegend(offset=(5, 5))
         for k, channel in enumerate(channels):
-            plot.plot(t_s, values[:, k], pen=pg.mkPen(STREAM_PENS[k % len(STREAM_PENS)],
-                                                      width=1), name=channel)
+            plot.plot(
+                t_s,
+                values[:, k],
+                pen=pg.mkPen(STREAM_PENS[k % len(STREAM_PENS)], width=1),
+                name=channel,
+            )
         cursor = pg.InfiniteLine(angle=90, pen=pg.mkPen("k", width=1))
         plot.addItem(cursor)
         self.cursor.sigPositionChanged.connect(lambda line: cursor.setValue(line.value()))
-        self.layout().insertWidget(self.layout().indexOf(self.plot) + 1 + len(self.stream_plots),
-                                   plot, stretch=1)
+        self.layout().insertWidget(
+            self.layout().indexOf(self.plot) + 1 + len(self.stream_plots), plot, stretch=1
+        )
         self.stream_plots.append(plot)
         return plot
 
     def mark_events(self, events: list[tuple[float, str]]) -> None:
         """Vertical labelled lines on the force plot at event times (s)."""
         for t_s, text in events:
-            self.plot.addItem(pg.InfiniteLine(
-                t_s, angle=90, pen=pg.mkPen("#808080", dash=[4, 4]), label=text,
-                labelOpts={"position": 0.9, "color": "#404040"}))
+            self.plot.addItem(
+                pg.InfiniteLine(
+                    t_s,
+                    angle=90,
+                    pen=pg.mkPen("#808080", dash=[4, 4]),
+                    label=text,
+                    labelOpts={"position": 0.9, "color": "#404040"},
+                )
+            )
 
 
 class ReplayViewer(ViewerWindow):
@@ -120,23 +134,33 @@ class ReplayViewer(ViewerWindow):
         for name in reader.stream_names():
             stream = reader.stream(name)
             if not stream.markers and len(stream):
-                self.add_stream_plot(name, (stream.t_host_ns - self._t0()) / 1e9, stream.values,
-                                     stream.channels, stream.units)
-        self.mark_events([((e["t_host_ns"] - self._t0()) / 1e9, e["text"])
-                          for e in reader.events()])
+                self.add_stream_plot(
+                    name,
+                    (stream.t_host_ns - self._t0()) / 1e9,
+                    stream.values,
+                    stream.channels,
+                    stream.units,
+                )
+        self.mark_events(
+            [((e["t_host_ns"] - self._t0()) / 1e9, e["text"]) for e in reader.events()]
+        )
         self.slider.setRange(0, max(reader.n_frames - 1, 0))
         self.slider.valueChanged.connect(self.show_frame)
         gaps = len(reader.gaps())
-        self._counters = (f"{reader.n_frames} frames, {len(forces)} force samples, {gaps} gaps"
-                          + (" — BEING RECORDED: showing what was flushed when opened"
-                             if reader.growing else
-                             "" if reader.complete else " — NOT CLOSED CLEANLY"))
+        self._counters = f"{reader.n_frames} frames, {len(forces)} force samples, {gaps} gaps" + (
+            " — BEING RECORDED: showing what was flushed when opened"
+            if reader.growing
+            else ""
+            if reader.complete
+            else " — NOT CLOSED CLEANLY"
+        )
         if reader.n_frames:
             self.show_frame(0)
 
     def _t0(self) -> int:
-        times = [t[0] for t in (self.reader.frame_times_ns(), self.reader.force_times_ns())
-                 if len(t)]
+        times = [
+            t[0] for t in (self.reader.frame_times_ns(), self.reader.force_times_ns()) if len(t)
+        ]
         return int(min(times)) if times else 0
 
     def show_frame(self, i: int) -> None:
@@ -144,8 +168,9 @@ class ReplayViewer(ViewerWindow):
         frame = self.reader.frame(i)
         self.show_images(frame.left, frame.right)
         self.cursor.setValue(float(self.frame_times_s[i]))
-        self.status.setText(f"frame {i} (seq {frame.seq}) at {self.frame_times_s[i]:.3f} s — "
-                            + self._counters)
+        self.status.setText(
+            f"frame {i} (seq {frame.seq}) at {self.frame_times_s[i]:.3f} s — " + self._counters
+        )
 
 
 class _Newest(Listener):
@@ -196,9 +221,11 @@ class LiveViewer(ViewerWindow):
             self.cursor.setValue(0.0)
         rig = self.acquisition.rig
         cam, tro = rig.camera.stats, rig.trocar.stats
-        self.status.setText(f"camera: {cam.received} frames, {cam.dropped} dropped — trocar: "
-                            f"{tro.received} samples, {tro.dropped} dropped, "
-                            f"{tro.malformed} malformed")
+        self.status.setText(
+            f"camera: {cam.received} frames, {cam.dropped} dropped — trocar: "
+            f"{tro.received} samples, {tro.dropped} dropped, "
+            f"{tro.malformed} malformed"
+        )
 
 
 def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
@@ -214,8 +241,10 @@ def _exec_until_closed(app: QtWidgets.QApplication, window: ViewerWindow) -> int
     hands control back to Python regularly so that its signal handlers run)."""
     handlers = {}
     if threading.current_thread() is threading.main_thread():
-        handlers = {sig: signal.signal(sig, lambda *_: window.close())
-                    for sig in (signal.SIGINT, signal.SIGTERM)}
+        handlers = {
+            sig: signal.signal(sig, lambda *_: window.close())
+            for sig in (signal.SIGINT, signal.SIGTERM)
+        }
     wake = QtCore.QTimer()
     wake.timeout.connect(lambda: None)
     wake.start(200)

@@ -31,8 +31,9 @@ def record_sessions(folder: Path, n: int, seconds: float) -> list[str]:
         config["bench"].update(width=320, height=180, fps=15.0, seed=seed)
         calibration = calibration_from_rig(true_rig(config))
         path = folder / f"s{seed}.h5"
-        record_session(config, path, duration_s=seconds,
-                       calibration_yaml=calibration.to_yaml_text())
+        record_session(
+            config, path, duration_s=seconds, calibration_yaml=calibration.to_yaml_text()
+        )
         paths.append(str(path))
     return paths
 
@@ -60,8 +61,10 @@ def main() -> None:
         serial = timed("local", sessions, 1)
         pool = timed("local", sessions, cores)
         ray_s = timed("ray", sessions, cores) if importlib.util.find_spec("ray") else None
-    print(f"{args.sessions} sessions of {args.seconds:.0f} s (320x180, 15 fps), {cores} cores, "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"{args.sessions} sessions of {args.seconds:.0f} s (320x180, 15 fps), {cores} cores, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
     print(f"{'serial (1 process)':<24} {serial:7.1f} s   speed-up 1.00x")
     print(f"{'local pool':<24} {pool:7.1f} s   speed-up {serial / pool:.2f}x")
     if ray_s is None:

@@ -49,13 +49,17 @@ def stereo_rows(rig, spec: BoardSpec, n_views: int, seeds: int):
     for seed in range(seeds):
         rng = np.random.default_rng(100 + seed)
         poses = random_board_poses(n_views, rng, distance_m=DISTANCE_M, rig=rig, board=board)
-        views = ViewSet(render_board_views(rig, board, poses, rng=rng),
-                        [f"v{i}" for i in range(n_views)], "bench")
+        views = ViewSet(
+            render_board_views(rig, board, poses, rng=rng),
+            [f"v{i}" for i in range(n_views)],
+            "bench",
+        )
         start = time.perf_counter()
         cal = calibrate_stereo(views, spec).calibration
         seconds = time.perf_counter() - start
-        worst = max(intrinsic_errors(cal.K1, rig.left.K).max(),
-                    intrinsic_errors(cal.K2, rig.right.K).max())
+        worst = max(
+            intrinsic_errors(cal.K1, rig.left.K).max(), intrinsic_errors(cal.K2, rig.right.K).max()
+        )
         yield views, worst, abs(cal.B / rig.baseline_m - 1), cal.rms_stereo_px, seconds
 
 
@@ -69,17 +73,22 @@ def main() -> None:
     spec = BoardSpec()
 
     print("stereo calibration vs truth (640x360, distortion), worst over both cameras")
-    print(f"{'views':>5} {'seed':>4} {'max |dK|/K':>10} {'|dB|/B':>8} {'RMS px':>7} "
-          f"{'solve s':>8} {'x detect':>8}")
+    print(
+        f"{'views':>5} {'seed':>4} {'max |dK|/K':>10} {'|dB|/B':>8} {'RMS px':>7} "
+        f"{'solve s':>8} {'x detect':>8}"
+    )
     reference = None
     for n in args.views:
         for seed, (views, worst, b_err, rms, seconds) in enumerate(
-                stereo_rows(rig, spec, n, args.seeds)):
+            stereo_rows(rig, spec, n, args.seeds)
+        ):
             if reference is None:
                 reference = detect_reference_s(spec, views.pairs[0][0])
                 print(f"(reference: one board detection = {reference * 1e3:.1f} ms)")
-            print(f"{n:>5} {seed:>4} {worst * 100:>9.3f}% {b_err * 100:>7.3f}% {rms:>7.3f} "
-                  f"{seconds:>8.2f} {seconds / reference:>8.0f}")
+            print(
+                f"{n:>5} {seed:>4} {worst * 100:>9.3f}% {b_err * 100:>7.3f}% {rms:>7.3f} "
+                f"{seconds:>8.2f} {seconds / reference:>8.0f}"
+            )
 
     if args.poses:
         print(f"\nprojector calibration vs truth, {args.poses} Gray-code poses")
@@ -97,10 +106,12 @@ def main() -> None:
             solve_s = time.perf_counter() - start
             errors = intrinsic_errors(result.K, rig.projector.K) * 100
             t_err = np.linalg.norm(result.T - rig.T_proj) * 1e3
-            print(f"seed {seed}: fx {errors[0]:.2f}%  fy {errors[1]:.2f}%  cx {errors[2]:.2f}%  "
-                  f"cy {errors[3]:.2f}%  |dT| {t_err:.3f} mm  RMS {result.rms_px:.2f} px  "
-                  f"render {render_s:.1f} s  solve {solve_s:.1f} s "
-                  f"({solve_s / reference:.0f} x detect)")
+            print(
+                f"seed {seed}: fx {errors[0]:.2f}%  fy {errors[1]:.2f}%  cx {errors[2]:.2f}%  "
+                f"cy {errors[3]:.2f}%  |dT| {t_err:.3f} mm  RMS {result.rms_px:.2f} px  "
+                f"render {render_s:.1f} s  solve {solve_s:.1f} s "
+                f"({solve_s / reference:.0f} x detect)"
+            )
 
 
 if __name__ == "__main__":

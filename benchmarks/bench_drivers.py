@@ -28,8 +28,13 @@ def queue_frames(channel: str, n: int) -> None:
     fmt = load_frame_format()
     with can.Bus(interface="virtual", channel=channel) as sender:
         for i in range(n):
-            sender.send(can.Message(arbitration_id=fmt.frame_id, is_extended_id=False,
-                                    data=fmt.encode(np.array([0.1, -0.2, i * 1e-3 % 5]), i)))
+            sender.send(
+                can.Message(
+                    arbitration_id=fmt.frame_id,
+                    is_extended_id=False,
+                    data=fmt.encode(np.array([0.1, -0.2, i * 1e-3 % 5]), i),
+                )
+            )
 
 
 def trocar_rates(n: int) -> tuple[float, float]:
@@ -68,8 +73,9 @@ def camera_rates(n: int, width: int, height: int) -> tuple[float, float]:
         capture.retrieve()
     raw = n / (time.perf_counter() - start)
     capture = PrerenderedCapture(width, height, n)
-    with OpenCVStereoCamera(device="bench", width=width, height=height,
-                          capture_factory=lambda dev: capture) as camera:
+    with OpenCVStereoCamera(
+        device="bench", width=width, height=height, capture_factory=lambda dev: capture
+    ) as camera:
         start = time.perf_counter()
         for _ in range(n):
             camera.read(timeout_s=1.0)
@@ -82,13 +88,17 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20000, help="trocar frames (default 20000)")
     args = parser.parse_args()
     raw, driver = trocar_rates(args.frames)
-    print(f"trocar: bare recv {raw:9.0f} frames/s   CanTrocar.read {driver:9.0f} frames/s   "
-          f"ratio {raw / driver:5.2f}   margin over 1 kHz: {driver / 1000:5.1f}x")
+    print(
+        f"trocar: bare recv {raw:9.0f} frames/s   CanTrocar.read {driver:9.0f} frames/s   "
+        f"ratio {raw / driver:5.2f}   margin over 1 kHz: {driver / 1000:5.1f}x"
+    )
     for width, height in ((640, 360), (1920, 1080)):
         raw, driver = camera_rates(300, width, height)
-        print(f"camera {width}x{height}/eye: bare capture {raw:7.1f} fps   "
-              f"OpenCVStereoCamera.read {driver:7.1f} fps   ratio {raw / driver:5.2f}   "
-              f"margin over 30 fps: {driver / 30:5.1f}x")
+        print(
+            f"camera {width}x{height}/eye: bare capture {raw:7.1f} fps   "
+            f"OpenCVStereoCamera.read {driver:7.1f} fps   ratio {raw / driver:5.2f}   "
+            f"margin over 30 fps: {driver / 30:5.1f}x"
+        )
 
 
 if __name__ == "__main__":

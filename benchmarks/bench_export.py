@@ -55,23 +55,33 @@ def main() -> None:
         config = load_config()
         config["bench"].update(width=args.width, height=args.height)
         start = time.perf_counter()
-        record_session(config, session, duration_s=args.seconds,
-                       calibration_yaml=calibration_from_rig(true_rig(config)).to_yaml_text())
-        print(f"recorded {args.seconds:g} s of {args.width}x{args.height} in "
-              f"{time.perf_counter() - start:.1f} s: {session.stat().st_size / 1e6:.0f} MB")
+        record_session(
+            config,
+            session,
+            duration_s=args.seconds,
+            calibration_yaml=calibration_from_rig(true_rig(config)).to_yaml_text(),
+        )
+        print(
+            f"recorded {args.seconds:g} s of {args.width}x{args.height} in "
+            f"{time.perf_counter() - start:.1f} s: {session.stat().st_size / 1e6:.0f} MB"
+        )
         nbytes = read_all(session)  # warm the page cache before timing
         read_s, read_cpu = best_of(args.repeats, lambda: read_all(session))
-        print(f"read        wall {read_s:6.2f} s  cpu {read_cpu:6.2f} s  "
-              f"({nbytes / 1e6 / read_s:.0f} MB/s decoded)")
+        print(
+            f"read        wall {read_s:6.2f} s  cpu {read_cpu:6.2f} s  "
+            f"({nbytes / 1e6 / read_s:.0f} MB/s decoded)"
+        )
         for compression in ("zstd", "lz4"):
             out = Path(tmp) / f"session.{compression}.mcap"
-            export_s, export_cpu = best_of(args.repeats,
-                                           lambda: export_mcap(session, out, None, compression))
-            print(f"export {compression:<4} wall {export_s:6.2f} s  cpu {export_cpu:6.2f} s  "
-                  f"({out.stat().st_size / 1e6:.0f} MB): wall {export_s / read_s:.2f}x read "
-                  f"(goal <= 2x), cpu {export_cpu / read_cpu:.2f}x")
-    print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on "
-          f"{os.cpu_count()} cores")
+            export_s, export_cpu = best_of(
+                args.repeats, lambda: export_mcap(session, out, None, compression)
+            )
+            print(
+                f"export {compression:<4} wall {export_s:6.2f} s  cpu {export_cpu:6.2f} s  "
+                f"({out.stat().st_size / 1e6:.0f} MB): wall {export_s / read_s:.2f}x read "
+                f"(goal <= 2x), cpu {export_cpu / read_cpu:.2f}x"
+            )
+    print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
 
 
 if __name__ == "__main__":

@@ -25,20 +25,36 @@ def observations(stiffness_range: tuple[float, float], seeds: range) -> np.ndarr
     0.1 s of each trial."""
     rows = []
     for seed in seeds:
-        bench = SimBench(seed=seed, protocol="freehand", width=64, height=36,
-                         freehand_stiffness_n_per_m=stiffness_range)
+        bench = SimBench(
+            seed=seed,
+            protocol="freehand",
+            width=64,
+            height=36,
+            freehand_stiffness_n_per_m=stiffness_range,
+        )
         t = np.arange(0.0, bench.duration_s(), 0.1)
         u, force, _ = bench.trial.protocol.state(t)
         visible = bench.trial.deformation_scale * u
         depth = visible * abs(bench.trial.sample.pull_direction[2])
-        rows.append(np.column_stack([np.full(len(t), seed), visible,
-                                     np.full(len(t), bench.trial.radius_m()), force, depth]))
+        rows.append(
+            np.column_stack(
+                [
+                    np.full(len(t), seed),
+                    visible,
+                    np.full(len(t), bench.trial.radius_m()),
+                    force,
+                    depth,
+                ]
+            )
+        )
     return np.concatenate(rows)
 
 
 def main() -> None:
-    print("stiffness range (N/m) | ideal observer MAE (N) | depth component only (N) | "
-          "mean predictor MAE (N)")
+    print(
+        "stiffness range (N/m) | ideal observer MAE (N) | depth component only (N) | "
+        "mean predictor MAE (N)"
+    )
     scale = np.array([0.003, 0.015])  # typical displacement and radius (m)
     for low, high in RANGES:
         data = observations((low, high), range(40))

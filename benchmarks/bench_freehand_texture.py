@@ -29,7 +29,9 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
 from vbfe.acquire import SessionReader, record_session
+from vbfe.demo import FREEHAND, FREEHAND_FIRST_SEED, DemoPlan, demo_config
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.preparation import FramePreparer
 from vbfe.estimate.sources import open_source
@@ -37,8 +39,6 @@ from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.recon import CloudReader, SgbmParams, reconstruct_session
 from vbfe.recon.quality import ReconSettings
-
-from vbfe.demo import FREEHAND, FREEHAND_FIRST_SEED, DemoPlan, demo_config
 from vbfe.truth import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
 
@@ -56,11 +56,21 @@ def record(folder: Path, trials: list[int]) -> None:
         if path.with_name(path.stem + ".clouds.h5").exists():
             continue
         trial = copy.deepcopy(config)
-        trial["bench"].update(protocol=FREEHAND, freehand_duration_s=plan.freehand_s,
-                              seed=FREEHAND_FIRST_SEED + r, textured=True)
+        trial["bench"].update(
+            protocol=FREEHAND,
+            freehand_duration_s=plan.freehand_s,
+            seed=FREEHAND_FIRST_SEED + r,
+            textured=True,
+        )
         path.unlink(missing_ok=True)
-        record_session(trial, path, duration_s=trial_duration_s(trial), operator="bench",
-                       notes=path.stem, calibration_yaml=yaml_text)
+        record_session(
+            trial,
+            path,
+            duration_s=trial_duration_s(trial),
+            operator="bench",
+            notes=path.stem,
+            calibration_yaml=yaml_text,
+        )
         reconstruct_session(path, workers=1, sgbm_params=params, settings=settings)
         print(f"recorded {path.name}", flush=True)
 
@@ -92,9 +102,13 @@ def measure(path: Path, remeasure: bool = False) -> dict[str, np.ndarray]:
             texture.append(motion.peak_displacement_m(points, colors))
     u, _, _ = bench.trial.protocol.state(frames / bench.fps)
     visible = bench.trial.deformation_scale * u
-    measures = {"force": force[frames], "depth": np.asarray(depth),
-                "texture": np.asarray(texture), "visible": visible,
-                "visible_z": visible * abs(bench.trial.sample.pull_direction[2])}
+    measures = {
+        "force": force[frames],
+        "depth": np.asarray(depth),
+        "texture": np.asarray(texture),
+        "visible": visible,
+        "visible_z": visible * abs(bench.trial.sample.pull_direction[2]),
+    }
     np.savez(kept, **measures)
     return measures
 
@@ -118,8 +132,9 @@ def feature_seconds(path: Path, frames: int = 40) -> tuple[float, float]:
     return seconds[0], seconds[1]
 
 
-def hooke_mae(trials: dict[int, dict[str, np.ndarray]], feature: str, train: list[int],
-              test: list[int]) -> float:
+def hooke_mae(
+    trials: dict[int, dict[str, np.ndarray]], feature: str, train: list[int], test: list[int]
+) -> float:
     """Held-out MAE (N) of F = k̂·d fitted on ``train`` (``mean``: the mean predictor)."""
     y = np.concatenate([trials[r]["force"] for r in train])
     y_test = np.concatenate([trials[r]["force"] for r in test])
@@ -135,8 +150,11 @@ def main() -> None:
     parser.add_argument("--sessions", type=Path, default=Path("/tmp/vbfe-bench-texture"))
     parser.add_argument("--trials", type=int, default=18, help="freehand trials r0 … r(n-1)")
     parser.add_argument("--test", default="6,7,8", help="held-out trials (the demo's)")
-    parser.add_argument("--remeasure", action="store_true",
-                        help="measure again (after a change of the measures), not the kept ones")
+    parser.add_argument(
+        "--remeasure",
+        action="store_true",
+        help="measure again (after a change of the measures), not the kept ones",
+    )
     parser.add_argument("--workers", type=int, default=1, help="trials measured at once")
     args = parser.parse_args()
     numbers = list(range(args.trials))
@@ -144,10 +162,12 @@ def main() -> None:
     record(args.sessions, numbers)
     paths = [args.sessions / f"{FREEHAND}_r{r}.h5" for r in numbers]
     with ProcessPoolExecutor(args.workers) as pool:
-        trials = dict(zip(numbers, pool.map(measure, paths, [args.remeasure] * len(paths))))
+        trials = dict(zip(numbers, pool.map(measure, paths, [args.remeasure] * len(paths)), strict=False))
     print(f"load average {os.getloadavg()[0]:.2f}")
-    print("trial | texture gain vs 3D truth, residual sd (mm) | depth-only gain vs depth truth, "
-          "residual sd (mm)")
+    print(
+        "trial | texture gain vs 3D truth, residual sd (mm) | depth-only gain vs depth truth, "
+        "residual sd (mm)"
+    )
     for r, t in trials.items():
         cells = []
         for feature, truth in (("texture", "visible"), ("depth", "visible_z")):
@@ -158,21 +178,30 @@ def main() -> None:
         print(f"r{r} | {cells[0]} | {cells[1]}")
     train = [r for r in numbers if r not in test]
     demo_train = [r for r in train if r < 6]  # the demo's freehand training trials
-    folds = [numbers[i:i + 3] for i in range(0, len(numbers), 3)]
-    print(f"Hooke's law held-out MAE (N) on trials {test}: trained on r0–r5 | trained on the "
-          f"other {len(train)} trials | {len(folds)}-fold leave-3-trials-out CV mean")
-    for feature, label in (("texture", "texture 3D displacement"),
-                           ("depth", "depth-only peak displacement"),
-                           ("visible", "true 3D displacement (ideal)"),
-                           ("mean", "mean predictor")):
-        cv = np.mean([hooke_mae(trials, feature, [r for r in numbers if r not in f], f)
-                      for f in folds])
-        print(f"{label} | {hooke_mae(trials, feature, demo_train, test):.3f} | "
-              f"{hooke_mae(trials, feature, train, test):.3f} | {cv:.3f}")
+    folds = [numbers[i : i + 3] for i in range(0, len(numbers), 3)]
+    print(
+        f"Hooke's law held-out MAE (N) on trials {test}: trained on r0–r5 | trained on the "
+        f"other {len(train)} trials | {len(folds)}-fold leave-3-trials-out CV mean"
+    )
+    for feature, label in (
+        ("texture", "texture 3D displacement"),
+        ("depth", "depth-only peak displacement"),
+        ("visible", "true 3D displacement (ideal)"),
+        ("mean", "mean predictor"),
+    ):
+        cv = np.mean(
+            [hooke_mae(trials, feature, [r for r in numbers if r not in f], f) for f in folds]
+        )
+        print(
+            f"{label} | {hooke_mae(trials, feature, demo_train, test):.3f} | "
+            f"{hooke_mae(trials, feature, train, test):.3f} | {cv:.3f}"
+        )
     with_texture, without = feature_seconds(paths[test[0]])
-    print(f"frame preparation on r{test[0]}: {with_texture * 1e3:.0f} ms per frame with the "
-          f"texture, {without * 1e3:.0f} ms without ({with_texture / without:.2f}x); load "
-          f"average {os.getloadavg()[0]:.2f}")
+    print(
+        f"frame preparation on r{test[0]}: {with_texture * 1e3:.0f} ms per frame with the "
+        f"texture, {without * 1e3:.0f} ms without ({with_texture / without:.2f}x); load "
+        f"average {os.getloadavg()[0]:.2f}"
+    )
 
 
 if __name__ == "__main__":

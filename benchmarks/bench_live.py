@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+
 from vbfe.acquire import Acquisition
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
@@ -47,11 +48,10 @@ from vbfe.estimate.candidates import NetworkEstimator
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.recon import SgbmParams
-
 from vbfe.live.estimator import STAGES, FrameEstimator
 from vbfe.live.run import LiveRun, run_headless, use_threads
 from vbfe.live.settings import live_settings
+from vbfe.recon import SgbmParams
 from vbfe.truth import calibration_from_rig, true_rig
 
 SIZES = ((640, 360), (1280, 720))
@@ -83,9 +83,12 @@ class ReplayCapture:
 
     def get(self, prop: int) -> float:
         height, width = self.frames[0].shape[:2]
-        values = {cv2.CAP_PROP_FRAME_WIDTH: width, cv2.CAP_PROP_FRAME_HEIGHT: height,
-                  cv2.CAP_PROP_FPS: self.fps,
-                  cv2.CAP_PROP_POS_MSEC: (self._start_ns + self._seq * self.period_ns) / 1e6}
+        values = {
+            cv2.CAP_PROP_FRAME_WIDTH: width,
+            cv2.CAP_PROP_FRAME_HEIGHT: height,
+            cv2.CAP_PROP_FPS: self.fps,
+            cv2.CAP_PROP_POS_MSEC: (self._start_ns + self._seq * self.period_ns) / 1e6,
+        }
         return float(values.get(prop, 0.0))
 
     def set(self, prop: int, value: float) -> bool:
@@ -106,9 +109,14 @@ def replay_rig(config: dict, frames: list[np.ndarray]) -> Rig:
     """The bench's trocar and projector with a replaying endoscope in place of its camera."""
     rig = open_rig(config, RigOptions(realtime=True))
     height, width = frames[0].shape[0], frames[0].shape[1] // 2
-    camera = OpenCVStereoCamera(device="replay", width=width, height=height, fps=FPS,
-                                fourcc="YUYV",
-                                capture_factory=lambda device: ReplayCapture(frames, FPS))
+    camera = OpenCVStereoCamera(
+        device="replay",
+        width=width,
+        height=height,
+        fps=FPS,
+        fourcc="YUYV",
+        capture_factory=lambda device: ReplayCapture(frames, FPS),
+    )
     rig.replace("camera", camera)
     return rig
 
@@ -117,10 +125,16 @@ def untrained_model(conv_channels: list[int]) -> ForceModel:
     """A PointNet of the given width with the default [train] settings (1024 points, depth
     change against the run's first cloud)."""
     config = TrainConfig(conv_channels=conv_channels)
-    network = PointNetRegressor(conv_channels=conv_channels, head_channels=config.head_channels,
-                                rest_depth=config.rest_depth)
-    return ForceModel(config=config, selected="pointnet",
-                      estimators={"pointnet": NetworkEstimator(network.eval(), config.n_points)})
+    network = PointNetRegressor(
+        conv_channels=conv_channels,
+        head_channels=config.head_channels,
+        rest_depth=config.rest_depth,
+    )
+    return ForceModel(
+        config=config,
+        selected="pointnet",
+        estimators={"pointnet": NetworkEstimator(network.eval(), config.n_points)},
+    )
 
 
 def busy_processes(n: int) -> list[subprocess.Popen]:
@@ -128,21 +142,40 @@ def busy_processes(n: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
-def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale: float,
-            row_scale: float, conv_channels: list[int], record: Path | None
-            ) -> dict[str, float]:
+def measure(
+    config: dict,
+    frames: list[np.ndarray] | None,
+    seconds: float,
+    scale: float,
+    row_scale: float,
+    conv_channels: list[int],
+    record: Path | None,
+) -> dict[str, float]:
     """Run live estimation on a real-time bench for ``seconds`` (replaying ``frames``, or
     rendering live when None), recording into ``record`` when given."""
-    rig = (open_rig(config, RigOptions(realtime=True)) if frames is None
-           else replay_rig(config, frames))
+    rig = (
+        open_rig(config, RigOptions(realtime=True))
+        if frames is None
+        else replay_rig(config, frames)
+    )
     calibration = calibration_from_rig(true_rig(config))
-    estimator = FrameEstimator(untrained_model(conv_channels), calibration,
-                               SgbmParams.from_config(section(config, "sgbm")), scale=scale,
-                               row_scale=row_scale)
-    acquisition = (session_recorder(config, record, rig, streams=(marks_stream(),))
-                   if record else Acquisition(rig, pattern=make_pattern))
-    run = LiveRun(acquisition, estimator,
-                  max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s)
+    estimator = FrameEstimator(
+        untrained_model(conv_channels),
+        calibration,
+        SgbmParams.from_config(section(config, "sgbm")),
+        scale=scale,
+        row_scale=row_scale,
+    )
+    acquisition = (
+        session_recorder(config, record, rig, streams=(marks_stream(),))
+        if record
+        else Acquisition(rig, pattern=make_pattern)
+    )
+    run = LiveRun(
+        acquisition,
+        estimator,
+        max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s,
+    )
     run.start()
     cpu0, wall0 = time.process_time(), time.monotonic()
     status = run_headless(run, seconds, lambda s: None)
@@ -150,39 +183,64 @@ def measure(config: dict, frames: list[np.ndarray] | None, seconds: float, scale
     if run.error:
         raise SystemExit(f"live run failed: {run.error}")
     if len(run.estimates) < 2:  # e.g. every frame came later than [live] max_frame_age_s
-        return {"rate": 0.0, "p50": float("nan"), "p95": float("nan"), "cores": cores,
-                "skipped": status.skipped / max(status.frames, 1),
-                **{name: float("nan") for name in STAGES}}
+        return {
+            "rate": 0.0,
+            "p50": float("nan"),
+            "p95": float("nan"),
+            "cores": cores,
+            "skipped": status.skipped / max(status.frames, 1),
+            **{name: float("nan") for name in STAGES},
+        }
     settled = run.estimates[0].t_ready_host_ns + 1e9  # the first second includes warm-up
     estimates = [e for e in run.estimates if e.t_frame_host_ns >= settled]
     stages = np.array([e.stage_s for e in estimates]) * 1e3
     latency = np.array([e.latency_s for e in estimates]) * 1e3
     span_s = (estimates[-1].t_ready_host_ns - estimates[0].t_ready_host_ns) / 1e9
-    return {"rate": (len(estimates) - 1) / span_s, "p50": float(np.percentile(latency, 50)),
-            "p95": float(np.percentile(latency, 95)), "skipped": status.skipped / status.frames,
-            "cores": cores,
-            **{name: float(np.median(stages[:, k])) for k, name in enumerate(STAGES)}}
+    return {
+        "rate": (len(estimates) - 1) / span_s,
+        "p50": float(np.percentile(latency, 50)),
+        "p95": float(np.percentile(latency, 95)),
+        "skipped": status.skipped / status.frames,
+        "cores": cores,
+        **{name: float(np.median(stages[:, k])) for k, name in enumerate(STAGES)},
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--scale", type=float, default=None, help="default: [live] scale")
-    parser.add_argument("--row-scale", type=float, default=None,
-                        help="default: [live] row_scale")
+    parser.add_argument("--row-scale", type=float, default=None, help="default: [live] row_scale")
     parser.add_argument("--sizes", default="640x360,1280x720")
-    parser.add_argument("--background-load", type=int, default=0, metavar="N",
-                        help="also run each configuration beside N busy processes")
-    parser.add_argument("--record", action="store_true",
-                        help="also run each configuration recording the session")
-    parser.add_argument("--compression", default=None,
-                        help="of the recorded frames (default: [record] compression)")
-    parser.add_argument("--paper-network", action="store_true",
-                        help="PointNet 64-128-1024 instead of the demo's 32-64-256")
-    parser.add_argument("--render-live", action="store_true",
-                        help="the bench camera renders every frame in real time (costs CPU)")
-    parser.add_argument("--opencv-threads", type=int, default=None,
-                        help="default: [live] opencv_threads (0: one per core)")
+    parser.add_argument(
+        "--background-load",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also run each configuration beside N busy processes",
+    )
+    parser.add_argument(
+        "--record", action="store_true", help="also run each configuration recording the session"
+    )
+    parser.add_argument(
+        "--compression", default=None, help="of the recorded frames (default: [record] compression)"
+    )
+    parser.add_argument(
+        "--paper-network",
+        action="store_true",
+        help="PointNet 64-128-1024 instead of the demo's 32-64-256",
+    )
+    parser.add_argument(
+        "--render-live",
+        action="store_true",
+        help="the bench camera renders every frame in real time (costs CPU)",
+    )
+    parser.add_argument(
+        "--opencv-threads",
+        type=int,
+        default=None,
+        help="default: [live] opencv_threads (0: one per core)",
+    )
     args = parser.parse_args()
     settings = live_settings(section(load_config(), "live"))
     args.scale = args.scale or settings.scale
@@ -193,14 +251,18 @@ def main() -> None:
     channels = [64, 128, 1024] if args.paper_network else [32, 64, 256]
     sizes = [tuple(int(v) for v in size.split("x")) for size in args.sizes.split(",")]
     compression = args.compression or section(load_config(), "record")["compression"]
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
-          f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
-          f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
-          f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
-          f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
-          f"threads; recording compression {compression}")
-    print(f"{'camera':>10} {'record':>6} {'busy':>4} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} "
-          f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES))
+    print(
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
+        f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
+        f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
+        f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
+        f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
+        f"threads; recording compression {compression}"
+    )
+    print(
+        f"{'camera':>10} {'record':>6} {'busy':>4} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} "
+        f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES)
+    )
     loads = [0] + ([args.background_load] if args.background_load else [])
     with tempfile.TemporaryDirectory() as folder:
         for width, height in sizes:
@@ -213,16 +275,25 @@ def main() -> None:
                     busy = busy_processes(load)
                     try:
                         path = Path(folder) / f"live-{width}-{record}-{load}.h5"
-                        r = measure(config, frames, args.seconds, args.scale, args.row_scale,
-                                    channels, path if record else None)
+                        r = measure(
+                            config,
+                            frames,
+                            args.seconds,
+                            args.scale,
+                            args.row_scale,
+                            channels,
+                            path if record else None,
+                        )
                     finally:
                         for process in busy:
                             process.kill()
                             process.wait()
-                    print(f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
-                          f"{r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} {r['skipped']:7.0%} "
-                          f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
-                          flush=True)
+                    print(
+                        f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
+                        f"{r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} {r['skipped']:7.0%} "
+                        f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
+                        flush=True,
+                    )
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

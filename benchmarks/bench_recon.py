@@ -38,8 +38,9 @@ def elapsed_s(fn: Callable[[], object], clock: Callable[[], float] = time.perf_c
     return clock() - start
 
 
-def timings_s(runs: dict[str, Callable[[], object]], repeats: int,
-              clock: Callable[[], float]) -> dict[str, float]:
+def timings_s(
+    runs: dict[str, Callable[[], object]], repeats: int, clock: Callable[[], float]
+) -> dict[str, float]:
     """Median time of each run, the runs interleaved so machine load affects all alike."""
     for fn in runs.values():  # warm-up
         fn()
@@ -53,37 +54,49 @@ def timings_s(runs: dict[str, Callable[[], object]], repeats: int,
 def print_ratios(title: str, t: dict[str, float]) -> None:
     """The three timings and their ratios to bare SGBM."""
     print(title)
-    for name, label in (("sgbm", "bare cv2.StereoSGBM.compute"),
-                        ("bare", "pipeline without verification"),
-                        ("full", "pipeline with verification")):
+    for name, label in (
+        ("sgbm", "bare cv2.StereoSGBM.compute"),
+        ("bare", "pipeline without verification"),
+        ("full", "pipeline with verification"),
+    ):
         goal = "   (goal <= 1.15x)" if name == "full" else ""
         print(f"  {label:32s} {t[name] * 1e3:8.1f} ms   {t[name] / t['sgbm']:.2f}x{goal}")
 
 
-def stage_profile(reconstructor: Reconstructor, left: np.ndarray, right: np.ndarray,
-                  repeats: int) -> dict[str, float]:
+def stage_profile(
+    reconstructor: Reconstructor, left: np.ndarray, right: np.ndarray, repeats: int
+) -> dict[str, float]:
     """Median one-thread CPU time (s) of each stage of the verified pipeline."""
-    rect_left, rect_right = (reconstructor._rectify(image, maps)  # noqa: SLF001 (benchmark)
-                             for image, maps in zip((left, right), reconstructor._maps))
+    rect_left, rect_right = (
+        reconstructor._rectify(image, maps)  # noqa: SLF001 (benchmark)
+        for image, maps in zip((left, right), reconstructor._maps, strict=False)
+    )
     decoder, params = reconstructor.decoder, reconstructor.params
     left_code = decoder.decode(rect_left)
     right_code = decoder.decode(rect_right, period_px=left_code.period_px)
     disparity = sgbm_disparity(rect_left, rect_right, params, reconstructor._matcher)
-    verified, status, _ = verify_disparity(disparity, left_code, right_code,
-                                           params.verify_search_px)
+    verified, status, _ = verify_disparity(
+        disparity, left_code, right_code, params.verify_search_px
+    )
     cal = reconstructor.calibration
     stages = {
-        "rectify": lambda: [reconstructor._rectify(image, maps)
-                            for image, maps in zip((left, right), reconstructor._maps)],
-        "sgbm (+ fixed-point to px)": lambda: sgbm_disparity(rect_left, rect_right, params,
-                                                             reconstructor._matcher),
+        "rectify": lambda: [
+            reconstructor._rectify(image, maps)
+            for image, maps in zip((left, right), reconstructor._maps, strict=False)
+        ],
+        "sgbm (+ fixed-point to px)": lambda: sgbm_disparity(
+            rect_left, rect_right, params, reconstructor._matcher
+        ),
         "decode left": lambda: decoder.decode(rect_left),
         "decode right": lambda: decoder.decode(rect_right, period_px=left_code.period_px),
         "coded region": lambda: coded_grid(left_code),
-        "verify": lambda: verify_disparity(disparity, left_code, right_code,
-                                           params.verify_search_px),
-        "triangulate": lambda: kernels.triangulate(verified.copy(), status.copy(), rect_left, cal.f,
-                                                   cal.B, cal.cx, cal.cy, 0.0, cal.fy)}
+        "verify": lambda: verify_disparity(
+            disparity, left_code, right_code, params.verify_search_px
+        ),
+        "triangulate": lambda: kernels.triangulate(
+            verified.copy(), status.copy(), rect_left, cal.f, cal.B, cal.cx, cal.cy, 0.0, cal.fy
+        ),
+    }
     return timings_s(stages, repeats, time.thread_time)
 
 
@@ -92,26 +105,35 @@ def bench_size(width: int, height: int, repeats: int) -> None:
     rig = default_rig(width, height, working_distance_m=WORKING_DISTANCE_M)
     rng = np.random.default_rng(0)
     surface = TissueSurface(distance_m=WORKING_DISTANCE_M, texture=tissue_texture(rng))
-    pair = render_scene(rig, surface, make_pattern(rig.projector.width, rig.projector.height),
-                        rng=rng)
+    pair = render_scene(
+        rig, surface, make_pattern(rig.projector.width, rig.projector.height), rng=rng
+    )
     calibration = calibration_from_rig(rig)
     params = SgbmParams.from_config(section(default_config(), "sgbm"))
     settings = ReconSettings.from_config(section(default_config(), "recon"))
     verified = Reconstructor(calibration, params, verify=True, settings=settings)
     bare = Reconstructor(calibration, params, verify=False, settings=settings)
     matcher = verified.params.create(3)  # the same (derived) disparity range
-    print(f"== frame {width}x{height}, disparity range {verified.params.min_disparity}.."
-          f"{verified.params.min_disparity + verified.params.num_disparities - 1} px, "
-          f"{repeats} repeats (median), load {os.getloadavg()[0]:.1f}")
-    runs = {"sgbm": lambda: matcher.compute(pair.left, pair.right),
-            "full": lambda: verified.process(pair.left, pair.right),
-            "bare": lambda: bare.process(pair.left, pair.right)}
-    print_ratios(f"wall time, OpenCV threads as configured ({cv2.getNumThreads()}):",
-                 timings_s(runs, repeats, time.perf_counter))
+    print(
+        f"== frame {width}x{height}, disparity range {verified.params.min_disparity}.."
+        f"{verified.params.min_disparity + verified.params.num_disparities - 1} px, "
+        f"{repeats} repeats (median), load {os.getloadavg()[0]:.1f}"
+    )
+    runs = {
+        "sgbm": lambda: matcher.compute(pair.left, pair.right),
+        "full": lambda: verified.process(pair.left, pair.right),
+        "bare": lambda: bare.process(pair.left, pair.right),
+    }
+    print_ratios(
+        f"wall time, OpenCV threads as configured ({cv2.getNumThreads()}):",
+        timings_s(runs, repeats, time.perf_counter),
+    )
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # everything in this thread: its CPU time ignores other processes' load
-    print_ratios("CPU time of one thread (OpenCV single-threaded, as in session workers):",
-                 timings_s(runs, repeats, time.thread_time))
+    print_ratios(
+        "CPU time of one thread (OpenCV single-threaded, as in session workers):",
+        timings_s(runs, repeats, time.thread_time),
+    )
     profile = stage_profile(verified, pair.left, pair.right, repeats)
     cv2.setNumThreads(threads)
     total = sum(profile.values())
@@ -120,27 +142,32 @@ def bench_size(width: int, height: int, repeats: int) -> None:
         print(f"  {name:32s} {seconds * 1e3:8.2f} ms  {seconds / total:6.1%}")
 
     truth = (pair.disparity_left_px, pair.depth_left_m, pair.valid_left)
-    print("accuracy against the rendered truth (working distance "
-          f"{WORKING_DISTANCE_M * 1e3:.0f} mm)")
+    print(
+        f"accuracy against the rendered truth (working distance {WORKING_DISTANCE_M * 1e3:.0f} mm)"
+    )
     cloud = verified.process(pair.left, pair.right)
     only_verified = np.where(cloud.status >= kernels.KEPT, cloud.disparity, np.nan)
-    for name, estimate in (("SGBM only", bare.process(pair.left, pair.right)),
-                           ("SGBM + De Bruijn", cloud),
-                           ("  verified points", only_verified)):
-        report = evaluate_against_truth(estimate, *truth, f_px=calibration.f,
-                                        baseline_m=calibration.B)
-        print(f"  {name:17s} valid {report.valid_fraction:6.1%}   median |dz| "
-              f"{report.median_abs_depth_error_m * 1e3:.3f} mm "
-              f"({report.median_abs_depth_error_m / WORKING_DISTANCE_M:.2%})   p95 |dz| "
-              f"{report.p95_abs_depth_error_m * 1e3:.3f} mm   bad pixels (>1 px) "
-              f"{report.bad_pixel_rate:.3%}")
+    for name, estimate in (
+        ("SGBM only", bare.process(pair.left, pair.right)),
+        ("SGBM + De Bruijn", cloud),
+        ("  verified points", only_verified),
+    ):
+        report = evaluate_against_truth(
+            estimate, *truth, f_px=calibration.f, baseline_m=calibration.B
+        )
+        print(
+            f"  {name:17s} valid {report.valid_fraction:6.1%}   median |dz| "
+            f"{report.median_abs_depth_error_m * 1e3:.3f} mm "
+            f"({report.median_abs_depth_error_m / WORKING_DISTANCE_M:.2%})   p95 |dz| "
+            f"{report.p95_abs_depth_error_m * 1e3:.3f} mm   bad pixels (>1 px) "
+            f"{report.bad_pixel_rate:.3%}"
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=7)
-    parser.add_argument("--sizes", nargs="+", default=["1280x720", "640x360"],
-                        metavar="WxH")
+    parser.add_argument("--sizes", nargs="+", default=["1280x720", "640x360"], metavar="WxH")
     args = parser.parse_args()
     for size in args.sizes:
         width, height = (int(v) for v in size.lower().split("x"))

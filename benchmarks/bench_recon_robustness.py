@@ -56,9 +56,12 @@ def fitted_color_calibration(rig, calibration, nuisance: Nuisance):
     """The calibration with a colour model fitted from flat projections on a white plane."""
     plane = Plane(np.eye(3), np.array([0.0, 0.0, DISTANCE_M]), texture=UniformAlbedo((1, 1, 1)))
     rng = np.random.default_rng(1)
-    captures = {name: render_scene(rig, plane, image, rng=rng, nuisance=nuisance).left
-                for name, image in color_calibration_patterns(rig.projector.width,
-                                                              rig.projector.height).items()}
+    captures = {
+        name: render_scene(rig, plane, image, rng=rng, nuisance=nuisance).left
+        for name, image in color_calibration_patterns(
+            rig.projector.width, rig.projector.height
+        ).items()
+    }
     return estimate_color_model(captures).apply_to(calibration)
 
 
@@ -66,10 +69,15 @@ def scores(pair, reconstructor: Reconstructor) -> tuple[float, float, float, flo
     """Density, median |Δz| (mm), bad-pixel rate and verified share of the points of one
     reconstruction."""
     cloud = reconstructor.process(pair.left, pair.right)
-    report = evaluate_against_truth(cloud, pair.disparity_left_px, pair.depth_left_m,
-                                    pair.valid_left)
-    return (report.valid_fraction, report.median_abs_depth_error_m * 1e3,
-            report.bad_pixel_rate, float(cloud.verified.mean()) if cloud.verified.size else 0.0)
+    report = evaluate_against_truth(
+        cloud, pair.disparity_left_px, pair.depth_left_m, pair.valid_left
+    )
+    return (
+        report.valid_fraction,
+        report.median_abs_depth_error_m * 1e3,
+        report.bad_pixel_rate,
+        float(cloud.verified.mean()) if cloud.verified.size else 0.0,
+    )
 
 
 def main() -> None:
@@ -82,11 +90,15 @@ def main() -> None:
     calibration = calibration_from_rig(rig)
     bare = Reconstructor(calibration, verify=False)
     verified = Reconstructor(calibration, verify=True)
-    print(f"{args.width}x{args.height} textured tissue at {DISTANCE_M * 1e3:.0f} mm, disparity "
-          f"range {verified.params.min_disparity}.."
-          f"{verified.params.min_disparity + verified.params.num_disparities - 1} px")
-    header = (f"| {'knob':18s} | {'level':17s} | decoded | density SGBM / +verify | "
-              f"verified | median abs dz mm SGBM / +verify | bad px SGBM / +verify |")
+    print(
+        f"{args.width}x{args.height} textured tissue at {DISTANCE_M * 1e3:.0f} mm, disparity "
+        f"range {verified.params.min_disparity}.."
+        f"{verified.params.min_disparity + verified.params.num_disparities - 1} px"
+    )
+    header = (
+        f"| {'knob':18s} | {'level':17s} | decoded | density SGBM / +verify | "
+        f"verified | median abs dz mm SGBM / +verify | bad px SGBM / +verify |"
+    )
     print(header)
     print("|" + "|".join("-" * (len(part)) for part in header.split("|")[1:-1]) + "|")
     rows = [(None, None)] + [(knob, level) for knob, levels in KNOBS.items() for level in levels]
@@ -100,12 +112,18 @@ def main() -> None:
             d0, z0, b0, _ = scores(pair, plain)
             d1, z1, b1, v1 = scores(pair, checked)
             decoded = checked.process(pair.left, pair.right).decoded_fraction
-            level_text = ("clean" if knob is None else
-                          "/".join(f"{v:.2f}" for v in level) if isinstance(level, tuple)
-                          else f"{level:g}") + suffix
-            print(f"| {knob or '-':18s} | {level_text:17s} | {decoded:7.1%} | "
-                  f"{d0:9.1%} / {d1:6.1%}    | {v1:8.1%} | {z0:14.3f} / {z1:6.3f}          | "
-                  f"{b0:8.2%} / {b1:6.2%}  |")
+            level_text = (
+                "clean"
+                if knob is None
+                else "/".join(f"{v:.2f}" for v in level)
+                if isinstance(level, tuple)
+                else f"{level:g}"
+            ) + suffix
+            print(
+                f"| {knob or '-':18s} | {level_text:17s} | {decoded:7.1%} | "
+                f"{d0:9.1%} / {d1:6.1%}    | {v1:8.1%} | {z0:14.3f} / {z1:6.3f}          | "
+                f"{b0:8.2%} / {b1:6.2%}  |"
+            )
     print(f"total {time.perf_counter() - start:.0f} s")
 
 

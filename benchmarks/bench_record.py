@@ -29,8 +29,8 @@ import numpy as np
 from vbfe.acquire import Recorder, SessionWriter
 from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.pacing import sleep_until
+from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, StereoFrame
@@ -48,7 +48,9 @@ def make_frames(n: int = 8, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]
     yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float32)
     frames = []
     for k in range(n):
-        shade = 0.5 + 0.4 * np.cos((xx - WIDTH / 2 - 20 * k) / WIDTH * 3) * np.cos((yy - HEIGHT / 2) / HEIGHT * 2)
+        shade = 0.5 + 0.4 * np.cos((xx - WIDTH / 2 - 20 * k) / WIDTH * 3) * np.cos(
+            (yy - HEIGHT / 2) / HEIGHT * 2
+        )
         pair = []
         for shift in (0.0, 12.0):
             m = np.float32([[1, 0, shift + 3 * k], [0, 1, 0]])
@@ -69,7 +71,9 @@ def wait_due(t0_ns: int, seq: int, rate_hz: float, timeout_s: float) -> int | No
 class PregeneratedCamera(StereoCamera):
     """Plays pre-generated pairs at ``fps`` in real time."""
 
-    def __init__(self, frames: list[tuple[np.ndarray, np.ndarray]], encoded: list | None = None) -> None:
+    def __init__(
+        self, frames: list[tuple[np.ndarray, np.ndarray]], encoded: list | None = None
+    ) -> None:
         super().__init__()
         self.frames, self.encoded = frames, encoded
         self.width, self.height, self.fps = WIDTH, HEIGHT, FPS
@@ -83,8 +87,9 @@ class PregeneratedCamera(StereoCamera):
         if due is None:
             return None
         if self.encoded:  # the camera's own JPEG bytes, as the V4L2 backend delivers them
-            frame: StereoFrame = JpegStereoFrame(self.encoded[self._seq % len(self.encoded)],
-                                                 self._seq, due, time.monotonic_ns())
+            frame: StereoFrame = JpegStereoFrame(
+                self.encoded[self._seq % len(self.encoded)], self._seq, due, time.monotonic_ns()
+            )
         else:
             left, right = self.frames[self._seq % len(self.frames)]
             frame = StereoFrame(left, right, self._seq, due, time.monotonic_ns())
@@ -111,7 +116,9 @@ class PacedForce(ForceSensor):
         due = wait_due(self._t0, self._seq, self.rate_hz, timeout_s)
         if due is None:
             return None
-        sample = ForceSample(np.array([0.0, 0.0, self._seq * 1e-4]), self._seq, due, time.monotonic_ns())
+        sample = ForceSample(
+            np.array([0.0, 0.0, self._seq * 1e-4]), self._seq, due, time.monotonic_ns()
+        )
         self._seq += 1
         return sample
 
@@ -146,8 +153,9 @@ def reference_write_s(folder: Path, frames: list, n_frames: int) -> float:
     return elapsed
 
 
-def writer_only_s(folder: Path, compression: str, frames: list, encoded: list | None,
-                  n_frames: int) -> tuple[float, float]:
+def writer_only_s(
+    folder: Path, compression: str, frames: list, encoded: list | None, n_frames: int
+) -> tuple[float, float]:
     """Seconds (wall, CPU) SessionWriter needs to store ``n_frames`` frames and their force
     samples; ``encoded`` given: frames are the camera's JPEG bytes."""
     path = folder / f"writer-{compression}.h5"
@@ -160,8 +168,9 @@ def writer_only_s(folder: Path, compression: str, frames: list, encoded: list | 
         else:
             frame = StereoFrame(*frames[i % len(frames)], i, i, i)
         writer.append_frames([frame])
-        writer.append_forces([ForceSample(np.zeros(3), i * per_frame + j, 0, 0)
-                              for j in range(per_frame)])
+        writer.append_forces(
+            [ForceSample(np.zeros(3), i * per_frame + j, 0, 0) for j in range(per_frame)]
+        )
         if i % int(FPS) == 0:
             writer.flush()
     writer.close()
@@ -170,8 +179,9 @@ def writer_only_s(folder: Path, compression: str, frames: list, encoded: list | 
     return elapsed, cpu
 
 
-def recorder_run(folder: Path, compression: str, frames: list, encoded: list | None,
-                 seconds: float) -> dict:
+def recorder_run(
+    folder: Path, compression: str, frames: list, encoded: list | None, seconds: float
+) -> dict:
     """A real-time recording through the Recorder; returns counts, drops, CPU and size."""
     path = folder / f"rec-{compression}.h5"
     devices = Rig(PregeneratedCamera(frames, encoded), PacedForce(), NullProjector())
@@ -182,9 +192,14 @@ def recorder_run(folder: Path, compression: str, frames: list, encoded: list | N
     cpu = time.process_time() - cpu_start
     size = path.stat().st_size
     path.unlink()
-    return {"frames": stats.frames, "samples": stats.samples, "dropped": stats.dropped,
-            "cpu_ms_per_frame": 1e3 * cpu / max(stats.frames, 1),
-            "size_mb": size / 1e6, "raw_mb": stats.frames * WIDTH * HEIGHT * 6 / 1e6}
+    return {
+        "frames": stats.frames,
+        "samples": stats.samples,
+        "dropped": stats.dropped,
+        "cpu_ms_per_frame": 1e3 * cpu / max(stats.frames, 1),
+        "size_mb": size / 1e6,
+        "raw_mb": stats.frames * WIDTH * HEIGHT * 6 / 1e6,
+    }
 
 
 def main() -> None:
@@ -194,27 +209,38 @@ def main() -> None:
     parser.add_argument("--dir", default=None, help="where to write (default: a temp dir)")
     args = parser.parse_args()
     frames = make_frames()
-    encoded = [tuple(cv2.imencode(".jpg", eye, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
-                     for eye in pair) for pair in frames]
+    encoded = [
+        tuple(
+            cv2.imencode(".jpg", eye, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for eye in pair
+        )
+        for pair in frames
+    ]
     n_frames = int(args.seconds * FPS)
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         folder = Path(tmp)
         ref = reference_write_s(folder, frames, n_frames)
-        print(f"{args.seconds:g} s of 1920x1080 RGB stereo at 30 fps "
-              f"({WIDTH * HEIGHT * 6 * FPS / 1e6:.0f} MB/s raw) + force at 1 kHz")
+        print(
+            f"{args.seconds:g} s of 1920x1080 RGB stereo at 30 fps "
+            f"({WIDTH * HEIGHT * 6 * FPS / 1e6:.0f} MB/s raw) + force at 1 kHz"
+        )
         print(f"reference: plain file.write of the raw frames: {args.seconds / ref:.2f}x real time")
-        print(f"{'storage':<17} {'writer x realtime':>17} {'vs file.write':>13} "
-              f"{'writer CPU ms/fr':>16} {'rec frames':>10} {'dropped':>24} "
-              f"{'rec CPU ms/fr':>13} {'size MB':>8} {'ratio':>6}")
+        print(
+            f"{'storage':<17} {'writer x realtime':>17} {'vs file.write':>13} "
+            f"{'writer CPU ms/fr':>16} {'rec frames':>10} {'dropped':>24} "
+            f"{'rec CPU ms/fr':>13} {'size MB':>8} {'ratio':>6}"
+        )
         for storage in args.storages:
             compression, passthrough = STORAGES[storage]
             jpegs = encoded if passthrough else None
             w, w_cpu = writer_only_s(folder, compression, frames, jpegs, n_frames)
             r = recorder_run(folder, compression, frames, jpegs, args.seconds)
-            print(f"{storage:<17} {args.seconds / w:>16.2f}x {ref / w:>12.2f}x "
-                  f"{1e3 * w_cpu / n_frames:>16.1f} {r['frames']:>10} {str(r['dropped']):>24} "
-                  f"{r['cpu_ms_per_frame']:>13.1f} {r['size_mb']:>8.0f} "
-                  f"{r['raw_mb'] / max(r['size_mb'], 1e-9):>5.1f}x", flush=True)
+            print(
+                f"{storage:<17} {args.seconds / w:>16.2f}x {ref / w:>12.2f}x "
+                f"{1e3 * w_cpu / n_frames:>16.1f} {r['frames']:>10} {str(r['dropped']):>24} "
+                f"{r['cpu_ms_per_frame']:>13.1f} {r['size_mb']:>8.0f} "
+                f"{r['raw_mb'] / max(r['size_mb'], 1e-9):>5.1f}x",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -55,15 +55,20 @@ def main() -> None:
         tissue = TissueSurface(texture=UniformAlbedo())
         times = iter(np.linspace(1.0, 8.0, 1000))
         render = seconds_per_call(
-            lambda: renderer.render(tissue.with_load(trial.at(next(times))[0])), 10)
+            lambda: renderer.render(tissue.with_load(trial.at(next(times))[0])), 10
+        )
         bench = SimBench(width=width, height=height)
         with bench.camera() as camera:
             read = seconds_per_call(camera.read, 10)
         print(f"{width}x{height}: reference cv2.remap {unit * 1e3:.1f} ms")
-        print(f"  render stereo pair (deforming tissue + pattern): {1 / render:6.1f} pairs/s "
-              f"= {render / unit:5.1f} x remap")
-        print(f"  bench camera read (mechanics + render):         {1 / read:6.1f} frames/s "
-              f"= {read / unit:5.1f} x remap  ({'≥' if read <= 0.1 else '<'} 10 fps)")
+        print(
+            f"  render stereo pair (deforming tissue + pattern): {1 / render:6.1f} pairs/s "
+            f"= {render / unit:5.1f} x remap"
+        )
+        print(
+            f"  bench camera read (mechanics + render):         {1 / read:6.1f} frames/s "
+            f"= {read / unit:5.1f} x remap  ({'≥' if read <= 0.1 else '<'} 10 fps)"
+        )
 
 
 if __name__ == "__main__":

@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from vbfe.acquire import SessionReader, record_session
+from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.sync.check import verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
-from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.common.config import load_config
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
@@ -50,11 +50,14 @@ def protocol_sweep(events: list[int], seeds: int) -> None:
     config["bench"].update(width=320, height=180, fps=30.0, distortion=False)
     config["record"]["min_free_gb"] = 0.0
     settings = ProtocolSettings.from_config(config)
-    true_latency = 1e-3 * (config["bench"]["image_latency_ms"]
-                           + config["bench"]["projector_latency_ms"])
-    print(f"{'events':>6} {'|offset error| mean/max (ms)':>29} {'half-width (ms)':>16} "
-          f"{'covers':>6} {'|flash error| mean/max (ms)':>28} {'half-width (ms)':>16} "
-          f"{'verify/read':>11}")
+    true_latency = 1e-3 * (
+        config["bench"]["image_latency_ms"] + config["bench"]["projector_latency_ms"]
+    )
+    print(
+        f"{'events':>6} {'|offset error| mean/max (ms)':>29} {'half-width (ms)':>16} "
+        f"{'covers':>6} {'|flash error| mean/max (ms)':>28} {'half-width (ms)':>16} "
+        f"{'verify/read':>11}"
+    )
     with tempfile.TemporaryDirectory() as folder:
         for n in events:
             rows = []
@@ -62,23 +65,39 @@ def protocol_sweep(events: list[int], seeds: int) -> None:
                 run = copy.deepcopy(config)
                 run["bench"]["seed"] = 100 * n + seed
                 path = Path(folder) / f"n{n}_s{seed}.h5"
-                record_session(run, path, protocol=SyncProtocol(
-                    taps=n, flashes=n, duration_s=max(10.0, float(n)), seed=seed))
+                record_session(
+                    run,
+                    path,
+                    protocol=SyncProtocol(
+                        taps=n, flashes=n, duration_s=max(10.0, float(n)), seed=seed
+                    ),
+                )
                 with SessionReader(path) as reader:
-                    true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+                    true_s = (
+                        float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+                    )
                 read_s = _read_time(path)
                 start = time.perf_counter()
                 report = verify_sync(path, settings=settings, store=False)
                 ratio = (time.perf_counter() - start) / read_s
                 e, f = report.estimate, report.protocol.flash_latency
-                rows.append((e.offset_s - true_s, (e.ci95_s[1] - e.ci95_s[0]) / 2,
-                             e.ci95_s[0] <= true_s <= e.ci95_s[1], f.value_s - true_latency,
-                             f.half_width_s, ratio))
-            err, half, covers, ferr, fhalf, ratio = (np.array(c) for c in zip(*rows))
-            print(f"{n:>6} {1e3 * np.mean(np.abs(err)):>14.2f} / {1e3 * np.max(np.abs(err)):<12.2f}"
-                  f"{1e3 * np.mean(half):>16.2f} {np.mean(covers):>6.0%} "
-                  f"{1e3 * np.mean(np.abs(ferr)):>13.2f} / {1e3 * np.max(np.abs(ferr)):<12.2f}"
-                  f"{1e3 * np.mean(fhalf):>16.2f} {np.mean(ratio):>11.2f}")
+                rows.append(
+                    (
+                        e.offset_s - true_s,
+                        (e.ci95_s[1] - e.ci95_s[0]) / 2,
+                        e.ci95_s[0] <= true_s <= e.ci95_s[1],
+                        f.value_s - true_latency,
+                        f.half_width_s,
+                        ratio,
+                    )
+                )
+            err, half, covers, ferr, fhalf, ratio = (np.array(c) for c in zip(*rows, strict=False))
+            print(
+                f"{n:>6} {1e3 * np.mean(np.abs(err)):>14.2f} / {1e3 * np.max(np.abs(err)):<12.2f}"
+                f"{1e3 * np.mean(half):>16.2f} {np.mean(covers):>6.0%} "
+                f"{1e3 * np.mean(np.abs(ferr)):>13.2f} / {1e3 * np.max(np.abs(ferr)):<12.2f}"
+                f"{1e3 * np.mean(fhalf):>16.2f} {np.mean(ratio):>11.2f}"
+            )
 
 
 def passive(args: argparse.Namespace) -> None:
@@ -89,7 +108,8 @@ def passive(args: argparse.Namespace) -> None:
     errors, covered, drift_errors = [], [], []
     with tempfile.TemporaryDirectory() as folder:
         for n, (stiffness, speed) in enumerate(
-                [(k, v) for k, v in PAPER_CONDITIONS.items() for _ in range(args.seeds)]):
+            [(k, v) for k, v in PAPER_CONDITIONS.items() for _ in range(args.seeds)]
+        ):
             run = copy.deepcopy(config)
             run["bench"].update(stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed, seed=n + 1)
             bench = SimBench.from_config(run["bench"])
@@ -104,37 +124,55 @@ def passive(args: argparse.Namespace) -> None:
             e = report.estimate
             errors.append(e.offset_s - true_s)
             covered.append(e.ci95_s[0] <= true_s <= e.ci95_s[1])
-            truth_ppm = {"camera": bench.camera_clock.drift_ppm,
-                         "force": bench.trocar_clock.drift_ppm}
-            drifts = "  ".join(f"{s} {report.drift_ppm[s]:+6.1f}"
-                               f"±{report.drift_uncertainty_ppm[s]:.1f} (true {truth_ppm[s]:+.0f})"
-                               for s in truth_ppm)
+            truth_ppm = {
+                "camera": bench.camera_clock.drift_ppm,
+                "force": bench.trocar_clock.drift_ppm,
+            }
+            drifts = "  ".join(
+                f"{s} {report.drift_ppm[s]:+6.1f}"
+                f"±{report.drift_uncertainty_ppm[s]:.1f} (true {truth_ppm[s]:+.0f})"
+                for s in truth_ppm
+            )
             drift_errors.append(report.drift_ppm["camera"] - truth_ppm["camera"])
-            print(f"k={stiffness:g} v={speed:g} seed {n + 1}: {bench.duration_s():.1f} s, "
-                  f"offset {1e3 * e.offset_s:6.2f} ms (true {1e3 * true_s:.2f}, error "
-                  f"{1e3 * errors[-1]:+5.2f}, 95% CI {1e3 * e.ci95_s[0]:.1f}…"
-                  f"{1e3 * e.ci95_s[1]:.1f}{' holds' if covered[-1] else ' MISSES'} the truth; "
-                  f"{e.method}); {drifts}; "
-                  f"verify/read time {verify_s / read_s:.2f}")
+            print(
+                f"k={stiffness:g} v={speed:g} seed {n + 1}: {bench.duration_s():.1f} s, "
+                f"offset {1e3 * e.offset_s:6.2f} ms (true {1e3 * true_s:.2f}, error "
+                f"{1e3 * errors[-1]:+5.2f}, 95% CI {1e3 * e.ci95_s[0]:.1f}…"
+                f"{1e3 * e.ci95_s[1]:.1f}{' holds' if covered[-1] else ' MISSES'} the truth; "
+                f"{e.method}); {drifts}; "
+                f"verify/read time {verify_s / read_s:.2f}"
+            )
     err = 1e3 * np.abs(errors)
-    print(f"offset |error|: median {np.median(err):.2f} ms, max {err.max():.2f} ms, within ±5 ms "
-          f"{np.mean(err <= 5):.0%}, within ±3 ms {np.mean(err <= 3):.0%}; 95% CI holds the "
-          f"truth in {np.mean(covered):.0%}; camera drift |error| max "
-          f"{np.max(np.abs(drift_errors)):.1f} ppm")
+    print(
+        f"offset |error|: median {np.median(err):.2f} ms, max {err.max():.2f} ms, within ±5 ms "
+        f"{np.mean(err <= 5):.0%}, within ±3 ms {np.mean(err <= 3):.0%}; 95% CI holds the "
+        f"truth in {np.mean(covered):.0%}; camera drift |error| max "
+        f"{np.max(np.abs(drift_errors)):.1f} ppm"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--events", type=int, nargs="+", default=[5, 10, 20, 40],
-                        help="taps and flashes per protocol session")
-    parser.add_argument("--passive", action="store_true",
-                        help="measure traction sessions passively instead")
+    parser.add_argument(
+        "--events",
+        type=int,
+        nargs="+",
+        default=[5, 10, 20, 40],
+        help="taps and flashes per protocol session",
+    )
+    parser.add_argument(
+        "--passive", action="store_true", help="measure traction sessions passively instead"
+    )
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=360)
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--hold", type=float, default=3.0, help="hold after the pull (s)")
-    parser.add_argument("--seeds", type=int, default=None,
-                        help="sessions per event count (3) or per paper condition (2)")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="sessions per event count (3) or per paper condition (2)",
+    )
     args = parser.parse_args()
     if args.passive:
         args.seeds = args.seeds or 2

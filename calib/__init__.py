@@ -14,8 +14,27 @@ from vbfe.calib.projector import GrayCodeCapture, calibrate_projector, with_proj
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_detections, calibrate_stereo
 from vbfe.calib.views import ViewSet, load_views, save_views
 
-__all__ = ["BoardDetector", "BoardSpec", "Calibration", "CalibrationError", "CameraModel",
-           "CheckResult", "Detection", "GrayCodeCapture", "MonoResult", "StereoOptions",
-           "StereoResult", "ViewSet", "calibrate_detections", "calibrate_mono",
-           "calibrate_projector", "calibrate_stereo", "check_calibration", "export_calibration",
-           "load_calibration", "load_views", "save_views", "with_projector"]
+__all__ = [
+    "BoardDetector",
+    "BoardSpec",
+    "Calibration",
+    "CalibrationError",
+    "CameraModel",
+    "CheckResult",
+    "Detection",
+    "GrayCodeCapture",
+    "MonoResult",
+    "StereoOptions",
+    "StereoResult",
+    "ViewSet",
+    "calibrate_detections",
+    "calibrate_mono",
+    "calibrate_projector",
+    "calibrate_stereo",
+    "check_calibration",
+    "export_calibration",
+    "load_calibration",
+    "load_views",
+    "save_views",
+    "with_projector",
+]

@@ -15,7 +15,6 @@ from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, calib_settings, from_table
 from vbfe.common.files import save_figure, write_bytes_atomic
 
-
 TARGETS = ("charuco", "chessboard")
 
 
@@ -35,37 +34,48 @@ class BoardSpec:
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
-            raise CalibrationError(f"unknown calibration target {self.target!r} (--target); "
-                                   f"use one of {', '.join(TARGETS)}")
+            raise CalibrationError(
+                f"unknown calibration target {self.target!r} (--target); "
+                f"use one of {', '.join(TARGETS)}"
+            )
         if self.target == "chessboard":
             if min(self.squares_x, self.squares_y) < 4:
                 raise CalibrationError(
                     f"chessboard with {self.squares_x - 1}x{self.squares_y - 1} inner corners "
-                    "(--inner-corners): need at least 3 along each side, e.g. 9x6")
+                    "(--inner-corners): need at least 3 along each side, e.g. 9x6"
+                )
         elif min(self.squares_x, self.squares_y) < 3:
             raise CalibrationError(
                 f"ChArUco board of {self.squares_x}x{self.squares_y} squares (--squares-x, "
-                "--squares-y): need at least 3 along each side, e.g. 9x7")
+                "--squares-y): need at least 3 along each side, e.g. 9x7"
+            )
         if not np.isfinite(self.square_m) or self.square_m <= 0:
-            raise CalibrationError(f"square size {self.square_m * 1e3:g} mm (--square-mm): must "
-                                   "be a positive length, e.g. 3")
+            raise CalibrationError(
+                f"square size {self.square_m * 1e3:g} mm (--square-mm): must "
+                "be a positive length, e.g. 3"
+            )
         if self.target == "charuco" and not (np.isfinite(self.marker_m) and self.marker_m > 0):
-            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm (--marker-mm): must "
-                                   "be a positive length, e.g. 2.2 for 3 mm squares")
+            raise CalibrationError(
+                f"marker size {self.marker_m * 1e3:g} mm (--marker-mm): must "
+                "be a positive length, e.g. 2.2 for 3 mm squares"
+            )
         if self.target == "charuco" and self.marker_m >= self.square_m:
-            raise CalibrationError(f"marker size {self.marker_m * 1e3:g} mm (--marker-mm) must be "
-                                   f"smaller than the square size {self.square_m * 1e3:g} mm")
+            raise CalibrationError(
+                f"marker size {self.marker_m * 1e3:g} mm (--marker-mm) must be "
+                f"smaller than the square size {self.square_m * 1e3:g} mm"
+            )
 
     @classmethod
-    def from_config(cls, calib_table: dict[str, Any]) -> "BoardSpec":
+    def from_config(cls, calib_table: dict[str, Any]) -> BoardSpec:
         """The board of a rig config's ``[calib]`` table (sizes there are in mm; a chessboard
         may be given as ``inner_corners = [9, 6]`` instead of its squares)."""
         inner = calib_settings(calib_table).inner_corners  # checked: a list of integers
         table = {k: v for k, v in calib_table.items() if k != "inner_corners"}
         if inner:
             if len(inner) != 2:
-                raise CalibrationError(f"[calib] inner_corners = {inner!r}: give [nx, ny], e.g. "
-                                       "[9, 6]")
+                raise CalibrationError(
+                    f"[calib] inner_corners = {inner!r}: give [nx, ny], e.g. [9, 6]"
+                )
             table.update(squares_x=int(inner[0]) + 1, squares_y=int(inner[1]) + 1)
         return from_table(cls, table)
 
@@ -84,8 +94,10 @@ class BoardSpec:
         if self.target == "chessboard":
             nx, ny = self.inner_corners
             return f"chessboard, {nx}x{ny} inner corners, {self.square_m * 1e3:g} mm squares"
-        return (f"ChArUco board, {self.squares_x}x{self.squares_y} squares, {self.dictionary}"
-                f"{', legacy pattern' if self.legacy else ''}")
+        return (
+            f"ChArUco board, {self.squares_x}x{self.squares_y} squares, {self.dictionary}"
+            f"{', legacy pattern' if self.legacy else ''}"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (stored in the calibration's info): a chessboard without the
@@ -104,21 +116,26 @@ class BoardSpec:
     def board(self) -> cv2.aruco.CharucoBoard:
         """The OpenCV ChArUco board object (ChArUco targets only)."""
         if self.target != "charuco":
-            raise CalibrationError(f"this needs a ChArUco board, not a {self.describe()}; "
-                                   "use --target charuco")
+            raise CalibrationError(
+                f"this needs a ChArUco board, not a {self.describe()}; use --target charuco"
+            )
         dict_id = getattr(cv2.aruco, self.dictionary, None)
         if not self.dictionary.startswith("DICT_") or dict_id is None:
             known = [n for n in dir(cv2.aruco) if n.startswith("DICT_")]
-            raise CalibrationError(f"unknown ArUco dictionary {self.dictionary!r}; known: "
-                                   f"{', '.join(known)}")
+            raise CalibrationError(
+                f"unknown ArUco dictionary {self.dictionary!r}; known: {', '.join(known)}"
+            )
         dictionary = cv2.aruco.getPredefinedDictionary(dict_id)
         n_markers = (self.squares_x * self.squares_y) // 2
         if n_markers > dictionary.bytesList.shape[0]:
-            raise CalibrationError(f"a {self.squares_x}x{self.squares_y} board needs {n_markers} "
-                                   f"markers but {self.dictionary} has only "
-                                   f"{dictionary.bytesList.shape[0]}")
-        board = cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m,
-                                       self.marker_m, dictionary)
+            raise CalibrationError(
+                f"a {self.squares_x}x{self.squares_y} board needs {n_markers} "
+                f"markers but {self.dictionary} has only "
+                f"{dictionary.bytesList.shape[0]}"
+            )
+        board = cv2.aruco.CharucoBoard(
+            (self.squares_x, self.squares_y), self.square_m, self.marker_m, dictionary
+        )
         board.setLegacyPattern(self.legacy)
         return board
 
@@ -126,8 +143,7 @@ class BoardSpec:
         """Board-frame coordinates (n_corners×3, metres) indexed by corner id (row-major inner
         corners, x fastest; ChArUco's corner ids for ChArUco boards)."""
         if self.target == "charuco":
-            return np.asarray(self.board().getChessboardCorners(),
-                              dtype=np.float64).reshape(-1, 3)
+            return np.asarray(self.board().getChessboardCorners(), dtype=np.float64).reshape(-1, 3)
         nx, ny = self.inner_corners
         col, row = np.meshgrid(np.arange(1, nx + 1), np.arange(1, ny + 1))
         return np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)]) * self.square_m
@@ -150,8 +166,9 @@ class BoardDetector:
 
     def __init__(self, spec: BoardSpec) -> None:
         self.spec = spec
-        self._detector = cv2.aruco.CharucoDetector(spec.board()) \
-            if spec.target == "charuco" else None
+        self._detector = (
+            cv2.aruco.CharucoDetector(spec.board()) if spec.target == "charuco" else None
+        )
 
     def detect(self, image: np.ndarray) -> Detection:
         """Corners in one BGR or grey image; empty when the board is not seen."""
@@ -177,12 +194,14 @@ def board_image(spec: BoardSpec, px_per_mm: float = 20.0, margin_mm: float = 2.0
     width_mm = spec.squares_x * spec.square_m * 1e3 + 2 * margin_mm
     height_mm = spec.squares_y * spec.square_m * 1e3 + 2 * margin_mm
     size = (int(round(width_mm * px_per_mm)), int(round(height_mm * px_per_mm)))
-    return spec.board().generateImage(size, marginSize=int(round(margin_mm * px_per_mm)),
-                                      borderBits=1)
+    return spec.board().generateImage(
+        size, marginSize=int(round(margin_mm * px_per_mm)), borderBits=1
+    )
 
 
-def write_board(spec: BoardSpec, out_stem: str | Path, px_per_mm: float = 40.0,
-                margin_mm: float = 2.0) -> tuple[Path, Path]:
+def write_board(
+    spec: BoardSpec, out_stem: str | Path, px_per_mm: float = 40.0, margin_mm: float = 2.0
+) -> tuple[Path, Path]:
     """Write ``<stem>.png`` and a true-scale ``<stem>.pdf`` of the board; returns both paths."""
     import matplotlib
 

@@ -27,13 +27,25 @@ FORMAT_VERSION = 1
 
 # name -> allowed shapes (None: any length vector)
 _MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
-    "K1": ((3, 3),), "K2": ((3, 3),), "R": ((3, 3),), "T": ((3,),),
-    "R1": ((3, 3),), "R2": ((3, 3),), "P1": ((3, 4),), "P2": ((3, 4),), "Q": ((4, 4),),
-    "D1": ((4,), (5,), (8,), (12,), (14,)), "D2": ((4,), (5,), (8,), (12,), (14,)),
+    "K1": ((3, 3),),
+    "K2": ((3, 3),),
+    "R": ((3, 3),),
+    "T": ((3,),),
+    "R1": ((3, 3),),
+    "R2": ((3, 3),),
+    "P1": ((3, 4),),
+    "P2": ((3, 4),),
+    "Q": ((4, 4),),
+    "D1": ((4,), (5,), (8,), (12,), (14,)),
+    "D2": ((4,), (5,), (8,), (12,), (14,)),
 }
 _OPTIONAL_MATRICES: dict[str, tuple[tuple[int, ...], ...]] = {
-    "K_proj": ((3, 3),), "D_proj": ((4,), (5,), (8,), (12,), (14,)), "R_proj": ((3, 3),),
-    "T_proj": ((3,),), "color_mixing": ((3, 3),), "color_offset": ((3,),),
+    "K_proj": ((3, 3),),
+    "D_proj": ((4,), (5,), (8,), (12,), (14,)),
+    "R_proj": ((3, 3),),
+    "T_proj": ((3,),),
+    "color_mixing": ((3, 3),),
+    "color_offset": ((3,),),
     "per_view_rms_px": ((-1, 3),),
 }
 _VECTORS = {"T", "D1", "D2", "D_proj", "T_proj", "color_offset"}
@@ -89,18 +101,22 @@ class Calibration:
                 continue
             arr = np.asarray(value, dtype=np.float64)
             if name in _VECTORS and arr.ndim == 2 and min(arr.shape) != 1:
-                raise CalibrationError(f"calibration field {name} is a {arr.shape} matrix, "
-                                       "not a vector")
+                raise CalibrationError(
+                    f"calibration field {name} is a {arr.shape} matrix, not a vector"
+                )
             if name in _VECTORS:
                 arr = arr.reshape(-1)
             if not any(_shape_ok(arr.shape, s) for s in shapes):
                 raise CalibrationError(
                     f"calibration field {name} has shape {arr.shape}, expected "
-                    f"{' or '.join(str(s).replace('-1', 'n') for s in shapes)}")
+                    f"{' or '.join(str(s).replace('-1', 'n') for s in shapes)}"
+                )
             if name in _MATRICES or name in ("K_proj", "D_proj", "R_proj", "T_proj"):
                 if not np.isfinite(arr).all():
-                    raise CalibrationError(f"calibration field {name} holds NaN or infinite "
-                                           "values; recalibrate with 'vbfe calibrate stereo'")
+                    raise CalibrationError(
+                        f"calibration field {name} holds NaN or infinite "
+                        "values; recalibrate with 'vbfe calibrate stereo'"
+                    )
             setattr(self, name, arr)
         self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
         if self.projector_size is not None:
@@ -116,15 +132,18 @@ class Calibration:
             if K[0, 0] <= 0 or K[1, 1] <= 0:
                 raise CalibrationError(f"calibration {name} has a focal length <= 0")
             if not (0 <= K[0, 2] < w and 0 <= K[1, 2] < h):
-                raise CalibrationError(f"calibration {name} puts the principal point "
-                                       f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
-                                       "image; recalibrate")
+                raise CalibrationError(
+                    f"calibration {name} puts the principal point "
+                    f"({K[0, 2]:.1f}, {K[1, 2]:.1f}) outside the {w}x{h} "
+                    "image; recalibrate"
+                )
         if self.P2[0, 0] <= 0:  # a zero or impossible baseline is for the sanity gates to judge
             raise CalibrationError(
                 f"the rectified right focal length P2[0,0] = {self.P2[0, 0]:.4g} px is not "
                 "positive: the two eyes' geometry is inconsistent (the views' left and right "
                 "images do not show the same board poses); check each pair is one moment of "
-                "one rig and the board options match the board")
+                "one rig and the board options match the board"
+            )
 
     # --- the rectified pair -------------------------------------------------------------
     @property
@@ -150,23 +169,37 @@ class Calibration:
         return float(self.P2[0, 2] - self.P1[0, 2])
 
     @classmethod
-    def rectified(cls, fx: float, fy: float, baseline_m: float, cx: float, cy: float,
-                  image_size: tuple[int, int], doffs: float = 0.0,
-                  source: str = "already-rectified pair") -> "Calibration":
+    def rectified(
+        cls,
+        fx: float,
+        fy: float,
+        baseline_m: float,
+        cx: float,
+        cy: float,
+        image_size: tuple[int, int],
+        doffs: float = 0.0,
+        source: str = "already-rectified pair",
+    ) -> Calibration:
         """The calibration of an already-rectified, distortion-free pair: focal lengths
         ``fx, fy`` (px), baseline (m, left camera on the left), the left principal point and
         ``doffs`` (right minus left principal point x, px) of images of ``image_size``."""
         width, height = image_size
-        problems = [f"focal length {name} = {value:g} px must be positive"
-                    for name, value in (("fx", fx), ("fy", fy)) if not value > 0]
+        problems = [
+            f"focal length {name} = {value:g} px must be positive"
+            for name, value in (("fx", fx), ("fy", fy))
+            if not value > 0
+        ]
         if not baseline_m > 0:
             problems.append(f"baseline {baseline_m * 1e3:g} mm must be positive")
         if not (0 <= cx < width and 0 <= cy < height):
-            problems.append(f"principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} "
-                            "image")
+            problems.append(
+                f"principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} image"
+            )
         if not (np.isfinite(doffs) and 0 <= cx + doffs < width):
-            problems.append(f"doffs {doffs:g} px puts the right principal point ({cx + doffs:g}) "
-                            f"outside the {width}-px wide image")
+            problems.append(
+                f"doffs {doffs:g} px puts the right principal point ({cx + doffs:g}) "
+                f"outside the {width}-px wide image"
+            )
         if problems:
             raise CalibrationError("; ".join(problems))
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
@@ -175,11 +208,29 @@ class Calibration:
         P1, P2 = np.hstack([K, np.zeros((3, 1))]), np.hstack([K2, np.zeros((3, 1))])
         P2[0, 3] = -fx * baseline_m
         # OpenCV's Q, its y row scaled by fx/fy so that Y = (v - cy)·z/fy
-        Q = np.array([[1.0, 0.0, 0.0, -cx], [0.0, fx / fy, 0.0, -cy * fx / fy],
-                      [0.0, 0.0, 0.0, fx], [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m]])
-        return cls(K1=K, D1=np.zeros(5), K2=K2, D2=np.zeros(5), R=np.eye(3),
-                   T=np.array([-baseline_m, 0.0, 0.0]), R1=np.eye(3), R2=np.eye(3), P1=P1,
-                   P2=P2, Q=Q, image_size=(width, height), info={"source": source})
+        Q = np.array(
+            [
+                [1.0, 0.0, 0.0, -cx],
+                [0.0, fx / fy, 0.0, -cy * fx / fy],
+                [0.0, 0.0, 0.0, fx],
+                [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m],
+            ]
+        )
+        return cls(
+            K1=K,
+            D1=np.zeros(5),
+            K2=K2,
+            D2=np.zeros(5),
+            R=np.eye(3),
+            T=np.array([-baseline_m, 0.0, 0.0]),
+            R1=np.eye(3),
+            R2=np.eye(3),
+            P1=P1,
+            P2=P2,
+            Q=Q,
+            image_size=(width, height),
+            info={"source": source},
+        )
 
     @property
     def cx(self) -> float:
@@ -196,16 +247,19 @@ class Calibration:
         """Whether projector intrinsics and pose are present."""
         return self.K_proj is not None
 
-    def rectification_maps(self) -> tuple[tuple[np.ndarray, np.ndarray],
-                                          tuple[np.ndarray, np.ndarray]]:
+    def rectification_maps(
+        self,
+    ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """``((map1x, map1y), (map2x, map2y))`` for ``cv2.remap`` of left and right images."""
-        left = cv2.initUndistortRectifyMap(self.K1, self.D1, self.R1, self.P1, self.image_size,
-                                           cv2.CV_32FC1)
-        right = cv2.initUndistortRectifyMap(self.K2, self.D2, self.R2, self.P2, self.image_size,
-                                            cv2.CV_32FC1)
+        left = cv2.initUndistortRectifyMap(
+            self.K1, self.D1, self.R1, self.P1, self.image_size, cv2.CV_32FC1
+        )
+        right = cv2.initUndistortRectifyMap(
+            self.K2, self.D2, self.R2, self.P2, self.image_size, cv2.CV_32FC1
+        )
         return left, right
 
-    def scaled(self, scale: float, scale_y: float | None = None) -> "Calibration":
+    def scaled(self, scale: float, scale_y: float | None = None) -> Calibration:
         """The calibration of the same cameras with images resized by ``scale`` (e.g. 0.5 for
         half resolution), rows by ``scale_y`` when given (anisotropic pixels); pixel centres
         stay at integer coordinates, as in OpenCV."""
@@ -215,10 +269,17 @@ class Calibration:
         P1, P2 = S @ self.P1, S @ self.P2
         tx = P2[0, 3] / P2[0, 0]  # −B, in metres
         aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs or unequal scales
-        Q = np.array([[1.0, 0, 0, -P1[0, 2]], [0, aspect, 0, -P1[1, 2] * aspect],
-                      [0, 0, 0, P1[0, 0]], [0, 0, -1 / tx, -self.doffs * scale / tx]])
-        return self.replace(K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size,
-                            per_view_rms_px=None)
+        Q = np.array(
+            [
+                [1.0, 0, 0, -P1[0, 2]],
+                [0, aspect, 0, -P1[1, 2] * aspect],
+                [0, 0, 0, P1[0, 0]],
+                [0, 0, -1 / tx, -self.doffs * scale / tx],
+            ]
+        )
+        return self.replace(
+            K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size, per_view_rms_px=None
+        )
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rectified pair (rows of the two images are epipolar lines)."""
@@ -226,27 +287,36 @@ class Calibration:
             if (img.shape[1], img.shape[0]) != self.image_size:
                 raise CalibrationError(
                     f"{name} image is {img.shape[1]}x{img.shape[0]} but the calibration is for "
-                    f"{self.image_size[0]}x{self.image_size[1]}; recalibrate at this resolution")
+                    f"{self.image_size[0]}x{self.image_size[1]}; recalibrate at this resolution"
+                )
         (l1, l2), (r1, r2) = self.rectification_maps()
-        return (cv2.remap(left, l1, l2, cv2.INTER_LINEAR),
-                cv2.remap(right, r1, r2, cv2.INTER_LINEAR))
+        return (
+            cv2.remap(left, l1, l2, cv2.INTER_LINEAR),
+            cv2.remap(right, r1, r2, cv2.INTER_LINEAR),
+        )
 
-    def rectify_points(self, left_px: np.ndarray,
-                       right_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def rectify_points(
+        self, left_px: np.ndarray, right_px: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Raw left and right pixel positions (n×2 each) mapped into the rectified images."""
-        def one(points: np.ndarray, K: np.ndarray, D: np.ndarray, R: np.ndarray,
-                P: np.ndarray) -> np.ndarray:
+
+        def one(
+            points: np.ndarray, K: np.ndarray, D: np.ndarray, R: np.ndarray, P: np.ndarray
+        ) -> np.ndarray:
             points = np.asarray(points, np.float64).reshape(-1, 1, 2)
             return cv2.undistortPoints(points, K, D, R=R, P=P).reshape(-1, 2)
 
-        return (one(left_px, self.K1, self.D1, self.R1, self.P1),
-                one(right_px, self.K2, self.D2, self.R2, self.P2))
+        return (
+            one(left_px, self.K1, self.D1, self.R1, self.P1),
+            one(right_px, self.K2, self.D2, self.R2, self.P2),
+        )
 
     # --- file format --------------------------------------------------------------------
     def to_yaml_text(self) -> str:
         """The calibration as OpenCV FileStorage YAML text."""
-        fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
-                             | cv2.FILE_STORAGE_FORMAT_YAML)
+        fs = cv2.FileStorage(
+            "", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML
+        )
         fs.write("format", "vbfe-calibration")
         fs.write("format_version", FORMAT_VERSION)
         fs.write("image_width", self.image_size[0])
@@ -268,27 +338,31 @@ class Calibration:
         return fs.releaseAndGetString()
 
     @classmethod
-    def from_yaml_text(cls, text: str, source: str = "<text>") -> "Calibration":
+    def from_yaml_text(cls, text: str, source: str = "<text>") -> Calibration:
         """Parse calibration YAML text; ``source`` names it in error messages."""
         try:
             fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser error, wrapped
             cause = exc.__cause__ or exc
-            raise CalibrationError(f"{source} is not OpenCV FileStorage YAML "
-                                   f"({str(cause).strip().splitlines()[-1]})") from None
+            raise CalibrationError(
+                f"{source} is not OpenCV FileStorage YAML ({str(cause).strip().splitlines()[-1]})"
+            ) from None
         try:
             return cls._from_storage(fs, source)
         except cv2.error as exc:  # a node of the wrong kind (e.g. a list where a map is needed)
-            raise CalibrationError(f"{source} is not a vbfe calibration file "
-                                   f"({exc.err.strip() or 'unreadable node'})") from None
+            raise CalibrationError(
+                f"{source} is not a vbfe calibration file ({exc.err.strip() or 'unreadable node'})"
+            ) from None
         finally:
             fs.release()
 
     @classmethod
-    def _from_storage(cls, fs: cv2.FileStorage, source: str) -> "Calibration":
+    def _from_storage(cls, fs: cv2.FileStorage, source: str) -> Calibration:
         if not fs.root().isMap():
-            raise CalibrationError(f"{source} is not a vbfe calibration file (its top level is "
-                                   "not a map of named nodes)")
+            raise CalibrationError(
+                f"{source} is not a vbfe calibration file (its top level is "
+                "not a map of named nodes)"
+            )
 
         def node(name: str) -> cv2.FileNode | None:
             n = fs.getNode(name)
@@ -304,15 +378,19 @@ class Calibration:
 
         fmt = node("format")
         if fmt is None or not fmt.isString() or fmt.string() != "vbfe-calibration":
-            raise CalibrationError(f"{source} is not a vbfe calibration file (no 'format: "
-                                   "vbfe-calibration'); write one with 'vbfe calibrate stereo'")
+            raise CalibrationError(
+                f"{source} is not a vbfe calibration file (no 'format: "
+                "vbfe-calibration'); write one with 'vbfe calibrate stereo'"
+            )
         kwargs: dict[str, Any] = {}
         for name in (*_MATRICES, *_OPTIONAL_MATRICES):
             n = node(name)
             if n is None:
                 if name in _MATRICES:
-                    raise CalibrationError(f"{source} has no {name}; the file is incomplete, "
-                                           "recalibrate with 'vbfe calibrate stereo'")
+                    raise CalibrationError(
+                        f"{source} has no {name}; the file is incomplete, "
+                        "recalibrate with 'vbfe calibrate stereo'"
+                    )
                 continue
             mat = n.mat() if n.isMap() else None
             if mat is None:
@@ -326,16 +404,19 @@ class Calibration:
             if node(name) is not None:
                 kwargs[name] = number(name)
         if node("projector_width") is not None:
-            kwargs["projector_size"] = (int(number("projector_width") or 0),
-                                        int(number("projector_height") or 0))
+            kwargs["projector_size"] = (
+                int(number("projector_width") or 0),
+                int(number("projector_height") or 0),
+            )
         info = node(_INFO_NODE)
         if info is not None:
             if not info.isMap():
                 raise CalibrationError(f"{source}: {_INFO_NODE} is not a map of named nodes")
             kwargs["info"] = _read_info(info)
         else:
-            kwargs["info"] = _read_old_info(node(_OLD_INFO_NODES[0]), node(_OLD_INFO_NODES[1]),
-                                            source)
+            kwargs["info"] = _read_old_info(
+                node(_OLD_INFO_NODES[0]), node(_OLD_INFO_NODES[1]), source
+            )
         try:
             return cls(**kwargs)
         except CalibrationError as exc:
@@ -348,26 +429,30 @@ class Calibration:
         text = self.to_yaml_text()
         back = Calibration.from_yaml_text(text, source=f"calibration written to {path}")
         if back.info != json.loads(json.dumps(self.info)) or not all(
-                np.allclose(getattr(back, name), getattr(self, name), rtol=1e-12, atol=0)
-                for name in _MATRICES):
-            raise CalibrationError(f"the calibration for {path} does not read back as written; "
-                                   "nothing was written (please report this)")
+            np.allclose(getattr(back, name), getattr(self, name), rtol=1e-12, atol=0)
+            for name in _MATRICES
+        ):
+            raise CalibrationError(
+                f"the calibration for {path} does not read back as written; "
+                "nothing was written (please report this)"
+            )
         return write_bytes_atomic(path, text)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Calibration":
+    def load(cls, path: str | Path) -> Calibration:
         """Read a calibration YAML file."""
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise CalibrationError(f"calibration file {path} does not exist; create one with "
-                                   "'vbfe calibrate stereo'") from None
+            raise CalibrationError(
+                f"calibration file {path} does not exist; create one with 'vbfe calibrate stereo'"
+            ) from None
         except UnicodeDecodeError:
             raise CalibrationError(f"{path} is not a text (YAML) calibration file") from None
         return cls.from_yaml_text(text, source=str(path))
 
-    def replace(self, **changes: Any) -> "Calibration":
+    def replace(self, **changes: Any) -> Calibration:
         """A copy with some fields changed."""
         return dataclasses.replace(self, **changes)
 
@@ -422,10 +507,10 @@ def _read_info(node: cv2.FileNode) -> Any:
         return {key: _read_info(node.getNode(key)) for key in keys}
     if node.isSeq():
         items = [node.at(i) for i in range(node.size())]
-        if items and all(item.isMap() and list(item.keys()) == ["key", "value"]
-                         for item in items):
-            return {item.getNode("key").string(): _read_info(item.getNode("value"))
-                    for item in items}
+        if items and all(item.isMap() and list(item.keys()) == ["key", "value"] for item in items):
+            return {
+                item.getNode("key").string(): _read_info(item.getNode("value")) for item in items
+            }
         return [_read_info(item) for item in items]
     if node.isInt():
         return int(node.real())
@@ -434,8 +519,9 @@ def _read_info(node: cv2.FileNode) -> Any:
     return node.string()
 
 
-def _read_old_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
-                   source: str) -> dict[str, Any]:
+def _read_old_info(
+    node: cv2.FileNode | None, old: cv2.FileNode | None, source: str
+) -> dict[str, Any]:
     """The info dict of files written before the YAML map: base64 pieces, or raw JSON pieces
     in still older files."""
     chosen = node if node is not None else old
@@ -444,8 +530,7 @@ def _read_old_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
     items = [chosen.at(i) for i in range(chosen.size())] if chosen.isSeq() else [chosen]
     if not all(item.isString() for item in items):
         name = _OLD_INFO_NODES[0] if node is not None else _OLD_INFO_NODES[1]
-        raise CalibrationError(f"{source}: {name}"
-                               " is not a sequence of strings")
+        raise CalibrationError(f"{source}: {name} is not a sequence of strings")
     text = "".join(item.string() for item in items)
     try:
         if node is not None:
@@ -459,7 +544,7 @@ def _read_old_info(node: cv2.FileNode | None, old: cv2.FileNode | None,
 
 
 def _shape_ok(shape: tuple[int, ...], expected: tuple[int, ...]) -> bool:
-    return len(shape) == len(expected) and all(e in (-1, s) for s, e in zip(shape, expected))
+    return len(shape) == len(expected) and all(e in (-1, s) for s, e in zip(shape, expected, strict=False))
 
 
 def load_calibration(path: str | Path) -> Calibration:
@@ -476,7 +561,9 @@ def load_calibration(path: str | Path) -> Calibration:
 def stored_calibration(yaml_text: str | None, session_path: str | Path) -> Calibration:
     """The calibration a session stores (its calibration YAML text), refused when none."""
     if yaml_text is None:
-        raise CalibrationError(f"session {session_path} holds no calibration; store one with "
-                               "'vbfe calibrate stereo ... --store-in SESSION' or pass a "
-                               "calibration YAML file (--calib FILE.yaml)")
+        raise CalibrationError(
+            f"session {session_path} holds no calibration; store one with "
+            "'vbfe calibrate stereo ... --store-in SESSION' or pass a "
+            "calibration YAML file (--calib FILE.yaml)"
+        )
     return Calibration.from_yaml_text(yaml_text, source=f"calibration in {session_path}")

@@ -39,14 +39,17 @@ class CameraModel:
         self.std_intrinsics = np.asarray(self.std_intrinsics, np.float64).reshape(-1)
         self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
         if self.K.shape != (3, 3) or self.D.size not in (4, 5, 8, 12, 14):
-            raise CalibrationError(f"camera model has K of shape {self.K.shape} and "
-                                   f"{self.D.size} distortion coefficients; expected 3x3 and "
-                                   "4, 5, 8, 12 or 14")
+            raise CalibrationError(
+                f"camera model has K of shape {self.K.shape} and "
+                f"{self.D.size} distortion coefficients; expected 3x3 and "
+                "4, 5, 8, 12 or 14"
+            )
 
     def save(self, path: str | Path) -> Path:
         """Write the YAML file atomically."""
-        fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
-                             | cv2.FILE_STORAGE_FORMAT_YAML)
+        fs = cv2.FileStorage(
+            "", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML
+        )
         fs.write("format", CAMERA_FORMAT)
         fs.write("format_version", 1)
         fs.write("image_width", self.image_size[0])
@@ -66,45 +69,59 @@ class CameraModel:
         return write_bytes_atomic(path, fs.releaseAndGetString())
 
     @classmethod
-    def load(cls, path: str | Path) -> "CameraModel":
+    def load(cls, path: str | Path) -> CameraModel:
         """Read a camera YAML file written by :meth:`save`."""
         path = Path(path)
         if not path.is_file():
-            raise CalibrationError(f"camera file {path} does not exist; write one with "
-                                   "'vbfe calibrate camera VIEWS -o cam.yaml'")
+            raise CalibrationError(
+                f"camera file {path} does not exist; write one with "
+                "'vbfe calibrate camera VIEWS -o cam.yaml'"
+            )
         try:
             fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         except (cv2.error, SystemError):
             raise CalibrationError(f"{path} is not OpenCV FileStorage YAML") from None
         try:
             if fs.getNode("format").string() != CAMERA_FORMAT:
-                raise CalibrationError(f"{path} is not a vbfe camera file (no 'format: "
-                                       f"{CAMERA_FORMAT}'); write one with 'vbfe calibrate "
-                                       "camera'")
+                raise CalibrationError(
+                    f"{path} is not a vbfe camera file (no 'format: "
+                    f"{CAMERA_FORMAT}'); write one with 'vbfe calibrate "
+                    "camera'"
+                )
             mats = {}
             for key in ("K", "D", "std_intrinsics", "per_view_rms_px"):
                 node = fs.getNode(key)
                 mats[key] = None if node.empty() else node.mat()
             if mats["K"] is None or mats["D"] is None:
-                raise CalibrationError(f"{path} has no K or D; recalibrate with 'vbfe calibrate "
-                                       "camera'")
+                raise CalibrationError(
+                    f"{path} has no K or D; recalibrate with 'vbfe calibrate camera'"
+                )
 
             def strings(key: str) -> list[str]:
                 node = fs.getNode(key)
                 return [node.at(i).string() for i in range(node.size())] if node.isSeq() else []
 
-            return cls(K=mats["K"], D=mats["D"],
-                       image_size=(int(fs.getNode("image_width").real()),
-                                   int(fs.getNode("image_height").real())),
-                       rms_px=fs.getNode("rms_px").real(),
-                       per_view_rms_px=(mats["per_view_rms_px"] if mats["per_view_rms_px"]
-                                        is not None else np.zeros(0)),
-                       std_intrinsics=(mats["std_intrinsics"] if mats["std_intrinsics"]
-                                       is not None else np.zeros(9)),
-                       views=strings("views"), dropped=strings("dropped_views"),
-                       board=fs.getNode("board").string())
+            return cls(
+                K=mats["K"],
+                D=mats["D"],
+                image_size=(
+                    int(fs.getNode("image_width").real()),
+                    int(fs.getNode("image_height").real()),
+                ),
+                rms_px=fs.getNode("rms_px").real(),
+                per_view_rms_px=(
+                    mats["per_view_rms_px"] if mats["per_view_rms_px"] is not None else np.zeros(0)
+                ),
+                std_intrinsics=(
+                    mats["std_intrinsics"] if mats["std_intrinsics"] is not None else np.zeros(9)
+                ),
+                views=strings("views"),
+                dropped=strings("dropped_views"),
+                board=fs.getNode("board").string(),
+            )
         except CalibrationError as exc:
-            raise CalibrationError(f"{path}: {exc}" if str(path) not in str(exc)
-                                   else str(exc)) from None
+            raise CalibrationError(
+                f"{path}: {exc}" if str(path) not in str(exc) else str(exc)
+            ) from None
         finally:
             fs.release()

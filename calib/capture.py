@@ -37,7 +37,7 @@ class CaptureOptions:
     min_pose_distance: float = calib_field("min_pose_distance")  # sum of |Δ| of X, Y, size, skew
 
     @classmethod
-    def from_config(cls, calib_table: dict) -> "CaptureOptions":
+    def from_config(cls, calib_table: dict) -> CaptureOptions:
         """Options from a rig config's ``[calib]`` table."""
         return from_table(cls, calib_table)
 
@@ -82,7 +82,7 @@ def sharpness(image: np.ndarray, det: Detection) -> float:
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     x0, y0 = np.floor(det.corners.min(axis=0)).astype(int)
     x1, y1 = np.ceil(det.corners.max(axis=0)).astype(int) + 1
-    roi = grey[max(y0, 0):y1, max(x0, 0):x1].astype(np.float64)
+    roi = grey[max(y0, 0) : y1, max(x0, 0) : x1].astype(np.float64)
     square_px = np.sqrt(cv2.contourArea(cv2.convexHull(det.corners.astype(np.float32))) / len(det))
     return float(cv2.Laplacian(roi, cv2.CV_64F).var() / max(roi.var(), 1e-9) * square_px)
 
@@ -104,22 +104,35 @@ class ViewCollector:
         dl, dr = self._detector.detect(left), self._detector.detect(right)
         common = len(np.intersect1d(dl.ids, dr.ids))
         if common < self.options.min_corners:
-            return Verdict(False, f"board not seen in both eyes ({len(dl)} left, {len(dr)} right "
-                           f"corners, {common} common; need {self.options.min_corners})",
-                           left=dl, right=dr)
-        sharp = min(sharpness(left, dl), sharpness(right, dr)) \
-            * SHARPNESS_SCALE[self.spec.target]
+            return Verdict(
+                False,
+                f"board not seen in both eyes ({len(dl)} left, {len(dr)} right "
+                f"corners, {common} common; need {self.options.min_corners})",
+                left=dl,
+                right=dr,
+            )
+        sharp = min(sharpness(left, dl), sharpness(right, dr)) * SHARPNESS_SCALE[self.spec.target]
         params = pose_params(dl, self.spec, (left.shape[1], left.shape[0]))
         if sharp < self.options.min_sharpness:
-            return Verdict(False, f"blurred (sharpness {sharp:.0f} < "
-                           f"{self.options.min_sharpness:.0f}); hold the board still",
-                           params, dl, dr)
+            return Verdict(
+                False,
+                f"blurred (sharpness {sharp:.0f} < "
+                f"{self.options.min_sharpness:.0f}); hold the board still",
+                params,
+                dl,
+                dr,
+            )
         if self.params:
             nearest = min(float(np.abs(params - p).sum()) for p in self.params)
             if nearest < self.options.min_pose_distance:
-                return Verdict(False, f"pose too close to a kept view (distance {nearest:.2f} < "
-                               f"{self.options.min_pose_distance:.2f}); move or tilt the board",
-                               params, dl, dr)
+                return Verdict(
+                    False,
+                    f"pose too close to a kept view (distance {nearest:.2f} < "
+                    f"{self.options.min_pose_distance:.2f}); move or tilt the board",
+                    params,
+                    dl,
+                    dr,
+                )
         self.pairs.append((left, right))
         self.params.append(params)
         return Verdict(True, f"kept view {len(self.pairs)}", params, dl, dr)
@@ -137,20 +150,24 @@ class ViewCollector:
             return dict.fromkeys(PARAM_RANGES, 0.0)
         p = np.array(self.params)
         spread = p.max(axis=0) - p.min(axis=0)
-        return {k: float(min(1.0, s / r)) for (k, r), s in zip(PARAM_RANGES.items(), spread)}
+        return {k: float(min(1.0, s / r)) for (k, r), s in zip(PARAM_RANGES.items(), spread, strict=False)}
 
     @property
     def enough(self) -> bool:
         """Enough views kept and every bar full (or the view limit reached)."""
         full = all(v >= 1.0 for v in self.coverage().values())
-        return (len(self.pairs) >= self.options.min_views and full) or \
-            len(self.pairs) >= self.options.max_views
+        return (len(self.pairs) >= self.options.min_views and full) or len(
+            self.pairs
+        ) >= self.options.max_views
 
 
 def coverage_text(coverage: dict[str, float], n_views: int, width: int = 20) -> str:
     """Text bars, e.g. ``X [##########----------] 50%``, one line."""
-    bars = [f"{k.upper() if len(k) == 1 else k} [{'#' * round(v * width)}"
-            f"{'-' * (width - round(v * width))}] {v * 100:3.0f}%" for k, v in coverage.items()]
+    bars = [
+        f"{k.upper() if len(k) == 1 else k} [{'#' * round(v * width)}"
+        f"{'-' * (width - round(v * width))}] {v * 100:3.0f}%"
+        for k, v in coverage.items()
+    ]
     return f"views {n_views:3d}  " + "  ".join(bars)
 
 
@@ -158,8 +175,12 @@ def annotate(image: np.ndarray, det: Detection, coverage: dict[str, float]) -> n
     """The image with detected corners and coverage bars drawn on it (for a live preview)."""
     out = image.copy()
     if len(det):
-        cv2.aruco.drawDetectedCornersCharuco(out, det.corners.reshape(-1, 1, 2).astype(np.float32),
-                                             det.ids.reshape(-1, 1), (0, 255, 0))
+        cv2.aruco.drawDetectedCornersCharuco(
+            out,
+            det.corners.reshape(-1, 1, 2).astype(np.float32),
+            det.ids.reshape(-1, 1),
+            (0, 255, 0),
+        )
     for i, (k, v) in enumerate(coverage.items()):
         y = 12 + 14 * i
         cv2.putText(out, k, (4, y + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 255), 1)
@@ -180,10 +201,13 @@ class CaptureResult:
     rejections: dict[str, int]  # first word of the reason -> count
 
 
-def capture_views(frames: Iterable[tuple[np.ndarray, np.ndarray]], spec: BoardSpec,
-                  folder: str | Path, options: CaptureOptions | None = None,
-                  on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None
-                  ) -> CaptureResult:
+def capture_views(
+    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    spec: BoardSpec,
+    folder: str | Path,
+    options: CaptureOptions | None = None,
+    on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
+) -> CaptureResult:
     """Offer ``frames`` to a :class:`ViewCollector` until it has enough views; save the kept
     views as PNG pairs ``view_NNN_left.png`` / ``view_NNN_right.png`` in ``folder``.
     ``on_view(verdict, collector, left_image)`` is called after each offered view.
@@ -214,8 +238,9 @@ def capture_views(frames: Iterable[tuple[np.ndarray, np.ndarray]], spec: BoardSp
     return CaptureResult(folder, names, seen, collector.coverage(), collector.enough, rejections)
 
 
-def camera_frames(camera, max_frames: int, timeout_s: float = 2.0
-                  ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def camera_frames(
+    camera, max_frames: int, timeout_s: float = 2.0
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Left/right images from an open :class:`~vbfe.drivers.camera.base.StereoCamera`."""
     for _ in range(max_frames):
         frame = camera.read(timeout_s)

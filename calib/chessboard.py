@@ -30,8 +30,12 @@ def corner_spacing(corners: np.ndarray, inner: tuple[int, int]) -> float:
     """Smallest distance (px) between neighbouring corners along the board's rows and columns."""
     nx, ny = inner
     grid = corners.reshape(ny, nx, 2)
-    return float(min(np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
-                     np.linalg.norm(np.diff(grid, axis=0), axis=2).min()))
+    return float(
+        min(
+            np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
+            np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
+        )
+    )
 
 
 def half_window(spacing_px: float) -> int:
@@ -44,10 +48,12 @@ def detect_chessboard(grey: np.ndarray, inner: tuple[int, int]) -> np.ndarray | 
     """All inner corners (n×2 px, row-major, numbered from either end as OpenCV finds them) of
     a chessboard in a grey image, sub-pixel refined; ``None`` when the board is not seen whole."""
     found, corners = cv2.findChessboardCorners(
-        grey, inner, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        grey, inner, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
     if not found:  # the sector-based detector finds boards the classic one misses
         found, corners = cv2.findChessboardCornersSB(
-            grey, inner, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+            grey, inner, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
+        )
     if not found:
         return None
     corners = corners.reshape(-1, 1, 2).astype(np.float32)
@@ -70,8 +76,9 @@ def _numberings(corners: np.ndarray, inner: tuple[int, int]) -> list[np.ndarray]
     return [np.rot90(grid, k).reshape(-1, 2).copy() for k in turns]
 
 
-def same_numbering(left: np.ndarray, right: np.ndarray,
-                   inner: tuple[int, int]) -> tuple[np.ndarray, bool, float]:
+def same_numbering(
+    left: np.ndarray, right: np.ndarray, inner: tuple[int, int]
+) -> tuple[np.ndarray, bool, float]:
     """The right eye's corners (n×2) numbered as the left eye's, whether they were renumbered,
     and how clearly: the runner-up numbering's displacement spread over the chosen one's
     (below :data:`_MIN_NUMBERING_CONTRAST` the view is ambiguous)."""
@@ -79,8 +86,7 @@ def same_numbering(left: np.ndarray, right: np.ndarray,
     spreads = [_displacement_spread(left, c) for c in candidates]
     order = np.argsort(spreads)
     best, runner_up = int(order[0]), int(order[1])
-    return (candidates[best], best != 0,
-            spreads[runner_up] / max(spreads[best], 1e-9))
+    return (candidates[best], best != 0, spreads[runner_up] / max(spreads[best], 1e-9))
 
 
 def is_clear(contrast: float) -> bool:

@@ -18,8 +18,14 @@ from vbfe.calib.board import BoardSpec, write_board
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.camera import CameraOptions
 from vbfe.calib.camera_model import CameraModel
-from vbfe.calib.capture import (CaptureOptions, CaptureResult, Verdict, ViewCollector,
-                                camera_frames, capture_views)
+from vbfe.calib.capture import (
+    CaptureOptions,
+    CaptureResult,
+    Verdict,
+    ViewCollector,
+    camera_frames,
+    capture_views,
+)
 from vbfe.calib.check import CheckResult, check_calibration
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import export_calibration, export_paths
@@ -27,10 +33,17 @@ from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.options import calib_settings
-from vbfe.calib.projector import (ProjectorOptions, calibrate_projector, load_captures,
-                                  with_projector)
-from vbfe.calib.projector_capture import (GrayCaptureOptions, capture_gray_code,
-                                          captured_projector_size)
+from vbfe.calib.projector import (
+    ProjectorOptions,
+    calibrate_projector,
+    load_captures,
+    with_projector,
+)
+from vbfe.calib.projector_capture import (
+    GrayCaptureOptions,
+    capture_gray_code,
+    captured_projector_size,
+)
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_images, load_views
@@ -55,15 +68,22 @@ def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[
     """Write the printable board (PNG and true-scale PDF)."""
     spec = board_spec(config, **overrides)
     if spec.target != "charuco":
-        raise CalibrationError("'calibrate board' writes ChArUco boards; for a chessboard print "
-                               "any chessboard with a white margin and measure its squares")
+        raise CalibrationError(
+            "'calibrate board' writes ChArUco boards; for a chessboard print "
+            "any chessboard with a white margin and measure its squares"
+        )
     spec.board()  # validates dictionary and sizes before anything is written
     return write_board(spec, out_stem)
 
 
-def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int | None = None,
-            on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
-            **overrides: Any) -> CaptureResult:
+def capture(
+    config: Config,
+    folder: str | Path,
+    max_frames: int = 200,
+    seed: int | None = None,
+    on_view: Callable[[Verdict, ViewCollector, np.ndarray], None] | None = None,
+    **overrides: Any,
+) -> CaptureResult:
     """Collect calibration views from the rig's camera into ``folder`` (PNG pairs).
 
     The camera is read through its driver; on the simulated bench choose ``scene = "board"`` in
@@ -75,8 +95,13 @@ def capture(config: Config, folder: str | Path, max_frames: int = 200, seed: int
         return capture_views(camera_frames(frames, max_frames), spec, folder, options, on_view)
 
 
-def projector_capture(config: Config, folder: str | Path, n_poses: int, seed: int | None = None,
-                      on_event: Callable[[str], None] | None = None) -> list[Path]:
+def projector_capture(
+    config: Config,
+    folder: str | Path,
+    n_poses: int,
+    seed: int | None = None,
+    on_event: Callable[[str], None] | None = None,
+) -> list[Path]:
     """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
     write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
     options = GrayCaptureOptions.from_config(section(config, "calib"))
@@ -100,19 +125,29 @@ def _calib_table(config: Config, settings: dict[str, Any] | None = None) -> dict
     return {**section(config, "calib"), **(settings or {})}
 
 
-def stereo(config: Config, source: str | Path | None, out_path: str | Path,
-           report: bool = True, store_in_session: str | Path | None = None,
-           step: Callable[[], None] | None = None, left_glob: str | None = None,
-           right_glob: str | None = None,
-           intrinsics: tuple[str | Path, str | Path] | None = None,
-           settings: dict[str, Any] | None = None, **overrides: Any) -> StereoOutcome:
+def stereo(
+    config: Config,
+    source: str | Path | None,
+    out_path: str | Path,
+    report: bool = True,
+    store_in_session: str | Path | None = None,
+    step: Callable[[], None] | None = None,
+    left_glob: str | None = None,
+    right_glob: str | None = None,
+    intrinsics: tuple[str | Path, str | Path] | None = None,
+    settings: dict[str, Any] | None = None,
+    **overrides: Any,
+) -> StereoOutcome:
     """Calibrate from a folder of view pairs, ``--left``/``--right`` globs or a session, with
     the cameras' intrinsics solved or fixed from two camera files; refuse a result failing the
     sanity gates; write the YAML (and report). ``settings`` replace ``[calib]`` values."""
     spec = board_spec(config, **overrides)
     views = load_views(source, left_glob=left_glob, right_glob=right_glob)
-    fixed = None if intrinsics is None else \
-        (CameraModel.load(intrinsics[0]), CameraModel.load(intrinsics[1]))
+    fixed = (
+        None
+        if intrinsics is None
+        else (CameraModel.load(intrinsics[0]), CameraModel.load(intrinsics[1]))
+    )
     options = StereoOptions.from_config(_calib_table(config, settings))
     result = calibrate_stereo(views, spec, options, step, fixed)
     out_path = Path(out_path)
@@ -125,35 +160,54 @@ def stereo(config: Config, source: str | Path | None, out_path: str | Path,
     return StereoOutcome(result, out_path, reports)
 
 
-def camera(config: Config, source: str | Path, out_path: str | Path, eye: str | None = None,
-           step: Callable[[], None] | None = None, settings: dict[str, Any] | None = None,
-           **overrides: Any) -> MonoResult:
+def camera(
+    config: Config,
+    source: str | Path,
+    out_path: str | Path,
+    eye: str | None = None,
+    step: Callable[[], None] | None = None,
+    settings: dict[str, Any] | None = None,
+    **overrides: Any,
+) -> MonoResult:
     """Calibrate one camera from a folder or glob of images (or one eye of stereo views);
     write the camera YAML. ``settings`` replace ``[calib]`` values."""
     spec = board_spec(config, **overrides)
     table = _calib_table(config, settings)
-    result = calibrate_mono(load_images(source, eye), spec, CameraOptions.from_config(table),
-                            GateLimits.from_config(table), step)
+    result = calibrate_mono(
+        load_images(source, eye),
+        spec,
+        CameraOptions.from_config(table),
+        GateLimits.from_config(table),
+        step,
+    )
     result.model.save(out_path)
     return result
 
 
-def import_files(config: Config, paths: list[str | Path], out_path: str | Path,
-                 image_size: tuple[int, int] | None = None, unit_mm: float = 1000.0,
-                 settings: dict[str, Any] | None = None) -> tuple[Calibration, str]:
+def import_files(
+    config: Config,
+    paths: list[str | Path],
+    out_path: str | Path,
+    image_size: tuple[int, int] | None = None,
+    unit_mm: float = 1000.0,
+    settings: dict[str, Any] | None = None,
+) -> tuple[Calibration, str]:
     """Read another tool's calibration (:func:`import_calibration`), refuse it when it fails
     the sanity gates, write it as vbfe's calibration file; returns it and the format read."""
     calibration, fmt = import_calibration(paths, image_size, unit_mm * 1e-3)
     problems = stereo_problems(calibration, GateLimits.from_config(_calib_table(config, settings)))
     if problems:
-        raise CalibrationError(f"{' + '.join(map(str, paths))}: imported {fmt} calibration "
-                               "refused, nothing written: " + "; ".join(problems))
+        raise CalibrationError(
+            f"{' + '.join(map(str, paths))}: imported {fmt} calibration "
+            "refused, nothing written: " + "; ".join(problems)
+        )
     calibration.save(out_path)
     return calibration, fmt
 
 
-def export_targets(calibration_path: str | Path, fmt: str,
-                   out_dir: str | Path | None = None) -> list[Path]:
+def export_targets(
+    calibration_path: str | Path, fmt: str, out_dir: str | Path | None = None
+) -> list[Path]:
     """The files :func:`export` writes."""
     path = Path(calibration_path)
     return export_paths(fmt, out_dir or path.parent, path.stem)
@@ -165,9 +219,15 @@ def export(calibration_path: str | Path, fmt: str, out_dir: str | Path | None = 
     return export_calibration(load_calibration(path), fmt, out_dir or path.parent, path.stem)
 
 
-def projector(config: Config, captures_folder: str | Path, calibration_path: str | Path,
-              out_path: str | Path | None = None, simulate_poses: int = 0,
-              seed: int | None = None, **overrides: Any) -> Calibration:
+def projector(
+    config: Config,
+    captures_folder: str | Path,
+    calibration_path: str | Path,
+    out_path: str | Path | None = None,
+    simulate_poses: int = 0,
+    seed: int | None = None,
+    **overrides: Any,
+) -> Calibration:
     """Calibrate the projector from Gray-code captures (``pose_NNN/`` folders) and add it to the
     calibration. ``simulate_poses`` > 0 first captures that many poses with the rig's camera and
     projector (see :func:`projector_capture`)."""
@@ -176,9 +236,13 @@ def projector(config: Config, captures_folder: str | Path, calibration_path: str
     if simulate_poses:
         projector_capture(config, captures_folder, simulate_poses, seed)
     projector_size = _projector_size(config, captures_folder)
-    result = calibrate_projector(load_captures(captures_folder), spec, calibration,
-                                 projector_size, ProjectorOptions.from_config(section(config,
-                                                                                      "calib")))
+    result = calibrate_projector(
+        load_captures(captures_folder),
+        spec,
+        calibration,
+        projector_size,
+        ProjectorOptions.from_config(section(config, "calib")),
+    )
     updated = with_projector(calibration, result, projector_size)
     updated.save(out_path or calibration_path)
     return updated
@@ -195,9 +259,11 @@ def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, i
         return size
     projector = open_rig(config, families=("projector",)).projector
     if not (projector.width and projector.height):
-        raise CalibrationError(f"the projector size is unknown ({captures_folder} has no "
-                               "projector.json); set [calib] projector_width and "
-                               "projector_height")
+        raise CalibrationError(
+            f"the projector size is unknown ({captures_folder} has no "
+            "projector.json); set [calib] projector_width and "
+            "projector_height"
+        )
     return int(projector.width), int(projector.height)
 
 
@@ -210,36 +276,50 @@ def _stored_board(stored: Calibration, config: Config, overrides: dict[str, Any]
     try:
         return BoardSpec(**board)
     except TypeError:
-        raise CalibrationError(f"the stored calibration's board {board} is not a board "
-                               "description; give the board options (--target, ...)") from None
+        raise CalibrationError(
+            f"the stored calibration's board {board} is not a board "
+            "description; give the board options (--target, ...)"
+        ) from None
 
 
-def check(config: Config, stored_path: str | Path, new_path: str | Path | None = None,
-          views_path: str | Path | None = None, settings: dict[str, Any] | None = None,
-          **overrides: Any) -> CheckResult:
+def check(
+    config: Config,
+    stored_path: str | Path,
+    new_path: str | Path | None = None,
+    views_path: str | Path | None = None,
+    settings: dict[str, Any] | None = None,
+    **overrides: Any,
+) -> CheckResult:
     """Go/no-go of the stored calibration: its sanity gates, then against a new one and/or
     fresh board views (of the board stored in the calibration unless board ``overrides`` are
     given). ``settings`` replace ``[calib]`` values; the working distance is the stored one
     unless ``settings`` give ``working_distance_mm``."""
     if new_path is None and views_path is None:
-        raise CalibrationError("give a new calibration (--against FILE) or fresh views "
-                               "(--views FOLDER) to check the stored calibration")
+        raise CalibrationError(
+            "give a new calibration (--against FILE) or fresh views "
+            "(--views FOLDER) to check the stored calibration"
+        )
     gate_table = _calib_table(config, settings)
     table = calib_settings(gate_table)
     stored, new = load_calibration(stored_path), None
     if new_path is not None:
         new = load_calibration(new_path)
         if new.image_size != stored.image_size:
-            raise CalibrationError(f"{new_path} is for {new.image_size[0]}x{new.image_size[1]} "
-                                   f"images, {stored_path} for {stored.image_size[0]}x"
-                                   f"{stored.image_size[1]}: compare calibrations of one camera "
-                                   "mode")
+            raise CalibrationError(
+                f"{new_path} is for {new.image_size[0]}x{new.image_size[1]} "
+                f"images, {stored_path} for {stored.image_size[0]}x"
+                f"{stored.image_size[1]}: compare calibrations of one camera "
+                "mode"
+            )
     distance_mm = (settings or {}).get("working_distance_mm")
     return check_calibration(
-        stored, new=new,
+        stored,
+        new=new,
         views=load_views(views_path) if views_path is not None else None,
         spec=_stored_board(stored, config, overrides),
         max_depth_error_m=table.check_max_depth_error_mm / 1e3,
         max_epipolar_px=table.check_max_epipolar_px,
         working_distance_m=None if distance_mm is None else distance_mm / 1e3,
-        min_corners=table.min_corners, limits=GateLimits.from_config(gate_table))
+        min_corners=table.min_corners,
+        limits=GateLimits.from_config(gate_table),
+    )

@@ -48,12 +48,14 @@ class _Storage:
         self._files = []
         for source, text in texts:
             try:
-                fs = cv2.FileStorage(_indent_block_sequences(text) if not text.lstrip()
-                                     .startswith("<") else text,
-                                     cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+                fs = cv2.FileStorage(
+                    _indent_block_sequences(text) if not text.lstrip().startswith("<") else text,
+                    cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY,
+                )
             except (cv2.error, SystemError):
-                raise CalibrationError(f"{source} is not YAML or XML that OpenCV can read") \
-                    from None
+                raise CalibrationError(
+                    f"{source} is not YAML or XML that OpenCV can read"
+                ) from None
             self._files.append((source, fs))
 
     def node(self, *path: str) -> cv2.FileNode | None:
@@ -105,19 +107,27 @@ def _need(value: np.ndarray | float | None, what: str, source: str) -> np.ndarra
 
 
 def _rectify(K1, D1, K2, D2, R, T, size: tuple[int, int]) -> dict[str, np.ndarray]:
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T.reshape(3, 1),
-                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        K1, D1, K2, D2, size, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+    )
     return dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q)
 
 
 def _q_from(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
     tx = P2[0, 3] / P2[0, 0]
-    return np.array([[1.0, 0, 0, -P1[0, 2]], [0, 1.0, 0, -P1[1, 2]], [0, 0, 0, P1[0, 0]],
-                     [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx]])
+    return np.array(
+        [
+            [1.0, 0, 0, -P1[0, 2]],
+            [0, 1.0, 0, -P1[1, 2]],
+            [0, 0, 0, P1[0, 0]],
+            [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx],
+        ]
+    )
 
 
-def _opencv(store: _Storage, source: str, size: tuple[int, int] | None,
-            unit_m: float) -> Calibration:
+def _opencv(
+    store: _Storage, source: str, size: tuple[int, int] | None, unit_m: float
+) -> Calibration:
     K1 = _need(store.matrix("M1", "K1"), "M1 (or K1), the left camera matrix", source)
     K2 = _need(store.matrix("M2", "K2"), "M2 (or K2), the right camera matrix", source)
     D1 = _need(store.matrix("D1"), "D1, the left distortion", source).reshape(-1)
@@ -128,14 +138,25 @@ def _opencv(store: _Storage, source: str, size: tuple[int, int] | None,
     if width and height:
         size = (int(width), int(height))
     if size is None:
-        raise CalibrationError(f"{source} does not say the image size (OpenCV's stereo sample "
-                               "files do not); give it with --image-size WIDTHxHEIGHT")
+        raise CalibrationError(
+            f"{source} does not say the image size (OpenCV's stereo sample "
+            "files do not); give it with --image-size WIDTHxHEIGHT"
+        )
     names = ("R1", "R2", "P1", "P2", "Q")
     given = {name: store.matrix(name) for name in names}
     if any(v is None for v in given.values()) or unit_m != 1.0:
         given = _rectify(K1, D1, K2, D2, R, T, size)
-    return Calibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, **given,
-                       info={"source": f"OpenCV stereo files ({source})"})
+    return Calibration(
+        K1=K1,
+        D1=D1,
+        K2=K2,
+        D2=D2,
+        R=R,
+        T=T,
+        image_size=size,
+        **given,
+        info={"source": f"OpenCV stereo files ({source})"},
+    )
 
 
 def _kalibr(store: _Storage, source: str) -> Calibration:
@@ -144,58 +165,95 @@ def _kalibr(store: _Storage, source: str) -> Calibration:
         model = store.text(f"{cam}/camera_model")
         dist = store.text(f"{cam}/distortion_model")
         if model != "pinhole" or dist not in ("radtan", "none"):
-            raise CalibrationError(f"{source}: {cam} is {model}-{dist}; vbfe reads "
-                                   "pinhole-radtan (OpenCV's k1, k2, p1, p2) cameras only")
+            raise CalibrationError(
+                f"{source}: {cam} is {model}-{dist}; vbfe reads "
+                "pinhole-radtan (OpenCV's k1, k2, p1, p2) cameras only"
+            )
         fu, fv, pu, pv = _need(store.matrix(f"{cam}/intrinsics"), f"{cam} intrinsics", source)
         coeffs = store.matrix(f"{cam}/distortion_coeffs")
         D = np.zeros(5)
         if coeffs is not None and dist == "radtan":
             D[:4] = coeffs.reshape(-1)[:4]
         size = _need(store.matrix(f"{cam}/resolution"), f"{cam} resolution", source)
-        cams.append((np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1.0]]), D,
-                     (int(size[0]), int(size[1]))))
+        cams.append(
+            (np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1.0]]), D, (int(size[0]), int(size[1])))
+        )
     if cams[0][2] != cams[1][2]:
-        raise CalibrationError(f"{source}: cam0 is {cams[0][2]} and cam1 {cams[1][2]} px; vbfe "
-                               "needs both eyes at one resolution")
+        raise CalibrationError(
+            f"{source}: cam0 is {cams[0][2]} and cam1 {cams[1][2]} px; vbfe "
+            "needs both eyes at one resolution"
+        )
     T_cn = _need(store.matrix("cam1/T_cn_cnm1"), "cam1 T_cn_cnm1 (cam0 to cam1)", source)
     T_cn = T_cn.reshape(4, 4)
     (K1, D1, size), (K2, D2, _) = cams
     R, T = T_cn[:3, :3], T_cn[:3, 3]
-    return Calibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size,
-                       **_rectify(K1, D1, K2, D2, R, T, size),
-                       info={"source": f"Kalibr camchain ({source})"})
+    return Calibration(
+        K1=K1,
+        D1=D1,
+        K2=K2,
+        D2=D2,
+        R=R,
+        T=T,
+        image_size=size,
+        **_rectify(K1, D1, K2, D2, R, T, size),
+        info={"source": f"Kalibr camchain ({source})"},
+    )
 
 
 def _ros(stores: list[_Storage], sources: list[str]) -> Calibration:
     eyes = []
-    for store, source in zip(stores, sources):
+    for store, source in zip(stores, sources, strict=False):
         width, height = store.number("image_width"), store.number("image_height")
-        eyes.append(dict(
-            K=_need(store.matrix("camera_matrix"), "camera_matrix", source).reshape(3, 3),
-            D=_need(store.matrix("distortion_coefficients"), "distortion_coefficients",
-                    source).reshape(-1),
-            R=_need(store.matrix("rectification_matrix"), "rectification_matrix",
-                    source).reshape(3, 3),
-            P=_need(store.matrix("projection_matrix"), "projection_matrix", source).reshape(3, 4),
-            size=(int(_need(width, "image_width", source)),
-                  int(_need(height, "image_height", source)))))
+        eyes.append(
+            dict(
+                K=_need(store.matrix("camera_matrix"), "camera_matrix", source).reshape(3, 3),
+                D=_need(
+                    store.matrix("distortion_coefficients"), "distortion_coefficients", source
+                ).reshape(-1),
+                R=_need(
+                    store.matrix("rectification_matrix"), "rectification_matrix", source
+                ).reshape(3, 3),
+                P=_need(store.matrix("projection_matrix"), "projection_matrix", source).reshape(
+                    3, 4
+                ),
+                size=(
+                    int(_need(width, "image_width", source)),
+                    int(_need(height, "image_height", source)),
+                ),
+            )
+        )
     left, right = eyes
     if left["size"] != right["size"]:
-        raise CalibrationError(f"{sources[0]} is for {left['size']} and {sources[1]} for "
-                               f"{right['size']} px images; give the left and right files of "
-                               "one camera mode")
+        raise CalibrationError(
+            f"{sources[0]} is for {left['size']} and {sources[1]} for "
+            f"{right['size']} px images; give the left and right files of "
+            "one camera mode"
+        )
     if not right["P"][0, 3] < 0 <= left["P"][0, 3] + 1e-12:
-        raise CalibrationError(f"{sources[1]} is not the right eye of {sources[0]} (its "
-                               "projection_matrix has no negative Tx = -fx·B); give the left "
-                               "file first")
+        raise CalibrationError(
+            f"{sources[1]} is not the right eye of {sources[0]} (its "
+            "projection_matrix has no negative Tx = -fx·B); give the left "
+            "file first"
+        )
     # rectified right = rectified left + (Tx, 0, 0): X_r = R2ᵀ (R1 X_l + t)
     t = np.array([right["P"][0, 3] / right["P"][0, 0], 0.0, 0.0])
     R = right["R"].T @ left["R"]
     T = right["R"].T @ t
-    return Calibration(K1=left["K"], D1=left["D"], K2=right["K"], D2=right["D"], R=R, T=T,
-                       R1=left["R"], R2=right["R"], P1=left["P"], P2=right["P"],
-                       Q=_q_from(left["P"], right["P"]), image_size=left["size"],
-                       info={"source": f"ROS camera_info pair ({', '.join(sources)})"})
+    return Calibration(
+        K1=left["K"],
+        D1=left["D"],
+        K2=right["K"],
+        D2=right["D"],
+        R=R,
+        T=T,
+        R1=left["R"],
+        R2=right["R"],
+        P1=left["P"],
+        P2=right["P"],
+        Q=_q_from(left["P"], right["P"]),
+        image_size=left["size"],
+        info={"source": f"ROS camera_info pair ({', '.join(sources)})"},
+    )
 
 
 def _middlebury(text: str, source: str) -> Calibration:
@@ -222,11 +280,20 @@ def _middlebury(text: str, source: str) -> Calibration:
     K0, K1 = camera("cam0"), camera("cam1")
     doffs = number("doffs")
     if abs(K1[0, 2] - K0[0, 2] - doffs) > 1e-3:
-        raise CalibrationError(f"{source}: doffs {doffs:g} is not cam1's cx minus cam0's "
-                               f"({K1[0, 2] - K0[0, 2]:g}); the file is inconsistent")
-    return Calibration.rectified(K0[0, 0], K0[1, 1], number("baseline") * 1e-3, K0[0, 2],
-                                 K0[1, 2], (int(number("width")), int(number("height"))),
-                                 doffs, source=f"Middlebury calib.txt ({source})")
+        raise CalibrationError(
+            f"{source}: doffs {doffs:g} is not cam1's cx minus cam0's "
+            f"({K1[0, 2] - K0[0, 2]:g}); the file is inconsistent"
+        )
+    return Calibration.rectified(
+        K0[0, 0],
+        K0[1, 1],
+        number("baseline") * 1e-3,
+        K0[0, 2],
+        K0[1, 2],
+        (int(number("width")), int(number("height"))),
+        doffs,
+        source=f"Middlebury calib.txt ({source})",
+    )
 
 
 def detect_format(texts: list[str]) -> str:
@@ -240,13 +307,16 @@ def detect_format(texts: list[str]) -> str:
         return "ros"
     if re.search(r"\b(M1|K1)\b", "\n".join(texts)):
         return "opencv"
-    raise CalibrationError("not a calibration vbfe can import: expected OpenCV stereo files "
-                           "(M1 D1 M2 D2 R T), a Kalibr camchain, a ROS camera_info pair or a "
-                           "Middlebury calib.txt")
+    raise CalibrationError(
+        "not a calibration vbfe can import: expected OpenCV stereo files "
+        "(M1 D1 M2 D2 R T), a Kalibr camchain, a ROS camera_info pair or a "
+        "Middlebury calib.txt"
+    )
 
 
-def import_calibration(paths: list[str | Path], image_size: tuple[int, int] | None = None,
-                       unit_m: float = 1.0) -> tuple[Calibration, str]:
+def import_calibration(
+    paths: list[str | Path], image_size: tuple[int, int] | None = None, unit_m: float = 1.0
+) -> tuple[Calibration, str]:
     """The calibration in another tool's files, and their format. ``image_size`` is needed for
     OpenCV's stereo sample files, which do not hold it; ``unit_m`` is the length of their T's
     unit (1: metres; OpenCV's sample measures in board squares)."""
@@ -255,17 +325,20 @@ def import_calibration(paths: list[str | Path], image_size: tuple[int, int] | No
     fmt = detect_format(texts)
     wanted = {"ros": 2, "middlebury": 1, "kalibr": 1}.get(fmt)
     if wanted is not None and len(paths) != wanted:
-        raise CalibrationError(f"a {fmt} calibration is {wanted} file"
-                               f"{'s (left, right)' if wanted == 2 else ''}; got {len(paths)}")
+        raise CalibrationError(
+            f"a {fmt} calibration is {wanted} file"
+            f"{'s (left, right)' if wanted == 2 else ''}; got {len(paths)}"
+        )
     if len(paths) > 2:
         raise CalibrationError(f"give at most two files (got {len(paths)})")
     sources = [str(p) for p in paths]
     if fmt == "middlebury":
         return _middlebury(texts[0], sources[0]), fmt
-    stores = [_Storage([(s, t)]) for s, t in zip(sources, texts)]
+    stores = [_Storage([(s, t)]) for s, t in zip(sources, texts, strict=False)]
     if fmt == "ros":
         return _ros(stores, sources), fmt
     if fmt == "kalibr":
         return _kalibr(stores[0], sources[0]), fmt
-    return _opencv(_Storage(list(zip(sources, texts))), " + ".join(sources), image_size,
-                   unit_m), fmt
+    return _opencv(
+        _Storage(list(zip(sources, texts, strict=False))), " + ".join(sources), image_size, unit_m
+    ), fmt

@@ -5,10 +5,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-
 from vbfe.calib.board import BoardDetector, BoardSpec
-from vbfe.calib.camera import (CameraFit, CameraOptions, calibrate_camera, need_views,
-                               outlier_views, solve_flags, weak_note)
+from vbfe.calib.camera import (
+    CameraFit,
+    CameraOptions,
+    calibrate_camera,
+    need_views,
+    outlier_views,
+    solve_flags,
+    weak_note,
+)
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, camera_problems
@@ -26,16 +32,20 @@ class MonoResult:
     weak: str | None = None  # why the result is weakly determined, if it is
 
 
-def calibrate_mono(images: ImageSet, spec: BoardSpec, options: CameraOptions | None = None,
-                   limits: GateLimits | None = None,
-                   step: Callable[[], None] | None = None) -> MonoResult:
+def calibrate_mono(
+    images: ImageSet,
+    spec: BoardSpec,
+    options: CameraOptions | None = None,
+    limits: GateLimits | None = None,
+    step: Callable[[], None] | None = None,
+) -> MonoResult:
     """Detect the board in every image, drop views with too few corners and outlier views,
     calibrate with corner rejection; refuse an unusable result (``CalibrationError``)."""
     options, limits = options or CameraOptions(), limits or GateLimits()
     size = image_size(images)
     detector = BoardDetector(spec)
     names, dets, dropped = [], [], {}
-    for name, image in zip(images.names, images.images):
+    for name, image in zip(images.names, images.images, strict=False):
         det = detector.detect(image)
         if step:
             step()
@@ -45,26 +55,43 @@ def calibrate_mono(images: ImageSet, spec: BoardSpec, options: CameraOptions | N
         names.append(name)
         dets.append(det)
     if not dets:
-        raise CalibrationError(f"no {spec.name} found in any of the {len(images)} images of "
-                               f"{images.source}; check the board options ({spec.describe()}) "
-                               "match the printed board")
+        raise CalibrationError(
+            f"no {spec.name} found in any of the {len(images)} images of "
+            f"{images.source}; check the board options ({spec.describe()}) "
+            "match the printed board"
+        )
     need_views(len(dets), options, images.source, dropped)
     outliers, fit = outlier_views(spec, dets, names, size, "camera", options)
     if outliers:
         keep = [n not in outliers for n in names]
-        dets = [d for d, k in zip(dets, keep) if k]
-        names = [n for n, k in zip(names, keep) if k]
+        dets = [d for d, k in zip(dets, keep, strict=False) if k]
+        names = [n for n, k in zip(names, keep, strict=False) if k]
         dropped.update(outliers)
         need_views(len(dets), options, images.source, dropped)
-        fit = calibrate_camera(spec, dets, names, size, "camera", options.outlier_sigma,
-                               options.outlier_min_px, flags=solve_flags(options))
+        fit = calibrate_camera(
+            spec,
+            dets,
+            names,
+            size,
+            "camera",
+            options.outlier_sigma,
+            options.outlier_min_px,
+            flags=solve_flags(options),
+        )
     problems = camera_problems(fit.K, size, fit.rms_px, limits)
     if problems:
-        raise CalibrationError(f"{images.source}: calibration refused, nothing written: "
-                               + "; ".join(problems))
-    model = CameraModel(K=fit.K, D=fit.D, image_size=size, rms_px=fit.rms_px,
-                        per_view_rms_px=fit.per_view_rms_px, std_intrinsics=fit.std_intrinsics,
-                        views=names, dropped=[f"{n}: {why}" for n, why in dropped.items()],
-                        board=spec.describe())
+        raise CalibrationError(
+            f"{images.source}: calibration refused, nothing written: " + "; ".join(problems)
+        )
+    model = CameraModel(
+        K=fit.K,
+        D=fit.D,
+        image_size=size,
+        rms_px=fit.rms_px,
+        per_view_rms_px=fit.per_view_rms_px,
+        std_intrinsics=fit.std_intrinsics,
+        views=names,
+        dropped=[f"{n}: {why}" for n, why in dropped.items()],
+        board=spec.describe(),
+    )
     return MonoResult(model, fit, names, dropped, weak_note(len(names), options))
-

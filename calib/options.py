@@ -68,7 +68,6 @@ class CalibSettings:
     projector_pose_timeout_s: float = _ranged(gt=0)
 
 
-
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:
     """The ``[calib]`` table over the built-in defaults, checked (unknown keys, wrong types and
     values out of range are a ConfigError)."""
@@ -86,8 +85,7 @@ def calib_field(key: str, scale: float = 1.0) -> Any:
     metadata = {"calib_key": key, "scale": scale}
     if isinstance(value, list):
         return dataclasses.field(default_factory=lambda: list(value), metadata=metadata)
-    return dataclasses.field(default=value * scale if scale != 1.0 else value,
-                             metadata=metadata)
+    return dataclasses.field(default=value * scale if scale != 1.0 else value, metadata=metadata)
 
 
 def from_table(cls: type[T], table: dict[str, Any]) -> T:

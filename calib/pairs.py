@@ -11,7 +11,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pg
 PAIR_NAMING = (
     "image pairs are found by name: <name>_left.png + <name>_right.png (also -left/-right, "
     "_L/_R), left<name>.png + right<name>.png (e.g. left01.jpg + right01.jpg; also L01/R01), "
-    "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names")
+    "subfolders left/ + right/ (or L/ + R/, cam0/ + cam1/) with the same file names"
+)
 
 # Each regex names the eye and the pair key of a file stem; tried in this order:
 # <name>_left / <name>_right, left<name> / right<name>, <name>_L / <name>_R, L<name> / R<name>
@@ -28,8 +29,7 @@ Pairs = tuple[dict[str, Path], dict[str, Path]]
 
 def images_in(folder: Path) -> list[Path]:
     """The image files of a folder, sorted by name."""
-    return sorted(p for p in folder.iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
 def _named(files: list[Path]) -> Pairs | None:
@@ -48,8 +48,10 @@ def _subfolders(folder: Path) -> Pairs | None:
     subdirs = {p.name.lower(): p for p in folder.iterdir() if p.is_dir()}
     for left, right in _FOLDERS:
         if left in subdirs and right in subdirs:
-            return ({p.stem: p for p in images_in(subdirs[left])},
-                    {p.stem: p for p in images_in(subdirs[right])})
+            return (
+                {p.stem: p for p in images_in(subdirs[left])},
+                {p.stem: p for p in images_in(subdirs[right])},
+            )
     return None
 
 

@@ -36,8 +36,9 @@ class CapturePreview(QtWidgets.QWidget):
         coverage = collector.coverage()
         if verdict.left is not None:
             left = annotate(left, verdict.left, coverage)
-        self.image.setImage(np.ascontiguousarray(left[..., ::-1]), autoLevels=False,
-                            levels=(0, 255))
+        self.image.setImage(
+            np.ascontiguousarray(left[..., ::-1]), autoLevels=False, levels=(0, 255)
+        )
         self.status.setText(f"{verdict.reason}\n{coverage_text(coverage, len(collector.pairs))}")
         self._app.processEvents()
 

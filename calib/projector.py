@@ -44,12 +44,14 @@ def _grey(image: np.ndarray) -> np.ndarray:
 
 def gray_code(projector_size: tuple[int, int]) -> cv2.structured_light.GrayCodePattern:
     """OpenCV's Gray-code pattern object for a projector of ``(width, height)`` pixels."""
-    return cv2.structured_light.GrayCodePattern.create(int(projector_size[0]),
-                                                       int(projector_size[1]))
+    return cv2.structured_light.GrayCodePattern.create(
+        int(projector_size[0]), int(projector_size[1])
+    )
 
 
-def projector_images(projector_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray,
-                                                                 list[np.ndarray]]:
+def projector_images(
+    projector_size: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """What the projector shows for one pose: white, black and the Gray-code patterns (grey)."""
     _, patterns = gray_code(projector_size).generate()
     w, h = projector_size
@@ -67,14 +69,17 @@ class ProjectorOptions:
     ransac_px: float = 2.5  # projector pixels
 
     @classmethod
-    def from_config(cls, calib_table: dict) -> "ProjectorOptions":
+    def from_config(cls, calib_table: dict) -> ProjectorOptions:
         """Options from a rig config's ``[calib]`` table."""
         return from_table(cls, calib_table)
 
 
-def corner_projector_points(capture: GrayCodeCapture, corners: np.ndarray,
-                            projector_size: tuple[int, int], options: ProjectorOptions
-                            ) -> tuple[np.ndarray, np.ndarray]:
+def corner_projector_points(
+    capture: GrayCodeCapture,
+    corners: np.ndarray,
+    projector_size: tuple[int, int],
+    options: ProjectorOptions,
+) -> tuple[np.ndarray, np.ndarray]:
     """Projector pixel of each camera corner (n×2) via local homographies, and which corners
     had enough decoded pixels around them (n, bool)."""
     pattern = gray_code(projector_size)
@@ -82,8 +87,10 @@ def corner_projector_points(capture: GrayCodeCapture, corners: np.ndarray,
     images = [_grey(p) for p in capture.patterns]
     expected = pattern.getNumberOfPatternImages()
     if len(images) != expected:
-        raise CalibrationError(f"a {projector_size[0]}x{projector_size[1]} projector needs "
-                               f"{expected} Gray-code images per pose, got {len(images)}")
+        raise CalibrationError(
+            f"a {projector_size[0]}x{projector_size[1]} projector needs "
+            f"{expected} Gray-code images per pose, got {len(images)}"
+        )
     lit = _grey(capture.white).astype(np.int16) - _grey(capture.black).astype(np.int16)
     h, w = lit.shape
     r = options.window_px
@@ -103,8 +110,9 @@ def corner_projector_points(capture: GrayCodeCapture, corners: np.ndarray,
                     proj.append(pix)
         if len(cam) < (r + 1) ** 2:  # need a good part of the window
             continue
-        H, inliers = cv2.findHomography(np.float64(cam), np.float64(proj), cv2.RANSAC,
-                                        options.ransac_px)
+        H, inliers = cv2.findHomography(
+            np.float64(cam), np.float64(proj), cv2.RANSAC, options.ransac_px
+        )
         if H is None or inliers.sum() < 0.5 * len(cam):
             continue
         out[k] = cv2.perspectiveTransform(np.float64([[[cx, cy]]]), H).reshape(2)
@@ -126,9 +134,13 @@ class ProjectorResult:
     corners_used: list[int] = field(default_factory=list)
 
 
-def calibrate_projector(captures: list[GrayCodeCapture], spec: BoardSpec,
-                        camera: Calibration, projector_size: tuple[int, int],
-                        options: ProjectorOptions | None = None) -> ProjectorResult:
+def calibrate_projector(
+    captures: list[GrayCodeCapture],
+    spec: BoardSpec,
+    camera: Calibration,
+    projector_size: tuple[int, int],
+    options: ProjectorOptions | None = None,
+) -> ProjectorResult:
     """Calibrate the projector from Gray-code captures of the board at several poses, and its
     pose relative to the left camera of ``camera``."""
     options = options or ProjectorOptions()
@@ -136,8 +148,9 @@ def calibrate_projector(captures: list[GrayCodeCapture], spec: BoardSpec,
     board_points = spec.object_points()
     obj, cam_pts, proj_pts, used = [], [], [], []
     for i, capture in enumerate(captures):
-        mismatch = size_mismatch(f"pose {i} has", capture.white.shape[1::-1],
-                                 "the camera calibration", camera.image_size)
+        mismatch = size_mismatch(
+            f"pose {i} has", capture.white.shape[1::-1], "the camera calibration", camera.image_size
+        )
         if mismatch:
             raise CalibrationError(mismatch)
         det = detector.detect(capture.white)
@@ -151,35 +164,63 @@ def calibrate_projector(captures: list[GrayCodeCapture], spec: BoardSpec,
         proj_pts.append(proj[ok].astype(np.float32).reshape(-1, 1, 2))
         used.append(int(ok.sum()))
     if len(obj) < options.min_poses:
-        raise CalibrationError(f"only {len(obj)} of {len(captures)} poses show at least "
-                               f"{options.min_corners} board corners lit by the projector; need "
-                               f"{options.min_poses}. Keep the board inside the projected area")
+        raise CalibrationError(
+            f"only {len(obj)} of {len(captures)} poses show at least "
+            f"{options.min_corners} board corners lit by the projector; need "
+            f"{options.min_poses}. Keep the board inside the projected area"
+        )
     try:
         rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(
-            obj, proj_pts, projector_size, None, None, flags=_PROJECTOR_FLAGS,
-            criteria=_CRITERIA)
+            obj, proj_pts, projector_size, None, None, flags=_PROJECTOR_FLAGS, criteria=_CRITERIA
+        )
         rms_st, *_, R, T, _, _ = cv2.stereoCalibrate(
-            obj, cam_pts, proj_pts, camera.K1, camera.D1, K, D, camera.image_size,
-            flags=cv2.CALIB_FIX_INTRINSIC, criteria=_CRITERIA)
+            obj,
+            cam_pts,
+            proj_pts,
+            camera.K1,
+            camera.D1,
+            K,
+            D,
+            camera.image_size,
+            flags=cv2.CALIB_FIX_INTRINSIC,
+            criteria=_CRITERIA,
+        )
     except cv2.error as exc:
-        raise CalibrationError(f"projector calibration failed in OpenCV "
-                               f"({str(exc).strip().splitlines()[-1]}); use more varied poses"
-                               ) from None
-    return ProjectorResult(K=K, D=D.reshape(-1), R=R, T=T.reshape(3), rms_px=float(rms),
-                           rms_stereo_px=float(rms_st), per_pose_rms_px=per_pose.reshape(-1),
-                           corners_used=used)
+        raise CalibrationError(
+            f"projector calibration failed in OpenCV "
+            f"({str(exc).strip().splitlines()[-1]}); use more varied poses"
+        ) from None
+    return ProjectorResult(
+        K=K,
+        D=D.reshape(-1),
+        R=R,
+        T=T.reshape(3),
+        rms_px=float(rms),
+        rms_stereo_px=float(rms_st),
+        per_pose_rms_px=per_pose.reshape(-1),
+        corners_used=used,
+    )
 
 
-def with_projector(calibration: Calibration, result: ProjectorResult,
-                   projector_size: tuple[int, int]) -> Calibration:
+def with_projector(
+    calibration: Calibration, result: ProjectorResult, projector_size: tuple[int, int]
+) -> Calibration:
     """``calibration`` with the projector's intrinsics and pose added."""
     info = dict(calibration.info)
-    info["projector"] = {"rms_stereo_px": result.rms_stereo_px,
-                         "per_pose_rms_px": [float(v) for v in result.per_pose_rms_px],
-                         "corners_per_pose": result.corners_used}
-    return calibration.replace(K_proj=result.K, D_proj=result.D, R_proj=result.R,
-                               T_proj=result.T, projector_size=projector_size,
-                               rms_projector_px=result.rms_px, info=info)
+    info["projector"] = {
+        "rms_stereo_px": result.rms_stereo_px,
+        "per_pose_rms_px": [float(v) for v in result.per_pose_rms_px],
+        "corners_per_pose": result.corners_used,
+    }
+    return calibration.replace(
+        K_proj=result.K,
+        D_proj=result.D,
+        R_proj=result.R,
+        T_proj=result.T,
+        projector_size=projector_size,
+        rms_projector_px=result.rms_px,
+        info=info,
+    )
 
 
 def save_captures(folder: str | Path, captures: list[GrayCodeCapture], start: int = 0) -> None:
@@ -188,8 +229,11 @@ def save_captures(folder: str | Path, captures: list[GrayCodeCapture], start: in
     for i, capture in enumerate(captures, start=start):
         pose = Path(folder) / f"pose_{i:03d}"
         pose.mkdir(parents=True, exist_ok=True)
-        images = {"white": capture.white, "black": capture.black,
-                  **{f"gray_{k:02d}": p for k, p in enumerate(capture.patterns)}}
+        images = {
+            "white": capture.white,
+            "black": capture.black,
+            **{f"gray_{k:02d}": p for k, p in enumerate(capture.patterns)},
+        }
         for name, image in images.items():
             if not cv2.imwrite(str(pose / f"{name}.png"), image):
                 raise CalibrationError(f"cannot write {pose / name}.png")
@@ -203,6 +247,7 @@ def load_captures(folder: str | Path) -> list[GrayCodeCapture]:
         raise CalibrationError(f"{folder} holds no pose_NNN folders of Gray-code images")
     out = []
     for pose in poses:
+
         def read(name: str) -> np.ndarray:
             image = cv2.imread(str(pose / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
             if image is None:

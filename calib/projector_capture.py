@@ -45,7 +45,7 @@ class GrayCaptureOptions:
     read_timeout_s: float = 2.0  # longest wait for one camera frame
 
     @classmethod
-    def from_config(cls, calib_table: dict) -> "GrayCaptureOptions":
+    def from_config(cls, calib_table: dict) -> GrayCaptureOptions:
         """Options from a rig config's ``[calib]`` table."""
         return from_table(cls, calib_table)
 
@@ -57,16 +57,21 @@ def _grey(frame: StereoFrame) -> np.ndarray:
 
 def _change(a: np.ndarray, b: np.ndarray) -> float:
     """Mean absolute grey-level difference of two images at quarter resolution."""
-    small = [cv2.resize(x, (max(x.shape[1] // 4, 1), max(x.shape[0] // 4, 1)),
-                        interpolation=cv2.INTER_AREA).astype(np.int16) for x in (a, b)]
+    small = [
+        cv2.resize(
+            x, (max(x.shape[1] // 4, 1), max(x.shape[0] // 4, 1)), interpolation=cv2.INTER_AREA
+        ).astype(np.int16)
+        for x in (a, b)
+    ]
     return float(np.abs(small[0] - small[1]).mean())
 
 
 class GrayCodeCapturer:
     """Shows patterns on ``projector`` and keeps what ``camera`` sees (both open)."""
 
-    def __init__(self, camera: StereoCamera, projector: Projector,
-                 options: GrayCaptureOptions | None = None) -> None:
+    def __init__(
+        self, camera: StereoCamera, projector: Projector, options: GrayCaptureOptions | None = None
+    ) -> None:
         self.camera, self.projector = camera, projector
         self.options = options or GrayCaptureOptions()
         self.white, self.black, self.patterns = projector_images(self.projector_size)
@@ -80,16 +85,24 @@ class GrayCodeCapturer:
     def _read(self, after_ns: int = 0) -> StereoFrame:
         frame = self.camera.read_after(after_ns, self.options.read_timeout_s)
         if frame is None:
-            raise CalibrationError(f"the camera gave no frame within "
-                                   f"{self.options.read_timeout_s} s; check it is streaming")
+            raise CalibrationError(
+                f"the camera gave no frame within "
+                f"{self.options.read_timeout_s} s; check it is streaming"
+            )
         return frame
 
     def shoot(self, image: np.ndarray, name: str) -> StereoFrame:
         """Show ``image`` and return the first frame that arrived ``settle_s`` after it."""
         event = self.projector.show(image, name)
         frame = self._read(event.t_host_ns + int(round(self.options.settle_s * 1e9)))
-        self.log.append({"pattern": name, "shown_t_host_ns": event.t_host_ns,
-                         "frame_seq": frame.seq, "frame_t_host_ns": frame.t_host_ns})
+        self.log.append(
+            {
+                "pattern": name,
+                "shown_t_host_ns": event.t_host_ns,
+                "frame_seq": frame.seq,
+                "frame_t_host_ns": frame.t_host_ns,
+            }
+        )
         return frame
 
     def wait_for_pose(self, previous: np.ndarray | None) -> np.ndarray:
@@ -112,7 +125,8 @@ class GrayCodeCapturer:
                 raise CalibrationError(
                     f"the board did not come to rest at a new pose within {o.pose_timeout_s} s "
                     "(set [calib] projector_pose_timeout_s to wait longer); the poses captured "
-                    "so far are kept")
+                    "so far are kept"
+                )
 
     def capture_pose(self) -> GrayCodeCapture | None:
         """White, black and the Gray-code sequence at the current pose; ``None`` when the white
@@ -131,9 +145,14 @@ def existing_poses(folder: Path) -> int:
     return len([p for p in folder.glob("pose_*") if p.is_dir()]) if folder.is_dir() else 0
 
 
-def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | Path,
-                      n_poses: int, options: GrayCaptureOptions | None = None,
-                      on_event: Callable[[str], None] | None = None) -> list[Path]:
+def capture_gray_code(
+    camera: StereoCamera,
+    projector: Projector,
+    folder: str | Path,
+    n_poses: int,
+    options: GrayCaptureOptions | None = None,
+    on_event: Callable[[str], None] | None = None,
+) -> list[Path]:
     """Capture ``n_poses`` new poses into ``folder`` (after any already there) through an open
     camera and projector; returns the pose folders written. ``on_event(message)`` is told what
     the capture waits for and what it kept."""
@@ -145,24 +164,30 @@ def capture_gray_code(camera: StereoCamera, projector: Projector, folder: str | 
     size = capturer.projector_size
     stored = captured_projector_size(folder)
     if stored is not None and stored != size:
-        raise CalibrationError(f"{folder} holds captures for a {stored[0]}x{stored[1]} projector "
-                               f"but this one is {size[0]}x{size[1]}; use a new folder")
+        raise CalibrationError(
+            f"{folder} holds captures for a {stored[0]}x{stored[1]} projector "
+            f"but this one is {size[0]}x{size[1]}; use a new folder"
+        )
     folder.mkdir(parents=True, exist_ok=True)
     (folder / SIZE_FILE).write_text(json.dumps({"size": list(size)}))
     first = existing_poses(folder)
     written: list[Path] = []
     previous, discarded = None, 0
     while len(written) < n_poses:
-        tell(f"pose {len(written) + 1}/{n_poses}: move the board to a new pose inside the "
-             "projected area and hold it still")
+        tell(
+            f"pose {len(written) + 1}/{n_poses}: move the board to a new pose inside the "
+            "projected area and hold it still"
+        )
         previous = capturer.wait_for_pose(previous)
         capture = capturer.capture_pose()
         if capture is None:
             discarded += 1
             if discarded == MAX_DISCARDS:
-                raise CalibrationError(f"the board moved during {MAX_DISCARDS} Gray-code "
-                                       "sequences in a row; fix it on a stand (the poses "
-                                       "captured so far are kept)")
+                raise CalibrationError(
+                    f"the board moved during {MAX_DISCARDS} Gray-code "
+                    "sequences in a row; fix it on a stand (the poses "
+                    "captured so far are kept)"
+                )
             tell("the board moved during the sequence: pose discarded, hold it still")
             continue
         discarded = 0
@@ -183,5 +208,7 @@ def captured_projector_size(folder: str | Path) -> tuple[int, int] | None:
         width, height = json.loads(path.read_text())["size"]
         return int(width), int(height)
     except (ValueError, KeyError, TypeError):
-        raise CalibrationError(f"{path} is not a projector size file; delete it or set "
-                               "[calib] projector_width and projector_height") from None
+        raise CalibrationError(
+            f"{path} is not a projector size file; delete it or set "
+            "[calib] projector_width and projector_height"
+        ) from None

@@ -16,8 +16,9 @@ from vbfe.common.files import save_figure
 from vbfe.common.report import HtmlReport
 
 
-def epipolar_overlay(calibration: Calibration, left: np.ndarray, right: np.ndarray,
-                     spacing_px: int = 24) -> np.ndarray:
+def epipolar_overlay(
+    calibration: Calibration, left: np.ndarray, right: np.ndarray, spacing_px: int = 24
+) -> np.ndarray:
     """The rectified pair side by side with horizontal epipolar lines every ``spacing_px``."""
     rl, rr = calibration.rectify(left, right)
     pair = np.hstack([rl, rr])
@@ -29,32 +30,52 @@ def epipolar_overlay(calibration: Calibration, left: np.ndarray, right: np.ndarr
 def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
     """(label, value) rows describing a calibration, for reports and the CLI."""
     info = calibration.info
-    rows = [("image size", f"{calibration.image_size[0]} x {calibration.image_size[1]} px"),
-            ("f (rectified)", f"{calibration.f:.2f} px" + (
-                f" (fx), {calibration.fy:.2f} px (fy)" if calibration.fy != calibration.f
-                else "")),
-            ("cx, cy (rectified)", f"{calibration.cx:.2f}, {calibration.cy:.2f} px"
-             + (f"; doffs {calibration.doffs:.2f} px" if calibration.doffs else "")),
-            ("B", f"{calibration.B * 1e3:.4f} mm")]
+    rows = [
+        ("image size", f"{calibration.image_size[0]} x {calibration.image_size[1]} px"),
+        (
+            "f (rectified)",
+            f"{calibration.f:.2f} px"
+            + (f" (fx), {calibration.fy:.2f} px (fy)" if calibration.fy != calibration.f else ""),
+        ),
+        (
+            "cx, cy (rectified)",
+            f"{calibration.cx:.2f}, {calibration.cy:.2f} px"
+            + (f"; doffs {calibration.doffs:.2f} px" if calibration.doffs else ""),
+        ),
+        ("B", f"{calibration.B * 1e3:.4f} mm"),
+    ]
     if np.isfinite(calibration.rms_stereo_px):
-        rows.append(("RMS left / right / stereo", f"{calibration.rms_left_px:.3f} / "
-                     f"{calibration.rms_right_px:.3f} / {calibration.rms_stereo_px:.3f} px"))
+        rows.append(
+            (
+                "RMS left / right / stereo",
+                f"{calibration.rms_left_px:.3f} / "
+                f"{calibration.rms_right_px:.3f} / {calibration.rms_stereo_px:.3f} px",
+            )
+        )
     if "sigma_B_m" in info:
-        rows += [("σ(B)", f"{info['sigma_B_m'] * 1e3:.4f} mm"),
-                 ("σ(fx) left / right", f"{info['std_left']['fx']:.3f} / "
-                  f"{info['std_right']['fx']:.3f} px"),
-                 ("epipolar RMS", f"{info['epipolar_rms_px']:.3f} px"),
-                 (f"depth σ at {info['working_distance_m'] * 1e3:.0f} mm",
-                  f"{info['depth_sigma_at_working_distance_m'] * 1e3:.3f} mm (calibration) + "
-                  f"{info['depth_per_px_disparity_at_working_distance_m'] * 1e3:.3f} mm per px "
-                  "of disparity error")]
+        rows += [
+            ("σ(B)", f"{info['sigma_B_m'] * 1e3:.4f} mm"),
+            (
+                "σ(fx) left / right",
+                f"{info['std_left']['fx']:.3f} / {info['std_right']['fx']:.3f} px",
+            ),
+            ("epipolar RMS", f"{info['epipolar_rms_px']:.3f} px"),
+            (
+                f"depth σ at {info['working_distance_m'] * 1e3:.0f} mm",
+                f"{info['depth_sigma_at_working_distance_m'] * 1e3:.3f} mm (calibration) + "
+                f"{info['depth_per_px_disparity_at_working_distance_m'] * 1e3:.3f} mm per px "
+                "of disparity error",
+            ),
+        ]
     if "uncertainty" in info:
         rows.append(("uncertainty", info["uncertainty"]["summary"]))
     if "weakly_determined" in info:
         rows.append(("note", info["weakly_determined"]))
     if calibration.has_projector:
-        rows += [("projector f", f"{calibration.K_proj[0, 0]:.2f} px"),
-                 ("projector RMS", f"{calibration.rms_projector_px:.3f} px")]
+        rows += [
+            ("projector f", f"{calibration.K_proj[0, 0]:.2f} px"),
+            ("projector RMS", f"{calibration.rms_projector_px:.3f} px"),
+        ]
     return rows
 
 
@@ -63,15 +84,24 @@ def _uncertainty_figure(umap: UncertaintyMap, size: tuple[int, int], out_stem: P
     from matplotlib import pyplot as plt
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.5))
-    shown = ax.imshow(umap.depth_sigma_m * 1e3, extent=(0, size[0], size[1], 0),
-                      interpolation="bilinear", cmap="viridis")
+    shown = ax.imshow(
+        umap.depth_sigma_m * 1e3,
+        extent=(0, size[0], size[1], 0),
+        interpolation="bilinear",
+        cmap="viridis",
+    )
     fig.colorbar(shown, ax=ax, label=f"depth σ at {umap.working_distance_m * 1e3:.0f} mm (mm)")
     ax.set_title("depth uncertainty over the left image")
     cover = bx.imshow(umap.coverage, extent=(0, size[0], size[1], 0), cmap="Greens", vmin=0)
     for (r, c), n in np.ndenumerate(umap.coverage):
-        bx.text((c + 0.5) * size[0] / umap.coverage.shape[1],
-                (r + 0.5) * size[1] / umap.coverage.shape[0], str(n), ha="center",
-                va="center", color="red" if n == 0 else "black")
+        bx.text(
+            (c + 0.5) * size[0] / umap.coverage.shape[1],
+            (r + 0.5) * size[1] / umap.coverage.shape[0],
+            str(n),
+            ha="center",
+            va="center",
+            color="red" if n == 0 else "black",
+        )
     fig.colorbar(cover, ax=bx, label="views with board corners")
     bx.set_title("board coverage per region (left eye)")
     fig.tight_layout()
@@ -126,14 +156,17 @@ def write_report(result: StereoResult, views: ViewSet, out_stem: str | Path) -> 
     if result.uncertainty is not None:
         report.heading("Uncertainty at the working distance")
         report.paragraph(result.uncertainty.summary())
-        report.image(_uncertainty_figure(result.uncertainty, cal.image_size, out_stem),
-                     "depth σ over the left image; board views per image region",
-                     out_stem.parent)
+        report.image(
+            _uncertainty_figure(result.uncertainty, cal.image_size, out_stem),
+            "depth σ over the left image; board views per image region",
+            out_stem.parent,
+        )
     report.heading("Dropped views")
     report.table(["view", "why"], sorted(result.dropped.items()))
     report.heading("Desynchronised views (right image shifted against left)")
-    report.table(["view", "dx (px)", "dy (px)"],
-                 [(k, dx, dy) for k, (dx, dy) in result.desync.items()])
+    report.table(
+        ["view", "dx (px)", "dy (px)"], [(k, dx, dy) for k, (dx, dy) in result.desync.items()]
+    )
     rejected = cal.info.get("rejected_corners", [])
     report.heading(f"Rejected outlier corners ({len(rejected)})")
     report.table(["view", "camera", "corner id", "residual (px)"], rejected)

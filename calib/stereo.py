@@ -14,11 +14,20 @@ import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.chessboard import is_clear, same_numbering
-from vbfe.calib.camera import (CRITERIA, CameraFit, CameraOptions, calibrate_camera,
-                               need_views, outlier_views, points, residuals, solve_flags,
-                               weak_note)
+from vbfe.calib.camera import (
+    CRITERIA,
+    CameraFit,
+    CameraOptions,
+    calibrate_camera,
+    need_views,
+    outlier_views,
+    points,
+    residuals,
+    solve_flags,
+    weak_note,
+)
 from vbfe.calib.camera_model import CameraModel
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import calib_field, from_table
@@ -37,7 +46,7 @@ class StereoOptions(CameraOptions):
     gates: GateLimits = field(default_factory=GateLimits)
 
     @classmethod
-    def from_config(cls, calib_table: dict) -> "StereoOptions":
+    def from_config(cls, calib_table: dict) -> StereoOptions:
         """Options from a rig config's ``[calib]`` table."""
         options = from_table(cls, calib_table)
         options.gates = GateLimits.from_config(calib_table)
@@ -60,8 +69,9 @@ class StereoResult:
     uncertainty: UncertaintyMap | None = None  # depth σ over the image, board coverage
 
 
-def detect_views(views: ViewSet, spec: BoardSpec,
-                 step: Callable[[], None] | None = None) -> list[tuple[Detection, Detection]]:
+def detect_views(
+    views: ViewSet, spec: BoardSpec, step: Callable[[], None] | None = None
+) -> list[tuple[Detection, Detection]]:
     """Board corners in the left and right image of every view."""
     detector = BoardDetector(spec)
     out = []
@@ -77,18 +87,37 @@ def _select(det: Detection, ids: np.ndarray) -> Detection:
     return Detection(det.ids[keep], det.corners[keep])
 
 
-def _stereo_solve(spec: BoardSpec, pairs: list[tuple[Detection, Detection]], left: CameraFit,
-                  right: CameraFit, image_size: tuple[int, int], fixed: bool, flags: int):
+def _stereo_solve(
+    spec: BoardSpec,
+    pairs: list[tuple[Detection, Detection]],
+    left: CameraFit,
+    right: CameraFit,
+    image_size: tuple[int, int],
+    fixed: bool,
+    flags: int,
+):
     obj, img_l = points(spec.object_points(), [p[0] for p in pairs])
     _, img_r = points(spec.object_points(), [p[1] for p in pairs])
     flags |= cv2.CALIB_FIX_INTRINSIC if fixed else cv2.CALIB_USE_INTRINSIC_GUESS
     try:
         (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(
-            obj, img_l, img_r, left.K.copy(), left.D.copy(), right.K.copy(), right.D.copy(),
-            image_size, None, None, flags=flags, criteria=CRITERIA)
+            obj,
+            img_l,
+            img_r,
+            left.K.copy(),
+            left.D.copy(),
+            right.K.copy(),
+            right.D.copy(),
+            image_size,
+            None,
+            None,
+            flags=flags,
+            criteria=CRITERIA,
+        )
     except cv2.error as exc:
-        raise CalibrationError(f"stereo calibration failed in OpenCV "
-                               f"({str(exc).strip().splitlines()[-1]})") from None
+        raise CalibrationError(
+            f"stereo calibration failed in OpenCV ({str(exc).strip().splitlines()[-1]})"
+        ) from None
     return rms, K1, D1.reshape(-1), K2, D2.reshape(-1), R, T.reshape(3), rvecs, tvecs, per_view
 
 
@@ -96,7 +125,7 @@ def _relative_poses(left: CameraFit, right: CameraFit) -> tuple[np.ndarray, np.n
     """Left→right rotation vectors and translations (m) implied by each view's independent
     left and right board poses (n×3 each)."""
     rvecs, tvecs = [], []
-    for rl, tl, rr, tr in zip(left.rvecs, left.tvecs, right.rvecs, right.tvecs):
+    for rl, tl, rr, tr in zip(left.rvecs, left.tvecs, right.rvecs, right.tvecs, strict=False):
         Rl, _ = cv2.Rodrigues(rl)
         Rr, _ = cv2.Rodrigues(rr)
         Rrel = Rr @ Rl.T
@@ -117,11 +146,12 @@ def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndar
     T = np.median(rel_t, axis=0)
     obj_all = spec.object_points()
     out = np.zeros((len(left.rvecs), 2))
-    for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs)):
+    for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs, strict=False)):
         Rl, _ = cv2.Rodrigues(rvec)
         rr, _ = cv2.Rodrigues(R @ Rl)
-        out[v] = -residuals(obj_all[dr.ids], dr.corners, rr, R @ tvec.reshape(3) + T,
-                             right.K, right.D).mean(axis=0)
+        out[v] = -residuals(
+            obj_all[dr.ids], dr.corners, rr, R @ tvec.reshape(3) + T, right.K, right.D
+        ).mean(axis=0)
     return out
 
 
@@ -136,22 +166,29 @@ def epipolar_errors(calibration: Calibration, left: Detection, right: Detection)
     common = np.intersect1d(left.ids, right.ids)
     if len(common) == 0:
         return np.zeros(0)
-    pl, pr = calibration.rectify_points(_select(left, common).corners,
-                                        _select(right, common).corners)
+    pl, pr = calibration.rectify_points(
+        _select(left, common).corners, _select(right, common).corners
+    )
     return pr[:, 1] - pl[:, 1]
 
 
 def _keep_views(fit: CameraFit, keep: np.ndarray) -> CameraFit:
     return dataclasses.replace(
-        fit, per_view_rms_px=fit.per_view_rms_px[keep],
-        rvecs=[r for r, k in zip(fit.rvecs, keep) if k],
-        tvecs=[t for t, k in zip(fit.tvecs, keep) if k],
-        detections=[d for d, k in zip(fit.detections, keep) if k])
+        fit,
+        per_view_rms_px=fit.per_view_rms_px[keep],
+        rvecs=[r for r, k in zip(fit.rvecs, keep, strict=False) if k],
+        tvecs=[t for t, k in zip(fit.tvecs, keep, strict=False) if k],
+        detections=[d for d, k in zip(fit.detections, keep, strict=False) if k],
+    )
 
 
-def calibrate_stereo(views: ViewSet, spec: BoardSpec, options: StereoOptions | None = None,
-                     step: Callable[[], None] | None = None,
-                     intrinsics: tuple[CameraModel, CameraModel] | None = None) -> StereoResult:
+def calibrate_stereo(
+    views: ViewSet,
+    spec: BoardSpec,
+    options: StereoOptions | None = None,
+    step: Callable[[], None] | None = None,
+    intrinsics: tuple[CameraModel, CameraModel] | None = None,
+) -> StereoResult:
     """Calibrate the stereo pair from board views: detect corners, drop views with too few,
     drop outlier views, calibrate each camera with corner rejection (or take fixed
     ``intrinsics``), leave out desynchronised views, then ``stereoCalibrateExtended`` and
@@ -163,25 +200,34 @@ def calibrate_stereo(views: ViewSet, spec: BoardSpec, options: StereoOptions | N
     if all(len(l) == 0 and len(r) == 0 for l, r in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
-            f"board options ({spec.describe()}) match the printed board")
-    return calibrate_detections(detections, views.names, image_size, spec, options,
-                                views.source, intrinsics)
+            f"board options ({spec.describe()}) match the printed board"
+        )
+    return calibrate_detections(
+        detections, views.names, image_size, spec, options, views.source, intrinsics
+    )
 
 
-def _check_intrinsics(intrinsics: tuple[CameraModel, CameraModel],
-                      image_size: tuple[int, int]) -> None:
-    for eye, model in zip(("left", "right"), intrinsics):
+def _check_intrinsics(
+    intrinsics: tuple[CameraModel, CameraModel], image_size: tuple[int, int]
+) -> None:
+    for eye, model in zip(("left", "right"), intrinsics, strict=False):
         if model.image_size != image_size:
-            raise CalibrationError(f"--intrinsics: the {eye} camera file is for "
-                                   f"{model.image_size[0]}x{model.image_size[1]} images but the "
-                                   f"views are {image_size[0]}x{image_size[1]}")
+            raise CalibrationError(
+                f"--intrinsics: the {eye} camera file is for "
+                f"{model.image_size[0]}x{model.image_size[1]} images but the "
+                f"views are {image_size[0]}x{image_size[1]}"
+            )
 
 
-def calibrate_detections(detections: list[tuple[Detection, Detection]], view_names: list[str],
-                         image_size: tuple[int, int], spec: BoardSpec,
-                         options: StereoOptions | None = None, source: str = "views",
-                         intrinsics: tuple[CameraModel, CameraModel] | None = None
-                         ) -> StereoResult:
+def calibrate_detections(
+    detections: list[tuple[Detection, Detection]],
+    view_names: list[str],
+    image_size: tuple[int, int],
+    spec: BoardSpec,
+    options: StereoOptions | None = None,
+    source: str = "views",
+    intrinsics: tuple[CameraModel, CameraModel] | None = None,
+) -> StereoResult:
     """Calibrate from corners already detected (one ``(left, right)`` pair per view); with
     ``intrinsics`` (left, right) the cameras' intrinsics are fixed (``CALIB_FIX_INTRINSIC``)."""
     options = options or StereoOptions()
@@ -189,45 +235,59 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
     names, pairs, dropped, renumbered = [], [], {}, []
-    for name, (dl, dr) in zip(view_names, detections):
+    for name, (dl, dr) in zip(view_names, detections, strict=False):
         if spec.target == "chessboard" and len(dl) and len(dr):
-            corners, turned, contrast = same_numbering(dl.corners, dr.corners,
-                                                       spec.inner_corners)
+            corners, turned, contrast = same_numbering(dl.corners, dr.corners, spec.inner_corners)
             if not is_clear(contrast):
-                dropped[name] = ("the left and right eyes' chessboard corners cannot be matched "
-                                 f"(both numberings fit, contrast {contrast:.1f}); retake the view "
-                                 "with the board less turned")
+                dropped[name] = (
+                    "the left and right eyes' chessboard corners cannot be matched "
+                    f"(both numberings fit, contrast {contrast:.1f}); retake the view "
+                    "with the board less turned"
+                )
                 continue
             if turned:
                 renumbered.append(name)
                 dr = Detection(dr.ids, corners)
         common = np.intersect1d(dl.ids, dr.ids)
         if len(common) < options.min_corners:
-            dropped[name] = (f"too few corners (left {len(dl)}, right {len(dr)}, in both "
-                             f"{len(common)}; need {options.min_corners})")
+            dropped[name] = (
+                f"too few corners (left {len(dl)}, right {len(dr)}, in both "
+                f"{len(common)}; need {options.min_corners})"
+            )
             continue
         names.append(name)
         pairs.append((dl, dr))
     need_views(len(pairs), options, source, dropped)
     outliers, fits = {}, []
     for k, eye in enumerate(("left", "right")):
-        found, fit = outlier_views(spec, [p[k] for p in pairs], names, image_size, eye, options,
-                                   fixed[k])
+        found, fit = outlier_views(
+            spec, [p[k] for p in pairs], names, image_size, eye, options, fixed[k]
+        )
         outliers.update({n: why for n, why in found.items() if n not in outliers})
         fits.append(fit)
     left, right = fits
     if outliers:
         keep = [n not in outliers for n in names]
-        pairs = [p for p, k in zip(pairs, keep) if k]
-        names = [n for n, k in zip(names, keep) if k]
+        pairs = [p for p, k in zip(pairs, keep, strict=False) if k]
+        names = [n for n, k in zip(names, keep, strict=False) if k]
         dropped.update(outliers)
         need_views(len(pairs), options, source, dropped)
-        left, right = (calibrate_camera(spec, [p[k] for p in pairs], names, image_size, eye,
-                                        options.outlier_sigma, options.outlier_min_px,
-                                        fixed=fixed[k], flags=solve_flags(options))
-                       for k, eye in enumerate(("left", "right")))
+        left, right = (
+            calibrate_camera(
+                spec,
+                [p[k] for p in pairs],
+                names,
+                image_size,
+                eye,
+                options.outlier_sigma,
+                options.outlier_min_px,
+                fixed=fixed[k],
+                flags=solve_flags(options),
+            )
+            for k, eye in enumerate(("left", "right"))
+        )
     stereo_pairs = []
-    for dl, dr in zip(left.detections, right.detections):
+    for dl, dr in zip(left.detections, right.detections, strict=False):
         common = np.intersect1d(dl.ids, dr.ids)
         stereo_pairs.append((_select(dl, common), _select(dr, common)))
     shifts = desync_shifts(spec, left, right)
@@ -237,54 +297,114 @@ def calibrate_detections(detections: list[tuple[Detection, Detection]], view_nam
     if options.reject_desync and flagged.any():
         keep = ~flagged
         if keep.sum() < options.min_views:
-            raise CalibrationError(f"{source}: {int(flagged.sum())} views look "
-                                   f"desynchronised ({', '.join(desync)}); only {int(keep.sum())} "
-                                   f"left, need {options.min_views} (--min-views); check the "
-                                   "camera's frame sync")
+            raise CalibrationError(
+                f"{source}: {int(flagged.sum())} views look "
+                f"desynchronised ({', '.join(desync)}); only {int(keep.sum())} "
+                f"left, need {options.min_views} (--min-views); check the "
+                "camera's frame sync"
+            )
         for n in desync:
             dropped[n] = "left/right captured at different instants (desynchronised)"
         left, right = _keep_views(left, keep), _keep_views(right, keep)
-        stereo_pairs = [p for p, k in zip(stereo_pairs, keep) if k]
-        names = [n for n, k in zip(names, keep) if k]
+        stereo_pairs = [p for p, k in zip(stereo_pairs, keep, strict=False) if k]
+        names = [n for n, k in zip(names, keep, strict=False) if k]
     rms, K1, D1, K2, D2, R, T, rvecs, tvecs, per_view = _stereo_solve(
-        spec, stereo_pairs, left, right, image_size, intrinsics is not None,
-        solve_flags(options))
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, image_size, R,
-                                                T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
-                                                alpha=options.rectify_alpha)
-    per_view_rms = np.column_stack([left.per_view_rms_px, right.per_view_rms_px,
-                                    np.sqrt((per_view[:, 0] ** 2 + per_view[:, 1] ** 2) / 2)])
-    calibration = Calibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, R1=R1, R2=R2, P1=P1, P2=P2,
-                              Q=Q, image_size=image_size, rms_left_px=left.rms_px,
-                              rms_right_px=right.rms_px, rms_stereo_px=float(rms),
-                              per_view_rms_px=per_view_rms)
+        spec, stereo_pairs, left, right, image_size, intrinsics is not None, solve_flags(options)
+    )
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        K1,
+        D1,
+        K2,
+        D2,
+        image_size,
+        R,
+        T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=options.rectify_alpha,
+    )
+    per_view_rms = np.column_stack(
+        [
+            left.per_view_rms_px,
+            right.per_view_rms_px,
+            np.sqrt((per_view[:, 0] ** 2 + per_view[:, 1] ** 2) / 2),
+        ]
+    )
+    calibration = Calibration(
+        K1=K1,
+        D1=D1,
+        K2=K2,
+        D2=D2,
+        R=R,
+        T=T,
+        R1=R1,
+        R2=R2,
+        P1=P1,
+        P2=P2,
+        Q=Q,
+        image_size=image_size,
+        rms_left_px=left.rms_px,
+        rms_right_px=right.rms_px,
+        rms_stereo_px=float(rms),
+        per_view_rms_px=per_view_rms,
+    )
     problems = stereo_problems(calibration, options.gates, names)
     if problems:
-        raise CalibrationError(f"{source}: stereo calibration refused, nothing written: "
-                               + "; ".join(problems))
+        raise CalibrationError(
+            f"{source}: stereo calibration refused, nothing written: " + "; ".join(problems)
+        )
     weak = weak_note(len(names), options)
-    calibration.info = _info(calibration, spec, options, names, left, right, stereo_pairs,
-                             dropped, desync)
+    calibration.info = _info(
+        calibration, spec, options, names, left, right, stereo_pairs, dropped, desync
+    )
     calibration.info["renumbered_views"] = renumbered
     if weak:
         calibration.info["weakly_determined"] = weak
-    solve = StereoSolve(K1, D1, K2, D2, R, T, list(rvecs), list(tvecs),
-                        [spec.object_points()[dl.ids] for dl, _ in stereo_pairs],
-                        [dl.corners for dl, _ in stereo_pairs],
-                        [dr.corners for _, dr in stereo_pairs])
-    uncertainty = uncertainty_map(calibration, solve, left, options.working_distance_m,
-                                  options.fix_k3)
+    solve = StereoSolve(
+        K1,
+        D1,
+        K2,
+        D2,
+        R,
+        T,
+        list(rvecs),
+        list(tvecs),
+        [spec.object_points()[dl.ids] for dl, _ in stereo_pairs],
+        [dl.corners for dl, _ in stereo_pairs],
+        [dr.corners for _, dr in stereo_pairs],
+    )
+    uncertainty = uncertainty_map(
+        calibration, solve, left, options.working_distance_m, options.fix_k3
+    )
     calibration.info["uncertainty"] = {
         "summary": uncertainty.summary(),
         "depth_sigma_m": uncertainty.depth_sigma_m.round(9).tolist(),  # rows of the grid
-        "board_views_per_region": uncertainty.coverage.tolist()}  # 3x3, top row first
-    return StereoResult(calibration, names, left, right, stereo_pairs, dropped, desync, weak,
-                        renumbered, uncertainty)
+        "board_views_per_region": uncertainty.coverage.tolist(),
+    }  # 3x3, top row first
+    return StereoResult(
+        calibration,
+        names,
+        left,
+        right,
+        stereo_pairs,
+        dropped,
+        desync,
+        weak,
+        renumbered,
+        uncertainty,
+    )
 
 
-def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list[str],
-          left: CameraFit, right: CameraFit, pairs: list[tuple[Detection, Detection]],
-          dropped: dict[str, str], desync: dict[str, tuple[float, float]]) -> dict:
+def _info(
+    cal: Calibration,
+    spec: BoardSpec,
+    options: StereoOptions,
+    names: list[str],
+    left: CameraFit,
+    right: CameraFit,
+    pairs: list[tuple[Detection, Detection]],
+    dropped: dict[str, str],
+    desync: dict[str, tuple[float, float]],
+) -> dict:
     """Uncertainties and provenance stored with the calibration."""
     baselines = np.linalg.norm(_relative_poses(left, right)[1], axis=1)
     sigma_B = float(np.std(baselines, ddof=1) / np.sqrt(len(baselines)))
@@ -300,14 +420,16 @@ def _info(cal: Calibration, spec: BoardSpec, options: StereoOptions, names: list
         "board": spec.to_dict(),
         "views": names,
         "dropped_views": dropped,
-        "rejected_corners": [[r.view, r.camera, r.corner_id, round(r.residual_px, 3)]
-                             for r in left.rejected + right.rejected],
+        "rejected_corners": [
+            [r.view, r.camera, r.corner_id, round(r.residual_px, 3)]
+            for r in left.rejected + right.rejected
+        ],
         "desynchronised_views": {k: [round(v[0], 3), round(v[1], 3)] for k, v in desync.items()},
-        "std_left": dict(zip(names_std, map(float, left.std_intrinsics))),
-        "std_right": dict(zip(names_std, map(float, right.std_intrinsics))),
+        "std_left": dict(zip(names_std, map(float, left.std_intrinsics), strict=False)),
+        "std_right": dict(zip(names_std, map(float, right.std_intrinsics), strict=False)),
         "sigma_B_m": sigma_B,
         "working_distance_m": z,
         "depth_sigma_at_working_distance_m": depth_sigma,
         "depth_per_px_disparity_at_working_distance_m": z * z / (cal.f * cal.B),
-        "epipolar_rms_px": float(np.sqrt(np.mean(epi ** 2))) if epi.size else float("nan"),
+        "epipolar_rms_px": float(np.sqrt(np.mean(epi**2))) if epi.size else float("nan"),
     }

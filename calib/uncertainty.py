@@ -24,8 +24,11 @@ from vbfe.calib.camera import CameraFit
 
 _GRID = (16, 12)  # samples across the image, x by y
 REGIONS = (3, 3)  # board coverage: columns by rows
-_REGION_NAMES = (("top-left", "top", "top-right"), ("left", "centre", "right"),
-                 ("bottom-left", "bottom", "bottom-right"))
+_REGION_NAMES = (
+    ("top-left", "top", "top-right"),
+    ("left", "centre", "right"),
+    ("bottom-left", "bottom", "bottom-right"),
+)
 
 
 def _intrinsic_columns(n_dist: int, fixed_k3: bool) -> np.ndarray:
@@ -57,11 +60,16 @@ class StereoSolve:
 
 def _global(solve: StereoSolve, cols: np.ndarray) -> np.ndarray:
     """The solved global parameters: left intrinsics, right intrinsics, rvec(R), T."""
+
     def intrinsics(K: np.ndarray, D: np.ndarray) -> np.ndarray:
         return np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], D][cols - 6]
 
-    return np.r_[intrinsics(solve.K1, solve.D1), intrinsics(solve.K2, solve.D2),
-                 cv2.Rodrigues(solve.R)[0].reshape(3), solve.T.reshape(3)]
+    return np.r_[
+        intrinsics(solve.K1, solve.D1),
+        intrinsics(solve.K2, solve.D2),
+        cv2.Rodrigues(solve.R)[0].reshape(3),
+        solve.T.reshape(3),
+    ]
 
 
 def _unpack(theta: np.ndarray, solve: StereoSolve, cols: np.ndarray):
@@ -70,16 +78,14 @@ def _unpack(theta: np.ndarray, solve: StereoSolve, cols: np.ndarray):
     def camera(values: np.ndarray, K: np.ndarray, D: np.ndarray):
         full = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], D]
         full[cols - 6] = values
-        return (np.array([[full[0], 0, full[2]], [0, full[1], full[3]], [0, 0, 1.0]]),
-                full[4:])
+        return (np.array([[full[0], 0, full[2]], [0, full[1], full[3]], [0, 0, 1.0]]), full[4:])
 
     K1, D1 = camera(theta[:n], solve.K1, solve.D1)
-    K2, D2 = camera(theta[n:2 * n], solve.K2, solve.D2)
-    return K1, D1, K2, D2, cv2.Rodrigues(theta[2 * n:2 * n + 3])[0], theta[2 * n + 3:]
+    K2, D2 = camera(theta[n : 2 * n], solve.K2, solve.D2)
+    return K1, D1, K2, D2, cv2.Rodrigues(theta[2 * n : 2 * n + 3])[0], theta[2 * n + 3 :]
 
 
-def joint_covariance(solve: StereoSolve, fixed_k3: bool = False
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def joint_covariance(solve: StereoSolve, fixed_k3: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Covariance of the global parameters of the joint stereo solve (both cameras'
     intrinsics, rvec(R), T), the board poses marginalised out; and the jacobian columns the
     intrinsics are."""
@@ -89,23 +95,27 @@ def joint_covariance(solve: StereoSolve, fixed_k3: bool = False
     information = np.zeros((n_global, n_global))
     rvec_rt = cv2.Rodrigues(solve.R)[0]
     squares, count = 0.0, 0
-    for obj, left, right, rvec, tvec in zip(solve.object_points, solve.left_px, solve.right_px,
-                                            solve.rvecs, solve.tvecs):
+    for obj, left, right, rvec, tvec in zip(
+        solve.object_points, solve.left_px, solve.right_px, solve.rvecs, solve.tvecs, strict=False
+    ):
         obj = obj.reshape(-1, 1, 3).astype(np.float64)
         proj_l, jac_l = cv2.projectPoints(obj, rvec, tvec, solve.K1, solve.D1)
         r3, t3, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = cv2.composeRT(
-            rvec, tvec, rvec_rt, solve.T.reshape(3, 1))
+            rvec, tvec, rvec_rt, solve.T.reshape(3, 1)
+        )
         proj_r, jac_r = cv2.projectPoints(obj, r3, t3, solve.K2, solve.D2)
-        squares += float(np.sum((proj_l.reshape(-1, 2) - left) ** 2)
-                         + np.sum((proj_r.reshape(-1, 2) - right) ** 2))
+        squares += float(
+            np.sum((proj_l.reshape(-1, 2) - left) ** 2)
+            + np.sum((proj_r.reshape(-1, 2) - right) ** 2)
+        )
         count += left.size + right.size
         d_view = np.block([[dr3dr1, dr3dt1], [dt3dr1, dt3dt1]])
         d_rt = np.block([[dr3dr2, dr3dt2], [dt3dr2, dt3dt2]])
         rows = len(obj) * 2
         J_g = np.zeros((2 * rows, n_global))
         J_g[:rows, :n] = jac_l[:, cols]
-        J_g[rows:, n:2 * n] = jac_r[:, cols]
-        J_g[rows:, 2 * n:] = jac_r[:, :6] @ d_rt
+        J_g[rows:, n : 2 * n] = jac_r[:, cols]
+        J_g[rows:, 2 * n :] = jac_r[:, :6] @ d_rt
         J_p = np.vstack([jac_l[:, :6], jac_r[:, :6] @ d_view])
         H_gp = J_g.T @ J_p
         information += J_g.T @ J_g - H_gp @ np.linalg.solve(J_p.T @ J_p, H_gp.T)
@@ -113,8 +123,13 @@ def joint_covariance(solve: StereoSolve, fixed_k3: bool = False
     return variance * np.linalg.pinv(information), cols
 
 
-def _depths(theta: np.ndarray, solve: StereoSolve, cols: np.ndarray, left_px: np.ndarray,
-            right_px: np.ndarray) -> np.ndarray:
+def _depths(
+    theta: np.ndarray,
+    solve: StereoSolve,
+    cols: np.ndarray,
+    left_px: np.ndarray,
+    right_px: np.ndarray,
+) -> np.ndarray:
     """Depth (m, left frame) of each pixel pair triangulated with parameters ``theta``
     (midpoint of the two rays)."""
     K1, D1, K2, D2, R, T = _unpack(theta, solve, cols)
@@ -148,12 +163,21 @@ class UncertaintyMap:
         gy, gx = self.depth_sigma_m.shape
         centre = float(self.depth_sigma_m[gy // 2, gx // 2])
         corners = float(np.max(self.depth_sigma_m[[0, 0, -1, -1], [0, -1, 0, -1]]))
-        empty = [_REGION_NAMES[r][c] for r in range(REGIONS[1]) for c in range(REGIONS[0])
-                 if self.coverage[r, c] == 0]
-        return (f"depth σ at {self.working_distance_m * 1e3:.0f} mm: {centre * 1e3:.3f} mm "
-                f"centre, {corners * 1e3:.3f} mm corners; "
-                + (f"no board seen in the {', '.join(empty)}" if empty
-                   else "board seen in every region"))
+        empty = [
+            _REGION_NAMES[r][c]
+            for r in range(REGIONS[1])
+            for c in range(REGIONS[0])
+            if self.coverage[r, c] == 0
+        ]
+        return (
+            f"depth σ at {self.working_distance_m * 1e3:.0f} mm: {centre * 1e3:.3f} mm "
+            f"centre, {corners * 1e3:.3f} mm corners; "
+            + (
+                f"no board seen in the {', '.join(empty)}"
+                if empty
+                else "board seen in every region"
+            )
+        )
 
 
 def board_coverage(fit: CameraFit, image_size: tuple[int, int]) -> np.ndarray:
@@ -169,16 +193,26 @@ def board_coverage(fit: CameraFit, image_size: tuple[int, int]) -> np.ndarray:
     return counts
 
 
-def uncertainty_map(cal: Calibration, solve: StereoSolve, left: CameraFit,
-                    working_distance_m: float, fixed_k3: bool = False) -> UncertaintyMap:
+def uncertainty_map(
+    cal: Calibration,
+    solve: StereoSolve,
+    left: CameraFit,
+    working_distance_m: float,
+    fixed_k3: bool = False,
+) -> UncertaintyMap:
     """Depth σ over the left image at ``working_distance_m`` (see the module)."""
     w, h = cal.image_size
     u, v = np.meshgrid(np.linspace(0, w - 1, _GRID[0]), np.linspace(0, h - 1, _GRID[1]))
     left_px = np.column_stack([u.ravel(), v.ravel()])
     rays = cv2.undistortPoints(left_px.reshape(-1, 1, 2), solve.K1, solve.D1).reshape(-1, 2)
     points = np.column_stack([rays, np.ones(len(rays))]) * working_distance_m
-    right_px, _ = cv2.projectPoints(points.reshape(-1, 1, 3), cv2.Rodrigues(solve.R)[0],
-                                    solve.T.reshape(3, 1), solve.K2, solve.D2)
+    right_px, _ = cv2.projectPoints(
+        points.reshape(-1, 1, 3),
+        cv2.Rodrigues(solve.R)[0],
+        solve.T.reshape(3, 1),
+        solve.K2,
+        solve.D2,
+    )
     right_px = right_px.reshape(-1, 2)
     cov, cols = joint_covariance(solve, fixed_k3)
     theta = _global(solve, cols)
@@ -188,8 +222,11 @@ def uncertainty_map(cal: Calibration, solve: StereoSolve, left: CameraFit,
         plus, minus = theta.copy(), theta.copy()
         plus[k] += step
         minus[k] -= step
-        J[:, k] = (_depths(plus, solve, cols, left_px, right_px)
-                   - _depths(minus, solve, cols, left_px, right_px)) / (2 * step)
+        J[:, k] = (
+            _depths(plus, solve, cols, left_px, right_px)
+            - _depths(minus, solve, cols, left_px, right_px)
+        ) / (2 * step)
     sigma_z = np.sqrt(np.einsum("ij,jk,ik->i", J, cov, J))
-    return UncertaintyMap(u, v, sigma_z.reshape(u.shape), working_distance_m,
-                          board_coverage(left, cal.image_size))
+    return UncertaintyMap(
+        u, v, sigma_z.reshape(u.shape), working_distance_m, board_coverage(left, cal.image_size)
+    )

@@ -16,6 +16,7 @@ from vbfe.calib.pairs import IMAGE_SUFFIXES, PAIR_NAMING, images_in, pair_files
 
 NAMING_RULES = PAIR_NAMING + ", or one side-by-side image per view (left half = left eye)"
 
+
 @dataclass
 class ViewSet:
     """Named stereo image pairs (BGR ``uint8``) and where they came from."""
@@ -43,8 +44,9 @@ def _folder_pairs(folder: Path) -> tuple[list[Path], list[Path], list[str]] | No
     lefts, rights = found
     unpaired = sorted(set(lefts) ^ set(rights))
     if unpaired:
-        raise CalibrationError(f"{folder}: views without their other eye: {', '.join(unpaired)}; "
-                               f"{NAMING_RULES}")
+        raise CalibrationError(
+            f"{folder}: views without their other eye: {', '.join(unpaired)}; {NAMING_RULES}"
+        )
     names = sorted(lefts)
     return [lefts[n] for n in names], [rights[n] for n in names], names
 
@@ -56,22 +58,30 @@ def _glob(pattern: str) -> list[Path]:
 def _glob_pairs(left_glob: str, right_glob: str) -> tuple[list[Path], list[Path], list[str]]:
     lefts, rights = _glob(left_glob), _glob(right_glob)
     if not lefts or len(lefts) != len(rights):
-        raise CalibrationError(f"--left {left_glob!r} matches {len(lefts)} images and --right "
-                               f"{right_glob!r} {len(rights)}; they must match the same number "
-                               "(pairs are taken in sorted order)")
+        raise CalibrationError(
+            f"--left {left_glob!r} matches {len(lefts)} images and --right "
+            f"{right_glob!r} {len(rights)}; they must match the same number "
+            "(pairs are taken in sorted order)"
+        )
     return lefts, rights, [p.stem for p in lefts]
 
 
 def _split_side_by_side(image: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray]:
     if image.shape[1] % 2:
-        raise CalibrationError(f"{path} is {image.shape[1]} px wide, so it is not a side-by-side "
-                               f"pair (width must be even); {NAMING_RULES}")
+        raise CalibrationError(
+            f"{path} is {image.shape[1]} px wide, so it is not a side-by-side "
+            f"pair (width must be even); {NAMING_RULES}"
+        )
     half = image.shape[1] // 2
     return image[:, :half], image[:, half:]
 
 
-def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | None = None,
-               right_glob: str | None = None) -> ViewSet:
+def load_views(
+    path: str | Path | None = None,
+    every: int = 1,
+    left_glob: str | None = None,
+    right_glob: str | None = None,
+) -> ViewSet:
     """Pairs from a folder (naming rules: :data:`NAMING_RULES`), from ``left_glob`` /
     ``right_glob`` (paired in sorted order) or from a recorded session (``.h5``, every
     ``every``-th frame)."""
@@ -79,7 +89,7 @@ def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | 
         if left_glob is None or right_glob is None:
             raise CalibrationError("give both --left GLOB and --right GLOB")
         lefts, rights, names = _glob_pairs(left_glob, right_glob)
-        pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
+        pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=False)]
         return ViewSet(pairs, names, f"--left {left_glob} --right {right_glob}")
     if path is None:
         raise CalibrationError("give a folder of image pairs, a session, or --left/--right globs")
@@ -90,7 +100,7 @@ def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | 
         found = _folder_pairs(path)
         if found is not None:
             lefts, rights, names = found
-            pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights)]
+            pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=False)]
         else:
             files = images_in(path)
             pairs = [_split_side_by_side(_read(f), f) for f in files]
@@ -105,8 +115,10 @@ def load_views(path: str | Path | None = None, every: int = 1, left_glob: str | 
                     pairs.append((frame.left, frame.right))
                     names.append(f"frame{i:05d}")
     if not pairs:
-        raise CalibrationError(f"{path} holds no image pairs; capture some with "
-                               f"'vbfe calibrate capture' ({NAMING_RULES})")
+        raise CalibrationError(
+            f"{path} holds no image pairs; capture some with "
+            f"'vbfe calibrate capture' ({NAMING_RULES})"
+        )
     return ViewSet(pairs, names, str(path))
 
 
@@ -135,29 +147,34 @@ def load_images(source: str | Path, eye: str | None = None, every: int = 1) -> I
             raise CalibrationError(f"--eye {eye!r}: use left or right")
         views = load_views(path, every)
         k = 0 if eye == "left" else 1
-        return ImageSet([pair[k] for pair in views.pairs], views.names,
-                        f"{views.source} ({eye} eye)")
+        return ImageSet(
+            [pair[k] for pair in views.pairs], views.names, f"{views.source} ({eye} eye)"
+        )
     if path.is_dir():
         if _folder_pairs(path) is not None:
-            raise CalibrationError(f"{path} holds stereo image pairs; say which camera with "
-                                   "--eye left or --eye right")
+            raise CalibrationError(
+                f"{path} holds stereo image pairs; say which camera with --eye left or --eye right"
+            )
         files = images_in(path)
     elif any(c in source_text for c in "*?["):
         files = _glob(source_text)
     else:
-        raise CalibrationError(f"{path} does not exist; give a folder of images, a glob such "
-                               "as 'views/*.png' or a session")
+        raise CalibrationError(
+            f"{path} does not exist; give a folder of images, a glob such "
+            "as 'views/*.png' or a session"
+        )
     if not files:
         raise CalibrationError(f"{source_text} holds no images ({', '.join(IMAGE_SUFFIXES)})")
     return ImageSet([_read(f) for f in files], [f.stem for f in files], source_text)
 
 
-def save_views(folder: str | Path, pairs: Sequence[tuple[np.ndarray, np.ndarray]],
-               names: Sequence[str]) -> list[str]:
+def save_views(
+    folder: str | Path, pairs: Sequence[tuple[np.ndarray, np.ndarray]], names: Sequence[str]
+) -> list[str]:
     """Write pairs as ``<name>_left.png`` / ``<name>_right.png``; returns the names."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    for (left, right), name in zip(pairs, names):
+    for (left, right), name in zip(pairs, names, strict=False):
         for eye, image in (("left", left), ("right", right)):
             target = folder / f"{name}_{eye}.png"
             if not cv2.imwrite(str(target), image):
@@ -167,25 +184,36 @@ def save_views(folder: str | Path, pairs: Sequence[tuple[np.ndarray, np.ndarray]
 
 def check_sizes(views: ViewSet) -> tuple[int, int]:
     """The common (width, height) of all images; mixed sizes are an error naming the odd views."""
-    return _common_size([[(img.shape[1], img.shape[0]) for img in pair] for pair in views.pairs],
-                        views.names, views.source)
+    return _common_size(
+        [[(img.shape[1], img.shape[0]) for img in pair] for pair in views.pairs],
+        views.names,
+        views.source,
+    )
 
 
 def image_size(images: ImageSet) -> tuple[int, int]:
     """The common (width, height) of a camera's images; mixed sizes are an error."""
-    return _common_size([[(img.shape[1], img.shape[0])] for img in images.images],
-                        images.names, images.source)
+    return _common_size(
+        [[(img.shape[1], img.shape[0])] for img in images.images], images.names, images.source
+    )
 
 
-def _common_size(sizes: list[list[tuple[int, int]]], names: list[str],
-                 source: str) -> tuple[int, int]:
-    values, counts = np.unique(np.array([s for view in sizes for s in view]), axis=0,
-                               return_counts=True)
+def _common_size(
+    sizes: list[list[tuple[int, int]]], names: list[str], source: str
+) -> tuple[int, int]:
+    values, counts = np.unique(
+        np.array([s for view in sizes for s in view]), axis=0, return_counts=True
+    )
     if len(values) > 1:
         common = tuple(int(v) for v in values[np.argmax(counts)])
-        odd = [f"{name} ({', '.join(f'{w}x{h}' for w, h in view)})"
-               for name, view in zip(names, sizes) if any(s != common for s in view)]
-        raise CalibrationError(f"{source}: mixed image sizes; most views are "
-                               f"{common[0]}x{common[1]} but {', '.join(odd)} differ; "
-                               "calibrate one resolution at a time")
+        odd = [
+            f"{name} ({', '.join(f'{w}x{h}' for w, h in view)})"
+            for name, view in zip(names, sizes, strict=False)
+            if any(s != common for s in view)
+        ]
+        raise CalibrationError(
+            f"{source}: mixed image sizes; most views are "
+            f"{common[0]}x{common[1]} but {', '.join(odd)} differ; "
+            "calibrate one resolution at a time"
+        )
     return int(values[0][0]), int(values[0][1])

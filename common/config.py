@@ -41,8 +41,7 @@ def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def read_toml(path: str | Path, what: str,
-              error: type[VbfeError] = ConfigError) -> dict[str, Any]:
+def read_toml(path: str | Path, what: str, error: type[VbfeError] = ConfigError) -> dict[str, Any]:
     """Parse a TOML file; ``error`` names ``what`` and the file when it is missing or invalid."""
     path = Path(path)
     try:

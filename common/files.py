@@ -61,23 +61,34 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def _inside(path: Path, folder: Path) -> bool:
-    return folder.is_dir() and path.exists() and any(
-        p.exists() and os.path.samefile(p, folder) for p in path.parents)
+    return (
+        folder.is_dir()
+        and path.exists()
+        and any(p.exists() and os.path.samefile(p, folder) for p in path.parents)
+    )
 
 
 def _refuse_input(path: Path, sources: list[Path]) -> None:
     for source in sources:
         if _same_file(path, source):
-            raise OutputError(f"output {path} is also an input of this command ({source}); "
-                              "choose another output name")
+            raise OutputError(
+                f"output {path} is also an input of this command ({source}); "
+                "choose another output name"
+            )
         if _inside(path, source):
-            raise OutputError(f"output {path} already exists in the input folder {source} "
-                              "(it may be one of the inputs); choose another output name")
+            raise OutputError(
+                f"output {path} already exists in the input folder {source} "
+                "(it may be one of the inputs); choose another output name"
+            )
 
 
-def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
-                  overwrite: bool = False, directories: Iterable[str | Path | None] = (),
-                  writes: Writes = "file") -> None:
+def check_outputs(
+    outputs: Iterable[str | Path | None],
+    inputs: Iterable[str | Path | None] = (),
+    overwrite: bool = False,
+    directories: Iterable[str | Path | None] = (),
+    writes: Writes = "file",
+) -> None:
     """Refuse, naming the path: an output that is an input (or an existing file inside an input
     folder), an existing output without ``overwrite``, a session replaced by anything but a
     session (an HDF5 file by anything but HDF5, whatever the suffix), a folder given for a file
@@ -93,24 +104,30 @@ def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | P
         if not parent.is_dir():
             raise OutputError(f"output folder {path}: {parent} is a file, not a folder")
         if path.is_dir() and any(path.iterdir()) and not overwrite:
-            raise OutputError(f"output folder {path} is not empty; pass --overwrite to write "
-                              "into it anyway or choose a new folder")
+            raise OutputError(
+                f"output folder {path} is not empty; pass --overwrite to write "
+                "into it anyway or choose a new folder"
+            )
     for path in (Path(p) for p in outputs if p is not None):
         _refuse_input(path, sources)
         if path.is_dir():
             raise OutputError(f"output {path} is a folder; give a file name")
         if not path.parent.is_dir():
-            raise OutputError(f"output {path}: folder {path.parent} does not exist; create it "
-                              "first")
+            raise OutputError(
+                f"output {path}: folder {path.parent} does not exist; create it first"
+            )
         if not path.exists():
             continue
         if not overwrite:
-            raise OutputError(f"{path} already exists; pass --overwrite to replace it or choose "
-                              "a new name")
+            raise OutputError(
+                f"{path} already exists; pass --overwrite to replace it or choose a new name"
+            )
         if writes != "session" and is_hdf5(path) and (writes == "file" or is_session(path)):
-            raise OutputError(f"{path} is {'a session' if is_session(path) else 'an HDF5 file'}"
-                              f", not the kind of file this command writes; --overwrite does "
-                              "not replace it: choose another output name")
+            raise OutputError(
+                f"{path} is {'a session' if is_session(path) else 'an HDF5 file'}"
+                f", not the kind of file this command writes; --overwrite does "
+                "not replace it: choose another output name"
+            )
 
 
 def partial_path(path: str | Path) -> Path:
@@ -167,8 +184,10 @@ def require_free_space(folder: str | Path, needed_bytes: int, what: str) -> None
     free (``what`` names the output)."""
     free = shutil.disk_usage(folder).free
     if free < needed_bytes:
-        raise OutputError(f"no space for {what}: {free / 1e6:.1f} MB free on {folder}, need "
-                          f"about {needed_bytes / 1e6:.1f} MB; free space or write elsewhere")
+        raise OutputError(
+            f"no space for {what}: {free / 1e6:.1f} MB free on {folder}, need "
+            f"about {needed_bytes / 1e6:.1f} MB; free space or write elsewhere"
+        )
 
 
 def os_error_text(exc: OSError) -> str:
@@ -197,7 +216,7 @@ class WriterLock:
         self.lock_path = path.with_name(f".{path.name}{LOCK_SUFFIX}")
         self._fd: int | None = None
 
-    def acquire(self) -> "WriterLock":
+    def acquire(self) -> WriterLock:
         """Take the lock or raise :class:`OutputError` naming the process that holds it."""
         while True:
             fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
@@ -206,8 +225,10 @@ class WriterLock:
             except BlockingIOError:
                 holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
                 os.close(fd)
-                raise OutputError(f"{self.path} is being written by process {holder}; wait "
-                                  "until it finishes or choose another file") from None
+                raise OutputError(
+                    f"{self.path} is being written by process {holder}; wait "
+                    "until it finishes or choose another file"
+                ) from None
             try:  # the lock file may have been released and removed meanwhile: lock the new one
                 same = os.fstat(fd).st_ino == os.stat(self.lock_path).st_ino
             except FileNotFoundError:
@@ -229,7 +250,7 @@ class WriterLock:
         os.close(self._fd)
         self._fd = None
 
-    def __enter__(self) -> "WriterLock":
+    def __enter__(self) -> WriterLock:
         return self.acquire()
 
     def __exit__(self, *exc: object) -> None:

@@ -75,8 +75,7 @@ class HtmlReport:
 
     def bullets(self, items: Sequence[str]) -> None:
         """A bulleted list of plain text."""
-        self._parts.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items)
-                           + "</ul>")
+        self._parts.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
 
     def verdict(self, label: str, passed: bool) -> None:
         """A PASS/FAIL line."""
@@ -87,8 +86,9 @@ class HtmlReport:
         """A table (no header row when every header is empty); floats are shown with four
         significant digits, :class:`Link` cells link, PASS / FAIL / INCONCLUSIVE are coloured."""
         head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-        body = "".join("<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>"
-                       for row in rows)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>" for row in rows
+        )
         head = f"<tr>{head}</tr>" if any(header) else ""  # all empty: a key-value table
         self._parts.append(f"<table>{head}{body}</table>")
 
@@ -103,21 +103,30 @@ class HtmlReport:
 
     def inline_strip(self, images: Sequence[tuple[bytes, str]], mime: str = "image/jpeg") -> None:
         """Small images side by side, each with its caption, embedded in the page."""
-        self._parts.append('<div class="strip">' + "".join(
-            f'<figure><img src="{_data_uri(data, mime)}" alt="{html.escape(caption)}">'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>"
-            for data, caption in images) + "</div>")
+        self._parts.append(
+            '<div class="strip">'
+            + "".join(
+                f'<figure><img src="{_data_uri(data, mime)}" alt="{html.escape(caption)}">'
+                f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+                for data, caption in images
+            )
+            + "</div>"
+        )
 
     def _figure(self, src: str, caption: str) -> None:
-        self._parts.append(f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption)}">'
-                           f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+        self._parts.append(
+            f'<figure><img src="{html.escape(src)}" alt="{html.escape(caption)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+        )
 
     def html(self) -> str:
         """The page as HTML text."""
         body = "\n".join(self._parts)
-        return (f"<!doctype html><html><head><meta charset='utf-8'><title>"
-                f"{html.escape(self.title)}</title><style>{_STYLE}</style></head><body>"
-                f"<h1>{html.escape(self.title)}</h1>\n{body}\n</body></html>")
+        return (
+            f"<!doctype html><html><head><meta charset='utf-8'><title>"
+            f"{html.escape(self.title)}</title><style>{_STYLE}</style></head><body>"
+            f"<h1>{html.escape(self.title)}</h1>\n{body}\n</body></html>"
+        )
 
     def write(self, path: str | Path) -> Path:
         """Write the page (to a temporary name, renamed when complete) and return its path."""

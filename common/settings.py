@@ -25,8 +25,14 @@ T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)
 
 
-def setting(default: Any, *, gt: float | None = None, ge: float | None = None,
-            lt: float | None = None, le: float | None = None) -> Any:
+def setting(
+    default: Any,
+    *,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+) -> Any:
     """A dataclass field with its default and an optional range (``gt``/``ge``/``lt``/``le``)."""
     limits = {"gt": gt, "ge": ge, "lt": lt, "le": le}
     metadata = {"limits": {k: v for k, v in limits.items() if v is not None}}
@@ -46,10 +52,18 @@ def _describe(hint: Any) -> str:
     if origin in (typing.Union, types.UnionType):
         return " or ".join(_describe(a) for a in args if a is not type(None))
     if origin in (list, tuple, Sequence):
-        return f"a list of {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s" \
-            if args else "a list"
-    names = {bool: "true or false", int: "an integer", float: "a number", str: "a string",
-             Path: "a path (string)"}
+        return (
+            f"a list of {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
+            if args
+            else "a list"
+        )
+    names = {
+        bool: "true or false",
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        Path: "a path (string)",
+    }
     return names.get(hint, getattr(hint, "__name__", str(hint)))
 
 
@@ -120,18 +134,24 @@ def _check(table: str, key: str, value: Any, hint: Any, limits: Mapping[str, flo
     if isinstance(value, float) and not math.isfinite(value):
         raise ConfigError(f"[{table}] {key} = {value!r} is not a finite number")
     for name, bound in limits.items():
-        ok = {"gt": lambda v: v > bound, "ge": lambda v: v >= bound,
-              "lt": lambda v: v < bound, "le": lambda v: v <= bound}[name]
+        ok = {
+            "gt": lambda v: v > bound,
+            "ge": lambda v: v >= bound,
+            "lt": lambda v: v < bound,
+            "le": lambda v: v <= bound,
+        }[name]
         if not ok(value):
             sign = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[name]
-            raise ConfigError(f"[{table}] {key} = {value!r} is out of range: it must be "
-                              f"{sign} {bound:g}")
+            raise ConfigError(
+                f"[{table}] {key} = {value!r} is out of range: it must be {sign} {bound:g}"
+            )
     return value
 
 
 def _unknown(table: str, key: str, known: Sequence[str], where: str = "") -> ConfigError:
-    return ConfigError(f"unknown key {key!r} in [{table}]{where}; known: "
-                       f"{', '.join(sorted(known)) or 'none'}")
+    return ConfigError(
+        f"unknown key {key!r} in [{table}]{where}; known: {', '.join(sorted(known)) or 'none'}"
+    )
 
 
 def parse_table(cls: type[T], table: Mapping[str, Any], name: str) -> T:
@@ -166,8 +186,13 @@ def config_parameters(target: Callable[..., Any]) -> dict[str, Any]:
     return out
 
 
-def parse_kwargs(target: Callable[..., Any], table: Mapping[str, Any], name: str,
-                 where: str = "", skip: Sequence[str] = ()) -> dict[str, Any]:
+def parse_kwargs(
+    target: Callable[..., Any],
+    table: Mapping[str, Any],
+    name: str,
+    where: str = "",
+    skip: Sequence[str] = (),
+) -> dict[str, Any]:
     """Table ``[name]`` checked as keyword arguments of ``target`` (its signature and type
     annotations); ``where`` adds context to messages, e.g. ``" (backend can)"``."""
     known = {k: v for k, v in config_parameters(target).items() if k not in skip}

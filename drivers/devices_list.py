@@ -79,8 +79,11 @@ def _modes(info: Any) -> tuple[str, ...]:
     rates: dict[tuple[str, int, int], list[str]] = {}
     for kind in info.frame_types:
         key = (fourcc_name(kind.pixel_format), int(kind.width), int(kind.height))
-        rate = (_rate(kind.max_fps) if kind.min_fps == kind.max_fps
-                else f"{_rate(kind.min_fps)}-{_rate(kind.max_fps)}")
+        rate = (
+            _rate(kind.max_fps)
+            if kind.min_fps == kind.max_fps
+            else f"{_rate(kind.min_fps)}-{_rate(kind.max_fps)}"
+        )
         rates.setdefault(key, []).append(rate)
     return tuple(f"{fmt} {w}x{h} {'/'.join(r)} fps" for (fmt, w, h), r in rates.items())
 
@@ -93,11 +96,13 @@ def _control(control: Any) -> str:
     limits = f"{control.minimum}..{control.maximum} step {control.step}"
     default = getattr(control, "default", None)
     return f"{control.config_name} = {value} ({limits}" + (
-        f", default {default})" if default is not None else ")")
+        f", default {default})" if default is not None else ")"
+    )
 
 
-def probe_video_node(path: str, device_factory: Callable[[str], Any] = linuxpy_device
-                     ) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
+def probe_video_node(
+    path: str, device_factory: Callable[[str], Any] = linuxpy_device
+) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
     """Formats, modes and controls of a V4L2 node through linuxpy; empty when it cannot be
     opened or is not a capture node (metadata nodes)."""
     try:
@@ -107,17 +112,18 @@ def probe_video_node(path: str, device_factory: Callable[[str], Any] = linuxpy_d
         return (), (), ()
     try:
         formats = tuple(dict.fromkeys(fourcc_name(f.pixel_format) for f in device.info.formats))
-        return (formats, _modes(device.info),
-                tuple(_control(c) for c in device.controls.values()))
+        return (formats, _modes(device.info), tuple(_control(c) for c in device.controls.values()))
     except OSError:
         return (), (), ()
     finally:
         device.close()
 
 
-def list_video_devices(sys_root: str | Path = "/sys", dev_root: str | Path = "/dev",
-                       device_factory: Callable[[str], Any] = linuxpy_device
-                       ) -> list[VideoDevice]:
+def list_video_devices(
+    sys_root: str | Path = "/sys",
+    dev_root: str | Path = "/dev",
+    device_factory: Callable[[str], Any] = linuxpy_device,
+) -> list[VideoDevice]:
     """The V4L2 video nodes with their names, formats, modes and controls (metadata-only nodes
     included, with nothing to list)."""
     nodes = sorted((Path(sys_root) / "class" / "video4linux").glob("video*"), key=_natural_key)
@@ -145,14 +151,21 @@ def list_serial_ports() -> list[SerialPort]:
     return [SerialPort(p.device, p.description or "") for p in sorted(list_ports.comports())]
 
 
-def list_devices(sys_root: str | Path = "/sys", dev_root: str | Path = "/dev",
-                 on_step: Callable[[str], None] | None = None,
-                 device_factory: Callable[[str], Any] = linuxpy_device) -> DeviceInventory:
+def list_devices(
+    sys_root: str | Path = "/sys",
+    dev_root: str | Path = "/dev",
+    on_step: Callable[[str], None] | None = None,
+    device_factory: Callable[[str], Any] = linuxpy_device,
+) -> DeviceInventory:
     """Cameras, CAN interfaces and serial ports; ``on_step(family)`` after each family."""
     inventory = DeviceInventory()
     steps: list[tuple[str, Callable[[], None]]] = [
-        ("cameras", lambda: inventory.cameras.extend(
-            list_video_devices(sys_root, dev_root, device_factory))),
+        (
+            "cameras",
+            lambda: inventory.cameras.extend(
+                list_video_devices(sys_root, dev_root, device_factory)
+            ),
+        ),
         ("CAN interfaces", lambda: inventory.can_interfaces.extend(list_can_interfaces(sys_root))),
         ("serial ports", lambda: inventory.serial_ports.extend(list_serial_ports())),
     ]
@@ -174,8 +187,8 @@ def format_inventory(inventory: DeviceInventory) -> str:
         lines.append("  none found (no /dev/video* device)")
     lines.append("CAN interfaces:")
     lines += [f"  {c.name}  {c.state}" for c in inventory.can_interfaces] or [
-        "  none found (bring one up with: sudo ip link set can0 up type can bitrate 1000000)"]
+        "  none found (bring one up with: sudo ip link set can0 up type can bitrate 1000000)"
+    ]
     lines.append("Serial ports:")
-    lines += [f"  {p.device}  {p.description}" for p in inventory.serial_ports] or [
-        "  none found"]
+    lines += [f"  {p.device}  {p.description}" for p in inventory.serial_ports] or ["  none found"]
     return "\n".join(lines)

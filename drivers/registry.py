@@ -15,20 +15,26 @@ import dataclasses
 import importlib
 from typing import Any
 
+from vbfe.common.settings import parse_kwargs
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
 from vbfe.drivers.streams.opening import streams_from_config
-from vbfe.common.settings import parse_kwargs
 
 BACKENDS: dict[str, dict[str, str]] = {
-    "camera": {"v4l2": "vbfe.drivers.camera.linuxpy_v4l2:LinuxpyStereoCamera",
-               "opencv": "vbfe.drivers.camera.opencv:OpenCVStereoCamera",
-               "sim": "vbfe.drivers.sim.backend:camera"},
-    "trocar": {"can": "vbfe.drivers.trocar.can_trocar:CanTrocar",
-               "sim": "vbfe.drivers.sim.backend:trocar"},
-    "projector": {"hdmi": "vbfe.drivers.projector.hdmi:HdmiProjector",
-                  "serial": "vbfe.drivers.projector.serial_projector:SerialProjector",
-                  "sim": "vbfe.drivers.sim.backend:projector"},
+    "camera": {
+        "v4l2": "vbfe.drivers.camera.linuxpy_v4l2:LinuxpyStereoCamera",
+        "opencv": "vbfe.drivers.camera.opencv:OpenCVStereoCamera",
+        "sim": "vbfe.drivers.sim.backend:camera",
+    },
+    "trocar": {
+        "can": "vbfe.drivers.trocar.can_trocar:CanTrocar",
+        "sim": "vbfe.drivers.sim.backend:trocar",
+    },
+    "projector": {
+        "hdmi": "vbfe.drivers.projector.hdmi:HdmiProjector",
+        "serial": "vbfe.drivers.projector.serial_projector:SerialProjector",
+        "sim": "vbfe.drivers.sim.backend:projector",
+    },
 }
 # backend -> factory(config, options) of the state its devices share within one rig
 SHARED: dict[str, str] = {"sim": "vbfe.drivers.sim.backend:SimBackend"}
@@ -45,8 +51,9 @@ def _factory(family: str, backend: str) -> Any:
     try:
         return _load(BACKENDS[family][backend])
     except KeyError:
-        raise DeviceError(f"unknown {family} backend {backend!r}; known: "
-                          f"{sorted(BACKENDS[family])}") from None
+        raise DeviceError(
+            f"unknown {family} backend {backend!r}; known: {sorted(BACKENDS[family])}"
+        ) from None
 
 
 def device_options(family: str, table: dict[str, Any]) -> tuple[str, dict[str, Any]]:
@@ -57,12 +64,16 @@ def device_options(family: str, table: dict[str, Any]) -> tuple[str, dict[str, A
     if not isinstance(backend, str):
         raise DeviceError(f"[{family}] backend must be a string, got {backend!r}")
     skip = ("shared",) if backend in SHARED else ()
-    return backend, parse_kwargs(_factory(family, backend), options, family,
-                                 where=f" (backend {backend})", skip=skip)
+    return backend, parse_kwargs(
+        _factory(family, backend), options, family, where=f" (backend {backend})", skip=skip
+    )
 
 
-def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions(),
-             families: tuple[str, ...] = FAMILIES) -> Rig:
+def open_rig(
+    config: dict[str, dict[str, Any]],
+    options: RigOptions = RigOptions(),
+    families: tuple[str, ...] = FAMILIES,
+) -> Rig:
     """The rig of ``families`` a config names, built but not opened (``with open_rig(...) as
     rig:`` opens every device, rolling back on failure, and closes them all). Every device
     table is checked against its backend before anything is built. The whole rig also has the
@@ -75,18 +86,25 @@ def open_rig(config: dict[str, dict[str, Any]], options: RigOptions = RigOptions
     if streams and options.realtime is None:
         options = dataclasses.replace(options, realtime=True)
     tables = {f: device_options(f, config.get(f, {})) for f in families}
-    shared: dict[str, SharedBackend] = {b: _load(SHARED[b])(config, options)
-                                        for b, _ in tables.values() if b in SHARED}
+    shared: dict[str, SharedBackend] = {
+        b: _load(SHARED[b])(config, options) for b, _ in tables.values() if b in SHARED
+    }
     devices = {}
     for family, (backend, kwargs) in tables.items():
         factory = _factory(family, backend)
-        devices[family] = (factory(shared[backend], **kwargs) if backend in shared
-                           else factory(**kwargs))
-    rig = Rig(devices.get("camera"), devices.get("trocar"), devices.get("projector"),
-              others={**{f: d for f, d in devices.items() if f not in ("camera", "trocar",
-                                                                        "projector")},
-                      **streams},
-              shared=tuple(shared.values()))
+        devices[family] = (
+            factory(shared[backend], **kwargs) if backend in shared else factory(**kwargs)
+        )
+    rig = Rig(
+        devices.get("camera"),
+        devices.get("trocar"),
+        devices.get("projector"),
+        others={
+            **{f: d for f, d in devices.items() if f not in ("camera", "trocar", "projector")},
+            **streams,
+        },
+        shared=tuple(shared.values()),
+    )
     # streams open first (resolving takes a second): a simulated bench's clock starts when its
     # first device opens, and its trocar would deliver that second as a backlog
     rig.devices = {**streams, **rig.devices}

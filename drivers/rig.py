@@ -67,9 +67,15 @@ class Rig:
     (see :class:`vbfe.acquire.Acquisition`).
     """
 
-    def __init__(self, camera: StereoCamera | None = None, trocar: ForceSensor | None = None,
-                 projector: Projector | None = None, *, others: Mapping[str, Any] | None = None,
-                 shared: tuple[SharedBackend, ...] = ()) -> None:
+    def __init__(
+        self,
+        camera: StereoCamera | None = None,
+        trocar: ForceSensor | None = None,
+        projector: Projector | None = None,
+        *,
+        others: Mapping[str, Any] | None = None,
+        shared: tuple[SharedBackend, ...] = (),
+    ) -> None:
         named = {"camera": camera, "trocar": trocar, "projector": projector, **(others or {})}
         self.devices: dict[str, Any] = {k: v for k, v in named.items() if v is not None}
         self.shared = shared
@@ -93,8 +99,9 @@ class Rig:
         try:
             return self.devices[name]
         except KeyError:
-            raise DeviceError(f"this rig has no {name}; add a [{name}] table to the rig "
-                              "config") from None
+            raise DeviceError(
+                f"this rig has no {name}; add a [{name}] table to the rig config"
+            ) from None
 
     def has(self, name: str) -> bool:
         """Whether the rig has a device called ``name``."""
@@ -142,10 +149,14 @@ class Rig:
             with contextlib.suppress(DeviceError):
                 device.close()
 
-    def __enter__(self) -> "Rig":
+    def __enter__(self) -> Rig:
         self.open()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()

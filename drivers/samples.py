@@ -31,10 +31,15 @@ class JpegStereoFrame(StereoFrame):
     """A frame pair as the camera's own JPEG bytes (``encoded``), decoded on first access to
     ``left``/``right`` only: recording it in ``mjpeg`` storage never decodes it."""
 
-    def __init__(self, encoded: tuple[bytes, bytes], seq: int, t_device_ns: int,
-                 t_host_ns: int) -> None:
-        for name, value in (("encoded", encoded), ("seq", seq), ("t_device_ns", t_device_ns),
-                            ("t_host_ns", t_host_ns)):
+    def __init__(
+        self, encoded: tuple[bytes, bytes], seq: int, t_device_ns: int, t_host_ns: int
+    ) -> None:
+        for name, value in (
+            ("encoded", encoded),
+            ("seq", seq),
+            ("t_device_ns", t_device_ns),
+            ("t_host_ns", t_host_ns),
+        ):
             object.__setattr__(self, name, value)
         object.__setattr__(self, "_decoded", {})
         object.__setattr__(self, "_lock", threading.Lock())
@@ -42,16 +47,17 @@ class JpegStereoFrame(StereoFrame):
     def _eye(self, index: int) -> np.ndarray:
         with self._lock:
             if index not in self._decoded:
-                image = cv2.imdecode(np.frombuffer(self.encoded[index], np.uint8),
-                                     cv2.IMREAD_COLOR)
+                image = cv2.imdecode(np.frombuffer(self.encoded[index], np.uint8), cv2.IMREAD_COLOR)
                 if image is None:
                     raise ValueError(f"frame {self.seq}: the camera's JPEG does not decode")
                 self._decoded[index] = image
             return self._decoded[index]
 
     def __repr__(self) -> str:
-        return (f"JpegStereoFrame(seq={self.seq}, t_device_ns={self.t_device_ns}, "
-                f"t_host_ns={self.t_host_ns}, jpeg bytes={[len(b) for b in self.encoded]})")
+        return (
+            f"JpegStereoFrame(seq={self.seq}, t_device_ns={self.t_device_ns}, "
+            f"t_host_ns={self.t_host_ns}, jpeg bytes={[len(b) for b in self.encoded]})"
+        )
 
     left = property(lambda self: self._eye(0), doc="Left eye, BGR (decoded on first use).")
     right = property(lambda self: self._eye(1), doc="Right eye, BGR (decoded on first use).")
@@ -87,15 +93,16 @@ class StreamStats:
     malformed: int = 0  # frames that arrived but could not be decoded
     gaps: list[tuple[int, int]] = field(default_factory=list)  # (last good seq, next good seq)
     errors: int = 0  # error frames / bus state changes the interface reported
-    _marks: list["GapMark"] = field(default_factory=list, repr=False)
+    _marks: list[GapMark] = field(default_factory=list, repr=False)
 
-    def mark_gap(self, reason: str, last_seq: int, next_seq: int, t_host_ns: int,
-                 count: int) -> None:
+    def mark_gap(
+        self, reason: str, last_seq: int, next_seq: int, t_host_ns: int, count: int
+    ) -> None:
         """Record an event the sequence numbers do not show (an error frame, a bus state
         change) for the session file's gaps; ``reason`` is one of the session gap reasons."""
         self._marks.append(GapMark(reason, last_seq, next_seq, int(t_host_ns), int(count)))
 
-    def take_marks(self) -> list["GapMark"]:
+    def take_marks(self) -> list[GapMark]:
         """The gaps marked since the last call (for the recorder to store)."""
         marks, self._marks = self._marks, []
         return marks

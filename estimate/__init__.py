@@ -8,6 +8,17 @@ from vbfe.estimate.sources import RecordedSession, SessionClouds
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import TrainResult, train, use_threads
 
-__all__ = ["EstimateError", "EvaluationReport", "ForceModel", "FramePredictor",
-           "RecordedSession", "SessionClouds", "TrainConfig", "TrainResult", "evaluate",
-           "load_model", "train", "use_threads"]
+__all__ = [
+    "EstimateError",
+    "EvaluationReport",
+    "ForceModel",
+    "FramePredictor",
+    "RecordedSession",
+    "SessionClouds",
+    "TrainConfig",
+    "TrainResult",
+    "evaluate",
+    "load_model",
+    "train",
+    "use_threads",
+]

@@ -32,7 +32,6 @@ from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.history_baseline import HistoryBaseline, fit_history
 
-
 FEATURES = ("displacement_m", "texture_displacement_m")  # PreparedSession's displacements
 
 
@@ -51,24 +50,32 @@ class AffineBaseline:
         d = np.nan_to_num(np.asarray(displacement_m, dtype=np.float64), nan=0.0)
         return d[:, None] * self.slope + self.intercept
 
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None
+    ) -> np.ndarray:
         """Predicted force (used frames × outputs) of a prepared session."""
         d = getattr(session, self.feature)
         return self.predict(d if positions is None else d[positions])
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "slope": self.slope.tolist(),
-                "intercept": self.intercept.tolist(), "feature": self.feature}
+        return {
+            "name": self.name,
+            "slope": self.slope.tolist(),
+            "intercept": self.intercept.tolist(),
+            "feature": self.feature,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "AffineBaseline":
+    def from_dict(cls, d: dict[str, Any]) -> AffineBaseline:
         feature = d.get("feature", FEATURES[0])  # model files before the texture feature
         if feature not in FEATURES:
-            raise EstimateError(f"estimator {d.get('name')!r} reads an unknown feature "
-                                f"{feature!r} (known: {', '.join(FEATURES)})")
-        return cls(d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float),
-                   feature)
+            raise EstimateError(
+                f"estimator {d.get('name')!r} reads an unknown feature "
+                f"{feature!r} (known: {', '.join(FEATURES)})"
+            )
+        return cls(
+            d["name"], np.asarray(d["slope"], float), np.asarray(d["intercept"], float), feature
+        )
 
 
 Baseline = Union[AffineBaseline, HistoryBaseline]
@@ -76,8 +83,11 @@ Baseline = Union[AffineBaseline, HistoryBaseline]
 
 def baseline_from_dict(d: dict[str, Any]) -> Baseline:
     """Rebuild a baseline stored by ``to_dict``."""
-    return HistoryBaseline.from_dict(d) if d.get("kind") == "history_mlp" \
+    return (
+        HistoryBaseline.from_dict(d)
+        if d.get("kind") == "history_mlp"
         else AffineBaseline.from_dict(d)
+    )
 
 
 def _fit_mean(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,20 +114,29 @@ def _fit_hooke(d: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 FITTERS: dict[str, Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
-    "mean": _fit_mean, "linear_displacement": _fit_linear, "hooke": _fit_hooke}
+    "mean": _fit_mean,
+    "linear_displacement": _fit_linear,
+    "hooke": _fit_hooke,
+}
 
 
-def fit_baselines(parts: Sequence[tuple[PreparedSession, np.ndarray]],
-                  history_offsets: Sequence[int] = (), seed: int = 0) -> dict[str, Baseline]:
+def fit_baselines(
+    parts: Sequence[tuple[PreparedSession, np.ndarray]],
+    history_offsets: Sequence[int] = (),
+    seed: int = 0,
+) -> dict[str, Baseline]:
     """Fit every baseline on the given (training) frames: (session, used-frame positions);
     the displacement-history MLP only with ``history_offsets`` (frames back, 0: the frame)."""
     d = np.concatenate([s.displacement_m[p] for s, p in parts])
     y = np.concatenate([s.targets_n[p] for s, p in parts])
     if not np.isfinite(d).any():
-        raise EstimateError("no training frame has a surface displacement; baselines cannot be "
-                            "fitted (are the clouds empty outside the first frame?)")
-    fitted: dict[str, Baseline] = {name: AffineBaseline(name, *fit(d, y))
-                                   for name, fit in FITTERS.items()}
+        raise EstimateError(
+            "no training frame has a surface displacement; baselines cannot be "
+            "fitted (are the clouds empty outside the first frame?)"
+        )
+    fitted: dict[str, Baseline] = {
+        name: AffineBaseline(name, *fit(d, y)) for name, fit in FITTERS.items()
+    }
     if len(history_offsets):
         history = fit_history(parts, history_offsets, seed)
         fitted[history.name] = history

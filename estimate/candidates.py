@@ -28,9 +28,14 @@ from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 
-CANDIDATES = {"pointnet": "pointnet", "temporal": "temporal", "ridge": "ridge_height_map",
-              "cnn": "cnn_depth_change", "ensemble": "ensemble_cnn_hooke",
-              "hooke_texture": "hooke_texture_3d"}
+CANDIDATES = {
+    "pointnet": "pointnet",
+    "temporal": "temporal",
+    "ridge": "ridge_height_map",
+    "cnn": "cnn_depth_change",
+    "ensemble": "ensemble_cnn_hooke",
+    "hooke_texture": "hooke_texture_3d",
+}
 TEXTURE_FEATURE = "texture_displacement_m"
 ENSEMBLE_MEMBERS = (CANDIDATES["cnn"], "hooke")
 
@@ -45,34 +50,49 @@ class NetworkEstimator:
     window: tuple[int, ...] = ()
     name: str = "pointnet"
 
-    def predict_session(self, session: PreparedSession, positions: np.ndarray | None = None,
-                        batch_size: int = 32) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None, batch_size: int = 32
+    ) -> np.ndarray:
         """Force (frames × outputs) of a prepared session's used frames."""
         p = np.arange(session.n_used) if positions is None else np.asarray(positions)
         frames = FrameBatches([(session, p)], self.n_points, self.window)
         self.network.eval()
         device = next(self.network.parameters()).device
         with torch.no_grad():
-            return np.concatenate([self.network(points.to(device)).cpu().double().numpy()
-                                   for points, _ in frames.batches(batch_size, rng=None)])
+            return np.concatenate(
+                [
+                    self.network(points.to(device)).cpu().double().numpy()
+                    for points, _ in frames.batches(batch_size, rng=None)
+                ]
+            )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "network", "hparams": self.network.hparams,
-                "state_dict": self.network.state_dict(), "n_points": self.n_points,
-                "window": list(self.window)}
+        return {
+            "name": self.name,
+            "kind": "network",
+            "hparams": self.network.hparams,
+            "state_dict": self.network.state_dict(),
+            "n_points": self.n_points,
+            "window": list(self.window),
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "NetworkEstimator":
+    def from_dict(cls, d: dict[str, Any]) -> NetworkEstimator:
         kind = TemporalPointNet if "n_frames" in d["hparams"] else PointNetRegressor
         network = kind(**d["hparams"])
         state = d["state_dict"]
-        bad = [k for k, v in state.items() if not isinstance(v, torch.Tensor)
-               or (v.is_floating_point() and not torch.isfinite(v).all())]
+        bad = [
+            k
+            for k, v in state.items()
+            if not isinstance(v, torch.Tensor)
+            or (v.is_floating_point() and not torch.isfinite(v).all())
+        ]
         if bad:
             raise EstimateError(f"weight {bad[0]!r} is not finite or not a tensor")
         network.load_state_dict(state)
-        return cls(network.eval(), int(d["n_points"]), tuple(int(o) for o in d["window"]),
-                   d["name"])
+        return cls(
+            network.eval(), int(d["n_points"]), tuple(int(o) for o in d["window"]), d["name"]
+        )
 
 
 @dataclass
@@ -82,25 +102,33 @@ class MeanEnsemble:
     members: tuple[Any, ...]
     name: str = CANDIDATES["ensemble"]
 
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None
+    ) -> np.ndarray:
         """Force (frames × outputs) of a prepared session's used frames."""
         return np.mean([m.predict_session(session, positions) for m in self.members], axis=0)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "ensemble",
-                "members": [m.to_dict() for m in self.members]}
+        return {
+            "name": self.name,
+            "kind": "ensemble",
+            "members": [m.to_dict() for m in self.members],
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "MeanEnsemble":
+    def from_dict(cls, d: dict[str, Any]) -> MeanEnsemble:
         if not d.get("members"):
             raise EstimateError(f"ensemble {d.get('name')!r} has no members")
         return cls(tuple(estimator_from_dict(m) for m in d["members"]), d["name"])
 
 
 AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, MeanEnsemble, Baseline]
-_KINDS = {"network": NetworkEstimator.from_dict, "ridge": RidgeThumbnail.from_dict,
-          "cnn": CnnEstimator.from_dict, "ensemble": MeanEnsemble.from_dict}
+_KINDS = {
+    "network": NetworkEstimator.from_dict,
+    "ridge": RidgeThumbnail.from_dict,
+    "cnn": CnnEstimator.from_dict,
+    "ensemble": MeanEnsemble.from_dict,
+}
 
 
 def estimator_from_dict(d: dict[str, Any]) -> AnyEstimator:
@@ -130,5 +158,6 @@ def fit_texture_hooke(parts: list[tuple[PreparedSession, np.ndarray]]) -> Affine
 def reads_texture(estimator: AnyEstimator) -> bool:
     """Whether an estimator (or a member of it) reads the texture displacement."""
     members = getattr(estimator, "members", ())
-    return (getattr(estimator, "feature", None) == TEXTURE_FEATURE
-            or any(reads_texture(m) for m in members))
+    return getattr(estimator, "feature", None) == TEXTURE_FEATURE or any(
+        reads_texture(m) for m in members
+    )

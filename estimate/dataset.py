@@ -58,30 +58,50 @@ class PreparedSession:
         return self.n_no_cloud + self.n_no_force
 
     @classmethod
-    def from_features(cls, name: str, conditions: dict[str, Any],
-                      features: Sequence[FrameFeatures], frame_index: np.ndarray,
-                      times_ns: np.ndarray, targets_n: np.ndarray, config: TrainConfig,
-                      n_frames_total: int, n_no_cloud: int = 0, n_no_force: int = 0
-                      ) -> "PreparedSession":
+    def from_features(
+        cls,
+        name: str,
+        conditions: dict[str, Any],
+        features: Sequence[FrameFeatures],
+        frame_index: np.ndarray,
+        times_ns: np.ndarray,
+        targets_n: np.ndarray,
+        config: TrainConfig,
+        n_frames_total: int,
+        n_no_cloud: int = 0,
+        n_no_force: int = 0,
+    ) -> PreparedSession:
         """A session from its used frames' features (``FramePreparer.features``)."""
         cells, channels = config.image_cells, 4 if config.rest_depth else 3
         pool = config.pool_factor * config.n_points
 
         def stacked(key: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
             return np.asarray([getattr(f, key) for f in features], dtype).reshape(-1, *shape)
-        return cls(name=name, conditions=conditions, frame_index=frame_index,
-                   times_ns=np.asarray(times_ns, np.int64), targets_n=targets_n,
-                   pools=(np.stack([f.pool for f in features]) if len(features)
-                          else np.zeros((0, pool, channels), np.float32)),
-                   displacement_m=stacked("displacement_m", (), np.float64),
-                   texture_displacement_m=stacked("texture_displacement_m", (), np.float64),
-                   image_sum=stacked("image_sum", (cells, cells), np.float32),
-                   image_count=stacked("image_count", (cells, cells), np.float32),
-                   n_frames_total=n_frames_total, n_no_cloud=n_no_cloud, n_no_force=n_no_force)
+
+        return cls(
+            name=name,
+            conditions=conditions,
+            frame_index=frame_index,
+            times_ns=np.asarray(times_ns, np.int64),
+            targets_n=targets_n,
+            pools=(
+                np.stack([f.pool for f in features])
+                if len(features)
+                else np.zeros((0, pool, channels), np.float32)
+            ),
+            displacement_m=stacked("displacement_m", (), np.float64),
+            texture_displacement_m=stacked("texture_displacement_m", (), np.float64),
+            image_sum=stacked("image_sum", (cells, cells), np.float32),
+            image_count=stacked("image_count", (cells, cells), np.float32),
+            n_frames_total=n_frames_total,
+            n_no_cloud=n_no_cloud,
+            n_no_force=n_no_force,
+        )
 
 
-def prepare_session(item: SessionLike, config: TrainConfig,
-                    texture: bool = True) -> PreparedSession:
+def prepare_session(
+    item: SessionLike, config: TrainConfig, texture: bool = True
+) -> PreparedSession:
     """Read one session (path with clouds sidecar, imported clouds, or ``SessionClouds``);
     the tissue's texture is tracked only with ``texture`` (a method reads it)."""
     source = open_source(item)
@@ -89,8 +109,9 @@ def prepare_session(item: SessionLike, config: TrainConfig,
         targets = force_target(source.force_at_frames(), config.target)
         times = np.asarray(source.frame_times_ns(), dtype=np.int64)
         # seeded by the session's file name, so a session draws the same pools from any folder
-        rng = np.random.default_rng([config.seed,
-                                     zlib.crc32(os.path.basename(source.name).encode())])
+        rng = np.random.default_rng(
+            [config.seed, zlib.crc32(os.path.basename(source.name).encode())]
+        )
         pool_size = config.pool_factor * config.n_points
         preparer: FramePreparer | None = None
         kept, features = [], []
@@ -116,27 +137,39 @@ def prepare_session(item: SessionLike, config: TrainConfig,
                 kept.append(i)
                 features.append(preparer.features(cropped, pool_size, rng, points, colors))
         return PreparedSession.from_features(
-            source.name, dict(source.conditions), features, np.asarray(kept, dtype=np.int64),
-            times[kept], targets[kept], config,
+            source.name,
+            dict(source.conditions),
+            features,
+            np.asarray(kept, dtype=np.int64),
+            times[kept],
+            targets[kept],
+            config,
             n_frames_total=len(range(0, source.n_frames, config.frame_stride)),
-            n_no_cloud=no_cloud, n_no_force=no_force)
+            n_no_cloud=no_cloud,
+            n_no_force=no_force,
+        )
     finally:
         source.close()
 
 
-def prepare_sessions(items: Sequence[SessionLike], config: TrainConfig,
-                     progress: ProgressFn | None = None,
-                     texture: bool = True) -> list[PreparedSession]:
+def prepare_sessions(
+    items: Sequence[SessionLike],
+    config: TrainConfig,
+    progress: ProgressFn | None = None,
+    texture: bool = True,
+) -> list[PreparedSession]:
     """Prepare several sessions (the texture tracked only with ``texture``); an error names
     the session that has no usable frame."""
     prepared = []
     for k, item in enumerate(items):
         session = prepare_session(item, config, texture)
         if session.n_used == 0:
-            raise EstimateError(f"session {session.name} has no usable frame ({session.n_no_cloud}"
-                                f" frames with too few points in the ROI, {session.n_no_force} "
-                                "without a force): check the ROI in [train], run `vbfe "
-                                "reconstruct` again or check the force column")
+            raise EstimateError(
+                f"session {session.name} has no usable frame ({session.n_no_cloud}"
+                f" frames with too few points in the ROI, {session.n_no_force} "
+                "without a force): check the ROI in [train], run `vbfe "
+                "reconstruct` again or check the force column"
+            )
         prepared.append(session)
         if progress is not None:
             progress("sessions", k + 1, len(items))
@@ -145,8 +178,16 @@ def prepare_sessions(items: Sequence[SessionLike], config: TrainConfig,
 
 def skipped_counts(sessions: Sequence[PreparedSession]) -> dict[str, dict[str, int]]:
     """Per session: frames considered, used and skipped (too few ROI points, or no force)."""
-    return {s.name: {"frames": s.n_frames_total, "used": s.n_used, "skipped": s.n_skipped,
-                     "no_cloud": s.n_no_cloud, "no_force": s.n_no_force} for s in sessions}
+    return {
+        s.name: {
+            "frames": s.n_frames_total,
+            "used": s.n_used,
+            "skipped": s.n_skipped,
+            "no_cloud": s.n_no_cloud,
+            "no_force": s.n_no_force,
+        }
+        for s in sessions
+    }
 
 
 class FrameBatches:
@@ -159,16 +200,23 @@ class FrameBatches:
     evenly spaced subsample (e.g. for validation).
     """
 
-    def __init__(self, parts: Sequence[tuple[PreparedSession, np.ndarray]], n_points: int,
-                 window: Sequence[int] = (), max_frames: int | None = None) -> None:
+    def __init__(
+        self,
+        parts: Sequence[tuple[PreparedSession, np.ndarray]],
+        n_points: int,
+        window: Sequence[int] = (),
+        max_frames: int | None = None,
+    ) -> None:
         if not parts:
             raise EstimateError("no sessions to draw frames from")
         self.pools = np.concatenate([s.pools for s, _ in parts])
         starts = np.cumsum([0] + [s.n_used for s, _ in parts[:-1]])
-        self.frames = np.concatenate([start + np.asarray(p, np.int64)
-                                      for start, (_, p) in zip(starts, parts)])
-        self.first = np.concatenate([np.full(len(p), start, np.int64)
-                                     for start, (_, p) in zip(starts, parts)])
+        self.frames = np.concatenate(
+            [start + np.asarray(p, np.int64) for start, (_, p) in zip(starts, parts, strict=False)]
+        )
+        self.first = np.concatenate(
+            [np.full(len(p), start, np.int64) for start, (_, p) in zip(starts, parts, strict=False)]
+        )
         if max_frames is not None and len(self.frames) > max_frames:
             keep = np.linspace(0, len(self.frames) - 1, max_frames).round().astype(int)
             self.frames, self.first = self.frames[keep], self.first[keep]
@@ -193,14 +241,15 @@ class FrameBatches:
         """Points of the given examples; ``rng=None`` takes each pool's first ``n_points``."""
         pools = self.pools[self.frame_indices(index)]
         if rng is None:
-            return torch.from_numpy(np.ascontiguousarray(pools[..., :self.n_points, :]))
-        order = np.argsort(rng.random(pools.shape[:-1]), axis=-1)[..., :self.n_points]
+            return torch.from_numpy(np.ascontiguousarray(pools[..., : self.n_points, :]))
+        order = np.argsort(rng.random(pools.shape[:-1]), axis=-1)[..., : self.n_points]
         return torch.from_numpy(np.take_along_axis(pools, order[..., None], axis=-2))
 
-    def batches(self, batch_size: int, rng: np.random.Generator | None
-                ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+    def batches(
+        self, batch_size: int, rng: np.random.Generator | None
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """(points, targets) batches; shuffled with fresh points when ``rng`` is given."""
         order = rng.permutation(len(self)) if rng is not None else np.arange(len(self))
         for start in range(0, len(order), batch_size):
-            index = order[start:start + batch_size]
+            index = order[start : start + batch_size]
             yield self.draw(index, rng), torch.from_numpy(self.targets[index])

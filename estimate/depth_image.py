@@ -23,8 +23,10 @@ class DepthChangeImage:
         rest = np.asarray(rest_points, dtype=np.float64).reshape(-1, 3)
         rest = rest[np.isfinite(rest).all(axis=1)]
         if not len(rest):
-            raise EstimateError("the rest cloud has no finite point; start from a frame where "
-                                "the tissue is seen at rest")
+            raise EstimateError(
+                "the rest cloud has no finite point; start from a frame where "
+                "the tissue is seen at rest"
+            )
         self.cells = cells
         self._lo = np.percentile(rest[:, :2], 2, axis=0)
         hi = np.percentile(rest[:, :2], 98, axis=0)
@@ -32,8 +34,9 @@ class DepthChangeImage:
         total, count = self._bin(rest, rest[:, 2])
         filled = count > 0
         mean = np.where(filled, total / np.maximum(count, 1), 0.0).reshape(cells, cells)
-        nearest = ndimage.distance_transform_edt(~filled.reshape(cells, cells),
-                                                 return_distances=False, return_indices=True)
+        nearest = ndimage.distance_transform_edt(
+            ~filled.reshape(cells, cells), return_distances=False, return_indices=True
+        )
         self._rest = mean[tuple(nearest)].ravel()
 
     def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -42,13 +45,19 @@ class DepthChangeImage:
         inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
         return np.where(inside, ij[:, 0] * self.cells + ij[:, 1], 0), inside
 
-    def _bin(self, points: np.ndarray, values: np.ndarray,
-             cells: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _bin(
+        self,
+        points: np.ndarray,
+        values: np.ndarray,
+        cells: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per-cell sum of ``values`` and count of the points inside the grid (flat arrays)."""
         cell, inside = cells or self._cells(points)
         n = self.cells * self.cells
-        return (np.bincount(cell[inside], values[inside], minlength=n),
-                np.bincount(cell[inside], minlength=n).astype(np.float64))
+        return (
+            np.bincount(cell[inside], values[inside], minlength=n),
+            np.bincount(cell[inside], minlength=n).astype(np.float64),
+        )
 
     def sums_counts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sum of depth change, point count) per cell (cells × cells each, float32) of a

@@ -56,8 +56,9 @@ class DisplacementGrid:
 
     def peak_displacement_m(self, points: np.ndarray) -> float:
         """Largest |depth change| vs the reference over cells seen in both (NaN if none)."""
-        change = np.pad(np.abs(self.depth_map(points) - self.reference_depth_m), 1,
-                        constant_values=np.nan)
+        change = np.pad(
+            np.abs(self.depth_map(points) - self.reference_depth_m), 1, constant_values=np.nan
+        )
         with warnings.catch_warnings():  # all-NaN neighbourhoods are expected at the borders
             warnings.simplefilter("ignore", RuntimeWarning)
             smoothed = np.nanmedian(sliding_window_view(change, (3, 3)), axis=(-2, -1))

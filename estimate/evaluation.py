@@ -34,9 +34,12 @@ BOOTSTRAP_RESAMPLES = 1000
 def error_stats(predicted_n: np.ndarray, measured_n: np.ndarray) -> dict[str, float]:
     """MAE, RMSE and σ of the per-frame absolute (vector) error, newtons."""
     error = np.linalg.norm(np.asarray(predicted_n) - np.asarray(measured_n), axis=1)
-    return {"n_frames": int(len(error)), "mae_n": float(error.mean()),
-            "rmse_n": float(np.sqrt((error ** 2).mean())),
-            "sd_abs_error_n": float(error.std())}
+    return {
+        "n_frames": int(len(error)),
+        "mae_n": float(error.mean()),
+        "rmse_n": float(np.sqrt((error**2).mean())),
+        "sd_abs_error_n": float(error.std()),
+    }
 
 
 def time_blocks(lengths: Sequence[int], n_blocks: int = BOOTSTRAP_BLOCKS) -> list[np.ndarray]:
@@ -50,18 +53,23 @@ def time_blocks(lengths: Sequence[int], n_blocks: int = BOOTSTRAP_BLOCKS) -> lis
     return blocks
 
 
-def bootstrap_intervals(errors: dict[str, np.ndarray], blocks: list[np.ndarray],
-                        seed: int = 0) -> dict[str, dict[str, list[float]]]:
+def bootstrap_intervals(
+    errors: dict[str, np.ndarray], blocks: list[np.ndarray], seed: int = 0
+) -> dict[str, dict[str, list[float]]]:
     """95 % percentile intervals of MAE and RMSE per method, resampling time ``blocks``."""
     rng = np.random.default_rng(seed)
-    draws = [np.concatenate([blocks[i] for i in rng.integers(0, len(blocks), len(blocks))])
-             for _ in range(BOOTSTRAP_RESAMPLES)]
+    draws = [
+        np.concatenate([blocks[i] for i in rng.integers(0, len(blocks), len(blocks))])
+        for _ in range(BOOTSTRAP_RESAMPLES)
+    ]
     out = {}
     for method, error in errors.items():
         mae = [error[d].mean() for d in draws]
         rmse = [np.sqrt((error[d] ** 2).mean()) for d in draws]
-        out[method] = {"mae_ci95_n": np.percentile(mae, [2.5, 97.5]).tolist(),
-                       "rmse_ci95_n": np.percentile(rmse, [2.5, 97.5]).tolist()}
+        out[method] = {
+            "mae_ci95_n": np.percentile(mae, [2.5, 97.5]).tolist(),
+            "rmse_ci95_n": np.percentile(rmse, [2.5, 97.5]).tolist(),
+        }
     return out
 
 
@@ -82,8 +90,9 @@ class EvaluationReport:
 
     def mae_n(self, method: str = "pointnet") -> float:
         """Overall MAE of one method (a candidate, a baseline, or ``selected``)."""
-        return float(self.metrics[self.selected if method == "selected" else method]
-                     ["overall"]["mae_n"])
+        return float(
+            self.metrics[self.selected if method == "selected" else method]["overall"]["mae_n"]
+        )
 
 
 def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np.ndarray, bool]:
@@ -94,34 +103,50 @@ def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np
     """
     split = model.split
     everything = np.arange(session.n_used)
-    if split.kind == "time" and any(split.contains(part, session.name)
-                                    for part in ("train", "val", "test")):
+    if split.kind == "time" and any(
+        split.contains(part, session.name) for part in ("train", "val", "test")
+    ):
         test = split.positions("test", session)
         return (test, False) if len(test) else (everything, True)
-    return everything, split.contains("train", session.name) or split.contains("val",
-                                                                             session.name)
+    return everything, split.contains("train", session.name) or split.contains("val", session.name)
 
 
-def write_predictions_csv(path: Path, frames: dict[str, dict[str, np.ndarray]],
-                          methods: Sequence[str], n_outputs: int) -> Path:
+def write_predictions_csv(
+    path: Path, frames: dict[str, dict[str, np.ndarray]], methods: Sequence[str], n_outputs: int
+) -> Path:
     """One row per scored frame: session, frame, time, measured and every method's force."""
     columns = [f"_{k}" for k in range(n_outputs)] if n_outputs > 1 else [""]
     with open(path, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
-        writer.writerow(["session", "frame", "time_s",
-                         *(f"{name}{c}_n" for name in ("measured", *methods) for c in columns)])
+        writer.writerow(
+            [
+                "session",
+                "frame",
+                "time_s",
+                *(f"{name}{c}_n" for name in ("measured", *methods) for c in columns),
+            ]
+        )
         for session, data in frames.items():
             t0 = data["times_ns"][0] if len(data["times_ns"]) else 0
             for i in range(len(data["times_ns"])):
                 values = [v for name in ("measured_n", *methods) for v in data[name][i]]
-                writer.writerow([session, int(data["frame_index"][i]),
-                                 f"{(data['times_ns'][i] - t0) / 1e9:.6f}",
-                                 *(f"{v:.6g}" for v in values)])
+                writer.writerow(
+                    [
+                        session,
+                        int(data["frame_index"][i]),
+                        f"{(data['times_ns'][i] - t0) / 1e9:.6f}",
+                        *(f"{v:.6g}" for v in values),
+                    ]
+                )
     return path
 
 
-def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out_dir: str | Path,
-             progress: ProgressFn | None = None) -> EvaluationReport:
+def evaluate(
+    model_path: str | Path,
+    sessions: Sequence[SessionLike] | None,
+    out_dir: str | Path,
+    progress: ProgressFn | None = None,
+) -> EvaluationReport:
     """Evaluate every estimator of a model file; writes metrics.json, predictions.csv,
     report.md/.html and PNGs.
 
@@ -133,12 +158,14 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
     if not sessions:
         sessions = model.split.test
         if not sessions:
-            raise EstimateError(f"{model_path} has no recorded test sessions: give the sessions "
-                                "to evaluate")
+            raise EstimateError(
+                f"{model_path} has no recorded test sessions: give the sessions to evaluate"
+            )
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    prepared = prepare_sessions(sessions, model.config, progress,
-                                texture=any(map(reads_texture, model.estimators.values())))
+    prepared = prepare_sessions(
+        sessions, model.config, progress, texture=any(map(reads_texture, model.estimators.values()))
+    )
     methods = [model.selected, *(m for m in model.estimators if m != model.selected)]
     label = target_label(model.config.target)
 
@@ -153,67 +180,113 @@ def evaluate(model_path: str | Path, sessions: Sequence[SessionLike] | None, out
         for method, force in per_method.items():
             predictions[method].append(force)
         measured.append(session.targets_n[positions])
-        frames[session.name] = {"times_ns": session.times_ns[positions],
-                                "frame_index": session.frame_index[positions],
-                                "measured_n": session.targets_n[positions], **per_method}
+        frames[session.name] = {
+            "times_ns": session.times_ns[positions],
+            "frame_index": session.frame_index[positions],
+            "measured_n": session.targets_n[positions],
+            **per_method,
+        }
         labels += [session.condition] * len(positions)
-        plots.append(plot_session(out_dir / f"force_{k:02d}_{safe_stem(session.name)}.png",
-                                  f"{session.name} ({session.condition})",
-                                  session.times_ns[positions], session.targets_n[positions],
-                                  per_method, label, model.selected))
+        plots.append(
+            plot_session(
+                out_dir / f"force_{k:02d}_{safe_stem(session.name)}.png",
+                f"{session.name} ({session.condition})",
+                session.times_ns[positions],
+                session.targets_n[positions],
+                per_method,
+                label,
+                model.selected,
+            )
+        )
         if progress is not None:
             progress("predict", k + 1, len(prepared))
 
     truth = np.concatenate(measured)
     label_array = np.asarray(labels)
-    errors = {m: np.linalg.norm(np.concatenate(p) - truth, axis=1)
-              for m, p in predictions.items()}
+    errors = {m: np.linalg.norm(np.concatenate(p) - truth, axis=1) for m, p in predictions.items()}
     intervals = bootstrap_intervals(errors, time_blocks([len(m) for m in measured]))
     metrics: dict[str, dict[str, Any]] = {}
     for method, parts in predictions.items():
         force = np.concatenate(parts)
         metrics[method] = {
             "overall": {**error_stats(force, truth), **intervals[method]},
-            "per_condition": {c: error_stats(force[label_array == c], truth[label_array == c])
-                              for c in sorted(set(labels))}}
-    plots.append(plot_scatter(out_dir / "scatter_selected.png", truth,
-                              np.concatenate(predictions[model.selected]), labels, label,
-                              model.selected))
+            "per_condition": {
+                c: error_stats(force[label_array == c], truth[label_array == c])
+                for c in sorted(set(labels))
+            },
+        }
+    plots.append(
+        plot_scatter(
+            out_dir / "scatter_selected.png",
+            truth,
+            np.concatenate(predictions[model.selected]),
+            labels,
+            label,
+            model.selected,
+        )
+    )
 
     names = [s.name for s in prepared]
     skipped = skipped_counts(prepared)
     split = model.split
-    split_note = (f"training {split.describe()}"
-                  + ("; scored on the held-out test ranges only" if split.kind == "time" else ""))
-    notes = [f"model {Path(model_path).name} (vbfe {model.record.get('vbfe_version')}), "
-             f"target {model.config.target} ({label})",
-             f"selected model: {model.selected}; validation MAE per method (N): " + ", ".join(
-                 f"{m} {v:.3f}" for m, v in model.record.get("validation_mae_n", {}).items()),
-             *(n for n in model.record.get("notes", []) if n.startswith("warning")),
-             split_note,
-             "MAE/RMSE 95 % intervals: bootstrap over contiguous time blocks "
-             f"({BOOTSTRAP_RESAMPLES} resamples of {len(time_blocks([len(m) for m in measured]))}"
-             " blocks)",
-             f"frames not scored: {sum(v['no_force'] for v in skipped.values())} without a "
-             f"force, {sum(v['no_cloud'] for v in skipped.values())} with too few points in "
-             "the region of interest"]
+    split_note = f"training {split.describe()}" + (
+        "; scored on the held-out test ranges only" if split.kind == "time" else ""
+    )
+    notes = [
+        f"model {Path(model_path).name} (vbfe {model.record.get('vbfe_version')}), "
+        f"target {model.config.target} ({label})",
+        f"selected model: {model.selected}; validation MAE per method (N): "
+        + ", ".join(f"{m} {v:.3f}" for m, v in model.record.get("validation_mae_n", {}).items()),
+        *(n for n in model.record.get("notes", []) if n.startswith("warning")),
+        split_note,
+        "MAE/RMSE 95 % intervals: bootstrap over contiguous time blocks "
+        f"({BOOTSTRAP_RESAMPLES} resamples of {len(time_blocks([len(m) for m in measured]))}"
+        " blocks)",
+        f"frames not scored: {sum(v['no_force'] for v in skipped.values())} without a "
+        f"force, {sum(v['no_cloud'] for v in skipped.values())} with too few points in "
+        "the region of interest",
+    ]
     if "hooke" in model.estimators:
-        notes.append("baselines fitted on the training frames only; Hooke uses one fitted "
-                     f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m")
+        notes.append(
+            "baselines fitted on the training frames only; Hooke uses one fitted "
+            f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m"
+        )
     if seen_in_training:
-        notes.append(f"WARNING: {len(seen_in_training)} evaluated session(s) were used in "
-                     "training; these numbers are not held-out")
-    csv_path = write_predictions_csv(out_dir / "predictions.csv", frames, methods,
-                                     model.config.n_outputs)
-    metrics_path = write_json(out_dir / "metrics.json", {
-        "model": str(model_path), "selected": model.selected, "target": model.config.target,
-        "sessions": names, "seen_in_training": seen_in_training,
-        "split": {"kind": split.kind, "gap_frames": split.gap_frames,
-                  "description": split.describe(), "blocks": split.blocks},
-        "skipped": skipped, "units": "N", "metrics": metrics})
+        notes.append(
+            f"WARNING: {len(seen_in_training)} evaluated session(s) were used in "
+            "training; these numbers are not held-out"
+        )
+    csv_path = write_predictions_csv(
+        out_dir / "predictions.csv", frames, methods, model.config.n_outputs
+    )
+    metrics_path = write_json(
+        out_dir / "metrics.json",
+        {
+            "model": str(model_path),
+            "selected": model.selected,
+            "target": model.config.target,
+            "sessions": names,
+            "seen_in_training": seen_in_training,
+            "split": {
+                "kind": split.kind,
+                "gap_frames": split.gap_frames,
+                "description": split.describe(),
+                "blocks": split.blocks,
+            },
+            "skipped": skipped,
+            "units": "N",
+            "metrics": metrics,
+        },
+    )
     md_path, html_path = write_tables(out_dir, metrics, notes, plots)
-    return EvaluationReport(out_dir=out_dir, metrics=metrics, sessions=names,
-                            seen_in_training=seen_in_training, skipped=skipped,
-                            selected=model.selected,
-                            files=[metrics_path, csv_path, md_path, html_path, *plots],
-                            split_description=split_note, frames=frames)
+    return EvaluationReport(
+        out_dir=out_dir,
+        metrics=metrics,
+        sessions=names,
+        seen_in_training=seen_in_training,
+        skipped=skipped,
+        selected=model.selected,
+        files=[metrics_path, csv_path, md_path, html_path, *plots],
+        split_description=split_note,
+        frames=frames,
+    )

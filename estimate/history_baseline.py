@@ -31,7 +31,7 @@ def history_features(displacement_m: np.ndarray, offsets: Sequence[int]) -> np.n
     """Frames × offsets: the displacement ``offset`` frames back (0 before the first frame)."""
     d = np.nan_to_num(np.asarray(displacement_m, np.float64), nan=0.0)
     n = len(d)
-    columns = [np.concatenate([np.zeros(min(o, n)), d[:max(n - o, 0)]]) for o in offsets]
+    columns = [np.concatenate([np.zeros(min(o, n)), d[: max(n - o, 0)]]) for o in offsets]
     return np.stack(columns, axis=1)
 
 
@@ -55,27 +55,41 @@ class HistoryBaseline:
                 h = np.maximum(h, 0.0)
         return h + self.y_mean
 
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None
+    ) -> np.ndarray:
         """Predicted force (used frames × outputs) of a prepared session."""
         history = history_features(session.displacement_m, self.offsets)
         return self.predict(history if positions is None else history[positions])
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "history_mlp", "offsets": list(self.offsets),
-                "x_mean": self.x_mean.tolist(), "x_scale": self.x_scale.tolist(),
-                "y_mean": self.y_mean.tolist(),
-                "layers": [[w.tolist(), b.tolist()] for w, b in self.layers]}
+        return {
+            "name": self.name,
+            "kind": "history_mlp",
+            "offsets": list(self.offsets),
+            "x_mean": self.x_mean.tolist(),
+            "x_scale": self.x_scale.tolist(),
+            "y_mean": self.y_mean.tolist(),
+            "layers": [[w.tolist(), b.tolist()] for w, b in self.layers],
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "HistoryBaseline":
+    def from_dict(cls, d: dict[str, Any]) -> HistoryBaseline:
         layers = tuple((np.asarray(w, float), np.asarray(b, float)) for w, b in d["layers"])
-        return cls(d["name"], tuple(int(o) for o in d["offsets"]),
-                   *(np.asarray(d[k], float) for k in ("x_mean", "x_scale", "y_mean")), layers)
+        return cls(
+            d["name"],
+            tuple(int(o) for o in d["offsets"]),
+            *(np.asarray(d[k], float) for k in ("x_mean", "x_scale", "y_mean")),
+            layers,
+        )
 
 
-def fit_history(parts: Sequence[tuple[PreparedSession, np.ndarray]], offsets: Sequence[int],
-                seed: int = 0, steps: int = STEPS) -> HistoryBaseline:
+def fit_history(
+    parts: Sequence[tuple[PreparedSession, np.ndarray]],
+    offsets: Sequence[int],
+    seed: int = 0,
+    steps: int = STEPS,
+) -> HistoryBaseline:
     """Fit the MLP on the given (training) frames: (session, used-frame positions)."""
     x = np.concatenate([history_features(s.displacement_m, offsets)[p] for s, p in parts])
     y = np.concatenate([s.targets_n[p] for s, p in parts])
@@ -84,9 +98,13 @@ def fit_history(parts: Sequence[tuple[PreparedSession, np.ndarray]], offsets: Se
     x_scale = np.where(x_scale > 1e-12, x_scale, 1.0)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        network = nn.Sequential(nn.Linear(len(offsets), HIDDEN), nn.ReLU(),
-                                nn.Linear(HIDDEN, HIDDEN), nn.ReLU(),
-                                nn.Linear(HIDDEN, y.shape[1]))
+        network = nn.Sequential(
+            nn.Linear(len(offsets), HIDDEN),
+            nn.ReLU(),
+            nn.Linear(HIDDEN, HIDDEN),
+            nn.ReLU(),
+            nn.Linear(HIDDEN, y.shape[1]),
+        )
     inputs = torch.from_numpy(((x - x_mean) / x_scale).astype(np.float32))
     targets = torch.from_numpy((y - y_mean).astype(np.float32))
     optimizer = torch.optim.Adam(network.parameters(), LEARNING_RATE, weight_decay=WEIGHT_DECAY)
@@ -95,7 +113,11 @@ def fit_history(parts: Sequence[tuple[PreparedSession, np.ndarray]], offsets: Se
         loss = nn.functional.smooth_l1_loss(network(inputs), targets)
         loss.backward()
         optimizer.step()
-    layers = tuple((m.weight.detach().double().numpy(), m.bias.detach().double().numpy())
-                   for m in network if isinstance(m, nn.Linear))
-    return HistoryBaseline("mlp_displacement_history", tuple(int(o) for o in offsets),
-                           x_mean, x_scale, y_mean, layers)
+    layers = tuple(
+        (m.weight.detach().double().numpy(), m.bias.detach().double().numpy())
+        for m in network
+        if isinstance(m, nn.Linear)
+    )
+    return HistoryBaseline(
+        "mlp_displacement_history", tuple(int(o) for o in offsets), x_mean, x_scale, y_mean, layers
+    )

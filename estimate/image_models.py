@@ -52,27 +52,38 @@ class RidgeThumbnail:
         """Predicted force (frames × outputs) from thumbnails (frames × size²)."""
         return ((np.asarray(x, float) - self.mean) / self.scale) @ self.weights + self.intercept
 
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None
+    ) -> np.ndarray:
         """Predicted force (frames × outputs) of a prepared session's used frames."""
         p = _positions(session, positions)
         return self.predict(thumbnails(session.image_sum[p], session.image_count[p], self.size))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "ridge", "size": self.size,
-                "mean": self.mean.tolist(), "scale": self.scale.tolist(),
-                "weights": self.weights.tolist(), "intercept": self.intercept.tolist(),
-                "alpha": self.alpha}
+        return {
+            "name": self.name,
+            "kind": "ridge",
+            "size": self.size,
+            "mean": self.mean.tolist(),
+            "scale": self.scale.tolist(),
+            "weights": self.weights.tolist(),
+            "intercept": self.intercept.tolist(),
+            "alpha": self.alpha,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "RidgeThumbnail":
-        return cls(d["name"], int(d["size"]), *(np.asarray(d[k], float) for k in
-                                                ("mean", "scale", "weights", "intercept")),
-                   float(d["alpha"]))
+    def from_dict(cls, d: dict[str, Any]) -> RidgeThumbnail:
+        return cls(
+            d["name"],
+            int(d["size"]),
+            *(np.asarray(d[k], float) for k in ("mean", "scale", "weights", "intercept")),
+            float(d["alpha"]),
+        )
 
 
-def _ridge_solve(x: np.ndarray, y: np.ndarray, alphas: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
+def _ridge_solve(
+    x: np.ndarray, y: np.ndarray, alphas: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Column means and scales of ``x``, the mean of ``y`` and ridge weights for every alpha."""
     mean = x.mean(axis=0)
     scale = x.std(axis=0)
@@ -80,15 +91,20 @@ def _ridge_solve(x: np.ndarray, y: np.ndarray, alphas: np.ndarray
     u, sv, vt = np.linalg.svd((x - mean) / scale, full_matrices=False)
     y_mean = y.mean(axis=0)
     uty = u.T @ (y - y_mean)
-    return mean, scale, y_mean, [vt.T @ ((sv / (sv ** 2 + a))[:, None] * uty) for a in alphas]
+    return mean, scale, y_mean, [vt.T @ ((sv / (sv**2 + a))[:, None] * uty) for a in alphas]
 
 
 def _alphas(n_frames: int, n_columns: int) -> np.ndarray:
     return np.logspace(-2, 5, 22) * n_frames / max(n_columns, 1)
 
 
-def _check_errors(x_fit: np.ndarray, y_fit: np.ndarray, x_check: np.ndarray,
-                  y_check: np.ndarray, alphas: np.ndarray) -> np.ndarray:
+def _check_errors(
+    x_fit: np.ndarray,
+    y_fit: np.ndarray,
+    x_check: np.ndarray,
+    y_check: np.ndarray,
+    alphas: np.ndarray,
+) -> np.ndarray:
     """Summed absolute (vector) error on the check frames of a fit for every alpha."""
     mean, scale, y_mean, weights = _ridge_solve(x_fit, y_fit, alphas)
     x = (x_check - mean) / scale
@@ -102,9 +118,15 @@ def _blocked_folds(n: int, groups: np.ndarray | None) -> list[np.ndarray]:
     return np.array_split(frames, min(RIDGE_FOLDS, n))
 
 
-def fit_ridge(x: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
-              x_val: np.ndarray | None = None, y_val: np.ndarray | None = None,
-              name: str = "ridge_height_map", size: int = 0) -> tuple[RidgeThumbnail, float]:
+def fit_ridge(
+    x: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray | None = None,
+    x_val: np.ndarray | None = None,
+    y_val: np.ndarray | None = None,
+    name: str = "ridge_height_map",
+    size: int = 0,
+) -> tuple[RidgeThumbnail, float]:
     """Ridge on ``x`` (frames × columns) with the penalty chosen on the validation frames, or
     without them by blocked cross-validation (``groups``: a session id per frame, one fold per
     session; else contiguous folds). Returns the fit and its mean check error."""
@@ -119,21 +141,30 @@ def fit_ridge(x: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None,
                 errors += _check_errors(x[fit], y[fit], x[fold], y[fold], alphas)
                 n_check += len(fold)
     best = int(np.argmin(errors))
-    mean, scale, y_mean, weights = _ridge_solve(x, y, alphas[best:best + 1])
-    return (RidgeThumbnail(name, size, mean, scale, weights[0], y_mean, float(alphas[best])),
-            float(errors[best] / max(n_check, 1)))
+    mean, scale, y_mean, weights = _ridge_solve(x, y, alphas[best : best + 1])
+    return (
+        RidgeThumbnail(name, size, mean, scale, weights[0], y_mean, float(alphas[best])),
+        float(errors[best] / max(n_check, 1)),
+    )
 
 
 def fit_ridge_thumbnails(train: Parts, val: Parts, sizes: Sequence[int]) -> RidgeThumbnail:
     """The ridge of the thumbnail size and penalty with the lowest validation MAE."""
+
     def stack(parts: Parts, size: int) -> np.ndarray:
-        return np.concatenate([thumbnails(s.image_sum[p], s.image_count[p], size)
-                               for s, p in parts])
+        return np.concatenate(
+            [thumbnails(s.image_sum[p], s.image_count[p], size) for s, p in parts]
+        )
+
     y = np.concatenate([s.targets_n[p] for s, p in train])
     groups = np.concatenate([np.full(len(p), k) for k, (_, p) in enumerate(train)])
     y_val = np.concatenate([s.targets_n[p] for s, p in val]) if val else None
-    fits = [fit_ridge(stack(train, size), y, groups, stack(val, size) if val else None, y_val,
-                      size=size) for size in sizes]
+    fits = [
+        fit_ridge(
+            stack(train, size), y, groups, stack(val, size) if val else None, y_val, size=size
+        )
+        for size in sizes
+    ]
     return min(fits, key=lambda fit: fit[1])[0]
 
 
@@ -144,11 +175,12 @@ class DepthCNN(nn.Module):
         super().__init__()
         self.hparams = {"n_outputs": n_outputs, "channels": list(channels)}
         layers: list[nn.Module] = []
-        for c_in, c_out in zip([2, *channels[:-1]], channels):
+        for c_in, c_out in zip([2, *channels[:-1]], channels, strict=False):
             layers += [nn.Conv2d(c_in, c_out, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2)]
         self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d(2), nn.Flatten())
-        self.head = nn.Sequential(nn.Linear(4 * channels[-1], CNN_HIDDEN), nn.ReLU(),
-                                  nn.Linear(CNN_HIDDEN, n_outputs))
+        self.head = nn.Sequential(
+            nn.Linear(4 * channels[-1], CNN_HIDDEN), nn.ReLU(), nn.Linear(CNN_HIDDEN, n_outputs)
+        )
         self.register_buffer("change_scale", torch.ones(1))
         self.register_buffer("target_mean", torch.zeros(n_outputs))
         self.register_buffer("target_std", torch.ones(n_outputs))
@@ -170,34 +202,45 @@ class CnnEstimator:
     network: DepthCNN
     name: str = "cnn_depth_change"
 
-    def predict_session(self, session: PreparedSession,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self, session: PreparedSession, positions: np.ndarray | None = None
+    ) -> np.ndarray:
         """Predicted force (frames × outputs) of a prepared session's used frames."""
         p = _positions(session, positions)
         self.network.eval()
         with torch.no_grad():
-            return self.network(self.network.inputs(session.image_sum[p],
-                                                    session.image_count[p])).double().numpy()
+            return (
+                self.network(self.network.inputs(session.image_sum[p], session.image_count[p]))
+                .double()
+                .numpy()
+            )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "cnn", "hparams": self.network.hparams,
-                "state_dict": self.network.state_dict()}
+        return {
+            "name": self.name,
+            "kind": "cnn",
+            "hparams": self.network.hparams,
+            "state_dict": self.network.state_dict(),
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "CnnEstimator":
+    def from_dict(cls, d: dict[str, Any]) -> CnnEstimator:
         network = DepthCNN(**d["hparams"])
         network.load_state_dict(d["state_dict"])
         return cls(network.eval(), d["name"])
 
 
 def _images(parts: Parts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (np.concatenate([s.image_sum[p] for s, p in parts]),
-            np.concatenate([s.image_count[p] for s, p in parts]),
-            np.concatenate([s.targets_n[p] for s, p in parts]).astype(np.float32))
+    return (
+        np.concatenate([s.image_sum[p] for s, p in parts]),
+        np.concatenate([s.image_count[p] for s, p in parts]),
+        np.concatenate([s.targets_n[p] for s, p in parts]).astype(np.float32),
+    )
 
 
-def fit_cnn(train: Parts, val: Parts, n_outputs: int, channels: Sequence[int], epochs: int,
-            seed: int) -> tuple[CnnEstimator, list[dict[str, float]]]:
+def fit_cnn(
+    train: Parts, val: Parts, n_outputs: int, channels: Sequence[int], epochs: int, seed: int
+) -> tuple[CnnEstimator, list[dict[str, float]]]:
     """Train the CNN on the training frames, keeping the epoch of lowest validation MAE (the
     last without validation frames); seeded without touching torch's global random state."""
     sums, counts, y = _images(train)
@@ -212,8 +255,9 @@ def fit_cnn(train: Parts, val: Parts, n_outputs: int, channels: Sequence[int], e
     x, targets = network.inputs(sums, counts), torch.from_numpy(y)
     check = _images(val) if val else None
     x_check = network.inputs(*check[:2]) if check else None
-    optimizer = torch.optim.Adam(network.parameters(), CNN_LEARNING_RATE,
-                                 weight_decay=CNN_WEIGHT_DECAY)
+    optimizer = torch.optim.Adam(
+        network.parameters(), CNN_LEARNING_RATE, weight_decay=CNN_WEIGHT_DECAY
+    )
     generator = torch.Generator().manual_seed(seed)
     best, best_state, history = float("inf"), None, []
     for epoch in range(1, epochs + 1):

@@ -24,8 +24,9 @@ class FramePredictor:
         self.model = model
         self.method = model.selected
         estimator = model.estimators[model.selected]
-        self._span = max([*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())],
-                         default=0)
+        self._span = max(
+            [*getattr(estimator, "window", ()), *getattr(estimator, "offsets", ())], default=0
+        )
         self.rng = np.random.default_rng(seed)  # the draws of every cloud's point pool
         self._texture = reads_texture(estimator)  # only then is the texture tracked
         self._preparer: FramePreparer | None = None
@@ -41,9 +42,11 @@ class FramePredictor:
         if self._preparer is None:
             preparer = FramePreparer(points, self.model.config, colors, self._texture)
             if self._texture and preparer.texture is None:
-                raise EstimateError(f"the model's {self.method} reads the tissue's texture, but "
-                                    f"{preparer.texture_reason}; use a model trained without it "
-                                    "(vbfe train --model ...)")
+                raise EstimateError(
+                    f"the model's {self.method} reads the tissue's texture, but "
+                    f"{preparer.texture_reason}; use a model trained without it "
+                    "(vbfe train --model ...)"
+                )
             self._preparer = preparer
         return self._preparer
 
@@ -59,8 +62,9 @@ class FramePredictor:
         """The features of one raw cloud (and its points' colours), as in training (the
         texture displacement only when the selected method reads it)."""
         preparer = self.preparer(points, colors)
-        return preparer.features(self.cropped(points), self.model.config.n_points, self.rng,
-                                 points, colors)
+        return preparer.features(
+            self.cropped(points), self.model.config.n_points, self.rng, points, colors
+        )
 
     def predict_features(self, features: FrameFeatures) -> np.ndarray:
         """Force (outputs,) of the newest frame's features (after the frames before it)."""
@@ -69,8 +73,15 @@ class FramePredictor:
             del self._frames[1]
         n = len(self._frames)
         session = PreparedSession.from_features(
-            "live", {}, self._frames, np.arange(n), np.arange(n),
-            np.zeros((n, self.n_outputs)), self.model.config, n_frames_total=n)
+            "live",
+            {},
+            self._frames,
+            np.arange(n),
+            np.arange(n),
+            np.zeros((n, self.n_outputs)),
+            self.model.config,
+            n_frames_total=n,
+        )
         return self.model.predict_session(session, positions=np.array([n - 1]))[0]
 
     def predict(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
@@ -81,5 +92,7 @@ class FramePredictor:
 
 def too_few_points() -> EstimateError:
     """The error for a cloud with too few points inside the model's region of interest."""
-    return EstimateError("the cloud has too few finite points inside the model's region of "
-                         "interest; check the reconstruction or the [train] roi")
+    return EstimateError(
+        "the cloud has too few finite points inside the model's region of "
+        "interest; check the reconstruction or the [train] roi"
+    )

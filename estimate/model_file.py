@@ -19,13 +19,13 @@ import torch
 
 from vbfe import __version__
 from vbfe.common.config import ConfigError
+from vbfe.common.files import atomic_path
+from vbfe.common.settings import parse_table
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.splits import SessionSplit
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.common.files import atomic_path
-from vbfe.common.settings import parse_table
 
 FORMAT = "vbfe-force-model"
 FORMAT_VERSION = 2
@@ -50,13 +50,18 @@ class ForceModel:
         """The fitted baselines (estimators that are not candidates)."""
         return {n: e for n, e in self.estimators.items() if n not in CANDIDATES.values()}
 
-    def predict_session(self, session: PreparedSession, method: str | None = None,
-                        positions: np.ndarray | None = None) -> np.ndarray:
+    def predict_session(
+        self,
+        session: PreparedSession,
+        method: str | None = None,
+        positions: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Force (frames × outputs) of the selected (or the named) method."""
         name = method or self.selected
         if name not in self.estimators:
-            raise EstimateError(f"this model file has no {name!r} estimator; it has "
-                                f"{', '.join(self.estimators)}")
+            raise EstimateError(
+                f"this model file has no {name!r} estimator; it has {', '.join(self.estimators)}"
+            )
         return self.estimators[name].predict_session(session, positions)
 
 
@@ -64,10 +69,14 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
     """Write the model file atomically (a temporary file renamed into place)."""
     path = Path(path)
     payload = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "vbfe_version": __version__,
-        "created_unix_ns": time.time_ns(), "config": model.config.to_dict(),
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "vbfe_version": __version__,
+        "created_unix_ns": time.time_ns(),
+        "config": model.config.to_dict(),
         "estimators": {name: e.to_dict() for name, e in model.estimators.items()},
-        "selected": model.selected, "record": model.record,
+        "selected": model.selected,
+        "record": model.record,
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
@@ -83,15 +92,20 @@ def load_model(path: str | Path) -> ForceModel:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for foreign files; all mean "not a model"
-        raise EstimateError(f"{path} is not a vbfe model file ({type(exc).__name__}); "
-                            "give the .pt file written by `vbfe train`") from None
+        raise EstimateError(
+            f"{path} is not a vbfe model file ({type(exc).__name__}); "
+            "give the .pt file written by `vbfe train`"
+        ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise EstimateError(f"{path} is not a vbfe model file; give the .pt file written by "
-                            "`vbfe train`")
+        raise EstimateError(
+            f"{path} is not a vbfe model file; give the .pt file written by `vbfe train`"
+        )
     if payload.get("format_version") != FORMAT_VERSION:
-        raise EstimateError(f"{path} is a format version {payload.get('format_version')!r} "
-                            f"model, this vbfe {__version__} reads format version "
-                            f"{FORMAT_VERSION}: retrain with `vbfe train`")
+        raise EstimateError(
+            f"{path} is a format version {payload.get('format_version')!r} "
+            f"model, this vbfe {__version__} reads format version "
+            f"{FORMAT_VERSION}: retrain with `vbfe train`"
+        )
     return _model_from_payload(payload, path)
 
 
@@ -103,8 +117,9 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
     retrain = "retrain with `vbfe train` or give the .pt file it wrote"
     for key, kind in _PAYLOAD_TYPES.items():
         if not isinstance(payload.get(key), kind):
-            raise EstimateError(f"{path} has no valid {key!r} entry (damaged model file); "
-                                f"{retrain}")
+            raise EstimateError(
+                f"{path} has no valid {key!r} entry (damaged model file); {retrain}"
+            )
     try:
         config = parse_table(TrainConfig, payload["config"], "train")
     except (ConfigError, EstimateError, ValueError, TypeError) as exc:
@@ -113,15 +128,25 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
     for name, stored in payload["estimators"].items():
         try:
             estimators[name] = estimator_from_dict(stored)
-        except (EstimateError, KeyError, TypeError, ValueError, AttributeError,
-                RuntimeError) as exc:
+        except (
+            EstimateError,
+            KeyError,
+            TypeError,
+            ValueError,
+            AttributeError,
+            RuntimeError,
+        ) as exc:
             first = str(exc).splitlines()[0][:200]
-            raise EstimateError(f"{path}: the {name} estimator is damaged ({first}); "
-                                f"{retrain}") from None
+            raise EstimateError(
+                f"{path}: the {name} estimator is damaged ({first}); {retrain}"
+            ) from None
     if payload["selected"] not in estimators:
-        raise EstimateError(f"{path}: the selected model {payload['selected']!r} is missing "
-                            f"(damaged model file); {retrain}")
+        raise EstimateError(
+            f"{path}: the selected model {payload['selected']!r} is missing "
+            f"(damaged model file); {retrain}"
+        )
     record = dict(payload["record"])
     record["vbfe_version"] = payload.get("vbfe_version")
-    return ForceModel(config=config, estimators=estimators, selected=payload["selected"],
-                      record=record)
+    return ForceModel(
+        config=config, estimators=estimators, selected=payload["selected"], record=record
+    )

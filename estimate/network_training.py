@@ -42,33 +42,51 @@ class FitOutcome:
 def resolve_device(name: str) -> torch.device:
     """``auto`` → CUDA when torch sees a GPU, else CPU; ``cuda`` without a GPU is an error."""
     if name == "cuda" and not torch.cuda.is_available():
-        raise EstimateError("--device cuda: torch sees no CUDA device here; use --device cpu "
-                            "or auto")
+        raise EstimateError(
+            "--device cuda: torch sees no CUDA device here; use --device cpu or auto"
+        )
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
     return torch.device(name)
 
 
-def build_network(config: TrainConfig, train_batches: FrameBatches,
-                   temporal: bool) -> PointNetRegressor:
-    hparams = dict(n_outputs=config.n_outputs, conv_channels=config.conv_channels,
-                   head_channels=config.head_channels, dropout=config.dropout,
-                   global_features=config.global_features, rest_depth=config.rest_depth)
-    network = (TemporalPointNet(n_frames=config.temporal_frames, **hparams) if temporal
-               else PointNetRegressor(**hparams))
+def build_network(
+    config: TrainConfig, train_batches: FrameBatches, temporal: bool
+) -> PointNetRegressor:
+    hparams = dict(
+        n_outputs=config.n_outputs,
+        conv_channels=config.conv_channels,
+        head_channels=config.head_channels,
+        dropout=config.dropout,
+        global_features=config.global_features,
+        rest_depth=config.rest_depth,
+    )
+    network = (
+        TemporalPointNet(n_frames=config.temporal_frames, **hparams)
+        if temporal
+        else PointNetRegressor(**hparams)
+    )
     targets = torch.from_numpy(train_batches.targets)
     with torch.no_grad():
-        features = torch.cat([network.cloud_features(points)
-                              for points, _ in train_batches.batches(256, rng=None)])
-    depth_std = (float(train_batches.pools[train_batches.frames, :, 3].std())
-                 if config.rest_depth else 1.0)
-    network.set_normalization(targets.mean(0), targets.std(0, unbiased=False),
-                              features.mean(0), features.std(0, unbiased=False), depth_std)
+        features = torch.cat(
+            [network.cloud_features(points) for points, _ in train_batches.batches(256, rng=None)]
+        )
+    depth_std = (
+        float(train_batches.pools[train_batches.frames, :, 3].std()) if config.rest_depth else 1.0
+    )
+    network.set_normalization(
+        targets.mean(0),
+        targets.std(0, unbiased=False),
+        features.mean(0),
+        features.std(0, unbiased=False),
+        depth_std,
+    )
     return network
 
 
-def _mean_loss(network: PointNetRegressor, batches: FrameBatches, batch_size: int,
-               device: torch.device) -> tuple[float, float]:
+def _mean_loss(
+    network: PointNetRegressor, batches: FrameBatches, batch_size: int, device: torch.device
+) -> tuple[float, float]:
     """(scaled MSE, MAE of the error vector in newtons) over all frames, fixed point draws."""
     network.eval()
     squared, absolute, n = 0.0, 0.0, 0
@@ -81,11 +99,18 @@ def _mean_loss(network: PointNetRegressor, batches: FrameBatches, batch_size: in
     return squared / n, absolute / n
 
 
-def fit_network(network: PointNetRegressor, train_batches: FrameBatches,
-                check_batches: FrameBatches | None, config: TrainConfig, epochs: int,
-                device: torch.device, rng: np.random.Generator, deadline: float | None,
-                progress: Callable[[int, int], None] | None,
-                warm_start: bool = False) -> FitOutcome:
+def fit_network(
+    network: PointNetRegressor,
+    train_batches: FrameBatches,
+    check_batches: FrameBatches | None,
+    config: TrainConfig,
+    epochs: int,
+    device: torch.device,
+    rng: np.random.Generator,
+    deadline: float | None,
+    progress: Callable[[int, int], None] | None,
+    warm_start: bool = False,
+) -> FitOutcome:
     """Train ``network`` in place; it ends with the best (or, without validation, last) weights.
 
     With ``warm_start`` the starting weights compete too (best epoch 0): a network that starts
@@ -93,17 +118,25 @@ def fit_network(network: PointNetRegressor, train_batches: FrameBatches,
     """
     network.to(device)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
-    steps_per_epoch = max(1, sum(1 for k in range(0, len(train_batches), config.batch_size)
-                                 if len(train_batches) - k >= 2))
+    steps_per_epoch = max(
+        1,
+        sum(
+            1
+            for k in range(0, len(train_batches), config.batch_size)
+            if len(train_batches) - k >= 2
+        ),
+    )
     total_steps = max(epochs * steps_per_epoch, 1)
     schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda step: 0.5 * (1.0 + math.cos(math.pi * min(step / total_steps, 1.0))))
+        optimizer, lambda step: 0.5 * (1.0 + math.cos(math.pi * min(step / total_steps, 1.0)))
+    )
     history: list[dict[str, float]] = []
     best_loss, best_epoch, best_state = float("inf"), -1, None
     start = {"epoch": 0}
     if warm_start and check_batches is not None:
         start["val_loss"], start["val_mae_n"] = _mean_loss(
-            network, check_batches, 4 * config.batch_size, device)
+            network, check_batches, 4 * config.batch_size, device
+        )
         best_loss, best_epoch = start["val_loss"], 0
         best_state = copy.deepcopy(network.state_dict())
     stopped_by = "epochs"
@@ -124,11 +157,15 @@ def fit_network(network: PointNetRegressor, train_batches: FrameBatches,
             if deadline is not None and time.monotonic() > deadline:
                 stopped_by = "time limit"
                 break
-        entry = {"epoch": epoch, "train_loss": total / max(count, 1),
-                 "lr": optimizer.param_groups[0]["lr"]}
+        entry = {
+            "epoch": epoch,
+            "train_loss": total / max(count, 1),
+            "lr": optimizer.param_groups[0]["lr"],
+        }
         if check_batches is not None:
             entry["val_loss"], entry["val_mae_n"] = _mean_loss(
-                network, check_batches, 4 * config.batch_size, device)
+                network, check_batches, 4 * config.batch_size, device
+            )
             if entry["val_loss"] < best_loss:
                 best_loss, best_epoch = entry["val_loss"], epoch
                 best_state = copy.deepcopy(network.state_dict())
@@ -145,9 +182,11 @@ def fit_network(network: PointNetRegressor, train_batches: FrameBatches,
     network.load_state_dict(best_state)
     network.to("cpu").eval()
     best = history[best_epoch - 1] if best_epoch else start
-    return FitOutcome(history=history, best_epoch=best_epoch,
-                      best_val_loss=best.get("val_loss", float("nan")),
-                      val_mae_n=best.get("val_mae_n", float("nan")), stopped_by=stopped_by,
-                      start_val_loss=start.get("val_loss", float("nan")))
-
-
+    return FitOutcome(
+        history=history,
+        best_epoch=best_epoch,
+        best_val_loss=best.get("val_loss", float("nan")),
+        val_mae_n=best.get("val_mae_n", float("nan")),
+        stopped_by=stopped_by,
+        start_val_loss=start.get("val_loss", float("nan")),
+    )

@@ -53,8 +53,9 @@ def diameter(points: torch.Tensor) -> torch.Tensor:
         return torch.stack(out)
 
 
-def normalize_clouds(points: torch.Tensor, weights: torch.Tensor | None = None
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
+def normalize_clouds(
+    points: torch.Tensor, weights: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Centre clouds (B×N×3) on their weighted centroid and scale by D_max into the unit sphere.
 
     Returns (normalised clouds, removed features B×4 = centroid x, y, z and D_max in metres);
@@ -69,14 +70,14 @@ def normalize_clouds(points: torch.Tensor, weights: torch.Tensor | None = None
 
 def _shared_mlp(channels: Sequence[int], n_in: int) -> nn.Sequential:
     layers: list[nn.Module] = []
-    for c_in, c_out in zip([n_in, *channels[:-1]], channels):
+    for c_in, c_out in zip([n_in, *channels[:-1]], channels, strict=False):
         layers += [nn.Conv1d(c_in, c_out, kernel_size=1), nn.BatchNorm1d(c_out), nn.ELU()]
     return nn.Sequential(*layers)
 
 
 def _head(n_in: int, channels: Sequence[int], dropout: float, n_outputs: int) -> nn.Sequential:
     layers: list[nn.Module] = []
-    for c_in, c_out in zip([n_in, *channels[:-1]], channels):
+    for c_in, c_out in zip([n_in, *channels[:-1]], channels, strict=False):
         layers += [nn.Linear(c_in, c_out), nn.BatchNorm1d(c_out), nn.ELU(), nn.Dropout(dropout)]
     layers.append(nn.Linear(channels[-1] if channels else n_in, n_outputs))
     return nn.Sequential(*layers)
@@ -86,13 +87,24 @@ class PointNetRegressor(nn.Module):
     """Point clouds (B×N×3, or B×N×4 with the rest depth change; metres, any point order) →
     force (B×n_outputs, newtons)."""
 
-    def __init__(self, n_outputs: int = 1, conv_channels: Sequence[int] = (64, 128, 1024),
-                 head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
-                 global_features: bool = True, rest_depth: bool = False) -> None:
+    def __init__(
+        self,
+        n_outputs: int = 1,
+        conv_channels: Sequence[int] = (64, 128, 1024),
+        head_channels: Sequence[int] = (512, 256),
+        dropout: float = 0.3,
+        global_features: bool = True,
+        rest_depth: bool = False,
+    ) -> None:
         super().__init__()
-        self.hparams = {"n_outputs": n_outputs, "conv_channels": list(conv_channels),
-                        "head_channels": list(head_channels), "dropout": dropout,
-                        "global_features": global_features, "rest_depth": rest_depth}
+        self.hparams = {
+            "n_outputs": n_outputs,
+            "conv_channels": list(conv_channels),
+            "head_channels": list(head_channels),
+            "dropout": dropout,
+            "global_features": global_features,
+            "rest_depth": rest_depth,
+        }
         self.global_features = global_features
         self.rest_depth = rest_depth
         self.features = _shared_mlp(conv_channels, 4 if rest_depth else 3)
@@ -105,9 +117,14 @@ class PointNetRegressor(nn.Module):
         if rest_depth:
             self.register_buffer("depth_scale", torch.ones(1))
 
-    def set_normalization(self, target_mean: torch.Tensor, target_std: torch.Tensor,
-                          feature_mean: torch.Tensor, feature_std: torch.Tensor,
-                          depth_std: float = 1.0) -> None:
+    def set_normalization(
+        self,
+        target_mean: torch.Tensor,
+        target_std: torch.Tensor,
+        feature_mean: torch.Tensor,
+        feature_std: torch.Tensor,
+        depth_std: float = 1.0,
+    ) -> None:
         """Set the force scaling, the global-feature standardisation and (with
         ``rest_depth``) the depth-change scale, all from training data."""
         self.target_mean.copy_(target_mean)
@@ -147,16 +164,22 @@ class TemporalPointNet(PointNetRegressor):
     at constant shape). The correction's output layer starts at zero.
     """
 
-    def __init__(self, n_outputs: int = 1, n_frames: int = 4,
-                 conv_channels: Sequence[int] = (64, 128, 1024),
-                 head_channels: Sequence[int] = (512, 256), dropout: float = 0.3,
-                 global_features: bool = True, rest_depth: bool = False) -> None:
-        super().__init__(n_outputs, conv_channels, head_channels, dropout, global_features,
-                         rest_depth)
+    def __init__(
+        self,
+        n_outputs: int = 1,
+        n_frames: int = 4,
+        conv_channels: Sequence[int] = (64, 128, 1024),
+        head_channels: Sequence[int] = (512, 256),
+        dropout: float = 0.3,
+        global_features: bool = True,
+        rest_depth: bool = False,
+    ) -> None:
+        super().__init__(
+            n_outputs, conv_channels, head_channels, dropout, global_features, rest_depth
+        )
         self.hparams["n_frames"] = n_frames
         self.n_frames = n_frames
-        self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout,
-                                 n_outputs)
+        self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout, n_outputs)
         last = self.motion_head[-1]
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)

@@ -78,14 +78,21 @@ class FrameFeatures:
 class FramePreparer:
     """The features of every cloud of one run, measured against its rest (first usable) cloud."""
 
-    def __init__(self, rest_points: np.ndarray, config: TrainConfig,
-                 rest_colors: np.ndarray | None = None, texture: bool = True) -> None:
+    def __init__(
+        self,
+        rest_points: np.ndarray,
+        config: TrainConfig,
+        rest_colors: np.ndarray | None = None,
+        texture: bool = True,
+    ) -> None:
         """``rest_colors``: the rest cloud's colours (N×3); with ``texture`` the texture is
         tracked when they show one (``texture_reason`` says why not otherwise)."""
         rest = crop_roi(rest_points, config)
         if len(rest) < MIN_FRAME_POINTS:
-            raise EstimateError(f"the rest cloud has {len(rest)} points inside the region of "
-                                "interest; start from a frame where the tissue is seen at rest")
+            raise EstimateError(
+                f"the rest cloud has {len(rest)} points inside the region of "
+                "interest; start from a frame where the tissue is seen at rest"
+            )
         self.config = config
         self._grid = DisplacementGrid(rest)
         self._image = DepthChangeImage(rest, config.image_cells)
@@ -100,27 +107,41 @@ class FramePreparer:
         cropped = crop_roi(points, self.config)
         return cropped if len(cropped) >= MIN_FRAME_POINTS else None
 
-    def features(self, cropped: np.ndarray, pool_size: int, rng: np.random.Generator,
-                 points: np.ndarray | None = None,
-                 colors: np.ndarray | None = None) -> FrameFeatures:
+    def features(
+        self,
+        cropped: np.ndarray,
+        pool_size: int,
+        rng: np.random.Generator,
+        points: np.ndarray | None = None,
+        colors: np.ndarray | None = None,
+    ) -> FrameFeatures:
         """Features of a cropped cloud (from ``cropped``) with a pool of ``pool_size`` points;
         the texture displacement from the whole cloud ``points`` and its ``colors``."""
         pool = sample_points(cropped, pool_size, rng)
         total, count = self._image.sums_counts(cropped)
-        texture = (self.texture.peak_displacement_m(points, colors)
-                   if self.texture is not None and points is not None else float("nan"))
-        return FrameFeatures(pool=self._pool(pool),
-                             displacement_m=self._grid.peak_displacement_m(cropped),
-                             image_sum=total, image_count=count,
-                             texture_displacement_m=texture)
+        texture = (
+            self.texture.peak_displacement_m(points, colors)
+            if self.texture is not None and points is not None
+            else float("nan")
+        )
+        return FrameFeatures(
+            pool=self._pool(pool),
+            displacement_m=self._grid.peak_displacement_m(cropped),
+            image_sum=total,
+            image_count=count,
+            texture_displacement_m=texture,
+        )
 
     def pool_features(self, pool: np.ndarray) -> FrameFeatures:
         """Features holding only a drawn point pool (a network reads nothing else): no
         displacement, an empty depth-change image."""
         cells = (self.config.image_cells,) * 2
-        return FrameFeatures(pool=self._pool(pool), displacement_m=float("nan"),
-                             image_sum=np.zeros(cells, np.float32),
-                             image_count=np.zeros(cells, np.float32))
+        return FrameFeatures(
+            pool=self._pool(pool),
+            displacement_m=float("nan"),
+            image_sum=np.zeros(cells, np.float32),
+            image_count=np.zeros(cells, np.float32),
+        )
 
     def _pool(self, pool: np.ndarray) -> np.ndarray:
         """The pool as the networks read it (with the rest depth change when configured)."""

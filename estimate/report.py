@@ -18,13 +18,18 @@ from matplotlib.figure import Figure
 from vbfe.common.files import save_figure, write_bytes_atomic
 from vbfe.common.report import HtmlReport
 
-METHOD_LABELS = {"pointnet": "PointNet", "temporal": "Temporal PointNet",
-                 "mean": "Mean predictor", "linear_displacement": "Linear on displacement",
-                 "hooke": "Hooke (fitted k̂)", "ridge_height_map": "Ridge on depth-change thumbnail",
-                 "cnn_depth_change": "CNN on depth-change image",
-                 "ensemble_cnn_hooke": "Mean of CNN and Hooke",
-                 "hooke_texture_3d": "Hooke on texture 3D displacement",
-                 "mlp_displacement_history": "MLP on displacement history"}
+METHOD_LABELS = {
+    "pointnet": "PointNet",
+    "temporal": "Temporal PointNet",
+    "mean": "Mean predictor",
+    "linear_displacement": "Linear on displacement",
+    "hooke": "Hooke (fitted k̂)",
+    "ridge_height_map": "Ridge on depth-change thumbnail",
+    "cnn_depth_change": "CNN on depth-change image",
+    "ensemble_cnn_hooke": "Mean of CNN and Hooke",
+    "hooke_texture_3d": "Hooke on texture 3D displacement",
+    "mlp_displacement_history": "MLP on displacement history",
+}
 
 
 def write_json(path: Path, data: dict[str, Any]) -> Path:
@@ -44,8 +49,11 @@ def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str]
         cells = []
         for m in methods:
             s = metrics[m]["overall"] if label == "all" else metrics[m]["per_condition"][label]
-            cell = (f"{s['mae_n']:.3f} ({s['sd_abs_error_n']:.3f})" if key == "mae"
-                    else f"{s['rmse_n']:.3f}")
+            cell = (
+                f"{s['mae_n']:.3f} ({s['sd_abs_error_n']:.3f})"
+                if key == "mae"
+                else f"{s['rmse_n']:.3f}"
+            )
             interval = s.get(f"{key}_ci95_n")
             cells.append(cell + (f" [{interval[0]:.3f}, {interval[1]:.3f}]" if interval else ""))
         rows.append([label, str(stats["n_frames"]), *cells])
@@ -58,11 +66,14 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
-def write_tables(out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Sequence[str],
-                 plots: Sequence[Path]) -> tuple[Path, Path]:
+def write_tables(
+    out_dir: Path, metrics: dict[str, dict[str, Any]], notes: Sequence[str], plots: Sequence[Path]
+) -> tuple[Path, Path]:
     """Write report.md and report.html: MAE (σ) and RMSE tables (newtons) plus notes and plots."""
-    sections = [("MAE (σ of absolute error) [95 % interval], N", metric_rows(metrics, "mae")),
-                ("RMSE [95 % interval], N", metric_rows(metrics, "rmse"))]
+    sections = [
+        ("MAE (σ of absolute error) [95 % interval], N", metric_rows(metrics, "mae")),
+        ("RMSE [95 % interval], N", metric_rows(metrics, "rmse")),
+    ]
     md = ["# Force estimation report", ""]
     page = HtmlReport("Force estimation report")
     for title, (header, rows) in sections:
@@ -87,9 +98,15 @@ def _plotted(force_n: np.ndarray) -> np.ndarray:
     return force[:, 0] if force.shape[1] == 1 else np.linalg.norm(force, axis=1)
 
 
-def plot_session(path: Path, title: str, times_ns: np.ndarray, measured_n: np.ndarray,
-                 predictions: dict[str, np.ndarray], ylabel: str = "|F| (N)",
-                 highlight: str = "pointnet") -> Path:
+def plot_session(
+    path: Path,
+    title: str,
+    times_ns: np.ndarray,
+    measured_n: np.ndarray,
+    predictions: dict[str, np.ndarray],
+    ylabel: str = "|F| (N)",
+    highlight: str = "pointnet",
+) -> Path:
     """Force versus time (``ylabel``: what one number per frame is): measured and every
     method's prediction, ``highlight`` drawn solid, as a PNG."""
     fig = Figure(figsize=(8, 4), dpi=100)
@@ -109,8 +126,14 @@ def plot_session(path: Path, title: str, times_ns: np.ndarray, measured_n: np.nd
     return save_figure(fig, path)
 
 
-def plot_scatter(path: Path, measured_n: np.ndarray, predicted_n: np.ndarray,
-                 labels: Sequence[str], axis: str = "|F| (N)", method: str = "pointnet") -> Path:
+def plot_scatter(
+    path: Path,
+    measured_n: np.ndarray,
+    predicted_n: np.ndarray,
+    labels: Sequence[str],
+    axis: str = "|F| (N)",
+    method: str = "pointnet",
+) -> Path:
     """Predicted versus measured force (``axis``: what is plotted), one colour per condition,
     with the identity line."""
     fig = Figure(figsize=(5, 5), dpi=100)

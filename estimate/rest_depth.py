@@ -24,8 +24,10 @@ class RestDepth:
         rest = np.asarray(rest_points, dtype=np.float64).reshape(-1, 3)
         rest = rest[np.isfinite(rest).all(axis=1)]
         if len(rest) == 0:
-            raise EstimateError("the rest cloud has no finite point; start from a frame where "
-                                "the tissue is seen at rest")
+            raise EstimateError(
+                "the rest cloud has no finite point; start from a frame where "
+                "the tissue is seen at rest"
+            )
         self._tree = cKDTree(rest[:, :2])
         self._z = rest[:, 2]
         self._k = min(NEIGHBOURS, len(rest))

@@ -90,8 +90,10 @@ def clouds_path_for(session_path: str | Path) -> Path:
     """The ``<session>.clouds.h5`` sidecar that ``vbfe reconstruct`` wrote next to a session."""
     clouds = sidecar_path(session_path)
     if not clouds.exists():
-        raise EstimateError(f"session {session_path} has no point clouds ({clouds.name} not "
-                            f"found): run `vbfe reconstruct {session_path}` first")
+        raise EstimateError(
+            f"session {session_path} has no point clouds ({clouds.name} not "
+            f"found): run `vbfe reconstruct {session_path}` first"
+        )
     return clouds
 
 
@@ -111,8 +113,10 @@ class RecordedSession:
         self._frame = _LastFrame(self._clouds)
         if self._clouds.n_frames != self._session.n_frames:
             self.close()
-            raise EstimateError(f"{clouds} has {self._clouds.n_frames} clouds but {self.path} has "
-                                f"{self._session.n_frames} frames: run `vbfe reconstruct` again")
+            raise EstimateError(
+                f"{clouds} has {self._clouds.n_frames} clouds but {self.path} has "
+                f"{self._session.n_frames} frames: run `vbfe reconstruct` again"
+            )
         self.name = str(self.path)
         self.n_frames = int(self._session.n_frames)
         self.conditions = dict(self._session.metadata.get("conditions") or {})
@@ -146,7 +150,8 @@ class ImportedClouds:
                 if labels is None or "force_n" not in labels:
                     raise EstimateError(
                         f"{self.path} holds point clouds but no forces; give the session .h5 "
-                        "it was reconstructed from, or create the file with `vbfe import`")
+                        "it was reconstructed from, or create the file with `vbfe import`"
+                    )
                 self._forces = np.asarray(labels["force_n"][()], dtype=np.float64)
                 self.conditions = dict(json.loads(labels.attrs.get("conditions_json", "{}")))
         except OSError as exc:
@@ -160,8 +165,10 @@ class ImportedClouds:
         self.n_frames = self._clouds.n_frames
         if len(self._forces) != self.n_frames:
             self.close()
-            raise EstimateError(f"{self.path} has {len(self._forces)} force rows for "
-                                f"{self.n_frames} clouds: import it again")
+            raise EstimateError(
+                f"{self.path} has {len(self._forces)} force rows for "
+                f"{self.n_frames} clouds: import it again"
+            )
 
     def frame_times_ns(self) -> np.ndarray:
         return np.asarray(self._clouds.frame_table("t_host_ns"), dtype=np.int64)
@@ -199,6 +206,9 @@ def condition_label(conditions: dict[str, Any]) -> str:
     ``label`` given at import)."""
     if conditions.get("label"):
         return str(conditions["label"])
-    parts = [f"{conditions[key]:g} {unit}" for key, unit in
-             (("stiffness_n_per_m", "N/m"), ("pull_speed_m_per_s", "m/s")) if key in conditions]
+    parts = [
+        f"{conditions[key]:g} {unit}"
+        for key, unit in (("stiffness_n_per_m", "N/m"), ("pull_speed_m_per_s", "m/s"))
+        if key in conditions
+    ]
     return " @ ".join(parts) if parts else "unknown"

@@ -90,30 +90,47 @@ class SessionSplit:
     def describe(self) -> str:
         """One line: the kind of split and its parts (time: frame ranges of every session)."""
         if self.kind == "session":
-            return (f"split by session: {len(self.train)} train, {len(self.val)} validation, "
-                    f"{len(self.test)} test session(s)")
+            return (
+                f"split by session: {len(self.train)} train, {len(self.val)} validation, "
+                f"{len(self.test)} test session(s)"
+            )
         names = list(dict.fromkeys(n for part in PARTS for n in self.blocks.get(part, {})))
         per_session = []
         for name in names:
-            parts = " ".join(f"{part} {_ranges_text(self.blocks.get(part, {}).get(name, []))}"
-                             for part in PARTS)
+            parts = " ".join(
+                f"{part} {_ranges_text(self.blocks.get(part, {}).get(name, []))}" for part in PARTS
+            )
             per_session.append(f"{os.path.basename(name)} {parts}")
-        return (f"split by frame ranges [start:stop) in time, gap {self.gap_frames} frames: "
-                + "; ".join(per_session))
+        return (
+            f"split by frame ranges [start:stop) in time, gap {self.gap_frames} frames: "
+            + "; ".join(per_session)
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"train": list(self.train), "val": list(self.val), "test": list(self.test),
-                "kind": self.kind, "gap_frames": self.gap_frames, "blocks": self.blocks}
+        return {
+            "train": list(self.train),
+            "val": list(self.val),
+            "test": list(self.test),
+            "kind": self.kind,
+            "gap_frames": self.gap_frames,
+            "blocks": self.blocks,
+        }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "SessionSplit":
-        return cls(train=list(d.get("train", [])), val=list(d.get("val", [])),
-                   test=list(d.get("test", [])), kind=d.get("kind", "session"),
-                   gap_frames=int(d.get("gap_frames", 0)), blocks=d.get("blocks", {}))
+    def from_dict(cls, d: dict[str, Any]) -> SessionSplit:
+        return cls(
+            train=list(d.get("train", [])),
+            val=list(d.get("val", [])),
+            test=list(d.get("test", [])),
+            kind=d.get("kind", "session"),
+            gap_frames=int(d.get("gap_frames", 0)),
+            blocks=d.get("blocks", {}),
+        )
 
 
-def split_by_session(sessions: Sequence[FramedSession], val_fraction: float,
-                     test_fraction: float, seed: int) -> SessionSplit:
+def split_by_session(
+    sessions: Sequence[FramedSession], val_fraction: float, test_fraction: float, seed: int
+) -> SessionSplit:
     """Split sessions (not frames) into train/val/test, stratified by condition.
 
     Within each condition the sessions are shuffled and dealt round-robin so that every part
@@ -141,7 +158,7 @@ def split_by_session(sessions: Sequence[FramedSession], val_fraction: float,
         n_test = max(0, min(n_test, n - 1 - n_val))
     reversed_order = ordered[::-1]  # the last repeats of each condition go to val/test
     test = reversed_order[:n_test]
-    val = reversed_order[n_test:n_test + n_val]
+    val = reversed_order[n_test : n_test + n_val]
     train = [name for name in ordered if name not in set(test) | set(val)]
     return SessionSplit(train=train, val=val, test=test)
 
@@ -149,15 +166,16 @@ def split_by_session(sessions: Sequence[FramedSession], val_fraction: float,
 def _ranges(frames: np.ndarray, mask: np.ndarray) -> list[list[int]]:
     """``[start, stop)`` frame-number ranges of the runs of True in ``mask`` over used frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [[int(frames[a]), int(frames[b - 1]) + 1] for a, b in zip(edges[::2], edges[1::2])]
+    return [[int(frames[a]), int(frames[b - 1]) + 1] for a, b in zip(edges[::2], edges[1::2], strict=False)]
 
 
-def _from_labels(sessions: Sequence[FramedSession], labels: Sequence[np.ndarray],
-                 gap_frames: int) -> SessionSplit:
+def _from_labels(
+    sessions: Sequence[FramedSession], labels: Sequence[np.ndarray], gap_frames: int
+) -> SessionSplit:
     """A time split from a part label per used frame (0 train, 1 val, 2 test, -1 none) of
     every session, with the gap cut out of the lower part at every boundary."""
     blocks: dict[str, dict[str, list[list[int]]]] = {part: {} for part in PARTS}
-    for s, label in zip(sessions, labels):
+    for s, label in zip(sessions, labels, strict=False):
         frames = np.asarray(s.frame_index)
         label = label.copy()
         for higher in (1, 2):
@@ -165,27 +183,40 @@ def _from_labels(sessions: Sequence[FramedSession], labels: Sequence[np.ndarray]
             if not len(held) or not gap_frames:
                 continue
             at = np.searchsorted(held, frames)
-            distance = np.minimum(np.abs(frames - held[np.clip(at, 0, len(held) - 1)]),
-                                  np.abs(frames - held[np.clip(at - 1, 0, len(held) - 1)]))
+            distance = np.minimum(
+                np.abs(frames - held[np.clip(at, 0, len(held) - 1)]),
+                np.abs(frames - held[np.clip(at - 1, 0, len(held) - 1)]),
+            )
             label[(label >= 0) & (label < higher) & (distance <= gap_frames)] = -1
         for k, part in enumerate(PARTS):
             ranges = _ranges(frames, label == k)
             if ranges:
                 blocks[part][s.name] = ranges
-    return SessionSplit(train=list(blocks["train"]), val=list(blocks["val"]),
-                        test=list(blocks["test"]), kind="time", gap_frames=gap_frames,
-                        blocks=blocks)
+    return SessionSplit(
+        train=list(blocks["train"]),
+        val=list(blocks["val"]),
+        test=list(blocks["test"]),
+        kind="time",
+        gap_frames=gap_frames,
+        blocks=blocks,
+    )
 
 
-def split_by_time(sessions: Sequence[FramedSession], val_fraction: float, test_fraction: float,
-                  gap_frames: int) -> SessionSplit:
+def split_by_time(
+    sessions: Sequence[FramedSession], val_fraction: float, test_fraction: float, gap_frames: int
+) -> SessionSplit:
     """Each session in time order: the first ``1 − val − test`` of its used frames train,
     then validation, then test (contiguous ranges, gaps between)."""
     labels = []
     for s in sessions:
         position = np.arange(s.n_used) / max(s.n_used, 1)
-        labels.append(np.where(position < 1 - val_fraction - test_fraction, 0,
-                               np.where(position < 1 - test_fraction, 1, 2)))
+        labels.append(
+            np.where(
+                position < 1 - val_fraction - test_fraction,
+                0,
+                np.where(position < 1 - test_fraction, 1, 2),
+            )
+        )
     return _from_labels(sessions, labels, gap_frames)
 
 
@@ -200,14 +231,17 @@ def parse_range(text: str, what: str) -> list[int]:
     return [start, stop]
 
 
-def split_by_ranges(sessions: Sequence[FramedSession], ranges: dict[str, list[int]]
-                    ) -> SessionSplit:
+def split_by_ranges(
+    sessions: Sequence[FramedSession], ranges: dict[str, list[int]]
+) -> SessionSplit:
     """The frame ranges a user stated (``part → [start, stop)``), the same in every session."""
     stated = sorted((r, part) for part, r in ranges.items() if r)
-    for (a, part_a), (b, part_b) in zip(stated, stated[1:]):
+    for (a, part_a), (b, part_b) in zip(stated, stated[1:], strict=False):
         if b[0] < a[1]:
-            raise EstimateError(f"frame ranges overlap: {part_a} {a[0]}:{a[1]} and {part_b} "
-                                f"{b[0]}:{b[1]}; give disjoint ranges")
+            raise EstimateError(
+                f"frame ranges overlap: {part_a} {a[0]}:{a[1]} and {part_b} "
+                f"{b[0]}:{b[1]}; give disjoint ranges"
+            )
     labels = []
     for s in sessions:
         frames = np.asarray(s.frame_index)
@@ -217,15 +251,18 @@ def split_by_ranges(sessions: Sequence[FramedSession], ranges: dict[str, list[in
                 a, b = ranges[part]
                 label[(frames >= a) & (frames < b)] = k
         if not (label == 0).any():
-            raise EstimateError(f"session {s.name} has no usable frame in the training range "
-                                f"{ranges['train'][0]}:{ranges['train'][1]} (frames "
-                                f"{frames.min()}..{frames.max()} are usable)")
+            raise EstimateError(
+                f"session {s.name} has no usable frame in the training range "
+                f"{ranges['train'][0]}:{ranges['train'][1]} (frames "
+                f"{frames.min()}..{frames.max()} are usable)"
+            )
         labels.append(label)
     return _from_labels(sessions, labels, 0)
 
 
-def split_folds(sessions: Sequence[FramedSession], folds: int, gap_frames: int
-                ) -> list[SessionSplit]:
+def split_folds(
+    sessions: Sequence[FramedSession], folds: int, gap_frames: int
+) -> list[SessionSplit]:
     """Blocked K-fold cross-validation: each session's used frames in ``folds`` contiguous
     blocks; fold k tests on block k, validates on block k − 1 (block 1 for the first fold)
     and trains on the rest, with the gap cut at every boundary."""
@@ -236,8 +273,9 @@ def split_folds(sessions: Sequence[FramedSession], folds: int, gap_frames: int
         labels = []
         for s in sessions:
             if s.n_used < folds:
-                raise EstimateError(f"session {s.name} has {s.n_used} usable frames, fewer than "
-                                    f"--folds {folds}")
+                raise EstimateError(
+                    f"session {s.name} has {s.n_used} usable frames, fewer than --folds {folds}"
+                )
             block = np.arange(s.n_used) * folds // s.n_used
             label = np.zeros(s.n_used, dtype=np.int64)
             label[block == (k - 1 if k else 1)] = 1

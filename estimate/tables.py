@@ -37,8 +37,10 @@ def _read_text(path: Path) -> str:
     except UnicodeDecodeError:
         text = ""
     if not text.strip() or "\x00" in text:
-        raise EstimateError(f"{path} is not a text table of numbers (empty or binary); give "
-                            "a CSV or whitespace-separated text file")
+        raise EstimateError(
+            f"{path} is not a text table of numbers (empty or binary); give "
+            "a CSV or whitespace-separated text file"
+        )
     return text
 
 
@@ -48,8 +50,10 @@ def _split(text: str) -> list[list[str]]:
     delimiter = next((d for d in DELIMITERS if d in lines[0]), None)
     if delimiter is None:
         return [line.split() for line in lines]
-    return [[field.strip() for field in row]
-            for row in csv.reader(io.StringIO("\n".join(lines)), delimiter=delimiter)]
+    return [
+        [field.strip() for field in row]
+        for row in csv.reader(io.StringIO("\n".join(lines)), delimiter=delimiter)
+    ]
 
 
 def read_table(path: str | Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
@@ -70,19 +74,24 @@ def read_table(path: str | Path, columns: Sequence[str]) -> dict[str, np.ndarray
         elif column.isdigit():
             index[column] = int(column)
         elif has_header:
-            raise EstimateError(f"{path} has no column {column!r}; its columns are {header} "
-                                "(or give column numbers, 0 = first)")
+            raise EstimateError(
+                f"{path} has no column {column!r}; its columns are {header} "
+                "(or give column numbers, 0 = first)"
+            )
         else:
-            raise EstimateError(f"{path} has no header row; name its columns by number "
-                                f"(0 = first), not {column!r}")
+            raise EstimateError(
+                f"{path} has no header row; name its columns by number (0 = first), not {column!r}"
+            )
     if not body:
         raise EstimateError(f"{path} holds no rows of numbers")
     width = min(len(row) for row in body)
     wanted = max(index.values())
     if wanted >= width:
         short = next(i for i, row in enumerate(body) if len(row) <= wanted)
-        raise EstimateError(f"{path}: row {short + has_header + 1} has {len(body[short])} "
-                            f"column(s); column {wanted} (0 = first) is asked for")
+        raise EstimateError(
+            f"{path}: row {short + has_header + 1} has {len(body[short])} "
+            f"column(s); column {wanted} (0 = first) is asked for"
+        )
     out = {}
     for column, k in index.items():
         values = np.empty(len(body))
@@ -91,7 +100,9 @@ def read_table(path: str | Path, columns: Sequence[str]) -> dict[str, np.ndarray
             try:
                 values[i] = float(text) if text else np.nan
             except ValueError:
-                raise EstimateError(f"{path}: row {i + has_header + 1}, column {column!r} holds "
-                                    f"{text[:20]!r}, not a number") from None
+                raise EstimateError(
+                    f"{path}: row {i + has_header + 1}, column {column!r} holds "
+                    f"{text[:20]!r}, not a number"
+                ) from None
         out[column] = values
     return out

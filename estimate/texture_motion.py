@@ -45,8 +45,9 @@ def _blur(image: np.ndarray, sigma_px: float, aspect: float) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), sigmaX=sigma_px, sigmaY=max(sigma_px * aspect, 0.3))
 
 
-def _normalised_blur(values: np.ndarray, seen: np.ndarray, sigma_px: float,
-                     aspect: float) -> tuple[np.ndarray, np.ndarray]:
+def _normalised_blur(
+    values: np.ndarray, seen: np.ndarray, sigma_px: float, aspect: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Blur of the seen ``values`` (0 elsewhere) and of the seen mask (its weight)."""
     mask = seen.astype(np.float32)
     filled = np.where(seen[..., None] if values.ndim == 3 else seen, values, 0)
@@ -56,8 +57,9 @@ def _normalised_blur(values: np.ndarray, seen: np.ndarray, sigma_px: float,
 class TextureMotion:
     """Texture tracking against a rest cloud; build it with :meth:`from_rest`."""
 
-    def __init__(self, rest_points: np.ndarray, rest_colors: np.ndarray,
-                 step: tuple[float, float]) -> None:
+    def __init__(
+        self, rest_points: np.ndarray, rest_colors: np.ndarray, step: tuple[float, float]
+    ) -> None:
         rest = _normalised(rest_points)
         self._step = np.asarray(step, np.float64)  # grid pitch along x and y (in x/z, y/z)
         self._aspect = float(self._step[0] / self._step[1])
@@ -69,20 +71,22 @@ class TextureMotion:
         self._rest_xyz = self._smoothed(rest_xyz)
         self._range = np.nanpercentile(texture, CONTRAST_PERCENTILES)
         filled, seen = self._filled(texture), np.isfinite(texture)
-        band = (_blur(filled, TEXTURE_BAND_PX[0], self._aspect)
-                - _blur(filled, TEXTURE_BAND_PX[1], self._aspect))
+        band = _blur(filled, TEXTURE_BAND_PX[0], self._aspect) - _blur(
+            filled, TEXTURE_BAND_PX[1], self._aspect
+        )
         mean = float(texture[seen].mean()) if seen.any() else 0.0
         self.contrast = float(band[seen].std() / mean) if mean > 0 else 0.0
         self._rest_texture = self._grey(texture)
         self._flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        grid = np.mgrid[0:self._shape[0], 0:self._shape[1]].astype(np.float32)
+        grid = np.mgrid[0 : self._shape[0], 0 : self._shape[1]].astype(np.float32)
         self._rows, self._cols = grid[0], grid[1]
         border = (2 * max(1, round(BORDER_PX * self._aspect)) + 1, 2 * BORDER_PX + 1)
         self._border = np.ones(border, np.uint8)
 
     @classmethod
-    def from_rest(cls, points: np.ndarray,
-                  colors: np.ndarray | None) -> tuple[TextureMotion | None, str]:
+    def from_rest(
+        cls, points: np.ndarray, colors: np.ndarray | None
+    ) -> tuple[TextureMotion | None, str]:
         """Tracking against a rest cloud (N×3 m, N×3 colours), or ``None`` and the reason."""
         if colors is None or len(colors) != len(points):
             return None, "the clouds carry no colours"
@@ -97,8 +101,10 @@ class TextureMotion:
             return None, "the rest cloud's pixel grid is too large"
         motion = cls(points, colors, step)
         if not motion.contrast >= MIN_TEXTURE_CONTRAST:
-            return None, (f"the surface shows no texture to track (contrast {motion.contrast:.3f}"
-                          f" < {MIN_TEXTURE_CONTRAST})")
+            return None, (
+                f"the surface shows no texture to track (contrast {motion.contrast:.3f}"
+                f" < {MIN_TEXTURE_CONTRAST})"
+            )
         return motion, ""
 
     def _maps(self, points: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -116,10 +122,12 @@ class TextureMotion:
         """A point grid (NaN where none) smoothed by a normalised Gaussian of
         ``POINT_SMOOTH_PX`` (the matcher's depth errors repeat with the fringes, a few pixels
         apart); NaN where under half the neighbourhood is seen."""
-        total, weight = _normalised_blur(points, np.isfinite(points).all(axis=-1),
-                                         POINT_SMOOTH_PX, self._aspect)
-        return np.where((weight > 0.5)[..., None], total / np.maximum(weight, 1e-6)[..., None],
-                        np.nan).astype(np.float32)
+        total, weight = _normalised_blur(
+            points, np.isfinite(points).all(axis=-1), POINT_SMOOTH_PX, self._aspect
+        )
+        return np.where(
+            (weight > 0.5)[..., None], total / np.maximum(weight, 1e-6)[..., None], np.nan
+        ).astype(np.float32)
 
     def _filled(self, image: np.ndarray) -> np.ndarray:
         """NaN holes filled from their neighbours (normalised Gaussian blur of ``FILL_PX``)."""
@@ -138,9 +146,14 @@ class TextureMotion:
         finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
         xyz, texture = self._maps(points[finite], np.asarray(colors, np.float32)[finite])
         flow = self._flow.calc(self._rest_texture, self._grey(texture), None)
-        moved = cv2.remap(self._smoothed(xyz), self._cols + flow[..., 0],
-                          self._rows + flow[..., 1], cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
+        moved = cv2.remap(
+            self._smoothed(xyz),
+            self._cols + flow[..., 0],
+            self._rows + flow[..., 1],
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=(np.nan,) * 3,
+        )
         return moved - self._rest_xyz
 
     def peak_displacement_m(self, points: np.ndarray, colors: np.ndarray | None) -> float:

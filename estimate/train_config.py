@@ -8,8 +8,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from vbfe.estimate.errors import EstimateError
 from vbfe.common.settings import parse_table, setting
+from vbfe.estimate.errors import EstimateError
 
 AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
@@ -89,23 +89,28 @@ class TrainConfig:
             raise EstimateError("[train] val_fraction and test_fraction must be in [0, 1)")
         for key, allowed in (("split", SPLITS), ("device", DEVICES)):
             if getattr(self, key) not in allowed:
-                raise EstimateError(f"[train] {key} must be one of {allowed}, "
-                                    f"not {getattr(self, key)!r}")
+                raise EstimateError(
+                    f"[train] {key} must be one of {allowed}, not {getattr(self, key)!r}"
+                )
         if self.model not in MODELS:
             raise EstimateError(f"[train] model must be one of {MODELS}, not {self.model!r}")
         if any(self.image_cells % size for size in self.ridge_sizes) or not self.ridge_sizes:
-            raise EstimateError(f"[train] ridge_sizes {self.ridge_sizes} must divide image_cells "
-                                f"{self.image_cells}")
+            raise EstimateError(
+                f"[train] ridge_sizes {self.ridge_sizes} must divide image_cells {self.image_cells}"
+            )
         for part in ("train", "val", "test"):
             stated = getattr(self, f"{part}_frames")
             if stated and (len(stated) != 2 or not 0 <= stated[0] < stated[1]):
-                raise EstimateError(f"[train] {part}_frames must be [start, stop) with "
-                                    "0 <= start < stop")
+                raise EstimateError(
+                    f"[train] {part}_frames must be [start, stop) with 0 <= start < stop"
+                )
         if (self.val_frames or self.test_frames) and not self.train_frames:
             raise EstimateError("stated frame ranges need the training range too (--train)")
         if self.folds in (1, 2):
-            raise EstimateError(f"--folds {self.folds}: blocked cross-validation needs at least 3 "
-                                "folds (test, validation and training blocks), or 0 for none")
+            raise EstimateError(
+                f"--folds {self.folds}: blocked cross-validation needs at least 3 "
+                "folds (test, validation and training blocks), or 0 for none"
+            )
         if self.train_frames and self.folds:
             raise EstimateError("give either frame ranges (--train/--val/--test) or --folds")
         for window in ("temporal", "history"):
@@ -118,15 +123,19 @@ class TrainConfig:
             widths = getattr(self, key)
             needs_one = key != "head_channels"
             if (needs_one and not widths) or any(w < 1 for w in widths):
-                raise EstimateError(f"[train] {key} = {widths}: give layer widths >= 1"
-                                    + (" (at least one layer)" if needs_one else ""))
+                raise EstimateError(
+                    f"[train] {key} = {widths}: give layer widths >= 1"
+                    + (" (at least one layer)" if needs_one else "")
+                )
 
     def _check_window(self, name: str) -> None:
         """A causal window (``{name}_frames`` over ``{name}_span_frames``) is off or >= 2 frames."""
         frames, span = getattr(self, f"{name}_frames"), getattr(self, f"{name}_span_frames")
         if frames < 0 or frames == 1 or (frames and span < frames - 1):
-            raise EstimateError(f"[train] {name}_frames must be 0 (off) or >= 2, and "
-                                f"{name}_span_frames >= {name}_frames - 1")
+            raise EstimateError(
+                f"[train] {name}_frames must be 0 (off) or >= 2, and "
+                f"{name}_span_frames >= {name}_frames - 1"
+            )
 
     @property
     def n_outputs(self) -> int:
@@ -144,7 +153,7 @@ class TrainConfig:
         return _window(self.history_span_frames, self.history_frames)
 
     @classmethod
-    def from_table(cls, table: dict[str, Any], **overrides: Any) -> "TrainConfig":
+    def from_table(cls, table: dict[str, Any], **overrides: Any) -> TrainConfig:
         """Build from the rig config's ``[train]`` table, then apply non-``None`` overrides
         (checked like the table's keys)."""
         values = dict(table)

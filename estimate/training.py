@@ -28,18 +28,34 @@ import numpy as np
 import torch
 
 from vbfe.estimate.baselines import fit_baselines
-from vbfe.estimate.candidates import (CANDIDATES, ENSEMBLE_MEMBERS, AnyEstimator,
-                                      MeanEnsemble, NetworkEstimator, candidate_names,
-                                      fit_texture_hooke)
-from vbfe.estimate.dataset import (FrameBatches, PreparedSession, ProgressFn, prepare_sessions,
-                                   skipped_counts)
+from vbfe.estimate.candidates import (
+    CANDIDATES,
+    ENSEMBLE_MEMBERS,
+    AnyEstimator,
+    MeanEnsemble,
+    NetworkEstimator,
+    candidate_names,
+    fit_texture_hooke,
+)
+from vbfe.estimate.dataset import (
+    FrameBatches,
+    PreparedSession,
+    ProgressFn,
+    prepare_sessions,
+    skipped_counts,
+)
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.network_training import build_network, fit_network, resolve_device
 from vbfe.estimate.sources import SessionLike
-from vbfe.estimate.splits import (SessionSplit, split_by_ranges, split_by_session,
-                                  split_by_time, split_folds)
+from vbfe.estimate.splits import (
+    SessionSplit,
+    split_by_ranges,
+    split_by_session,
+    split_by_time,
+    split_folds,
+)
 from vbfe.estimate.train_config import TrainConfig
 
 MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping, no selection
@@ -104,17 +120,23 @@ def frames_mae(predict: Any, parts: Sequence[tuple[PreparedSession, np.ndarray]]
 def make_split(prepared: Sequence[PreparedSession], config: TrainConfig) -> SessionSplit:
     """The split the config states: frame ranges, time (with ``folds``: always), or session."""
     if config.train_frames:
-        return split_by_ranges(prepared, {"train": config.train_frames,
-                                          "val": config.val_frames, "test": config.test_frames})
+        return split_by_ranges(
+            prepared,
+            {"train": config.train_frames, "val": config.val_frames, "test": config.test_frames},
+        )
     if config.split == "time" or config.folds:
-        return split_by_time(prepared, config.val_fraction, config.test_fraction,
-                             config.gap_frames)
+        return split_by_time(prepared, config.val_fraction, config.test_fraction, config.gap_frames)
     return split_by_session(prepared, config.val_fraction, config.test_fraction, config.seed)
 
 
-def _fit_networks(names: list[str], train_parts: Parts, val_parts: Parts, config: TrainConfig,
-                  progress: ProgressFn | None, notes: list[str]
-                  ) -> tuple[dict[str, NetworkEstimator], dict[str, Any]]:
+def _fit_networks(
+    names: list[str],
+    train_parts: Parts,
+    val_parts: Parts,
+    config: TrainConfig,
+    progress: ProgressFn | None,
+    notes: list[str],
+) -> tuple[dict[str, NetworkEstimator], dict[str, Any]]:
     """PointNet, then (when asked) the temporal model started from it."""
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
@@ -127,8 +149,11 @@ def _fit_networks(names: list[str], train_parts: Parts, val_parts: Parts, config
     histories: dict[str, Any] = {}
     for name, window in windows.items():
         train_batches = FrameBatches(train_parts, config.n_points, window)
-        check_batches = (FrameBatches(val_parts, config.n_points, window,
-                                      max_frames=config.val_max_frames) if val_parts else None)
+        check_batches = (
+            FrameBatches(val_parts, config.n_points, window, max_frames=config.val_max_frames)
+            if val_parts
+            else None
+        )
         network = build_network(config, train_batches, temporal=bool(window))
         epochs, stage = config.epochs, "epochs"
         if window:  # start as the trained single-frame network, motion correction at zero
@@ -136,74 +161,107 @@ def _fit_networks(names: list[str], train_parts: Parts, val_parts: Parts, config
             epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
         deadline = time.monotonic() + budget if budget > 0 else None
         started = time.perf_counter()
-        outcome = fit_network(network, train_batches, check_batches, config, epochs, device,
-                              rng, deadline, (lambda done, total, stage=stage:
-                                              progress(stage, done, total)) if progress else None,
-                              warm_start=bool(window))
+        outcome = fit_network(
+            network,
+            train_batches,
+            check_batches,
+            config,
+            epochs,
+            device,
+            rng,
+            deadline,
+            (lambda done, total, stage=stage: progress(stage, done, total)) if progress else None,
+            warm_start=bool(window),
+        )
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
-        histories[name] = {"fit_s": time.perf_counter() - started,
-                           "history": outcome.history, "best_epoch": outcome.best_epoch,
-                           "stopped_by": outcome.stopped_by,
-                           "start_val_loss": outcome.start_val_loss}
+        histories[name] = {
+            "fit_s": time.perf_counter() - started,
+            "history": outcome.history,
+            "best_epoch": outcome.best_epoch,
+            "stopped_by": outcome.stopped_by,
+            "start_val_loss": outcome.start_val_loss,
+        }
         if outcome.stopped_by == "time limit":
-            notes.append(f"warning: {name} was stopped by the time limit ({config.time_limit_s:g}"
-                         f" s) after {len(outcome.history)} of {epochs} epochs: this model "
-                         "depends on the machine's speed; raise --time-limit or set it to 0")
+            notes.append(
+                f"warning: {name} was stopped by the time limit ({config.time_limit_s:g}"
+                f" s) after {len(outcome.history)} of {epochs} epochs: this model "
+                "depends on the machine's speed; raise --time-limit or set it to 0"
+            )
     return fitted, histories
 
 
-def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: TrainConfig,
-              progress: ProgressFn | None = None) -> SplitFit:
+def fit_split(
+    prepared: Sequence[PreparedSession],
+    split: SessionSplit,
+    config: TrainConfig,
+    progress: ProgressFn | None = None,
+) -> SplitFit:
     """Fit baselines and candidates on ``split``'s training part, score all on validation and
     select the shipped model."""
     train_parts = split.frames("train", prepared)
     if not train_parts:
-        raise EstimateError("the split leaves no training frame; widen --train or lower "
-                            "--val-fraction/--test-fraction")
+        raise EstimateError(
+            "the split leaves no training frame; widen --train or lower "
+            "--val-fraction/--test-fraction"
+        )
     val_parts = split.frames("val", prepared)
     n_val = sum(len(p) for _, p in val_parts)
     notes = [split.describe()]
     if n_val < MIN_VAL_FRAMES:
-        notes.append(f"warning: too little data for a validation set ({n_val} frames; one "
-                     f"session, or too few for --val-fraction/--val): no early stopping, no "
-                     f"selection on held-out frames (fixed {config.epochs} epochs, last kept); "
-                     "the MAEs below are training MAEs")
+        notes.append(
+            f"warning: too little data for a validation set ({n_val} frames; one "
+            f"session, or too few for --val-fraction/--val): no early stopping, no "
+            f"selection on held-out frames (fixed {config.epochs} epochs, last kept); "
+            "the MAEs below are training MAEs"
+        )
         val_parts = []
     names = candidate_names(config.model, config.temporal_frames > 0)
     clock = time.perf_counter()
     estimators: dict[str, AnyEstimator] = dict(
-        fit_baselines(train_parts, config.history_window, config.seed))
+        fit_baselines(train_parts, config.history_window, config.seed)
+    )
     seconds = {"baselines": time.perf_counter() - clock}
     histories: dict[str, Any] = {}
     if {"pointnet", "temporal"} & set(names):
-        networks, histories = _fit_networks(names, train_parts, val_parts, config, progress,
-                                            notes)
+        networks, histories = _fit_networks(names, train_parts, val_parts, config, progress, notes)
         estimators.update(networks)
         seconds.update({name: h["fit_s"] for name, h in histories.items()})
     if CANDIDATES["ridge"] in names:
         clock = time.perf_counter()
-        estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(train_parts, val_parts,
-                                                               config.ridge_sizes)
+        estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(
+            train_parts, val_parts, config.ridge_sizes
+        )
         seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
     if {CANDIDATES["cnn"], CANDIDATES["ensemble"]} & set(names):  # the ensemble needs the CNN
         clock = time.perf_counter()
-        cnn, histories["cnn"] = fit_cnn(train_parts, val_parts, config.n_outputs,
-                                        config.cnn_channels, config.cnn_epochs, config.seed)
+        cnn, histories["cnn"] = fit_cnn(
+            train_parts,
+            val_parts,
+            config.n_outputs,
+            config.cnn_channels,
+            config.cnn_epochs,
+            config.seed,
+        )
         estimators[cnn.name] = cnn
         seconds[cnn.name] = time.perf_counter() - clock
     if CANDIDATES["ensemble"] in names:
         estimators[CANDIDATES["ensemble"]] = MeanEnsemble(
-            tuple(estimators[m] for m in ENSEMBLE_MEMBERS))
+            tuple(estimators[m] for m in ENSEMBLE_MEMBERS)
+        )
     if CANDIDATES["hooke_texture"] in names:
         texture_hooke = fit_texture_hooke(train_parts)
         if texture_hooke is None:
             names.remove(CANDIDATES["hooke_texture"])
-            notes.append(f"{CANDIDATES['hooke_texture']} skipped: no training frame has a texture"
-                         " displacement (the clouds carry no colours, or the surface shows no "
-                         "texture to track)")
+            notes.append(
+                f"{CANDIDATES['hooke_texture']} skipped: no training frame has a texture"
+                " displacement (the clouds carry no colours, or the surface shows no "
+                "texture to track)"
+            )
             if not names:
-                raise EstimateError("--model hooke_texture needs training clouds with the "
-                                    "colours of a textured surface; choose another --model")
+                raise EstimateError(
+                    "--model hooke_texture needs training clouds with the "
+                    "colours of a textured surface; choose another --model"
+                )
         else:
             estimators[texture_hooke.name] = texture_hooke
     check = val_parts or train_parts
@@ -213,8 +271,9 @@ def fit_split(prepared: Sequence[PreparedSession], split: SessionSplit, config: 
     return SplitFit(split, estimators, val_mae, selected, notes, histories, seconds)
 
 
-def _selection_note(selected: str, names: list[str], val_mae: dict[str, float],
-                    validated: bool) -> str:
+def _selection_note(
+    selected: str, names: list[str], val_mae: dict[str, float], validated: bool
+) -> str:
     """Which model ships and why; a warning when a baseline beats it on validation."""
     where = "validation" if validated else "training"
     baselines = {n: v for n, v in val_mae.items() if n not in CANDIDATES.values()}
@@ -222,13 +281,16 @@ def _selection_note(selected: str, names: list[str], val_mae: dict[str, float],
     how = "forced by --model" if len(names) == 1 else f"best of {len(names)} candidates"
     line = f"selected model: {selected} ({how}), {where} MAE {val_mae[selected]:.3f} N"
     if val_mae[selected] > baselines[best_baseline]:
-        return (f"warning: {line} LOSES to the baseline {best_baseline} "
-                f"({baselines[best_baseline]:.3f} N on {where})")
+        return (
+            f"warning: {line} LOSES to the baseline {best_baseline} "
+            f"({baselines[best_baseline]:.3f} N on {where})"
+        )
     return f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
 
 
-def cross_validate(prepared: Sequence[PreparedSession], config: TrainConfig,
-                   progress: ProgressFn | None = None) -> dict[str, Any]:
+def cross_validate(
+    prepared: Sequence[PreparedSession], config: TrainConfig, progress: ProgressFn | None = None
+) -> dict[str, Any]:
     """Blocked K-fold cross-validation in time: per fold the whole fit and selection, every
     method's test MAE; summary mean ± sd per method (``selected``: whatever each fold chose)."""
     folds = []
@@ -238,20 +300,34 @@ def cross_validate(prepared: Sequence[PreparedSession], config: TrainConfig,
         test = split.frames("test", prepared)
         mae = {name: frames_mae(e.predict_session, test) for name, e in fit.estimators.items()}
         mae["selected"] = mae[fit.selected]
-        folds.append({"split": split.to_dict(), "description": split.describe(),
-                      "selected": fit.selected, "test_mae_n": mae,
-                      "n_test_frames": int(sum(len(p) for _, p in test))})
+        folds.append(
+            {
+                "split": split.to_dict(),
+                "description": split.describe(),
+                "selected": fit.selected,
+                "test_mae_n": mae,
+                "n_test_frames": int(sum(len(p) for _, p in test)),
+            }
+        )
         if progress is not None:
             progress("folds", k + 1, len(splits))
     methods = list(folds[0]["test_mae_n"])
-    summary = {m: {"mean_mae_n": float(np.mean([f["test_mae_n"][m] for f in folds])),
-                   "sd_mae_n": float(np.std([f["test_mae_n"][m] for f in folds], ddof=1))}
-               for m in methods}
+    summary = {
+        m: {
+            "mean_mae_n": float(np.mean([f["test_mae_n"][m] for f in folds])),
+            "sd_mae_n": float(np.std([f["test_mae_n"][m] for f in folds], ddof=1)),
+        }
+        for m in methods
+    }
     return {"folds": folds, "summary": summary, "gap_frames": config.gap_frames}
 
 
-def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig | None = None,
-          progress: ProgressFn | None = None) -> TrainResult:
+def train(
+    sessions: Sequence[SessionLike],
+    out: str | Path,
+    config: TrainConfig | None = None,
+    progress: ProgressFn | None = None,
+) -> TrainResult:
     """Train on sessions (paths with clouds, imported clouds files, or ``SessionClouds``) and
     write the model file to ``out``.
 
@@ -263,8 +339,9 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     started = time.monotonic()
     with _training_threads(config.threads), torch.random.fork_rng(devices=[]):
         # tracking the texture triples a frame's preparation: only for the candidate reading it
-        texture = CANDIDATES["hooke_texture"] in candidate_names(config.model,
-                                                                 config.temporal_frames > 0)
+        texture = CANDIDATES["hooke_texture"] in candidate_names(
+            config.model, config.temporal_frames > 0
+        )
         prepared = prepare_sessions(sessions, config, progress, texture)
         if len({s.name for s in prepared}) != len(prepared):
             raise EstimateError("the same session was given twice; give each session once")
@@ -273,17 +350,33 @@ def train(sessions: Sequence[SessionLike], out: str | Path, config: TrainConfig 
     skipped = skipped_counts(prepared)
     pointnet = fit.histories.get("pointnet", {"history": [], "best_epoch": 0})
     record = {
-        "split": fit.split.to_dict(), "split_description": fit.split.describe(),
-        "selected": fit.selected, "validation_mae_n": fit.val_mae_n, "notes": fit.notes,
-        "histories": fit.histories, "fit_seconds": fit.fit_seconds, "skipped": skipped,
+        "split": fit.split.to_dict(),
+        "split_description": fit.split.describe(),
+        "selected": fit.selected,
+        "validation_mae_n": fit.val_mae_n,
+        "notes": fit.notes,
+        "histories": fit.histories,
+        "fit_seconds": fit.fit_seconds,
+        "skipped": skipped,
         "threads": config.threads,
-        "conditions": {s.name: s.conditions for s in prepared}, "cross_validation": cv,
+        "conditions": {s.name: s.conditions for s in prepared},
+        "cross_validation": cv,
     }
-    model = ForceModel(config=config, estimators=fit.estimators, selected=fit.selected,
-                       record=record)
+    model = ForceModel(
+        config=config, estimators=fit.estimators, selected=fit.selected, record=record
+    )
     path = save_model(out, model)
     return TrainResult(
-        model_path=path, split=fit.split, selected=fit.selected, val_mae_n=fit.val_mae_n,
-        epochs_run=len(pointnet["history"]), best_epoch=pointnet["best_epoch"],
-        history=pointnet["history"], skipped=skipped, duration_s=time.monotonic() - started,
-        fit_seconds=fit.fit_seconds, notes=fit.notes, cross_validation=cv)
+        model_path=path,
+        split=fit.split,
+        selected=fit.selected,
+        val_mae_n=fit.val_mae_n,
+        epochs_run=len(pointnet["history"]),
+        best_epoch=pointnet["best_epoch"],
+        history=pointnet["history"],
+        skipped=skipped,
+        duration_s=time.monotonic() - started,
+        fit_seconds=fit.fit_seconds,
+        notes=fit.notes,
+        cross_validation=cv,
+    )

@@ -8,6 +8,18 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.recon.session_recon import reconstruct_session
 from vbfe.recon.triangulate import FrameCloud, Reconstructor
 
-__all__ = ["CloudReader", "ColorModel", "FrameCloud", "ReconError", "Reconstructor",
-           "SgbmParams", "estimate_color_model", "export_ply", "make_pattern",
-           "reconstruct_session", "save_pattern", "sidecar_path", "write_ply"]
+__all__ = [
+    "CloudReader",
+    "ColorModel",
+    "FrameCloud",
+    "ReconError",
+    "Reconstructor",
+    "SgbmParams",
+    "estimate_color_model",
+    "export_ply",
+    "make_pattern",
+    "reconstruct_session",
+    "save_pattern",
+    "sidecar_path",
+    "write_ply",
+]

@@ -44,9 +44,15 @@ FORMAT_NAME = "vbfe-clouds"
 FORMAT_VERSION = 3
 DISPARITY_COLUMNS = ["min", "median", "max", "mean"]
 COUNT_COLUMNS = ["sgbm_matches", "kept", "corrected", "rejected"]
-FRAME_TABLES = {"frame_index": np.int64, "t_host_ns": np.int64, "valid_fraction": np.float32,
-                "disparity_px": np.float32, "match_counts": np.int64,
-                "decoded_fraction": np.float32, "edge_fraction": np.float32}
+FRAME_TABLES = {
+    "frame_index": np.int64,
+    "t_host_ns": np.int64,
+    "valid_fraction": np.float32,
+    "disparity_px": np.float32,
+    "match_counts": np.int64,
+    "decoded_fraction": np.float32,
+    "edge_fraction": np.float32,
+}
 
 
 def sidecar_path(session_path: str | Path) -> Path:
@@ -78,8 +84,9 @@ FREE_MARGIN_BYTES = 4 << 20  # left free while writing: HDF5's chunk caches and 
 class CloudWriter:
     """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
 
-    def __init__(self, path: str | Path, attrs: dict[str, object],
-                 calibration_yaml: str | None) -> None:
+    def __init__(
+        self, path: str | Path, attrs: dict[str, object], calibration_yaml: str | None
+    ) -> None:
         self.path = Path(path)
         require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         try:
@@ -87,33 +94,44 @@ class CloudWriter:
         except OSError as exc:
             raise ReconError(f"cannot create cloud file {self.path}: {exc}") from None
         f = self._file
-        f.attrs.update({"format": FORMAT_NAME, "format_version": FORMAT_VERSION,
-                        "complete": False, **attrs})
+        f.attrs.update(
+            {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "complete": False, **attrs}
+        )
         if calibration_yaml is not None:  # clouds imported from elsewhere have none
-            f.create_dataset("calibration_yaml", data=calibration_yaml,
-                             dtype=h5py.string_dtype())
-        f.create_dataset("points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3),
-                         compression="lzf").attrs["units"] = "m"
-        f.create_dataset("colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3),
-                         compression="lzf").attrs["channel_order"] = "RGB"
-        f.create_dataset("verified", (0,), bool, maxshape=(None,), chunks=(65536,),
-                         compression="lzf")
+            f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
+        f.create_dataset(
+            "points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3), compression="lzf"
+        ).attrs["units"] = "m"
+        f.create_dataset(
+            "colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3), compression="lzf"
+        ).attrs["channel_order"] = "RGB"
+        f.create_dataset(
+            "verified", (0,), bool, maxshape=(None,), chunks=(65536,), compression="lzf"
+        )
         self._frames: dict[str, list] = {name: [] for name in FRAME_TABLES}
         self._offsets = [0]
 
-    def append(self, frame_index: int, t_host_ns: int, points: np.ndarray, colors: np.ndarray,
-               stats: dict[str, object], verified: np.ndarray | None = None) -> None:
+    def append(
+        self,
+        frame_index: int,
+        t_host_ns: int,
+        points: np.ndarray,
+        colors: np.ndarray,
+        stats: dict[str, object],
+        verified: np.ndarray | None = None,
+    ) -> None:
         """Add the next frame's cloud, its points' verified flags (default: none verified) and
         statistics (``stats``: the other per-frame tables, see :data:`FRAME_TABLES`)."""
-        require_free_space(self.path.parent, points.nbytes + colors.nbytes + FREE_MARGIN_BYTES,
-                           "the point clouds")  # stop before HDF5 meets a full disk
+        require_free_space(
+            self.path.parent, points.nbytes + colors.nbytes + FREE_MARGIN_BYTES, "the point clouds"
+        )  # stop before HDF5 meets a full disk
         start, n = self._offsets[-1], len(points)
         if verified is None:
             verified = np.zeros(n, bool)
         for name, data in (("points", points), ("colors", colors), ("verified", verified)):
             ds = self._file[name]
             ds.resize(start + n, axis=0)
-            ds[start:start + n] = data
+            ds[start : start + n] = data
         self._offsets.append(start + n)
         for name, value in {**stats, "frame_index": frame_index, "t_host_ns": t_host_ns}.items():
             self._frames[name].append(value)
@@ -153,8 +171,10 @@ class CloudReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise ReconError(f"cloud file {self.path} does not exist; create it with "
-                             f"'vbfe reconstruct SESSION.h5'")
+            raise ReconError(
+                f"cloud file {self.path} does not exist; create it with "
+                f"'vbfe reconstruct SESSION.h5'"
+            )
         try:
             self._file = h5py.File(self.path, "r")
         except OSError as exc:
@@ -162,30 +182,44 @@ class CloudReader:
         attrs = self._file.attrs
         if attrs.get("format") != FORMAT_NAME or not attrs.get("complete", False):
             self._file.close()
-            raise ReconError(f"{self.path} is not a complete vbfe cloud file (interrupted "
-                             f"reconstruction?); run 'vbfe reconstruct' again")
+            raise ReconError(
+                f"{self.path} is not a complete vbfe cloud file (interrupted "
+                f"reconstruction?); run 'vbfe reconstruct' again"
+            )
         try:
             self._offsets = self._file["offsets"][()]
             n_points = len(self._file["points"]), len(self._file["colors"])
         except (KeyError, OSError) as exc:
             self._file.close()
-            raise ReconError(f"{self.path} is damaged ({' '.join(str(exc).split())}); run "
-                             "'vbfe reconstruct' again") from None
-        if len(self._offsets) < 1 or self._offsets[0] != 0 or np.any(np.diff(self._offsets) < 0) \
-                or not self._offsets[-1] == n_points[0] == n_points[1]:
+            raise ReconError(
+                f"{self.path} is damaged ({' '.join(str(exc).split())}); run "
+                "'vbfe reconstruct' again"
+            ) from None
+        if (
+            len(self._offsets) < 1
+            or self._offsets[0] != 0
+            or np.any(np.diff(self._offsets) < 0)
+            or not self._offsets[-1] == n_points[0] == n_points[1]
+        ):
             self._file.close()
-            raise ReconError(f"{self.path} is damaged (its frame offsets do not match its "
-                             "points); run 'vbfe reconstruct' again")
+            raise ReconError(
+                f"{self.path} is damaged (its frame offsets do not match its "
+                "points); run 'vbfe reconstruct' again"
+            )
 
     def close(self) -> None:
         """Close the file."""
         self._file.close()
 
-    def __enter__(self) -> "CloudReader":
+    def __enter__(self) -> CloudReader:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
     @property
@@ -219,8 +253,10 @@ class CloudReader:
         try:
             return self._file["points"][start:stop], self._file["colors"][start:stop]
         except OSError:
-            raise ReconError(f"{self.path}: frame {i} cannot be read (the stored bytes changed "
-                             "after writing); run 'vbfe reconstruct' again") from None
+            raise ReconError(
+                f"{self.path}: frame {i} cannot be read (the stored bytes changed "
+                "after writing); run 'vbfe reconstruct' again"
+            ) from None
 
     def verified(self, i: int) -> np.ndarray:
         """Frame ``i``'s verified flag per point (N bool). Files before version 3 kept only
@@ -229,14 +265,15 @@ class CloudReader:
         if "verified" not in self._file:
             return np.full(len(points), bool(self._file.attrs.get("verify", False)))
         i %= self.n_frames
-        return self._file["verified"][int(self._offsets[i]):int(self._offsets[i + 1])]
+        return self._file["verified"][int(self._offsets[i]) : int(self._offsets[i + 1])]
 
     def frame_table(self, name: str) -> np.ndarray:
         """A per-frame array named in :data:`FRAME_TABLES` (quality tables missing from a
         version-1 file read as NaN)."""
         if name not in FRAME_TABLES:
-            raise ReconError(f"{self.path} has no per-frame table {name!r}; known: "
-                             f"{sorted(FRAME_TABLES)}")
+            raise ReconError(
+                f"{self.path} has no per-frame table {name!r}; known: {sorted(FRAME_TABLES)}"
+            )
         if name not in self._file:
             return np.full(self.n_frames, np.nan, np.float32)
         return self._file[name][()]
@@ -263,9 +300,14 @@ def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None =
         for k, channel in enumerate(("red", "green", "blue")):
             vertices[channel] = colours[:, k]
     types = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", "comment units m",
-              f"element vertex {len(points)}",
-              *(f"property {types[t]} {name}" for name, t in fields), "end_header"]
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment units m",
+        f"element vertex {len(points)}",
+        *(f"property {types[t]} {name}" for name, t in fields),
+        "end_header",
+    ]
     try:
         with open(path, "wb") as fh:
             fh.write(("\n".join(header) + "\n").encode("ascii"))
@@ -275,13 +317,16 @@ def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None =
     return path
 
 
-def export_ply(clouds_path: str | Path, out_dir: str | Path,
-               frames: list[int] | None = None) -> list[Path]:
+def export_ply(
+    clouds_path: str | Path, out_dir: str | Path, frames: list[int] | None = None
+) -> list[Path]:
     """Write ``frame_000123.ply`` files for the given (default: all) frames of a sidecar."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with CloudReader(clouds_path) as reader:
         indices = reader.frame_table("frame_index")
         chosen = range(reader.n_frames) if frames is None else frames
-        return [write_ply(out_dir / f"frame_{int(indices[i]):06d}.ply", *reader.cloud(i))
-                for i in chosen]
+        return [
+            write_ply(out_dir / f"frame_{int(indices[i]):06d}.ply", *reader.cloud(i))
+            for i in chosen
+        ]

@@ -25,8 +25,13 @@ from vbfe.recon import kernels
 from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
-FLAT_BGR = {"blue": (255, 0, 0), "green": (0, 255, 0), "red": (0, 0, 255), "black": (0, 0, 0),
-            "white": (255, 255, 255)}
+FLAT_BGR = {
+    "blue": (255, 0, 0),
+    "green": (0, 255, 0),
+    "red": (0, 0, 255),
+    "black": (0, 0, 0),
+    "white": (255, 255, 255),
+}
 MIN_SIGNAL = 8.0  # grey levels above black for a pixel to take part in the estimate
 DARK_FRACTION = 0.25  # local contrast below this share of the image's contrast stays dark
 SPAN_PERCENTILE = 99  # the image's contrast: this percentile of the local ranges
@@ -41,18 +46,20 @@ class ColorModel:
     offset: np.ndarray
 
     @classmethod
-    def identity(cls) -> "ColorModel":
+    def identity(cls) -> ColorModel:
         """No crosstalk, no ambient light."""
         return cls(np.eye(3), np.zeros(3))
 
     @classmethod
-    def from_calibration(cls, calibration: Calibration) -> "ColorModel":
+    def from_calibration(cls, calibration: Calibration) -> ColorModel:
         """The calibration's ``color_mixing``/``color_offset``, or identity when it has none."""
         if calibration.color_mixing is None:
             return cls.identity()
         offset = calibration.color_offset
-        return cls(np.asarray(calibration.color_mixing, float).reshape(3, 3),
-                   np.zeros(3) if offset is None else np.asarray(offset, float).reshape(3))
+        return cls(
+            np.asarray(calibration.color_mixing, float).reshape(3, 3),
+            np.zeros(3) if offset is None else np.asarray(offset, float).reshape(3),
+        )
 
     def apply_to(self, calibration: Calibration) -> Calibration:
         """A copy of a :class:`vbfe.calib.Calibration` that carries this colour model."""
@@ -68,14 +75,16 @@ class ColorModel:
         if not albedo_window_px:
             offset = tuple(float(v) for v in self.offset) + (0.0,)
             signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
-            return cv2.transform(np.maximum(signal, 0.0),
-                                 np.linalg.inv(self.mixing).astype(np.float32))
+            return cv2.transform(
+                np.maximum(signal, 0.0), np.linalg.inv(self.mixing).astype(np.float32)
+            )
         normalised = remove_base_color(self._signal(image), int(albedo_window_px))
         unmix = self._albedo_unmix
         return normalised if unmix is None else cv2.transform(normalised, unmix)
 
-    def fringe_colour(self, image: np.ndarray, albedo_window_px: int
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def fringe_colour(
+        self, image: np.ndarray, albedo_window_px: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``max(correct(image, albedo_window_px), 0)`` and its channel sum (float32 H×W): after
         the correction one channel carries a fringe, and the sum is its brightness."""
         value = np.empty(image.shape[:2], np.float32)
@@ -109,14 +118,18 @@ def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
     """Fit ``K`` and ``C0`` from captures named blue, green, red, black and white (BGR images)."""
     missing = [name for name in CAPTURE_NAMES if name not in captures]
     if missing:
-        raise ReconError(f"colour calibration needs captures of flat {missing} projections; "
-                         f"project each colour full-screen and capture it")
+        raise ReconError(
+            f"colour calibration needs captures of flat {missing} projections; "
+            f"project each colour full-screen and capture it"
+        )
     black = np.asarray(captures["black"], np.float64).reshape(-1, 3)
     white = np.asarray(captures["white"], np.float64).reshape(-1, 3) - black
     bright = np.all(white > MIN_SIGNAL, axis=1)
     if bright.sum() < 100:
-        raise ReconError("colour calibration: the white capture is not brighter than the black "
-                         "one; check the projector is on and lights the scene")
+        raise ReconError(
+            "colour calibration: the white capture is not brighter than the black "
+            "one; check the projector is on and lights the scene"
+        )
     columns = []
     for name in CAPTURE_NAMES[:3]:
         response = np.asarray(captures[name], np.float64).reshape(-1, 3) - black
@@ -124,13 +137,20 @@ def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
     mixing = np.stack(columns, axis=1)
     mixing /= mixing.sum(axis=1, keepdims=True)
     if abs(np.linalg.det(mixing)) < 1e-3:
-        raise ReconError("colour calibration: the red, green and blue captures are not distinct "
-                         "(mixing matrix is singular); check the projections and exposure")
+        raise ReconError(
+            "colour calibration: the red, green and blue captures are not distinct "
+            "(mixing matrix is singular); check the projections and exposure"
+        )
     return ColorModel(mixing=mixing, offset=np.median(black, axis=0))
 
 
-def capture_color_model(camera: StereoCamera, projector: Projector, frames: int = 3,
-                        settle_s: float = 0.15, timeout_s: float = 2.0) -> ColorModel:
+def capture_color_model(
+    camera: StereoCamera,
+    projector: Projector,
+    frames: int = 3,
+    settle_s: float = 0.15,
+    timeout_s: float = 2.0,
+) -> ColorModel:
     """Fit the colour model from a calibration capture: each flat projection of
     :func:`color_calibration_patterns` is shown, the frames that arrived less than
     ``settle_s`` after the projector reported it are dropped (projector latency and exposure)
@@ -143,15 +163,18 @@ def capture_color_model(camera: StereoCamera, projector: Projector, frames: int 
         while len(views) < frames:
             frame = camera.read_after(due_ns, timeout_s)
             if frame is None:
-                raise ReconError(f"colour calibration: no camera frame within {timeout_s} s "
-                                 f"while projecting flat {name}; check the camera")
+                raise ReconError(
+                    f"colour calibration: no camera frame within {timeout_s} s "
+                    f"while projecting flat {name}; check the camera"
+                )
             views.append(np.concatenate([frame.left, frame.right], axis=1))
         captures[name] = np.mean(views, axis=0)
     return estimate_color_model(captures)
 
 
-def remove_base_color(signal: np.ndarray, window_px: int,
-                      value: np.ndarray | None = None) -> np.ndarray:
+def remove_base_color(
+    signal: np.ndarray, window_px: int, value: np.ndarray | None = None
+) -> np.ndarray:
     """Per-channel local contrast normalisation along rows: ``(C - min) / (max - min)``, float32.
 
     Over ``window_px`` (a few fringe widths) every channel sees both a fringe of its own colour
@@ -168,8 +191,15 @@ def remove_base_color(signal: np.ndarray, window_px: int,
     kernels.local_range(signal, (window_px | 1) // 2, low, high)
     floor = np.maximum(DARK_FRACTION * _range_percentile(low, high), MIN_SIGNAL).astype(np.float32)
     normalised = np.empty(signal.shape, np.float32)
-    kernels.normalise_range(signal, low, high, floor, normalised, value is not None,
-                            _NO_VALUE if value is None else value)
+    kernels.normalise_range(
+        signal,
+        low,
+        high,
+        floor,
+        normalised,
+        value is not None,
+        _NO_VALUE if value is None else value,
+    )
     return normalised
 
 
@@ -183,8 +213,7 @@ def _range_percentile(low: np.ndarray, high: np.ndarray) -> np.ndarray:
     n = len(range(0, low.shape[0], SPAN_STEP)) * len(range(0, low.shape[1], SPAN_STEP))
     rank = int(np.floor((n - 1) * (SPAN_PERCENTILE / 100)))
     stats = kernels.range_order_statistics(low, high, SPAN_STEP, rank)
-    return np.array([_percentile_between(n, rank, int(a), int(b)) for a, b in stats],
-                    np.float32)
+    return np.array([_percentile_between(n, rank, int(a), int(b)) for a, b in stats], np.float32)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -192,5 +221,5 @@ def _percentile_between(n: int, rank: int, below: int, above: int) -> np.float32
     """``np.percentile`` of ``n`` float32 values whose ``rank``-th and next smallest are
     ``below`` and ``above`` (all it depends on)."""
     values = np.full(n, above, np.float32)
-    values[:rank + 1] = below
+    values[: rank + 1] = below
     return np.percentile(values, SPAN_PERCENTILE)

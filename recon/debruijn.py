@@ -25,6 +25,6 @@ def code_lookup(symbols: np.ndarray, n_symbols: int = 3, order: int = 4) -> np.n
     codes = window_codes(symbols, n_symbols, order)
     if len(np.unique(codes)) != len(codes):
         raise ValueError(f"sequence is not unique in windows of {order}")
-    table = np.full(n_symbols ** order, -1, dtype=np.int32)
+    table = np.full(n_symbols**order, -1, dtype=np.int32)
     table[codes] = np.arange(len(codes), dtype=np.int32)
     return table

@@ -15,8 +15,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.drivers.projector.pattern import (DEFAULT_FRINGES, N_SYMBOLS, SYMBOL_CHANNEL_BGR,
-                                            WINDOW, fringe_symbols)
+from vbfe.drivers.projector.pattern import (
+    DEFAULT_FRINGES,
+    N_SYMBOLS,
+    SYMBOL_CHANNEL_BGR,
+    WINDOW,
+    fringe_symbols,
+)
 from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.debruijn import code_lookup
@@ -59,8 +64,12 @@ def fringe_period_px(image: np.ndarray) -> float:
 class FringeDecoder:
     """Decodes fringe indices of rectified images for one pattern and colour model."""
 
-    def __init__(self, color_model: ColorModel | None = None,
-                 n_fringes: int = DEFAULT_FRINGES, row_step: int = 5) -> None:
+    def __init__(
+        self,
+        color_model: ColorModel | None = None,
+        n_fringes: int = DEFAULT_FRINGES,
+        row_step: int = 5,
+    ) -> None:
         """``row_step`` > 1 decodes the middle row of each block of ``row_step`` rows and copies
         its code to the block's other rows (fringes run nearly vertically, and a match is
         accepted within ±1 px of the code, so fringes tilted by less than about 1 px per
@@ -76,7 +85,7 @@ class FringeDecoder:
         rows (of a shorter last block, its middle row)."""
         height, step = image.shape[0], self.row_step
         if height % step == 0:
-            return image[(step - 1) // 2::step]
+            return image[(step - 1) // 2 :: step]
         first = np.arange(0, height, step)
         return image[first + (np.minimum(step, height - first) - 1) // 2]
 
@@ -93,7 +102,19 @@ class FringeDecoder:
         colour, value = self.color_model.fringe_colour(image, window)
         value = cv2.GaussianBlur(value, (5, 1), sigmaX=max(0.5, period / 8))
         index = np.empty((height, image.shape[1]), np.int16)
-        kernels.decode_rows(value[..., None], colour, max(3, int(round(period)) | 1) // 2,
-                            self.lookup, self._channel_symbol, BOUNDARY_DEPTH, MIN_FRINGE_VALUE,
-                            MIN_PURITY, N_SYMBOLS, WINDOW, MIN_VOTES, self.row_step, index)
+        kernels.decode_rows(
+            value[..., None],
+            colour,
+            max(3, int(round(period)) | 1) // 2,
+            self.lookup,
+            self._channel_symbol,
+            BOUNDARY_DEPTH,
+            MIN_FRINGE_VALUE,
+            MIN_PURITY,
+            N_SYMBOLS,
+            WINDOW,
+            MIN_VOTES,
+            self.row_step,
+            index,
+        )
         return FringeCode(index=index, colour=colour, period_px=period, row_step=self.row_step)

@@ -33,13 +33,18 @@ def text_hash(text: str | None) -> str:
 
 def fingerprint_of(reader: SessionReader) -> str:
     """The fingerprint a sidecar of this open session carries."""
-    return session_fingerprint(int(reader.attrs.get("start_utc_ns") or 0),
-                               reader.stream_times("camera"))
+    return session_fingerprint(
+        int(reader.attrs.get("start_utc_ns") or 0), reader.stream_times("camera")
+    )
 
 
-def clouds_status(session_path: str | Path, sgbm_params: SgbmParams, verify: bool = True,
-                  calibration_yaml: str | None = None,
-                  settings: ReconSettings | None = None) -> CloudsStatus:
+def clouds_status(
+    session_path: str | Path,
+    sgbm_params: SgbmParams,
+    verify: bool = True,
+    calibration_yaml: str | None = None,
+    settings: ReconSettings | None = None,
+) -> CloudsStatus:
     """Compare ``<session>.clouds.h5`` with the session, the calibration (default: the one
     stored in the session) and the matcher settings that would be used now (a range derived
     from the geometry is derived again from ``settings``, the ``[recon]`` table)."""

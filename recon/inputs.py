@@ -19,6 +19,7 @@ from vbfe.calib.importers import import_calibration
 from vbfe.calib.pairs import PAIR_NAMING, pair_files
 from vbfe.recon.errors import ReconError
 
+
 class StereoImages(NamedTuple):
     """One raw stereo pair (BGR ``uint8``), shaped like a session frame's ``left``/``right``."""
 
@@ -66,8 +67,10 @@ def _read(path: Path) -> np.ndarray:
 def _paired(folder: Path, lefts: dict[str, Path], rights: dict[str, Path]) -> ImagePairs:
     unpaired = sorted(set(lefts) ^ set(rights))
     if unpaired:
-        raise ReconError(f"{folder}: images without their other eye: {', '.join(unpaired)}; "
-                         f"every left image needs a right one of the same name")
+        raise ReconError(
+            f"{folder}: images without their other eye: {', '.join(unpaired)}; "
+            f"every left image needs a right one of the same name"
+        )
     names = tuple(sorted(lefts))
     return ImagePairs(tuple(lefts[n] for n in names), tuple(rights[n] for n in names), names)
 
@@ -94,14 +97,28 @@ def image_pairs(paths: list[str | Path]) -> ImagePairs:
     raise ReconError("give a session (.h5), two image files (LEFT RIGHT) or one folder of pairs")
 
 
-def rectified_calibration(fx_px: float, fy_px: float, baseline_mm: float, cx: float,
-                          cy: float, image_size: tuple[int, int],
-                          doffs_px: float = 0.0) -> Calibration:
+def rectified_calibration(
+    fx_px: float,
+    fy_px: float,
+    baseline_mm: float,
+    cx: float,
+    cy: float,
+    image_size: tuple[int, int],
+    doffs_px: float = 0.0,
+) -> Calibration:
     """:meth:`Calibration.rectified` from the ``--rectified`` options (baseline in mm), its
     refusal as a ReconError."""
     try:
-        return Calibration.rectified(fx_px, fy_px, baseline_mm * 1e-3, cx, cy, image_size,
-                                     doffs_px, source="already-rectified pair (--rectified)")
+        return Calibration.rectified(
+            fx_px,
+            fy_px,
+            baseline_mm * 1e-3,
+            cx,
+            cy,
+            image_size,
+            doffs_px,
+            source="already-rectified pair (--rectified)",
+        )
     except CalibrationError as exc:
         raise ReconError(f"--rectified: {exc}") from None
 
@@ -114,27 +131,38 @@ def middlebury_calibration(path: str | Path, image_size: tuple[int, int]) -> Cal
     except CalibrationError as exc:
         raise ReconError(str(exc)) from None
     if fmt != "middlebury":
-        raise ReconError(f"{path} is not a Middlebury calib.txt (cam0=[f 0 cx; 0 f cy; 0 0 1], "
-                         "cam1, doffs, baseline, width, height)")
+        raise ReconError(
+            f"{path} is not a Middlebury calib.txt (cam0=[f 0 cx; 0 f cy; 0 0 1], "
+            "cam1, doffs, baseline, width, height)"
+        )
     if tuple(calibration.image_size) != tuple(image_size):
-        raise ReconError(f"{path} is for {calibration.image_size[0]}x{calibration.image_size[1]} "
-                         f"images but the pair is {image_size[0]}x{image_size[1]}")
+        raise ReconError(
+            f"{path} is for {calibration.image_size[0]}x{calibration.image_size[1]} "
+            f"images but the pair is {image_size[0]}x{image_size[1]}"
+        )
     return calibration
 
 
-def pair_calibration(image_size: tuple[int, int], calib: str | Path | None = None,
-                     rectified: dict[str, float] | None = None) -> Calibration:
+def pair_calibration(
+    image_size: tuple[int, int],
+    calib: str | Path | None = None,
+    rectified: dict[str, float] | None = None,
+) -> Calibration:
     """The calibration of image pairs of ``image_size``: a calibration YAML file, a Middlebury
     ``calib.txt``, or ``rectified`` geometry (the arguments of :func:`rectified_calibration`:
     ``fx_px``, ``fy_px``, ``baseline_mm``, ``cx``, ``cy``, ``doffs_px``)."""
     if rectified is not None:
         if calib is not None:
-            raise ReconError("give either a calibration file (--calib) or the rectified "
-                             "geometry (--rectified), not both")
+            raise ReconError(
+                "give either a calibration file (--calib) or the rectified "
+                "geometry (--rectified), not both"
+            )
         return rectified_calibration(image_size=image_size, **rectified)
     if calib is None:
-        raise ReconError("image pairs need --calib calib.yaml (or a Middlebury calib.txt), or "
-                         "--rectified with --f (or --fx and --fy), --baseline, --cx and --cy")
+        raise ReconError(
+            "image pairs need --calib calib.yaml (or a Middlebury calib.txt), or "
+            "--rectified with --f (or --fx and --fy), --baseline, --cx and --cy"
+        )
     if Path(calib).suffix.lower() == ".txt":
         return middlebury_calibration(calib, image_size)
     return Calibration.load(calib)

@@ -118,7 +118,7 @@ def _short_run_sums(a, lo, n):
 @njit(cache=True, nogil=True)
 def _shifted_max(src, offset, n, dst):
     """``dst[j] = max(src[j], src[j + offset])`` for ``j < n`` (vectorised, as below)."""
-    a, b = src[:n], src[offset:offset + n]
+    a, b = src[:n], src[offset : offset + n]
     for j in range(n):
         dst[j] = max(a[j], b[j])
 
@@ -130,10 +130,10 @@ def _row_dilate(row, half, ext, tmp, out):
     n = out.shape[0]
     size = 2 * half + 1
     total = n + 2 * half
-    tail = ext[half + n:total]
+    tail = ext[half + n : total]
     for j in range(half):
         ext[j] = tail[j] = -np.inf
-    body = ext[half:half + n]
+    body = ext[half : half + n]
     for j in range(n):
         body[j] = row[j]
     span = 1
@@ -149,10 +149,22 @@ def _row_dilate(row, half, ext, tmp, out):
     _shifted_max(tmp if swapped else ext, size - span, n, out)
 
 
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth, min_value,
-                min_purity, n_symbols, window, min_votes, row_step, index):
+def decode_rows(
+    value,
+    colour,
+    max_half,
+    lookup,
+    channel_symbol,
+    boundary_depth,
+    min_value,
+    min_purity,
+    n_symbols,
+    window,
+    min_votes,
+    row_step,
+    index,
+):
     """Fringe index of every pixel (into ``index``, H×W int16, -1 unreadable) from the
     decoded rows' brightness ``value`` (rows×W×1) and corrected ``colour`` (rows×W×3); the
     local maximum a boundary is judged against is over ``2·max_half + 1`` pixels (OpenCV's
@@ -166,8 +178,11 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
     symbols = np.empty(width, np.int16)
     first = np.empty(width, np.int32)
     candidates = np.empty(window, np.int32)
-    ext, tmp, local_max = (np.empty(width + 2 * max_half, np.float32),
-                           np.empty(width + 2 * max_half, np.float32), np.empty(width, np.float32))
+    ext, tmp, local_max = (
+        np.empty(width + 2 * max_half, np.float32),
+        np.empty(width + 2 * max_half, np.float32),
+        np.empty(width, np.float32),
+    )
     for r in range(rows):
         v = value[r]
         row_colour = colour[r]
@@ -187,8 +202,11 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
             if count - 1 <= PAIRWISE_BLOCK:
                 b, g, rd = _short_run_sums(row_colour, lo, count)
             else:
-                b, g, rd = (_run_sum(row_colour, lo, count, 0), _run_sum(row_colour, lo, count, 1),
-                            _run_sum(row_colour, lo, count, 2))
+                b, g, rd = (
+                    _run_sum(row_colour, lo, count, 0),
+                    _run_sum(row_colour, lo, count, 1),
+                    _run_sum(row_colour, lo, count, 2),
+                )
             brightness = np.float64(_run_sum(v, lo, count, 0)) / count
             channel, top = 0, b
             if g > top:
@@ -197,8 +215,11 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
                 channel, top = 2, rd
             second = b + g + rd - top - min(min(b, g), rd)
             purity = (top - second) / max(top, tiny)
-            symbols[j] = -1 if (brightness < min_value or purity < purity_limit
-                                or count < 2) else channel_symbol[channel]
+            symbols[j] = (
+                -1
+                if (brightness < min_value or purity < purity_limit or count < 2)
+                else channel_symbol[channel]
+            )
         n_windows = n - window + 1
         for w in range(max(n_windows, 0)):
             code, weight, ok = 0, 1, True
@@ -222,7 +243,7 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
                         best, best_votes = candidates[o], votes
             if best_votes < min_votes:
                 best = -1
-            run = decoded[starts[j]:starts[j + 1]]
+            run = decoded[starts[j] : starts[j + 1]]
             for x in range(run.shape[0]):
                 run[x] = best
         for y in range(r * row_step + 1, min((r + 1) * row_step, height)):
@@ -235,10 +256,10 @@ def decode_rows(value, colour, max_half, lookup, channel_symbol, boundary_depth,
 def _shifted_extrema(src_min, src_max, offset, n, dst_min, dst_max):
     """``dst[j] = min/max(src[j], src[j + offset])`` for ``j < n`` (the shifted operand is a
     view, so no index may wrap around and the loops vectorise)."""
-    a, b = src_min[:n], src_min[offset:offset + n]
+    a, b = src_min[:n], src_min[offset : offset + n]
     for j in range(n):
         dst_min[j] = min(a[j], b[j])
-    a, b = src_max[:n], src_max[offset:offset + n]
+    a, b = src_max[:n], src_max[offset : offset + n]
     for j in range(n):
         dst_max[j] = max(a[j], b[j])
 
@@ -251,11 +272,11 @@ def _row_extrema(row, half, ext_min, ext_max, tmp_min, tmp_max, low, high):
     pad = 3 * half
     size = 2 * half + 1
     total = n + 2 * pad
-    min_tail, max_tail = ext_min[pad + n:total], ext_max[pad + n:total]
+    min_tail, max_tail = ext_min[pad + n : total], ext_max[pad + n : total]
     for j in range(pad):
         ext_min[j] = min_tail[j] = 255
         ext_max[j] = max_tail[j] = 0
-    min_body, max_body = ext_min[pad:pad + n], ext_max[pad:pad + n]
+    min_body, max_body = ext_min[pad : pad + n], ext_max[pad : pad + n]
     for j in range(n):
         min_body[j] = max_body[j] = row[j]
     span = 1  # the extrema at j are over span pixels from j
@@ -293,7 +314,7 @@ def _box_mean_row(above, centre, below, half, padded, prefix, out):
     n = out.shape[0]
     width = n // 3
     pad = 3 * half
-    body = padded[pad:pad + n]
+    body = padded[pad : pad + n]
     for j in range(n):
         body[j] = np.int32(above[j]) + np.int32(centre[j]) + np.int32(below[j])
     for x in range(1, half + 1):
@@ -304,7 +325,7 @@ def _box_mean_row(above, centre, below, half, padded, prefix, out):
     prefix[0] = prefix[1] = prefix[2] = 0
     for j in range(n + 2 * pad):
         prefix[j + 3] = prefix[j] + padded[j]
-    ahead = prefix[3 * (2 * half + 1):]
+    ahead = prefix[3 * (2 * half + 1) :]
     area = 3 * (2 * half + 1)
     scale = np.float32(1.0 / (2 * area))
     for j in range(n):
@@ -318,8 +339,11 @@ def local_range(signal, half, low, high):
     its default borders; rows are filtered as they are needed (three at a time)."""
     rows, width = signal.shape[:2]
     n = 3 * width
-    flat, low_rows, high_rows = (signal.reshape(rows, n), low.reshape(rows, n),
-                                 high.reshape(rows, n))
+    flat, low_rows, high_rows = (
+        signal.reshape(rows, n),
+        low.reshape(rows, n),
+        high.reshape(rows, n),
+    )
     ext_min, ext_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
     tmp_min, tmp_max = np.empty(n + 6 * half, np.uint8), np.empty(n + 6 * half, np.uint8)
     eroded, dilated = np.empty((3, n), np.uint8), np.empty((3, n), np.uint8)  # by row % 3
@@ -327,13 +351,16 @@ def local_range(signal, half, low, high):
     prefix = np.empty(n + 6 * half + 3, np.int32)
     for r in range(rows):
         for q in range(r if r == 0 else r + 1, min(r + 2, rows)):
-            _row_extrema(flat[q], half, ext_min, ext_max, tmp_min, tmp_max, eroded[q % 3],
-                         dilated[q % 3])
+            _row_extrema(
+                flat[q], half, ext_min, ext_max, tmp_min, tmp_max, eroded[q % 3], dilated[q % 3]
+            )
         above, below = _reflect101(r - 1, rows) % 3, _reflect101(r + 1, rows) % 3
-        _box_mean_row(eroded[above], eroded[r % 3], eroded[below], half, padded, prefix,
-                      low_rows[r])
-        _box_mean_row(dilated[above], dilated[r % 3], dilated[below], half, padded, prefix,
-                      high_rows[r])
+        _box_mean_row(
+            eroded[above], eroded[r % 3], eroded[below], half, padded, prefix, low_rows[r]
+        )
+        _box_mean_row(
+            dilated[above], dilated[r % 3], dilated[below], half, padded, prefix, high_rows[r]
+        )
 
 
 @njit(cache=True, nogil=True)
@@ -369,8 +396,12 @@ def normalise_range(signal, low, high, floor, out, clamp, value):
     floors = np.empty(n, np.float32)
     for j in range(n):
         floors[j] = floor[j % 3]
-    flat, low_rows, high_rows, out_rows = (signal.reshape(rows, n), low.reshape(rows, n),
-                                           high.reshape(rows, n), out.reshape(rows, n))
+    flat, low_rows, high_rows, out_rows = (
+        signal.reshape(rows, n),
+        low.reshape(rows, n),
+        high.reshape(rows, n),
+        out.reshape(rows, n),
+    )
     for r in range(rows):
         s, lo, hi, o = flat[r], low_rows[r], high_rows[r], out_rows[r]
         for j in range(n):
@@ -379,7 +410,7 @@ def normalise_range(signal, low, high, floor, out, clamp, value):
             span = span if span > floors[j] else floors[j]  # noqa: FURB136 (as OpenCV)
             o[j] = (np.float32(s[j]) - base) / span
         if clamp:
-            clamp_and_sum(out[r:r + 1], value[r:r + 1])
+            clamp_and_sum(out[r : r + 1], value[r : r + 1])
 
 
 @njit(cache=True, nogil=True)
@@ -395,7 +426,6 @@ def clamp_and_sum(colour, value):
             c[j] = c[j] if c[j] > zero else zero  # noqa: FURB136 (OpenCV's select)
         for x in range(width):
             v[x] = (c[3 * x] + c[3 * x + 1]) + c[3 * x + 2]
-
 
 
 @njit(cache=True, nogil=True)
@@ -449,9 +479,25 @@ def _write_match(out_row, status_row, x, d, outcome, doffs):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def verify_pixels(disparity, left_index, right_index, left_colour, right_colour, left_step,
-                  right_step, search_px, neighbours, coded, coded_rows, coded_cols, first_row,
-                  end_row, doffs_px, out, status):
+def verify_pixels(
+    disparity,
+    left_index,
+    right_index,
+    left_colour,
+    right_colour,
+    left_step,
+    right_step,
+    search_px,
+    neighbours,
+    coded,
+    coded_rows,
+    coded_cols,
+    first_row,
+    end_row,
+    doffs_px,
+    out,
+    status,
+):
     """Check each SGBM match against the fringe codes (see :mod:`vbfe.recon.verify`): fill
     ``out`` (disparity, NaN where invalid) and ``status`` (the codes above); ``coded`` (uint8
     cells; pixel ``(y, x)`` is cell ``(coded_rows[y], coded_cols[x])``) marks where the pattern
@@ -503,18 +549,24 @@ def verify_pixels(disparity, left_index, right_index, left_colour, right_colour,
                     candidate = d + np.float32(step)
                 else:
                     offset = k - n_shifts
-                    candidate = disparity[min(max(y + neighbours[offset, 0], 0), height - 1),
-                                          min(max(x + neighbours[offset, 1], 0), width - 1)]
+                    candidate = disparity[
+                        min(max(y + neighbours[offset, 0], 0), height - 1),
+                        min(max(x + neighbours[offset, 1], 0), width - 1),
+                    ]
                 cost = np.inf
                 xr = np.float64(x) - np.float64(candidate)
                 if np.isfinite(xr):
                     xr_i = int(np.rint(xr))
                     if 0 <= xr_i < width and right_row[xr_i] == code:
-                        cost = np.float64(_colour_cost(left_colour, right_colour,
-                                                       y // left_step, y // right_step, x, xr_i))
+                        cost = np.float64(
+                            _colour_cost(
+                                left_colour, right_colour, y // left_step, y // right_step, x, xr_i
+                            )
+                        )
                 shift = candidate - d
-                cost += np.float64(penalty * (abs(shift) if np.isfinite(shift)
-                                              else np.float32(0.0)))
+                cost += np.float64(
+                    penalty * (abs(shift) if np.isfinite(shift) else np.float32(0.0))
+                )
                 if cost < best_cost:
                     best, best_cost = candidate, cost
             if np.isfinite(best_cost):
@@ -546,8 +598,23 @@ def count_points(disparity, status, doffs_px, first_row, end_row):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def fill_points(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px,
-                first_row, end_row, points, colours, verified, start):
+def fill_points(
+    disparity,
+    status,
+    image_bgr,
+    f_px,
+    baseline_m,
+    cx,
+    cy,
+    doffs_px,
+    fy_px,
+    first_row,
+    end_row,
+    points,
+    colours,
+    verified,
+    start,
+):
     """Write the points of rows ``first_row:end_row`` (after :func:`count_points`) from index
     ``start`` on (see :func:`triangulate`)."""
     width = disparity.shape[1]
@@ -589,8 +656,23 @@ def triangulate(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px
     points = np.empty((n, 3), np.float32)
     colours = np.empty((n, 3), np.uint8)
     verified = np.empty(n, np.bool_)
-    fill_points(disparity, status, image_bgr, f_px, baseline_m, cx, cy, doffs_px, fy_px, 0,
-                height, points, colours, verified, 0)
+    fill_points(
+        disparity,
+        status,
+        image_bgr,
+        f_px,
+        baseline_m,
+        cx,
+        cy,
+        doffs_px,
+        fy_px,
+        0,
+        height,
+        points,
+        colours,
+        verified,
+        0,
+    )
     return points, colours, verified
 
 
@@ -599,25 +681,68 @@ def warm_up() -> None:
     value = np.ones((2, 8, 1), np.float32)
     colour = np.ones((2, 8, 3), np.float32)
     index = np.zeros((4, 8), np.int16)
-    decode_rows(value, colour, 1, np.zeros(81, np.int32), np.zeros(3, np.int8), 0.6, 0.2,
-                0.25, 3, 4, 2, 2, index)
+    decode_rows(
+        value,
+        colour,
+        1,
+        np.zeros(81, np.int32),
+        np.zeros(3, np.int8),
+        0.6,
+        0.2,
+        0.25,
+        3,
+        4,
+        2,
+        2,
+        index,
+    )
     disparity = np.ones((4, 8), np.float32)
     status = np.zeros((4, 8), np.uint8)
-    verify_pixels(disparity, index, index, colour, colour, 2, 2, 1,
-                  np.zeros((1, 2), np.int64), np.ones((1, 1), np.uint8), np.zeros(4, np.int32),
-                  np.zeros(8, np.int32), 0, 4, 0.0, disparity.copy(), status)
+    verify_pixels(
+        disparity,
+        index,
+        index,
+        colour,
+        colour,
+        2,
+        2,
+        1,
+        np.zeros((1, 2), np.int64),
+        np.ones((1, 1), np.uint8),
+        np.zeros(4, np.int32),
+        np.zeros(8, np.int32),
+        0,
+        4,
+        0.0,
+        disparity.copy(),
+        status,
+    )
     image_bgr = np.zeros((4, 8, 3), np.uint8)
     triangulate(disparity, status, image_bgr, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     count_points(disparity, status, 0.0, 0, 4)
-    fill_points(disparity, status, image_bgr, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0, 4,
-                np.empty((32, 3), np.float32), np.empty((32, 3), np.uint8),
-                np.empty(32, np.bool_), 0)
+    fill_points(
+        disparity,
+        status,
+        image_bgr,
+        1.0,
+        1.0,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+        0,
+        4,
+        np.empty((32, 3), np.float32),
+        np.empty((32, 3), np.uint8),
+        np.empty(32, np.bool_),
+        0,
+    )
     image = np.zeros((2, 8, 3), np.uint8)
     local_range(image, 1, image.copy(), image.copy())
     for clamp in (False, True):
-        normalise_range(image, image, image, np.ones(3, np.float32), colour, clamp,
-                        value[..., 0])
+        normalise_range(image, image, image, np.ones(3, np.float32), colour, clamp, value[..., 0])
     clamp_and_sum(colour, value[..., 0])
-    fixed_point_to_px(np.zeros((4, 8), np.int16), 1.0 / 16, np.int16(16), np.int16(32),
-                      np.int16(48), disparity)
+    fixed_point_to_px(
+        np.zeros((4, 8), np.int16), 1.0 / 16, np.int16(16), np.int16(32), np.int16(48), disparity
+    )
     range_order_statistics(image, image, 8, 0)

@@ -46,8 +46,9 @@ def depth_map_m(disparity: np.ndarray, calibration: Calibration) -> np.ndarray:
     doffs = -calibration.doffs  # here: left minus right
     shifted = disparity.astype(np.float32) - np.float32(doffs)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(shifted > 0, np.float32(calibration.f * calibration.B) / shifted,
-                        np.float32(np.nan)).astype(np.float32)
+        return np.where(
+            shifted > 0, np.float32(calibration.f * calibration.B) / shifted, np.float32(np.nan)
+        ).astype(np.float32)
 
 
 def _to_png(values: np.ndarray, scale: float) -> np.ndarray:
@@ -55,15 +56,23 @@ def _to_png(values: np.ndarray, scale: float) -> np.ndarray:
     return np.clip(scaled, 0, 65535).astype(np.uint16)
 
 
-def write_maps(folder: Path, name: str, disparity: np.ndarray, calibration: Calibration,
-               fmt: str = "png", status: np.ndarray | None = None) -> list[Path]:
+def write_maps(
+    folder: Path,
+    name: str,
+    disparity: np.ndarray,
+    calibration: Calibration,
+    fmt: str = "png",
+    status: np.ndarray | None = None,
+) -> list[Path]:
     """Write ``<name>_disparity`` and ``<name>_depth`` maps in ``fmt`` into ``folder``, and
     the per-pixel outcome ``status`` as ``<name>_quality.png`` when given."""
     folder.mkdir(parents=True, exist_ok=True)
     depth = depth_map_m(disparity, calibration)
     written = []
-    for kind, values, scale in (("disparity", disparity, DISPARITY_PNG_SCALE),
-                                ("depth", depth * np.float32(1e3), DEPTH_PNG_SCALE)):
+    for kind, values, scale in (
+        ("disparity", disparity, DISPARITY_PNG_SCALE),
+        ("depth", depth * np.float32(1e3), DEPTH_PNG_SCALE),
+    ):
         path = folder / f"{name}_{kind}.{fmt}"
         if fmt == "npy":
             np.save(path, depth if kind == "depth" else values.astype(np.float32))

@@ -8,12 +8,16 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from vbfe.common.settings import parse_table, setting
 from vbfe.recon import kernels
 from vbfe.recon.errors import ReconError
-from vbfe.common.settings import parse_table, setting
 
-MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
-         "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
+MODES = {
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+}
 MODE_NAMES = tuple(MODES)
 DISPARITY_SCALE = 16.0  # StereoSGBM returns fixed-point disparities with 4 fractional bits
 
@@ -41,16 +45,20 @@ class SgbmParams:
     decode_row_step: int = setting(5, ge=1)
 
     @classmethod
-    def from_config(cls, table: dict[str, Any]) -> "SgbmParams":
+    def from_config(cls, table: dict[str, Any]) -> SgbmParams:
         """Settings from the ``[sgbm]`` table of a rig config (unknown keys are an error)."""
         params = parse_table(cls, table, "sgbm")
         if params.num_disparities % 16:
-            raise ReconError(f"[sgbm] num_disparities (--num-disparities) must be 0 (from the "
-                             f"depth range) or a positive multiple of 16, got "
-                             f"{params.num_disparities}")
+            raise ReconError(
+                f"[sgbm] num_disparities (--num-disparities) must be 0 (from the "
+                f"depth range) or a positive multiple of 16, got "
+                f"{params.num_disparities}"
+            )
         if params.p1 and params.p2 and params.p2 <= params.p1:
-            raise ReconError(f"[sgbm] p2 = {params.p2} must be larger than p1 = {params.p1} "
-                             "(OpenCV's smoothness penalties; 0 picks both)")
+            raise ReconError(
+                f"[sgbm] p2 = {params.p2} must be larger than p1 = {params.p1} "
+                "(OpenCV's smoothness penalties; 0 picks both)"
+            )
         if params.block_size < 1 or params.block_size % 2 == 0:
             raise ReconError(f"[sgbm] block_size must be odd and positive, got {params.block_size}")
         return params
@@ -58,19 +66,29 @@ class SgbmParams:
     def create(self, channels: int = 3) -> cv2.StereoSGBM:
         """A configured ``cv2.StereoSGBM`` matcher for images with ``channels`` channels."""
         if self.num_disparities <= 0:
-            raise ReconError("num_disparities is 0 (derive from the geometry): resolve it with "
-                             "vbfe.recon.quality.params_for(calibration, params, settings)")
-        area = channels * self.block_size ** 2
+            raise ReconError(
+                "num_disparities is 0 (derive from the geometry): resolve it with "
+                "vbfe.recon.quality.params_for(calibration, params, settings)"
+            )
+        area = channels * self.block_size**2
         return cv2.StereoSGBM.create(
-            minDisparity=self.min_disparity, numDisparities=self.num_disparities,
-            blockSize=self.block_size, P1=self.p1 or 8 * area, P2=self.p2 or 32 * area,
-            disp12MaxDiff=self.disp12_max_diff, preFilterCap=self.pre_filter_cap,
-            uniquenessRatio=self.uniqueness_ratio, speckleWindowSize=self.speckle_window_size,
-            speckleRange=self.speckle_range, mode=MODES[self.mode])
+            minDisparity=self.min_disparity,
+            numDisparities=self.num_disparities,
+            blockSize=self.block_size,
+            P1=self.p1 or 8 * area,
+            P2=self.p2 or 32 * area,
+            disp12MaxDiff=self.disp12_max_diff,
+            preFilterCap=self.pre_filter_cap,
+            uniquenessRatio=self.uniqueness_ratio,
+            speckleWindowSize=self.speckle_window_size,
+            speckleRange=self.speckle_range,
+            mode=MODES[self.mode],
+        )
 
 
-def sgbm_disparity(left: np.ndarray, right: np.ndarray, params: SgbmParams,
-                   matcher: cv2.StereoSGBM | None = None) -> np.ndarray:
+def sgbm_disparity(
+    left: np.ndarray, right: np.ndarray, params: SgbmParams, matcher: cv2.StereoSGBM | None = None
+) -> np.ndarray:
     """Left-view disparity in pixels (float32); pixels without a match are ``NaN``."""
     matcher = matcher or params.create(left.shape[2] if left.ndim == 3 else 1)
     return disparity_px(matcher.compute(left, right), params)[0]
@@ -84,8 +102,8 @@ def disparity_px(raw: np.ndarray, params: SgbmParams) -> tuple[np.ndarray, float
     low = params.min_disparity
     high = params.min_disparity + params.num_disparities - 1
     # d <= low + 1 is raw <= (low + 1)·scale exactly (raw / scale is exact in float32)
-    low_raw, edge_low, edge_high = (np.int16(v * DISPARITY_SCALE)
-                                    for v in (low, low + 1, high - 1))
-    matched, at_edge = kernels.fixed_point_to_px(raw, 1.0 / DISPARITY_SCALE, low_raw, edge_low,
-                                                 edge_high, disparity)
+    low_raw, edge_low, edge_high = (np.int16(v * DISPARITY_SCALE) for v in (low, low + 1, high - 1))
+    matched, at_edge = kernels.fixed_point_to_px(
+        raw, 1.0 / DISPARITY_SCALE, low_raw, edge_low, edge_high, disparity
+    )
     return disparity, float(at_edge / matched) if matched else 0.0

@@ -14,18 +14,20 @@ from typing import Any
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.settings import parse_table, setting
 from vbfe.recon.clouds import CloudReader
 from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
-from vbfe.common.settings import parse_table, setting
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
 COST_BYTES = 2  # StereoSGBM's CostType (short)
 # rows of cost buffers the single-pass modes hold at once (aggregation, window, both passes):
 # a bound, not OpenCV's exact figure; MODE_HH holds two for every row of the image
 SINGLE_PASS_ROWS = 64
-RANGE_FLAGS = ("--min-disparity/--num-disparities (or [sgbm] min_disparity/num_disparities, or "
-               "the depth range [recon] min_depth_mm/max_depth_mm)")
+RANGE_FLAGS = (
+    "--min-disparity/--num-disparities (or [sgbm] min_disparity/num_disparities, or "
+    "the depth range [recon] min_depth_mm/max_depth_mm)"
+)
 
 
 @dataclass(frozen=True)
@@ -38,25 +40,30 @@ class ReconSettings:
     max_edge_fraction: float = setting(0.01, ge=0, le=1)  # above this share at the edge, warn
 
     @classmethod
-    def from_config(cls, table: dict[str, Any]) -> "ReconSettings":
+    def from_config(cls, table: dict[str, Any]) -> ReconSettings:
         """Settings from the ``[recon]`` table of a rig config (unknown keys are an error)."""
         settings = parse_table(cls, table, "recon")
         if not settings.min_depth_mm < settings.max_depth_mm:
-            raise ReconError(f"[recon] needs 0 < min_depth_mm < max_depth_mm, got "
-                             f"{settings.min_depth_mm} and {settings.max_depth_mm}")
+            raise ReconError(
+                f"[recon] needs 0 < min_depth_mm < max_depth_mm, got "
+                f"{settings.min_depth_mm} and {settings.max_depth_mm}"
+            )
         return settings
 
 
-def disparity_range(calibration: Calibration, min_depth_mm: float,
-                    max_depth_mm: float) -> tuple[int, int]:
+def disparity_range(
+    calibration: Calibration, min_depth_mm: float, max_depth_mm: float
+) -> tuple[int, int]:
     """``(min_disparity, num_disparities)`` covering depths ``min_depth_mm..max_depth_mm``:
     ``d = f·B/z + doffs``, the count rounded up to a multiple of 16."""
     if not 0 < min_depth_mm < max_depth_mm:
         raise ReconError(f"depth range needs 0 < min < max, got {min_depth_mm}..{max_depth_mm} mm")
     f_b = calibration.f * calibration.B
     if f_b <= 0:
-        raise ReconError(f"calibration has f·B = {f_b:.3g} px·m; the rectified pair needs a "
-                         f"positive focal length and baseline (left camera on the left)")
+        raise ReconError(
+            f"calibration has f·B = {f_b:.3g} px·m; the rectified pair needs a "
+            f"positive focal length and baseline (left camera on the left)"
+        )
     doffs = -calibration.doffs  # here: left minus right
     low = math.floor(f_b / (max_depth_mm * 1e-3) + doffs)
     high = math.ceil(f_b / (min_depth_mm * 1e-3) + doffs)
@@ -64,8 +71,7 @@ def disparity_range(calibration: Calibration, min_depth_mm: float,
     return low, count
 
 
-def params_for(calibration: Calibration, params: SgbmParams,
-               settings: ReconSettings) -> SgbmParams:
+def params_for(calibration: Calibration, params: SgbmParams, settings: ReconSettings) -> SgbmParams:
     """``params`` with the range derived from the geometry when ``num_disparities`` is 0."""
     if params.num_disparities:
         return params
@@ -91,15 +97,19 @@ def check_disparity_range(params: SgbmParams, image_size: tuple[int, int]) -> No
     width = image_size[0]
     low, high = params.min_disparity, params.min_disparity + params.num_disparities - 1
     if params.num_disparities >= width or not -width < low < width:
-        raise ReconError(f"disparity range {low}..{high} px does not fit the {width}-px wide "
-                         f"images (the range must be narrower than the image and start inside "
-                         f"it); set {RANGE_FLAGS}")
+        raise ReconError(
+            f"disparity range {low}..{high} px does not fit the {width}-px wide "
+            f"images (the range must be narrower than the image and start inside "
+            f"it); set {RANGE_FLAGS}"
+        )
     needed, limit = sgbm_buffer_bytes(params, image_size), memory_bytes() // 2
     if needed > limit:
-        raise ReconError(f"disparity range {low}..{high} px with mode {params.mode!r} needs "
-                         f"{needed / 2**30:.1f} GiB of SGBM buffers, more than half of this "
-                         f"machine's {2 * limit / 2**30:.1f} GiB; narrow it with {RANGE_FLAGS} "
-                         f"or use mode sgbm_3way")
+        raise ReconError(
+            f"disparity range {low}..{high} px with mode {params.mode!r} needs "
+            f"{needed / 2**30:.1f} GiB of SGBM buffers, more than half of this "
+            f"machine's {2 * limit / 2**30:.1f} GiB; narrow it with {RANGE_FLAGS} "
+            f"or use mode sgbm_3way"
+        )
 
 
 def decoded_fraction(index: np.ndarray, row_step: int) -> float:
@@ -134,14 +144,17 @@ def summary_line(reader: CloudReader) -> str:
     counts = reader.frame_table("match_counts").astype(np.float64)
     sgbm = reader.attrs["sgbm"]
     low = int(sgbm.get("min_disparity", 0))
-    parts = [f"{reader.path}: {n} frames", f"density {np.mean(density):.1%} "
-             f"(min {np.min(density):.1%})",
-             f"pattern decoded {_fraction_text(reader.frame_table('decoded_fraction'))}"]
+    parts = [
+        f"{reader.path}: {n} frames",
+        f"density {np.mean(density):.1%} (min {np.min(density):.1%})",
+        f"pattern decoded {_fraction_text(reader.frame_table('decoded_fraction'))}",
+    ]
     if np.all(counts[:, 1:] >= 0) and counts[:, 0].sum() > 0:
         total = counts[:, 0].sum()
         kept, corrected, rejected = (counts[:, k].sum() / total for k in (1, 2, 3))
-        parts.append(f"matches kept {kept:.1%} / corrected {corrected:.1%} / "
-                     f"rejected {rejected:.1%}")
+        parts.append(
+            f"matches kept {kept:.1%} / corrected {corrected:.1%} / rejected {rejected:.1%}"
+        )
         parts.append(f"points verified {_verified_share(reader):.1%}")
     else:
         parts.append("no verification")
@@ -161,9 +174,11 @@ def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     lines = ["  frame  density  decoded  at-edge    kept  corrected  rejected"]
     for i in picks:
         kept, corrected, rejected = (str(c) if c >= 0 else "-" for c in counts[i, 1:])
-        lines.append(f"  {int(index[i]):5d}  {density[i]:7.1%}  "
-                     f"{'n/a' if not np.isfinite(decoded[i]) else f'{decoded[i]:.1%}':>7s}  "
-                     f"{edge[i]:7.1%}  {kept:>6s}  {corrected:>9s}  {rejected:>8s}")
+        lines.append(
+            f"  {int(index[i]):5d}  {density[i]:7.1%}  "
+            f"{'n/a' if not np.isfinite(decoded[i]) else f'{decoded[i]:.1%}':>7s}  "
+            f"{edge[i]:7.1%}  {kept:>6s}  {corrected:>9s}  {rejected:>8s}"
+        )
     return lines
 
 
@@ -179,7 +194,8 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> list[str]:
             f"the De Bruijn pattern is readable on only {np.nanmedian(decoded[weak]):.2%} of the "
             f"pixels in {int(weak.sum())} of {n} frames (need {settings.min_decoded_fraction:.0%}"
             f"), so their matches are SGBM's alone, flagged unverified; is the projector on "
-            f"and the pattern in view? For pairs without the pattern use --no-verify")
+            f"and the pattern in view? For pairs without the pattern use --no-verify"
+        )
     edge = reader.frame_table("edge_fraction")
     if n and np.nanmax(edge) > settings.max_edge_fraction:
         sgbm = reader.attrs["sgbm"]
@@ -188,5 +204,6 @@ def quality_warnings(reader: CloudReader, settings: ReconSettings) -> list[str]:
             f"{np.nanmax(edge):.1%} of the matched pixels sit at the edge of the disparity range "
             f"{low}..{low + int(sgbm.get('num_disparities', 0)) - 1} px (worst frame): the "
             f"surface is nearer or farther than it covers; widen [recon] min_depth_mm/"
-            f"max_depth_mm or set [sgbm] num_disparities")
+            f"max_depth_mm or set [sgbm] num_disparities"
+        )
     return warnings

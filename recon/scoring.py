@@ -29,8 +29,10 @@ from vbfe.recon.errors import ReconError
 
 BAD_THRESHOLDS_PX = (1.0, 2.0, 3.0)
 TRUTH_KINDS = ("disparity", "depth")
-DEFAULT_PNG_SCALE = {("disparity", np.dtype(np.uint16)): 256.0,
-                     ("depth", np.dtype(np.uint16)): 10.0}
+DEFAULT_PNG_SCALE = {
+    ("disparity", np.dtype(np.uint16)): 256.0,
+    ("depth", np.dtype(np.uint16)): 10.0,
+}
 
 
 def read_pfm(path: str | Path) -> np.ndarray:
@@ -44,16 +46,19 @@ def read_pfm(path: str | Path) -> np.ndarray:
         raise ReconError(f"{path} is not a greyscale PFM file (header 'Pf width height scale')")
     width, height, scale = int(header[1]), int(header[2]), float(header[3])
     dtype = np.dtype("<f4" if scale < 0 else ">f4")
-    values = np.frombuffer(data, dtype, count=width * height, offset=header.end()) \
-        if len(data) - header.end() >= 4 * width * height else None
+    values = (
+        np.frombuffer(data, dtype, count=width * height, offset=header.end())
+        if len(data) - header.end() >= 4 * width * height
+        else None
+    )
     if values is None:
-        raise ReconError(f"{path} is truncated: a {width}x{height} PFM needs "
-                         f"{4 * width * height} bytes of data")
+        raise ReconError(
+            f"{path} is truncated: a {width}x{height} PFM needs {4 * width * height} bytes of data"
+        )
     return np.flipud(values.reshape(height, width)).astype(np.float32)
 
 
-def read_truth(path: str | Path, kind: str = "disparity", scale: float | None = None
-               ) -> np.ndarray:
+def read_truth(path: str | Path, kind: str = "disparity", scale: float | None = None) -> np.ndarray:
     """A truth map in px (disparity) or mm (depth), float32, NaN where unknown."""
     path = Path(path)
     if kind not in TRUTH_KINDS:
@@ -66,23 +71,30 @@ def read_truth(path: str | Path, kind: str = "disparity", scale: float | None = 
         raise ReconError(f"{path} is not a single-channel 8- or 16-bit PNG truth map (or a PFM)")
     scale = scale or DEFAULT_PNG_SCALE.get((kind, raw.dtype))
     if not scale or scale <= 0:
-        raise ReconError(f"{path} is an 8-bit {kind} map: give its scale with --truth-scale "
-                         f"(value = scale x {'px' if kind == 'disparity' else 'mm'}; Middlebury "
-                         f"2003 quarter size: 4, 2001: 8)")
+        raise ReconError(
+            f"{path} is an 8-bit {kind} map: give its scale with --truth-scale "
+            f"(value = scale x {'px' if kind == 'disparity' else 'mm'}; Middlebury "
+            f"2003 quarter size: 4, 2001: 8)"
+        )
     return np.where(raw > 0, raw / scale, np.nan).astype(np.float32)
 
 
-def truth_disparity(path: str | Path, calibration: Calibration, kind: str = "disparity",
-                    scale: float | None = None) -> np.ndarray:
+def truth_disparity(
+    path: str | Path, calibration: Calibration, kind: str = "disparity", scale: float | None = None
+) -> np.ndarray:
     """The truth as disparity (px, NaN unknown), a depth truth converted with the geometry."""
     values = read_truth(path, kind, scale)
     width, height = calibration.image_size
     if values.shape != (height, width):
-        raise ReconError(f"truth {path} is {values.shape[1]}x{values.shape[0]} but the images "
-                         f"are {width}x{height}; give the truth of this pair's left view")
+        raise ReconError(
+            f"truth {path} is {values.shape[1]}x{values.shape[0]} but the images "
+            f"are {width}x{height}; give the truth of this pair's left view"
+        )
     if kind == "depth":
-        return (np.float32(calibration.f * calibration.B * 1e3) / values
-                + np.float32(_doffs(calibration))).astype(np.float32)
+        return (
+            np.float32(calibration.f * calibration.B * 1e3) / values
+            + np.float32(_doffs(calibration))
+        ).astype(np.float32)
     return values
 
 
@@ -105,15 +117,18 @@ class TruthScore:
     def lines(self) -> list[str]:
         """The scores as the Middlebury evaluation prints them (percent)."""
         head = "  ".join(f"bad>{t:g}" for t in BAD_THRESHOLDS_PX)
-        return [f"truth: {self.n_truth} known pixels, density {self.density:.2%}",
-                f"  {'':12s}{head}",
-                "  all         " + "  ".join(f"{100 * v:5.2f}" for v in self.bad_all),
-                "  valid-only  " + "  ".join(f"{100 * v:5.2f}" for v in self.bad_valid),
-                f"  mean abs error {self.mae_px:.3f} px, {self.mae_mm:.3f} mm"]
+        return [
+            f"truth: {self.n_truth} known pixels, density {self.density:.2%}",
+            f"  {'':12s}{head}",
+            "  all         " + "  ".join(f"{100 * v:5.2f}" for v in self.bad_all),
+            "  valid-only  " + "  ".join(f"{100 * v:5.2f}" for v in self.bad_valid),
+            f"  mean abs error {self.mae_px:.3f} px, {self.mae_mm:.3f} mm",
+        ]
 
 
-def score_disparity(estimate: np.ndarray, truth: np.ndarray,
-                    calibration: Calibration) -> TruthScore:
+def score_disparity(
+    estimate: np.ndarray, truth: np.ndarray, calibration: Calibration
+) -> TruthScore:
     """Score ``estimate`` (px, NaN where missing) against ``truth`` (px, NaN unknown)."""
     if estimate.shape != truth.shape:
         raise ReconError(f"estimate is {estimate.shape} but the truth is {truth.shape}")
@@ -130,9 +145,13 @@ def score_disparity(estimate: np.ndarray, truth: np.ndarray,
     front = (shifted_est > 0) & (shifted_true > 0)
     depth_error = np.abs(f_b_mm / shifted_est[front] - f_b_mm / shifted_true[front])
     return TruthScore(
-        n_truth=n_truth, density=len(error) / n_truth,
-        bad_all=tuple(float(np.count_nonzero(error > t) + n_truth - len(error)) / n_truth
-                      for t in BAD_THRESHOLDS_PX),
+        n_truth=n_truth,
+        density=len(error) / n_truth,
+        bad_all=tuple(
+            float(np.count_nonzero(error > t) + n_truth - len(error)) / n_truth
+            for t in BAD_THRESHOLDS_PX
+        ),
         bad_valid=tuple(float(np.count_nonzero(error > t)) / n_both for t in BAD_THRESHOLDS_PX),
         mae_px=float(error.mean()) if len(error) else float("nan"),
-        mae_mm=float(depth_error.mean()) if len(depth_error) else float("nan"))
+        mae_mm=float(depth_error.mean()) if len(depth_error) else float("nan"),
+    )

@@ -46,8 +46,7 @@ class FrameCloud:
     edge_fraction: float = 0.0
 
 
-def _fixed_point_map(map_x: np.ndarray, map_y: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray] | None:
+def _fixed_point_map(map_x: np.ndarray, map_y: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """OpenCV's fixed-point form of a remap, or None when it copies every pixel to itself."""
     xy, fraction = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
     grid = np.indices(map_x.shape, np.int16)[::-1].transpose(1, 2, 0)
@@ -68,34 +67,48 @@ class Reconstructor:
     OpenCV has several threads).
     """
 
-    def __init__(self, calibration: Calibration, sgbm_params: SgbmParams | None = None,
-                 verify: bool = True, n_fringes: int = DEFAULT_FRINGES,
-                 settings: ReconSettings | None = None,
-                 parallel_decode: bool | None = None) -> None:
+    def __init__(
+        self,
+        calibration: Calibration,
+        sgbm_params: SgbmParams | None = None,
+        verify: bool = True,
+        n_fringes: int = DEFAULT_FRINGES,
+        settings: ReconSettings | None = None,
+        parallel_decode: bool | None = None,
+    ) -> None:
         self.calibration = calibration
         self.settings = settings or ReconSettings()
         self.params = params_for(calibration, sgbm_params or SgbmParams(), self.settings)
         check_disparity_range(self.params, calibration.image_size)
         self.verify = verify
         self.parallel_decode = parallel_decode
-        self.decoder = FringeDecoder(ColorModel.from_calibration(calibration), n_fringes,
-                                     row_step=self.params.decode_row_step)
+        self.decoder = FringeDecoder(
+            ColorModel.from_calibration(calibration),
+            n_fringes,
+            row_step=self.params.decode_row_step,
+        )
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
         self._doffs = -calibration.doffs  # left minus right principal point x
-        self._camera = (calibration.f, calibration.B, calibration.cx, calibration.cy,
-                        self._doffs, calibration.fy)
+        self._camera = (
+            calibration.f,
+            calibration.B,
+            calibration.cx,
+            calibration.cy,
+            self._doffs,
+            calibration.fy,
+        )
         # computed once, in OpenCV's fast fixed-point form, reused for every frame; None
         # where rectification leaves the image as it is (an already-rectified pair)
-        self._maps = [_fixed_point_map(map_x, map_y)
-                      for map_x, map_y in calibration.rectification_maps()]
+        self._maps = [
+            _fixed_point_map(map_x, map_y) for map_x, map_y in calibration.rectification_maps()
+        ]
         kernels.warm_up()
 
     def _second_thread(self) -> ThreadPoolExecutor | None:
         """The thread the right view is decoded in while the left is decoded here (None without
         ``parallel_decode``: everything then runs in the calling thread)."""
-        parallel = (cv2.getNumThreads() > 1 if self.parallel_decode is None
-                    else self.parallel_decode)
+        parallel = cv2.getNumThreads() > 1 if self.parallel_decode is None else self.parallel_decode
         if not parallel:
             return None
         if self._pool is None:
@@ -109,10 +122,10 @@ class Reconstructor:
                 raise ReconError(
                     f"{name} image is {image.shape[1]}x{image.shape[0]} (shape {image.shape}) but "
                     f"the calibration is for {width}x{height} BGR images; use the calibration of "
-                    f"this camera and resolution")
+                    f"this camera and resolution"
+                )
 
-    def _rectify(self, image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None
-                 ) -> np.ndarray:
+    def _rectify(self, image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
     def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
@@ -126,29 +139,42 @@ class Reconstructor:
         left_code = self.decoder.decode(left, period)
         return left_code, right_code.result() if pool else self.decoder.decode(right, period)
 
-    def _verify_and_triangulate(self, rect_left: np.ndarray, disparity: np.ndarray,
-                                left_code: FringeCode, right_code: FringeCode, coded: CodedGrid
-                                ) -> tuple[np.ndarray, np.ndarray, dict[str, int],
-                                           tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _verify_and_triangulate(
+        self,
+        rect_left: np.ndarray,
+        disparity: np.ndarray,
+        left_code: FringeCode,
+        right_code: FringeCode,
+        coded: CodedGrid,
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Verified disparity, outcome per pixel, the verification's counts and the cloud:
         :func:`vbfe.recon.verify.verify_rows` (which also drops matches at or beyond infinity
         and counts the points) then :func:`vbfe.recon.kernels.fill_points`. With a second
         thread, the lower half of the rows is verified and filled in it (the same outcome, the
         points in the same order)."""
         out, status = np.empty_like(disparity), np.empty(disparity.shape, np.uint8)
-        check = functools.partial(verify_rows, disparity, left_code, right_code,
-                                  self.params.verify_search_px, coded, out=out, status=status,
-                                  doffs_px=self._doffs)
+        check = functools.partial(
+            verify_rows,
+            disparity,
+            left_code,
+            right_code,
+            self.params.verify_search_px,
+            coded,
+            out=out,
+            status=status,
+            doffs_px=self._doffs,
+        )
         pool, height = self._second_thread(), disparity.shape[0]
         split = height // 2 if pool is not None else height
         lower = pool.submit(check, split, height) if pool is not None else None
         upper = check(0, split)
         counts = upper + lower.result() if lower is not None else upper
         cloud = self._fill(rect_left, out, status, split, int(upper[-1]), int(counts[-1]), pool)
-        return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts))), cloud
+        return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts), strict=False)), cloud
 
-    def _triangulate(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _triangulate(
+        self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:func:`vbfe.recon.kernels.triangulate`; with a second thread, the lower half of the
         rows is counted and filled in it (the same points, in the same order)."""
         pool = self._second_thread()
@@ -158,20 +184,34 @@ class Reconstructor:
         split = height // 2
         lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
         n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
-        return self._fill(rect_left, disparity, status, split, n_upper,
-                          n_upper + lower.result(), pool)
+        return self._fill(
+            rect_left, disparity, status, split, n_upper, n_upper + lower.result(), pool
+        )
 
-    def _fill(self, rect_left: np.ndarray, disparity: np.ndarray, status: np.ndarray,
-              split: int, n_upper: int, n: int, pool: ThreadPoolExecutor | None
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _fill(
+        self,
+        rect_left: np.ndarray,
+        disparity: np.ndarray,
+        status: np.ndarray,
+        split: int,
+        n_upper: int,
+        n: int,
+        pool: ThreadPoolExecutor | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The ``n`` points, colours and verified flags of the counted pixels, those of rows
         from ``split`` on (after ``n_upper`` points) in ``pool``."""
-        points, colors, verified = (np.empty((n, 3), np.float32), np.empty((n, 3), np.uint8),
-                                    np.empty(n, bool))
+        points, colors, verified = (
+            np.empty((n, 3), np.float32),
+            np.empty((n, 3), np.uint8),
+            np.empty(n, bool),
+        )
         fill = functools.partial(kernels.fill_points, disparity, status, rect_left, *self._camera)
         height = disparity.shape[0]
-        lower = (pool.submit(fill, split, height, points, colors, verified, n_upper)
-                 if pool is not None and split < height else None)
+        lower = (
+            pool.submit(fill, split, height, points, colors, verified, n_upper)
+            if pool is not None and split < height
+            else None
+        )
         fill(0, split, points, colors, verified, 0)
         if lower is not None:
             lower.result()
@@ -180,11 +220,13 @@ class Reconstructor:
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         self._check_size(left, right)
-        rect_left, rect_right = (self._rectify(image, maps)
-                                 for image, maps in zip((left, right), self._maps))
+        rect_left, rect_right = (
+            self._rectify(image, maps) for image, maps in zip((left, right), self._maps, strict=False)
+        )
         if not self.verify:
-            disparity, edge = disparity_px(self._matcher.compute(rect_left, rect_right),
-                                           self.params)
+            disparity, edge = disparity_px(
+                self._matcher.compute(rect_left, rect_right), self.params
+            )
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             decoded = float("nan")
             counts: dict[str, int] = {}
@@ -198,8 +240,17 @@ class Reconstructor:
             disparity, edge = disparity_px(raw, self.params)
             coded, decoded = region.result() if region is not None else _coded_region(left_code)
             disparity, status, counts, cloud = self._verify_and_triangulate(
-                rect_left, disparity, left_code, right_code, coded)
+                rect_left, disparity, left_code, right_code, coded
+            )
         points, colors, verified = cloud
-        return FrameCloud(disparity=disparity, valid=status >= UNVERIFIED, points=points,
-                          colors=colors, verified=verified, status=status, counts=counts,
-                          decoded_fraction=decoded, edge_fraction=edge)
+        return FrameCloud(
+            disparity=disparity,
+            valid=status >= UNVERIFIED,
+            points=points,
+            colors=colors,
+            verified=verified,
+            status=status,
+            counts=counts,
+            decoded_fraction=decoded,
+            edge_fraction=edge,
+        )

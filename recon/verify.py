@@ -24,8 +24,9 @@ import numpy as np
 from vbfe.recon import kernels
 from vbfe.recon.decode import FringeCode
 
-NEIGHBOUR_OFFSETS = np.array(((0, -4), (0, 4), (-4, 0), (4, 0), (0, -8), (0, 8), (-8, 0), (8, 0)),
-                             np.int64)
+NEIGHBOUR_OFFSETS = np.array(
+    ((0, -4), (0, 4), (-4, 0), (4, 0), (0, -8), (0, 8), (-8, 0), (8, 0)), np.int64
+)
 REGION_FRINGES = 4  # side, in fringe widths, of the square over which readability is judged
 MIN_REGION_READABLE = 0.5  # share of readable codes that makes a square solidly coded
 # how far, in fringe widths, the coded region reaches beyond them (over glare and shadows
@@ -55,11 +56,14 @@ class CodedGrid:
     cols: np.ndarray  # int32, one per image column
 
     @classmethod
-    def of_map(cls, coded: np.ndarray) -> "CodedGrid":
+    def of_map(cls, coded: np.ndarray) -> CodedGrid:
         """A full-size bool map as a grid of one-pixel cells."""
         height, width = coded.shape
-        return cls(np.ascontiguousarray(coded, dtype=bool).view(np.uint8),
-                   np.arange(height, dtype=np.int32), np.arange(width, dtype=np.int32))
+        return cls(
+            np.ascontiguousarray(coded, dtype=bool).view(np.uint8),
+            np.arange(height, dtype=np.int32),
+            np.arange(width, dtype=np.int32),
+        )
 
     def full(self) -> np.ndarray:
         """The bool H×W map."""
@@ -71,8 +75,9 @@ def coded_grid(code: FringeCode) -> CodedGrid:
     height, width = code.index.shape
     cell = max(1, int(code.period_px // 2))
     cells = (max(1, width // cell), max(1, height // cell))
-    readable = cv2.resize(cv2.compare(code.index, 0, cv2.CMP_GE), cells,
-                          interpolation=cv2.INTER_AREA)
+    readable = cv2.resize(
+        cv2.compare(code.index, 0, cv2.CMP_GE), cells, interpolation=cv2.INTER_AREA
+    )
     side = 2 * REGION_FRINGES + 1  # in cells
     share = cv2.blur(readable, (side, side), borderType=cv2.BORDER_REPLICATE)
     solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)
@@ -89,23 +94,51 @@ def coded_region(code: FringeCode) -> np.ndarray:
     return coded_grid(code).full()
 
 
-def verify_rows(disparity: np.ndarray, left: FringeCode, right: FringeCode, search_px: int,
-                coded: CodedGrid, first_row: int, end_row: int, out: np.ndarray,
-                status: np.ndarray, doffs_px: float = -np.inf) -> np.ndarray:
+def verify_rows(
+    disparity: np.ndarray,
+    left: FringeCode,
+    right: FringeCode,
+    search_px: int,
+    coded: CodedGrid,
+    first_row: int,
+    end_row: int,
+    out: np.ndarray,
+    status: np.ndarray,
+    doffs_px: float = -np.inf,
+) -> np.ndarray:
     """Verify rows ``first_row:end_row`` into ``out`` and ``status`` (see
     :func:`verify_disparity`; matches at or below ``doffs_px``, at or beyond infinity, end as
     ``NO_MATCH``). Returns their counts: SGBM matches, kept, corrected, rejected, unverified
     and the pixels left with a disparity (the points they triangulate to)."""
-    return kernels.verify_pixels(disparity, left.index, right.index, left.colour, right.colour,
-                                 left.row_step, right.row_step, search_px, NEIGHBOUR_OFFSETS,
-                                 coded.cells, coded.rows, coded.cols, first_row, end_row,
-                                 doffs_px, out, status)
+    return kernels.verify_pixels(
+        disparity,
+        left.index,
+        right.index,
+        left.colour,
+        right.colour,
+        left.row_step,
+        right.row_step,
+        search_px,
+        NEIGHBOUR_OFFSETS,
+        coded.cells,
+        coded.rows,
+        coded.cols,
+        first_row,
+        end_row,
+        doffs_px,
+        out,
+        status,
+    )
 
 
-def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
-                     search_px: int = 3, coded: np.ndarray | CodedGrid | None = None,
-                     pool: Executor | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+def verify_disparity(
+    disparity: np.ndarray,
+    left: FringeCode,
+    right: FringeCode,
+    search_px: int = 3,
+    coded: np.ndarray | CodedGrid | None = None,
+    pool: Executor | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Verified disparity (float32, NaN where invalid), the outcome per pixel (uint8 codes of
     :mod:`vbfe.recon.kernels`: ``NO_MATCH``, ``REJECTED``, ``UNVERIFIED``, ``KEPT``,
     ``CORRECTED``) and counts of what happened.
@@ -128,4 +161,4 @@ def verify_disparity(disparity: np.ndarray, left: FringeCode, right: FringeCode,
     counts = check(0, split, out, status)
     if lower is not None:
         counts = counts + lower.result()
-    return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts)))
+    return out, status, dict(zip(COUNT_NAMES, (int(c) for c in counts), strict=False))

@@ -10,16 +10,21 @@ from vbfe.drivers.projector.pattern import N_SYMBOLS, WINDOW
 from vbfe.recon.color import DARK_FRACTION, MIN_SIGNAL, ColorModel
 from vbfe.recon.decode import BOUNDARY_DEPTH, MIN_FRINGE_VALUE, MIN_PURITY, MIN_VOTES, FringeDecoder
 from vbfe.recon.kernels import BOUNDARY_TOLERANCE_PX
-from vbfe.recon.verify import (MIN_REGION_READABLE, NEIGHBOUR_OFFSETS, REGION_FRINGES,
-                               REGION_REACH_FRINGES)
+from vbfe.recon.verify import (
+    MIN_REGION_READABLE,
+    NEIGHBOUR_OFFSETS,
+    REGION_FRINGES,
+    REGION_REACH_FRINGES,
+)
 
 
 def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) -> np.ndarray:
     """Fringe index map of ``image`` (as ``decoder.decode``) computed with numpy."""
     height = image.shape[0]
     step = decoder.row_step
-    middle = [min(first + (step - 1) // 2, (first + height - 1) // 2)
-              for first in range(0, height, step)]  # of each block of step rows
+    middle = [
+        min(first + (step - 1) // 2, (first + height - 1) // 2) for first in range(0, height, step)
+    ]  # of each block of step rows
     image = np.ascontiguousarray(image[middle])
     window = max(3, int(round(3.5 * period_px)))
     colour = correct(decoder.color_model, image, window)
@@ -30,8 +35,11 @@ def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) ->
     local_max = cv2.dilate(value, kernel)
     starts = np.zeros(value.shape, bool)
     centre = value[:, 1:-1]
-    starts[:, 1:-1] = ((centre < value[:, :-2]) & (centre <= value[:, 2:])
-                       & (centre < BOUNDARY_DEPTH * local_max[:, 1:-1]))
+    starts[:, 1:-1] = (
+        (centre < value[:, :-2])
+        & (centre <= value[:, 2:])
+        & (centre < BOUNDARY_DEPTH * local_max[:, 1:-1])
+    )
     starts[:, 0] = True
     starts = np.flatnonzero(starts)
     counts = np.diff(np.append(starts, value.size))
@@ -50,7 +58,6 @@ def decode_index(decoder: FringeDecoder, image: np.ndarray, period_px: float) ->
     return np.repeat(index, decoder.row_step, axis=0)[:height]
 
 
-
 def correct(model: ColorModel, image: np.ndarray, window_px: int) -> np.ndarray:
     """``model.correct(image, albedo_window_px=window_px)`` with OpenCV."""
     signal = cv2.subtract(image, tuple(float(v) for v in model.offset) + (0.0,))
@@ -64,8 +71,9 @@ def remove_base_color(signal: np.ndarray, window_px: int) -> np.ndarray:
     smooth = (window_px | 1, 3)
     low = cv2.blur(cv2.erode(signal, kernel), smooth)
     span = cv2.subtract(cv2.blur(cv2.dilate(signal, kernel), smooth), low, dtype=cv2.CV_32F)
-    floor = np.maximum(DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0),
-                       MIN_SIGNAL).astype(np.float32)
+    floor = np.maximum(
+        DARK_FRACTION * np.percentile(span[::8, ::8].reshape(-1, 3), 99, axis=0), MIN_SIGNAL
+    ).astype(np.float32)
     span = cv2.max(span, (*floor.tolist(), 0.0))
     return cv2.divide(cv2.subtract(signal, low, dtype=cv2.CV_32F), span)
 
@@ -81,6 +89,7 @@ def edge_fraction(disparity: np.ndarray, low: int, high: int) -> float:
     at_edge = np.count_nonzero(disparity <= low + 1) + np.count_nonzero(disparity >= high - 1)
     return float(at_edge / matched) if matched else 0.0
 
+
 def _vote(lookup, symbols, starts, width):
     n_segments = len(starts)
     starts_at_row = starts % width == 0
@@ -88,15 +97,15 @@ def _vote(lookup, symbols, starts, width):
     code = np.zeros(n_windows, np.int64)
     ok = np.ones(n_windows, bool)
     for k in range(WINDOW):
-        part = symbols[k:k + n_windows]
+        part = symbols[k : k + n_windows]
         ok &= part >= 0
         if k > 0:
-            ok &= ~starts_at_row[k:k + n_windows]
-        code += np.maximum(part, 0).astype(np.int64) * N_SYMBOLS ** k
+            ok &= ~starts_at_row[k : k + n_windows]
+        code += np.maximum(part, 0).astype(np.int64) * N_SYMBOLS**k
     first = np.where(ok, lookup[code], -1)
     candidates = np.full((WINDOW, n_segments), -1, np.int32)
     for offset in range(WINDOW):
-        candidates[offset, offset:offset + n_windows] = np.where(first >= 0, first + offset, -1)
+        candidates[offset, offset : offset + n_windows] = np.where(first >= 0, first + offset, -1)
     best = np.full(n_segments, -1, np.int16)
     best_votes = np.zeros(n_segments, np.int8)
     for offset in range(WINDOW):
@@ -118,18 +127,26 @@ def verify(disparity, left, right, search_px):
     row_map = np.repeat(np.arange(height, dtype=np.float32)[:, None], width, axis=1)
     matched_xy, _ = cv2.convertMaps(map_x, row_map, cv2.CV_16SC2, nninterpolation=True)
     tol = BOUNDARY_TOLERANCE_PX
-    padded = cv2.copyMakeBorder(right.index.astype(np.int16), 0, 0, tol, tol,
-                                cv2.BORDER_CONSTANT, value=-2)
+    padded = cv2.copyMakeBorder(
+        right.index.astype(np.int16), 0, 0, tol, tol, cv2.BORDER_CONSTANT, value=-2
+    )
     kept = np.zeros((height, width), bool)
     for start in range(2 * tol + 1):
-        code = cv2.remap(padded[:, start:start + width], matched_xy, None, cv2.INTER_NEAREST,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=-2)
+        code = cv2.remap(
+            padded[:, start : start + width],
+            matched_xy,
+            None,
+            cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=-2,
+        )
         kept |= code == left.index
     kept &= readable
     out = np.where(kept, disparity, np.float32(np.nan))
     rows, cols = np.divmod(np.flatnonzero(readable & ~kept), width)
-    out[rows, cols] = _search(disparity, left, right, rows, cols, disparity[rows, cols],
-                              left.index[rows, cols], search_px)
+    out[rows, cols] = _search(
+        disparity, left, right, rows, cols, disparity[rows, cols], left.index[rows, cols], search_px
+    )
     return out
 
 
@@ -145,8 +162,9 @@ def _search(disparity, left, right, rows, cols, d, code, search_px):
     height, width = disparity.shape
     shifts = [d + k for k in range(-search_px, search_px + 1) if k]
     for dy, dx in NEIGHBOUR_OFFSETS:
-        shifts.append(disparity[np.clip(rows + dy, 0, height - 1),
-                                np.clip(cols + dx, 0, width - 1)])
+        shifts.append(
+            disparity[np.clip(rows + dy, 0, height - 1), np.clip(cols + dx, 0, width - 1)]
+        )
     candidates = np.stack(shifts, axis=1)
     n, k = candidates.shape
     rr = np.repeat(rows, k)

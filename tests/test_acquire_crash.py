@@ -38,9 +38,12 @@ RECORDER_SCRIPT = textwrap.dedent("""
 
 def test_sigkill_mid_recording_keeps_everything_up_to_the_last_flush(tmp_path, capsys):
     path = tmp_path / "killed.h5"
-    proc = subprocess.Popen([sys.executable, "-c", RECORDER_SCRIPT, str(path)],
-                            stdout=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[1])
+    proc = subprocess.Popen(
+        [sys.executable, "-c", RECORDER_SCRIPT, str(path)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
     flushed = []
     deadline = time.monotonic() + 60
     while len(flushed) < 6 and time.monotonic() < deadline:

@@ -24,8 +24,16 @@ from vbfe.drivers.trocar.base import ForceSensor
 def force_profile(t_s: np.ndarray | float) -> np.ndarray:
     """A pull-and-hold-like force (N) with irregular ramps, so its changes have a unique lag."""
     t = np.asarray(t_s, dtype=np.float64)
-    bumps = [(0.4, 0.25, 1.0), (1.3, 0.15, -0.6), (2.1, 0.3, 1.4), (3.0, 0.1, -0.9),
-             (3.7, 0.2, 0.8), (4.5, 0.35, -1.2), (5.4, 0.12, 0.7), (6.1, 0.25, -0.5)]
+    bumps = [
+        (0.4, 0.25, 1.0),
+        (1.3, 0.15, -0.6),
+        (2.1, 0.3, 1.4),
+        (3.0, 0.1, -0.9),
+        (3.7, 0.2, 0.8),
+        (4.5, 0.35, -1.2),
+        (5.4, 0.12, 0.7),
+        (6.1, 0.25, -0.5),
+    ]
     fz = sum(a / (1 + np.exp(-(t - t0) / w * 4)) for t0, w, a in bumps)
     return np.stack([0.1 * fz, np.zeros_like(t), fz], axis=-1)
 
@@ -40,15 +48,25 @@ def bar_image(x: float, width: int, height: int) -> np.ndarray:
 class _Clock:
     """Device clock and transport: true time → (device ns, host ns)."""
 
-    def __init__(self, offset_ns: int, drift_ppm: float, latency_s: float, jitter_s: float,
-                 seed: int) -> None:
-        self.offset_ns, self.drift, self.latency_s, self.jitter_s = offset_ns, drift_ppm, latency_s, jitter_s
+    def __init__(
+        self, offset_ns: int, drift_ppm: float, latency_s: float, jitter_s: float, seed: int
+    ) -> None:
+        self.offset_ns, self.drift, self.latency_s, self.jitter_s = (
+            offset_ns,
+            drift_ppm,
+            latency_s,
+            jitter_s,
+        )
         self.rng = np.random.default_rng(seed)
         self.t0_host_ns = 0
 
     def stamps(self, t_true_s: float) -> tuple[int, int]:
         t_dev = self.offset_ns + int(round(t_true_s * (1 + self.drift * 1e-6) * 1e9))
-        delay = self.latency_s + self.rng.exponential(self.jitter_s) if self.jitter_s else self.latency_s
+        delay = (
+            self.latency_s + self.rng.exponential(self.jitter_s)
+            if self.jitter_s
+            else self.latency_s
+        )
         return t_dev, self.t0_host_ns + int(round((t_true_s + delay) * 1e9))
 
 
@@ -82,11 +100,22 @@ class _PacedDevice:
 class BarCamera(_PacedDevice, StereoCamera):
     """Stereo camera filming the bar; ``left[0, 0, 0]`` holds ``seq % 256`` for checking."""
 
-    def __init__(self, width: int = 64, height: int = 48, fps: float = 30.0, speed: float | None = 4.0,
-                 n_frames: int | None = None, disconnect_after: int | None = None,
-                 drop_seqs: tuple[int, ...] = (), offset_ns: int = 5_000_000_000,
-                 drift_ppm: float = 0.0, latency_s: float = 0.0, jitter_s: float = 0.0,
-                 seed: int = 1, pixels_per_newton: float = 8.0) -> None:
+    def __init__(
+        self,
+        width: int = 64,
+        height: int = 48,
+        fps: float = 30.0,
+        speed: float | None = 4.0,
+        n_frames: int | None = None,
+        disconnect_after: int | None = None,
+        drop_seqs: tuple[int, ...] = (),
+        offset_ns: int = 5_000_000_000,
+        drift_ppm: float = 0.0,
+        latency_s: float = 0.0,
+        jitter_s: float = 0.0,
+        seed: int = 1,
+        pixels_per_newton: float = 8.0,
+    ) -> None:
         super().__init__()
         self.width, self.height, self.fps = width, height, fps
         self.speed, self.n_frames, self.disconnect_after = speed, n_frames, disconnect_after
@@ -119,9 +148,18 @@ class BarCamera(_PacedDevice, StereoCamera):
 class ProfileForce(_PacedDevice, ForceSensor):
     """Force sensor reading :func:`force_profile` plus noise at ``rate_hz``."""
 
-    def __init__(self, rate_hz: float = 200.0, speed: float | None = 4.0, noise_n: float = 0.005,
-                 offset_ns: int = -3_000_000_000, drift_ppm: float = 0.0, latency_s: float = 0.0,
-                 jitter_s: float = 0.0, disconnect_after: int | None = None, seed: int = 2) -> None:
+    def __init__(
+        self,
+        rate_hz: float = 200.0,
+        speed: float | None = 4.0,
+        noise_n: float = 0.005,
+        offset_ns: int = -3_000_000_000,
+        drift_ppm: float = 0.0,
+        latency_s: float = 0.0,
+        jitter_s: float = 0.0,
+        disconnect_after: int | None = None,
+        seed: int = 2,
+    ) -> None:
         super().__init__()
         self.rate_hz, self.speed, self.noise_n = rate_hz, speed, noise_n
         self.disconnect_after = disconnect_after
@@ -164,11 +202,11 @@ class RecordingProjector(Projector):
 
 def bar_devices(**camera_options) -> Rig:
     """A camera, trocar and projector sharing the bar scene."""
-    force_options = {k[6:]: camera_options.pop(k) for k in list(camera_options)
-                     if k.startswith("force_")}
+    force_options = {
+        k[6:]: camera_options.pop(k) for k in list(camera_options) if k.startswith("force_")
+    }
     force_options.setdefault("speed", camera_options.get("speed", 4.0))
-    return Rig(BarCamera(**camera_options), ProfileForce(**force_options),
-               RecordingProjector())
+    return Rig(BarCamera(**camera_options), ProfileForce(**force_options), RecordingProjector())
 
 
 def write_bar_session(path, seconds: float = 7.0, compression: str = "lzf", **options) -> None:
@@ -180,8 +218,9 @@ def write_bar_session(path, seconds: float = 7.0, compression: str = "lzf", **op
     cam, trocar = devices.camera, devices.trocar
     cam.open()
     trocar.open()
-    writer = SessionWriter(path, (cam.width, cam.height), compression,
-                           {"operator": "synthetic", "devices": {}})
+    writer = SessionWriter(
+        path, (cam.width, cam.height), compression, {"operator": "synthetic", "devices": {}}
+    )
     frames = []
     while len(frames) == 0 or frames[-1].seq / cam.fps < seconds:
         frame = cam.read(0.0)

@@ -10,8 +10,15 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import bar_devices
-from vbfe.acquire import (Acquisition, Listener, Recorder, SessionError, SessionReader,
-                          SessionWriter, recover_session)
+from vbfe.acquire import (
+    Acquisition,
+    Listener,
+    Recorder,
+    SessionError,
+    SessionReader,
+    SessionWriter,
+    recover_session,
+)
 from vbfe.acquire.session.layout import marker_stream, vector_stream
 from vbfe.common.config import load_config
 from vbfe.drivers.device import SampleStream
@@ -33,8 +40,9 @@ class FrameCounter(Listener):
 
 def test_a_frame_counting_listener_sees_every_recorded_frame(tmp_path):
     counter = FrameCounter()
-    with Recorder(bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0,
-                  listeners=(counter,)) as recorder:
+    with Recorder(
+        bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0, listeners=(counter,)
+    ) as recorder:
         stats = recorder.run(2.0)
     with SessionReader(tmp_path / "s.h5") as session:
         assert counter.frames == session.n_frames == stats.frames >= 55
@@ -46,8 +54,9 @@ class Broken(Listener):
 
 
 def test_a_failing_listener_stops_the_acquisition_and_the_session_is_finalized(tmp_path):
-    recorder = Recorder(bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0,
-                        listeners=(Broken(),))
+    recorder = Recorder(
+        bar_devices(speed=8.0), tmp_path / "s.h5", min_free_bytes=0, listeners=(Broken(),)
+    )
     with pytest.raises(ValueError, match="a bug in a listener"):
         recorder.run(5.0)
     assert not any(d.is_open for d in recorder.rig.devices.values())

@@ -16,10 +16,14 @@ from vbfe.drivers.rig import Rig
 def test_v4l2_camera_vanishing_ends_session_with_gap_and_can_forces(tmp_path):
     path = tmp_path / "s.h5"
     with FakeTrocar("acquire-test", force_profile, rate_hz=500.0, noise_n=0.01) as fake:
-        devices = Rig(FakeStereoCamera(disconnect_after=25, drop_seqs=(7, 8)),
-                      fake.trocar(), RecordingProjector())
-        with Recorder(devices, path, compression="lzf", flush_interval_s=0.2,
-                      min_free_bytes=0) as rec:
+        devices = Rig(
+            FakeStereoCamera(disconnect_after=25, drop_seqs=(7, 8)),
+            fake.trocar(),
+            RecordingProjector(),
+        )
+        with Recorder(
+            devices, path, compression="lzf", flush_interval_s=0.2, min_free_bytes=0
+        ) as rec:
             stats = rec.run(10.0)
     assert "camera disconnected" in stats.end_reason
     with SessionReader(path) as s:

@@ -8,18 +8,25 @@ import h5py
 import numpy as np
 import pytest
 
+import vbfe.acquire.recording.session_sink as sink_module
 from tests.test_acquire_devices import bar_devices, bar_image, force_profile
 from vbfe.acquire import Recorder, SessionError, SessionReader, store_calibration
-import vbfe.acquire.recording.session_sink as sink_module
 
 CAM_OFFSET_NS = 5_000_000_000
 
 
 def record(path, duration_s=1.0, compression="lzf", **options):
     devices = bar_devices(**options)
-    with Recorder(devices, path, compression=compression, flush_interval_s=0.2,
-                  metadata={"operator": "ana", "notes": "bench 3"}, min_free_bytes=0,
-                  pattern=np.zeros((48, 64, 3), np.uint8), pattern_name="debruijn") as rec:
+    with Recorder(
+        devices,
+        path,
+        compression=compression,
+        flush_interval_s=0.2,
+        metadata={"operator": "ana", "notes": "bench 3"},
+        min_free_bytes=0,
+        pattern=np.zeros((48, 64, 3), np.uint8),
+        pattern_name="debruijn",
+    ) as rec:
         stats = rec.run(duration_s)
     return devices, stats
 
@@ -53,8 +60,14 @@ def test_round_trip_keeps_frames_forces_events_and_metadata(tmp_path, compressio
 
 def test_force_at_frames_is_the_force_at_each_frame_time(tmp_path):
     path = tmp_path / "s.h5"
-    record(path, duration_s=2.0, force_latency_s=0.004, force_jitter_s=0.002, latency_s=0.03,
-           jitter_s=0.003)
+    record(
+        path,
+        duration_s=2.0,
+        force_latency_s=0.004,
+        force_jitter_s=0.002,
+        latency_s=0.03,
+        jitter_s=0.003,
+    )
     with SessionReader(path) as s:
         f = s.force_at_frames()
         assert f.shape == (s.n_frames, 3)
@@ -72,8 +85,15 @@ def test_force_at_frames_is_the_force_at_each_frame_time(tmp_path):
 
 def test_clock_fit_recovers_offset_and_drift(tmp_path):
     path = tmp_path / "s.h5"
-    record(path, duration_s=10.0, speed=40.0, drift_ppm=80.0, jitter_s=0.001, force_drift_ppm=-40.0,
-           force_jitter_s=0.001)
+    record(
+        path,
+        duration_s=10.0,
+        speed=40.0,
+        drift_ppm=80.0,
+        jitter_s=0.001,
+        force_drift_ppm=-40.0,
+        force_jitter_s=0.001,
+    )
     with SessionReader(path) as s:
         cam, force = s.clock_fit("camera"), s.clock_fit("force")
         assert cam.drift_ppm == pytest.approx(80.0, abs=10)
@@ -89,8 +109,16 @@ def test_camera_that_vanishes_ends_the_session_cleanly_with_a_marked_gap(tmp_pat
     with SessionReader(path) as s:
         assert s.complete and s.n_frames == 20
         gaps = [g for g in s.gaps() if g["reason"] == "device disconnected"]
-        assert gaps == [dict(stream="camera", reason="device disconnected", last_seq=19,
-                             next_seq=-1, t_host_ns=gaps[0]["t_host_ns"], count=0)]
+        assert gaps == [
+            dict(
+                stream="camera",
+                reason="device disconnected",
+                last_seq=19,
+                next_seq=-1,
+                t_host_ns=gaps[0]["t_host_ns"],
+                count=0,
+            )
+        ]
         assert "camera disconnected" in s.attrs["end_reason"]
 
 
@@ -158,8 +186,9 @@ def test_disk_filling_up_stops_and_finalizes_between_flushes(tmp_path, monkeypat
     devices = bar_devices()
     rec = Recorder(devices, path, flush_interval_s=10.0, min_free_bytes=1000)
     start = time.monotonic()
-    monkeypatch.setattr(sink_module, "free_bytes",
-                        lambda d: 10 if time.monotonic() - start > 1.0 else 10**9)
+    monkeypatch.setattr(
+        sink_module, "free_bytes", lambda d: 10 if time.monotonic() - start > 1.0 else 10**9
+    )
     rec.start()
     with pytest.raises(SessionError, match=f"disk almost full.*{tmp_path}.*finalized with"):
         rec.run(5.0)

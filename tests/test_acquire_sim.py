@@ -28,8 +28,9 @@ def sim_session(tmp_path_factory):
     rig = folder / "rig.toml"
     rig.write_text(RIG)
     path = folder / "sim.h5"
-    stats = record_session(load_config(rig), path, 3.0, operator="bench", notes="sim",
-                           conditions={"grasp": "2"})
+    stats = record_session(
+        load_config(rig), path, 3.0, operator="bench", notes="sim", conditions={"grasp": "2"}
+    )
     return path, stats
 
 
@@ -38,7 +39,9 @@ def test_sim_session_holds_truth_conditions_and_bench(sim_session):
     with SessionReader(path) as s:
         assert s.complete and s.n_frames == stats.frames >= 90
         meta = s.metadata
-        assert meta["conditions"]["stiffness_n_per_m"] == 200.0 and meta["conditions"]["grasp"] == "2"
+        assert (
+            meta["conditions"]["stiffness_n_per_m"] == 200.0 and meta["conditions"]["grasp"] == "2"
+        )
         assert meta["bench"]["width"] == 320
         assert [e.pattern for e in s.projector_events()] == ["debruijn-hsv"]
         truth = s.truth("force_n")
@@ -69,8 +72,25 @@ def test_cli_record_inspect_verify(tmp_path, capsys):
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
     out = tmp_path / "cli.h5"
-    assert main(["record", str(out), "--duration", "0.4", "--config", str(rig), "--operator",
-                 "ana", "--condition", "speed=0.01", "--compression", "blosc-lz4"]) == 0
+    assert (
+        main(
+            [
+                "record",
+                str(out),
+                "--duration",
+                "0.4",
+                "--config",
+                str(rig),
+                "--operator",
+                "ana",
+                "--condition",
+                "speed=0.01",
+                "--compression",
+                "blosc-lz4",
+            ]
+        )
+        == 0
+    )
     assert "frames" in capsys.readouterr().out
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out

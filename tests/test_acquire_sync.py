@@ -7,9 +7,9 @@ import pytest
 
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import SessionReader
+from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.audit import audit_sequence
 from vbfe.acquire.session.clock import fit_clock
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.sync.check import SyncLimits, verify_sync
 from vbfe.acquire.sync.corners import corner_offset
 
@@ -19,9 +19,17 @@ def test_recovers_injected_37_ms_offset_with_ci_and_drift(tmp_path):
     # delays 40 ms + Exp(2 ms) for frames, 3 ms + Exp(1 ms) for forces: clock fits map each
     # stream to its median arrival, so the offset is 37 ms + ln 2 · (2 - 1) ms ≈ 37.7 ms; device
     # clocks drift; 20 s, so the lower envelope of the jitter pins the drift to a few ppm
-    write_bar_session(path, seconds=20.0, latency_s=0.040, jitter_s=0.002, drift_ppm=50.0,
-                      force_rate_hz=1000.0, force_latency_s=0.003, force_jitter_s=0.001,
-                      force_drift_ppm=-20.0)
+    write_bar_session(
+        path,
+        seconds=20.0,
+        latency_s=0.040,
+        jitter_s=0.002,
+        drift_ppm=50.0,
+        force_rate_hz=1000.0,
+        force_latency_s=0.003,
+        force_jitter_s=0.001,
+        force_drift_ppm=-20.0,
+    )
     png = tmp_path / "sync.png"
     report = verify_sync(path, plot_path=png)
     e = report.estimate
@@ -90,11 +98,15 @@ def test_corner_offset_finds_a_sub_frame_lag_at_the_pull_corners():
     forces = np.outer(force, [0.6, 0.0, -0.8]) + rng.normal(0.0, 0.03, (len(t_force), 3))
     t_frames = np.arange(0.0, 6.0, 1 / 30)
     u, _ = _ramp_and_hold(t_frames)
-    components = np.stack([300 * u, 2e4 * u ** 2, np.sin(200 * u)], axis=1)  # smooth, nonlinear
+    components = np.stack([300 * u, 2e4 * u**2, np.sin(200 * u)], axis=1)  # smooth, nonlinear
     components += rng.normal(0.0, 0.01, components.shape)
     lag_s = 0.0213  # not a multiple of the 33 ms frame period
-    e = corner_offset(((t_frames + lag_s) * 1e9).astype(np.int64), components,
-                      (t_force * 1e9).astype(np.int64), forces)
+    e = corner_offset(
+        ((t_frames + lag_s) * 1e9).astype(np.int64),
+        components,
+        (t_force * 1e9).astype(np.int64),
+        forces,
+    )
     assert e.method == "force corners" and e.corners == 2
     assert e.corner_times_s == pytest.approx([1.0, 4.0], abs=0.02)
     assert e.offset_s == pytest.approx(lag_s, abs=0.005)
@@ -106,8 +118,12 @@ def test_corner_offset_refuses_a_force_without_corners():
     forces = np.random.default_rng(0).normal(0.0, 0.03, (len(t), 3))
     frames = np.arange(0.0, 3.0, 1 / 30)
     with pytest.raises(SessionError, match="nothing to align"):
-        corner_offset((frames * 1e9).astype(np.int64), np.zeros((len(frames), 3)),
-                      (t * 1e9).astype(np.int64), forces)
+        corner_offset(
+            (frames * 1e9).astype(np.int64),
+            np.zeros((len(frames), 3)),
+            (t * 1e9).astype(np.int64),
+            forces,
+        )
 
 
 @pytest.mark.parametrize("seconds", [3.0, 60.0])

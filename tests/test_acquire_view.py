@@ -14,14 +14,14 @@ from vbfe.acquire.viewer import FORCE_PENS, LiveViewer, ReplayViewer, grab_png
 
 
 def _has_colour(image: np.ndarray, hex_colour: str, min_pixels: int = 30) -> bool:
-    rgb = np.array([int(hex_colour[i:i + 2], 16) for i in (1, 3, 5)])
+    rgb = np.array([int(hex_colour[i : i + 2], 16) for i in (1, 3, 5)])
     close = np.abs(image[..., ::-1].astype(int) - rgb).sum(axis=2) < 40
     return int(close.sum()) >= min_pixels
 
 
 def _plot_region(window, image):
     geo = window.plot.geometry()
-    return image[geo.top():geo.bottom(), geo.left():geo.right()]
+    return image[geo.top() : geo.bottom(), geo.left() : geo.right()]
 
 
 def test_replay_shows_frames_and_force_curve(tmp_path):

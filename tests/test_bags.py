@@ -10,7 +10,13 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
-from vbfe.acquire import EstimateStream, SessionReader, record_session, store_analysis, store_estimates
+from vbfe.acquire import (
+    EstimateStream,
+    SessionReader,
+    record_session,
+    store_analysis,
+    store_estimates,
+)
 from vbfe.calib.calibration import Calibration
 from vbfe.cli.main import main
 from vbfe.common.config import default_config
@@ -30,16 +36,29 @@ def sessions(tmp_path_factory):
     paths = {}
     for name, compression in (("raw", "lzf"), ("jpeg", "mjpeg")):
         paths[name] = folder / f"{name}.h5"
-        record_session(config, paths[name], duration_s=2.0, compression=compression,
-                       calibration_yaml=calibration.to_yaml_text())
+        record_session(
+            config,
+            paths[name],
+            duration_s=2.0,
+            compression=compression,
+            calibration_yaml=calibration.to_yaml_text(),
+        )
     store_analysis(paths["raw"], {"frame_time_correction_ns": CORRECTION_NS})
     with SessionReader(paths["raw"]) as reader:
         n = reader.n_frames
         t_dev, t_host, seq = reader.stream_times("camera")
-    store_estimates(paths["raw"], EstimateStream(
-        force_n=np.linspace(0, 1, n)[:, None], frame_seq=seq, t_frame_host_ns=t_host,
-        t_ready_host_ns=t_host + 20_000_000, stage_s=np.full((n, 1), 0.02), stages=["model"],
-        attrs={"target": "magnitude", "outputs": 1}))
+    store_estimates(
+        paths["raw"],
+        EstimateStream(
+            force_n=np.linspace(0, 1, n)[:, None],
+            frame_seq=seq,
+            t_frame_host_ns=t_host,
+            t_ready_host_ns=t_host + 20_000_000,
+            stage_s=np.full((n, 1), 0.02),
+            stages=["model"],
+            attrs={"target": "magnitude", "outputs": 1},
+        ),
+    )
     return paths
 
 
@@ -47,8 +66,10 @@ def _decoded(path):
     with open(path, "rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
-        messages = [(channel.topic, message, decoded) for _, channel, message, decoded
-                    in reader.iter_decoded_messages(log_time_order=False)]
+        messages = [
+            (channel.topic, message, decoded)
+            for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False)
+        ]
     return summary, messages
 
 
@@ -58,8 +79,21 @@ def _stamp(header):
 
 def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_path):
     out = tmp_path / "raw.mcap"
-    assert main(["export", str(sessions["raw"]), "--format", "mcap", "-o", str(out),
-                 "--compression", "zstd"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                str(sessions["raw"]),
+                "--format",
+                "mcap",
+                "-o",
+                str(out),
+                "--compression",
+                "zstd",
+            ]
+        )
+        == 0
+    )
     summary, messages = _decoded(out)
     assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
     assert summary.statistics.message_count == len(messages)
@@ -79,8 +113,9 @@ def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_p
             assert len(by_topic[f"/stereo/{eye}/camera_info"]) == n
         wrenches = by_topic["/trocar/wrench"]
         assert len(wrenches) == len(forces)
-        got = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z]
-                        for _, w in wrenches])
+        got = np.array(
+            [[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for _, w in wrenches]
+        )
         np.testing.assert_array_equal(got, forces)
     stamps = np.array([_stamp(image.header) for _, image in by_topic["/stereo/left/image_raw"]])
     # Unix time (after 2020), the corrected frame times, on the same clock as the force
@@ -106,8 +141,9 @@ def test_jpeg_session_exports_the_stored_jpeg_bytes(sessions, tmp_path):
     assert {c.compression for c in summary.chunk_indexes} == {"lz4"}
     left = [d for topic, _, d in messages if topic == "/stereo/left/image_raw/compressed"]
     with SessionReader(sessions["jpeg"]) as reader:
-        assert [bytes(m.data) for m in left] == [reader.encoded_frame(i)[0]
-                                                 for i in range(reader.n_frames)]
+        assert [bytes(m.data) for m in left] == [
+            reader.encoded_frame(i)[0] for i in range(reader.n_frames)
+        ]
     assert left[0].format == "jpeg"
 
 
@@ -132,12 +168,15 @@ def _assert_same_session(original, imported, jpeg_bytes=False):
                 assert a.encoded_frame(i) == b.encoded_frame(i)
         np.testing.assert_array_equal(a.forces_n(), b.forces_n())
         assert a.calibration_yaml() == b.calibration_yaml()
-        np.testing.assert_array_equal(b.frame_times_ns() - b.frame_times_ns()[0],
-                                      a.frame_times_ns() - a.frame_times_ns()[0])
-        np.testing.assert_array_equal(b.force_times_ns() - b.frame_times_ns()[0],
-                                      a.force_times_ns() - a.frame_times_ns()[0])
-        assert [e.pattern for e in a.projector_events()] == \
-            [e.pattern for e in b.projector_events()]
+        np.testing.assert_array_equal(
+            b.frame_times_ns() - b.frame_times_ns()[0], a.frame_times_ns() - a.frame_times_ns()[0]
+        )
+        np.testing.assert_array_equal(
+            b.force_times_ns() - b.frame_times_ns()[0], a.force_times_ns() - a.frame_times_ns()[0]
+        )
+        assert [e.pattern for e in a.projector_events()] == [
+            e.pattern for e in b.projector_events()
+        ]
         assert b.metadata["conditions"] == a.metadata["conditions"]
 
 
@@ -170,41 +209,79 @@ def _robot_messages(store, session, ros1, compressed):
         frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + t0
         for i in range(reader.n_frames):
             frame = reader.frame(i)
-            for eye, image, K, D, R, P in (("left", frame.left, cal.K1, cal.D1, cal.R1, cal.P1),
-                                           ("right", frame.right, cal.K2, cal.D2, cal.R2,
-                                            cal.P2)):
+            for eye, image, K, D, R, P in (
+                ("left", frame.left, cal.K1, cal.D1, cal.R1, cal.P1),
+                ("right", frame.right, cal.K2, cal.D2, cal.R2, cal.P2),
+            ):
                 t = int(frame_t[i]) + (1_000_000 if eye == "right" else 0)  # 1 ms apart
                 h = header(t, f"{eye}_camera")
                 if compressed:
                     data = np.frombuffer(cv2.imencode(".png", image)[1].tobytes(), np.uint8)
-                    msg = types["sensor_msgs/msg/CompressedImage"](header=h, format="png",
-                                                                    data=data)
-                    out.append((f"/stereo/{eye}/image_raw/compressed",
-                                "sensor_msgs/msg/CompressedImage", t, msg))
+                    msg = types["sensor_msgs/msg/CompressedImage"](
+                        header=h, format="png", data=data
+                    )
+                    out.append(
+                        (
+                            f"/stereo/{eye}/image_raw/compressed",
+                            "sensor_msgs/msg/CompressedImage",
+                            t,
+                            msg,
+                        )
+                    )
                 else:
                     rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
                     msg = types["sensor_msgs/msg/Image"](
-                        header=h, height=90, width=160, encoding="rgb8", is_bigendian=0,
-                        step=480, data=rgb.reshape(-1))
+                        header=h,
+                        height=90,
+                        width=160,
+                        encoding="rgb8",
+                        is_bigendian=0,
+                        step=480,
+                        data=rgb.reshape(-1),
+                    )
                     out.append((f"/stereo/{eye}/image_raw", "sensor_msgs/msg/Image", t, msg))
-                info = {"D" if ros1 else "d": D, "K" if ros1 else "k": K.ravel(),
-                        "R" if ros1 else "r": R.ravel(), "P" if ros1 else "p": P.ravel()}
+                info = {
+                    "D" if ros1 else "d": D,
+                    "K" if ros1 else "k": K.ravel(),
+                    "R" if ros1 else "r": R.ravel(),
+                    "P" if ros1 else "p": P.ravel(),
+                }
                 roi = types["sensor_msgs/msg/RegionOfInterest"](
-                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-                out.append((f"/stereo/{eye}/camera_info", "sensor_msgs/msg/CameraInfo", t,
-                            types["sensor_msgs/msg/CameraInfo"](
-                                header=h, height=90, width=160, distortion_model="plumb_bob",
-                                binning_x=0, binning_y=0, roi=roi, **info)))
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+                )
+                out.append(
+                    (
+                        f"/stereo/{eye}/camera_info",
+                        "sensor_msgs/msg/CameraInfo",
+                        t,
+                        types["sensor_msgs/msg/CameraInfo"](
+                            header=h,
+                            height=90,
+                            width=160,
+                            distortion_model="plumb_bob",
+                            binning_x=0,
+                            binning_y=0,
+                            roi=roi,
+                            **info,
+                        ),
+                    )
+                )
         forces = reader.forces_n()
         force_t = reader.force_times_ns() - reader.frame_times_ns()[0] + t0
         Vector3 = types["geometry_msgs/msg/Vector3"]
         for i in range(len(forces)):
             t = int(force_t[i])
-            wrench = types["geometry_msgs/msg/Wrench"](force=Vector3(*forces[i]),
-                                                       torque=Vector3(0.0, 0.0, 0.0))
-            out.append(("/force_sensor/wrench", "geometry_msgs/msg/WrenchStamped", t,
-                        types["geometry_msgs/msg/WrenchStamped"](header=header(t, "ft"),
-                                                                 wrench=wrench)))
+            wrench = types["geometry_msgs/msg/Wrench"](
+                force=Vector3(*forces[i]), torque=Vector3(0.0, 0.0, 0.0)
+            )
+            out.append(
+                (
+                    "/force_sensor/wrench",
+                    "geometry_msgs/msg/WrenchStamped",
+                    t,
+                    types["geometry_msgs/msg/WrenchStamped"](header=header(t, "ft"), wrench=wrench),
+                )
+            )
     return sorted(out, key=lambda m: m[2]), cal
 
 
@@ -244,8 +321,9 @@ def test_import_robot_bag_written_by_rosbags(sessions, tmp_path, ros1, capsys):
         np.testing.assert_array_equal(b.forces_n(), a.forces_n())
         imported = Calibration.from_yaml_text(b.calibration_yaml())
     for name in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q"):
-        np.testing.assert_allclose(getattr(imported, name), getattr(cal, name), rtol=1e-9,
-                                   atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(
+            getattr(imported, name), getattr(cal, name), rtol=1e-9, atol=1e-12, err_msg=name
+        )
     assert imported.B == pytest.approx(cal.B, rel=1e-12)
 
 
@@ -261,8 +339,12 @@ def test_reconstruct_works_on_an_imported_bag(sessions, tmp_path):
     densities = []
     for session in (out, sessions["raw"]):
         clouds = tmp_path / f"{session.stem}.clouds.h5"
-        assert main(["reconstruct", str(session), "--workers", "1", "--no-verify",
-                     "--out", str(clouds)]) == 0
+        assert (
+            main(
+                ["reconstruct", str(session), "--workers", "1", "--no-verify", "--out", str(clouds)]
+            )
+            == 0
+        )
         with CloudReader(clouds) as reader:
             densities.append(reader.frame_table("valid_fraction"))
     assert len(densities[0]) == 30 and np.median(densities[0]) > 0.2
@@ -275,8 +357,10 @@ def test_reconstruct_works_on_an_imported_bag(sessions, tmp_path):
         assert f"<td>force samples</td><td>{len(reader.forces_n())}</td>" in page
     # the clouds go out as PointCloud2: x, y, z float32 and packed rgb, every point
     mcap = tmp_path / "with_clouds.mcap"
-    assert main(["export", str(out), "-o", str(mcap), "--clouds",
-                 str(tmp_path / "robot.clouds.h5")]) == 0
+    assert (
+        main(["export", str(out), "-o", str(mcap), "--clouds", str(tmp_path / "robot.clouds.h5")])
+        == 0
+    )
     clouds = [d for topic, _, d in _decoded(mcap)[1] if topic == "/stereo/points"]
     with CloudReader(tmp_path / "robot.clouds.h5") as reader:
         assert len(clouds) == reader.n_frames
@@ -285,20 +369,47 @@ def test_reconstruct_works_on_an_imported_bag(sessions, tmp_path):
     assert clouds[5].width == len(points) and clouds[5].point_step == 16
     np.testing.assert_array_equal(data[:, :3], points)
     rgb = data[:, 3].view(np.uint32)
-    np.testing.assert_array_equal(np.column_stack([rgb >> 16, (rgb >> 8) & 255, rgb & 255]),
-                                  colors)
+    np.testing.assert_array_equal(np.column_stack([rgb >> 16, (rgb >> 8) & 255, rgb & 255]), colors)
 
 
 def test_ambiguous_topics_are_listed(sessions, tmp_path, capsys):
     bag = tmp_path / "robot_bag"
     _write_robot_bag(bag, sessions["raw"], ros1=False, compressed=False)
     out = tmp_path / "x.h5"
-    assert main(["import", "bag", str(bag), "-o", str(out), "--left",
-                 "/stereo/left/image_raw"]) == 0
-    assert main(["import", "bag", str(bag), "-o", str(out), "--overwrite", "--image",
-                 "/stereo/left/image_raw", "--force", "/nope"]) == 2
-    assert main(["import", "bag", str(bag), "-o", str(tmp_path / "y.h5"), "--right",
-                 "/stereo/left/image_raw"]) == 2
+    assert (
+        main(["import", "bag", str(bag), "-o", str(out), "--left", "/stereo/left/image_raw"]) == 0
+    )
+    assert (
+        main(
+            [
+                "import",
+                "bag",
+                str(bag),
+                "-o",
+                str(out),
+                "--overwrite",
+                "--image",
+                "/stereo/left/image_raw",
+                "--force",
+                "/nope",
+            ]
+        )
+        == 2
+    )
+    assert (
+        main(
+            [
+                "import",
+                "bag",
+                str(bag),
+                "-o",
+                str(tmp_path / "y.h5"),
+                "--right",
+                "/stereo/left/image_raw",
+            ]
+        )
+        == 2
+    )
     assert main(["import", "bag", str(Path(bag) / "missing"), "-o", str(tmp_path / "z.h5")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 3 and all(line.startswith("vbfe import: error: ") for line in err)
@@ -311,13 +422,16 @@ def test_ambiguous_topics_are_listed(sessions, tmp_path, capsys):
 
 @pytest.mark.parametrize("path", ["rosbag2_talker", "rosbag2_talker/talker.mcap"])
 def test_a_rosbag2_recording_written_by_ros2_without_images_is_refused_in_one_line(
-        tmp_path, capsys, path):
+    tmp_path, capsys, path
+):
     bag = Path(__file__).parent / "data" / path
     assert main(["import", "bag", str(bag), "-o", str(tmp_path / "x.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["vbfe import: error: the bag has no image topics (sensor_msgs/Image or "
-                   "CompressedImage); its topics: /parameter_events (ParameterEvent), "
-                   "/rosout (Log), /topic (String)"]
+    assert err == [
+        "vbfe import: error: the bag has no image topics (sensor_msgs/Image or "
+        "CompressedImage); its topics: /parameter_events (ParameterEvent), "
+        "/rosout (Log), /topic (String)"
+    ]
     assert not (tmp_path / "x.h5").exists()
 
 
@@ -327,31 +441,58 @@ def test_side_by_side_topic_in_a_rosbag2_mcap_folder(sessions, tmp_path, capsys)
     store = get_typestore(Stores.ROS2_HUMBLE)
     types = store.types
     bag = tmp_path / "sbs_bag"
-    with SessionReader(sessions["raw"]) as reader, \
-            Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        image = writer.add_connection("/endoscope/image_raw", "sensor_msgs/msg/Image",
-                                      typestore=store)
-        force = writer.add_connection("/ft/wrench", "geometry_msgs/msg/WrenchStamped",
-                                      typestore=store)
+    with (
+        SessionReader(sessions["raw"]) as reader,
+        Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer,
+    ):
+        image = writer.add_connection(
+            "/endoscope/image_raw", "sensor_msgs/msg/Image", typestore=store
+        )
+        force = writer.add_connection(
+            "/ft/wrench", "geometry_msgs/msg/WrenchStamped", typestore=store
+        )
         frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + 1_700_000_000 * 10**9
         for i, frame in enumerate(reader.iter_frames()):
             t = int(frame_t[i])
-            header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](
-                sec=t // 10**9, nanosec=t % 10**9), frame_id="endoscope")
+            header = types["std_msgs/msg/Header"](
+                stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9),
+                frame_id="endoscope",
+            )
             both = np.hstack([frame.left, frame.right])
-            writer.write(image, t, store.serialize_cdr(types["sensor_msgs/msg/Image"](
-                header=header, height=90, width=320, encoding="bgr8", is_bigendian=0,
-                step=960, data=both.reshape(-1)), "sensor_msgs/msg/Image"))
+            writer.write(
+                image,
+                t,
+                store.serialize_cdr(
+                    types["sensor_msgs/msg/Image"](
+                        header=header,
+                        height=90,
+                        width=320,
+                        encoding="bgr8",
+                        is_bigendian=0,
+                        step=960,
+                        data=both.reshape(-1),
+                    ),
+                    "sensor_msgs/msg/Image",
+                ),
+            )
             vector = types["geometry_msgs/msg/Vector3"]
-            writer.write(force, t, store.serialize_cdr(types["geometry_msgs/msg/WrenchStamped"](
-                header=header, wrench=types["geometry_msgs/msg/Wrench"](
-                    force=vector(0.0, 0.0, float(i)), torque=vector(0.0, 0.0, 0.0))),
-                "geometry_msgs/msg/WrenchStamped"))
+            writer.write(
+                force,
+                t,
+                store.serialize_cdr(
+                    types["geometry_msgs/msg/WrenchStamped"](
+                        header=header,
+                        wrench=types["geometry_msgs/msg/Wrench"](
+                            force=vector(0.0, 0.0, float(i)), torque=vector(0.0, 0.0, 0.0)
+                        ),
+                    ),
+                    "geometry_msgs/msg/WrenchStamped",
+                ),
+            )
     out = tmp_path / "sbs.h5"
     assert main(["import", "bag", str(bag), "-o", str(out)]) == 2  # one image topic: which?
     assert "--image for one side-by-side topic" in capsys.readouterr().err
-    assert main(["import", "bag", str(bag), "-o", str(out), "--image",
-                 "/endoscope/image_raw"]) == 0
+    assert main(["import", "bag", str(bag), "-o", str(out), "--image", "/endoscope/image_raw"]) == 0
     assert "calibration: none" in capsys.readouterr().out
     with SessionReader(sessions["raw"]) as a, SessionReader(out) as b:
         assert b.n_frames == a.n_frames and b.frame_size == (160, 90)
@@ -365,7 +506,7 @@ def test_damaged_bag_is_one_line_and_leaves_nothing(sessions, tmp_path, capsys):
     bag = tmp_path / "raw.mcap"
     assert main(["export", str(sessions["raw"]), "-o", str(bag)]) == 0
     data = bytearray(bag.read_bytes())
-    data[len(data) // 3:len(data) // 3 + 2000] = bytes(2000)  # inside a compressed chunk
+    data[len(data) // 3 : len(data) // 3 + 2000] = bytes(2000)  # inside a compressed chunk
     bag.write_bytes(bytes(data))
     capsys.readouterr()
     assert main(["import", "bag", str(bag), "-o", str(tmp_path / "x.h5")]) == 2

@@ -22,8 +22,13 @@ CONDITIONS = [(40.0, 0.01), (80.0, 0.005), (200.0, 0.002)]
 
 def vbfe(*args, cwd=None):
     """The real CLI in a subprocess."""
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=300,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -33,14 +38,26 @@ def dataset(tmp_path_factory):
     sessions = []
     for k, (stiffness, speed) in enumerate(CONDITIONS):
         config = load_config()
-        config["bench"].update(width=320, height=180, fps=10.0, seed=k, distortion=False,
-                               stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed)
+        config["bench"].update(
+            width=320,
+            height=180,
+            fps=10.0,
+            seed=k,
+            distortion=False,
+            stiffness_n_per_m=stiffness,
+            pull_speed_m_per_s=speed,
+        )
         calibration = calibration_from_rig(true_rig(config))
         folder = root / f"day{k % 2}"
         folder.mkdir(exist_ok=True)
         path = folder / f"k{int(stiffness)}.h5"
-        record_session(config, path, duration_s=0.5, operator="ana",
-                       calibration_yaml=calibration.to_yaml_text())
+        record_session(
+            config,
+            path,
+            duration_s=0.5,
+            operator="ana",
+            calibration_yaml=calibration.to_yaml_text(),
+        )
         sessions.append(path)
     return root, sessions
 
@@ -94,7 +111,7 @@ def test_local_pool_and_ray_give_the_same_clouds_and_skip_current_ones(dataset, 
     assert ray_run.returncode == 0, ray_run.stderr
     assert ray_run.stdout.count("reconstructed, ") == 3 and "on ray" in ray_run.stdout
     for session in sessions:
-        for a, b in zip(first[session], _clouds(session)):
+        for a, b in zip(first[session], _clouds(session), strict=False):
             np.testing.assert_array_equal(a, b)
 
 
@@ -105,8 +122,16 @@ def pulls(tmp_path_factory):
     paths = []
     for seed in (1, 2):
         config = load_config()
-        config["bench"].update(width=320, height=180, fps=15.0, seed=seed, distortion=False,
-                               stiffness_n_per_m=200.0, pull_speed_m_per_s=0.01, hold_s=1.0)
+        config["bench"].update(
+            width=320,
+            height=180,
+            fps=15.0,
+            seed=seed,
+            distortion=False,
+            stiffness_n_per_m=200.0,
+            pull_speed_m_per_s=0.01,
+            hold_s=1.0,
+        )
         paths.append(folder / f"pull{seed}.h5")
         record_session(config, paths[-1], duration_s=3.0)
     return paths

@@ -34,7 +34,7 @@ def test_blurred_and_repeated_views_are_refused_and_new_ones_kept():
     rng = np.random.default_rng(0)
     poses = [_facing_pose(0.0, 0.0, 0.05), _facing_pose(-0.01, 0.004, 0.045, 25.0)]
     (a_left, a_right), (b_left, b_right) = render_board_views(RIG, SPEC.board(), poses, rng=rng)
-    (a2_left, a2_right), = render_board_views(RIG, SPEC.board(), poses[:1], rng=rng)
+    ((a2_left, a2_right),) = render_board_views(RIG, SPEC.board(), poses[:1], rng=rng)
     collector = ViewCollector(SPEC)
     assert collector.offer(a_left, a_right).kept
     still = collector.offer(a2_left, a2_right)  # same pose, new sensor noise
@@ -54,13 +54,20 @@ def test_capture_from_the_simulated_bench_saves_pairs_that_calibrate(tmp_path):
     config = board_config(load_config(None), seed=4, board_p_blur=0.2)
     config["calib"].update(capture_views=8, capture_max_views=8)
     updates = []
-    result = commands.capture(config, tmp_path / "views", max_frames=24,
-                              on_view=lambda verdict, collector, left: updates.append(verdict.kept))
+    result = commands.capture(
+        config,
+        tmp_path / "views",
+        max_frames=24,
+        on_view=lambda verdict, collector, left: updates.append(verdict.kept),
+    )
     assert result.enough and len(result.names) == 8 and sum(updates) == 8
     assert result.frames_seen == len(updates) <= 24
     assert sum(result.rejections.values()) == result.frames_seen - 8
-    assert set(result.rejections) <= {"blurred", "pose too close to a kept view",
-                                      "board not seen in both eyes"}
+    assert set(result.rejections) <= {
+        "blurred",
+        "pose too close to a kept view",
+        "board not seen in both eyes",
+    }
     views = load_views(tmp_path / "views")
     assert views.names == result.names
     from vbfe.calib.stereo import calibrate_stereo
@@ -76,8 +83,23 @@ def test_capture_from_the_simulated_bench_saves_pairs_that_calibrate(tmp_path):
 
 def test_cli_capture_headless_prints_coverage_bars(tmp_path, capsys):
     (tmp_path / "rig.toml").write_text(BOARD_RIG)
-    assert main(["calibrate", "capture", str(tmp_path / "v"), "--headless", "--max-frames", "4",
-                 "--seed", "2", "--config", str(tmp_path / "rig.toml")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "capture",
+                str(tmp_path / "v"),
+                "--headless",
+                "--max-frames",
+                "4",
+                "--seed",
+                "2",
+                "--config",
+                str(tmp_path / "rig.toml"),
+            ]
+        )
+        == 0
+    )
     captured = capsys.readouterr()
     assert "X [" in captured.out and "skew [" in captured.out
     assert "not enough views yet" in captured.out
@@ -87,8 +109,9 @@ def test_cli_capture_headless_prints_coverage_bars(tmp_path, capsys):
 def test_preview_window_shows_corners_and_coverage(tmp_path, capsys):
     from vbfe.calib.preview import CapturePreview
 
-    (left, right), = render_board_views(RIG, SPEC.board(), [_facing_pose(0.0, 0.0, 0.05)],
-                                        rng=np.random.default_rng(1))
+    ((left, right),) = render_board_views(
+        RIG, SPEC.board(), [_facing_pose(0.0, 0.0, 0.05)], rng=np.random.default_rng(1)
+    )
     collector = ViewCollector(SPEC)
     verdict = collector.offer(left, right)
     preview = CapturePreview()
@@ -102,8 +125,22 @@ def test_preview_window_shows_corners_and_coverage(tmp_path, capsys):
         preview.dispose()
     # the CLI opens the same window unless --headless
     (tmp_path / "rig.toml").write_text(BOARD_RIG)
-    assert main(["calibrate", "capture", str(tmp_path / "v"), "--max-frames", "2",
-                 "--seed", "3", "--config", str(tmp_path / "rig.toml")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "capture",
+                str(tmp_path / "v"),
+                "--max-frames",
+                "2",
+                "--seed",
+                "3",
+                "--config",
+                str(tmp_path / "rig.toml"),
+            ]
+        )
+        == 0
+    )
     assert "kept" in capsys.readouterr().out
 
 
@@ -114,5 +151,7 @@ def test_capture_of_a_simulated_chessboard_calibrates(tmp_path):
     assert result.enough and len(result.names) == 8
     from vbfe.calib.stereo import calibrate_stereo
 
-    cal = calibrate_stereo(load_views(tmp_path / "views"), BoardSpec(target="chessboard")).calibration
+    cal = calibrate_stereo(
+        load_views(tmp_path / "views"), BoardSpec(target="chessboard")
+    ).calibration
     assert abs(cal.B / true_rig(config).baseline_m - 1) < 0.02

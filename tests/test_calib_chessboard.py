@@ -15,20 +15,25 @@ import numpy as np
 import pytest
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
-from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.stereo import calibrate_detections, detect_views
 from vbfe.calib.views import ViewSet
 from vbfe.cli.main import main
-from vbfe.drivers.sim.charuco_scene import (ChessboardPattern, random_board_poses,
-                                            render_board_views, render_mono_views)
+from vbfe.drivers.sim.charuco_scene import (
+    ChessboardPattern,
+    random_board_poses,
+    render_board_views,
+    render_mono_views,
+)
 from vbfe.drivers.sim.rig import default_rig
 
 INNER = (9, 6)
 SQUARE_M = 0.003
-SPEC = BoardSpec(squares_x=INNER[0] + 1, squares_y=INNER[1] + 1, square_m=SQUARE_M,
-                 target="chessboard")
+SPEC = BoardSpec(
+    squares_x=INNER[0] + 1, squares_y=INNER[1] + 1, square_m=SQUARE_M, target="chessboard"
+)
 BOARD_ARGS = ["--inner-corners", f"{INNER[0]}x{INNER[1]}", "--square-mm", str(SQUARE_M * 1e3)]
 RIG = default_rig(640, 360, baseline_m=0.004, distortion=True)
 PATTERN = ChessboardPattern(INNER, SQUARE_M)
@@ -37,8 +42,9 @@ DISTANCE_M = (0.035, 0.07)
 
 def vbfe(*args: str) -> subprocess.CompletedProcess:
     """The real CLI in a subprocess."""
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True,
-                          text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 def vbfe_here(capsys, *args: str) -> subprocess.CompletedProcess:
@@ -51,24 +57,32 @@ def vbfe_here(capsys, *args: str) -> subprocess.CompletedProcess:
 
 def error_lines(stderr: str) -> list[str]:
     """stderr without the progress bars."""
-    return [line for line in stderr.replace("\r", "\n").splitlines()
-            if line.strip() and "view/s]" not in line and "image/s]" not in line
-            and "?view" not in line and "?image" not in line]
+    return [
+        line
+        for line in stderr.replace("\r", "\n").splitlines()
+        if line.strip()
+        and "view/s]" not in line
+        and "image/s]" not in line
+        and "?view" not in line
+        and "?image" not in line
+    ]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def stereo_set(seed: int = 0, n: int = 12) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
     rng = np.random.default_rng(seed)
-    poses = random_board_poses(n, rng, distance_m=DISTANCE_M, rig=RIG, board=PATTERN,
-                               min_visible=1.0)
+    poses = random_board_poses(
+        n, rng, distance_m=DISTANCE_M, rig=RIG, board=PATTERN, min_visible=1.0
+    )
     return tuple(render_board_views(RIG, PATTERN, poses, rng=rng))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def mono_set(seed: int, n: int) -> tuple[np.ndarray, ...]:
     rng = np.random.default_rng(seed)
-    poses = random_board_poses(n, rng, distance_m=DISTANCE_M, max_tilt_deg=40.0, rig=RIG,
-                               board=PATTERN, min_visible=1.0)
+    poses = random_board_poses(
+        n, rng, distance_m=DISTANCE_M, max_tilt_deg=40.0, rig=RIG, board=PATTERN, min_visible=1.0
+    )
     return tuple(render_mono_views(RIG.left, PATTERN, poses, rng=rng))
 
 
@@ -87,8 +101,9 @@ def relative(got: float, true: float) -> float:
 
 def assert_intrinsics_within(K: np.ndarray, camera, tolerance: float) -> None:
     for (i, j), what in (((0, 0), "fx"), ((1, 1), "fy"), ((0, 2), "cx"), ((1, 2), "cy")):
-        assert relative(K[i, j], camera.K[i, j]) < tolerance, \
+        assert relative(K[i, j], camera.K[i, j]) < tolerance, (
             f"{what} {K[i, j]:.3f} vs true {camera.K[i, j]:.3f}"
+        )
 
 
 @pytest.fixture(scope="module")
@@ -97,8 +112,7 @@ def stereo_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     tmp = tmp_path_factory.mktemp("stereo")
     folder = write_pairs(tmp / "pairs", stereo_set())
     out = tmp / "calib.yaml"
-    return vbfe("calibrate", "stereo", str(folder), "-o", str(out), "--no-report",
-                *BOARD_ARGS), out
+    return vbfe("calibrate", "stereo", str(folder), "-o", str(out), "--no-report", *BOARD_ARGS), out
 
 
 def test_chessboard_stereo_set_through_the_cli_recovers_the_bench(stereo_run):
@@ -127,9 +141,19 @@ def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path, capsys)
         assert np.all(cams[eye].std_intrinsics[:4] > 0)
     # the camera files fix the intrinsics of a later stereo solve (CALIB_FIX_INTRINSIC)
     out = tmp_path / "fixed.yaml"
-    run = vbfe_here(capsys, "calibrate", "stereo", str(folder), "-o", str(out), "--no-report",
-                    "--intrinsics", str(tmp_path / "left.yaml"), str(tmp_path / "right.yaml"),
-                    *BOARD_ARGS)
+    run = vbfe_here(
+        capsys,
+        "calibrate",
+        "stereo",
+        str(folder),
+        "-o",
+        str(out),
+        "--no-report",
+        "--intrinsics",
+        str(tmp_path / "left.yaml"),
+        str(tmp_path / "right.yaml"),
+        *BOARD_ARGS,
+    )
     assert run.returncode == 0, run.stderr
     cal = Calibration.load(out)
     assert np.array_equal(cal.K1, cams["left"].K) and np.array_equal(cal.D2, cams["right"].D)
@@ -137,9 +161,18 @@ def test_single_camera_and_fixed_intrinsics_stereo(stereo_run, tmp_path, capsys)
     # a camera file of another resolution is refused with one line
     small = CameraModel(cams["left"].K, cams["left"].D, (320, 180))
     small.save(tmp_path / "small.yaml")
-    run = vbfe_here(capsys, "calibrate", "stereo", str(folder), "-o", str(tmp_path / "x.yaml"),
-                    "--intrinsics", str(tmp_path / "small.yaml"), str(tmp_path / "right.yaml"),
-                    *BOARD_ARGS)
+    run = vbfe_here(
+        capsys,
+        "calibrate",
+        "stereo",
+        str(folder),
+        "-o",
+        str(tmp_path / "x.yaml"),
+        "--intrinsics",
+        str(tmp_path / "small.yaml"),
+        str(tmp_path / "right.yaml"),
+        *BOARD_ARGS,
+    )
     assert run.returncode == 2 and "320x180" in error_lines(run.stderr)[-1]
 
 
@@ -162,8 +195,9 @@ def test_few_views_with_a_bad_one_drop_it_by_name_and_state_the_uncertainty(tmp_
     config = tmp_path / "rig.toml"
     config.write_text("[calib]\nmin_views = 4\n")
     out = tmp_path / "cam.yaml"
-    run = vbfe("calibrate", "camera", str(folder), "-o", str(out), "--config", str(config),
-               *BOARD_ARGS)
+    run = vbfe(
+        "calibrate", "camera", str(folder), "-o", str(out), "--config", str(config), *BOARD_ARGS
+    )
     assert run.returncode == 0, run.stderr
     assert "dropped img2: camera per-view RMS" in run.stdout
     assert "weakly determined: only 5 views" in run.stdout
@@ -179,7 +213,7 @@ def test_few_views_with_a_bad_one_drop_it_by_name_and_state_the_uncertainty(tmp_
     assert np.all(sigma < 0.01 * want)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def stereo_detections() -> tuple:
     pairs = stereo_set()
     views = ViewSet(list(pairs), [f"v{i:02d}" for i in range(len(pairs))], "rendered")
@@ -214,9 +248,9 @@ def test_identical_left_and_right_images_are_refused_naming_the_baseline(tmp_pat
     assert "nothing written" in lines[0] and not out.exists()
 
 
-def test_check_says_no_go_for_a_zero_baseline_file_whatever_it_is_compared_with(stereo_run,
-                                                                                tmp_path,
-                                                                                capsys):
+def test_check_says_no_go_for_a_zero_baseline_file_whatever_it_is_compared_with(
+    stereo_run, tmp_path, capsys
+):
     good = Calibration.load(stereo_run[1])
     P2 = good.P2.copy()
     P2[0, 3] = 0.0
@@ -225,22 +259,27 @@ def test_check_says_no_go_for_a_zero_baseline_file_whatever_it_is_compared_with(
         run = vbfe_here(capsys, "calibrate", "check", str(stored), "--against", str(against))
         assert run.returncode == 1, run.stderr
         assert "NO-GO" in run.stdout and "baseline 0.0000 mm is below the minimum" in run.stdout
-    run = vbfe_here(capsys, "calibrate", "check", str(stereo_run[1]), "--against",
-                    str(stereo_run[1]))
+    run = vbfe_here(
+        capsys, "calibrate", "check", str(stereo_run[1]), "--against", str(stereo_run[1])
+    )
     assert run.returncode == 0 and "GO" in run.stdout and "NO-GO" not in run.stdout
 
 
-@pytest.mark.parametrize("args, names", [
-    (["--marker-mm", "0"], "marker size 0 mm (--marker-mm): must be a positive length"),
-    (["--square-mm", "-3"], "square size -3 mm (--square-mm): must be a positive length"),
-    (["--squares-x", "1"], "ChArUco board of 1x7 squares"),
-    (["--marker-mm", "3"], "marker size 3 mm (--marker-mm) must be smaller than the square"),
-    (["--inner-corners", "2x6"], "chessboard with 2x6 inner corners"),
-    (["--inner-corners", "nine"], "--inner-corners 'nine': give the inner corners as NXxNY"),
-])
+@pytest.mark.parametrize(
+    "args, names",
+    [
+        (["--marker-mm", "0"], "marker size 0 mm (--marker-mm): must be a positive length"),
+        (["--square-mm", "-3"], "square size -3 mm (--square-mm): must be a positive length"),
+        (["--squares-x", "1"], "ChArUco board of 1x7 squares"),
+        (["--marker-mm", "3"], "marker size 3 mm (--marker-mm) must be smaller than the square"),
+        (["--inner-corners", "2x6"], "chessboard with 2x6 inner corners"),
+        (["--inner-corners", "nine"], "--inner-corners 'nine': give the inner corners as NXxNY"),
+    ],
+)
 def test_bad_board_parameters_are_one_line_and_exit_2(tmp_path, capsys, args, names):
-    run = vbfe_here(capsys, "calibrate", "stereo", str(tmp_path), "-o", str(tmp_path / "c.yaml"),
-                    *args)
+    run = vbfe_here(
+        capsys, "calibrate", "stereo", str(tmp_path), "-o", str(tmp_path / "c.yaml"), *args
+    )
     assert run.returncode == 2
     lines = error_lines(run.stderr)
     assert len(lines) == 1 and lines[0].startswith("vbfe calibrate: error:"), run.stderr
@@ -252,7 +291,8 @@ def test_a_bad_board_parameter_from_the_shell_is_one_line_and_exit_2(tmp_path):
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert run.stderr.strip().splitlines() == [
         "vbfe calibrate: error: marker size 0 mm (--marker-mm): must be a positive length, "
-        "e.g. 2.2 for 3 mm squares"]
+        "e.g. 2.2 for 3 mm squares"
+    ]
 
 
 def test_capture_collects_chessboard_views(tmp_path):
@@ -281,8 +321,9 @@ def test_a_right_eye_numbered_from_the_other_end_is_renumbered_to_match_the_left
     assert turned and is_clear(contrast) and np.array_equal(back, dr.corners)
     # a square board may also come numbered a quarter turn round
     square = (INNER[1], INNER[1])
-    left_sq, right_sq = (d.corners.reshape(INNER[1], INNER[0], 2)[:, :INNER[1]].reshape(-1, 2)
-                         for d in (dl, dr))
+    left_sq, right_sq = (
+        d.corners.reshape(INNER[1], INNER[0], 2)[:, : INNER[1]].reshape(-1, 2) for d in (dl, dr)
+    )
     quarter = np.rot90(right_sq.reshape(INNER[1], INNER[1], 2)).reshape(-1, 2)
     back, turned, contrast = same_numbering(left_sq, quarter, square)
     assert turned and is_clear(contrast) and np.array_equal(back, right_sq)

@@ -25,19 +25,44 @@ def calibration(k3: float = 0.0) -> Calibration:
     D1[4] = k3
     D2 = rig.right.dist.copy()
     size = (640, 360)
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(rig.left.K, D1, rig.right.K, D2, size, R,
-                                                T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
-                                                alpha=0)
-    return Calibration(K1=rig.left.K, D1=D1, K2=rig.right.K, D2=D2, R=R, T=T, R1=R1, R2=R2,
-                       P1=P1, P2=P2, Q=Q, image_size=size, rms_left_px=0.1, rms_right_px=0.1,
-                       rms_stereo_px=0.1)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        rig.left.K,
+        D1,
+        rig.right.K,
+        D2,
+        size,
+        R,
+        T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=0,
+    )
+    return Calibration(
+        K1=rig.left.K,
+        D1=D1,
+        K2=rig.right.K,
+        D2=D2,
+        R=R,
+        T=T,
+        R1=R1,
+        R2=R2,
+        P1=P1,
+        P2=P2,
+        Q=Q,
+        image_size=size,
+        rms_left_px=0.1,
+        rms_right_px=0.1,
+        rms_stereo_px=0.1,
+    )
 
 
 def export(path, fmt: str) -> subprocess.CompletedProcess:
     """`vbfe calibrate export` in a subprocess."""
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "export",
-                           str(path), "--format", fmt], capture_output=True, text=True,
-                          timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", "calibrate", "export", str(path), "--format", fmt],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def export_here(capsys, path, fmt: str) -> subprocess.CompletedProcess:
@@ -56,8 +81,10 @@ def test_ros_camera_info_files_hold_k_d_r_p(tmp_path):
     path = cal.save(tmp_path / "rig.yaml")
     run = export(path, "ros")
     assert run.returncode == 0, run.stderr
-    for eye, K, D, R, P in (("left", cal.K1, cal.D1, cal.R1, cal.P1),
-                            ("right", cal.K2, cal.D2, cal.R2, cal.P2)):
+    for eye, K, D, R, P in (
+        ("left", cal.K1, cal.D1, cal.R1, cal.P1),
+        ("right", cal.K2, cal.D2, cal.R2, cal.P2),
+    ):
         info = yaml.safe_load((tmp_path / f"rig_{eye}.yaml").read_text())
         assert (info["image_width"], info["image_height"]) == (640, 360)
         assert info["camera_name"] == eye and info["distortion_model"] == "plumb_bob"

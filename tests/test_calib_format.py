@@ -18,8 +18,8 @@ from vbfe.calib.gates import GateLimits
 from vbfe.calib.projector import ProjectorOptions
 from vbfe.calib.projector_capture import GrayCaptureOptions
 from vbfe.calib.stereo import StereoOptions
-from vbfe.common.config import default_config
 from vbfe.cli.main import main
+from vbfe.common.config import default_config
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig
 
@@ -27,22 +27,45 @@ from vbfe.truth import calibration_from_rig
 @pytest.fixture
 def calibration() -> Calibration:
     cal = calibration_from_rig(default_rig(640, 360, distortion=True))
-    return cal.replace(rms_left_px=0.11, per_view_rms_px=np.full((4, 3), 0.1),
-                       color_mixing=np.eye(3) * 1.1, color_offset=np.array([1.0, 2.0, 3.0]),
-                       info={"views": ["a", "b"], "sigma_B_m": 1e-5})
+    return cal.replace(
+        rms_left_px=0.11,
+        per_view_rms_px=np.full((4, 3), 0.1),
+        color_mixing=np.eye(3) * 1.1,
+        color_offset=np.array([1.0, 2.0, 3.0]),
+        info={"views": ["a", "b"], "sigma_B_m": 1e-5},
+    )
 
 
 def test_yaml_round_trip_keeps_every_field(tmp_path, calibration):
     path = calibration.save(tmp_path / "cal.yaml")
     back = Calibration.load(path)
-    for name in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q", "K_proj",
-                 "D_proj", "R_proj", "T_proj", "per_view_rms_px", "color_mixing", "color_offset"):
+    for name in (
+        "K1",
+        "D1",
+        "K2",
+        "D2",
+        "R",
+        "T",
+        "R1",
+        "R2",
+        "P1",
+        "P2",
+        "Q",
+        "K_proj",
+        "D_proj",
+        "R_proj",
+        "T_proj",
+        "per_view_rms_px",
+        "color_mixing",
+        "color_offset",
+    ):
         assert np.allclose(getattr(back, name), getattr(calibration, name)), name
     assert back.image_size == (640, 360) and back.projector_size == (1024, 768)
     assert back.rms_left_px == pytest.approx(0.11) and np.isnan(back.rms_right_px)
     assert back.info == calibration.info
     assert (back.f, back.B, back.cx, back.cy) == pytest.approx(
-        (calibration.f, calibration.B, calibration.cx, calibration.cy))
+        (calibration.f, calibration.B, calibration.cx, calibration.cy)
+    )
     assert back.B == pytest.approx(0.004, rel=1e-9)
     # plain OpenCV can read it too (what a C++ tool or another lab would do)
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
@@ -53,14 +76,18 @@ def test_yaml_round_trip_keeps_every_field(tmp_path, calibration):
 def test_wrong_shape_in_the_file_names_the_field(tmp_path, calibration):
     text = calibration.to_yaml_text()
     # make K1 a 2x3 matrix
-    broken = re.sub(r"K1: !!opencv-matrix\s+rows: 3\s+cols: 3\s+dt: d\s+data: \[[^\]]*\]",
-                    "K1: !!opencv-matrix\n   rows: 2\n   cols: 3\n   dt: d\n"
-                    "   data: [ 1., 0., 320., 0., 1., 180. ]", text)
+    broken = re.sub(
+        r"K1: !!opencv-matrix\s+rows: 3\s+cols: 3\s+dt: d\s+data: \[[^\]]*\]",
+        "K1: !!opencv-matrix\n   rows: 2\n   cols: 3\n   dt: d\n"
+        "   data: [ 1., 0., 320., 0., 1., 180. ]",
+        text,
+    )
     assert broken != text
     path = tmp_path / "bad.yaml"
     path.write_text(broken)
-    with pytest.raises(CalibrationError,
-                       match=r"bad.yaml.*K1 has shape \(2, 3\), expected \(3, 3\)"):
+    with pytest.raises(
+        CalibrationError, match=r"bad.yaml.*K1 has shape \(2, 3\), expected \(3, 3\)"
+    ):
         Calibration.load(path)
 
 
@@ -87,8 +114,24 @@ def test_rectify_refuses_images_of_another_size(calibration):
 
 
 def test_board_files_have_true_physical_size(tmp_path, capsys):
-    assert main(["calibrate", "board", str(tmp_path / "board"), "--squares-x", "7",
-                 "--squares-y", "5", "--square-mm", "4", "--marker-mm", "3"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "board",
+                str(tmp_path / "board"),
+                "--squares-x",
+                "7",
+                "--squares-y",
+                "5",
+                "--square-mm",
+                "4",
+                "--marker-mm",
+                "3",
+            ]
+        )
+        == 0
+    )
     png = cv2.imread(str(tmp_path / "board.png"), cv2.IMREAD_GRAYSCALE)
     # 7x5 squares of 4 mm plus a 2 mm margin each side, at 40 px/mm
     assert png.shape == ((5 * 4 + 4) * 40, (7 * 4 + 4) * 40)
@@ -105,8 +148,22 @@ def test_board_files_have_true_physical_size(tmp_path, capsys):
 def test_board_with_bad_options_is_refused(tmp_path, capsys):
     assert main(["calibrate", "board", str(tmp_path / "b"), "--marker-mm", "3.5"]) == 2
     assert "must be smaller than the square" in capsys.readouterr().err
-    assert main(["calibrate", "board", str(tmp_path / "b"), "--dictionary", "DICT_4X4_50",
-                 "--squares-x", "12", "--squares-y", "10"]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                "board",
+                str(tmp_path / "b"),
+                "--dictionary",
+                "DICT_4X4_50",
+                "--squares-x",
+                "12",
+                "--squares-y",
+                "10",
+            ]
+        )
+        == 2
+    )
     assert "needs 60 markers but DICT_4X4_50 has only 50" in capsys.readouterr().err
     assert not (tmp_path / "b.png").exists()
 
@@ -126,8 +183,15 @@ def test_calibration_defaults_are_written_once_in_the_rig_table():
     """Every options field set by a [calib] key defaults to that key's value in
     default_rig.toml (in the field's units)."""
     table = default_config()["calib"]
-    classes = [BoardSpec, CameraOptions, StereoOptions, GateLimits, CaptureOptions,
-               ProjectorOptions, GrayCaptureOptions]
+    classes = [
+        BoardSpec,
+        CameraOptions,
+        StereoOptions,
+        GateLimits,
+        CaptureOptions,
+        ProjectorOptions,
+        GrayCaptureOptions,
+    ]
     checked = 0
     for cls in classes:
         for f in dataclasses.fields(cls):

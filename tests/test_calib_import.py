@@ -23,8 +23,12 @@ def calibration() -> Calibration:
 
 def _round_trip(tmp_path, calibration: Calibration, fmt: str, *extra: str) -> Calibration:
     source = calibration.save(tmp_path / "rig.yaml")
-    assert main(["calibrate", "export", str(source), "--format", fmt, "--out-dir",
-                 str(tmp_path / fmt)]) == 0
+    assert (
+        main(
+            ["calibrate", "export", str(source), "--format", fmt, "--out-dir", str(tmp_path / fmt)]
+        )
+        == 0
+    )
     files = sorted(str(p) for p in (tmp_path / fmt).iterdir())
     if fmt == "ros":
         files = [str(tmp_path / fmt / "rig_left.yaml"), str(tmp_path / fmt / "rig_right.yaml")]
@@ -50,7 +54,8 @@ def test_middlebury_calib_txt_round_trips_the_rectified_pair(tmp_path, calibrati
     shifted = Calibration.rectified(700.0, 702.5, 0.004, 320.0, 180.0, (640, 360), doffs=12.5)
     back = _round_trip(tmp_path, shifted, "middlebury")
     assert (back.f, back.fy, back.doffs, back.cx, back.cy) == pytest.approx(
-        (700.0, 702.5, 12.5, 320.0, 180.0))
+        (700.0, 702.5, 12.5, 320.0, 180.0)
+    )
     assert back.B == pytest.approx(0.004)
     # a point at 50 mm: d = f·B/z - doffs, and Q gives it back (with fy for y)
     u, v, z = 400.0, 250.0, 0.05
@@ -62,14 +67,33 @@ def test_middlebury_calib_txt_round_trips_the_rectified_pair(tmp_path, calibrati
 def test_opencv_xml_with_k_names_and_square_units(tmp_path, calibration):
     path = tmp_path / "stereo.xml"
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    for name, value in (("K1", calibration.K1), ("D1", calibration.D1), ("K2", calibration.K2),
-                        ("D2", calibration.D2), ("R", calibration.R),
-                        ("T", calibration.T / 0.002)):  # in 2 mm squares, as OpenCV's sample
+    for name, value in (
+        ("K1", calibration.K1),
+        ("D1", calibration.D1),
+        ("K2", calibration.K2),
+        ("D2", calibration.D2),
+        ("R", calibration.R),
+        ("T", calibration.T / 0.002),
+    ):  # in 2 mm squares, as OpenCV's sample
         fs.write(name, value)
     fs.release()
     out = tmp_path / "c.yaml"
-    assert main(["calibrate", "import", str(path), "-o", str(out), "--image-size", "640x360",
-                 "--unit-mm", "2"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "import",
+                str(path),
+                "-o",
+                str(out),
+                "--image-size",
+                "640x360",
+                "--unit-mm",
+                "2",
+            ]
+        )
+        == 0
+    )
     back = Calibration.load(out)
     assert np.allclose(back.T, calibration.T) and back.B == pytest.approx(calibration.B)
 
@@ -78,18 +102,32 @@ def test_import_refuses_what_the_gates_refuse_and_needs_a_size(tmp_path, calibra
     far = Calibration.rectified(700.0, 700.0, 0.2, 320.0, 180.0, (640, 360))
     (tmp_path / "calib.txt").write_text(
         "cam0=[700 0 320; 0 700 180; 0 0 1]\ncam1=[700 0 320; 0 700 180; 0 0 1]\ndoffs=0\n"
-        f"baseline={far.B * 1e3}\nwidth=640\nheight=360\n")
+        f"baseline={far.B * 1e3}\nwidth=640\nheight=360\n"
+    )
     out = tmp_path / "c.yaml"
     assert main(["calibrate", "import", str(tmp_path / "calib.txt"), "-o", str(out)]) == 2
     assert "nominal 4 mm" in capsys.readouterr().err and not out.exists()
-    assert main(["calibrate", "import", str(tmp_path / "calib.txt"), "-o", str(out),
-                 "--nominal-baseline-mm", "200"]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "import",
+                str(tmp_path / "calib.txt"),
+                "-o",
+                str(out),
+                "--nominal-baseline-mm",
+                "200",
+            ]
+        )
+        == 0
+    )
     fs = cv2.FileStorage(str(tmp_path / "m.yml"), cv2.FILE_STORAGE_WRITE)
     for name in ("M1", "D1", "M2", "D2", "R", "T"):
         fs.write(name, getattr(calibration, {"M1": "K1", "M2": "K2"}.get(name, name)))
     fs.release()
-    assert main(["calibrate", "import", str(tmp_path / "m.yml"), "-o",
-                 str(tmp_path / "m.yaml")]) == 2
+    assert (
+        main(["calibrate", "import", str(tmp_path / "m.yml"), "-o", str(tmp_path / "m.yaml")]) == 2
+    )
     assert "--image-size" in capsys.readouterr().err
 
 
@@ -102,8 +140,7 @@ def test_reconstruct_rectified_takes_fx_and_fy(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / f"{eye}.png"), np.zeros((360, 640, 3), np.uint8))
     pair = [str(tmp_path / "left.png"), str(tmp_path / "right.png")]
     geometry = ["--baseline", "4", "--cx", "320", "--cy", "180"]
-    assert main(["reconstruct", *pair, "--rectified", "--f", "700", "--fx", "700",
-                 *geometry]) == 2
+    assert main(["reconstruct", *pair, "--rectified", "--f", "700", "--fx", "700", *geometry]) == 2
     assert "not both --f and --fx/--fy" in capsys.readouterr().err
     assert main(["reconstruct", *pair, "--rectified", "--fx", "700", *geometry]) == 2
     assert "missing --f (or --fx and --fy)" in capsys.readouterr().err

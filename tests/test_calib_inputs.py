@@ -25,8 +25,10 @@ def write(path: Path, img: np.ndarray) -> None:
 
 
 LAYOUTS = {
-    "suffix": [("view_000_left.png", "view_000_right.png"),
-               ("view_001_left.png", "view_001_right.png")],
+    "suffix": [
+        ("view_000_left.png", "view_000_right.png"),
+        ("view_001_left.png", "view_001_right.png"),
+    ],
     "prefix": [("left01.jpg", "right01.jpg"), ("left02.jpg", "right02.jpg")],
     "dash": [("a-Left.png", "a-Right.png"), ("b-Left.png", "b-Right.png")],
     "letters": [("L01.png", "R01.png"), ("L02.png", "R02.png")],
@@ -48,8 +50,7 @@ def test_common_pair_namings_are_found(tmp_path, layout):
         assert right[0, 0, 0] == pytest.approx(30 + 40 * k, abs=2)
     pairs = find_pairs(tmp_path)  # reconstruct takes every folder calibrate takes, alike
     assert list(pairs.names) == views.names
-    assert all(pairs.frame(k).left[0, 0, 0] == pytest.approx(10 + 40 * k, abs=2)
-               for k in range(2))
+    assert all(pairs.frame(k).left[0, 0, 0] == pytest.approx(10 + 40 * k, abs=2) for k in range(2))
 
 
 def test_side_by_side_images_split_into_left_and_right(tmp_path):
@@ -68,13 +69,16 @@ def test_left_and_right_globs_pair_in_sorted_order(tmp_path):
     for k in range(3):
         write(tmp_path / "cam_a" / f"{k:03d}.png", image(10 + k))
         write(tmp_path / "cam_b" / f"x{k:03d}.png", image(100 + k))
-    views = load_views(left_glob=str(tmp_path / "cam_a" / "*.png"),
-                       right_glob=str(tmp_path / "cam_b" / "*.png"))
+    views = load_views(
+        left_glob=str(tmp_path / "cam_a" / "*.png"), right_glob=str(tmp_path / "cam_b" / "*.png")
+    )
     assert [(l[0, 0, 0], r[0, 0, 0]) for l, r in views.pairs] == [(10, 100), (11, 101), (12, 102)]
     write(tmp_path / "cam_b" / "x003.png", image(103))
     with pytest.raises(CalibrationError, match="matches 3 images and --right .* 4"):
-        load_views(left_glob=str(tmp_path / "cam_a" / "*.png"),
-                   right_glob=str(tmp_path / "cam_b" / "*.png"))
+        load_views(
+            left_glob=str(tmp_path / "cam_a" / "*.png"),
+            right_glob=str(tmp_path / "cam_b" / "*.png"),
+        )
 
 
 def test_an_unpaired_view_is_named_with_the_naming_rules(tmp_path):
@@ -104,8 +108,12 @@ def test_naming_rules_are_in_the_help_and_the_readme():
     import subprocess
     import sys
 
-    help_text = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "stereo",
-                                "--help"], capture_output=True, text=True, timeout=60).stdout
+    help_text = subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", "calibrate", "stereo", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).stdout
     flat = " ".join(help_text.split())
     assert "left<name>.png + right<name>.png" in flat and "--left GLOB" in flat
     readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")

@@ -31,7 +31,8 @@ def _grey(eye: str, view: str) -> np.ndarray:
 def _opencv_corners(grey: np.ndarray, half_window: int) -> np.ndarray:
     """stereo_calib.cpp's detection: findChessboardCorners, then cornerSubPix."""
     found, corners = cv2.findChessboardCorners(
-        grey, INNER, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        grey, INNER, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
     assert found
     return cv2.cornerSubPix(grey, corners, (half_window, half_window), (-1, -1), SUBPIX)
 
@@ -41,24 +42,49 @@ def opencv_reference() -> dict[str, float]:
     """Plain OpenCV: corners refined in an 11×11 window, initCameraMatrix2D, then one joint
     stereoCalibrate with default flags."""
     obj = np.zeros((INNER[0] * INNER[1], 3), np.float32)
-    obj[:, :2] = np.mgrid[0:INNER[0], 0:INNER[1]].T.reshape(-1, 2)
+    obj[:, :2] = np.mgrid[0 : INNER[0], 0 : INNER[1]].T.reshape(-1, 2)
     left = [_opencv_corners(_grey("left", v), 5) for v in VIEWS]
     right = [_opencv_corners(_grey("right", v), 5) for v in VIEWS]
     objs, size = [obj] * len(VIEWS), (640, 480)
     K1 = cv2.initCameraMatrix2D(objs, left, size, 0)
     K2 = cv2.initCameraMatrix2D(objs, right, size, 0)
     rms, K1, _, K2, _, _, T, _, _ = cv2.stereoCalibrate(
-        objs, left, right, K1, None, K2, None, size, flags=cv2.CALIB_USE_INTRINSIC_GUESS,
-        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-5))
+        objs,
+        left,
+        right,
+        K1,
+        None,
+        K2,
+        None,
+        size,
+        flags=cv2.CALIB_USE_INTRINSIC_GUESS,
+        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-5),
+    )
     return {"rms": rms, "fx_left": K1[0, 0], "fx_right": K2[0, 0], "T": float(np.linalg.norm(T))}
 
 
 @pytest.fixture(scope="module")
 def cli_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path_factory.mktemp("opencv_sample") / "c.yaml"
-    run = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "stereo", str(DATA),
-                          "--inner-corners", "9x6", "--square-mm", "1", "-o", str(out)],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vbfe.cli.main",
+            "calibrate",
+            "stereo",
+            str(DATA),
+            "--inner-corners",
+            "9x6",
+            "--square-mm",
+            "1",
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     return run, out
 
 
@@ -95,16 +121,21 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
     eyes of 02 and 07, numbered here from the other end, are renumbered and named."""
     detections = []
     for view in VIEWS:
-        left, right = (_opencv_corners(_grey(eye, view), 11).reshape(-1, 2).astype(np.float64)
-                       for eye in ("left", "right"))
+        left, right = (
+            _opencv_corners(_grey(eye, view), 11).reshape(-1, 2).astype(np.float64)
+            for eye in ("left", "right")
+        )
         ids = np.arange(len(left), dtype=np.int32)
         if view in ("02", "07"):
             right = right[::-1]
         detections.append((Detection(ids, left), Detection(ids, right)))
-    result = calibrate_detections(detections, VIEWS, (640, 480), SPEC,
-                                  StereoOptions(gates=GateLimits(nominal_baseline_m=0.0)))
-    rejected = {(view, eye, corner): px
-                for view, eye, corner, px in result.calibration.info["rejected_corners"]}
+    result = calibrate_detections(
+        detections, VIEWS, (640, 480), SPEC, StereoOptions(gates=GateLimits(nominal_baseline_m=0.0))
+    )
+    rejected = {
+        (view, eye, corner): px
+        for view, eye, corner, px in result.calibration.info["rejected_corners"]
+    }
     assert rejected[("05", "right", 45)] > 2.0
     assert result.renumbered == ["02", "07"]
 
@@ -116,30 +147,62 @@ def _vbfe(capsys, *args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
-@pytest.mark.parametrize("flag, value, says", [
-    ("--min-views", "20", "only 13 usable views, need at least 20 (--min-views)"),
-    ("--max-rms-px", "0.1", "is above the limit 0.1 px (--max-rms-px)"),
-    ("--nominal-baseline-mm", "10", "more than 25 % from the rig's nominal 10 mm"),
-])
-def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value,
-                                                              says):
+@pytest.mark.parametrize(
+    "flag, value, says",
+    [
+        ("--min-views", "20", "only 13 usable views, need at least 20 (--min-views)"),
+        ("--max-rms-px", "0.1", "is above the limit 0.1 px (--max-rms-px)"),
+        ("--nominal-baseline-mm", "10", "more than 25 % from the rig's nominal 10 mm"),
+    ],
+)
+def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value, says):
     out = tmp_path / "c.yaml"
-    run = _vbfe(capsys, "calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1",
-                "-o", str(out), "--no-report", flag, value)
+    run = _vbfe(
+        capsys,
+        "calibrate",
+        "stereo",
+        str(DATA),
+        "--inner-corners",
+        "9x6",
+        "--square-mm",
+        "1",
+        "-o",
+        str(out),
+        "--no-report",
+        flag,
+        value,
+    )
     assert run.returncode == 2 and not out.exists()
     error = run.stderr.strip().splitlines()[-1]
     assert error.startswith("vbfe calibrate: error:") and says in error
 
 
-def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_failed(cli_run,
-                                                                                    capsys):
+def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_failed(
+    cli_run, capsys
+):
     _, calibration = cli_run
-    go = _vbfe(capsys, "calibrate", "check", str(calibration), "--views", str(DATA),
-               "--working-distance-mm", "40")
+    go = _vbfe(
+        capsys,
+        "calibrate",
+        "check",
+        str(calibration),
+        "--views",
+        str(DATA),
+        "--working-distance-mm",
+        "40",
+    )
     assert go.returncode == 0, go.stderr
     assert "verdict at 40 mm     GO" in go.stdout
-    no_go = _vbfe(capsys, "calibrate", "check", str(calibration), "--views", str(DATA),
-                  "--max-epipolar-px", "0.05")
+    no_go = _vbfe(
+        capsys,
+        "calibrate",
+        "check",
+        str(calibration),
+        "--views",
+        str(DATA),
+        "--max-epipolar-px",
+        "0.05",
+    )
     verdict = no_go.stdout.strip().splitlines()[-1]
     assert no_go.returncode == 1
     assert "NO-GO: epipolar RMS" in verdict and "limit 0.050 px" in verdict
@@ -148,8 +211,15 @@ def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_fa
 
 def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path, capsys):
     _, calibration = cli_run
-    args = ("calibrate", "export", str(calibration), "--format", "opencv", "--out-dir",
-            str(tmp_path))
+    args = (
+        "calibrate",
+        "export",
+        str(calibration),
+        "--format",
+        "opencv",
+        "--out-dir",
+        str(tmp_path),
+    )
     assert _vbfe(capsys, *args).returncode == 0
     again = _vbfe(capsys, *args)
     assert again.returncode == 2 and "--overwrite" in again.stderr

@@ -9,10 +9,15 @@ import pytest
 
 from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
-from vbfe.calib.projector import (GrayCodeCapture, calibrate_projector, load_captures,
-                                  save_captures, with_projector)
 from vbfe.calib.commands import projector_capture
+from vbfe.calib.errors import CalibrationError
+from vbfe.calib.projector import (
+    GrayCodeCapture,
+    calibrate_projector,
+    load_captures,
+    save_captures,
+    with_projector,
+)
 from vbfe.common.config import load_config
 from vbfe.truth import board_config, calibration_from_rig, true_rig
 
@@ -32,12 +37,13 @@ def captures(tmp_path_factory) -> list[GrayCodeCapture]:
 
 
 def test_projector_intrinsics_and_pose_match_the_bench(tmp_path, captures):
-    camera = calibration_from_rig(RIG).replace(K_proj=None, D_proj=None, R_proj=None,
-                                               T_proj=None, projector_size=None)
+    camera = calibration_from_rig(RIG).replace(
+        K_proj=None, D_proj=None, R_proj=None, T_proj=None, projector_size=None
+    )
     size = (RIG.projector.width, RIG.projector.height)
     result = calibrate_projector(list(captures), SPEC, camera, size)
     K, K_true = result.K, RIG.projector.K
-    for (i, j) in ((0, 0), (1, 1), (0, 2), (1, 2)):
+    for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)):
         assert abs(K[i, j] / K_true[i, j] - 1) < 0.02, (i, j, K[i, j], K_true[i, j])
     assert result.rms_px < 1.0
     assert np.linalg.norm(result.T - RIG.T_proj) < 0.05 * np.linalg.norm(RIG.T_proj)
@@ -63,5 +69,9 @@ def test_board_outside_the_projected_area_is_a_clear_error(captures):
     with pytest.raises(CalibrationError, match="only 0 of 4 poses.*lit by the projector"):
         calibrate_projector(dark, SPEC, camera, (1024, 768))
     with pytest.raises(CalibrationError, match="needs 40 Gray-code images per pose, got 39"):
-        calibrate_projector([GrayCodeCapture(c.white, c.black, c.patterns[:39])
-                             for c in captures[:4]], SPEC, camera, (1024, 768))
+        calibrate_projector(
+            [GrayCodeCapture(c.white, c.black, c.patterns[:39]) for c in captures[:4]],
+            SPEC,
+            camera,
+            (1024, 768),
+        )

@@ -27,27 +27,53 @@ REPO = Path(__file__).resolve().parents[1]
 
 def vbfe(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_cli_capture_and_gray_code_capture_on_the_bench_board_scene(tmp_path):
     """Both commands with the sim backend; the bench is chosen only in the rig config."""
     (tmp_path / "rig.toml").write_text(
         '[bench]\nscene = "board"\nfps = 10.0\nboard_hold_s = 10.0\nboard_in_projector = true\n'
-        'board_max_tilt_deg = 45.0\nprojector_latency_ms = 0.0\nexposure_ms = 0.0\n'
-        '[calib]\nprojector_settle_s = 0.0\n')
+        "board_max_tilt_deg = 45.0\nprojector_latency_ms = 0.0\nexposure_ms = 0.0\n"
+        "[calib]\nprojector_settle_s = 0.0\n"
+    )
     (tmp_path / "hand.toml").write_text('[bench]\nscene = "board"\n')
-    done = vbfe("calibrate", "capture", "views", "--headless", "--max-frames", "6", "--seed", "2",
-                "--config", "hand.toml", cwd=tmp_path)
+    done = vbfe(
+        "calibrate",
+        "capture",
+        "views",
+        "--headless",
+        "--max-frames",
+        "6",
+        "--seed",
+        "2",
+        "--config",
+        "hand.toml",
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     kept = sorted((tmp_path / "views").glob("*_left.png"))
     assert 1 <= len(kept) <= 6 and "X [" in done.stdout
     detector = BoardDetector(BoardSpec())
     assert all(len(detector.detect(cv2.imread(str(p)))) >= 12 for p in kept)
 
-    done = vbfe("calibrate", "projector-capture", "gray", "--poses", "2", "--config", "rig.toml",
-                cwd=tmp_path)
+    done = vbfe(
+        "calibrate",
+        "projector-capture",
+        "gray",
+        "--poses",
+        "2",
+        "--config",
+        "rig.toml",
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert "wrote 2 poses" in done.stdout
     captures = load_captures(tmp_path / "gray")
@@ -65,20 +91,32 @@ def test_cli_capture_and_gray_code_capture_on_the_bench_board_scene(tmp_path):
 
     # a second run adds poses after the first ones; a different projector size is refused
     (tmp_path / "gray" / "projector.json").write_text('{"size": [800, 600]}')
-    done = vbfe("calibrate", "projector-capture", "gray", "--poses", "1", "--config", "rig.toml",
-                cwd=tmp_path)
+    done = vbfe(
+        "calibrate",
+        "projector-capture",
+        "gray",
+        "--poses",
+        "1",
+        "--config",
+        "rig.toml",
+        cwd=tmp_path,
+    )
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1] == (
         "vbfe calibrate: error: gray holds captures for a 800x600 projector but this one is "
-        "1024x768; use a new folder")
+        "1024x768; use a new folder"
+    )
     assert len(load_captures(tmp_path / "gray")) == 2
 
 
 def _gray_code_table(tmp_path: Path, n_patterns: int) -> Path:
     """The shipped serial command table with stored patterns white, black, gray_NN."""
     text = default_commands_path().read_text()
-    text = text[:text.rindex("[patterns]")] + "[patterns]\nwhite = 0\nblack = 1\n" + "".join(
-        f"gray_{k:02d} = {k + 2}\n" for k in range(n_patterns))
+    text = (
+        text[: text.rindex("[patterns]")]
+        + "[patterns]\nwhite = 0\nblack = 1\n"
+        + "".join(f"gray_{k:02d} = {k + 2}\n" for k in range(n_patterns))
+    )
     path = tmp_path / "gray.toml"
     path.write_text(text)
     return path
@@ -91,14 +129,21 @@ def test_gray_code_capture_on_the_fake_endoscope_and_serial_projector(tmp_path):
     # the fake scene never rests (a moving bar), so any frame counts as still and new
     options = GrayCaptureOptions(settle_s=0.05, still_level=1e9, change_level=0.0, still_frames=1)
     with FakeSerialProjector(n_patterns=n_gray + 2) as fake:
-        with FakeStereoCamera(width=64, height=48, fps=60.0) as camera, \
-                SerialProjector(port=fake.port, commands=table, width=size[0],
-                                height=size[1]) as projector:
+        with (
+            FakeStereoCamera(width=64, height=48, fps=60.0) as camera,
+            SerialProjector(
+                port=fake.port, commands=table, width=size[0], height=size[1]
+            ) as projector,
+        ):
             written = capture_gray_code(camera, projector, tmp_path / "gray", 2, options)
     assert [p.name for p in written] == ["pose_000", "pose_001"]
     shown = [line for line in fake.received if line.startswith("PATTERN")]
-    one_pose = ["PATTERN 0"] + ["PATTERN 0", "PATTERN 1"] + [
-        f"PATTERN {k + 2}" for k in range(n_gray)] + ["PATTERN 0"]  # wait, sequence, check
+    one_pose = (
+        ["PATTERN 0"]
+        + ["PATTERN 0", "PATTERN 1"]
+        + [f"PATTERN {k + 2}" for k in range(n_gray)]
+        + ["PATTERN 0"]
+    )  # wait, sequence, check
     assert shown == one_pose * 2
     captures = load_captures(tmp_path / "gray")
     assert [c.white.shape for c in captures] == [(48, 64)] * 2
@@ -106,7 +151,8 @@ def test_gray_code_capture_on_the_fake_endoscope_and_serial_projector(tmp_path):
     for pose in written:
         frames = json.loads((pose / "frames.json").read_text())
         assert [f["pattern"] for f in frames] == ["white", "black"] + [
-            f"gray_{k:02d}" for k in range(n_gray)] + ["white"]
+            f"gray_{k:02d}" for k in range(n_gray)
+        ] + ["white"]
         for f in frames:  # each kept frame arrived after the projector acknowledged + settle
             assert f["frame_t_host_ns"] - f["shown_t_host_ns"] >= 0.05e9
         seqs = [f["frame_seq"] for f in frames]
@@ -115,15 +161,20 @@ def test_gray_code_capture_on_the_fake_endoscope_and_serial_projector(tmp_path):
 
 def test_a_board_that_never_moves_to_a_new_pose_stops_the_capture_keeping_what_was_done(tmp_path):
     # the first pose needs no movement; the second waits for a change that never comes
-    options = GrayCaptureOptions(settle_s=0.0, still_level=1e9, change_level=1e9, still_frames=1,
-                                 pose_timeout_s=0.3)
+    options = GrayCaptureOptions(
+        settle_s=0.0, still_level=1e9, change_level=1e9, still_frames=1, pose_timeout_s=0.3
+    )
     table = _gray_code_table(tmp_path, 40)
     with FakeSerialProjector(n_patterns=42) as fake:
-        with FakeStereoCamera(width=64, height=48, fps=60.0) as camera, \
-                SerialProjector(port=fake.port, commands=table, width=1024,
-                                height=768) as projector:
-            with pytest.raises(CalibrationError, match="did not come to rest at a new pose within "
-                               "0.3 s.*poses captured so far are kept"):
+        with (
+            FakeStereoCamera(width=64, height=48, fps=60.0) as camera,
+            SerialProjector(port=fake.port, commands=table, width=1024, height=768) as projector,
+        ):
+            with pytest.raises(
+                CalibrationError,
+                match="did not come to rest at a new pose within "
+                "0.3 s.*poses captured so far are kept",
+            ):
                 capture_gray_code(camera, projector, tmp_path / "gray", 2, options)
     assert [p.name for p in (tmp_path / "gray").glob("pose_*")] == ["pose_000"]
     assert len(load_captures(tmp_path / "gray")[0].patterns) == 40

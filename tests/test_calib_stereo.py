@@ -36,7 +36,7 @@ def rendered(seed: int = 1, n: int = N_VIEWS, baseline_m: float = 0.004):
     return _rendered(seed, n, baseline_m)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _rendered(seed: int, n: int, baseline_m: float):
     rig = rig_with_baseline(baseline_m)
     rng = np.random.default_rng(seed)
@@ -46,13 +46,13 @@ def _rendered(seed: int, n: int, baseline_m: float):
     return ViewSet(pairs, [f"v{i:02d}" for i in range(n)], f"rendered seed {seed}"), poses
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def calibrated():
     views, _ = rendered()
     return calibrate_stereo(views, SPEC)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def detections():
     views, _ = rendered()
     return tuple(detect_views(views, SPEC))
@@ -92,7 +92,7 @@ def test_rectified_images_put_corners_on_the_same_row():
     common, a, b = np.intersect1d(il.ravel(), ir.ravel(), return_indices=True)
     assert len(common) > 12
     dy = cl.reshape(-1, 2)[a, 1] - cr.reshape(-1, 2)[b, 1]
-    assert np.sqrt(np.mean(dy ** 2)) < 0.3
+    assert np.sqrt(np.mean(dy**2)) < 0.3
 
 
 def test_injected_outlier_corners_are_rejected_and_intrinsics_stay_accurate():
@@ -116,12 +116,16 @@ def test_injected_outlier_corners_are_rejected_and_intrinsics_stay_accurate():
     rejected = {(v, c, i) for v, c, i, _ in result.calibration.info["rejected_corners"]}
     assert injected <= rejected
     K = result.calibration.K1
-    for got, true in ((K[0, 0], rig.left.K[0, 0]), (K[0, 2], rig.left.K[0, 2]),
-                      (K[1, 2], rig.left.K[1, 2])):
+    for got, true in (
+        (K[0, 0], rig.left.K[0, 0]),
+        (K[0, 2], rig.left.K[0, 2]),
+        (K[1, 2], rig.left.K[1, 2]),
+    ):
         assert relative(got, true) < 0.005
     # without rejection the 2-px corners pull the solution: the rejection is doing the work
-    loose = calibrate_detections(found, views.names, (640, 360), SPEC,
-                                 StereoOptions(outlier_sigma=1e6))
+    loose = calibrate_detections(
+        found, views.names, (640, 360), SPEC, StereoOptions(outlier_sigma=1e6)
+    )
     assert loose.calibration.rms_left_px > 1.5 * result.calibration.rms_left_px
 
 
@@ -135,7 +139,7 @@ def test_left_right_desync_is_detected_and_the_views_named():
     for v in desynced:  # board moved 0.5 mm (15 mm/s, one 30 Hz frame) before the right exposure
         rvec, tvec = poses[v]
         moved = (rvec, np.asarray(tvec) + np.array([0.0004, 0.0003, 0.0]))
-        (_, right), = render_board_views(rig, board, [moved], rng=np.random.default_rng(v))
+        ((_, right),) = render_board_views(rig, board, [moved], rng=np.random.default_rng(v))
         found[v] = (found[v][0], detector.detect(right))
     result = calibrate_detections(found, views.names, (640, 360), SPEC)
     assert set(result.desync) == {views.names[v] for v in desynced}
@@ -165,8 +169,9 @@ def test_too_few_views_says_how_many_and_which_were_dropped():
     views, _ = rendered()
     pairs = list(views.pairs[:5])
     pairs[4] = (np.full_like(pairs[4][0], 110), pairs[4][1])  # board not seen in the left eye
-    with pytest.raises(CalibrationError,
-                       match=r"only 4 usable views, need at least 6.*v04: too few"):
+    with pytest.raises(
+        CalibrationError, match=r"only 4 usable views, need at least 6.*v04: too few"
+    ):
         calibrate_stereo(ViewSet(pairs, views.names[:5], "few"), SPEC)
 
 
@@ -184,13 +189,18 @@ def test_cli_stereo_writes_yaml_and_report_and_session(tmp_path, capsys):
     save_views(folder, views.pairs[:10], views.names[:10])
     session = tmp_path / "session.h5"
     writer = SessionWriter(session, (640, 360))
-    writer.append_frames([StereoFrame(left=l, right=r, seq=i, t_device_ns=i, t_host_ns=i)
-                          for i, (l, r) in enumerate(views.pairs[:2])])
+    writer.append_frames(
+        [
+            StereoFrame(left=l, right=r, seq=i, t_device_ns=i, t_host_ns=i)
+            for i, (l, r) in enumerate(views.pairs[:2])
+        ]
+    )
     writer.close()
     finalize_session(session, {})
     out = tmp_path / "cal.yaml"
-    assert main(["calibrate", "stereo", str(folder), "-o", str(out), "--store-in",
-                 str(session)]) == 0
+    assert (
+        main(["calibrate", "stereo", str(folder), "-o", str(out), "--store-in", str(session)]) == 0
+    )
     printed = capsys.readouterr().out
     assert "B " in printed and "mm" in printed
     cal = Calibration.load(out)

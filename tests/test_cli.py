@@ -5,13 +5,24 @@ import sys
 
 import pytest
 
+from vbfe.cli.main import build_parser, main
 from vbfe.common.config import ConfigError, load_config
 
-from vbfe.cli.main import build_parser, main
-
-SUBCOMMANDS = ["devices", "record", "view", "inspect", "report", "verify-sync", "calibrate",
-               "reconstruct", "import", "export",
-               "train", "evaluate", "demo"]
+SUBCOMMANDS = [
+    "devices",
+    "record",
+    "view",
+    "inspect",
+    "report",
+    "verify-sync",
+    "calibrate",
+    "reconstruct",
+    "import",
+    "export",
+    "train",
+    "evaluate",
+    "demo",
+]
 
 
 def test_help_lists_every_subcommand():
@@ -21,8 +32,12 @@ def test_help_lists_every_subcommand():
 
 
 def test_console_script_runs():
-    out = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "--version"],
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert out.stdout.startswith("vbfe ")
 
 

@@ -64,9 +64,18 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     force = numbers["force"]
     assert not set(force["train_sessions"]) & set(force["test_sessions"])
     metrics = force["metrics"]
-    assert set(metrics) == {"pointnet", "temporal", "mean", "linear_displacement", "hooke",
-                            "ridge_height_map", "mlp_displacement_history", "cnn_depth_change",
-                            "ensemble_cnn_hooke", "hooke_texture_3d"}
+    assert set(metrics) == {
+        "pointnet",
+        "temporal",
+        "mean",
+        "linear_displacement",
+        "hooke",
+        "ridge_height_map",
+        "mlp_displacement_history",
+        "cnn_depth_change",
+        "ensemble_cnn_hooke",
+        "hooke_texture_3d",
+    }
     assert len(metrics["pointnet"]["per_condition"]) == 3
     mae = {method: metrics[method]["overall"]["mae_n"] for method in metrics}
     # The clouds carry the force: peak displacement alone (deterministic, fitted on the
@@ -121,6 +130,11 @@ def test_report_links_every_plot_and_shows_the_verdicts(demo_out):
         assert (demo_out / src).is_file(), src
     assert html.count("PASS") + html.count("FAIL") >= 10
     assert "pattern decoded" in html
-    for heading in ("calibration", "Synchronisation", "Sync protocol session", "reconstruction",
-                    "Force estimation"):
+    for heading in (
+        "calibration",
+        "Synchronisation",
+        "Sync protocol session",
+        "reconstruction",
+        "Force estimation",
+    ):
         assert heading in html

@@ -7,19 +7,26 @@ import subprocess
 import sys
 
 from vbfe.cli.main import main
-from vbfe.drivers.devices_list import (format_inventory, list_can_interfaces, list_devices,
-                                       list_video_devices)
+from vbfe.drivers.devices_list import (
+    format_inventory,
+    list_can_interfaces,
+    list_devices,
+    list_video_devices,
+)
 
 
 def make_sysfs(root):
     net = root / "class" / "net"
-    for name, kind, state in [("eth0", "1", "up"), ("can0", "280", "up"), ("vcan1", "280", "down"),
-                              ("lo", "772", "unknown")]:
+    for name, kind, state in [
+        ("eth0", "1", "up"),
+        ("can0", "280", "up"),
+        ("vcan1", "280", "down"),
+        ("lo", "772", "unknown"),
+    ]:
         (net / name).mkdir(parents=True)
         (net / name / "type").write_text(kind + "\n")
         (net / name / "operstate").write_text(state + "\n")
-    for name, label in [("video2", "Endoscope R"), ("video0", "Endoscope L"),
-                        ("video10", "Meta")]:
+    for name, label in [("video2", "Endoscope R"), ("video0", "Endoscope L"), ("video10", "Meta")]:
         (root / "class" / "video4linux" / name).mkdir(parents=True)
         (root / "class" / "video4linux" / name / "name").write_text(label + "\n")
     return root
@@ -33,7 +40,8 @@ def test_sysfs_parsing_finds_can_interfaces_and_cameras(tmp_path):
     assert [(c.path, c.name) for c in cams] == [
         (str(tmp_path / "dev" / "video0"), "Endoscope L"),
         (str(tmp_path / "dev" / "video2"), "Endoscope R"),
-        (str(tmp_path / "dev" / "video10"), "Meta")]
+        (str(tmp_path / "dev" / "video10"), "Meta"),
+    ]
     assert all(c.formats == () for c in cams)  # no device nodes to probe
     text = format_inventory(list_devices(sysfs, tmp_path / "dev"))
     assert "can0  up" in text and "Endoscope R" in text
@@ -56,8 +64,12 @@ def test_devices_command_exits_0_in_process(capsys):
 
 
 def test_devices_command_exits_0_as_a_process():
-    done = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "devices"],
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", "devices"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     inventory = list_devices()
     if not inventory.cameras:

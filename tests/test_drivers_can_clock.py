@@ -41,12 +41,18 @@ class SteppedHost:
 
 def force_message(n: int, timestamp: float = 0.0) -> can.Message:
     data = FORMAT.encode(np.array([0.0, 0.1, 1.0 + 1e-3 * (n % 100)]), counter=n)
-    return can.Message(arbitration_id=FORMAT.frame_id, data=data, is_extended_id=False,
-                       timestamp=timestamp)
+    return can.Message(
+        arbitration_id=FORMAT.frame_id, data=data, is_extended_id=False, timestamp=timestamp
+    )
 
 
-def run_stream(device_stamps: bool, n: int = 3000, offset_s: float = 1234.5,
-               drift_ppm: float = 80.0, seed: int = 0):
+def run_stream(
+    device_stamps: bool,
+    n: int = 3000,
+    offset_s: float = 1234.5,
+    drift_ppm: float = 80.0,
+    seed: int = 0,
+):
     """Send ``n`` frames over the virtual bus; the sensor's clock runs ``drift_ppm`` fast and
     ``offset_s`` ahead of the host; the host reads each 0.2-1.2 ms after it was sent."""
     rng = np.random.default_rng(seed)
@@ -78,33 +84,44 @@ def test_device_timestamps_are_the_device_clock_and_the_fit_recovers_offset_and_
     # host time of a sample with zero latency: 100 s + true time
     zero_latency_host = fit.to_host(t_dev) - np.round(np.median(latency_s) * 1e9)
     assert np.abs(zero_latency_host - np.round((100.0 + true_s) * 1e9)).max() < 0.3e6
-    assert fit.offset_ns == pytest.approx((100.0 - offset_s + np.median(latency_s)) * 1e9,
-                                          abs=0.3e6)
+    assert fit.offset_ns == pytest.approx(
+        (100.0 - offset_s + np.median(latency_s)) * 1e9, abs=0.3e6
+    )
 
 
 def test_without_device_timestamps_the_host_receive_time_is_used():
     samples, facts, *_ = run_stream(device_stamps=False, n=200)
     assert facts["device_clock"] == HOST_CLOCK
     assert all(s.t_device_ns == s.t_host_ns for s in samples)
-    fit = fit_clock(np.array([s.t_device_ns for s in samples]),
-                    np.array([s.t_host_ns for s in samples]))
+    fit = fit_clock(
+        np.array([s.t_device_ns for s in samples]), np.array([s.t_host_ns for s in samples])
+    )
     assert fit.drift_ppm == pytest.approx(0.0, abs=1e-6) and abs(fit.offset_ns) <= 1
 
 
 def test_error_frames_and_bus_state_changes_are_counted_and_marked():
     channel = f"vbfe-clock-{next(_channels)}"
-    with CanTrocar(interface="virtual", channel=channel) as trocar, \
-            can.Bus(interface="virtual", channel=channel) as bus:
+    with (
+        CanTrocar(interface="virtual", channel=channel) as trocar,
+        can.Bus(interface="virtual", channel=channel) as bus,
+    ):
         bus.send(force_message(0))
         bus.send(can.Message(arbitration_id=0x02, is_error_frame=True, data=bytes(8)))  # lost arb
-        bus.send(can.Message(arbitration_id=CAN_ERR_CRTL, is_error_frame=True,
-                             data=bytes([0, 0x10, 0, 0, 0, 0, 0, 0])))  # error passive
+        bus.send(
+            can.Message(
+                arbitration_id=CAN_ERR_CRTL,
+                is_error_frame=True,
+                data=bytes([0, 0x10, 0, 0, 0, 0, 0, 0]),
+            )
+        )  # error passive
         bus.send(force_message(1))
         got = [trocar.read(1.0), trocar.read(1.0)]
     assert [s.seq for s in got] == [0, 1] and trocar.stats.errors == 2
     marks = trocar.stats.take_marks()
-    assert [(m.reason, m.last_seq, m.count) for m in marks] == [("device error", 0, 1),
-                                                                 ("bus state change", 0, 1)]
+    assert [(m.reason, m.last_seq, m.count) for m in marks] == [
+        ("device error", 0, 1),
+        ("bus state change", 0, 1),
+    ]
     assert trocar.stats.dropped == 0 and trocar.stats.take_marks() == []
 
 
@@ -117,19 +134,24 @@ def _vcan() -> str | None:
     up = subprocess.run(["ip", "link", "show", "vcan0"], capture_output=True, text=True)
     if up.returncode == 0:
         return None
-    made = subprocess.run(["ip", "link", "add", "dev", "vcan0", "type", "vcan"],
-                          capture_output=True, text=True)
+    made = subprocess.run(
+        ["ip", "link", "add", "dev", "vcan0", "type", "vcan"], capture_output=True, text=True
+    )
     if made.returncode != 0:
-        return (f"'ip link add dev vcan0 type vcan' failed ({made.stderr.strip()}): the kernel "
-                "has no vcan module here or we may not add interfaces")
+        return (
+            f"'ip link add dev vcan0 type vcan' failed ({made.stderr.strip()}): the kernel "
+            "has no vcan module here or we may not add interfaces"
+        )
     subprocess.run(["ip", "link", "set", "vcan0", "up"], check=False)
     return None
 
 
 @pytest.mark.skipif(bool(reason := _vcan()), reason=str(reason))
 def test_trocar_over_socketcan_on_vcan0_uses_kernel_receive_time():
-    with CanTrocar(interface="socketcan", channel="vcan0") as trocar, \
-            can.Bus(interface="socketcan", channel="vcan0") as bus:
+    with (
+        CanTrocar(interface="socketcan", channel="vcan0") as trocar,
+        can.Bus(interface="socketcan", channel="vcan0") as bus,
+    ):
         before = time.time_ns()
         for k in range(20):
             bus.send(force_message(k))
@@ -141,23 +163,34 @@ def test_trocar_over_socketcan_on_vcan0_uses_kernel_receive_time():
 
 def test_recorded_session_stores_bus_errors_as_force_gaps(tmp_path):
     channel = f"vbfe-clock-{next(_channels)}"
-    devices = Rig(BarCamera(disconnect_after=20),
-                  CanTrocar(interface="virtual", channel=channel), RecordingProjector())
+    devices = Rig(
+        BarCamera(disconnect_after=20),
+        CanTrocar(interface="virtual", channel=channel),
+        RecordingProjector(),
+    )
     rec = Recorder(devices, tmp_path / "s.h5", min_free_bytes=0)
     rec.start()
     with can.Bus(interface="virtual", channel=channel) as bus:
         for k in range(5):
             bus.send(force_message(k))
         bus.send(can.Message(arbitration_id=0x08, is_error_frame=True, data=bytes(8)))
-        bus.send(can.Message(arbitration_id=CAN_ERR_CRTL, is_error_frame=True,
-                             data=bytes([0, 0x04, 0, 0, 0, 0, 0, 0])))  # rx error warning
+        bus.send(
+            can.Message(
+                arbitration_id=CAN_ERR_CRTL,
+                is_error_frame=True,
+                data=bytes([0, 0x04, 0, 0, 0, 0, 0, 0]),
+            )
+        )  # rx error warning
         for k in range(5, 10):
             bus.send(force_message(k))
         stats = rec.run(10.0)
     assert stats.end_reason.startswith("camera disconnected")
     with SessionReader(tmp_path / "s.h5") as session:
-        force_gaps = [(g["reason"], g["last_seq"], g["count"]) for g in session.gaps()
-                      if g["stream"] == "force"]
+        force_gaps = [
+            (g["reason"], g["last_seq"], g["count"])
+            for g in session.gaps()
+            if g["stream"] == "force"
+        ]
         assert force_gaps == [("device error", 4, 1), ("bus state change", 4, 1)]
         assert list(session.stream_times("force")[2]) == list(range(10))
         assert session.attrs["force_device_errors"] == 2

@@ -20,18 +20,26 @@ from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import JpegStereoFrame
 
 W, H = 64, 48
-MANUAL = {"auto_exposure": 1, "exposure_time_absolute": 100, "gain": 0,
-          "white_balance_automatic": False, "white_balance_temperature": 4600}
+MANUAL = {
+    "auto_exposure": 1,
+    "exposure_time_absolute": 100,
+    "gain": 0,
+    "white_balance_automatic": False,
+    "white_balance_temperature": 4600,
+}
 
 
 def stereo(left: FakeV4L2Node, right: FakeV4L2Node, **kwargs) -> LinuxpyStereoCamera:
-    return LinuxpyStereoCamera(devices=[left.path, right.path], width=W, height=H,
-                               **fake_factories(left, right), **kwargs)
+    return LinuxpyStereoCamera(
+        devices=[left.path, right.path], width=W, height=H, **fake_factories(left, right), **kwargs
+    )
 
 
 def pair(**kwargs) -> tuple[FakeV4L2Node, FakeV4L2Node]:
-    return (FakeV4L2Node("/fake/video0", W, H, eye="left", **kwargs),
-            FakeV4L2Node("/fake/video2", W, H, eye="right", **kwargs))
+    return (
+        FakeV4L2Node("/fake/video0", W, H, eye="left", **kwargs),
+        FakeV4L2Node("/fake/video2", W, H, eye="right", **kwargs),
+    )
 
 
 def read_until_timeout(camera: LinuxpyStereoCamera) -> list:
@@ -54,8 +62,10 @@ def test_drops_are_counted_exactly_from_kernel_sequence_numbers():
         assert isinstance(frame, JpegStereoFrame)
         assert frame.encoded == (left.delivered[frame.seq], right.delivered[frame.seq])
         # kernel time of the frame (a struct timeval: µs)
-        assert abs(frame.t_device_ns - frames[0].t_device_ns
-                   - (frame.seq - frames[0].seq) * 1e9 / 30) <= 1_000
+        assert (
+            abs(frame.t_device_ns - frames[0].t_device_ns - (frame.seq - frames[0].seq) * 1e9 / 30)
+            <= 1_000
+        )
     decoded = frames[3].left  # decoded only on demand
     assert np.abs(decoded.astype(int) - render_eye(W, H, frames[3].seq)).mean() < 3
 
@@ -129,8 +139,9 @@ def test_control_value_the_device_clips_is_refused():
 
 def test_side_by_side_yuyv_is_converted_and_split():
     node = FakeV4L2Node("/fake/video4", W, H, fourcc="YUYV", eye="both", n_frames=4)
-    camera = LinuxpyStereoCamera(device=node.path, width=W, height=H, fourcc="YUYV",
-                                 **fake_factories(node))
+    camera = LinuxpyStereoCamera(
+        device=node.path, width=W, height=H, fourcc="YUYV", **fake_factories(node)
+    )
     with camera:
         frames = read_until_timeout(camera)
     assert [f.seq for f in frames] == [0, 1, 2, 3] and frames[0].encoded is None
@@ -142,8 +153,9 @@ def test_side_by_side_yuyv_is_converted_and_split():
 
 
 def _recording(tmp_path, left, right, duration_s=None):
-    devices = Rig(stereo(left, right, controls=MANUAL), ProfileForce(speed=1.0),
-                  RecordingProjector())
+    devices = Rig(
+        stereo(left, right, controls=MANUAL), ProfileForce(speed=1.0), RecordingProjector()
+    )
     rec = Recorder(devices, tmp_path / "s.h5", compression="mjpeg", min_free_bytes=0)
     rec.start()
     return rec.run(duration_s), tmp_path / "s.h5"
@@ -158,11 +170,11 @@ def test_recorded_mjpeg_frames_are_the_devices_bytes(tmp_path):
         seqs = f["camera/seq"][:]
         for eye, node in (("left", left), ("right", right)):
             data, index = f[f"camera/{eye}_jpeg"][:], f[f"camera/{eye}_jpeg_index"][:]
-            for seq, (offset, length) in zip(seqs, index):
-                assert data[offset:offset + length].tobytes() == node.delivered[seq]
+            for seq, (offset, length) in zip(seqs, index, strict=False):
+                assert data[offset : offset + length].tobytes() == node.delivered[seq]
         devices = json.loads(f.attrs["metadata_json"])["devices"]
         assert devices["camera"]["controls"]["/fake/video2"]["exposure_time_absolute"] == 100
-        image = cv2.imdecode(data[index[0, 0]:index[0].sum()], cv2.IMREAD_COLOR)
+        image = cv2.imdecode(data[index[0, 0] : index[0].sum()], cv2.IMREAD_COLOR)
         assert image.shape == (H, W, 3)
 
 

@@ -32,7 +32,7 @@ def test_frame_id_survives_scaling_blur_and_dim_projection(frame_id):
 def test_frame_id_rejects_a_flipped_bit_and_flat_regions():
     stamped = stamp_frame_id(np.zeros((8, 160), np.uint8), 1234, cell_px=8)
     w, _ = patch_size(8)
-    stamped[:, 5 * 8:6 * 8] ^= 255  # flip one data cell
+    stamped[:, 5 * 8 : 6 * 8] ^= 255  # flip one data cell
     assert decode_frame_id(stamped[:, :w]) is None
     assert decode_frame_id(np.full((8, w), 128, np.uint8)) is None
 
@@ -49,8 +49,9 @@ def test_hdmi_window_shows_pattern_with_decodable_frame_ids():
             w, h = patch_size(projector.cell_px)
             assert decode_frame_id(shown[:h, :w]) == events[-1].frame_id == i
             # away from the stamp the window shows the (scaled) pattern itself
-            expected = cv2.resize(pattern, (projector.width, projector.height),
-                                  interpolation=cv2.INTER_NEAREST)
+            expected = cv2.resize(
+                pattern, (projector.width, projector.height), interpolation=cv2.INTER_NEAREST
+            )
             assert np.array_equal(shown[h:], expected[h:])
         with pytest.raises(DeviceError, match="screen 99 does not exist"):
             HdmiProjector(screen=99).open()
@@ -76,8 +77,10 @@ def test_serial_projector_talks_to_fake_on_a_pty():
 
 def test_own_command_table_with_unstored_pattern_reports_device_error(tmp_path):
     table = tmp_path / "mine.toml"
-    table.write_text('[protocol]\nack = "^OK"\n[commands.pattern]\nsend = "PATTERN {index:d}"\n'
-                     '[patterns]\nfar = 7\n')
+    table.write_text(
+        '[protocol]\nack = "^OK"\n[commands.pattern]\nsend = "PATTERN {index:d}"\n'
+        "[patterns]\nfar = 7\n"
+    )
     with FakeSerialProjector() as fake:
         with SerialProjector(port=fake.port, commands=table, timeout_s=1.0) as projector:
             with pytest.raises(DeviceError, match="no stored pattern 7"):

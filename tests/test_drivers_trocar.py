@@ -49,8 +49,9 @@ def test_frame_format_round_trips_at_dbc_resolution():
 
 
 def test_1000_frames_with_5_percent_corrupt_all_decoded_or_counted(caplog):
-    fake = FakeTrocar(_channel(), ramp_profile, rate_hz=2000.0, noise_n=0.05,
-                      corrupt_fraction=0.05, seed=3)
+    fake = FakeTrocar(
+        _channel(), ramp_profile, rate_hz=2000.0, noise_n=0.05, corrupt_fraction=0.05, seed=3
+    )
     with fake.trocar() as trocar, caplog.at_level(logging.WARNING):
         with fake:
             samples = read_n(trocar, 1100)
@@ -65,12 +66,15 @@ def test_1000_frames_with_5_percent_corrupt_all_decoded_or_counted(caplog):
     resolution = trocar.format.resolution_n
     first = samples[0]
     for sample in samples:
-        np.testing.assert_allclose(sample.force_n, fake.sent_forces_n[sample.seq],
-                                   atol=resolution / 2 + 1e-9)
+        np.testing.assert_allclose(
+            sample.force_n, fake.sent_forces_n[sample.seq], atol=resolution / 2 + 1e-9
+        )
         # device time = the sender's timestamp (n / 2 kHz on its clock); float epoch seconds
         # carry ~0.2 µs rounding
-        assert abs(sample.t_device_ns - first.t_device_ns
-                   - (sample.seq - first.seq) * 500_000) <= 1_000
+        assert (
+            abs(sample.t_device_ns - first.t_device_ns - (sample.seq - first.seq) * 500_000)
+            <= 1_000
+        )
     seqs = [s.seq for s in samples]
     assert seqs == sorted(fake.sent_forces_n)  # counter unwrapped across its 256 wrap
     assert seqs[-1] > 1000
@@ -79,8 +83,9 @@ def test_1000_frames_with_5_percent_corrupt_all_decoded_or_counted(caplog):
 
 def test_counter_gaps_are_counted_as_dropped_and_tare_zeroes():
     dropped = (5, 300, 301, 302, 700)
-    fake = FakeTrocar(_channel(), lambda t: np.array([0.5, -0.25, 1.0]), rate_hz=2000.0,
-                      drop_counters=dropped)
+    fake = FakeTrocar(
+        _channel(), lambda t: np.array([0.5, -0.25, 1.0]), rate_hz=2000.0, drop_counters=dropped
+    )
     with fake.trocar() as trocar, fake:
         offset = trocar.tare(n_samples=50)
         samples = read_n(trocar, 800)
@@ -103,13 +108,21 @@ def test_gap_longer_than_a_counter_wrap_is_counted_from_arrival_times():
 def test_unknown_ids_and_wrong_dlc_never_stop_acquisition():
     channel = _channel()
     fmt = load_frame_format()
-    with CanTrocar(interface="virtual", channel=channel) as trocar, \
-            can.Bus(interface="virtual", channel=channel) as sender:
+    with (
+        CanTrocar(interface="virtual", channel=channel) as trocar,
+        can.Bus(interface="virtual", channel=channel) as sender,
+    ):
         sender.send(can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False))
-        sender.send(can.Message(arbitration_id=fmt.frame_id, data=b"\x00" * 5,
-                                is_extended_id=False))
-        sender.send(can.Message(arbitration_id=fmt.frame_id, is_extended_id=False,
-                                data=fmt.encode(np.array([0.0, 0.0, 2.5]), counter=9)))
+        sender.send(
+            can.Message(arbitration_id=fmt.frame_id, data=b"\x00" * 5, is_extended_id=False)
+        )
+        sender.send(
+            can.Message(
+                arbitration_id=fmt.frame_id,
+                is_extended_id=False,
+                data=fmt.encode(np.array([0.0, 0.0, 2.5]), counter=9),
+            )
+        )
         sample = trocar.read(timeout_s=1.0)
         assert trocar.read(timeout_s=0.05) is None
     assert sample is not None and sample.seq == 9
@@ -146,8 +159,13 @@ def test_own_dbc_without_the_message_or_signals_is_a_clear_error(tmp_path):
     with pytest.raises(DeviceError, match=r"own\.dbc has no message 'TRF85D_Force'.*MyForce"):
         CanTrocar(interface="virtual", channel=_channel(), dbc=own)
     with pytest.raises(DeviceError, match=r"lacks signal\(s\) \['Tz'\]"):
-        CanTrocar(interface="virtual", channel=_channel(), dbc=own, message="MyForce",
-                  force_signals=("Fx", "Fy", "Tz"))
+        CanTrocar(
+            interface="virtual",
+            channel=_channel(),
+            dbc=own,
+            message="MyForce",
+            force_signals=("Fx", "Fy", "Tz"),
+        )
     with pytest.raises(DeviceError, match="does not exist"):
         CanTrocar(interface="virtual", channel=_channel(), dbc=tmp_path / "none.dbc")
     trocar = CanTrocar(interface="virtual", channel=_channel(), dbc=own, message="MyForce")
@@ -157,19 +175,38 @@ def test_own_dbc_without_the_message_or_signals_is_a_clear_error(tmp_path):
 def test_rig_config_with_own_dbc_lacking_counter_and_checksum(tmp_path):
     own = tmp_path / "plain.dbc"
     text = default_dbc_path().read_text().replace("TRF85D_Force", "Plain")
-    own.write_text("\n".join(line for line in text.splitlines()
-                             if "Counter" not in line and "Checksum" not in line))
+    own.write_text(
+        "\n".join(
+            line for line in text.splitlines() if "Counter" not in line and "Checksum" not in line
+        )
+    )
     channel = _channel()
-    trocar = open_rig({"trocar": {"backend": "can", "interface": "virtual", "channel": channel,
-                                  "dbc": str(own), "message": "Plain", "counter_signal": "",
-                                  "checksum_signal": "", "rate_hz": 500.0}},
-                      families=("trocar",)).trocar
+    trocar = open_rig(
+        {
+            "trocar": {
+                "backend": "can",
+                "interface": "virtual",
+                "channel": channel,
+                "dbc": str(own),
+                "message": "Plain",
+                "counter_signal": "",
+                "checksum_signal": "",
+                "rate_hz": 500.0,
+            }
+        },
+        families=("trocar",),
+    ).trocar
     plain = load_frame_format(own, "Plain", counter_signal=None, checksum_signal=None)
     with trocar, can.Bus(interface="virtual", channel=channel) as sender:
         sent_from_ns = time.time_ns()
         for fz in (1.0, 2.0, 3.0):
-            sender.send(can.Message(arbitration_id=plain.frame_id, is_extended_id=False,
-                                    data=plain.encode(np.array([0.0, 0.0, fz]))))
+            sender.send(
+                can.Message(
+                    arbitration_id=plain.frame_id,
+                    is_extended_id=False,
+                    data=plain.encode(np.array([0.0, 0.0, fz])),
+                )
+            )
         samples = read_n(trocar, 3)
     assert [s.force_n[2] for s in samples] == pytest.approx([1.0, 2.0, 3.0])
     assert [s.seq for s in samples] == [0, 1, 2]

@@ -11,15 +11,21 @@ from vbfe.estimate.image_models import RidgeThumbnail, fit_ridge, fit_ridge_thum
 def prepared(name, displacement_m, force_n, condition):
     n = len(displacement_m)
     d = np.nan_to_num(np.asarray(displacement_m, float))
-    return PreparedSession(name=name, conditions=condition,
-                           frame_index=np.arange(n), times_ns=np.arange(n, dtype=np.int64),
-                           targets_n=np.asarray(force_n, float).reshape(n, -1),
-                           pools=np.zeros((n, 4, 3), np.float32),
-                           displacement_m=np.asarray(displacement_m, float),
-                           texture_displacement_m=np.full(n, np.nan),
-                           image_sum=np.repeat(d[:, None, None], 4, 1).repeat(4, 2),
-                           image_count=np.ones((n, 4, 4), np.float32),
-                           n_frames_total=n, n_no_cloud=0, n_no_force=0)
+    return PreparedSession(
+        name=name,
+        conditions=condition,
+        frame_index=np.arange(n),
+        times_ns=np.arange(n, dtype=np.int64),
+        targets_n=np.asarray(force_n, float).reshape(n, -1),
+        pools=np.zeros((n, 4, 3), np.float32),
+        displacement_m=np.asarray(displacement_m, float),
+        texture_displacement_m=np.full(n, np.nan),
+        image_sum=np.repeat(d[:, None, None], 4, 1).repeat(4, 2),
+        image_count=np.ones((n, 4, 4), np.float32),
+        n_frames_total=n,
+        n_no_cloud=0,
+        n_no_force=0,
+    )
 
 
 def all_frames(sessions):
@@ -28,8 +34,10 @@ def all_frames(sessions):
 
 def test_fitted_baselines_recover_known_relations():
     d = np.linspace(0, 0.01, 50)
-    sessions = [prepared("a", d, 120.0 * d, {"stiffness_n_per_m": 40.0}),
-                prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0})]
+    sessions = [
+        prepared("a", d, 120.0 * d, {"stiffness_n_per_m": 40.0}),
+        prepared("b", d, 120.0 * d, {"stiffness_n_per_m": 80.0}),
+    ]
     sessions[1].displacement_m[3] = np.nan  # frames without displacement are left out
     fitted = fit_baselines(all_frames(sessions))
     assert set(fitted) == {"mean", "linear_displacement", "hooke"}
@@ -37,8 +45,10 @@ def test_fitted_baselines_recover_known_relations():
     np.testing.assert_allclose(fitted["hooke"].intercept, 0.0)
     np.testing.assert_allclose(fitted["linear_displacement"].slope, [120.0], rtol=1e-9)
     np.testing.assert_allclose(fitted["linear_displacement"].intercept, [0.0], atol=1e-9)
-    np.testing.assert_allclose(fitted["mean"].predict(np.array([0.0, 1.0])),
-                               [[np.mean(np.concatenate([s.targets_n for s in sessions]))]] * 2)
+    np.testing.assert_allclose(
+        fitted["mean"].predict(np.array([0.0, 1.0])),
+        [[np.mean(np.concatenate([s.targets_n for s in sessions]))]] * 2,
+    )
 
 
 def test_linear_and_hooke_differ_when_force_has_an_offset():
@@ -52,8 +62,9 @@ def test_linear_and_hooke_differ_when_force_has_an_offset():
 def test_baseline_round_trips_through_a_dict():
     b = AffineBaseline("hooke", np.array([1.0, 2.0, 3.0]), np.zeros(3))
     again = AffineBaseline.from_dict(b.to_dict())
-    np.testing.assert_array_equal(again.predict(np.array([0.5, np.nan])),
-                                  [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(
+        again.predict(np.array([0.5, np.nan])), [[0.5, 1.0, 1.5], [0.0, 0.0, 0.0]]
+    )
 
 
 def test_ridge_picks_the_thumbnail_size_and_penalty_on_validation_and_round_trips():
@@ -89,8 +100,10 @@ def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():
     assert across.alpha > 100 * within.alpha
     unseen = rng.normal(0, 1e-3, (200, 16))
     truth = unseen @ (rng.normal(0, 1.0, 16) * 1e3) + 2.0
-    error = {name: np.abs(r.predict(unseen)[:, 0] - truth).mean()
-             for name, r in (("within", within), ("across", across))}
+    error = {
+        name: np.abs(r.predict(unseen)[:, 0] - truth).mean()
+        for name, r in (("within", within), ("across", across))
+    }
     assert error["across"] < error["within"]
 
 
@@ -102,23 +115,30 @@ def test_history_mlp_reads_the_pull_rate_that_one_frame_cannot():
         t = np.arange(frames) * dt
         d = v * np.clip(t - 0.5, 0, None)
         return prepared(name, d, k * d, {"stiffness_n_per_m": k})
+
     train = [ramp("soft", 40.0, 0.01), ramp("stiff", 200.0, 0.002)]
     test = [ramp("soft2", 40.0, 0.01, frames=50), ramp("stiff2", 200.0, 0.002, frames=50)]
     fitted = fit_baselines(all_frames(train), history_offsets=[4, 2, 0], seed=0)
     history, linear = fitted["mlp_displacement_history"], fitted["linear_displacement"]
-    errors = {name: np.mean([np.abs(b.predict_session(s) - s.targets_n).mean() for s in test])
-              for name, b in (("history", history), ("linear", linear))}
+    errors = {
+        name: np.mean([np.abs(b.predict_session(s) - s.targets_n).mean() for s in test])
+        for name, b in (("history", history), ("linear", linear))
+    }
     spread = np.mean([np.abs(s.targets_n - s.targets_n.mean()).mean() for s in test])
     assert errors["history"] < 0.1 * spread and errors["history"] < 0.2 * errors["linear"]
     again = baseline_from_dict(history.to_dict())
     np.testing.assert_allclose(again.predict_session(test[0]), history.predict_session(test[0]))
     repeat = fit_baselines(all_frames(train), history_offsets=[4, 2, 0], seed=0)
-    np.testing.assert_array_equal(repeat["mlp_displacement_history"].predict_session(test[1]),
-                                  history.predict_session(test[1]))
+    np.testing.assert_array_equal(
+        repeat["mlp_displacement_history"].predict_session(test[1]),
+        history.predict_session(test[1]),
+    )
 
 
 def test_history_features_are_causal():
     from vbfe.estimate.history_baseline import history_features
+
     d = np.array([1.0, np.nan, 3.0, 4.0])
-    np.testing.assert_array_equal(history_features(d, [5, 2, 0]),
-                                  [[0, 0, 1], [0, 0, 0], [0, 1, 3], [0, 0, 4]])
+    np.testing.assert_array_equal(
+        history_features(d, [5, 2, 0]), [[0, 0, 1], [0, 0, 0], [0, 1, 3], [0, 0, 4]]
+    )

@@ -5,12 +5,17 @@ import pytest
 
 from vbfe.estimate.dataset import FrameBatches, prepare_session, prepare_sessions
 from vbfe.estimate.depth_image import DepthChangeImage, thumbnails
-from vbfe.estimate.preparation import crop_roi, force_target, sample_points
-from vbfe.estimate.splits import (SessionSplit, split_by_ranges, split_by_session,
-                                  split_by_time, split_folds)
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.preparation import crop_roi, force_target, sample_points
 from vbfe.estimate.sources import SessionClouds
+from vbfe.estimate.splits import (
+    SessionSplit,
+    split_by_ranges,
+    split_by_session,
+    split_by_time,
+    split_folds,
+)
 from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 
@@ -20,8 +25,9 @@ def small_config(**kw):
 
 
 def test_roi_keeps_finite_points_inside_the_region():
-    points = np.array([[0, 0, 0.08], [0.05, 0, 0.08], [np.nan, 0, 0.08], [0, np.inf, 0.08],
-                       [0.001, 0.001, 0.081]])
+    points = np.array(
+        [[0, 0, 0.08], [0.05, 0, 0.08], [np.nan, 0, 0.08], [0, np.inf, 0.08], [0.001, 0.001, 0.081]]
+    )
     assert len(crop_roi(points, small_config())) == 3
     radius = crop_roi(points, small_config(roi="radius", roi_radius_m=0.01))
     assert len(radius) == 2 and np.all(radius[:, 0] < 0.01)
@@ -49,8 +55,9 @@ def test_force_target_magnitude_or_axes():
 
 
 def test_empty_and_nan_clouds_are_skipped_and_counted():
-    session = synthetic_session("s", 80.0, 0.005, np.random.default_rng(1), fps=4,
-                                points_per_side=12)
+    session = synthetic_session(
+        "s", 80.0, 0.005, np.random.default_rng(1), fps=4, points_per_side=12
+    )
     session.clouds[2] = np.zeros((0, 3))
     session.clouds[5] = np.full((100, 3), np.nan)
     session.forces_n[7] = np.nan
@@ -63,8 +70,9 @@ def test_empty_and_nan_clouds_are_skipped_and_counted():
 
 
 def test_a_session_without_any_usable_cloud_is_an_error_naming_it():
-    empty = SessionClouds("broken-run", [np.full((5, 3), np.nan)] * 3, np.ones((3, 3)),
-                          np.arange(3, dtype=np.int64))
+    empty = SessionClouds(
+        "broken-run", [np.full((5, 3), np.nan)] * 3, np.ones((3, 3)), np.arange(3, dtype=np.int64)
+    )
     with pytest.raises(EstimateError, match="broken-run"):
         prepare_sessions([empty], small_config())
 
@@ -95,15 +103,17 @@ def test_displacement_grows_with_force_in_prepared_sessions():
 
 
 def test_frame_stride_uses_every_kth_frame():
-    session = synthetic_session("s", 200.0, 0.002, np.random.default_rng(3), fps=4,
-                                points_per_side=10)
+    session = synthetic_session(
+        "s", 200.0, 0.002, np.random.default_rng(3), fps=4, points_per_side=10
+    )
     prepared = prepare_session(session, small_config(frame_stride=3))
     np.testing.assert_array_equal(prepared.times_ns, session.times_ns[::3])
 
 
 def test_split_is_by_session_without_leakage_and_stratified():
-    sessions = prepare_sessions(synthetic_sessions(repeats=4, fps=1, points_per_side=10),
-                                small_config())
+    sessions = prepare_sessions(
+        synthetic_sessions(repeats=4, fps=1, points_per_side=10), small_config()
+    )
     split = split_by_session(sessions, val_fraction=0.25, test_fraction=0.25, seed=5)
     parts = [set(split.train), set(split.val), set(split.test)]
     assert sum(len(p) for p in parts) == len(sessions) == len(set.union(*parts))
@@ -115,25 +125,28 @@ def test_split_is_by_session_without_leakage_and_stratified():
     # frames of one session never end up on both sides
     train_frames = split.frames("train", sessions)
     assert {s.name for s, _ in train_frames} == parts[0]
-    assert len(FrameBatches(train_frames, 8)) == sum(s.n_used for s in sessions
-                                                    if s.name in parts[0])
+    assert len(FrameBatches(train_frames, 8)) == sum(
+        s.n_used for s in sessions if s.name in parts[0]
+    )
     assert split_by_session(sessions, 0.25, 0.25, seed=5) == split
 
 
 def test_split_keeps_one_training_session():
-    sessions = prepare_sessions(synthetic_sessions(repeats=1, fps=1, points_per_side=10)[:2],
-                                small_config())
+    sessions = prepare_sessions(
+        synthetic_sessions(repeats=1, fps=1, points_per_side=10)[:2], small_config()
+    )
     split = split_by_session(sessions, val_fraction=0.5, test_fraction=0.5, seed=0)
     assert len(split.train) == 1 and len(split.train) + len(split.val) + len(split.test) == 2
 
 
 def test_batches_redraw_points_from_the_pool():
-    sessions = prepare_sessions(synthetic_sessions(repeats=1, fps=2, points_per_side=12),
-                                small_config())
+    sessions = prepare_sessions(
+        synthetic_sessions(repeats=1, fps=2, points_per_side=12), small_config()
+    )
     batches = FrameBatches([(s, np.arange(s.n_used)) for s in sessions], 64)
     rng = np.random.default_rng(0)
-    (a, ya), = list(batches.batches(10_000, rng))
-    (b, yb), = list(batches.batches(10_000, None))
+    ((a, ya),) = list(batches.batches(10_000, rng))
+    ((b, yb),) = list(batches.batches(10_000, None))
     assert a.shape == b.shape == (len(batches), 64, 4) and ya.shape == (len(batches), 1)
     np.testing.assert_array_equal(b.numpy(), batches.pools[:, :64])
     np.testing.assert_array_equal(np.sort(yb.numpy(), 0), np.sort(ya.numpy(), 0))
@@ -144,8 +157,10 @@ def _positions(split, part, session):
 
 
 def test_time_split_is_train_then_val_then_test_with_gaps_stated_as_frame_ranges():
-    session = prepare_session(synthetic_session("one", 80.0, 0.005, np.random.default_rng(4),
-                                                fps=30, points_per_side=10), small_config())
+    session = prepare_session(
+        synthetic_session("one", 80.0, 0.005, np.random.default_rng(4), fps=30, points_per_side=10),
+        small_config(),
+    )
     n = session.n_used
     split = split_by_time([session], val_fraction=0.2, test_fraction=0.2, gap_frames=12)
     assert split.kind == "time" and split.train == split.val == split.test == ["one"]
@@ -162,13 +177,13 @@ def test_time_split_is_train_then_val_then_test_with_gaps_stated_as_frame_ranges
 
 
 def test_stated_ranges_are_frame_numbers_and_must_not_overlap():
-    raw = synthetic_session("r", 80.0, 0.005, np.random.default_rng(4), fps=30,
-                            points_per_side=10)
+    raw = synthetic_session("r", 80.0, 0.005, np.random.default_rng(4), fps=30, points_per_side=10)
     raw.clouds[5] = np.full((30, 3), np.nan)  # unusable: positions and frame numbers differ
     session = prepare_session(raw, small_config())
     split = split_by_ranges([session], {"train": [0, 40], "val": [50, 60], "test": [70, 90]})
-    assert session.frame_index[sorted(_positions(split, "val", session))].tolist() == \
-        list(range(50, 60))
+    assert session.frame_index[sorted(_positions(split, "val", session))].tolist() == list(
+        range(50, 60)
+    )
     assert split.blocks["train"]["r"] == [[0, 40]]  # as stated (frame 5 is simply not used)
     with pytest.raises(EstimateError, match="overlap"):
         split_by_ranges([session], {"train": [0, 40], "val": [30, 60], "test": []})
@@ -177,13 +192,15 @@ def test_stated_ranges_are_frame_numbers_and_must_not_overlap():
 
 
 def test_folds_test_every_block_once_with_gaps():
-    session = prepare_session(synthetic_session("f", 80.0, 0.005, np.random.default_rng(4),
-                                                fps=30, points_per_side=10), small_config())
+    session = prepare_session(
+        synthetic_session("f", 80.0, 0.005, np.random.default_rng(4), fps=30, points_per_side=10),
+        small_config(),
+    )
     splits = split_folds([session], 5, gap_frames=3)
     tested = [_positions(s, "test", session) for s in splits]
     assert set().union(*tested) == set(range(session.n_used))
     assert sum(len(t) for t in tested) == session.n_used
-    for split, test in zip(splits, tested):
+    for split, test in zip(splits, tested, strict=False):
         train, val = _positions(split, "train", session), _positions(split, "val", session)
         assert train and val and not (train & val or train & test or val & test)
         for i in train:
@@ -205,13 +222,16 @@ def test_depth_change_image_and_its_thumbnails():
     np.testing.assert_allclose(np.sort(np.unique(change.round(6))), [-0.002, 0.0], atol=1e-9)
     two = thumbnails(total[None], count[None], 2)[0]
     np.testing.assert_allclose(np.sort(two), [-0.002, 0, 0, 0], atol=2e-4)
-    np.testing.assert_allclose(thumbnails(total[None], count[None], 8)[0], change.ravel(),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        thumbnails(total[None], count[None], 8)[0], change.ravel(), atol=1e-9
+    )
 
 
 def test_temporal_window_is_causal_and_starts_with_the_rest_frame():
-    session = prepare_session(synthetic_session("w", 200.0, 0.01, np.random.default_rng(5),
-                                                fps=10, points_per_side=8), small_config())
+    session = prepare_session(
+        synthetic_session("w", 200.0, 0.01, np.random.default_rng(5), fps=10, points_per_side=8),
+        small_config(),
+    )
     positions = np.array([0, 3, 20])
     batches = FrameBatches([(session, positions)], 16, window=[6, 3, 0])
     rows = batches.frame_indices(np.arange(3))

@@ -6,8 +6,13 @@ import torch
 from scipy.spatial.distance import pdist
 
 from vbfe.estimate.errors import EstimateError
-from vbfe.estimate.pointnet import (PointNetRegressor, TemporalPointNet, diameter,
-                                    normalize_clouds, weighted_centroid)
+from vbfe.estimate.pointnet import (
+    PointNetRegressor,
+    TemporalPointNet,
+    diameter,
+    normalize_clouds,
+    weighted_centroid,
+)
 from vbfe.estimate.rest_depth import RestDepth
 
 
@@ -61,18 +66,21 @@ def test_network_output_does_not_depend_on_point_order(clouds):
 def test_global_features_carry_the_size_that_normalisation_removes(clouds):
     torch.manual_seed(0)
     for with_features in (False, True):
-        net = PointNetRegressor(conv_channels=(16,), head_channels=(8,),
-                                global_features=with_features).eval()
+        net = PointNetRegressor(
+            conv_channels=(16,), head_channels=(8,), global_features=with_features
+        ).eval()
         same = torch.allclose(net(clouds), net(clouds * 2.0), atol=1e-5)
         assert same is not with_features
 
 
 def test_temporal_model_sees_the_window_in_order_and_shares_the_encoder(clouds):
     torch.manual_seed(0)
-    net = TemporalPointNet(n_outputs=2, n_frames=3, conv_channels=[8, 16],
-                           head_channels=[8], dropout=0.0).eval()
-    single = PointNetRegressor(n_outputs=2, conv_channels=[8, 16], head_channels=[8],
-                               dropout=0.0).eval()
+    net = TemporalPointNet(
+        n_outputs=2, n_frames=3, conv_channels=[8, 16], head_channels=[8], dropout=0.0
+    ).eval()
+    single = PointNetRegressor(
+        n_outputs=2, conv_channels=[8, 16], head_channels=[8], dropout=0.0
+    ).eval()
     windows = clouds[:, None].repeat(1, 4, 1, 1)  # rest + 3 frames, 2 windows of the same cloud
     windows[:, 2] += torch.tensor([0.0, 0.0, -0.001])  # the tissue moves over the window
     windows[:, 3] += torch.tensor([0.0, 0.0, -0.002])
@@ -93,14 +101,15 @@ def test_temporal_model_sees_the_window_in_order_and_shares_the_encoder(clouds):
 
 
 def test_rest_depth_measures_a_bump_against_the_rest_surface():
-    xy = np.stack(np.meshgrid(np.linspace(-0.02, 0.02, 41), np.linspace(-0.02, 0.02, 41)),
-                  -1).reshape(-1, 2)
+    xy = np.stack(
+        np.meshgrid(np.linspace(-0.02, 0.02, 41), np.linspace(-0.02, 0.02, 41)), -1
+    ).reshape(-1, 2)
     tilt = 0.06 + 0.1 * xy[:, 0]  # a tilted rest surface, 6 cm away
     rest = RestDepth(np.column_stack([xy, tilt]))
-    bump = -0.003 * np.exp(-(xy ** 2).sum(1) / (2 * 0.004 ** 2))  # pulled 3 mm towards the camera
+    bump = -0.003 * np.exp(-(xy**2).sum(1) / (2 * 0.004**2))  # pulled 3 mm towards the camera
     pulled = np.column_stack([xy + 0.0002, tilt + 0.1 * 0.0002 + bump])  # and slid 0.2 mm
     change = rest.change_m(pulled)
-    centre, rim = np.argmin((xy ** 2).sum(1)), np.argmax((xy ** 2).sum(1))
+    centre, rim = np.argmin((xy**2).sum(1)), np.argmax((xy**2).sum(1))
     assert change[centre] == pytest.approx(-0.003, abs=1e-4)
     assert abs(change[rim]) < 1e-4
     np.testing.assert_allclose(change, bump, atol=2e-4)
@@ -113,8 +122,9 @@ def test_rest_depth_measures_a_bump_against_the_rest_surface():
 def test_the_rest_depth_channel_reaches_the_network(clouds):
     torch.manual_seed(0)
     net = PointNetRegressor(conv_channels=(16, 32), head_channels=(16,), rest_depth=True).eval()
-    net.set_normalization(torch.zeros(1), torch.ones(1), torch.zeros(4), torch.ones(4),
-                          depth_std=0.001)
+    net.set_normalization(
+        torch.zeros(1), torch.ones(1), torch.zeros(4), torch.ones(4), depth_std=0.001
+    )
     flat = torch.cat([clouds, torch.zeros(*clouds.shape[:2], 1)], dim=2)
     pulled = flat.clone()
     pulled[..., 3] = -0.002  # same shape, moved 2 mm against the rest surface

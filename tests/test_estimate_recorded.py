@@ -23,8 +23,16 @@ def sessions(tmp_path_factory):
     paths = []
     for stiffness, speed, seed in CONDITIONS:
         config = default_config()
-        config["bench"].update(width=320, height=180, fps=8.0, stiffness_n_per_m=stiffness,
-                               pull_speed_m_per_s=speed, rest_s=0.1, hold_s=0.3, seed=seed)
+        config["bench"].update(
+            width=320,
+            height=180,
+            fps=8.0,
+            stiffness_n_per_m=stiffness,
+            pull_speed_m_per_s=speed,
+            rest_s=0.1,
+            hold_s=0.3,
+            seed=seed,
+        )
         calibration = calibration_from_rig(true_rig(config))
         path = folder / f"pull_k{stiffness:g}.h5"
         record_session(config, path, duration_s=1.5, calibration_yaml=calibration.to_yaml_text())
@@ -52,11 +60,26 @@ def test_recorded_session_frames_are_labelled_with_the_trocar_force(sessions):
 
 def test_cli_trains_and_evaluates_on_recorded_sessions(sessions, tmp_path, capsys):
     rig = tmp_path / "rig.toml"
-    rig.write_text("[train]\nepochs = 3\nbatch_size = 8\nn_points = 64\nthreads = 1\n"
-                   "conv_channels = [8, 16]\nhead_channels = [8]\nval_fraction = 0.5\n")
+    rig.write_text(
+        "[train]\nepochs = 3\nbatch_size = 8\nn_points = 64\nthreads = 1\n"
+        "conv_channels = [8, 16]\nhead_channels = [8]\nval_fraction = 0.5\n"
+    )
     model_path = tmp_path / "model.pt"
-    assert main(["train", *map(str, sessions), "--out", str(model_path), "--config", str(rig),
-                 "--learning-rate", "0.01"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                *map(str, sessions),
+                "--out",
+                str(model_path),
+                "--config",
+                str(rig),
+                "--learning-rate",
+                "0.01",
+            ]
+        )
+        == 0
+    )
     assert "model written to" in capsys.readouterr().out
     model = load_model(model_path)
     assert model.config.n_points == 64 and model.config.learning_rate == 0.01
@@ -64,10 +87,14 @@ def test_cli_trains_and_evaluates_on_recorded_sessions(sessions, tmp_path, capsy
     assert sorted(split["train"] + split["val"]) == sorted(map(str, sessions))
     assert len(split["train"]) == len(split["val"]) == 1
 
-    assert main(["evaluate", str(model_path), *map(str, sessions), "--out",
-                 str(tmp_path / "report")]) == 0
+    assert (
+        main(["evaluate", str(model_path), *map(str, sessions), "--out", str(tmp_path / "report")])
+        == 0
+    )
     assert "warning: 2 session(s) were used in training" in capsys.readouterr().out
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
-    assert set(metrics["metrics"]["hooke"]["per_condition"]) == {"200 N/m @ 0.01 m/s",
-                                                                 "80 N/m @ 0.02 m/s"}
+    assert set(metrics["metrics"]["hooke"]["per_condition"]) == {
+        "200 N/m @ 0.01 m/s",
+        "80 N/m @ 0.02 m/s",
+    }
     assert len(list((tmp_path / "report").glob("force_*.png"))) == 2

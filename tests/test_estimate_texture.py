@@ -3,6 +3,7 @@ projected pattern and reconstructed, and Hooke's law on the tracked 3D displacem
 
 import numpy as np
 import pytest
+
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -14,14 +15,14 @@ from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
-from vbfe.recon import Reconstructor, make_pattern
-
 from vbfe.live.estimator import FrameEstimator
+from vbfe.recon import Reconstructor, make_pattern
 from vbfe.truth import calibration_from_rig
 
 DISTANCE_M = 0.06
-SHIFTS_M = np.array([[0.0, 0.0, 0.0], [0.4e-3, -0.3e-3, 0.0], [1.2e-3, -0.6e-3, 0.0],
-                     [-1.0e-3, 1.8e-3, 0.4e-3]])  # the first is the rest pose
+SHIFTS_M = np.array(
+    [[0.0, 0.0, 0.0], [0.4e-3, -0.3e-3, 0.0], [1.2e-3, -0.6e-3, 0.0], [-1.0e-3, 1.8e-3, 0.4e-3]]
+)  # the first is the rest pose
 STIFFNESS_N_PER_M = 900.0  # force of each pose: this times its shift's length
 
 
@@ -39,12 +40,14 @@ def shifted_clouds():
     def render(shift, albedo, seed):  # each frame its own sensor noise
         plane = Plane(np.eye(3), np.array([0.0, 0.0, DISTANCE_M]) + shift, texture=albedo)
         pair = render_scene(rig, plane, pattern, rng=np.random.default_rng(seed))
-        return StereoFrame(left=pair.left, right=pair.right, seq=seed, t_device_ns=seed,
-                           t_host_ns=seed)
+        return StereoFrame(
+            left=pair.left, right=pair.right, seq=seed, t_device_ns=seed, t_host_ns=seed
+        )
 
     def cloud(frame):
         reconstructed = reconstructor.process(frame.left, frame.right)
         return reconstructed.points, reconstructed.colors
+
     frames = [render(shift, texture, seed) for seed, shift in enumerate(SHIFTS_M)]
     plain = render(SHIFTS_M[0], UniformAlbedo((0.72, 0.74, 0.95)), len(SHIFTS_M))
     return [cloud(frame) for frame in frames], cloud(plain), (frames, calibration)
@@ -55,7 +58,7 @@ def test_tracking_recovers_a_known_shift(shifted_clouds):
     motion, reason = TextureMotion.from_rest(*clouds[0])
     assert motion is not None, reason
     peaks = []
-    for (points, colors), shift in zip(clouds[1:], SHIFTS_M[1:]):
+    for (points, colors), shift in zip(clouds[1:], SHIFTS_M[1:], strict=False):
         field = motion.displacement_m(points, colors)
         seen = np.isfinite(field).all(axis=-1)
         assert seen.mean() > 0.8
@@ -85,11 +88,15 @@ def _sessions(clouds, with_colours=True):
     sessions = []
     for k, order in enumerate(([0, 1, 2, 3], [0, 3, 2, 1], [0, 2, 3, 1])):
         force = STIFFNESS_N_PER_M * np.linalg.norm(SHIFTS_M[order], axis=1)
-        sessions.append(SessionClouds(
-            f"plane{k}", [clouds[i][0] for i in order],
-            np.column_stack([force, np.zeros((len(order), 2))]),
-            np.arange(len(order), dtype=np.int64) * 10**8,
-            point_colors=[clouds[i][1] for i in order] if with_colours else None))
+        sessions.append(
+            SessionClouds(
+                f"plane{k}",
+                [clouds[i][0] for i in order],
+                np.column_stack([force, np.zeros((len(order), 2))]),
+                np.arange(len(order), dtype=np.int64) * 10**8,
+                point_colors=[clouds[i][1] for i in order] if with_colours else None,
+            )
+        )
     return sessions
 
 
@@ -111,15 +118,17 @@ def test_texture_hooke_is_trained_stored_and_used_frame_by_frame(shifted_clouds,
     assert np.abs(np.array(forces) - want).mean() < 0.15 * want.mean()
     # vbfe live reconstructs the frames itself and gives the same forces
     live = FrameEstimator(model, calibration)
-    np.testing.assert_allclose([live.estimate(frame).force_n[0] for frame in frames], forces,
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        [live.estimate(frame).force_n[0] for frame in frames], forces, rtol=1e-6
+    )
     # with its rows averaged in pairs ([live] row_scale = 0.5) the grid's rows are twice as
     # far apart; the forces stay near the spring's (measured: 11 % of the mean force)
     halved = FrameEstimator(model, calibration, row_scale=0.5)
     forces = [halved.estimate(frame).force_n[0] for frame in frames]
     assert np.abs(np.array(forces) - want).mean() < 0.2 * want.mean()
-    with pytest.raises(EstimateError, match="reads the tissue's texture, but the clouds carry "
-                                            "no colours"):
+    with pytest.raises(
+        EstimateError, match="reads the tissue's texture, but the clouds carry no colours"
+    ):
         FramePredictor(model).predict(clouds[0][0])
 
 

@@ -10,11 +10,11 @@ import pytest
 import torch
 
 from vbfe.cli.main import main
+from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model
-from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
@@ -23,10 +23,22 @@ SMALL = dict(fps=4, points_per_side=20)
 
 
 def tiny_config(**kw):
-    values = dict(epochs=30, batch_size=16, n_points=64, patience=10, learning_rate=3e-3,
-                  conv_channels=[16, 32, 64], head_channels=[32], dropout=0.1,
-                  val_fraction=1 / 3, seed=0, threads=1, cnn_epochs=15, cnn_channels=[4, 8],
-                  history_frames=0)
+    values = dict(
+        epochs=30,
+        batch_size=16,
+        n_points=64,
+        patience=10,
+        learning_rate=3e-3,
+        conv_channels=[16, 32, 64],
+        head_channels=[32],
+        dropout=0.1,
+        val_fraction=1 / 3,
+        seed=0,
+        threads=1,
+        cnn_epochs=15,
+        cnn_channels=[4, 8],
+        history_frames=0,
+    )
     values.update(kw)
     return TrainConfig(**values)
 
@@ -34,8 +46,11 @@ def tiny_config(**kw):
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("model") / "model.pt"
-    result = train(synthetic_sessions(repeats=3, seed=1, prefix="train", **SMALL), out,
-                   tiny_config(history_frames=6))
+    result = train(
+        synthetic_sessions(repeats=3, seed=1, prefix="train", **SMALL),
+        out,
+        tiny_config(history_frames=6),
+    )
     return out, result
 
 
@@ -49,13 +64,19 @@ def test_training_writes_a_model_with_its_record(trained):
     assert len(split["train"]) == 6 and len(split["val"]) == 3
     assert not set(split["train"]) & set(split["val"])
     assert model.record["vbfe_version"]
-    assert set(model.baselines) == {"mean", "linear_displacement", "hooke",
-                                   "mlp_displacement_history"}
+    assert set(model.baselines) == {
+        "mean",
+        "linear_displacement",
+        "hooke",
+        "mlp_displacement_history",
+    }
     candidates = {"pointnet", "ridge_height_map", "cnn_depth_change", "ensemble_cnn_hooke"}
     assert set(model.estimators) == set(model.baselines) | candidates
     # the synthetic clouds carry no colours: the texture candidate is skipped, and says why
-    assert any(note.startswith("hooke_texture_3d skipped: no training frame has a texture")
-               for note in result.notes)
+    assert any(
+        note.startswith("hooke_texture_3d skipped: no training frame has a texture")
+        for note in result.notes
+    )
     # the shipped model is the candidate with the lowest validation MAE, every score stored
     scores = model.record["validation_mae_n"]
     assert set(scores) == set(model.estimators) and result.val_mae_n == scores
@@ -87,16 +108,26 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     held_out[0].clouds[3] = np.full((50, 3), np.nan)
     report = evaluate(path, held_out, tmp_path / "eval")
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert set(metrics["metrics"]) == {"pointnet", "mean", "linear_displacement", "hooke",
-                                       "ridge_height_map", "mlp_displacement_history",
-                                       "cnn_depth_change", "ensemble_cnn_hooke"}
+    assert set(metrics["metrics"]) == {
+        "pointnet",
+        "mean",
+        "linear_displacement",
+        "hooke",
+        "ridge_height_map",
+        "mlp_displacement_history",
+        "cnn_depth_change",
+        "ensemble_cnn_hooke",
+    }
     # the ensemble, read back from the model file, is the mean of its two members' forces
     with open(tmp_path / "eval" / "predictions.csv", newline="") as f:
         scored = list(csv.DictReader(f))
-    force = {m: np.array([float(r[f"{m}_n"]) for r in scored])
-             for m in ("ensemble_cnn_hooke", "cnn_depth_change", "hooke")}
+    force = {
+        m: np.array([float(r[f"{m}_n"]) for r in scored])
+        for m in ("ensemble_cnn_hooke", "cnn_depth_change", "hooke")
+    }
     assert force["ensemble_cnn_hooke"] == pytest.approx(
-        (force["cnn_depth_change"] + force["hooke"]) / 2, rel=1e-4, abs=1e-5)
+        (force["cnn_depth_change"] + force["hooke"]) / 2, rel=1e-4, abs=1e-5
+    )
     assert not np.allclose(force["cnn_depth_change"], force["hooke"])
     for stats in metrics["metrics"].values():
         low, high = stats["overall"]["mae_ci95_n"]
@@ -109,20 +140,28 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     assert float(first[0]["mean_n"]) == pytest.approx(mean_force, rel=1e-5)
     assert metrics["split"]["kind"] == "session"
     conditions = metrics["metrics"]["pointnet"]["per_condition"]
-    assert set(conditions) == {"40 N/m @ 0.01 m/s", "80 N/m @ 0.005 m/s",
-                               "200 N/m @ 0.002 m/s"}
-    assert sum(c["n_frames"] for c in conditions.values()) == \
-        metrics["metrics"]["pointnet"]["overall"]["n_frames"]
+    assert set(conditions) == {"40 N/m @ 0.01 m/s", "80 N/m @ 0.005 m/s", "200 N/m @ 0.002 m/s"}
+    assert (
+        sum(c["n_frames"] for c in conditions.values())
+        == metrics["metrics"]["pointnet"]["overall"]["n_frames"]
+    )
     assert metrics["skipped"][held_out[0].name]["no_cloud"] == 1
     for stats in conditions.values():
         assert stats["rmse_n"] >= stats["mae_n"] > 0
     assert "1 with too few points" in (tmp_path / "eval" / "report.md").read_text()
     pngs = sorted(p.name for p in (tmp_path / "eval" / "").glob("*.png"))
-    assert len(pngs) == 4 and all((tmp_path / "eval" / p).read_bytes()[:4] == b"\x89PNG"
-                                  for p in pngs)
+    assert len(pngs) == 4 and all(
+        (tmp_path / "eval" / p).read_bytes()[:4] == b"\x89PNG" for p in pngs
+    )
     table = (tmp_path / "eval" / "report.md").read_text()
-    for label in ("PointNet", "Mean predictor", "Linear on displacement", "Hooke", "Ridge",
-                  "split by session"):
+    for label in (
+        "PointNet",
+        "Mean predictor",
+        "Linear on displacement",
+        "Hooke",
+        "Ridge",
+        "split by session",
+    ):
         assert label in table
     assert "<table" in (tmp_path / "eval" / "report.html").read_text()
     assert [f.name for f in report.files[:2]] == ["metrics.json", "predictions.csv"]
@@ -130,8 +169,9 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
 
 def test_evaluating_training_sessions_is_flagged(trained, tmp_path):
     path, _ = trained
-    report = evaluate(path, synthetic_sessions(repeats=1, seed=1, prefix="train", **SMALL)[:1],
-                      tmp_path)
+    report = evaluate(
+        path, synthetic_sessions(repeats=1, seed=1, prefix="train", **SMALL)[:1], tmp_path
+    )
     assert report.seen_in_training == ["train-k40-v0.01-r0"]
     assert "not held-out" in (tmp_path / "report.md").read_text()
 
@@ -150,17 +190,21 @@ def test_training_is_repeatable_whatever_the_caller_set_and_restores_torch_threa
     a, b = load_model(first.model_path), load_model(second.model_path)
     prepared = prepare_session(sessions[0], config)
     for method in a.estimators:  # every method predicts the same, to the bit
-        np.testing.assert_array_equal(a.predict_session(prepared, method),
-                                      b.predict_session(prepared, method), err_msg=method)
+        np.testing.assert_array_equal(
+            a.predict_session(prepared, method), b.predict_session(prepared, method), err_msg=method
+        )
     assert first.history == second.history and first.val_mae_n == second.val_mae_n
 
 
 def test_time_limit_only_guards_and_says_so(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=5, prefix="tl", fps=4, points_per_side=12)
-    config = tiny_config(epochs=10_000, patience=10_000, time_limit_s=2.0, batch_size=4,
-                         model="pointnet")
+    config = tiny_config(
+        epochs=10_000, patience=10_000, time_limit_s=2.0, batch_size=4, model="pointnet"
+    )
     result = train(sessions, tmp_path / "tl.pt", config)
-    assert any(n.startswith("warning: pointnet was stopped by the time limit") for n in result.notes)
+    assert any(
+        n.startswith("warning: pointnet was stopped by the time limit") for n in result.notes
+    )
     assert result.epochs_run < 10_000
     # the schedule is the configured one, not re-sized to the time: still near the top
     assert result.history[-1]["lr"] > 0.99 * config.learning_rate
@@ -169,8 +213,9 @@ def test_time_limit_only_guards_and_says_so(tmp_path):
 
 def test_without_validation_data_training_says_so_and_runs_the_fixed_epochs(tmp_path):
     sessions = synthetic_sessions(repeats=1, seed=6, prefix="nv", fps=2, points_per_side=12)
-    result = train(sessions, tmp_path / "nv.pt", tiny_config(epochs=4, val_fraction=0.0,
-                                                             cnn_epochs=2))
+    result = train(
+        sessions, tmp_path / "nv.pt", tiny_config(epochs=4, val_fraction=0.0, cnn_epochs=2)
+    )
     assert any("too little data for a validation set" in n for n in result.notes)
     assert result.epochs_run == result.best_epoch == 4
 
@@ -185,20 +230,23 @@ def test_cuda_request_without_a_gpu_is_refused(tmp_path):
 
 def test_three_axis_target(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=4, prefix="xyz", fps=2, points_per_side=12)
-    result = train(sessions, tmp_path / "xyz.pt", tiny_config(epochs=2, target="xyz",
-                                                              cnn_epochs=2))
+    result = train(sessions, tmp_path / "xyz.pt", tiny_config(epochs=2, target="xyz", cnn_epochs=2))
     model = load_model(result.model_path)
     prepared = prepare_session(sessions[0], model.config)
     for method in model.estimators:
         assert model.predict_session(prepared, method).shape == (prepared.n_used, 3), method
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"format_version": 99}, "format version"),
-    ({"format": "something-else"}, "not a vbfe model file"),
-])
-def test_model_file_of_another_version_or_architecture_is_refused(trained, tmp_path, change,
-                                                                   message):
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"format_version": 99}, "format version"),
+        ({"format": "something-else"}, "not a vbfe model file"),
+    ],
+)
+def test_model_file_of_another_version_or_architecture_is_refused(
+    trained, tmp_path, change, message
+):
     path, _ = trained
     payload = torch.load(path, weights_only=True)
     payload.update(change)
@@ -237,9 +285,13 @@ def test_cli_evaluate_refuses_a_non_model(tmp_path, capsys):
 
 def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=3, prefix="warm", fps=2, points_per_side=12)
-    result = train(sessions, tmp_path / "warm.pt",
-                   tiny_config(epochs=4, temporal_frames=2, temporal_span_frames=2,
-                               temporal_epochs=4, model="temporal"))
+    result = train(
+        sessions,
+        tmp_path / "warm.pt",
+        tiny_config(
+            epochs=4, temporal_frames=2, temporal_span_frames=2, temporal_epochs=4, model="temporal"
+        ),
+    )
     model = load_model(result.model_path)
     assert model.selected == "temporal" and "forced by --model" in " ".join(result.notes)
     live = FramePredictor(model)  # vbfe live keeps the causal window of the shipped model
@@ -252,9 +304,12 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
         assert temporal["history"][best - 1]["val_loss"] < temporal["start_val_loss"]
     else:  # exactly that PointNet: the same head on the newest cloud, motion correction at zero
         prepared = prepare_session(sessions[0], model.config)
-        np.testing.assert_allclose(model.predict_session(prepared, "temporal"),
-                                   model.predict_session(prepared, "pointnet"), rtol=1e-5,
-                                   atol=1e-6)
+        np.testing.assert_allclose(
+            model.predict_session(prepared, "temporal"),
+            model.predict_session(prepared, "pointnet"),
+            rtol=1e-5,
+            atol=1e-6,
+        )
 
 
 @pytest.fixture(scope="module")
@@ -263,39 +318,82 @@ def clouds_file(tmp_path_factory):
     from vbfe.estimate.importing import write_clouds
 
     folder = tmp_path_factory.mktemp("cli")
-    s = synthetic_session("press", 80.0, 0.005, np.random.default_rng(7), fps=10,
-                          points_per_side=12)
-    path = write_clouds(folder / "press.clouds.h5", s.clouds, s.times_ns, s.forces_n,
-                        {"label": "press"}, {"folder": "synthetic"})
+    s = synthetic_session(
+        "press", 80.0, 0.005, np.random.default_rng(7), fps=10, points_per_side=12
+    )
+    path = write_clouds(
+        folder / "press.clouds.h5",
+        s.clouds,
+        s.times_ns,
+        s.forces_n,
+        {"label": "press"},
+        {"folder": "synthetic"},
+    )
     rig = folder / "rig.toml"
-    rig.write_text("[train]\nepochs = 2\nbatch_size = 8\nn_points = 32\nthreads = 1\n"
-                   "conv_channels = [8, 16]\nhead_channels = [8]\ncnn_epochs = 3\n"
-                   "history_frames = 0\ngap_frames = 3\n")
+    rig.write_text(
+        "[train]\nepochs = 2\nbatch_size = 8\nn_points = 32\nthreads = 1\n"
+        "conv_channels = [8, 16]\nhead_channels = [8]\ncnn_epochs = 3\n"
+        "history_frames = 0\ngap_frames = 3\n"
+    )
     return path, rig
 
 
 def test_cli_time_split_by_stated_frame_ranges(clouds_file, tmp_path, capsys):
     path, rig = clouds_file
     model = tmp_path / "m.pt"
-    assert main(["train", str(path), "--out", str(model), "--config", str(rig), "--train",
-                 "0:60", "--val", "66:80", "--test", "86:95", "--model", "ridge"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                str(path),
+                "--out",
+                str(model),
+                "--config",
+                str(rig),
+                "--train",
+                "0:60",
+                "--val",
+                "66:80",
+                "--test",
+                "86:95",
+                "--model",
+                "ridge",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "press.clouds.h5 train 0:60 val 66:80 test 86:95" in out
     assert "ships ridge_height_map" in out and "forced by --model" in out
     assert load_model(model).split.blocks["test"][str(path)] == [[86, 95]]
     assert main(["evaluate", str(model), str(path), "--out", str(tmp_path / "r")]) == 0
     assert "over 9 frames" in capsys.readouterr().out  # the stated test range only
-    assert main(["train", str(path), "--out", str(tmp_path / "bad.pt"), "--config", str(rig),
-                 "--train", "0:60", "--val", "50:80"]) == 2
+    assert (
+        main(
+            [
+                "train",
+                str(path),
+                "--out",
+                str(tmp_path / "bad.pt"),
+                "--config",
+                str(rig),
+                "--train",
+                "0:60",
+                "--val",
+                "50:80",
+            ]
+        )
+        == 2
+    )
     assert "overlap" in capsys.readouterr().err
 
 
-def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file, tmp_path,
-                                                                     capsys):
+def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file, tmp_path, capsys):
     path, rig = clouds_file
     model = tmp_path / "cv.pt"
-    assert main(["train", str(path), "--out", str(model), "--config", str(rig), "--folds",
-                 "3"]) == 0
+    assert (
+        main(["train", str(path), "--out", str(model), "--config", str(rig), "--folds", "3"]) == 0
+    )
     out = capsys.readouterr().out
     folds = [line for line in out.splitlines() if line.startswith("fold ")]
     assert len(folds) == 3 and all("test " in line and "gap 3 frames" in line for line in folds)
@@ -310,14 +408,16 @@ def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file,
 
 def test_a_shipped_model_that_loses_to_a_baseline_is_flagged(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=8, prefix="lose", fps=2, points_per_side=12)
-    result = train(sessions, tmp_path / "lose.pt",
-                   tiny_config(epochs=1, model="pointnet", learning_rate=1e-5))
+    result = train(
+        sessions, tmp_path / "lose.pt", tiny_config(epochs=1, model="pointnet", learning_rate=1e-5)
+    )
     scores = result.val_mae_n
     assert set(scores) == {"mean", "linear_displacement", "hooke", "pointnet"}
     assert scores["pointnet"] > scores["linear_displacement"]  # one epoch barely moves it
     warning = [n for n in result.notes if n.startswith("warning: selected model: pointnet")]
     assert warning and "LOSES to the baseline" in warning[0]
-    report = evaluate(result.model_path, synthetic_sessions(repeats=1, seed=9, **SMALL),
-                      tmp_path / "eval")
+    report = evaluate(
+        result.model_path, synthetic_sessions(repeats=1, seed=9, **SMALL), tmp_path / "eval"
+    )
     assert report.selected == "pointnet"
     assert "LOSES to the baseline" in (tmp_path / "eval" / "report.md").read_text()

@@ -29,20 +29,38 @@ pytestmark = pytest.mark.slow
 
 
 def vbfe(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True,
-                          text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True, text=True, timeout=600
+    )
 
 
-@pytest.mark.skipif(not (ROOT / "depthimage1-1" / "data1000.png").exists(),
-                    reason="set VBFE_REALDATA to a folder with learning-to-see-forces/data")
+@pytest.mark.skipif(
+    not (ROOT / "depthimage1-1" / "data1000.png").exists(),
+    reason="set VBFE_REALDATA to a folder with learning-to-see-forces/data",
+)
 def test_learning_to_see_forces_imports_in_frame_order(tmp_path):
     out = tmp_path / "ltsf.clouds.h5"
-    result = vbfe("import", "depth", str(ROOT / "depthimage1-1"),
-                  "--forces", str(ROOT / "Force_ori" / "data1-1-z.txt"), "--force-columns", "0",
-                  "--fps", "30",
-                  *(a for k, v in KINECT_V1_DEPTH.items() for a in (f"--{k}", str(v))),
-                  "--depth-scale", "0.001", "--crop-origin", "0", "0", "--pixel-step", "5",
-                  "--out", str(out))
+    result = vbfe(
+        "import",
+        "depth",
+        str(ROOT / "depthimage1-1"),
+        "--forces",
+        str(ROOT / "Force_ori" / "data1-1-z.txt"),
+        "--force-columns",
+        "0",
+        "--fps",
+        "30",
+        *(a for k, v in KINECT_V1_DEPTH.items() for a in (f"--{k}", str(v))),
+        "--depth-scale",
+        "0.001",
+        "--crop-origin",
+        "0",
+        "0",
+        "--pixel-step",
+        "5",
+        "--out",
+        str(out),
+    )
     assert result.returncode == 0, result.stderr
     assert "1000 frames, 1000 with a force" in result.stdout
     forces = np.loadtxt(ROOT / "Force_ori" / "data1-1-z.txt")
@@ -50,22 +68,42 @@ def test_learning_to_see_forces_imports_in_frame_order(tmp_path):
     try:
         np.testing.assert_allclose(source.force_at_frames()[:, 2], forces)
         for i in (9, 99, 999):  # data10, data100, data1000: frames 9, 99, 999 (not text order)
-            depth = cv2.imread(str(ROOT / "depthimage1-1" / f"data{i + 1}.png"),
-                               cv2.IMREAD_UNCHANGED)[::5, ::5]
+            depth = cv2.imread(
+                str(ROOT / "depthimage1-1" / f"data{i + 1}.png"), cv2.IMREAD_UNCHANGED
+            )[::5, ::5]
             z = np.sort(depth[(depth > 0) & (depth < 65535)].ravel() * 1e-3)
             np.testing.assert_allclose(np.sort(source.cloud(i)[:, 2]), z, rtol=1e-6)
     finally:
         source.close()
 
 
-@pytest.mark.skipif(not (PUNYO / "pc" / "pc_149.npy").exists(),
-                    reason="set VBFE_REALDATA to a folder with punyo/pc and punyo/forces.csv")
+@pytest.mark.skipif(
+    not (PUNYO / "pc" / "pc_149.npy").exists(),
+    reason="set VBFE_REALDATA to a folder with punyo/pc and punyo/forces.csv",
+)
 def test_punyo_organised_clouds_keep_the_bubble_only(tmp_path):
     out = tmp_path / "punyo.clouds.h5"
-    result = vbfe("import", "clouds", str(PUNYO / "pc"), "--forces", str(PUNYO / "forces.csv"),
-                  "--force-columns", "fx,fy,fz", "--frame-column", "frame",
-                  "--frame-times", str(PUNYO / "forces.csv"), "--frame-time-column", "t_s",
-                  "--min-depth", "0.01", "--max-depth", "0.2", "--out", str(out))
+    result = vbfe(
+        "import",
+        "clouds",
+        str(PUNYO / "pc"),
+        "--forces",
+        str(PUNYO / "forces.csv"),
+        "--force-columns",
+        "fx,fy,fz",
+        "--frame-column",
+        "frame",
+        "--frame-times",
+        str(PUNYO / "forces.csv"),
+        "--frame-time-column",
+        "t_s",
+        "--min-depth",
+        "0.01",
+        "--max-depth",
+        "0.2",
+        "--out",
+        str(out),
+    )
     assert result.returncode == 0, result.stderr
     assert "150 frames, 150 with a force" in result.stdout
     source = ImportedClouds(out)

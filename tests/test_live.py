@@ -39,8 +39,12 @@ def test_mailbox_gives_the_newest_item_and_counts_the_skipped():
 def test_half_resolution_reconstruction_sees_the_same_depth():
     rig = default_rig(640, 360)
     tissue = TissueSurface(texture=tissue_texture(np.random.default_rng(3)))
-    pair = render_scene(rig, tissue, make_pattern(rig.projector.width, rig.projector.height),
-                        rng=np.random.default_rng(4))
+    pair = render_scene(
+        rig,
+        tissue,
+        make_pattern(rig.projector.width, rig.projector.height),
+        rng=np.random.default_rng(4),
+    )
     calibration = calibration_from_rig(rig)
     half = calibration.scaled(0.5)
     assert half.image_size == (320, 180)
@@ -48,8 +52,10 @@ def test_half_resolution_reconstruction_sees_the_same_depth():
     import cv2
 
     full_cloud = Reconstructor(calibration).process(pair.left, pair.right)
-    small = [cv2.resize(im, half.image_size, interpolation=cv2.INTER_AREA)
-             for im in (pair.left, pair.right)]
+    small = [
+        cv2.resize(im, half.image_size, interpolation=cv2.INTER_AREA)
+        for im in (pair.left, pair.right)
+    ]
     half_cloud = Reconstructor(half).process(*small)
     assert len(half_cloud.points) > 0.15 * len(full_cloud.points)
     z_full, z_half = np.median(full_cloud.points[:, 2]), np.median(half_cloud.points[:, 2])
@@ -62,14 +68,27 @@ def rig(tmp_path_factory):
     """A trained (tiny) model, the bench's calibration and a 320x180 bench rig config."""
     folder = tmp_path_factory.mktemp("live")
     model = folder / "model.pt"
-    train_config = TrainConfig(epochs=8, batch_size=16, n_points=64, conv_channels=[16, 32, 64],
-                               head_channels=[32], val_fraction=1 / 3, seed=0, threads=1,
-                               cnn_epochs=5, history_frames=0)
+    train_config = TrainConfig(
+        epochs=8,
+        batch_size=16,
+        n_points=64,
+        conv_channels=[16, 32, 64],
+        head_channels=[32],
+        val_fraction=1 / 3,
+        seed=0,
+        threads=1,
+        cnn_epochs=5,
+        history_frames=0,
+    )
     train(synthetic_sessions(repeats=1, seed=1, fps=4, points_per_side=20), model, train_config)
     bench = {"width": 320, "height": 180, "fps": 15.0, "distortion": False, "seed": 3}
     toml = folder / "rig.toml"
-    toml.write_text("[bench]\n" + "".join(f"{k} = {str(v).lower() if isinstance(v, bool) else v}\n"
-                                          for k, v in bench.items()))
+    toml.write_text(
+        "[bench]\n"
+        + "".join(
+            f"{k} = {str(v).lower() if isinstance(v, bool) else v}\n" for k, v in bench.items()
+        )
+    )
     config = load_config()
     config["bench"].update(bench)
     calib = calibration_from_rig(true_rig(config)).save(folder / "calib.yaml")
@@ -77,15 +96,31 @@ def rig(tmp_path_factory):
 
 
 def vbfe(*args):
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-                          capture_output=True, text=True, timeout=240)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
 
 
 def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     folder, model, calib, toml = rig
     session = folder / "live.h5"
-    result = vbfe("live", "--model", model, "--calib", calib, "--record", session,
-                  "--duration", 4, "--headless", "--config", toml)
+    result = vbfe(
+        "live",
+        "--model",
+        model,
+        "--calib",
+        calib,
+        "--record",
+        session,
+        "--duration",
+        4,
+        "--headless",
+        "--config",
+        toml,
+    )
     assert result.returncode == 0, result.stderr
     status_lines = [l for l in result.stdout.splitlines() if l.startswith("live ")]
     assert len(status_lines) >= 2 and "est/s" in status_lines[-1]
@@ -119,8 +154,9 @@ def test_live_refuses_a_calibration_of_another_camera_mode(rig, tmp_path):
     folder, model, calib, _ = rig
     toml = tmp_path / "rig.toml"
     toml.write_text("[bench]\nwidth = 640\nheight = 360\n")
-    result = vbfe("live", "--model", model, "--calib", calib, "--duration", 1, "--headless",
-                  "--config", toml)
+    result = vbfe(
+        "live", "--model", model, "--calib", calib, "--duration", 1, "--headless", "--config", toml
+    )
     assert result.returncode == 2
     assert "640x360" in result.stderr and "320x180" in result.stderr
     assert "Traceback" not in result.stderr
@@ -150,13 +186,35 @@ def test_live_publishes_estimates_over_lsl_and_udp(rig):
     receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     receiver.bind(("127.0.0.1", 0))
     receiver.settimeout(0.2)
-    proc = subprocess.Popen([sys.executable, "-m", "vbfe.cli.main", "live", "--model", model,
-                             "--calib", calib, "--duration", "6", "--headless", "--config", toml,
-                             "--lsl", source, "--udp", f"127.0.0.1:{receiver.getsockname()[1]}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "vbfe.cli.main",
+            "live",
+            "--model",
+            model,
+            "--calib",
+            calib,
+            "--duration",
+            "6",
+            "--headless",
+            "--config",
+            toml,
+            "--lsl",
+            source,
+            "--udp",
+            f"127.0.0.1:{receiver.getsockname()[1]}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
-        found = {name: pylsl.resolve_bypred(f"source_id='{source}-{name}'", timeout=60.0)
-                 for name in ("estimate", "trocar")}
+        found = {
+            name: pylsl.resolve_bypred(f"source_id='{source}-{name}'", timeout=60.0)
+            for name in ("estimate", "trocar")
+        }
         assert all(found.values()), "the live outlets never appeared"
         inlets = {name: pylsl.StreamInlet(info[0]) for name, info in found.items()}
         for inlet in inlets.values():

@@ -11,6 +11,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+
 from vbfe.acquire import Acquisition
 from vbfe.common.config import load_config
 from vbfe.drivers.registry import open_rig
@@ -25,13 +26,12 @@ from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.recon import Reconstructor, make_pattern
-from vbfe.recon.maps import depth_map_m
-
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork
 from vbfe.live.pipeline import Pipeline
 from vbfe.live.predictor import LivePredictor
 from vbfe.live.run import LiveRun
+from vbfe.recon import Reconstructor, make_pattern
+from vbfe.recon.maps import depth_map_m
 from vbfe.truth import calibration_from_rig
 
 WAIT_S = 10.0  # generous: only a hung thread takes this long
@@ -98,8 +98,9 @@ def test_concurrent_stages_each_work_on_their_own_item():
 
 
 def test_a_failing_stage_halts_the_pipeline_and_names_itself():
-    pipeline = Pipeline([("reconstruct", lambda item: 1 / item), ("model", lambda x: x)],
-                        lambda x: None)
+    pipeline = Pipeline(
+        [("reconstruct", lambda item: 1 / item), ("model", lambda x: x)], lambda x: None
+    )
     pipeline.start()
     pipeline.put(0)
     pipeline.stop()
@@ -113,10 +114,13 @@ def bench_frames():
     rig = default_rig(320, 180)
     tissue = TissueSurface(texture=tissue_texture(np.random.default_rng(3)))
     pattern = make_pattern(rig.projector.width, rig.projector.height)
-    pairs = [render_scene(rig, tissue, pattern, rng=np.random.default_rng(seed))
-             for seed in range(3)]
-    frames = [StereoFrame(left=p.left, right=p.right, seq=k, t_device_ns=k, t_host_ns=k)
-              for k, p in enumerate(pairs)]
+    pairs = [
+        render_scene(rig, tissue, pattern, rng=np.random.default_rng(seed)) for seed in range(3)
+    ]
+    frames = [
+        StereoFrame(left=p.left, right=p.right, seq=k, t_device_ns=k, t_host_ns=k)
+        for k, p in enumerate(pairs)
+    ]
     return frames, calibration_from_rig(rig)
 
 
@@ -145,7 +149,7 @@ def test_the_pipeline_gives_the_sequential_estimates(bench_frames):
         assert ready.acquire(timeout=WAIT_S)
     pipeline.stop()
     assert [e.frame_seq for e in delivered] == [0, 1, 2]
-    for got, want in zip(delivered, expected):
+    for got, want in zip(delivered, expected, strict=False):
         assert np.isfinite(want.force_n).all() and got.n_points == want.n_points > 1000
         np.testing.assert_allclose(got.force_n, want.force_n, rtol=1e-6)
         assert len(got.stage_s) == len(STAGES)
@@ -164,19 +168,22 @@ def test_live_features_give_the_full_predictors_estimates(bench_frames, kind):
     if kind == "pointnet":
         model = _pointnet(1)
     elif kind == "temporal":
-        network = TemporalPointNet(n_frames=2, conv_channels=[8, 16], head_channels=[8],
-                                   rest_depth=True)
+        network = TemporalPointNet(
+            n_frames=2, conv_channels=[8, 16], head_channels=[8], rest_depth=True
+        )
         torch.nn.init.normal_(network.motion_head[-1].weight)  # the window counts
         model = _model(NetworkEstimator(network.eval(), 64, (1, 0), "temporal"), "temporal")
     else:
-        model = _model(AffineBaseline("displacement", np.array([30.0]), np.array([0.1])),
-                       "displacement")
+        model = _model(
+            AffineBaseline("displacement", np.array([30.0]), np.array([0.1])), "displacement"
+        )
     full, live = FramePredictor(model, seed=5), LivePredictor(model, seed=5)
     clouds = _clouds(bench_frames)
     for points in clouds + clouds[::-1]:
         want = full.predict(points)
-        np.testing.assert_allclose(live.model_force(live.prepare(points)), want, rtol=1e-5,
-                                   atol=1e-7)
+        np.testing.assert_allclose(
+            live.model_force(live.prepare(points)), want, rtol=1e-5, atol=1e-7
+        )
 
 
 def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
@@ -186,8 +193,9 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
     halved = FrameEstimator(_pointnet(), calibration, row_scale=0.5)
     half_calibration = halved.reconstructor.calibration
     assert half_calibration.image_size == (320, 90)
-    small = [cv2.resize(im, (320, 90), interpolation=cv2.INTER_AREA)
-             for im in (frame.left, frame.right)]
+    small = [
+        cv2.resize(im, (320, 90), interpolation=cv2.INTER_AREA) for im in (frame.left, frame.right)
+    ]
     half = halved.reconstructor.process(*small)
     assert 0.45 < len(half.points) / len(full.points) < 0.55
     # each halved row against the mean depth of its two full rows: nearly every pixel alike
@@ -207,11 +215,15 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
 
 def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames):
     frames, calibration = bench_frames
-    run = LiveRun(Acquisition(open_rig(load_config(), RigOptions(realtime=False))),
-                  FrameEstimator(_pointnet(), calibration), max_frame_age_s=0.25)
+    run = LiveRun(
+        Acquisition(open_rig(load_config(), RigOptions(realtime=False))),
+        FrameEstimator(_pointnet(), calibration),
+        max_frame_age_s=0.25,
+    )
     now = time.monotonic_ns()
-    late, fresh = (dataclasses.replace(frames[k], t_host_ns=t)
-                   for k, t in ((0, now - 10**9), (1, now)))
+    late, fresh = (
+        dataclasses.replace(frames[k], t_host_ns=t) for k, t in ((0, now - 10**9), (1, now))
+    )
     run.on_start(run.acquisition)
     run.on_frames([late])
     run.on_frames([fresh])

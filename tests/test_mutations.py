@@ -51,8 +51,22 @@ RECORD_S = "0.4"
 # Session datasets every reader needs; everything else (truth, clock fits, analysis) is optional.
 REQUIRED_SESSION_PREFIXES = ("camera", "force", "projector", "gaps", "clock_pairs")
 REQUIRED_SESSION_ATTRS = {"/": ("format",), "camera": ("width", "height")}
-REQUIRED_CALIBRATION_NODES = ("format", "image_width", "image_height", "K1", "D1", "K2", "D2",
-                              "R", "T", "R1", "R2", "P1", "P2", "Q")
+REQUIRED_CALIBRATION_NODES = (
+    "format",
+    "image_width",
+    "image_height",
+    "K1",
+    "D1",
+    "K2",
+    "D2",
+    "R",
+    "T",
+    "R1",
+    "R2",
+    "P1",
+    "P2",
+    "Q",
+)
 
 
 @dataclass
@@ -129,8 +143,21 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Corpus:
     session, calibration, model = folder / "s.h5", folder / "calib.yaml", folder / "m.pt"
     bench = SimBench.from_config(read_toml(rig, "rig config")["bench"])
     calibration_from_rig(bench.rig).save(calibration)
-    assert main(["record", str(session), "--duration", RECORD_S, "--config", str(rig),
-                 "--calib", str(calibration)]) == 0
+    assert (
+        main(
+            [
+                "record",
+                str(session),
+                "--duration",
+                RECORD_S,
+                "--config",
+                str(rig),
+                "--calib",
+                str(calibration),
+            ]
+        )
+        == 0
+    )
     assert main(["reconstruct", str(session), "--workers", "1", "--config", str(rig)]) == 0
     assert main(["train", str(session), "--out", str(model), "--config", str(rig)]) == 0
     return Corpus(folder, rig, session, calibration, model)
@@ -149,9 +176,11 @@ def _h5_objects(path: Path) -> tuple[list[str], list[tuple[str, str]]]:
     names: list[str] = []
     with h5py.File(path, "r") as f:
         attrs: list[tuple[str, str]] = [("/", a) for a in f.attrs]
+
         def visit(name: str, obj: h5py.HLObject) -> None:
             names.append(name)
             attrs.extend((name, a) for a in obj.attrs)
+
         f.visititems(visit)
     return names, attrs
 
@@ -160,8 +189,7 @@ def _required(name: str) -> bool:
     return name.split("/")[0] in REQUIRED_SESSION_PREFIXES and not name.startswith("clock/")
 
 
-def session_mutations(valid: Path, out: Callable[[], Path]
-                      ) -> Iterator[tuple[str, Path, bool]]:
+def session_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str, Path, bool]]:
     """``(description, damaged copy, must_fail)`` for every damage of a session file."""
     names, attrs = _h5_objects(valid)
     size = valid.stat().st_size
@@ -179,28 +207,33 @@ def session_mutations(valid: Path, out: Callable[[], Path]
         yield f"delete attr {obj}@{attr}", path, attr in REQUIRED_SESSION_ATTRS.get(obj, ())
     for fraction in (0.0, 0.001, 0.1, 0.5, 0.9, 0.999):
         path = out()
-        path.write_bytes(valid.read_bytes()[:int(size * fraction)])
+        path.write_bytes(valid.read_bytes()[: int(size * fraction)])
         yield f"truncate at {fraction:.1%}", path, True
     rng = np.random.default_rng(0)
-    for where, start, length, must in (("head", 0, 4096, True), ("head+sb", 8, 64, True),
-                                       ("tail", size - 8192, 8192, False),
-                                       ("middle", size // 2, 4096, False)):
+    for where, start, length, must in (
+        ("head", 0, 4096, True),
+        ("head+sb", 8, 64, True),
+        ("tail", size - 8192, 8192, False),
+        ("middle", size // 2, 4096, False),
+    ):
         path = out()
         data = bytearray(valid.read_bytes())
-        data[start:start + length] = rng.integers(0, 256, length, dtype=np.uint8).tobytes()
+        data[start : start + length] = rng.integers(0, 256, length, dtype=np.uint8).tobytes()
         path.write_bytes(bytes(data))
         yield f"random bytes over {where}", path, must
-    for name, make in (("camera/left", lambda a: a[..., 0]),
-                       ("camera/right", lambda a: a[:, :10]),
-                       ("force/force_n", lambda a: a[:, :2]),
-                       ("force/force_n", lambda a: a.astype("S8")),
-                       ("force/t_host_ns", lambda a: a.astype(np.float32)),
-                       ("force/t_host_ns", lambda a: a.astype("S20")),
-                       ("camera/t_device_ns", lambda a: a[:, None].repeat(2, 1)),
-                       ("camera/seq", lambda a: a.astype("S20")),
-                       ("projector/pattern", lambda a: np.arange(len(a))),
-                       ("gaps", lambda a: np.zeros((2, 3))),
-                       ("clock_pairs", lambda a: a.astype("S30"))):
+    for name, make in (
+        ("camera/left", lambda a: a[..., 0]),
+        ("camera/right", lambda a: a[:, :10]),
+        ("force/force_n", lambda a: a[:, :2]),
+        ("force/force_n", lambda a: a.astype("S8")),
+        ("force/t_host_ns", lambda a: a.astype(np.float32)),
+        ("force/t_host_ns", lambda a: a.astype("S20")),
+        ("camera/t_device_ns", lambda a: a[:, None].repeat(2, 1)),
+        ("camera/seq", lambda a: a.astype("S20")),
+        ("projector/pattern", lambda a: np.arange(len(a))),
+        ("gaps", lambda a: np.zeros((2, 3))),
+        ("clock_pairs", lambda a: a.astype("S30")),
+    ):
         path = out()
         shutil.copy(valid, path)
         with h5py.File(path, "r+") as f:
@@ -223,19 +256,34 @@ def session_mutations(valid: Path, out: Callable[[], Path]
 def _session_corpus(corpus: Corpus) -> list[tuple[str, Path, bool]]:
     """The damaged sessions, generated once per module."""
     if not hasattr(corpus, "_sessions"):
-        corpus._sessions = list(session_mutations(corpus.session,
-                                                  lambda: fresh(corpus, ".h5", "s")))
+        corpus._sessions = list(
+            session_mutations(corpus.session, lambda: fresh(corpus, ".h5", "s"))
+        )
     return corpus._sessions
 
 
 SESSION_COMMANDS: dict[str, Callable[[Path, Corpus], list[str]]] = {
     "inspect": lambda p, c: ["inspect", str(p)],
     "inspect --recover": lambda p, c: ["inspect", str(p), "--recover", str(fresh(c, ".h5", "r"))],
-    "verify-sync": lambda p, c: ["verify-sync", str(p), "--no-store",
-                                 "--plot", str(fresh(c, ".png"))],
-    "reconstruct": lambda p, c: ["reconstruct", str(p), "--calib", str(c.calibration),
-                                 "--workers", "1", "--config", str(c.rig),
-                                 "--out", str(fresh(c, ".clouds.h5"))],
+    "verify-sync": lambda p, c: [
+        "verify-sync",
+        str(p),
+        "--no-store",
+        "--plot",
+        str(fresh(c, ".png")),
+    ],
+    "reconstruct": lambda p, c: [
+        "reconstruct",
+        str(p),
+        "--calib",
+        str(c.calibration),
+        "--workers",
+        "1",
+        "--config",
+        str(c.rig),
+        "--out",
+        str(fresh(c, ".clouds.h5")),
+    ],
     "view": lambda p, c: ["view", str(p)],
 }
 
@@ -256,9 +304,13 @@ HEAVY = ("reconstruct", "view", "verify-sync")
 @pytest.mark.parametrize("command", sorted(SESSION_COMMANDS))
 def test_damaged_sessions(corpus, capsys, headless_viewer, command):
     sessions = _session_corpus(corpus)
-    cases = [Case(f"session {what}", SESSION_COMMANDS[command](path, corpus),
-                  (str(path), path.name), must)
-             for what, path, must in sessions if must or command not in HEAVY]
+    cases = [
+        Case(
+            f"session {what}", SESSION_COMMANDS[command](path, corpus), (str(path), path.name), must
+        )
+        for what, path, must in sessions
+        if must or command not in HEAVY
+    ]
     run_cases(cases, capsys)
 
 
@@ -269,9 +321,21 @@ def test_damaged_sessions_for_training(corpus, capsys):
         if not what.startswith("delete ") or what.startswith("delete attr"):
             continue
         shutil.copy(corpus.session.with_suffix(".clouds.h5"), path.with_suffix(".clouds.h5"))
-        cases.append(Case(f"session {what}", ["train", str(path), "--config", str(corpus.rig),
-                                              "--out", str(fresh(corpus, ".pt"))],
-                          (str(path), path.name), must))
+        cases.append(
+            Case(
+                f"session {what}",
+                [
+                    "train",
+                    str(path),
+                    "--config",
+                    str(corpus.rig),
+                    "--out",
+                    str(fresh(corpus, ".pt")),
+                ],
+                (str(path), path.name),
+                must,
+            )
+        )
     run_cases(cases, capsys)
 
 
@@ -321,13 +385,15 @@ def write_storage(path: Path, nodes: dict[str, object]) -> Path:
     return path
 
 
-def calibration_mutations(valid: Path, out: Callable[[], Path]
-                          ) -> Iterator[tuple[str, Path, bool]]:
+def calibration_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str, Path, bool]]:
     """``(description, damaged copy, must_fail)`` for every damage of a calibration file."""
     nodes = _storage_nodes(valid)
     for name in nodes:
-        yield (f"delete {name}", write_storage(out(), {**nodes, name: DELETE}),
-               name in REQUIRED_CALIBRATION_NODES)
+        yield (
+            f"delete {name}",
+            write_storage(out(), {**nodes, name: DELETE}),
+            name in REQUIRED_CALIBRATION_NODES,
+        )
     for name, value in nodes.items():
         if isinstance(value, np.ndarray):
             nan = value.copy()
@@ -339,47 +405,86 @@ def calibration_mutations(valid: Path, out: Callable[[], Path]
     for name in ("image_width", "image_height"):
         yield (f"{name} is a string", write_storage(out(), {**nodes, name: "wide"}), True)
         yield f"{name} is 0", write_storage(out(), {**nodes, name: 0}), True
-    yield ("other image size", write_storage(out(), {**nodes, "image_width": 640,
-                                                     "image_height": 360}), True)
+    yield (
+        "other image size",
+        write_storage(out(), {**nodes, "image_width": 640, "image_height": 360}),
+        True,
+    )
     yield "info is a number", write_storage(out(), {**nodes, "info": 3}), True
     yield "info is a list", write_storage(out(), {**nodes, "info": ["{no"]}), True
-    yield ("old info does not decode",
-           write_storage(out(), {**{k: v for k, v in nodes.items() if k != "info"},
-                                 "info_json_base64": ["{no"]}), True)
+    yield (
+        "old info does not decode",
+        write_storage(
+            out(), {**{k: v for k, v in nodes.items() if k != "info"}, "info_json_base64": ["{no"]}
+        ),
+        True,
+    )
     text = valid.read_text()
-    for what, content in (("empty", ""), ("JSON", '{"K1": [1, 2, 3]}'), ("JSON list", "[1, 2]"),
-                          ("binary", bytes(range(256)).decode("latin-1")),
-                          ("YAML list", "%YAML:1.0\n---\n- 1\n- 2\n"),
-                          ("truncated 50%", text[:len(text) // 2]),
-                          ("truncated 90%", text[:int(len(text) * 0.9)])):
+    for what, content in (
+        ("empty", ""),
+        ("JSON", '{"K1": [1, 2, 3]}'),
+        ("JSON list", "[1, 2]"),
+        ("binary", bytes(range(256)).decode("latin-1")),
+        ("YAML list", "%YAML:1.0\n---\n- 1\n- 2\n"),
+        ("truncated 50%", text[: len(text) // 2]),
+        ("truncated 90%", text[: int(len(text) * 0.9)]),
+    ):
         path = out()
         path.write_text(content, encoding="latin-1")
         yield what, path, True
 
 
 CALIBRATION_COMMANDS: dict[str, Callable[[Path, Corpus], list[str]]] = {
-    "calibrate check": lambda p, c: ["calibrate", "check", str(p), "--against",
-                                     str(c.calibration)],
-    "calibrate check --against": lambda p, c: ["calibrate", "check", str(c.calibration),
-                                               "--against", str(p)],
-    "reconstruct --calib": lambda p, c: ["reconstruct", str(c.session), "--calib", str(p),
-                                         "--workers", "1", "--config", str(c.rig),
-                                         "--out", str(fresh(c, ".clouds.h5"))],
-    "record --calib": lambda p, c: ["record", str(fresh(c, ".h5", "rec")), "--duration", "0.2",
-                                    "--config", str(c.rig), "--calib", str(p)],
+    "calibrate check": lambda p, c: ["calibrate", "check", str(p), "--against", str(c.calibration)],
+    "calibrate check --against": lambda p, c: [
+        "calibrate",
+        "check",
+        str(c.calibration),
+        "--against",
+        str(p),
+    ],
+    "reconstruct --calib": lambda p, c: [
+        "reconstruct",
+        str(c.session),
+        "--calib",
+        str(p),
+        "--workers",
+        "1",
+        "--config",
+        str(c.rig),
+        "--out",
+        str(fresh(c, ".clouds.h5")),
+    ],
+    "record --calib": lambda p, c: [
+        "record",
+        str(fresh(c, ".h5", "rec")),
+        "--duration",
+        "0.2",
+        "--config",
+        str(c.rig),
+        "--calib",
+        str(p),
+    ],
 }
 
 
 @pytest.mark.parametrize("command", sorted(CALIBRATION_COMMANDS))
 def test_damaged_calibrations(corpus, capsys, command):
     if not hasattr(corpus, "_calibrations"):
-        corpus._calibrations = list(calibration_mutations(
-            corpus.calibration, lambda: fresh(corpus, ".yaml", "c")))
+        corpus._calibrations = list(
+            calibration_mutations(corpus.calibration, lambda: fresh(corpus, ".yaml", "c"))
+        )
     # reconstruct names the session and its image size when the calibration's size differs
     other = ("calibration is for",) if command.startswith("reconstruct") else ()
-    cases = [Case(f"calibration {what}", CALIBRATION_COMMANDS[command](path, corpus),
-                  (str(path), path.name, *(other if what == "other image size" else ())), must)
-             for what, path, must in corpus._calibrations]
+    cases = [
+        Case(
+            f"calibration {what}",
+            CALIBRATION_COMMANDS[command](path, corpus),
+            (str(path), path.name, *(other if what == "other image size" else ())),
+            must,
+        )
+        for what, path, must in corpus._calibrations
+    ]
     run_cases(cases, capsys)
 
 
@@ -401,60 +506,125 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
     estimators = payload["estimators"]
 
     def with_pointnet(**changes: object) -> dict:
-        return {**payload, "estimators": {**estimators,
-                                          "pointnet": {**estimators["pointnet"], **changes}}}
+        return {
+            **payload,
+            "estimators": {**estimators, "pointnet": {**estimators["pointnet"], **changes}},
+        }
+
     state = estimators["pointnet"]["state_dict"]
     for key in list(state)[::3]:  # BatchNorm rebuilds a missing batch counter: harmless
-        yield (f"delete weight {key}",
-               save(with_pointnet(state_dict={k: v for k, v in state.items() if k != key})),
-               not key.endswith("num_batches_tracked"))
+        yield (
+            f"delete weight {key}",
+            save(with_pointnet(state_dict={k: v for k, v in state.items() if k != key})),
+            not key.endswith("num_batches_tracked"),
+        )
     for key in [k for k in state if state[k].dtype.is_floating_point][::3]:
-        yield (f"{key} wrong shape",
-               save(with_pointnet(state_dict={**state, key: torch.zeros(2, 2, 2)})), True)
+        yield (
+            f"{key} wrong shape",
+            save(with_pointnet(state_dict={**state, key: torch.zeros(2, 2, 2)})),
+            True,
+        )
         nan = state[key].clone()
         nan.view(-1)[0] = float("nan")
         yield f"NaN in {key}", save(with_pointnet(state_dict={**state, key: nan})), True
     hparams = estimators["pointnet"]["hparams"]
-    for key, value in (("conv_channels", [4, 4]), ("n_outputs", 3), ("dropout", "high"),
-                       ("unknown", 1)):
-        yield (f"hparams {key}={value!r}", save(with_pointnet(hparams={**hparams, key: value})),
-               True)
+    for key, value in (
+        ("conv_channels", [4, 4]),
+        ("n_outputs", 3),
+        ("dropout", "high"),
+        ("unknown", 1),
+    ):
+        yield (
+            f"hparams {key}={value!r}",
+            save(with_pointnet(hparams={**hparams, key: value})),
+            True,
+        )
     yield "hparams not a dict", save(with_pointnet(hparams=[1, 2])), True
     yield "state_dict not a dict", save(with_pointnet(state_dict=[1])), True
     for key, value in (("n_points", "many"), ("target", "torque"), ("unknown_key", 1)):
-        yield (f"config {key}={value!r}",
-               save({**payload, "config": {**payload["config"], key: value}}), True)
-    yield "baselines broken", save({**payload, "estimators": {**estimators,
-                                                              "mean": {"x": 1}}}), True
-    yield ("selected model missing",
-           save({**payload, "selected": "ridge_height_map",
-                 "estimators": {k: v for k, v in estimators.items()
-                                if k != "ridge_height_map"}}), True)
+        yield (
+            f"config {key}={value!r}",
+            save({**payload, "config": {**payload["config"], key: value}}),
+            True,
+        )
+    yield (
+        "baselines broken",
+        save({**payload, "estimators": {**estimators, "mean": {"x": 1}}}),
+        True,
+    )
+    yield (
+        "selected model missing",
+        save(
+            {
+                **payload,
+                "selected": "ridge_height_map",
+                "estimators": {k: v for k, v in estimators.items() if k != "ridge_height_map"},
+            }
+        ),
+        True,
+    )
     for name in ("ridge_height_map", "cnn_depth_change"):
-        yield (f"{name} broken", save({**payload, "estimators": {
-            **estimators, name: {**estimators[name], "kind": estimators[name]["kind"],
-                                 "size" if name.startswith("ridge") else "state_dict": "abc"}}}),
-               True)
-    yield ("ensemble without members", save({**payload, "estimators": {
-        **estimators, "ensemble_cnn_hooke": {**estimators["ensemble_cnn_hooke"],
-                                             "members": []}}}), True)
+        yield (
+            f"{name} broken",
+            save(
+                {
+                    **payload,
+                    "estimators": {
+                        **estimators,
+                        name: {
+                            **estimators[name],
+                            "kind": estimators[name]["kind"],
+                            "size" if name.startswith("ridge") else "state_dict": "abc",
+                        },
+                    },
+                }
+            ),
+            True,
+        )
+    yield (
+        "ensemble without members",
+        save(
+            {
+                **payload,
+                "estimators": {
+                    **estimators,
+                    "ensemble_cnn_hooke": {**estimators["ensemble_cnn_hooke"], "members": []},
+                },
+            }
+        ),
+        True,
+    )
     history = estimators["mlp_displacement_history"]
-    yield ("history baseline layers broken",
-           save({**payload, "estimators": {**estimators, "mlp_displacement_history": {
-               **history, "layers": "abc"}}}), True)
+    yield (
+        "history baseline layers broken",
+        save(
+            {
+                **payload,
+                "estimators": {
+                    **estimators,
+                    "mlp_displacement_history": {**history, "layers": "abc"},
+                },
+            }
+        ),
+        True,
+    )
     data = valid.read_bytes()
     for fraction in (0.0, 0.3, 0.9):
         path = out()
-        path.write_bytes(data[:int(len(data) * fraction)])
+        path.write_bytes(data[: int(len(data) * fraction)])
         yield f"truncate at {fraction:.0%}", path, True
 
 
 def test_damaged_models(corpus, capsys):
-    cases = [Case(f"model {what}", ["evaluate", str(path), str(corpus.session),
-                                    "--out", str(fresh(corpus, "", "eval"))],
-                  (str(path), path.name), must)
-             for what, path, must in model_mutations(corpus.model,
-                                                     lambda: fresh(corpus, ".pt", "m"))]
+    cases = [
+        Case(
+            f"model {what}",
+            ["evaluate", str(path), str(corpus.session), "--out", str(fresh(corpus, "", "eval"))],
+            (str(path), path.name),
+            must,
+        )
+        for what, path, must in model_mutations(corpus.model, lambda: fresh(corpus, ".pt", "m"))
+    ]
     run_cases(cases, capsys)
 
 
@@ -496,46 +666,88 @@ def wrong_values(value: object) -> list[object]:
 
 # (table, key, value) that have the right type but are out of range (bad board sizes are
 # test_calib_chessboard's: their messages name the flag and the board)
-OUT_OF_RANGE = [("record", "flush_interval_s", -1.0), ("record", "queue_size", 0),
-                ("record", "min_free_gb", -1.0), ("record", "compression", "zip"),
-                ("record", "sync_max_offset_s", -0.1), ("bench", "fps", 0.0),
-                ("bench", "width", -640), ("sgbm", "num_disparities", 20),
-                ("sgbm", "block_size", 4), ("sgbm", "mode", "fast"), ("calib", "min_corners", 1),
-                ("calib", "capture_views", 0), ("calib", "min_views", 0),
-                ("train", "epochs", 0), ("train", "learning_rate", -1.0),
-                ("train", "target", "torque"), ("train", "val_fraction", 1.5)]
+OUT_OF_RANGE = [
+    ("record", "flush_interval_s", -1.0),
+    ("record", "queue_size", 0),
+    ("record", "min_free_gb", -1.0),
+    ("record", "compression", "zip"),
+    ("record", "sync_max_offset_s", -0.1),
+    ("bench", "fps", 0.0),
+    ("bench", "width", -640),
+    ("sgbm", "num_disparities", 20),
+    ("sgbm", "block_size", 4),
+    ("sgbm", "mode", "fast"),
+    ("calib", "min_corners", 1),
+    ("calib", "capture_views", 0),
+    ("calib", "min_views", 0),
+    ("train", "epochs", 0),
+    ("train", "learning_rate", -1.0),
+    ("train", "target", "torque"),
+    ("train", "val_fraction", 1.5),
+]
 
 # (table, backend, typo'd or foreign key, a wrong-typed known key)
-DEVICE_CASES = [("camera", "sim", "widht", None), ("camera", "v4l2", "widht", ("width", "640px")),
-                ("trocar", "sim", "chanel", None), ("trocar", "can", "chanel", ("bitrate", "fast")),
-                ("projector", "sim", "width", None), ("projector", "hdmi", "width",
-                                                      ("screen", "left")),
-                ("projector", "serial", "baud", ("baudrate", "fast"))]
+DEVICE_CASES = [
+    ("camera", "sim", "widht", None),
+    ("camera", "v4l2", "widht", ("width", "640px")),
+    ("trocar", "sim", "chanel", None),
+    ("trocar", "can", "chanel", ("bitrate", "fast")),
+    ("projector", "sim", "width", None),
+    ("projector", "hdmi", "width", ("screen", "left")),
+    ("projector", "serial", "baud", ("baudrate", "fast")),
+]
 
 
 def _config_command(table: str, rig: Path, corpus: Corpus) -> list[str]:
     """A command that reads ``table`` of the rig config."""
     if table in ("sgbm", "recon"):
-        return ["reconstruct", str(corpus.session), "--workers", "1", "--config", str(rig),
-                "--out", str(fresh(corpus, ".clouds.h5"))]
+        return [
+            "reconstruct",
+            str(corpus.session),
+            "--workers",
+            "1",
+            "--config",
+            str(rig),
+            "--out",
+            str(fresh(corpus, ".clouds.h5")),
+        ]
     if table == "batch":
         return ["verify-sync", str(corpus.session), str(corpus.session), "--config", str(rig)]
     if table == "live":
-        return ["live", "--model", str(corpus.model), "--calib", str(corpus.calibration),
-                "--duration", "0.2", "--headless", "--config", str(rig)]
+        return [
+            "live",
+            "--model",
+            str(corpus.model),
+            "--calib",
+            str(corpus.calibration),
+            "--duration",
+            "0.2",
+            "--headless",
+            "--config",
+            str(rig),
+        ]
     if table == "calib":
         return ["calibrate", "board", str(fresh(corpus, "", "board")), "--config", str(rig)]
     if table == "train":
-        return ["train", str(corpus.session), "--out", str(fresh(corpus, ".pt")),
-                "--config", str(rig)]
+        return [
+            "train",
+            str(corpus.session),
+            "--out",
+            str(fresh(corpus, ".pt")),
+            "--config",
+            str(rig),
+        ]
     return ["record", str(fresh(corpus, ".h5", "rec")), "--duration", "0.2", "--config", str(rig)]
 
 
 def config_cases(corpus: Corpus) -> list[Case]:
     """Wrong types, unknown keys and out-of-range values for every key of every table."""
     small = read_toml(corpus.rig, "rig config")
-    tables = {name: values for name, values in default_config().items()
-              if name not in ("camera", "trocar", "projector")}
+    tables = {
+        name: values
+        for name, values in default_config().items()
+        if name not in ("camera", "trocar", "projector")
+    }
     cases = []
 
     def add(name: str, table: str, key: str, change: dict[str, object], must: bool = True) -> None:
@@ -555,8 +767,12 @@ def config_cases(corpus: Corpus) -> list[Case]:
     for table, backend, typo, wrong in DEVICE_CASES:
         add(f"[{table}] backend {backend}: {typo}", table, typo, {"backend": backend, typo: 1})
         if wrong:
-            add(f"[{table}] backend {backend}: {wrong[0]} = {wrong[1]!r}", table, wrong[0],
-                {"backend": backend, wrong[0]: wrong[1]})
+            add(
+                f"[{table}] backend {backend}: {wrong[0]} = {wrong[1]!r}",
+                table,
+                wrong[0],
+                {"backend": backend, wrong[0]: wrong[1]},
+            )
     return cases
 
 
@@ -595,25 +811,67 @@ def test_representative_cases_through_subprocesses(corpus):
     rig = write_rig(fresh(corpus, ".toml", "sub"), {"trocar": {"backend": "can", "chanel": 1}})
     afile = fresh(corpus, ".txt", "afile")
     afile.write_text("x")
-    cases = [(["inspect", str(session)], str(session)),
-             (["verify-sync", str(noisy), "--no-store"], str(noisy)),
-             (["calibrate", "check", str(bad_calib), "--against", str(corpus.calibration)],
-              str(bad_calib)),
-             (["reconstruct", str(corpus.session), "--calib", str(json_calib), "--out",
-               str(fresh(corpus, ".clouds.h5"))], str(json_calib)),
-             (["record", str(fresh(corpus, ".h5")), "--duration", "0.2", "--calib",
-               str(bad_calib), "--config", str(corpus.rig)], str(bad_calib)),
-             (["record", str(fresh(corpus, ".h5")), "--config", str(rig)], "chanel"),
-             (["inspect", str(corpus.session), "--recover", "/nonexistent/x.h5"],
-              "/nonexistent"),
-             (["reconstruct", str(corpus.session), "--calib", str(corpus.calibration),
-               "--ply-dir", str(afile), "--out", str(fresh(corpus, ".clouds.h5"))], str(afile))]
+    cases = [
+        (["inspect", str(session)], str(session)),
+        (["verify-sync", str(noisy), "--no-store"], str(noisy)),
+        (
+            ["calibrate", "check", str(bad_calib), "--against", str(corpus.calibration)],
+            str(bad_calib),
+        ),
+        (
+            [
+                "reconstruct",
+                str(corpus.session),
+                "--calib",
+                str(json_calib),
+                "--out",
+                str(fresh(corpus, ".clouds.h5")),
+            ],
+            str(json_calib),
+        ),
+        (
+            [
+                "record",
+                str(fresh(corpus, ".h5")),
+                "--duration",
+                "0.2",
+                "--calib",
+                str(bad_calib),
+                "--config",
+                str(corpus.rig),
+            ],
+            str(bad_calib),
+        ),
+        (["record", str(fresh(corpus, ".h5")), "--config", str(rig)], "chanel"),
+        (["inspect", str(corpus.session), "--recover", "/nonexistent/x.h5"], "/nonexistent"),
+        (
+            [
+                "reconstruct",
+                str(corpus.session),
+                "--calib",
+                str(corpus.calibration),
+                "--ply-dir",
+                str(afile),
+                "--out",
+                str(fresh(corpus, ".clouds.h5")),
+            ],
+            str(afile),
+        ),
+    ]
     env = {**os.environ, "QT_QPA_PLATFORM": "offscreen"}
     for argv, name in cases:
-        out = subprocess.run([sys.executable, "-m", "vbfe.cli.main", *argv], capture_output=True,
-                             text=True, env=env, timeout=120)
-        lines = [line for line in out.stderr.replace("\r", "\n").splitlines()
-                 if ": error:" in line or "Traceback" in line]
+        out = subprocess.run(
+            [sys.executable, "-m", "vbfe.cli.main", *argv],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+        )
+        lines = [
+            line
+            for line in out.stderr.replace("\r", "\n").splitlines()
+            if ": error:" in line or "Traceback" in line
+        ]
         assert out.returncode == 2, (argv, out.stderr[-2000:])
         assert len(lines) == 1 and lines[0].startswith(f"vbfe {argv[0]}: error:"), lines
         assert name in lines[0], lines[0]
@@ -625,37 +883,96 @@ def test_output_paths_are_checked_before_work(corpus, capsys):
     afile.write_text("x")
     missing = corpus.folder / "no" / "such" / "dir"
     clouds = lambda: str(fresh(corpus, ".clouds.h5"))  # noqa: E731
-    reconstruct = ["reconstruct", str(corpus.session), "--calib", str(corpus.calibration),
-                   "--workers", "1", "--config", str(corpus.rig)]
-    cases = [Case("--recover into a missing folder",
-                  ["inspect", str(corpus.session), "--recover", str(missing / "x.h5")],
-                  (str(missing),)),
-             Case("--recover onto a folder", ["inspect", str(corpus.session), "--recover",
-                                              str(corpus.folder)], (str(corpus.folder),)),
-             Case("evaluate --out a file", ["evaluate", str(corpus.model), str(corpus.session),
-                                            "--out", str(afile)], (str(afile),)),
-             Case("reconstruct --ply-dir a file", [*reconstruct, "--out", clouds(), "--ply-dir",
-                                                   str(afile)], (str(afile),)),
-             Case("reconstruct --out in a missing folder",
-                  [*reconstruct, "--out", str(missing / "c.h5")], (str(missing),)),
-             Case("reconstruct --out a folder", [*reconstruct, "--out", str(corpus.folder)],
-                  (str(corpus.folder),)),
-             Case("train --out in a missing folder",
-                  ["train", str(corpus.session), "--config", str(corpus.rig), "--out",
-                   str(missing / "m.pt")], (str(missing),)),
-             Case("train --out a folder", ["train", str(corpus.session), "--config",
-                                           str(corpus.rig), "--out", str(corpus.folder)],
-                  (str(corpus.folder),)),
-             Case("calibrate stereo --out in a missing folder",
-                  ["calibrate", "stereo", str(corpus.folder), "--out", str(missing / "c.yaml")],
-                  (str(missing),)),
-             Case("record into a folder", ["record", str(corpus.folder), "--duration", "0.2",
-                                           "--config", str(corpus.rig)], (str(corpus.folder),))]
+    reconstruct = [
+        "reconstruct",
+        str(corpus.session),
+        "--calib",
+        str(corpus.calibration),
+        "--workers",
+        "1",
+        "--config",
+        str(corpus.rig),
+    ]
+    cases = [
+        Case(
+            "--recover into a missing folder",
+            ["inspect", str(corpus.session), "--recover", str(missing / "x.h5")],
+            (str(missing),),
+        ),
+        Case(
+            "--recover onto a folder",
+            ["inspect", str(corpus.session), "--recover", str(corpus.folder)],
+            (str(corpus.folder),),
+        ),
+        Case(
+            "evaluate --out a file",
+            ["evaluate", str(corpus.model), str(corpus.session), "--out", str(afile)],
+            (str(afile),),
+        ),
+        Case(
+            "reconstruct --ply-dir a file",
+            [*reconstruct, "--out", clouds(), "--ply-dir", str(afile)],
+            (str(afile),),
+        ),
+        Case(
+            "reconstruct --out in a missing folder",
+            [*reconstruct, "--out", str(missing / "c.h5")],
+            (str(missing),),
+        ),
+        Case(
+            "reconstruct --out a folder",
+            [*reconstruct, "--out", str(corpus.folder)],
+            (str(corpus.folder),),
+        ),
+        Case(
+            "train --out in a missing folder",
+            [
+                "train",
+                str(corpus.session),
+                "--config",
+                str(corpus.rig),
+                "--out",
+                str(missing / "m.pt"),
+            ],
+            (str(missing),),
+        ),
+        Case(
+            "train --out a folder",
+            [
+                "train",
+                str(corpus.session),
+                "--config",
+                str(corpus.rig),
+                "--out",
+                str(corpus.folder),
+            ],
+            (str(corpus.folder),),
+        ),
+        Case(
+            "calibrate stereo --out in a missing folder",
+            ["calibrate", "stereo", str(corpus.folder), "--out", str(missing / "c.yaml")],
+            (str(missing),),
+        ),
+        Case(
+            "record into a folder",
+            ["record", str(corpus.folder), "--duration", "0.2", "--config", str(corpus.rig)],
+            (str(corpus.folder),),
+        ),
+    ]
     run_cases(cases, capsys)
 
 
 def test_training_on_one_session_warns_there_is_no_validation_set(corpus, capsys):
-    code, err = run_cli(["train", str(corpus.session), "--config", str(corpus.rig),
-                         "--out", str(fresh(corpus, ".pt"))], capsys)
+    code, err = run_cli(
+        [
+            "train",
+            str(corpus.session),
+            "--config",
+            str(corpus.rig),
+            "--out",
+            str(fresh(corpus, ".pt")),
+        ],
+        capsys,
+    )
     assert code == 0
     assert "warning" in err and "validation" in err and "one session" in err, err[-500:]

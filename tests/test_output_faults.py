@@ -25,10 +25,15 @@ REPO = Path(__file__).resolve().parents[1]
 def vbfe(*args: str) -> subprocess.Popen:
     """``vbfe ARGS`` in a subprocess of its own session, with Ctrl-C at its default action
     (a background job would otherwise pass SIGINT on ignored)."""
-    return subprocess.Popen([sys.executable, "-m", "vbfe.cli.main", *map(str, args)], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    return subprocess.Popen(
+        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
 
 
 def one_error(err: str, *words: str) -> str:
@@ -57,8 +62,11 @@ def session(tmp_path_factory) -> Path:
 
 def _mount(folder: Path, size: str) -> None:
     folder.mkdir()
-    result = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+        capture_output=True,
+        text=True,
+    )
     if result.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here ({result.stderr.strip()}): run as root")
 
@@ -80,8 +88,7 @@ def disks(tmp_path):
             subprocess.run(["umount", str(folder)], check=True)
 
 
-def test_full_and_read_only_folders_give_one_line_exit_2_and_leave_nothing(session, disks,
-                                                                           capsys):
+def test_full_and_read_only_folders_give_one_line_exit_2_and_leave_nothing(session, disks, capsys):
     full, small, ro = disks
     # the clouds fill the 6 MiB disk part way: stopped before HDF5 meets it (no native crash)
     proc = vbfe("reconstruct", session, "--out", small / "c.clouds.h5", "--workers", "2")
@@ -92,23 +99,30 @@ def test_full_and_read_only_folders_give_one_line_exit_2_and_leave_nothing(sessi
 
     cal = session.parent / "cal.yaml"
     for argv, words in (
-            (["reconstruct", session, "--out", full / "c.clouds.h5"], ("no space",)),
-            (["inspect", session, "--recover", full / "r.h5"], ("no space",)),
-            (["train", session, "--out", full / "m.pt"], ("no space",)),
-            (["dataset", session.parent, "--manifest", ro / "m.csv"], ("read-only",)),
-            (["verify-sync", session, "--plot", ro / "p.png", "--no-store"], ("read-only",)),
-            (["calibrate", "export", cal, "--format", "ros", "--out-dir", ro], ("read-only",)),
-            (["record", ro / "x.h5", "--duration", "0.2"], ("not writable",))):
+        (["reconstruct", session, "--out", full / "c.clouds.h5"], ("no space",)),
+        (["inspect", session, "--recover", full / "r.h5"], ("no space",)),
+        (["train", session, "--out", full / "m.pt"], ("no space",)),
+        (["dataset", session.parent, "--manifest", ro / "m.csv"], ("read-only",)),
+        (["verify-sync", session, "--plot", ro / "p.png", "--no-store"], ("read-only",)),
+        (["calibrate", "export", cal, "--format", "ros", "--out-dir", ro], ("read-only",)),
+        (["record", ro / "x.h5", "--duration", "0.2"], ("not writable",)),
+    ):
         assert main([str(a) for a in argv]) == 2, argv
         one_error(capsys.readouterr().err, *words)
     assert leftovers(full) == [] and leftovers(ro) == []
 
 
-@pytest.mark.parametrize("command, sig, code", [("reconstruct", signal.SIGINT, 130),
-                                                ("reconstruct", signal.SIGTERM, 143),
-                                                ("verify-sync", signal.SIGTERM, 143)])
-def test_signals_stop_commands_and_their_workers_within_a_second(session, tmp_path, command,
-                                                                  sig, code):
+@pytest.mark.parametrize(
+    "command, sig, code",
+    [
+        ("reconstruct", signal.SIGINT, 130),
+        ("reconstruct", signal.SIGTERM, 143),
+        ("verify-sync", signal.SIGTERM, 143),
+    ],
+)
+def test_signals_stop_commands_and_their_workers_within_a_second(
+    session, tmp_path, command, sig, code
+):
     if command == "reconstruct":
         proc = vbfe("reconstruct", session, "--out", tmp_path / "c.clouds.h5", "--workers", "2")
     else:  # two sessions checked in two worker processes, each writing its plot
@@ -120,8 +134,9 @@ def test_signals_stop_commands_and_their_workers_within_a_second(session, tmp_pa
     workers: list[str] = []
     while len(workers) < 2 and time.monotonic() < deadline:
         time.sleep(0.1)
-        workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
-                                 text=True).stdout.split()
+        workers = subprocess.run(
+            ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
+        ).stdout.split()
     time.sleep(1.0)  # workers busy
     assert proc.poll() is None
     sent = time.monotonic()
@@ -137,25 +152,33 @@ def test_signals_stop_commands_and_their_workers_within_a_second(session, tmp_pa
     one_error(err, "interrupted" if sig == signal.SIGINT else "terminated")
     assert sorted(tmp_path.iterdir()) == before  # no output, no temporary file
     time.sleep(0.2)
-    alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()
-             and "Z" not in Path(f"/proc/{pid}/stat").read_text().split()[2]]
+    alive = [
+        pid
+        for pid in workers
+        if Path(f"/proc/{pid}").exists()
+        and "Z" not in Path(f"/proc/{pid}/stat").read_text().split()[2]
+    ]
     assert alive == []
 
 
 def test_a_second_writer_is_refused_naming_the_first_and_readers_follow_the_recording(
-        session, tmp_path, capsys):
+    session, tmp_path, capsys
+):
     rig = tmp_path / "rig.toml"
-    rig.write_text("[bench]\nwidth = 320\nheight = 180\nfps = 10.0\nrealtime = true\n"
-                   "distortion = false\n")
+    rig.write_text(
+        "[bench]\nwidth = 320\nheight = 180\nfps = 10.0\nrealtime = true\ndistortion = false\n"
+    )
     path = tmp_path / "x.h5"
-    first = vbfe("record", path, "--duration", "4", "--config", rig, "--calib",
-                 session.parent / "cal.yaml")
+    first = vbfe(
+        "record", path, "--duration", "4", "--config", rig, "--calib", session.parent / "cal.yaml"
+    )
     lock = tmp_path / ".x.h5.lock"
     deadline = time.monotonic() + 60
     while not lock.exists() and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert main(["record", str(path), "--overwrite", "--duration", "0.2", "--config",
-                 str(rig)]) == 2
+    assert (
+        main(["record", str(path), "--overwrite", "--duration", "0.2", "--config", str(rig)]) == 2
+    )
     one_error(capsys.readouterr().err, str(path), f"process {first.pid}")
     with pytest.raises(OutputError, match=f"process {first.pid}"):  # any other writer too
         store_analysis(path, {"note": "written meanwhile"})

@@ -23,8 +23,9 @@ APPENDS = {"calibrate capture", "calibrate projector-capture"}  # add files, nev
 NEW_FILES_ONLY = {"live"}  # --record makes a new session; nothing to overwrite
 
 
-def leaf_commands(parser: argparse.ArgumentParser,
-                  prefix: str = "") -> dict[str, argparse.ArgumentParser]:
+def leaf_commands(
+    parser: argparse.ArgumentParser, prefix: str = ""
+) -> dict[str, argparse.ArgumentParser]:
     """Every runnable (sub)command of ``parser``, as 'calibrate color' → its parser."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     if not subs:
@@ -63,79 +64,170 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
     o = str(out)
     imp = ["--force-columns", "fz", "--time-column", "t"]
     return {
-        "record": (["record", o, "--duration", "0.1"],
-                   ["record", f"{d}/cal.yaml", "--calib", f"{d}/cal.yaml", "--overwrite"],
-                   ["record", o, "--duration", "0.1", "--calib", f"{d}/cal.yaml"]),
-        "calibrate board": (["calibrate", "board", str(out.with_suffix(""))], [],
-                            ["calibrate", "board", str(out.with_suffix("")), "--squares-x", "1"]),
-        "calibrate camera": (["calibrate", "camera", v, "-o", o],
-                             ["calibrate", "camera", v, "-o", f"{v}/view_000_left.png",
-                              "--overwrite"],
-                             ["calibrate", "camera", v, "-o", o]),
-        "calibrate stereo": (["calibrate", "stereo", v, "-o", o],
-                             ["calibrate", "stereo", "--left", f"{v}/*_left.png", "--right",
-                              f"{v}/*_right.png", "-o", f"{v}/view_000_left.png",
-                              "--overwrite"],
-                             ["calibrate", "stereo", v, "-o", o]),
-        "calibrate export": (["calibrate", "export", f"{d}/cal.yaml", "--format", "kalibr",
-                              "--out-dir", str(out.parent)],
-                             ["calibrate", "export", f"{d}/cal-camchain.yaml", "--format",
-                              "kalibr", "--overwrite"],
-                             ["calibrate", "export", f"{d}/cal.yaml", "--format", "kalibr",
-                              "--out-dir", str(out.parent)]),
-        "calibrate color": (["calibrate", "color", f"{d}/cal.yaml", "-o", o],
-                            ["calibrate", "color", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml",
-                             "--overwrite"],
-                            ["calibrate", "color", f"{d}/cal.yaml", "-o", o]),
-        "calibrate import": (["calibrate", "import", f"{d}/cal.yaml", "-o", o],
-                             ["calibrate", "import", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml",
-                              "--overwrite"],
-                             ["calibrate", "import", f"{d}/cal.yaml", "-o", o]),
-        "export": (["export", s, "-o", o], ["export", s, "-o", s, "--overwrite"],
-                   ["export", f"{d}/model.pt", "-o", o]),
-        "report": (["report", s, "-o", o], ["report", s, "-o", s, "--overwrite"],
-                   ["report", f"{d}/model.pt", "-o", o]),
-        "calibrate projector": (["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml",
-                                 "-o", o],
-                                ["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml",
-                                 "-o", f"{d}/cal.yaml", "--overwrite"],
-                                ["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml",
-                                 "-o", o]),
-        "import": (["import", "clouds", f"{d}/frames", "--forces", f"{d}/forces.csv", "--out",
-                    o, *imp],
-                   ["import", "clouds", f"{d}/frames", "--forces", f"{d}/run.clouds.h5",
-                    "--out", f"{d}/run.clouds.h5", *imp, "--overwrite"],
-                   ["import", "clouds", f"{d}/frames", "--forces", f"{d}/forces.csv", "--out",
-                    o, *imp]),
-        "verify-sync": (["verify-sync", s, "--plot", o, "--no-store"],
-                        ["verify-sync", s, "--plot", s, "--overwrite"],
-                        ["verify-sync", f"{d}/model.pt", "--plot", o]),
+        "record": (
+            ["record", o, "--duration", "0.1"],
+            ["record", f"{d}/cal.yaml", "--calib", f"{d}/cal.yaml", "--overwrite"],
+            ["record", o, "--duration", "0.1", "--calib", f"{d}/cal.yaml"],
+        ),
+        "calibrate board": (
+            ["calibrate", "board", str(out.with_suffix(""))],
+            [],
+            ["calibrate", "board", str(out.with_suffix("")), "--squares-x", "1"],
+        ),
+        "calibrate camera": (
+            ["calibrate", "camera", v, "-o", o],
+            ["calibrate", "camera", v, "-o", f"{v}/view_000_left.png", "--overwrite"],
+            ["calibrate", "camera", v, "-o", o],
+        ),
+        "calibrate stereo": (
+            ["calibrate", "stereo", v, "-o", o],
+            [
+                "calibrate",
+                "stereo",
+                "--left",
+                f"{v}/*_left.png",
+                "--right",
+                f"{v}/*_right.png",
+                "-o",
+                f"{v}/view_000_left.png",
+                "--overwrite",
+            ],
+            ["calibrate", "stereo", v, "-o", o],
+        ),
+        "calibrate export": (
+            [
+                "calibrate",
+                "export",
+                f"{d}/cal.yaml",
+                "--format",
+                "kalibr",
+                "--out-dir",
+                str(out.parent),
+            ],
+            ["calibrate", "export", f"{d}/cal-camchain.yaml", "--format", "kalibr", "--overwrite"],
+            [
+                "calibrate",
+                "export",
+                f"{d}/cal.yaml",
+                "--format",
+                "kalibr",
+                "--out-dir",
+                str(out.parent),
+            ],
+        ),
+        "calibrate color": (
+            ["calibrate", "color", f"{d}/cal.yaml", "-o", o],
+            ["calibrate", "color", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml", "--overwrite"],
+            ["calibrate", "color", f"{d}/cal.yaml", "-o", o],
+        ),
+        "calibrate import": (
+            ["calibrate", "import", f"{d}/cal.yaml", "-o", o],
+            ["calibrate", "import", f"{d}/cal.yaml", "-o", f"{d}/cal.yaml", "--overwrite"],
+            ["calibrate", "import", f"{d}/cal.yaml", "-o", o],
+        ),
+        "export": (
+            ["export", s, "-o", o],
+            ["export", s, "-o", s, "--overwrite"],
+            ["export", f"{d}/model.pt", "-o", o],
+        ),
+        "report": (
+            ["report", s, "-o", o],
+            ["report", s, "-o", s, "--overwrite"],
+            ["report", f"{d}/model.pt", "-o", o],
+        ),
+        "calibrate projector": (
+            ["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml", "-o", o],
+            [
+                "calibrate",
+                "projector",
+                v,
+                "--calibration",
+                f"{d}/cal.yaml",
+                "-o",
+                f"{d}/cal.yaml",
+                "--overwrite",
+            ],
+            ["calibrate", "projector", v, "--calibration", f"{d}/cal.yaml", "-o", o],
+        ),
+        "import": (
+            ["import", "clouds", f"{d}/frames", "--forces", f"{d}/forces.csv", "--out", o, *imp],
+            [
+                "import",
+                "clouds",
+                f"{d}/frames",
+                "--forces",
+                f"{d}/run.clouds.h5",
+                "--out",
+                f"{d}/run.clouds.h5",
+                *imp,
+                "--overwrite",
+            ],
+            ["import", "clouds", f"{d}/frames", "--forces", f"{d}/forces.csv", "--out", o, *imp],
+        ),
+        "verify-sync": (
+            ["verify-sync", s, "--plot", o, "--no-store"],
+            ["verify-sync", s, "--plot", s, "--overwrite"],
+            ["verify-sync", f"{d}/model.pt", "--plot", o],
+        ),
         "demo": (["demo", "--out", str(out.parent)], [], []),
-        "train": (["train", s, "--out", o],
-                  ["train", f"{d}/manifest.csv", "--out", f"{d}/run.clouds.h5", "--overwrite"],
-                  ["train", f"{d}/model.pt", "--out", o]),
-        "evaluate": (["evaluate", f"{d}/model.pt", s, "--out", str(out.parent)],
-                     ["evaluate", f"{d}/model.pt", s, "--out", f"{d}/model.pt", "--overwrite"],
-                     ["evaluate", f"{d}/model.pt", s, "--out", str(out.parent / "report")]),
-        "reconstruct": (["reconstruct", s, "--out", o],
-                        ["reconstruct", s, "--out", s, "--overwrite"],
-                        ["reconstruct", f"{d}/model.pt", "--out", o]),
-        "dataset": (["dataset", d, "--manifest", o], [],
-                    ["dataset", f"{d}/missing", "--manifest", o]),
-        "inspect": (["inspect", s, "--recover", o],
-                    ["inspect", s, "--recover", s, "--overwrite"],
-                    ["inspect", f"{d}/model.pt", "--recover", o]),
-        "live": (["live", "--model", f"{d}/model.pt", "--calib", f"{d}/cal.yaml", "--record", o],
-                 ["live", "--model", f"{d}/model.pt", "--calib", f"{d}/cal.yaml", "--record",
-                  f"{d}/cal.yaml"],
-                 ["live", "--model", f"{d}/model.pt", "--calib", f"{d}/cal.yaml", "--record",
-                  o, "--headless", "--duration", "1"]),
+        "train": (
+            ["train", s, "--out", o],
+            ["train", f"{d}/manifest.csv", "--out", f"{d}/run.clouds.h5", "--overwrite"],
+            ["train", f"{d}/model.pt", "--out", o],
+        ),
+        "evaluate": (
+            ["evaluate", f"{d}/model.pt", s, "--out", str(out.parent)],
+            ["evaluate", f"{d}/model.pt", s, "--out", f"{d}/model.pt", "--overwrite"],
+            ["evaluate", f"{d}/model.pt", s, "--out", str(out.parent / "report")],
+        ),
+        "reconstruct": (
+            ["reconstruct", s, "--out", o],
+            ["reconstruct", s, "--out", s, "--overwrite"],
+            ["reconstruct", f"{d}/model.pt", "--out", o],
+        ),
+        "dataset": (
+            ["dataset", d, "--manifest", o],
+            [],
+            ["dataset", f"{d}/missing", "--manifest", o],
+        ),
+        "inspect": (
+            ["inspect", s, "--recover", o],
+            ["inspect", s, "--recover", s, "--overwrite"],
+            ["inspect", f"{d}/model.pt", "--recover", o],
+        ),
+        "live": (
+            ["live", "--model", f"{d}/model.pt", "--calib", f"{d}/cal.yaml", "--record", o],
+            [
+                "live",
+                "--model",
+                f"{d}/model.pt",
+                "--calib",
+                f"{d}/cal.yaml",
+                "--record",
+                f"{d}/cal.yaml",
+            ],
+            [
+                "live",
+                "--model",
+                f"{d}/model.pt",
+                "--calib",
+                f"{d}/cal.yaml",
+                "--record",
+                o,
+                "--headless",
+                "--duration",
+                "1",
+            ],
+        ),
     }
 
 
 def digests(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def one_error(capsys, *words: str) -> str:
@@ -150,21 +242,25 @@ def test_every_command_is_classified_and_every_writer_has_overwrite(inputs, tmp_
     commands = leaf_commands(build_parser())
     writers = set(cases(inputs, tmp_path / "x"))
     assert set(commands) == writers | READ_ONLY | APPENDS, set(commands) ^ (
-        writers | READ_ONLY | APPENDS)
+        writers | READ_ONLY | APPENDS
+    )
     for name in writers - NEW_FILES_ONLY:
         options = {o for a in commands[name]._actions for o in a.option_strings}
         assert "--overwrite" in options, name
 
 
-@pytest.mark.parametrize("command", sorted(cases({"d": Path(), "session": Path(),
-                                                  "views": Path()}, Path("x"))))
+@pytest.mark.parametrize(
+    "command", sorted(cases({"d": Path(), "session": Path(), "views": Path()}, Path("x")))
+)
 def test_existing_output_refused_own_input_refused_nothing_left_on_failure(
-        command, inputs, tmp_path, capsys):
+    command, inputs, tmp_path, capsys
+):
     before = digests(inputs["d"])
     out_dir = tmp_path / "out"
     out_dir.mkdir()
-    out = out_dir / {"import": "out.clouds.h5", "dataset": "out.csv",
-                     "verify-sync": "out.png"}.get(command, "out.file")
+    out = out_dir / {"import": "out.clouds.h5", "dataset": "out.csv", "verify-sync": "out.png"}.get(
+        command, "out.file"
+    )
     existing, own_input, failing = cases(inputs, out)[command]
     if command == "calibrate board":
         out = out.with_suffix(".png")
@@ -173,8 +269,9 @@ def test_existing_output_refused_own_input_refused_nothing_left_on_failure(
     out.write_bytes(b"keep me")
 
     assert main(existing) == 2
-    one_error(capsys, "not empty" if command in ("demo", "evaluate") else "already exists",
-              "--overwrite")
+    one_error(
+        capsys, "not empty" if command in ("demo", "evaluate") else "already exists", "--overwrite"
+    )
     assert out.read_bytes() == b"keep me"
 
     if own_input:
@@ -195,12 +292,13 @@ def test_a_session_is_never_replaced_by_a_calibration_whatever_its_name(inputs, 
     session = tmp_path / "looks_like.yaml"
     session.write_bytes(inputs["session"].read_bytes())
     kept = hashlib.sha256(session.read_bytes()).hexdigest()
-    for argv in (["calibrate", "color", str(session), "--overwrite"],
-                 ["calibrate", "color", str(inputs["d"] / "cal.yaml"), "-o", str(session),
-                  "--overwrite"],
-                 ["calibrate", "camera", str(inputs["views"]), "-o", str(session), "--overwrite"],
-                 ["train", str(inputs["session"]), "--out", str(session), "--overwrite"],
-                 ["reconstruct", str(inputs["session"]), "--out", str(session), "--overwrite"]):
+    for argv in (
+        ["calibrate", "color", str(session), "--overwrite"],
+        ["calibrate", "color", str(inputs["d"] / "cal.yaml"), "-o", str(session), "--overwrite"],
+        ["calibrate", "camera", str(inputs["views"]), "-o", str(session), "--overwrite"],
+        ["train", str(inputs["session"]), "--out", str(session), "--overwrite"],
+        ["reconstruct", str(inputs["session"]), "--out", str(session), "--overwrite"],
+    ):
         assert main(argv) == 2, argv
         one_error(capsys, "session", str(session))
     assert hashlib.sha256(session.read_bytes()).hexdigest() == kept
@@ -214,18 +312,33 @@ BAD_VALUES = [  # (rig config, command, words of the one error line)
     ("[bench]\nhold_s = -3\n", ["record", "{o}.h5"], "[bench] hold_s"),
     ("[bench]\nstiffness_n_per_m = 0\n", ["record", "{o}.h5"], "[bench] stiffness_n_per_m"),
     ("[bench]\nwidth = 100000\nheight = 100000\n", ["record", "{o}.h5"], "[bench] width"),
-    ("[sgbm]\np1 = 100\np2 = 10\n", ["reconstruct", "{s}", "--out", "{o}.clouds.h5"],
-     "[sgbm] p2"),
-    ("[train]\nconv_channels = []\n", ["train", "{s}", "--out", "{o}.pt"],
-     "[train] conv_channels"),
+    ("[sgbm]\np1 = 100\np2 = 10\n", ["reconstruct", "{s}", "--out", "{o}.clouds.h5"], "[sgbm] p2"),
+    ("[train]\nconv_channels = []\n", ["train", "{s}", "--out", "{o}.pt"], "[train] conv_channels"),
     ("", ["reconstruct", "{s}", "--workers", "0"], "--workers"),
     ("", ["verify-sync", "{s}", "--workers", "-3"], "--workers"),
     ("", ["calibrate", "capture", "{o}", "--max-frames", "-1"], "--max-frames"),
     ("", ["calibrate", "check", "{s}", "--max-depth-error-mm", "-1"], "--max-depth-error-mm"),
     ("", ["calibrate", "color", "{s}", "--frames", "0"], "--frames"),
     ("", ["live", "--model", "m.pt", "--calib", "{s}", "--scale", "0"], "--scale"),
-    ("", ["import", "clouds", "{o}", "--forces", "f.csv", "--out", "{o}.clouds.h5",
-          "--force-columns", "fz", "--time-column", "t", "--fps", "nan"], "--fps"),
+    (
+        "",
+        [
+            "import",
+            "clouds",
+            "{o}",
+            "--forces",
+            "f.csv",
+            "--out",
+            "{o}.clouds.h5",
+            "--force-columns",
+            "fz",
+            "--time-column",
+            "t",
+            "--fps",
+            "nan",
+        ],
+        "--fps",
+    ),
     ("", ["calibrate", "capture", "{s}"], "is a file"),
     ("", ["calibrate", "projector-capture", "{s}"], "is a file"),
     ("", ["calibrate", "export", "{s}", "--format", "ros", "--out-dir", "{m}"], "is a file"),
@@ -234,10 +347,10 @@ BAD_VALUES = [  # (rig config, command, words of the one error line)
 
 
 @pytest.mark.parametrize("table, argv, words", BAD_VALUES)
-def test_bad_values_are_one_line_naming_table_and_key(inputs, tmp_path, capsys, table, argv,
-                                                      words):
-    argv = [a.format(s=inputs["session"], o=tmp_path / "out", m=inputs["d"] / "model.pt")
-            for a in argv]
+def test_bad_values_are_one_line_naming_table_and_key(inputs, tmp_path, capsys, table, argv, words):
+    argv = [
+        a.format(s=inputs["session"], o=tmp_path / "out", m=inputs["d"] / "model.pt") for a in argv
+    ]
     if table:
         (tmp_path / "rig.toml").write_text(table)
         argv += ["--config", str(tmp_path / "rig.toml")]
@@ -276,16 +389,19 @@ def test_plain_inspect_checks_every_chunk_of_a_small_session(inputs, tmp_path, c
     assert "damaged   force/force_n: rows 0-" in out and "checksum" in out, out
 
 
-def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(inputs, tmp_path,
-                                                                          capsys):
+def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(
+    inputs, tmp_path, capsys
+):
     data = inputs["session"].read_bytes()
     damaged = tmp_path / "damaged.h5"
     for offset in range(200, 4096, 300):  # superblock, object headers, attribute messages
         changed = bytearray(data)
-        changed[offset:offset + 8] = bytes(b ^ 0xFF for b in changed[offset:offset + 8])
+        changed[offset : offset + 8] = bytes(b ^ 0xFF for b in changed[offset : offset + 8])
         damaged.write_bytes(changed)
-        for argv in (["inspect", str(damaged)],
-                     ["reconstruct", str(damaged), "--out", str(tmp_path / "c.clouds.h5")]):
+        for argv in (
+            ["inspect", str(damaged)],
+            ["reconstruct", str(damaged), "--out", str(tmp_path / "c.clouds.h5")],
+        ):
             code = main(argv)
             err = capsys.readouterr().err
             assert code in (0, 1, 2) and "Traceback" not in err, (offset, argv, err)
@@ -293,8 +409,10 @@ def test_damaged_metadata_is_one_line_or_a_damage_report_never_a_traceback(input
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5"]
 
 
-@pytest.mark.parametrize("rows, words", [("0,1\n0.2,2\n0.1,3\n", "not in order"),
-                                         ("0,1\nnan,2\n0.2,3\n", "not a number")])
+@pytest.mark.parametrize(
+    "rows, words",
+    [("0,1\n0.2,2\n0.1,3\n", "not in order"), ("0,1\nnan,2\n0.2,3\n", "not a number")],
+)
 def test_import_refuses_force_times_out_of_order_or_missing(tmp_path, capsys, rows, words):
     import numpy as np
 
@@ -304,15 +422,44 @@ def test_import_refuses_force_times_out_of_order_or_missing(tmp_path, capsys, ro
         np.save(frames / f"{i:03d}.npy", np.random.default_rng(i).random((50, 3)))
     (tmp_path / "f.csv").write_text("t,fz\n" + rows)
     out = tmp_path / "x.clouds.h5"
-    assert main(["import", "clouds", str(frames), "--forces", str(tmp_path / "f.csv"), "--out",
-                 str(out), "--force-columns", "fz", "--time-column", "t", "--fps", "10"]) == 2
+    assert (
+        main(
+            [
+                "import",
+                "clouds",
+                str(frames),
+                "--forces",
+                str(tmp_path / "f.csv"),
+                "--out",
+                str(out),
+                "--force-columns",
+                "fz",
+                "--time-column",
+                "t",
+                "--fps",
+                "10",
+            ]
+        )
+        == 2
+    )
     one_error(capsys, "f.csv", words)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.csv", "frames"]
 
 
 def test_an_unreachable_ray_head_is_one_line_at_once(inputs, capsys):
     started = time.monotonic()
-    assert main(["reconstruct", str(inputs["session"]), "--executor", "ray", "--ray-address",
-                 "127.0.0.1:9"]) == 2
+    assert (
+        main(
+            [
+                "reconstruct",
+                str(inputs["session"]),
+                "--executor",
+                "ray",
+                "--ray-address",
+                "127.0.0.1:9",
+            ]
+        )
+        == 2
+    )
     one_error(capsys, "cannot reach the Ray cluster at 127.0.0.1:9")
     assert time.monotonic() - started < 5

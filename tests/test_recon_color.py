@@ -9,9 +9,13 @@ from vbfe.recon.color import color_calibration_patterns
 from vbfe.recon.decode import FringeDecoder
 from vbfe.truth import calibration_from_rig
 
-K_TRUE = np.array([[0.80, 0.15, 0.05],   # camera B <- projector B, G, R
-                   [0.10, 0.75, 0.15],
-                   [0.05, 0.20, 0.75]])
+K_TRUE = np.array(
+    [
+        [0.80, 0.15, 0.05],  # camera B <- projector B, G, R
+        [0.10, 0.75, 0.15],
+        [0.05, 0.20, 0.75],
+    ]
+)
 OFFSET = np.array([14.0, 10.0, 12.0])
 
 
@@ -24,8 +28,10 @@ def _capture(projected_bgr: np.ndarray, albedo: np.ndarray, rng: np.random.Gener
 @pytest.fixture(scope="module")
 def albedo():
     y, x = np.mgrid[0:120, 0:640]
-    return np.stack([0.55 + 0.1 * np.sin(x / 40.0), 0.7 + 0.1 * np.cos(y / 25.0),
-                     np.full(x.shape, 0.95)], axis=-1)
+    return np.stack(
+        [0.55 + 0.1 * np.sin(x / 40.0), 0.7 + 0.1 * np.cos(y / 25.0), np.full(x.shape, 0.95)],
+        axis=-1,
+    )
 
 
 def test_mixing_matrix_and_offset_are_recovered_despite_albedo(albedo):
@@ -92,14 +98,28 @@ def test_calibrate_color_fits_the_bench_crosstalk_into_the_calibration(tmp_path)
     calibration_path = calibration_from_rig(default_rig(640, 360)).save(tmp_path / "cal.yaml")
     config = tmp_path / "rig.toml"
     config.write_text('[bench]\nscene = "plane"\ncrosstalk = 0.3\ndistortion = false\n')
-    result = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "calibrate", "color",
-                             str(calibration_path), "--overwrite", "--config", str(config)],
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vbfe.cli.main",
+            "calibrate",
+            "color",
+            str(calibration_path),
+            "--overwrite",
+            "--config",
+            str(config),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr
     stored = Calibration.load(calibration_path)
     expected = np.full((3, 3), 0.15)
     np.fill_diagonal(expected, 0.7)  # each channel keeps 1 - 0.3 of its primary
     np.testing.assert_allclose(stored.color_mixing, expected, atol=0.02)
     np.testing.assert_allclose(stored.color_offset, 0.15 * 255, atol=3)  # ambient light
-    assert stored.K1 is not None and np.allclose(stored.P2, calibration_from_rig(
-        default_rig(640, 360)).P2)
+    assert stored.K1 is not None and np.allclose(
+        stored.P2, calibration_from_rig(default_rig(640, 360)).P2
+    )

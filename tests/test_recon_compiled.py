@@ -27,8 +27,12 @@ from vbfe.truth import calibration_from_rig
 def decoded():
     rig = default_rig(640, 360, working_distance_m=0.06)
     rng = np.random.default_rng(11)
-    pair = render_scene(rig, TissueSurface(distance_m=0.06, texture=tissue_texture(rng)),
-                        make_pattern(rig.projector.width, rig.projector.height), rng=rng)
+    pair = render_scene(
+        rig,
+        TissueSurface(distance_m=0.06, texture=tissue_texture(rng)),
+        make_pattern(rig.projector.width, rig.projector.height),
+        rng=rng,
+    )
     reconstructor = Reconstructor(calibration_from_rig(rig))
     left = reconstructor.decoder.decode(pair.left)
     right = reconstructor.decoder.decode(pair.right, period_px=left.period_px)
@@ -45,8 +49,10 @@ def test_compiled_decoder_gives_the_numpy_fringe_indices(decoded):
         assert np.array_equal(code.index, expected)
     half_flat = pair.left.copy()
     half_flat[:, 320:] = 90  # runs far longer than numpy's 128-element pairwise blocks
-    assert np.array_equal(decoder.decode(half_flat, period_px=left.period_px).index,
-                          reference.decode_index(decoder, half_flat, left.period_px))
+    assert np.array_equal(
+        decoder.decode(half_flat, period_px=left.period_px).index,
+        reference.decode_index(decoder, half_flat, left.period_px),
+    )
     shorter = pair.left[:357]  # the last block of row_step rows is shorter
     assert decoder.row_step == 5
     shorter_index = decoder.decode(shorter, period_px=left.period_px).index
@@ -65,8 +71,7 @@ def test_compiled_verification_gives_the_numpy_disparities(decoded):
     wrong[200:240, 100:140] += 1.0  # one pixel off: within the search
     for candidate in (disparity, wrong):
         out, status, counts = verify_disparity(candidate, left, right, search, everywhere)
-        assert np.array_equal(out, reference.verify(candidate, left, right, search),
-                              equal_nan=True)
+        assert np.array_equal(out, reference.verify(candidate, left, right, search), equal_nan=True)
         assert counts["kept"] == np.count_nonzero(status == KEPT)
         assert counts["corrected"] == np.count_nonzero(status == CORRECTED)
         assert counts["rejected"] == np.count_nonzero(status == REJECTED)
@@ -96,14 +101,18 @@ def test_coded_region_on_its_cell_grid_and_verification_split_over_two_threads(d
 def test_compiled_colour_normalisation_gives_opencvs_values(decoded):
     _, pair, _, _, _ = decoded
     rng = np.random.default_rng(5)
-    images = [np.ascontiguousarray(pair.left[::3]), np.ascontiguousarray(pair.right[::3]),
-              rng.integers(0, 256, (37, 101, 3), np.uint8),  # odd sizes, percentile ranks
-              rng.integers(0, 256, (1, 7, 3), np.uint8), rng.integers(0, 256, (2, 5, 3), np.uint8)]
+    images = [
+        np.ascontiguousarray(pair.left[::3]),
+        np.ascontiguousarray(pair.right[::3]),
+        rng.integers(0, 256, (37, 101, 3), np.uint8),  # odd sizes, percentile ranks
+        rng.integers(0, 256, (1, 7, 3), np.uint8),
+        rng.integers(0, 256, (2, 5, 3), np.uint8),
+    ]
     for image in images:
         for window in (3, 10, 31, 32, 224):  # windows wider than the image reflect again
-            assert np.array_equal(remove_base_color(image, window),
-                                  reference.remove_base_color(image, window)), (image.shape,
-                                                                                window)
+            assert np.array_equal(
+                remove_base_color(image, window), reference.remove_base_color(image, window)
+            ), (image.shape, window)
 
 
 def test_compiled_decoder_with_crosstalk_gives_the_opencv_fringe_indices(decoded):
@@ -119,8 +128,9 @@ def test_compiled_fixed_point_conversion_and_edge_share(decoded):
     reconstructor, pair, _, _, disparity = decoded
     params = reconstructor.params
     raw = params.create(3).compute(pair.left, pair.right)
-    assert np.array_equal(disparity, reference.disparity_px(raw, params.min_disparity),
-                          equal_nan=True)
+    assert np.array_equal(
+        disparity, reference.disparity_px(raw, params.min_disparity), equal_nan=True
+    )
     low = params.min_disparity
     shares = []
     for high in (low + params.num_disparities - 1, int(np.nanmedian(disparity))):  # half at an end
@@ -154,12 +164,14 @@ def test_verification_drops_matches_beyond_infinity_as_triangulation_did(decoded
         left = fused.decoder.decode(pair.left)
         right = fused.decoder.decode(pair.right, period_px=left.period_px)
         disparity = sgbm_disparity(pair.left, pair.right, fused.params)
-        out, status, counts = verify_disparity(disparity, left, right,
-                                               fused.params.verify_search_px)
+        out, status, counts = verify_disparity(
+            disparity, left, right, fused.params.verify_search_px
+        )
         beyond = np.count_nonzero(out <= -doffs)
         assert beyond > 10_000 and np.count_nonzero(out > -doffs) > 10_000
-        points, colors, verified = kernels.triangulate(out, status, pair.left, cal.f, cal.B,
-                                                       cal.cx, cal.cy, -doffs, cal.fy)
+        points, colors, verified = kernels.triangulate(
+            out, status, pair.left, cal.f, cal.B, cal.cx, cal.cy, -doffs, cal.fy
+        )
         assert cloud.counts == counts
         assert np.array_equal(cloud.disparity, out, equal_nan=True)
         assert np.array_equal(cloud.status, status)

@@ -21,17 +21,26 @@ from vbfe.truth import calibration_from_rig
 
 
 def _vbfe(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def _render(distance_m, pattern=True, seed=0):
     rig = default_rig(640, 360, working_distance_m=distance_m)
-    projector = (make_pattern(rig.projector.width, rig.projector.height) if pattern else
-                 np.full((rig.projector.height, rig.projector.width, 3), 200, np.uint8))
+    projector = (
+        make_pattern(rig.projector.width, rig.projector.height)
+        if pattern
+        else np.full((rig.projector.height, rig.projector.width, 3), 200, np.uint8)
+    )
     rng = np.random.default_rng(seed)
-    pair = render_scene(rig, TissueSurface(distance_m=distance_m, texture=tissue_texture(rng)),
-                        projector, rng=rng)
+    pair = render_scene(
+        rig, TissueSurface(distance_m=distance_m, texture=tissue_texture(rng)), projector, rng=rng
+    )
     return rig, pair
 
 
@@ -44,9 +53,16 @@ def test_rendered_png_pair_through_the_cli_gives_the_true_depth(tmp_path):
     rig, pair = _render(0.06)
     cv2.imwrite(str(tmp_path / "scene_left.png"), pair.left)
     cv2.imwrite(str(tmp_path / "scene_right.png"), pair.right)
-    result = _vbfe("reconstruct", tmp_path / "scene_left.png", tmp_path / "scene_right.png",
-                   *_geometry_args(rig), "--maps-dir", tmp_path / "maps", "--ply-dir",
-                   tmp_path / "ply")
+    result = _vbfe(
+        "reconstruct",
+        tmp_path / "scene_left.png",
+        tmp_path / "scene_right.png",
+        *_geometry_args(rig),
+        "--maps-dir",
+        tmp_path / "maps",
+        "--ply-dir",
+        tmp_path / "ply",
+    )
     assert result.returncode == 0, result.stderr
     assert "pattern decoded" in result.stdout and "density" in result.stdout
     depth = read_png_map(tmp_path / "maps" / "scene_left_depth.png", "depth")
@@ -77,9 +93,18 @@ def test_rectified_pair_with_offset_principal_points_takes_middlebury_doffs(tmp_
     for doffs in (-shift, 0):
         out = tmp_path / f"doffs{doffs}"
         out.mkdir()
-        result = _vbfe("reconstruct", tmp_path / "mb_left.png", tmp_path / "mb_right.png",
-                       *_geometry_args(rig), "--doffs", doffs, "--maps-dir", out,
-                       "--out", out / "c.clouds.h5")
+        result = _vbfe(
+            "reconstruct",
+            tmp_path / "mb_left.png",
+            tmp_path / "mb_right.png",
+            *_geometry_args(rig),
+            "--doffs",
+            doffs,
+            "--maps-dir",
+            out,
+            "--out",
+            out / "c.clouds.h5",
+        )
         assert result.returncode == 0, result.stderr
         depth = read_png_map(out / "mb_left_depth.png", "depth")
         both = pair.valid_left & np.isfinite(depth)
@@ -105,29 +130,43 @@ def test_impossible_rectified_geometry_is_refused(tmp_path):
 def test_folder_naming_rules(tmp_path):
     for layout in ("suffix", "prefix", "folders"):
         folder = tmp_path / layout
-        names = {"suffix": ("a_left.png", "a_right.png", "b_left.png", "b_right.png"),
-                 "prefix": ("left01.png", "right01.png", "left02.png", "right02.png"),
-                 "folders": ("left/01.png", "right/01.png", "left/02.png", "right/02.png")}[layout]
+        names = {
+            "suffix": ("a_left.png", "a_right.png", "b_left.png", "b_right.png"),
+            "prefix": ("left01.png", "right01.png", "left02.png", "right02.png"),
+            "folders": ("left/01.png", "right/01.png", "left/02.png", "right/02.png"),
+        }[layout]
         for name in names:
             (folder / name).parent.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(folder / name), np.zeros((4, 4, 3), np.uint8))
         pairs = find_pairs(folder)
         assert pairs.n_frames == 2
-        assert all("left" in str(l) and "right" in str(r)
-                   for l, r in zip(pairs.lefts, pairs.rights))
-    (tmp_path / "suffix" / "c_left.png").write_bytes((tmp_path / "suffix" / "a_left.png")
-                                                     .read_bytes())
+        assert all(
+            "left" in str(l) and "right" in str(r) for l, r in zip(pairs.lefts, pairs.rights, strict=False)
+        )
+    (tmp_path / "suffix" / "c_left.png").write_bytes(
+        (tmp_path / "suffix" / "a_left.png").read_bytes()
+    )
     with pytest.raises(ReconError, match="without their other eye: c"):
         find_pairs(tmp_path / "suffix")
 
 
 def _session(path, rig, pair):
     height, width = pair.left.shape[:2]
-    writer = SessionWriter(path, (width, height),
-                           calibration_yaml=calibration_from_rig(rig).to_yaml_text())
-    writer.append_frames([StereoFrame(left=pair.left, right=pair.right, seq=i,
-                                      t_device_ns=i * 33_333_333, t_host_ns=1 + i * 33_333_333)
-                          for i in range(2)])
+    writer = SessionWriter(
+        path, (width, height), calibration_yaml=calibration_from_rig(rig).to_yaml_text()
+    )
+    writer.append_frames(
+        [
+            StereoFrame(
+                left=pair.left,
+                right=pair.right,
+                seq=i,
+                t_device_ns=i * 33_333_333,
+                t_host_ns=1 + i * 33_333_333,
+            )
+            for i in range(2)
+        ]
+    )
     writer.close()
     finalize_session(path, {})
     return path
@@ -160,8 +199,16 @@ def test_near_scene_session_gets_its_range_from_the_geometry(tmp_path):
 
     config = tmp_path / "old.toml"
     config.write_text("[sgbm]\nnum_disparities = 64\n")
-    result = _vbfe("reconstruct", session, "--workers", 1, "--config", config, "--out",
-                   tmp_path / "old.clouds.h5")
+    result = _vbfe(
+        "reconstruct",
+        session,
+        "--workers",
+        1,
+        "--config",
+        config,
+        "--out",
+        tmp_path / "old.clouds.h5",
+    )
     assert result.returncode == 0
     assert "of the matched pixels sit at the edge of the disparity range 0..63 px" in result.stderr
 
@@ -203,8 +250,9 @@ def test_pair_without_the_pattern_warns_once_and_keeps_sgbm_unverified(tmp_path)
     assert result.returncode == 0, result.stderr
     warnings = [line for line in result.stderr.splitlines() if "warning" in line]
     assert len(warnings) == 1
-    assert warnings[0].startswith("vbfe reconstruct: warning: the De Bruijn pattern is readable "
-                                  "on only")
+    assert warnings[0].startswith(
+        "vbfe reconstruct: warning: the De Bruijn pattern is readable on only"
+    )
     assert "flagged unverified" in warnings[0] and "use --no-verify" in warnings[0]
     with CloudReader(tmp_path / "flat_left.clouds.h5") as clouds:
         assert clouds.frame_table("valid_fraction")[0] > 0.3  # SGBM's matches, kept
@@ -215,8 +263,23 @@ def test_bad_depth_range_in_the_config_is_a_one_line_error(tmp_path):
     config = tmp_path / "rig.toml"
     config.write_text("[recon]\nmin_depth_mm = 200.0\n")
     (tmp_path / "a_left.png").write_bytes(b"")
-    result = _vbfe("reconstruct", tmp_path, "--config", config, "--rectified", "--f", 500,
-                   "--baseline", 4, "--cx", 10, "--cy", 10)
+    result = _vbfe(
+        "reconstruct",
+        tmp_path,
+        "--config",
+        config,
+        "--rectified",
+        "--f",
+        500,
+        "--baseline",
+        4,
+        "--cx",
+        10,
+        "--cy",
+        10,
+    )
     assert result.returncode == 2
-    assert result.stderr.strip() == ("vbfe reconstruct: error: [recon] needs 0 < min_depth_mm < "
-                                     "max_depth_mm, got 200.0 and 120.0")
+    assert result.stderr.strip() == (
+        "vbfe reconstruct: error: [recon] needs 0 < min_depth_mm < "
+        "max_depth_mm, got 200.0 and 120.0"
+    )

@@ -7,11 +7,11 @@ from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.recon import FrameCloud, ReconError, Reconstructor, SgbmParams, make_pattern
-from vbfe.truth import calibration_from_rig, evaluate_against_truth, rectified_truth
 from vbfe.recon.decode import FringeDecoder
-from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.kernels import KEPT, triangulate
+from vbfe.recon.matching import sgbm_disparity
 from vbfe.recon.verify import verify_disparity
+from vbfe.truth import calibration_from_rig, evaluate_against_truth, rectified_truth
 
 WORKING_DISTANCE_M = 0.06
 
@@ -48,7 +48,8 @@ def test_verification_lowers_bad_pixels_and_depth_error_is_below_one_percent(sce
     truth = (pair.disparity_left_px, pair.depth_left_m, pair.valid_left)
     bare = evaluate_against_truth(
         Reconstructor(calibration, SgbmParams(), verify=False).process(pair.left, pair.right),
-        *truth)
+        *truth,
+    )
     cloud = Reconstructor(calibration, SgbmParams(), verify=True).process(pair.left, pair.right)
     verified = evaluate_against_truth(cloud, *truth)
     assert verified.bad_pixel_rate < bare.bad_pixel_rate
@@ -63,12 +64,14 @@ def test_distorted_rig_is_rectified_before_matching():
     rig = default_rig(640, 360, working_distance_m=WORKING_DISTANCE_M, distortion=True)
     rng = np.random.default_rng(4)
     surface = TissueSurface(distance_m=WORKING_DISTANCE_M, texture=tissue_texture(rng))
-    pair = render_scene(rig, surface, make_pattern(rig.projector.width, rig.projector.height),
-                        rng=rng)
+    pair = render_scene(
+        rig, surface, make_pattern(rig.projector.width, rig.projector.height), rng=rng
+    )
     calibration = calibration_from_rig(rig)
     truth = rectified_truth(calibration, pair.depth_left_m, pair.valid_left)
     report = evaluate_against_truth(
-        Reconstructor(calibration, SgbmParams()).process(pair.left, pair.right), *truth)
+        Reconstructor(calibration, SgbmParams()).process(pair.left, pair.right), *truth
+    )
     assert report.valid_fraction > 0.3
     assert report.median_abs_depth_error_m <= 0.01 * WORKING_DISTANCE_M
     assert report.bad_pixel_rate < 0.001
@@ -98,13 +101,13 @@ def test_triangulation_follows_z_equals_f_b_over_d_minus_doffs_and_y_its_own_foc
     disparity[2, 3] = 1.5  # at or beyond infinity with doffs = 2: no point
     status = np.full((3, 4), KEPT, np.uint8)
     image = np.arange(36, dtype=np.uint8).reshape(3, 4, 3)
-    points, colours, verified = triangulate(disparity, status, image, 500.0, 0.004, 1.5, 1.0,
-                                            2.0, 400.0)
+    points, colours, verified = triangulate(
+        disparity, status, image, 500.0, 0.004, 1.5, 1.0, 2.0, 400.0
+    )
     assert points.shape == (10, 3) and verified.all()
     np.testing.assert_allclose(points[:, 2], 500 * 0.004 / 18, rtol=1e-6)
     z = 500 * 0.004 / 18
-    np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 400, z],
-                               rtol=1e-6)
+    np.testing.assert_allclose(points[0], [(1 - 1.5) * z / 500, (0 - 1.0) * z / 400, z], rtol=1e-6)
     assert np.array_equal(colours[0], image[0, 1, ::-1])  # BGR image, RGB colours
     assert np.isnan(disparity[2, 3]) and status[2, 3] == 0
 

@@ -10,8 +10,16 @@ from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import MembraneLoad, TissueSurface, tissue_texture
-from vbfe.recon import (CloudReader, ReconError, Reconstructor, SgbmParams, make_pattern,
-                        reconstruct_session, sidecar_path, write_ply)
+from vbfe.recon import (
+    CloudReader,
+    ReconError,
+    Reconstructor,
+    SgbmParams,
+    make_pattern,
+    reconstruct_session,
+    sidecar_path,
+    write_ply,
+)
 from vbfe.truth import calibration_from_rig
 
 N_FRAMES = 3
@@ -20,9 +28,18 @@ N_FRAMES = 3
 def _write_session(path, pairs, calibration_yaml=None):
     height, width = pairs[0][0].shape[:2]
     writer = SessionWriter(path, (width, height), calibration_yaml=calibration_yaml)
-    writer.append_frames([StereoFrame(left=l, right=r, seq=i, t_device_ns=i * 33_333_333,
-                                      t_host_ns=1_000_000 + i * 33_333_333)
-                          for i, (l, r) in enumerate(pairs)])
+    writer.append_frames(
+        [
+            StereoFrame(
+                left=l,
+                right=r,
+                seq=i,
+                t_device_ns=i * 33_333_333,
+                t_host_ns=1_000_000 + i * 33_333_333,
+            )
+            for i, (l, r) in enumerate(pairs)
+        ]
+    )
     writer.close()
     finalize_session(path, {})
     return path
@@ -78,8 +95,9 @@ def test_session_without_calibration_needs_one(recording, tmp_path):
     with pytest.raises(CalibrationError, match="bare.h5.*--calib"):
         reconstruct_session(bare, workers=1)
     yaml_path = calibration.save(tmp_path / "calib.yaml")
-    out = reconstruct_session(bare, calibration=yaml_path, workers=1,
-                              out_path=tmp_path / "clouds.h5")
+    out = reconstruct_session(
+        bare, calibration=yaml_path, workers=1, out_path=tmp_path / "clouds.h5"
+    )
     with CloudReader(out) as clouds:
         assert clouds.n_frames == 1 and len(clouds.cloud(0)[0]) > 1000
 
@@ -95,8 +113,21 @@ def test_calibration_of_another_resolution_is_refused(recording, tmp_path):
 def test_cli_reconstructs_and_exports_ply(recording, tmp_path, capsys):
     path, _, _ = recording
     out = tmp_path / "cli.clouds.h5"
-    assert main(["reconstruct", str(path), "--out", str(out), "--workers", "1",
-                 "--ply-dir", str(tmp_path / "ply")]) == 0
+    assert (
+        main(
+            [
+                "reconstruct",
+                str(path),
+                "--out",
+                str(out),
+                "--workers",
+                "1",
+                "--ply-dir",
+                str(tmp_path / "ply"),
+            ]
+        )
+        == 0
+    )
     assert "3 frames" in capsys.readouterr().out
     files = sorted((tmp_path / "ply").glob("*.ply"))
     assert [f.name for f in files] == [f"frame_{i:06d}.ply" for i in range(N_FRAMES)]

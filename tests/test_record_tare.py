@@ -24,9 +24,23 @@ def test_record_tare_zeroes_the_trocar_and_stores_the_offset(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
     out = tmp_path / "tared.h5"
-    run = subprocess.run([sys.executable, "-m", "vbfe.cli.main", "record", str(out),
-                          "--duration", "0.3", "--tare", "--config", str(rig)],
-                         capture_output=True, text=True, timeout=300)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vbfe.cli.main",
+            "record",
+            str(out),
+            "--duration",
+            "0.3",
+            "--tare",
+            "--config",
+            str(rig),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr
     with SessionReader(out) as session:
         meta = session.metadata

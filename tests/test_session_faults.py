@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from tests.test_acquire_devices import write_bar_session
-from vbfe.acquire import Recorder, AcquisitionStats, SessionError, SessionReader
+from vbfe.acquire import AcquisitionStats, Recorder, SessionError, SessionReader
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
@@ -31,8 +31,15 @@ SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # small and quick to rende
 def vbfe(*args: str, **popen: object) -> subprocess.Popen:
     """Start ``vbfe ARGS`` in a subprocess (headless Qt)."""
     env = {**os.environ, "QT_QPA_PLATFORM": "offscreen"}
-    return subprocess.Popen([sys.executable, "-m", "vbfe.cli.main", *args], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
+    return subprocess.Popen(
+        [sys.executable, "-m", "vbfe.cli.main", *args],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **popen,
+    )
 
 
 def run_vbfe(*args: str, timeout: float = 120, **popen: object) -> tuple[int, str, str]:
@@ -86,12 +93,14 @@ def test_outputs_never_replace_inputs_or_existing_files(tmp_path, capsys):
     other = tmp_path / "other.h5"
     other.write_bytes(b"keep me")
 
-    for argv in (["reconstruct", str(session), "--out", str(session)],
-                 ["reconstruct", str(session), "--out", str(session), "--overwrite"],
-                 ["inspect", str(session), "--recover", str(session), "--overwrite"],
-                 ["record", str(session), "--duration", "1"],
-                 ["train", str(session), "--out", str(session), "--overwrite"],
-                 ["verify-sync", str(session), "--plot", str(session), "--overwrite"]):
+    for argv in (
+        ["reconstruct", str(session), "--out", str(session)],
+        ["reconstruct", str(session), "--out", str(session), "--overwrite"],
+        ["inspect", str(session), "--recover", str(session), "--overwrite"],
+        ["record", str(session), "--duration", "1"],
+        ["train", str(session), "--out", str(session), "--overwrite"],
+        ["verify-sync", str(session), "--plot", str(session), "--overwrite"],
+    ):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert len(error_lines(err)) == 1 and str(session) in err, err
@@ -126,9 +135,17 @@ def test_readers_open_for_the_whole_recording_do_not_stop_it_finalizing(tmp_path
     _wait_for_frames(path, proc)
     held = SessionReader(path)  # open until the recording has ended
     plain = subprocess.Popen(  # a plain h5py reader in another process, with HDF5's file lock
-        [sys.executable, "-c", "import h5py, sys; f = h5py.File(sys.argv[1], 'r', swmr=True); "
-         "print(len(f['camera/seq']), flush=True); sys.stdin.read()", str(path)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import h5py, sys; f = h5py.File(sys.argv[1], 'r', swmr=True); "
+            "print(len(f['camera/seq']), flush=True); sys.stdin.read()",
+            str(path),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert int(plain.stdout.readline()) > 0
     assert held.growing and not held.complete
     code, summary, _ = run_vbfe("inspect", str(path))  # another process, while it records
@@ -152,8 +169,12 @@ def small_disk(tmp_path):
     makes writes fail the same way (EFBIG instead of ENOSPC)."""
     mount = tmp_path / "disk"
     mount.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=48m", "tmpfs", str(mount)],
-                             capture_output=True).returncode == 0
+    mounted = (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=48m", "tmpfs", str(mount)], capture_output=True
+        ).returncode
+        == 0
+    )
     if mounted:
         yield mount, None
         subprocess.run(["umount", str(mount)], check=True)
@@ -170,8 +191,9 @@ def test_full_disk_ends_the_recording_cleanly_with_consistent_times(tmp_path, sm
     disk, limit = small_disk
     path = disk / "full.h5"
     config = rig(tmp_path, SMALL_BENCH + '[record]\ncompression = "none"\nmin_free_gb = 0.0\n')
-    code, _, err = run_vbfe("record", str(path), "--duration", "60", "--config", config,
-                            preexec_fn=limit)
+    code, _, err = run_vbfe(
+        "record", str(path), "--duration", "60", "--config", config, preexec_fn=limit
+    )
     assert code == 2, err
     assert "Traceback" not in err and "Fatal" not in err
     lines = error_lines(err)
@@ -179,8 +201,9 @@ def test_full_disk_ends_the_recording_cleanly_with_consistent_times(tmp_path, sm
     assert "No space left on device" in lines[0] or "File too large" in lines[0]
     code, out, err = run_vbfe("inspect", str(path), timeout=10)
     if limit is not None and code == 2:  # the size limit also stopped HDF5 closing the file
-        assert error_lines(err) == [f"vbfe inspect: error: {path} is truncated: " +
-                                    err.split("is truncated: ")[1].strip()]
+        assert error_lines(err) == [
+            f"vbfe inspect: error: {path} is truncated: " + err.split("is truncated: ")[1].strip()
+        ]
         return
     assert code in (0, 1), err  # complete (write failed) or not closed cleanly
     reader = assert_consistent_times(path)
@@ -197,8 +220,10 @@ def test_free_space_guard_stops_and_finalizes_before_the_disk_is_full(tmp_path, 
     path = disk / "guarded.h5"
     # 640x360 uncompressed: 1.4 MB a frame, ~10 MB between two clock checks of free space on
     # a fast machine, as much as the whole stop margin; the guard must also count bytes
-    config = rig(tmp_path, '[bench]\nwidth = 640\nheight = 360\n'
-                 '[record]\ncompression = "none"\nmin_free_gb = 0.04\n')
+    config = rig(
+        tmp_path,
+        '[bench]\nwidth = 640\nheight = 360\n[record]\ncompression = "none"\nmin_free_gb = 0.04\n',
+    )
     code, _, err = run_vbfe("record", str(path), "--duration", "60", "--config", config)
     assert code == 2, err
     assert "disk almost full" in err and "finalized with" in err
@@ -263,8 +288,13 @@ def test_a_changed_byte_range_in_a_frame_is_reported_by_name(tmp_path):
 
 
 # -- signals ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("signals, reason", [((signal.SIGINT, signal.SIGINT), "stopped by operator"),
-                                             ((signal.SIGTERM,), "stopped by SIGTERM")])
+@pytest.mark.parametrize(
+    "signals, reason",
+    [
+        ((signal.SIGINT, signal.SIGINT), "stopped by operator"),
+        ((signal.SIGTERM,), "stopped by SIGTERM"),
+    ],
+)
 def test_ctrl_c_twice_and_sigterm_stop_and_finalize(tmp_path, signals, reason):
     path = tmp_path / "s.h5"
     proc = vbfe("record", str(path), "--config", rig(tmp_path, SMALL_BENCH))
@@ -304,13 +334,18 @@ def test_a_second_ctrl_c_while_stopping_is_ignored_with_a_message(tmp_path, caps
 
 # -- pacing, SIGKILL loss, live view, HDMI projector ---------------------------------------------
 def test_live_view_runs_a_minute_while_a_paced_bench_records_a_minute_without_drops(tmp_path):
-    live = vbfe("view", "--live", "--config",
-                rig(tmp_path, SMALL_BENCH + "fps = 10.0\nrealtime = true\n", "live.toml"))
+    live = vbfe(
+        "view",
+        "--live",
+        "--config",
+        rig(tmp_path, SMALL_BENCH + "fps = 10.0\nrealtime = true\n", "live.toml"),
+    )
     started = time.monotonic()
     path = tmp_path / "paced.h5"
     config = rig(tmp_path, SMALL_BENCH + "fps = 10.0\n[record]\nqueue_size = 2\n")
-    code, out, err = run_vbfe("record", str(path), "--duration", "60", "--config", config,
-                              timeout=400)
+    code, out, err = run_vbfe(
+        "record", str(path), "--duration", "60", "--config", config, timeout=400
+    )
     assert code == 0, err
     with SessionReader(path) as s:
         assert s.n_frames == 600 and s.attrs["camera_queue_dropped"] == 0
@@ -332,9 +367,12 @@ def test_sigkill_loses_at_most_one_flush_interval(tmp_path):
 
     rng = np.random.default_rng(20)
     robot = FakeRobot(unique("robot")).start()
-    config = rig(tmp_path, SMALL_BENCH + "fps = 15.0\nrealtime = true\n"
-                 "[record]\nflush_interval_s = 1.0\n"
-                 f'[streams.robot]\nname = "{robot.name}"\n')
+    config = rig(
+        tmp_path,
+        SMALL_BENCH + "fps = 15.0\nrealtime = true\n"
+        "[record]\nflush_interval_s = 1.0\n"
+        f'[streams.robot]\nname = "{robot.name}"\n',
+    )
     delays = rng.uniform(0.5, 3.0, 10)
     paths = [tmp_path / f"k{k}.h5" for k in range(10)]
     procs = [vbfe("record", str(paths[0]), "--config", config)]
@@ -354,8 +392,12 @@ def test_sigkill_loses_at_most_one_flush_interval(tmp_path):
         losses.append((t_kill - last) / 1e9)
         robot_losses.append((t_kill - robot_last) / 1e9)
     robot.stop()
-    print("SIGKILL loss (s):", " ".join(f"{x:.3f}" for x in sorted(losses)),
-          "robot:", " ".join(f"{x:.3f}" for x in sorted(robot_losses)))
+    print(
+        "SIGKILL loss (s):",
+        " ".join(f"{x:.3f}" for x in sorted(losses)),
+        "robot:",
+        " ".join(f"{x:.3f}" for x in sorted(robot_losses)),
+    )
     assert 0 <= min(losses) and max(losses) <= 1.0, losses
     assert 0 <= min(robot_losses) and max(robot_losses) <= 1.0, robot_losses
 

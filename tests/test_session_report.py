@@ -10,16 +10,29 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.acquire import (EstimateStream, SessionReader, SessionWriter, finalize_session,
-                          record_session, store_analysis, store_estimates)
+from vbfe.acquire import (
+    EstimateStream,
+    SessionReader,
+    SessionWriter,
+    finalize_session,
+    record_session,
+    store_analysis,
+    store_estimates,
+)
 from vbfe.cli.main import main
 from vbfe.common.config import default_config
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.session_report import SECTIONS
 from vbfe.truth import calibration_from_rig, true_rig
 
-CHROMIUM = next((shutil.which(name) for name in ("chromium", "chromium-browser",
-                                                 "google-chrome") if shutil.which(name)), None)
+CHROMIUM = next(
+    (
+        shutil.which(name)
+        for name in ("chromium", "chromium-browser", "google-chrome")
+        if shutil.which(name)
+    ),
+    None,
+)
 
 
 @pytest.fixture(scope="module")
@@ -32,27 +45,48 @@ def dataset(tmp_path_factory):
     calibration = calibration_from_rig(true_rig(config))
     bench = folder / "bench.h5"
     record_session(config, bench, duration_s=2.0, calibration_yaml=calibration.to_yaml_text())
-    store_analysis(bench, {"sync_verdict": "pass", "sync_offset_s": 0.0012,
-                           "sync_offset_ci95_low_s": 0.0002, "sync_offset_ci95_high_s": 0.0022,
-                           "sync_protocol": "traction", "sync_reasons": json.dumps([])})
+    store_analysis(
+        bench,
+        {
+            "sync_verdict": "pass",
+            "sync_offset_s": 0.0012,
+            "sync_offset_ci95_low_s": 0.0002,
+            "sync_offset_ci95_high_s": 0.0022,
+            "sync_protocol": "traction",
+            "sync_reasons": json.dumps([]),
+        },
+    )
     with SessionReader(bench) as reader:
         _, t_host, seq = reader.stream_times("camera")
         force = np.linalg.norm(reader.force_at_frames(), axis=1)
-    store_estimates(bench, EstimateStream(
-        force_n=(force + 0.05)[:, None], frame_seq=seq, t_frame_host_ns=t_host,
-        t_ready_host_ns=t_host + 30_000_000, stage_s=np.full((len(seq), 1), 0.03),
-        stages=["model"], attrs={"target": "magnitude", "outputs": 1}))
+    store_estimates(
+        bench,
+        EstimateStream(
+            force_n=(force + 0.05)[:, None],
+            frame_seq=seq,
+            t_frame_host_ns=t_host,
+            t_ready_host_ns=t_host + 30_000_000,
+            stage_s=np.full((len(seq), 1), 0.03),
+            stages=["model"],
+            attrs={"target": "magnitude", "outputs": 1},
+        ),
+    )
     assert main(["reconstruct", str(bench), "--workers", "1", "--no-verify"]) == 0
 
     gappy = folder / "sub" / "gappy.h5"
     gappy.parent.mkdir()
     writer = SessionWriter(gappy, (64, 48))
     image = np.full((48, 64, 3), 90, np.uint8)
-    writer.append_frames([StereoFrame(image, image, i, i * 50_000_000, i * 50_000_000 + 10**9)
-                          for i in range(10)])
+    writer.append_frames(
+        [StereoFrame(image, image, i, i * 50_000_000, i * 50_000_000 + 10**9) for i in range(10)]
+    )
     kept = [i for i in range(500) if not 200 <= i < 210]  # 10 samples dropped by the device
-    writer.append_forces([ForceSample(np.array([0.0, 0.0, i / 500]), i, i * 1_000_000,
-                                      i * 1_000_000 + 10**9) for i in kept])
+    writer.append_forces(
+        [
+            ForceSample(np.array([0.0, 0.0, i / 500]), i, i * 1_000_000, i * 1_000_000 + 10**9)
+            for i in kept
+        ]
+    )
     writer.add_gap("force", "queue full", 300, 301, 10**9 + 300_000_000, 0)
     writer.close()
     finalize_session(gappy, {"end_reason": "test"})
@@ -107,13 +141,27 @@ def test_dataset_report_links_every_session_page(dataset, tmp_path):
     assert '<span class="pass">pass</span>' in index
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (apt-get install "
-                    "chromium) - the page is not rendered")
+@pytest.mark.skipif(
+    CHROMIUM is None,
+    reason="Chromium is not installed (apt-get install chromium) - the page is not rendered",
+)
 def test_page_renders_in_headless_chromium(bench_page, tmp_path):
     shot = tmp_path / "shot.png"
-    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
-                    "--hide-scrollbars", f"--screenshot={shot}", "--window-size=1100,4000",
-                    bench_page.as_uri()], check=True, capture_output=True, timeout=60)
+    subprocess.run(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            f"--screenshot={shot}",
+            "--window-size=1100,4000",
+            bench_page.as_uri(),
+        ],
+        check=True,
+        capture_output=True,
+        timeout=60,
+    )
     image = cv2.imread(str(shot))
     assert image.shape[:2] == (4000, 1100)
     rows = np.flatnonzero((image < 200).any(axis=(1, 2)))  # rows with something drawn

@@ -2,52 +2,84 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
-import json
-
-from vbfe.acquire import SessionError, SessionReader, SessionWriter, finalize_session, \
-    recover_session
+from vbfe.acquire import (
+    SessionError,
+    SessionReader,
+    SessionWriter,
+    finalize_session,
+    recover_session,
+)
 from vbfe.acquire.recording.session_sink import Mark
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec, marks_stream
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.streams.records import StreamInfo, StreamSample
 
-ROBOT = StreamInfo(name="robot", lsl_name="KUKA", type="RobotState", source_id="kuka-1",
-                   hostname="ctrl", channels=("j1", "j2"), units=("rad", "rad"),
-                   nominal_rate_hz=1000.0, markers=False, info_xml="<info/>")
-MARKS_INFO = StreamInfo(name="script", lsl_name="Psychopy", type="Markers", source_id="ps",
-                        hostname="stim", channels=("marker",), units=("",),
-                        nominal_rate_hz=0.0, markers=True)
+ROBOT = StreamInfo(
+    name="robot",
+    lsl_name="KUKA",
+    type="RobotState",
+    source_id="kuka-1",
+    hostname="ctrl",
+    channels=("j1", "j2"),
+    units=("rad", "rad"),
+    nominal_rate_hz=1000.0,
+    markers=False,
+    info_xml="<info/>",
+)
+MARKS_INFO = StreamInfo(
+    name="script",
+    lsl_name="Psychopy",
+    type="Markers",
+    source_id="ps",
+    hostname="stim",
+    channels=("marker",),
+    units=("",),
+    nominal_rate_hz=0.0,
+    markers=True,
+)
 
 
 def _samples(values: np.ndarray, t_ns: np.ndarray, correction_ns: int = 5000) -> list:
-    return [StreamSample(values=v, text=None, seq=k, t_device_ns=int(t) - correction_ns,
-                         t_host_ns=int(t)) for k, (v, t) in enumerate(zip(values, t_ns))]
+    return [
+        StreamSample(
+            values=v, text=None, seq=k, t_device_ns=int(t) - correction_ns, t_host_ns=int(t)
+        )
+        for k, (v, t) in enumerate(zip(values, t_ns, strict=False))
+    ]
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     path = tmp_path_factory.mktemp("streams") / "s.h5"
     t0 = 10**12
-    writer = SessionWriter(path, (32, 16), extra_streams=[
-        lsl_stream_spec(ROBOT), lsl_stream_spec(MARKS_INFO), marks_stream()])
+    writer = SessionWriter(
+        path,
+        (32, 16),
+        extra_streams=[lsl_stream_spec(ROBOT), lsl_stream_spec(MARKS_INFO), marks_stream()],
+    )
     image = np.zeros((16, 32, 3), np.uint8)
-    writer.append_frames([StereoFrame(image, image, k, t0 + k * 10**8, t0 + k * 10**8)
-                          for k in range(11)])  # 10 Hz for 1 s
+    writer.append_frames(
+        [StereoFrame(image, image, k, t0 + k * 10**8, t0 + k * 10**8) for k in range(11)]
+    )  # 10 Hz for 1 s
     t_robot = t0 + np.arange(0, 1001) * 10**6  # 1 kHz over the same second
     joints = np.stack([np.arange(1001) * 1e-3, -np.arange(1001) * 1e-3], axis=1)
     writer.append("robot", _samples(joints, t_robot))
-    writer.append("script", [StreamSample(None, "trial 1", 0, t0 + 2 * 10**8 - 5000,
-                                          t0 + 2 * 10**8)])
+    writer.append(
+        "script", [StreamSample(None, "trial 1", 0, t0 + 2 * 10**8 - 5000, t0 + 2 * 10**8)]
+    )
     writer.append(MARKS, [Mark("grasp ✓", 0, t0 + 3 * 10**8, t0 + 3 * 10**8)])
     writer.add_gap("robot", "queue full", 499, 500, t0 + 5 * 10**8, 0)
     writer.close()
     at_end = {"robot": {"time_corrections": [[t0, 5000], [t0 + 500_000_000, 5000]]}}
-    finalize_session(path, {"end_reason": "duration reached",
-                            "devices_at_end_json": json.dumps(at_end)})
+    finalize_session(
+        path, {"end_reason": "duration reached", "devices_at_end_json": json.dumps(at_end)}
+    )
     return path, t0
 
 
@@ -69,7 +101,8 @@ def test_streams_and_events_read_back(session) -> None:
         np.testing.assert_allclose(at_frames[:, 0], (frame_t - t0) / 1e9, atol=1e-9)
         assert reader.events() == [
             {"t_host_ns": t0 + 2 * 10**8, "source": "script", "text": "trial 1"},
-            {"t_host_ns": t0 + 3 * 10**8, "source": "mark", "text": "grasp ✓"}]
+            {"t_host_ns": t0 + 3 * 10**8, "source": "mark", "text": "grasp ✓"},
+        ]
         assert reader.gaps()[0]["stream"] == "robot"
         with pytest.raises(SessionError, match="holds event markers"):
             reader.at_frames("script")
@@ -104,7 +137,7 @@ def test_view_plots_numeric_streams_under_the_force(session, tmp_path) -> None:
         assert plot.geometry().top() >= window.plot.geometry().bottom()
         image = cv2.imread(str(grab_png(window, tmp_path / "view.png")))
         geo = plot.geometry()
-        region = image[geo.top():geo.bottom(), geo.left():geo.right()]
+        region = image[geo.top() : geo.bottom(), geo.left() : geo.right()]
         assert _has_colour(region, STREAM_PENS[0]) and _has_colour(region, STREAM_PENS[1])
         window.dispose()
 
@@ -121,8 +154,12 @@ def test_a_robot_stream_checks_the_clocks_at_the_force_corners(session, tmp_path
     t_ns = t0 + np.round(t * 1e9).astype(np.int64)
     path = tmp_path / "pull.h5"
     writer = SessionWriter(path, (32, 16), extra_streams=[lsl_stream_spec(ROBOT)])
-    writer.append_forces([ForceSample(np.array([0.0, 0.0, f]), k, int(tk), int(tk))
-                          for k, (f, tk) in enumerate(zip(force, t_ns))])
+    writer.append_forces(
+        [
+            ForceSample(np.array([0.0, 0.0, f]), k, int(tk), int(tk))
+            for k, (f, tk) in enumerate(zip(force, t_ns, strict=False))
+        ]
+    )
     writer.append("robot", _samples(np.stack([joint, np.zeros_like(joint)], axis=1), t_ns, 0))
     writer.close()
     with SessionReader(path) as reader:

@@ -10,34 +10,43 @@ import pytest
 
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import ConfigError
-from vbfe.truth import calibration_from_rig
-from vbfe.drivers.sim.rig import default_rig
 from vbfe.common.settings import parse_kwargs, parse_table, setting
+from vbfe.drivers.sim.rig import default_rig
+from vbfe.truth import calibration_from_rig
 
 # (table, command reading it, an unknown key, a wrong-typed known key)
-TABLES = [("record", ["record", "{tmp}/s.h5", "--duration", "0.1"], "compresion",
-           ("flush_interval_s", '"one"')),
-          ("bench", ["record", "{tmp}/s.h5", "--duration", "0.1"], "colour", ("fps", '"fast"')),
-          ("sgbm", ["reconstruct", "{tmp}/none.h5"], "num_disparity",
-           ("num_disparities", '"sixty-four"')),
-          ("calib", ["calibrate", "board", "{tmp}/board"], "sqares_x", ("squares_x", '"9"')),
-          ("train", ["train", "{tmp}/none.h5", "--out", "{tmp}/m.pt"], "epoch",
-           ("epochs", "2.5")),
-          ("camera", ["record", "{tmp}/s.h5", "--duration", "0.1"], "widht", None),
-          ("trocar", ["record", "{tmp}/s.h5", "--duration", "0.1"], "chanel", None),
-          ("projector", ["record", "{tmp}/s.h5", "--duration", "0.1"], "width", None)]
+TABLES = [
+    (
+        "record",
+        ["record", "{tmp}/s.h5", "--duration", "0.1"],
+        "compresion",
+        ("flush_interval_s", '"one"'),
+    ),
+    ("bench", ["record", "{tmp}/s.h5", "--duration", "0.1"], "colour", ("fps", '"fast"')),
+    (
+        "sgbm",
+        ["reconstruct", "{tmp}/none.h5"],
+        "num_disparity",
+        ("num_disparities", '"sixty-four"'),
+    ),
+    ("calib", ["calibrate", "board", "{tmp}/board"], "sqares_x", ("squares_x", '"9"')),
+    ("train", ["train", "{tmp}/none.h5", "--out", "{tmp}/m.pt"], "epoch", ("epochs", "2.5")),
+    ("camera", ["record", "{tmp}/s.h5", "--duration", "0.1"], "widht", None),
+    ("trocar", ["record", "{tmp}/s.h5", "--duration", "0.1"], "chanel", None),
+    ("projector", ["record", "{tmp}/s.h5", "--duration", "0.1"], "width", None),
+]
 
 
 def _run(tmp_path, command, toml):
     rig = tmp_path / "rig.toml"
     rig.write_text(toml)
     argv = [a.format(tmp=tmp_path) for a in command] + ["--config", str(rig)]
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *argv], capture_output=True,
-                          text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *argv], capture_output=True, text=True, timeout=120
+    )
 
 
-@pytest.mark.parametrize("table, command, unknown, wrong", TABLES,
-                         ids=[t[0] for t in TABLES])
+@pytest.mark.parametrize("table, command, unknown, wrong", TABLES, ids=[t[0] for t in TABLES])
 def test_unknown_key_and_wrong_type_in_each_table(tmp_path, table, command, unknown, wrong):
     cases = [(f"[{table}]\n{unknown} = 1\n", unknown)]
     if wrong:
@@ -54,8 +63,11 @@ def test_unknown_key_and_wrong_type_in_each_table(tmp_path, table, command, unkn
 
 
 def test_device_keys_are_checked_against_the_backend_before_constructing(tmp_path):
-    out = _run(tmp_path, ["record", "{tmp}/s.h5", "--duration", "0.1"],
-               '[trocar]\nbackend = "can"\nchanel = "can0"\n')
+    out = _run(
+        tmp_path,
+        ["record", "{tmp}/s.h5", "--duration", "0.1"],
+        '[trocar]\nbackend = "can"\nchanel = "can0"\n',
+    )
     assert out.returncode == 2
     assert "unknown key 'chanel' in [trocar] (backend can); known:" in out.stderr
     assert "channel" in out.stderr and "host_clock" not in out.stderr  # only TOML-able keys
@@ -74,21 +86,25 @@ def test_types_ranges_and_choices():
         on: bool = True
 
     assert parse_table(Table, {"rate": 2, "sizes": [4]}, "t") == Table(rate=2.0, sizes=[4])
-    for table, message in (({"n": 0}, r"\[t\] n = 0 is out of range: it must be >= 1"),
-                           ({"n": True}, r"\[t\] n = True is not an integer"),
-                           ({"rate": "fast"}, r"\[t\] rate = 'fast' is not a number"),
-                           ({"mode": "c"}, r"\[t\] mode = 'c' is not one of 'a', 'b'"),
-                           ({"sizes": [1.5]}, r"\[t\] sizes = \[1.5\] is not a list of integers"),
-                           ({"on": "yes"}, r"\[t\] on = 'yes' is not true or false"),
-                           ({"nn": 1}, r"unknown key 'nn' in \[t\]; known: mode, n, on, rate")):
+    for table, message in (
+        ({"n": 0}, r"\[t\] n = 0 is out of range: it must be >= 1"),
+        ({"n": True}, r"\[t\] n = True is not an integer"),
+        ({"rate": "fast"}, r"\[t\] rate = 'fast' is not a number"),
+        ({"mode": "c"}, r"\[t\] mode = 'c' is not one of 'a', 'b'"),
+        ({"sizes": [1.5]}, r"\[t\] sizes = \[1.5\] is not a list of integers"),
+        ({"on": "yes"}, r"\[t\] on = 'yes' is not true or false"),
+        ({"nn": 1}, r"unknown key 'nn' in \[t\]; known: mode, n, on, rate"),
+    ):
         with pytest.raises(ConfigError, match=message):
             parse_table(Table, table, "t")
 
     def backend(port: str, baud: int = 9600, clock=None, *, timeout_s: float | None = None):
         return port
 
-    assert parse_kwargs(backend, {"port": "x", "timeout_s": 1}, "p") == {"port": "x",
-                                                                          "timeout_s": 1.0}
+    assert parse_kwargs(backend, {"port": "x", "timeout_s": 1}, "p") == {
+        "port": "x",
+        "timeout_s": 1.0,
+    }
     with pytest.raises(ConfigError, match=r"\[p\] baud = '9600' is not an integer"):
         parse_kwargs(backend, {"baud": "9600"}, "p")
 
@@ -106,7 +122,7 @@ def test_calibration_with_quote_delimited_info_pieces_round_trips(tmp_path):
     for pad in range(12):
         info = _triggering_info(pad)
         text = json.dumps(info, sort_keys=True)
-        pieces = [text[i:i + 1000] for i in range(0, len(text), 1000)]
+        pieces = [text[i : i + 1000] for i in range(0, len(text), 1000)]
         triggered += any(p[0] == p[-1] == '"' for p in pieces)
         path = calibration.replace(info=info).save(tmp_path / f"c{pad}.yaml")
         back = Calibration.load(path)

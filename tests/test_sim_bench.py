@@ -69,7 +69,9 @@ def test_host_offset_between_streams_is_the_configured_latency_difference():
         frames = read_frames(camera, 15)
         samples = drain(trocar)
     truth = bench.session_truth(np.array([f.t_device_ns for f in frames]))
-    image_delay = np.array([f.t_host_ns for f in frames]) - bench.host_epoch_ns - truth["frame_t_true_ns"]
+    image_delay = (
+        np.array([f.t_host_ns for f in frames]) - bench.host_epoch_ns - truth["frame_t_true_ns"]
+    )
     force_true = bench.trocar_clock.true_ns(np.array([s.t_device_ns for s in samples]))
     force_delay = np.array([s.t_host_ns for s in samples]) - bench.host_epoch_ns - force_true
     offset_ms = (np.median(image_delay) - np.median(force_delay)) / 1e6
@@ -119,8 +121,10 @@ def test_config_builds_the_bench_and_refuses_unknown_keys():
     config = load_config()
     rig = open_rig(config)
     assert isinstance(rig.truth, SimBench)
-    assert (rig.camera.width, rig.camera.height) == (config["bench"]["width"],
-                                                     config["bench"]["height"])
+    assert (rig.camera.width, rig.camera.height) == (
+        config["bench"]["width"],
+        config["bench"]["height"],
+    )
     assert rig.truth.duration_s() > 5.0
     assert rig.describe()["conditions"]["simulated"] is True
     with pytest.raises(ConfigError, match="stifness"):

@@ -26,7 +26,7 @@ def test_detected_corners_match_true_projection_with_distortion(board):
     R_board, _ = cv2.Rodrigues(np.radians([15.0, -10.0, 5.0]))
     rvec, _ = cv2.Rodrigues(R_board)
     pose = (rvec.ravel(), np.array([0.002, 0.001, 0.055]) - R_board @ np.array([0.0135, 0.0105, 0]))
-    (left, right), = render_board_views(rig, board, [pose], rng=np.random.default_rng(0))
+    ((left, right),) = render_board_views(rig, board, [pose], rng=np.random.default_rng(0))
     assert left.shape == (rig.left.height, rig.left.width, 3) and left.dtype == np.uint8
     detector = cv2.aruco.CharucoDetector(board)
     for image, camera, R, T in ((left, rig.left, None, None), (right, rig.right, rig.R, rig.T)):
@@ -40,8 +40,9 @@ def test_detected_corners_match_true_projection_with_distortion(board):
 def test_views_differ_between_eyes_by_the_baseline(board):
     rig = default_rig()
     pose = (np.zeros(3), np.array([-0.0135, -0.0105, 0.05]))
-    (left, right), = render_board_views(rig, board, [pose], noise_sigma=0.0,
-                                        rng=np.random.default_rng(0))
+    ((left, right),) = render_board_views(
+        rig, board, [pose], noise_sigma=0.0, rng=np.random.default_rng(0)
+    )
     detector = cv2.aruco.CharucoDetector(board)
     cl, il, _, _ = detector.detectBoard(left)
     cr, ir, _, _ = detector.detectBoard(right)

@@ -39,6 +39,7 @@ def test_one_trial_varies_speed_pauses_releases_and_holds_at_several_levels():
 def test_time_since_the_start_predicts_the_paper_protocol_but_not_the_freehand_one():
     """The timing shortcut: the mean force at each instant over training trials, scored on
     held-out trials, against the mean predictor."""
+
     def scores(trials):
         forces = np.array([p.state(T)[1] for p in trials])
         train, test = forces[:6], forces[6:]
@@ -48,8 +49,9 @@ def test_time_since_the_start_predicts_the_paper_protocol_but_not_the_freehand_o
     paper = [TractionProtocol(k, v) for k, v in PAPER_CONDITIONS.items()] * 3
     assert scores(paper) < 0.05
     rng = np.random.default_rng(0)
-    hands = [freehand(seed, float(np.exp(rng.uniform(np.log(40), np.log(200)))))
-             for seed in range(9)]
+    hands = [
+        freehand(seed, float(np.exp(rng.uniform(np.log(40), np.log(200))))) for seed in range(9)
+    ]
     assert scores(hands) > 0.6
 
 
@@ -68,13 +70,22 @@ def test_trials_differ_in_stiffness_thickness_and_grasp():
     assert again.trial.protocol == benches[1].trial.protocol
 
 
-@pytest.mark.parametrize("table, error, message", [
-    ({"protocol": "free-hand"}, ConfigError, "[bench] protocol = 'free-hand' is not one of"),
-    ({"freehand_stifness_n_per_m": [40, 80]}, ConfigError,
-     "unknown key 'freehand_stifness_n_per_m' in [bench]"),
-    ({"protocol": "freehand", "freehand_stiffness_n_per_m": [95, 70]}, DeviceError,
-     "[bench] freehand protocol: freehand_stiffness_n_per_m"),
-])
+@pytest.mark.parametrize(
+    "table, error, message",
+    [
+        ({"protocol": "free-hand"}, ConfigError, "[bench] protocol = 'free-hand' is not one of"),
+        (
+            {"freehand_stifness_n_per_m": [40, 80]},
+            ConfigError,
+            "unknown key 'freehand_stifness_n_per_m' in [bench]",
+        ),
+        (
+            {"protocol": "freehand", "freehand_stiffness_n_per_m": [95, 70]},
+            DeviceError,
+            "[bench] freehand protocol: freehand_stiffness_n_per_m",
+        ),
+    ],
+)
 def test_bad_bench_tables_are_one_line_errors(table, error, message):
     with pytest.raises(error) as raised:
         SimBench.from_config({**table, "width": 64, "height": 36})

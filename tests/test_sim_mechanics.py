@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.sim.mechanics import HOLD, PAPER_CONDITIONS, PULL, REST, TissueSample, TractionProtocol, Trial
+from vbfe.drivers.sim.mechanics import (
+    HOLD,
+    PAPER_CONDITIONS,
+    PULL,
+    REST,
+    TissueSample,
+    TractionProtocol,
+    Trial,
+)
 
 
 @pytest.mark.parametrize("stiffness", sorted(PAPER_CONDITIONS))

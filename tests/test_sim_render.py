@@ -12,8 +12,9 @@ from vbfe.drivers.sim.tissue import MembraneLoad, Plane, TissueSurface, UniformA
 def smooth_pattern() -> np.ndarray:
     """A colourful projector image that varies slowly enough to compare pixel values exactly."""
     v, u = np.mgrid[0:768, 0:1024].astype(np.float32)
-    return np.dstack([128 + 100 * np.sin(u / 40), 128 + 100 * np.cos(v / 35),
-                      128 + 100 * np.sin((u + v) / 50)]).astype(np.uint8)
+    return np.dstack(
+        [128 + 100 * np.sin(u / 40), 128 + 100 * np.cos(v / 35), 128 + 100 * np.sin((u + v) / 50)]
+    ).astype(np.uint8)
 
 
 @pytest.fixture(scope="module")
@@ -23,9 +24,16 @@ def tissue() -> TissueSurface:
 
 @pytest.fixture(scope="module")
 def rendered(tissue):
-    return render_scene(default_rig(320, 180), tissue, smooth_pattern(), ambient=0.0,
-                        noise_sigma=1.0, shading=False, pattern_blur=0.0,
-                        rng=np.random.default_rng(0))
+    return render_scene(
+        default_rig(320, 180),
+        tissue,
+        smooth_pattern(),
+        ambient=0.0,
+        noise_sigma=1.0,
+        shading=False,
+        pattern_blur=0.0,
+        rng=np.random.default_rng(0),
+    )
 
 
 def test_disparity_triangulates_to_depth(rendered):
@@ -41,8 +49,13 @@ def test_left_colour_is_the_pattern_at_the_true_projector_pixel(rendered):
     pattern = smooth_pattern().astype(np.float32)
     uv = rendered.proj_uv_left
     expected = cv2.remap(pattern, uv, None, cv2.INTER_LINEAR)
-    inside = (rendered.valid_left & (uv[..., 0] > 1) & (uv[..., 0] < 1022)
-              & (uv[..., 1] > 1) & (uv[..., 1] < 766))
+    inside = (
+        rendered.valid_left
+        & (uv[..., 0] > 1)
+        & (uv[..., 0] < 1022)
+        & (uv[..., 1] > 1)
+        & (uv[..., 1] < 766)
+    )
     assert inside.mean() > 0.8  # the projector lights most of the view
     diff = rendered.left.astype(np.float32)[inside] - expected[inside]
     assert abs(diff.mean()) < 0.2 and 0.8 < diff.std() < 1.3  # only the sensor noise (σ = 1)
@@ -53,12 +66,14 @@ def test_right_view_sees_the_same_surface_points(rendered):
     rows, cols = np.mgrid[20:160:7, 60:300:7]
     u_right = cols - rendered.disparity_left_px[rows, cols]
     right = rendered.right.astype(np.float32)
-    sampled = cv2.remap(right, u_right.astype(np.float32), rows.astype(np.float32),
-                        cv2.INTER_LINEAR)
+    sampled = cv2.remap(
+        right, u_right.astype(np.float32), rows.astype(np.float32), cv2.INTER_LINEAR
+    )
     diff = sampled - rendered.left.astype(np.float32)[rows, cols]
     assert np.abs(diff).mean() < 2.0
-    shifted = cv2.remap(right, (u_right + 3).astype(np.float32), rows.astype(np.float32),
-                        cv2.INTER_LINEAR)
+    shifted = cv2.remap(
+        right, (u_right + 3).astype(np.float32), rows.astype(np.float32), cv2.INTER_LINEAR
+    )
     assert np.abs(shifted - rendered.left.astype(np.float32)[rows, cols]).mean() > 5.0
 
 
@@ -88,13 +103,25 @@ def test_plane_with_shading_and_tint():
 def test_a_size_rendered_on_every_pixel_keeps_its_size_and_truth(tissue):
     # 160x90: no coarse grid divides it, so every pixel is ray-cast; its depth must agree
     # with the 320x180 render (strided, upsampled) averaged over the matching 2x2 blocks
-    small = render_scene(default_rig(160, 90), tissue, smooth_pattern(), noise_sigma=0.0,
-                         pattern_blur=0.0, rng=np.random.default_rng(0))
+    small = render_scene(
+        default_rig(160, 90),
+        tissue,
+        smooth_pattern(),
+        noise_sigma=0.0,
+        pattern_blur=0.0,
+        rng=np.random.default_rng(0),
+    )
     for image in (small.left, small.right):
         assert image.shape == (90, 160, 3)
     assert small.depth_left_m.shape == small.valid_left.shape == (90, 160)
-    large = render_scene(default_rig(320, 180), tissue, smooth_pattern(), noise_sigma=0.0,
-                         pattern_blur=0.0, rng=np.random.default_rng(0))
+    large = render_scene(
+        default_rig(320, 180),
+        tissue,
+        smooth_pattern(),
+        noise_sigma=0.0,
+        pattern_blur=0.0,
+        rng=np.random.default_rng(0),
+    )
     blocks = large.depth_left_m.reshape(90, 2, 160, 2).mean(axis=(1, 3))
     both = small.valid_left & large.valid_left.reshape(90, 2, 160, 2).all(axis=(1, 3))
     assert both.mean() > 0.9

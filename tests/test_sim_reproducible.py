@@ -9,8 +9,8 @@ import numpy as np
 
 from vbfe.acquire import Recorder, SessionReader
 from vbfe.common.config import load_config
-from vbfe.drivers.registry import open_rig
 from vbfe.drivers.projector.pattern import make_pattern
+from vbfe.drivers.registry import open_rig
 
 RIG = """
 [bench]
@@ -31,9 +31,14 @@ def _record(config: dict, path, slow_writer: bool) -> None:
     devices = open_rig(config)
     stall = (lambda stats: time.sleep(0.15)) if slow_writer else None
     projector = devices.projector
-    recorder = Recorder(devices, path, flush_interval_s=0.05 if slow_writer else 1.0,
-                        min_free_bytes=0, on_flush=stall,
-                        pattern=make_pattern(projector.width, projector.height))
+    recorder = Recorder(
+        devices,
+        path,
+        flush_interval_s=0.05 if slow_writer else 1.0,
+        min_free_bytes=0,
+        on_flush=stall,
+        pattern=make_pattern(projector.width, projector.height),
+    )
     recorder.start()
     recorder.run(1.2)
 
@@ -42,8 +47,13 @@ def _datasets(path) -> dict[str, bytes]:
     out: dict[str, bytes] = {}
     with h5py.File(path, "r") as f:
         for group in ("camera", "force"):
-            f[group].visititems(lambda name, obj: out.__setitem__(
-                f"{group}/{name}", obj[()].tobytes()) if isinstance(obj, h5py.Dataset) else None)
+            f[group].visititems(
+                lambda name, obj: (
+                    out.__setitem__(f"{group}/{name}", obj[()].tobytes())
+                    if isinstance(obj, h5py.Dataset)
+                    else None
+                )
+            )
     return out
 
 
@@ -59,7 +69,7 @@ def test_two_recordings_of_one_bench_config_are_bit_identical(tmp_path):
         assert len(a.forces_n()) == len(b.forces_n()) > 1100  # 1 kHz up to the last frame's end
         np.testing.assert_array_equal(a.forces_n(), b.forces_n())
         for stream in ("camera", "force"):
-            for x, y in zip(a.stream_times(stream), b.stream_times(stream)):
+            for x, y in zip(a.stream_times(stream), b.stream_times(stream), strict=False):
                 np.testing.assert_array_equal(x, y)
         for i in (0, a.n_frames - 1):
             np.testing.assert_array_equal(a.frame(i).left, b.frame(i).left)

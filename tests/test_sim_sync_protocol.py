@@ -28,8 +28,15 @@ def test_taps_are_short_impulses_at_irregular_times_that_the_tissue_follows():
 
 
 def test_sync_bench_records_taps_in_force_and_motion():
-    bench = SimBench(width=320, height=180, protocol="sync", sync_taps=5, sync_duration_s=6.0,
-                     noise_sigma=0.0, distortion=False)
+    bench = SimBench(
+        width=320,
+        height=180,
+        protocol="sync",
+        sync_taps=5,
+        sync_duration_s=6.0,
+        noise_sigma=0.0,
+        distortion=False,
+    )
     start = bench.trial.protocol.tap_times_s[0]
     with bench.camera() as camera:
         frames = [camera.read() for _ in range(int((start + 0.3) * 30))]
@@ -40,9 +47,18 @@ def test_sync_bench_records_taps_in_force_and_motion():
 
 
 def test_a_switch_mid_exposure_lights_a_share_of_the_frame_after_the_projector_latency():
-    bench = SimBench(width=320, height=180, fps=30.0, scene="plane", noise_sigma=0.0,
-                     ambient=0.1, distortion=False, exposure_ms=20.0, projector_latency_ms=25.0,
-                     image_jitter_ms=0.0)
+    bench = SimBench(
+        width=320,
+        height=180,
+        fps=30.0,
+        scene="plane",
+        noise_sigma=0.0,
+        ambient=0.1,
+        distortion=False,
+        exposure_ms=20.0,
+        projector_latency_ms=25.0,
+        image_jitter_ms=0.0,
+    )
     period_s, exposure_s = 1 / 30, 0.020
     black = np.zeros((bench.rig.projector.height, bench.rig.projector.width, 3), np.uint8)
     camera, projector = bench.camera(), bench.projector()
@@ -57,7 +73,7 @@ def test_a_switch_mid_exposure_lights_a_share_of_the_frame_after_the_projector_l
     share = (np.array(levels) - dark) / (bright - dark)
     times = np.arange(60) * period_s
     light = np.full(60, 0.0)
-    for host_ns, on in zip(commands, (1.0, 0.0, 1.0)):
+    for host_ns, on in zip(commands, (1.0, 0.0, 1.0), strict=False):
         change = (host_ns - bench.host_epoch_ns) / 1e9 + 0.025
         after = np.clip((times + exposure_s / 2 - change) / exposure_s, 0, 1)
         light = np.where(after > 0, light * (1 - after) + on * after, light)

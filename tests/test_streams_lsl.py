@@ -26,18 +26,28 @@ def _read_all(stream: LslStream, until: float) -> list:
 
 
 def test_streams_table_is_checked() -> None:
-    specs = stream_sources({"streams": {"robot": {"name": "KUKA", "type": "RobotState"},
-                                      "script": {"type": "Markers", "required": False}}})
+    specs = stream_sources(
+        {
+            "streams": {
+                "robot": {"name": "KUKA", "type": "RobotState"},
+                "script": {"type": "Markers", "required": False},
+            }
+        }
+    )
     assert [(s.key, s.predicate(), s.required) for s in specs] == [
-        ("robot", "name='KUKA' and type='RobotState'", True), ("script", "type='Markers'", False)]
-    for table, words in (({"robot": {}}, "names no stream"),
-                         ({"robot": {"name": "a", "rate": 3}}, "unknown key 'rate'"),
-                         ({"camera": {"name": "a"}}, "cannot name a session stream"),
-                         ({"marks": {"name": "a"}}, "cannot name a session stream"),
-                         ({"Robot": {"name": "a"}}, "cannot name a session stream"),
-                         ({"robot": {"name": "a'b"}}, "must not contain a quote"),
-                         ({"robot": {"name": "a", "required": "yes"}}, "true or false"),
-                         ({"robot": "KUKA"}, "is not a table")):
+        ("robot", "name='KUKA' and type='RobotState'", True),
+        ("script", "type='Markers'", False),
+    ]
+    for table, words in (
+        ({"robot": {}}, "names no stream"),
+        ({"robot": {"name": "a", "rate": 3}}, "unknown key 'rate'"),
+        ({"camera": {"name": "a"}}, "cannot name a session stream"),
+        ({"marks": {"name": "a"}}, "cannot name a session stream"),
+        ({"Robot": {"name": "a"}}, "cannot name a session stream"),
+        ({"robot": {"name": "a'b"}}, "must not contain a quote"),
+        ({"robot": {"name": "a", "required": "yes"}}, "true or false"),
+        ({"robot": "KUKA"}, "is not a table"),
+    ):
         with pytest.raises(ConfigError, match=words):
             stream_sources({"streams": table})
 
@@ -96,16 +106,19 @@ def test_markers_arrive_as_text() -> None:
 
 def test_required_missing_is_refused_optional_is_a_warning() -> None:
     name = unique("absent")
-    config = {"streams": {"robot": {"name": name, "resolve_timeout_s": 0.3},
-                          "script": {"name": name + "-m", "required": False,
-                                     "resolve_timeout_s": 0.3}}}
+    config = {
+        "streams": {
+            "robot": {"name": name, "resolve_timeout_s": 0.3},
+            "script": {"name": name + "-m", "required": False, "resolve_timeout_s": 0.3},
+        }
+    }
     streams = streams_from_config(config)
     with pytest.raises(DeviceError, match=f"robot \\(LSL name='{name}'\\) was not found"):
         streams["robot"].open()
     streams["script"].open()  # an optional stream missing: open, not read, one warning
     assert streams["script"].is_open and streams["script"].stream is None
     assert streams["robot"].stream == "robot"
-    warning, = missing_streams(streams.values())
+    (warning,) = missing_streams(streams.values())
     assert warning.startswith(f"optional stream script (LSL name='{name}-m') was not found")
     assert warning.endswith("recording without it")
     streams["script"].close()
@@ -113,8 +126,10 @@ def test_required_missing_is_refused_optional_is_a_warning() -> None:
 
 def test_two_matching_streams_are_ambiguous() -> None:
     name = unique("twin")
-    outlets = [pylsl.StreamOutlet(pylsl.StreamInfo(name, "Test", 1, 10.0, pylsl.cf_float32,
-                                                   f"{name}-{k}")) for k in "ab"]
+    outlets = [
+        pylsl.StreamOutlet(pylsl.StreamInfo(name, "Test", 1, 10.0, pylsl.cf_float32, f"{name}-{k}"))
+        for k in "ab"
+    ]
     time.sleep(0.2)  # both announced before the resolve
     with pytest.raises(DeviceError, match="add its source_id"):
         LslStream(StreamSource(key="twin", name=name, resolve_timeout_s=1.0)).open()

@@ -13,8 +13,14 @@ import pylsl
 import pytest
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.recording.remote import (Command, RemoteControl, RemoteSessions,
-                                           parse_command, send_command, session_path)
+from vbfe.acquire.recording.remote import (
+    Command,
+    RemoteControl,
+    RemoteSessions,
+    parse_command,
+    send_command,
+    session_path,
+)
 from vbfe.drivers.samples import ForceSample
 from vbfe.live.errors import LiveError
 from vbfe.live.estimator import LiveEstimate
@@ -23,9 +29,14 @@ from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
 
 def _estimate(seq: int, force: list[float], latency_s: float = 0.04) -> LiveEstimate:
     t_frame = time.monotonic_ns() - int(latency_s * 1e9)
-    return LiveEstimate(force_n=np.array(force), frame_seq=seq, t_frame_host_ns=t_frame,
-                        t_ready_host_ns=t_frame + int(latency_s * 1e9),
-                        stage_s=(0.0, 0.03, 0.01), n_points=1000)
+    return LiveEstimate(
+        force_n=np.array(force),
+        frame_seq=seq,
+        t_frame_host_ns=t_frame,
+        t_ready_host_ns=t_frame + int(latency_s * 1e9),
+        stage_s=(0.0, 0.03, 0.01),
+        n_points=1000,
+    )
 
 
 def test_lsl_output_publishes_estimates_and_trocar() -> None:
@@ -34,8 +45,9 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
     output.on_start(SimpleNamespace(rig=SimpleNamespace(trocar=SimpleNamespace(rate_hz=1000.0))))
     inlets = {}
     for name in ("vbfe-estimate", "vbfe-trocar"):
-        found = pylsl.resolve_bypred(f"name='{name}' and source_id='{source}-{name[5:]}'",
-                                     timeout=5.0)
+        found = pylsl.resolve_bypred(
+            f"name='{name}' and source_id='{source}-{name[5:]}'", timeout=5.0
+        )
         inlets[name] = pylsl.StreamInlet(found[0])
         inlets[name].open_stream(timeout=5.0)
     info = inlets["vbfe-estimate"].info(timeout=5.0)
@@ -43,13 +55,19 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
     while not channel.empty():
         labels.append((channel.child_value("label"), channel.child_value("unit")))
         channel = channel.next_sibling()
-    assert labels == [("force_x", "N"), ("force_y", "N"), ("force_z", "N"), ("t_frame_s", "s"),
-                      ("latency_s", "s")]
+    assert labels == [
+        ("force_x", "N"),
+        ("force_y", "N"),
+        ("force_z", "N"),
+        ("t_frame_s", "s"),
+        ("latency_s", "s"),
+    ]
     estimate = _estimate(7, [0.5, -1.0, 2.0])
     output.on_estimate(estimate)
     now = time.monotonic_ns()
-    output.on_samples([ForceSample(np.array([0.1, 0.2, 0.3]), k, 0, now + k * 1_000_000)
-                      for k in range(5)])
+    output.on_samples(
+        [ForceSample(np.array([0.1, 0.2, 0.3]), k, 0, now + k * 1_000_000) for k in range(5)]
+    )
     sample, stamp = inlets["vbfe-estimate"].pull_sample(timeout=5.0)
     assert sample[:3] == [0.5, -1.0, 2.0] and sample[4] == pytest.approx(0.04)
     assert stamp == pytest.approx(estimate.t_frame_host_ns / 1e9, abs=1e-6) == sample[3]
@@ -83,20 +101,39 @@ def test_commands_parse_as_labrecorder_sends_them() -> None:
     assert parse_command("start\n") == Command("start")
     assert parse_command("select all") == Command("select", "all")
     # the example of LabRecorder's README (Remote Control), byte for byte
-    line = (b"filename {root:C:\\Data\\} {template:exp%n\\%p_block_%b.xdf} {run:2} "
-            b"{participant:P003} {task:MemoryGuided}\n").decode()
+    line = (
+        b"filename {root:C:\\Data\\} {template:exp%n\\%p_block_%b.xdf} {run:2} "
+        b"{participant:P003} {task:MemoryGuided}\n"
+    ).decode()
     command = parse_command(line)
-    assert command.options == {"root": "C:\\Data\\", "template": "exp%n\\%p_block_%b.xdf",
-                               "run": "2", "participant": "P003", "task": "MemoryGuided"}
-    assert session_path({**command.options, "root": "/data/study",
-                         "template": "exp%n/%p_block_%b.xdf"}) == Path(
-        "/data/study/exp002/P003_block_MemoryGuided.h5")
-    assert session_path({"root": "/d", "template": "sub-%p/ses-%s/%m_run-%r.xdf",
-                         "participant": "7", "session": "1", "modality": "beh"}) == Path(
-        "/d/sub-7/ses-1/beh_run-001.h5")
+    assert command.options == {
+        "root": "C:\\Data\\",
+        "template": "exp%n\\%p_block_%b.xdf",
+        "run": "2",
+        "participant": "P003",
+        "task": "MemoryGuided",
+    }
+    assert session_path(
+        {**command.options, "root": "/data/study", "template": "exp%n/%p_block_%b.xdf"}
+    ) == Path("/data/study/exp002/P003_block_MemoryGuided.h5")
+    assert session_path(
+        {
+            "root": "/d",
+            "template": "sub-%p/ses-%s/%m_run-%r.xdf",
+            "participant": "7",
+            "session": "1",
+            "modality": "beh",
+        }
+    ) == Path("/d/sub-7/ses-1/beh_run-001.h5")
     assert parse_command("mark  grasp  begins ") == Command("mark", "grasp  begins")
-    for bad in ("begin", "filename", "filename {color:red}", "filename {run:two}", "mark",
-                "start now"):
+    for bad in (
+        "begin",
+        "filename",
+        "filename {color:red}",
+        "filename {run:two}",
+        "mark",
+        "start now",
+    ):
         with pytest.raises(SessionError):
             parse_command(bad)
 
@@ -115,19 +152,23 @@ class _Recording:
 
 def test_remote_control_server_answers_like_labrecorder(tmp_path: Path) -> None:
     started: list[_Recording] = []
-    sessions = RemoteSessions(lambda p: started.append(_Recording(p)) or started[-1],
-                              on_message=lambda m: None)
+    sessions = RemoteSessions(
+        lambda p: started.append(_Recording(p)) or started[-1], on_message=lambda m: None
+    )
     server = RemoteControl(sessions, port=0)
     try:
         with socket.create_connection(("127.0.0.1", server.port), timeout=5.0) as sock:
+
             def say(line: str) -> str:
                 sock.sendall(line.encode() + b"\n")
                 return sock.recv(4096).decode()
 
             assert say("start").startswith("ERROR start: send filename")
             assert say("select all") == "OK"
-            assert say(f"filename {{root:{tmp_path}}} {{template:%p/run%n.xdf}} "
-                       "{participant:P1}") == "OK"
+            assert (
+                say(f"filename {{root:{tmp_path}}} {{template:%p/run%n.xdf}} {{participant:P1}}")
+                == "OK"
+            )
             assert say("start") == "OK" and sessions.recording
             before = time.monotonic_ns()
             assert send_command("mark trial 1", port=server.port) == "OK"
@@ -143,7 +184,7 @@ def test_remote_control_server_answers_like_labrecorder(tmp_path: Path) -> None:
         server.close()
     assert [r.path for r in started] == [tmp_path / "P1/run001.h5", tmp_path / "P1/run002.h5"]
     assert sessions.finished == [r.path for r in started]
-    (t_mark, text), = started[0].marks
+    ((t_mark, text),) = started[0].marks
     assert text == "trial 1" and before <= t_mark <= time.monotonic_ns()
     with pytest.raises(SessionError, match="no recorder answers"):
         send_command("mark x", port=server.port, timeout_s=1.0)

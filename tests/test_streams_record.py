@@ -32,12 +32,18 @@ def recorded(tmp_path_factory):
     folder = tmp_path_factory.mktemp("streams")
     robot, marks = FakeRobot(unique("robot")), MarkerOutlet(unique("script"))
     toml = folder / "rig.toml"
-    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n'
-                    f'[streams.script]\nname = "{marks.name}"\nrequired = false\n')
+    toml.write_text(
+        BENCH + f'[streams.robot]\nname = "{robot.name}"\n'
+        f'[streams.script]\nname = "{marks.name}"\nrequired = false\n'
+    )
     path = folder / "s.h5"
     with robot:
-        proc = subprocess.Popen(vbfe("record", path, "--duration", RECORD_S, "--config", toml),
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            vbfe("record", path, "--duration", RECORD_S, "--config", toml),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         assert marks.outlet.wait_for_consumers(60.0), "the recorder never subscribed"
         for k in range(5):
             time.sleep(1.0)
@@ -85,16 +91,19 @@ def test_session_holds_the_bench_the_robot_and_the_markers(recorded) -> None:
     assert [e["text"] for e in script] == [text for _, text in marks.sent]
     sent_t = np.array([t for t, _ in marks.sent])
     assert np.max(np.abs(np.array([e["t_host_ns"] for e in script]) - sent_t)) <= 1_000_000
-    print(f"robot loss {100 * loss:.3f} %, clock agreement max "
-          f"{np.max(np.abs(stream.t_host_ns - due[index])) / 1e6:.3f} ms")
+    print(
+        f"robot loss {100 * loss:.3f} %, clock agreement max "
+        f"{np.max(np.abs(stream.t_host_ns - due[index])) / 1e6:.3f} ms"
+    )
 
 
 def test_inspect_lists_the_streams(recorded) -> None:
     path, robot, _, _ = recorded
     result = subprocess.run(vbfe("inspect", path), capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
-    assert re.search(r"stream    robot: \d+ samples at 1000\.\d Hz \(nominal 1000\), lost 0 ",
-                     result.stdout)
+    assert re.search(
+        r"stream    robot: \d+ samples at 1000\.\d Hz \(nominal 1000\), lost 0 ", result.stdout
+    )
     assert f"LSL '{robot.name}'" in result.stdout
     assert "script: 5 markers" in result.stdout and "script: trial 3 start" in result.stdout
 
@@ -103,12 +112,17 @@ def test_a_required_stream_missing_is_one_line(tmp_path: Path) -> None:
     toml = tmp_path / "rig.toml"
     name = unique("nobody")
     toml.write_text(BENCH + f'[streams.robot]\nname = "{name}"\nresolve_timeout_s = 0.5\n')
-    result = subprocess.run(vbfe("record", tmp_path / "s.h5", "--duration", 1, "--config", toml),
-                            capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        vbfe("record", tmp_path / "s.h5", "--duration", 1, "--config", toml),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1] == (
         f"vbfe record: error: stream robot (LSL name='{name}') was not found on the network "
-        "within 0.5 s; start its publisher (or mark it required = false)")
+        "within 0.5 s; start its publisher (or mark it required = false)"
+    )
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "s.h5").exists()
 
@@ -116,24 +130,38 @@ def test_a_required_stream_missing_is_one_line(tmp_path: Path) -> None:
 def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
     toml = tmp_path / "rig.toml"
     toml.write_text(BENCH)
-    proc = subprocess.Popen(vbfe("record", "--remote", 0, "--config", toml),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        vbfe("record", "--remote", 0, "--config", toml),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = proc.stdout.readline()
         port = int(re.search(r"listening on 127\.0\.0\.1:(\d+)", line).group(1))
         with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
+
             def say(command: str) -> str:
                 sock.sendall(command.encode() + b"\n")
                 return sock.recv(4096).decode()
 
             assert say("select all") == "OK"
-            assert say(f"filename {{root:{tmp_path}}} {{template:sub-%p/%b_run-%r.xdf}} "
-                       "{participant:P003} {task:pull} {run:2}") == "OK"
+            assert (
+                say(
+                    f"filename {{root:{tmp_path}}} {{template:sub-%p/%b_run-%r.xdf}} "
+                    "{participant:P003} {task:pull} {run:2}"
+                )
+                == "OK"
+            )
             assert say("start") == "OK"
             started = time.monotonic()
             time.sleep(0.5)
-            mark = subprocess.run(vbfe("mark", "grasp begins", "--port", port),
-                                  capture_output=True, text=True, timeout=60)
+            mark = subprocess.run(
+                vbfe("mark", "grasp begins", "--port", port),
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
             assert mark.returncode == 0, mark.stderr
             time.sleep(0.5)
             assert say("stop") == "OK"  # answered once the session is finalized

@@ -12,9 +12,9 @@ import pytest
 from tests.fakes.lagging_camera import LaggingCamera
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.recording import record as record_module
+from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
-from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.common.config import load_config
 from vbfe.drivers import registry
 
@@ -25,15 +25,17 @@ SEEDS = [1, 2, 3]  # each protocol session records 20 s in real time; benchmarks
 def bench_config(seed: int, **bench: object) -> dict:
     """The default rig at 320x180, 30 fps (the renderer's cheapest size for the taps)."""
     config = load_config(None)
-    config["bench"].update({"width": 320, "height": 180, "fps": 30.0, "distortion": False,
-                            "seed": seed, **bench})
+    config["bench"].update(
+        {"width": 320, "height": 180, "fps": 30.0, "distortion": False, "seed": seed, **bench}
+    )
     config["record"]["min_free_gb"] = 0.0
     return config
 
 
 def record_protocol(path, config, seed: int) -> None:
-    record_session(config, path, protocol=SyncProtocol(taps=20, flashes=20, duration_s=20.0,
-                                                       seed=seed))
+    record_session(
+        config, path, protocol=SyncProtocol(taps=20, flashes=20, duration_s=20.0, seed=seed)
+    )
 
 
 def true_offset_s(path) -> float:
@@ -103,9 +105,15 @@ def test_a_one_frame_latency_jump_halfway_is_reported(tmp_path, monkeypatch):
     assert "drift      latency: late - early +3" in report.text()
 
 
-def _frames_around_switch(change_s: float, exposure_s: float, line_time_s: float,
-                          rows: int = 48, sensor_rows: int = 480, period_s: float = 1 / 30,
-                          seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def _frames_around_switch(
+    change_s: float,
+    exposure_s: float,
+    line_time_s: float,
+    rows: int = 48,
+    sensor_rows: int = 480,
+    period_s: float = 1 / 30,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Row brightness of frames (exposure centred on each frame time, rows offset by the line
     time) seeing the light step from 50 to 150 grey levels at ``change_s``."""
     t = np.arange(-1.0, 1.0, period_s) + 0.0123
@@ -118,8 +126,9 @@ def _frames_around_switch(change_s: float, exposure_s: float, line_time_s: float
 
 
 @pytest.mark.parametrize("exposure_s, line_time_s", [(0.030, 0.0), (0.004, 30e-6)])
-def test_flash_instant_is_sub_frame_with_a_partial_exposure_or_a_rolling_shutter(exposure_s,
-                                                                                   line_time_s):
+def test_flash_instant_is_sub_frame_with_a_partial_exposure_or_a_rolling_shutter(
+    exposure_s, line_time_s
+):
     settings = ProtocolSettings(exposure_s=exposure_s, line_time_s=line_time_s)
     for change in (0.0712, 0.0850, 0.1100):  # each inside some row's exposure
         t, brightness = _frames_around_switch(change, exposure_s, line_time_s)
@@ -154,25 +163,58 @@ def test_traction_session_is_inconclusive_not_failed_once_corrected(tmp_path):
 
 
 def _vbfe(*args: str, cwd) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "vbfe.cli.main", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "vbfe.cli.main", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_cli_records_a_protocol_session_and_applies_its_correction(tmp_path):
     rig = tmp_path / "rig.toml"
-    rig.write_text("[bench]\nwidth = 320\nheight = 180\nfps = 30.0\ndistortion = false\n"
-                   "[record]\nmin_free_gb = 0.0\n")
+    rig.write_text(
+        "[bench]\nwidth = 320\nheight = 180\nfps = 30.0\ndistortion = false\n"
+        "[record]\nmin_free_gb = 0.0\n"
+    )
     session = tmp_path / "sync.h5"
-    done = _vbfe("record", str(session), "--protocol", "sync", "--duration", "10", "--taps", "8",
-                 "--flashes", "8", "--seed", "4", "--config", str(rig), cwd=tmp_path)
+    done = _vbfe(
+        "record",
+        str(session),
+        "--protocol",
+        "sync",
+        "--duration",
+        "10",
+        "--taps",
+        "8",
+        "--flashes",
+        "8",
+        "--seed",
+        "4",
+        "--config",
+        str(rig),
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert "tap the tissue 8 times" in done.stderr
     assert "collected flashes 8/8, taps 8/8" in done.stdout
     check = _vbfe("verify-sync", str(session), "--config", str(rig), "--apply", cwd=tmp_path)
     assert check.returncode == 0, check.stdout + check.stderr
     assert "verdict    PASS" in check.stdout and "frame_time_correction_s = 0.03" in check.stdout
-    bad = _vbfe("record", str(tmp_path / "x.h5"), "--protocol", "sync", "--duration", "5",
-                "--flashes", "30", "--config", str(rig), cwd=tmp_path)
+    bad = _vbfe(
+        "record",
+        str(tmp_path / "x.h5"),
+        "--protocol",
+        "sync",
+        "--duration",
+        "5",
+        "--flashes",
+        "30",
+        "--config",
+        str(rig),
+        cwd=tmp_path,
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
     assert "vbfe record: error: 30 flashes need" in bad.stderr
     assert not (tmp_path / "x.h5").exists()

@@ -55,7 +55,7 @@ class DemoPlan:
     freehand_s: float  # length of a freehand trial
 
     @classmethod
-    def full(cls) -> "DemoPlan":
+    def full(cls) -> DemoPlan:
         """The full demo: six trials per paper condition (about ten minutes on two cores
         without freehand trials) and nine freehand trials of 15 s, six trained on and three
         held out (about three quarters more frames: not yet timed).
@@ -65,25 +65,63 @@ class DemoPlan:
         fit the time budget on two CPU cores; more trials teach the network more than more
         frames of the same trial.
         """
-        return cls(width=640, height=360, fps=10.0, hold_s=3.0, calibration_frames=120,
-                   projector_poses=8, repeats=6, epochs=20, n_points=512, frame_stride=1,
-                   conv_channels=[32, 64, 256], time_limit_s=0.0, threads=2,
-                   recon_check_frames=3, temporal_frames=3, temporal_span_frames=10,
-                   temporal_epochs=20, protocol_s=20.0, split="session", gap_frames=0,
-                   freehand_trials=6, freehand_test_trials=3, freehand_s=15.0)
+        return cls(
+            width=640,
+            height=360,
+            fps=10.0,
+            hold_s=3.0,
+            calibration_frames=120,
+            projector_poses=8,
+            repeats=6,
+            epochs=20,
+            n_points=512,
+            frame_stride=1,
+            conv_channels=[32, 64, 256],
+            time_limit_s=0.0,
+            threads=2,
+            recon_check_frames=3,
+            temporal_frames=3,
+            temporal_span_frames=10,
+            temporal_epochs=20,
+            protocol_s=20.0,
+            split="session",
+            gap_frames=0,
+            freehand_trials=6,
+            freehand_test_trials=3,
+            freehand_s=15.0,
+        )
 
     @classmethod
-    def quick(cls) -> "DemoPlan":
+    def quick(cls) -> DemoPlan:
         """A small run for tests (about 140 s of CPU). With one training session per
         condition, validation takes time blocks inside them (a held-out session would take a
         whole condition out of training). Two short freehand trials are trained on and one is
         held out: enough to check the freehand report, not to measure it (the full run does)."""
-        return cls(width=480, height=270, fps=10.0, hold_s=1.0, calibration_frames=60,
-                   projector_poses=6, repeats=2, epochs=60, n_points=256, frame_stride=1,
-                   conv_channels=[32, 64, 256], time_limit_s=0.0, threads=1,
-                   recon_check_frames=1, temporal_frames=2, temporal_span_frames=5,
-                   temporal_epochs=15, protocol_s=10.0, split="time", gap_frames=4,
-                   freehand_trials=2, freehand_test_trials=1, freehand_s=6.0)
+        return cls(
+            width=480,
+            height=270,
+            fps=10.0,
+            hold_s=1.0,
+            calibration_frames=60,
+            projector_poses=6,
+            repeats=2,
+            epochs=60,
+            n_points=256,
+            frame_stride=1,
+            conv_channels=[32, 64, 256],
+            time_limit_s=0.0,
+            threads=1,
+            recon_check_frames=1,
+            temporal_frames=2,
+            temporal_span_frames=5,
+            temporal_epochs=15,
+            protocol_s=10.0,
+            split="time",
+            gap_frames=4,
+            freehand_trials=2,
+            freehand_test_trials=1,
+            freehand_s=6.0,
+        )
 
 
 @dataclass
@@ -119,26 +157,47 @@ def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> 
     folder.mkdir(parents=True, exist_ok=True)
     board_png, board_pdf = commands.make_board(config, folder / "board")
     step = stage("capture calibration views", plan.calibration_frames)
-    captured = commands.capture(board_config(config), folder / "views",
-                                max_frames=plan.calibration_frames, on_view=lambda *_: step(1))
+    captured = commands.capture(
+        board_config(config),
+        folder / "views",
+        max_frames=plan.calibration_frames,
+        on_view=lambda *_: step(1),
+    )
     outcome = commands.stereo(config, folder / "views", folder / "endoscope.yaml")
     step = stage("calibrate projector", 1)
-    calibration = commands.projector(board_config(config, on_a_stand=True),
-                                     folder / "projector-captures", folder / "endoscope.yaml",
-                                     simulate_poses=plan.projector_poses)
+    calibration = commands.projector(
+        board_config(config, on_a_stand=True),
+        folder / "projector-captures",
+        folder / "endoscope.yaml",
+        simulate_poses=plan.projector_poses,
+    )
     step(1)
     rig = true_rig(config)
-    estimated = {"f": calibration.K1[0, 0], "cx": calibration.K1[0, 2], "cy": calibration.K1[1, 2],
-                 "B": calibration.B, "projector_f": calibration.K_proj[0, 0]}
-    truth = {"f": rig.left.K[0, 0], "cx": rig.left.K[0, 2], "cy": rig.left.K[1, 2],
-             "B": rig.baseline_m, "projector_f": rig.projector.K[0, 0]}
+    estimated = {
+        "f": calibration.K1[0, 0],
+        "cx": calibration.K1[0, 2],
+        "cy": calibration.K1[1, 2],
+        "B": calibration.B,
+        "projector_f": calibration.K_proj[0, 0],
+    }
+    truth = {
+        "f": rig.left.K[0, 0],
+        "cx": rig.left.K[0, 2],
+        "cy": rig.left.K[1, 2],
+        "B": rig.baseline_m,
+        "projector_f": rig.projector.K[0, 0],
+    }
     numbers: dict[str, Any] = {
-        "views_kept": len(outcome.result.names), "frames_seen": captured.frames_seen,
+        "views_kept": len(outcome.result.names),
+        "frames_seen": captured.frames_seen,
         "rms_px": float(calibration.rms_stereo_px),
         "projector_rms_px": float(calibration.rms_projector_px),
-        "files": {"board_png": str(board_png), "board_pdf": str(board_pdf),
-                  "calibration": str(folder / "endoscope.yaml"),
-                  "report": [str(p) for p in (outcome.report_paths or ())]},
+        "files": {
+            "board_png": str(board_png),
+            "board_pdf": str(board_pdf),
+            "calibration": str(folder / "endoscope.yaml"),
+            "report": [str(p) for p in (outcome.report_paths or ())],
+        },
     }
     for name in estimated:
         numbers[f"{name}_estimated"] = float(estimated[name])
@@ -151,8 +210,9 @@ FREEHAND = "freehand"  # name prefix of the freehand trials' sessions
 FREEHAND_FIRST_SEED = 101
 
 
-def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
-                 stage: StageFn) -> list[Path]:
+def record_stage(
+    config: dict, out: Path, plan: DemoPlan, calibration_yaml: str, stage: StageFn
+) -> list[Path]:
     """One session per paper condition and repeat, then the freehand trials; each a new trial
     (seed). The freehand trials' tissue is textured (vessels, mottling), as real tissue is:
     the texture shows the sideways part of a pull (``hooke_texture_3d``); the paper sessions
@@ -164,22 +224,43 @@ def record_stage(config: dict, out: Path, plan: DemoPlan, calibration_yaml: str,
     sessions = []
     folder = out / "sessions"
     folder.mkdir(parents=True, exist_ok=True)
-    runs = [({"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": seed},
-             f"k{k:g}_v{v:g}_r{r}", f"simulated traction trial {r} at {k:g} N/m, {v:g} m/s")
-            for seed, (k, v, r) in enumerate(((k, v, r) for k, v in PAPER_CONDITIONS.items()
-                                              for r in range(plan.repeats)), start=1)]
-    runs += [({"protocol": FREEHAND, "freehand_duration_s": plan.freehand_s,
-               "seed": FREEHAND_FIRST_SEED + r, "textured": True}, f"{FREEHAND}_r{r}",
-              f"simulated freehand traction trial {r} on textured tissue")
-             for r in range(plan.freehand_trials + plan.freehand_test_trials)]
+    runs = [
+        (
+            {"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": seed},
+            f"k{k:g}_v{v:g}_r{r}",
+            f"simulated traction trial {r} at {k:g} N/m, {v:g} m/s",
+        )
+        for seed, (k, v, r) in enumerate(
+            ((k, v, r) for k, v in PAPER_CONDITIONS.items() for r in range(plan.repeats)), start=1
+        )
+    ]
+    runs += [
+        (
+            {
+                "protocol": FREEHAND,
+                "freehand_duration_s": plan.freehand_s,
+                "seed": FREEHAND_FIRST_SEED + r,
+                "textured": True,
+            },
+            f"{FREEHAND}_r{r}",
+            f"simulated freehand traction trial {r} on textured tissue",
+        )
+        for r in range(plan.freehand_trials + plan.freehand_test_trials)
+    ]
     step = stage("record sessions", len(runs))
     for bench, name, notes in runs:
         run_config = copy.deepcopy(config)
         run_config["bench"].update(bench)
         path = folder / f"{name}.h5"
         path.unlink(missing_ok=True)
-        record_session(run_config, path, duration_s=trial_duration_s(run_config),
-                       operator="vbfe demo", notes=notes, calibration_yaml=calibration_yaml)
+        record_session(
+            run_config,
+            path,
+            duration_s=trial_duration_s(run_config),
+            operator="vbfe demo",
+            notes=notes,
+            calibration_yaml=calibration_yaml,
+        )
         sessions.append(path)
         step(1)
     return sessions
@@ -204,14 +285,25 @@ def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any
             truth = reader.truth("image_minus_force_host_offset_ns")
         true_s = float(np.median(truth)) / 1e9
         e = report.estimate
-        rows.append({"session": path.stem, "offset_s": e.offset_s, "true_offset_s": true_s,
-                     "error_s": e.offset_s - true_s, "ci95_s": list(e.ci95_s),
-                     "drift_ppm": report.drift_ppm, "verdict": report.verdict,
-                     "plot": str(report.plot_path) if report.plot_path else None})
+        rows.append(
+            {
+                "session": path.stem,
+                "offset_s": e.offset_s,
+                "true_offset_s": true_s,
+                "error_s": e.offset_s - true_s,
+                "ci95_s": list(e.ci95_s),
+                "drift_ppm": report.drift_ppm,
+                "verdict": report.verdict,
+                "plot": str(report.plot_path) if report.plot_path else None,
+            }
+        )
         step(1)
     errors = np.abs([r["error_s"] for r in rows])
-    return {"sessions": rows, "max_abs_error_s": float(errors.max()),
-            "median_abs_error_s": float(np.median(errors))}
+    return {
+        "sessions": rows,
+        "max_abs_error_s": float(errors.max()),
+        "median_abs_error_s": float(np.median(errors)),
+    }
 
 
 PROTOCOL_BENCH = {"width": 320, "height": 180, "fps": 30.0}  # taps need 30 fps; small is quick
@@ -221,9 +313,9 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     """One sync protocol session on the rig: offset from the taps and flash latency against
     the bench's truth, verdict before and after ``--apply``."""
     from vbfe.acquire import SessionReader, record_session
+    from vbfe.acquire.recording.sync_session import SyncProtocol
     from vbfe.acquire.sync.check import SyncLimits, verify_sync
     from vbfe.acquire.sync.protocol import ProtocolSettings
-    from vbfe.acquire.recording.sync_session import SyncProtocol
 
     step = stage("sync protocol session", 1)
     run_config = copy.deepcopy(config)
@@ -231,12 +323,17 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     path = out / "sessions" / "sync_protocol.h5"
     path.unlink(missing_ok=True)
     events = int(plan.protocol_s)
-    record_session(run_config, path, operator="vbfe demo", notes="sync protocol session",
-                   protocol=SyncProtocol(taps=events, flashes=events, duration_s=plan.protocol_s,
-                                         seed=0))
+    record_session(
+        run_config,
+        path,
+        operator="vbfe demo",
+        notes="sync protocol session",
+        protocol=SyncProtocol(taps=events, flashes=events, duration_s=plan.protocol_s, seed=0),
+    )
     limits, settings = SyncLimits.from_config(run_config), ProtocolSettings.from_config(run_config)
-    before = verify_sync(path, limits, settings=settings,
-                         plot_path=out / "sync" / "sync_protocol.png")
+    before = verify_sync(
+        path, limits, settings=settings, plot_path=out / "sync" / "sync_protocol.png"
+    )
     applied = verify_sync(path, limits, settings=settings, apply_correction=True)
     after = verify_sync(path, limits, settings=settings)
     with SessionReader(path) as reader:
@@ -244,22 +341,30 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     bench = run_config["bench"]
     p = before.protocol
     step(1)
-    return {"offset_s": before.estimate.offset_s, "ci95_s": list(before.estimate.ci95_s),
-            "true_offset_s": true_s, "error_s": before.estimate.offset_s - true_s,
-            "taps_used": p.offset.n_used, "taps_found": p.taps_found,
-            "flash_latency_s": p.flash_latency.value_s if p.flash_latency else None,
-            "flash_ci95_s": list(p.flash_latency.ci95_s) if p.flash_latency else None,
-            "true_flash_latency_s": 1e-3 * (bench["image_latency_ms"]
-                                            + bench["projector_latency_ms"]),
-            "flashes_used": p.flash_latency.n_used if p.flash_latency else 0,
-            "flashes_shown": p.flashes_shown, "verdict_before": before.verdict,
-            "reasons_before": before.reasons, "verdict_after_apply": after.verdict,
-            "correction_s": applied.correction_s, "residual_after_s": after.estimate.offset_s,
-            "plot": str(before.plot_path)}
+    return {
+        "offset_s": before.estimate.offset_s,
+        "ci95_s": list(before.estimate.ci95_s),
+        "true_offset_s": true_s,
+        "error_s": before.estimate.offset_s - true_s,
+        "taps_used": p.offset.n_used,
+        "taps_found": p.taps_found,
+        "flash_latency_s": p.flash_latency.value_s if p.flash_latency else None,
+        "flash_ci95_s": list(p.flash_latency.ci95_s) if p.flash_latency else None,
+        "true_flash_latency_s": 1e-3 * (bench["image_latency_ms"] + bench["projector_latency_ms"]),
+        "flashes_used": p.flash_latency.n_used if p.flash_latency else 0,
+        "flashes_shown": p.flashes_shown,
+        "verdict_before": before.verdict,
+        "reasons_before": before.reasons,
+        "verdict_after_apply": after.verdict,
+        "correction_s": applied.correction_s,
+        "residual_after_s": after.estimate.offset_s,
+        "plot": str(before.plot_path),
+    }
 
 
-def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
-                      stage: StageFn) -> dict[str, Any]:
+def reconstruct_stage(
+    sessions: list[Path], plan: DemoPlan, config: dict, stage: StageFn
+) -> dict[str, Any]:
     """Point clouds for every session; a few frames per session scored against true depth."""
     from vbfe.acquire import SessionReader
     from vbfe.calib import Calibration
@@ -276,40 +381,52 @@ def reconstruct_stage(sessions: list[Path], plan: DemoPlan, config: dict,
     step = stage("reconstruct", total)
     quality = []
     for path in sessions:
-        with CloudReader(reconstruct_session(path, progress=step, sgbm_params=params,
-                                             settings=settings)) as clouds:
+        with CloudReader(
+            reconstruct_session(path, progress=step, sgbm_params=params, settings=settings)
+        ) as clouds:
             counts = clouds.frame_table("match_counts").sum(axis=0).astype(float)
-            quality.append({"session": path.name, "summary": summary_line(clouds),
-                            "density": float(clouds.frame_table("valid_fraction").mean()),
-                            "decoded_fraction": float(np.nanmean(
-                                clouds.frame_table("decoded_fraction"))),
-                            **{name: counts[k] / max(counts[0], 1.0) for k, name in
-                               ((1, "kept"), (2, "corrected"), (3, "rejected"))}})
+            quality.append(
+                {
+                    "session": path.name,
+                    "summary": summary_line(clouds),
+                    "density": float(clouds.frame_table("valid_fraction").mean()),
+                    "decoded_fraction": float(np.nanmean(clouds.frame_table("decoded_fraction"))),
+                    **{
+                        name: counts[k] / max(counts[0], 1.0)
+                        for k, name in ((1, "kept"), (2, "corrected"), (3, "rejected"))
+                    },
+                }
+            )
 
     scores: dict[str, list[dict[str, float]]] = {"verified": [], "unverified": []}
     for path in sessions:
         with SessionReader(path) as reader:
             calibration = Calibration.from_yaml_text(reader.calibration_yaml())
             bench = session_bench(reader)
-            reconstructors = {key: Reconstructor(calibration, params, verify=verify,
-                                                 settings=settings)
-                              for key, verify in (("verified", True), ("unverified", False))}
+            reconstructors = {
+                key: Reconstructor(calibration, params, verify=verify, settings=settings)
+                for key, verify in (("verified", True), ("unverified", False))
+            }
             picks = np.linspace(0, reader.n_frames - 1, plan.recon_check_frames + 2)[1:-1]
             for i in picks.astype(int):
                 frame = reader.frame(int(i))
                 truth = bench.render_truth(frame.t_device_ns)
-                truth_maps = rectified_truth(calibration, truth["depth_left_m"],
-                                             truth["valid_left"])
+                truth_maps = rectified_truth(
+                    calibration, truth["depth_left_m"], truth["valid_left"]
+                )
                 for key, reconstructor in reconstructors.items():
                     cloud = reconstructor.process(frame.left, frame.right)
                     scores[key].append(evaluate_against_truth(cloud, *truth_maps).as_dict())
-    summary = {key: {name: float(np.nanmedian([s[name] for s in rows])) for name in rows[0]}
-               for key, rows in scores.items()}
+    summary = {
+        key: {name: float(np.nanmedian([s[name] for s in rows])) for name in rows[0]}
+        for key, rows in scores.items()
+    }
     return {**summary, "quality": quality}
 
 
-def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict,
-                   stage: StageFn) -> dict[str, Any]:
+def estimate_stage(
+    sessions: list[Path], out: Path, plan: DemoPlan, config: dict, stage: StageFn
+) -> dict[str, Any]:
     """Train on most paper sessions and freehand trials; evaluate every method the evaluation
     returns on the held-out paper sessions and, apart, on the held-out freehand trials."""
     from vbfe.estimate.evaluation import evaluate
@@ -318,14 +435,22 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
 
     paper = [s for s in sessions if not is_freehand(s)]
     held_out = [s for s in paper if s.stem.endswith(f"_r{plan.repeats - 1}")]
-    held_out_freehand = [s for s in sessions if is_freehand(s)][plan.freehand_trials:]
+    held_out_freehand = [s for s in sessions if is_freehand(s)][plan.freehand_trials :]
     training = [s for s in sessions if s not in held_out + held_out_freehand]
     train_config = TrainConfig.from_table(
-        config["train"], epochs=plan.epochs, n_points=plan.n_points,
-        frame_stride=plan.frame_stride, conv_channels=plan.conv_channels,
-        time_limit_s=plan.time_limit_s, threads=plan.threads,
-        temporal_frames=plan.temporal_frames, temporal_span_frames=plan.temporal_span_frames,
-        temporal_epochs=plan.temporal_epochs, split=plan.split, gap_frames=plan.gap_frames)
+        config["train"],
+        epochs=plan.epochs,
+        n_points=plan.n_points,
+        frame_stride=plan.frame_stride,
+        conv_channels=plan.conv_channels,
+        time_limit_s=plan.time_limit_s,
+        threads=plan.threads,
+        temporal_frames=plan.temporal_frames,
+        temporal_span_frames=plan.temporal_span_frames,
+        temporal_epochs=plan.temporal_epochs,
+        split=plan.split,
+        gap_frames=plan.gap_frames,
+    )
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
@@ -340,16 +465,22 @@ def estimate_stage(sessions: list[Path], out: Path, plan: DemoPlan, config: dict
     result = train(training, model_path, train_config, progress)
     report = evaluate(model_path, held_out, out / "evaluation", progress)
     freehand = evaluate(model_path, held_out_freehand, out / "evaluation-freehand", progress)
-    return {"train_sessions": [s.stem for s in training],
-            "test_sessions": [s.stem for s in held_out],
-            "train_seconds": result.duration_s, "epochs_run": result.epochs_run,
-            "metrics": report.metrics, "per_phase": phase_metrics(report, held_out),
-            "plots": [str(p) for p in report.files if str(p).endswith(".png")],
-            "freehand": {"test_sessions": [s.stem for s in held_out_freehand],
-                         "metrics": freehand.metrics,
-                         "per_phase": phase_metrics(freehand, held_out_freehand),
-                         "best": best_method(freehand.metrics),
-                         "plots": [str(p) for p in freehand.files if str(p).endswith(".png")]}}
+    return {
+        "train_sessions": [s.stem for s in training],
+        "test_sessions": [s.stem for s in held_out],
+        "train_seconds": result.duration_s,
+        "epochs_run": result.epochs_run,
+        "metrics": report.metrics,
+        "per_phase": phase_metrics(report, held_out),
+        "plots": [str(p) for p in report.files if str(p).endswith(".png")],
+        "freehand": {
+            "test_sessions": [s.stem for s in held_out_freehand],
+            "metrics": freehand.metrics,
+            "per_phase": phase_metrics(freehand, held_out_freehand),
+            "best": best_method(freehand.metrics),
+            "plots": [str(p) for p in freehand.files if str(p).endswith(".png")],
+        },
+    }
 
 
 def best_method(metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
@@ -357,8 +488,12 @@ def best_method(metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
     ratio to the mean predictor's."""
     mae = {m: float(v["overall"]["mae_n"]) for m, v in metrics.items()}
     method = min((m for m in mae if m != "mean"), key=mae.__getitem__)
-    return {"method": method, "mae_n": mae[method], "mean_mae_n": mae["mean"],
-            "ratio_to_mean": mae[method] / mae["mean"]}
+    return {
+        "method": method,
+        "mae_n": mae[method],
+        "mean_mae_n": mae["mean"],
+        "ratio_to_mean": mae[method] / mae["mean"],
+    }
 
 
 PHASES = {PULL: "pull", HOLD: "hold", RELEASE: "release"}  # the bench's per-frame truth ``phase``
@@ -374,20 +509,27 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
     for path in sessions:
         frames = report.frames[str(path)]
         with SessionReader(path) as reader:
-            phase_at = dict(zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist()))
+            phase_at = dict(zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False))
         phases.append(np.array([phase_at[t] for t in frames["times_ns"].tolist()]))
         rows.append(frames)
     phase = np.concatenate(phases)
     measured = np.concatenate([f["measured_n"] for f in rows])
     methods = [m for m in rows[0] if m not in ("times_ns", "frame_index", "measured_n")]
-    return {method: {name: error_stats(np.concatenate([f[method] for f in rows])[phase == code],
-                                       measured[phase == code])
-                     for code, name in PHASES.items() if (phase == code).any()}
-            for method in methods}
+    return {
+        method: {
+            name: error_stats(
+                np.concatenate([f[method] for f in rows])[phase == code], measured[phase == code]
+            )
+            for code, name in PHASES.items()
+            if (phase == code).any()
+        }
+        for method in methods
+    }
 
 
-def run_demo(out_dir: str | Path = "vbfe-demo", quick: bool = False,
-             stage: StageFn = _quiet) -> DemoResult:
+def run_demo(
+    out_dir: str | Path = "vbfe-demo", quick: bool = False, stage: StageFn = _quiet
+) -> DemoResult:
     """Run the whole pipeline on the simulated bench into ``out_dir`` and write its report."""
     from vbfe.calib import load_calibration
     from vbfe.demo_report import write_report
@@ -399,7 +541,9 @@ def run_demo(out_dir: str | Path = "vbfe-demo", quick: bool = False,
     result = DemoResult(out_dir=out)
     result.numbers["plan"] = plan.__dict__
     result.numbers["calibration"] = calibrate_stage(config, out, plan, stage)
-    yaml_text = load_calibration(result.numbers["calibration"]["files"]["calibration"]).to_yaml_text()
+    yaml_text = load_calibration(
+        result.numbers["calibration"]["files"]["calibration"]
+    ).to_yaml_text()
     sessions = record_stage(config, out, plan, yaml_text, stage)
     result.numbers["sync"] = sync_stage([s for s in sessions if not is_freehand(s)], out, stage)
     result.numbers["sync_protocol"] = protocol_stage(config, out, plan, stage)

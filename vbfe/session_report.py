@@ -26,8 +26,18 @@ from vbfe.common.report import HtmlReport, png_bytes
 THUMBNAILS = 8
 THUMBNAIL_WIDTH = 200
 EVENT_ROWS = 40
-SECTIONS = ("Summary", "Force", "Frames", "Streams", "Clocks", "Projector events", "Sync",
-            "Calibration", "Reconstruction", "Live estimates")
+SECTIONS = (
+    "Summary",
+    "Force",
+    "Frames",
+    "Streams",
+    "Clocks",
+    "Projector events",
+    "Sync",
+    "Calibration",
+    "Reconstruction",
+    "Live estimates",
+)
 
 
 def _figure(width: float = 10, height: float = 3.2) -> tuple[Figure, Any]:
@@ -46,27 +56,46 @@ def _intervals(t_ns: np.ndarray) -> tuple[float, float, float]:
         return 0.0, float("nan"), float("nan")
     dt = np.diff(t_ns) / 1e6
     median = float(np.median(dt))
-    return ((len(t_ns) - 1) / ((t_ns[-1] - t_ns[0]) / 1e9), median,
-            1.4826 * float(np.median(np.abs(dt - median))))
+    return (
+        (len(t_ns) - 1) / ((t_ns[-1] - t_ns[0]) / 1e9),
+        median,
+        1.4826 * float(np.median(np.abs(dt - median))),
+    )
 
 
 def _summary(page: HtmlReport, r: SessionReader) -> None:
     a, meta = r.attrs, r.metadata
     frame_t = r.frame_times_ns()
     duration = (frame_t[-1] - frame_t[0]) / 1e9 if len(frame_t) > 1 else 0.0
-    status = ("complete" if r.complete else "NOT CLOSED CLEANLY") + \
-        (f" ({a['end_reason']})" if a.get("end_reason") else "")
+    status = ("complete" if r.complete else "NOT CLOSED CLEANLY") + (
+        f" ({a['end_reason']})" if a.get("end_reason") else ""
+    )
     conditions = meta.get("conditions") or {}
-    page.table(["", ""], [
-        ("file", str(r.path)), ("status", status),
-        ("started", _utc(int(a.get("start_utc_ns") or 0))),
-        ("operator / notes", f"{meta.get('operator') or '-'} / {meta.get('notes') or '-'}"),
-        ("duration", f"{duration:.2f} s"),
-        ("frames", f"{r.n_frames} of {r.frame_size[0]}x{r.frame_size[1]} ({a.get('compression')})"),
-        ("force samples", str(len(r.forces_n()))),
-        ("protocol", str((meta.get("protocol") or {}).get("kind", "traction"))),
-        ("conditions", ", ".join(f"{k} = {v}" for k, v in sorted(conditions.items())
-                                 if not isinstance(v, (list, dict))) or "-")])
+    page.table(
+        ["", ""],
+        [
+            ("file", str(r.path)),
+            ("status", status),
+            ("started", _utc(int(a.get("start_utc_ns") or 0))),
+            ("operator / notes", f"{meta.get('operator') or '-'} / {meta.get('notes') or '-'}"),
+            ("duration", f"{duration:.2f} s"),
+            (
+                "frames",
+                f"{r.n_frames} of {r.frame_size[0]}x{r.frame_size[1]} ({a.get('compression')})",
+            ),
+            ("force samples", str(len(r.forces_n()))),
+            ("protocol", str((meta.get("protocol") or {}).get("kind", "traction"))),
+            (
+                "conditions",
+                ", ".join(
+                    f"{k} = {v}"
+                    for k, v in sorted(conditions.items())
+                    if not isinstance(v, (list, dict))
+                )
+                or "-",
+            ),
+        ],
+    )
 
 
 def _force(page: HtmlReport, r: SessionReader, t0: int) -> None:
@@ -89,15 +118,22 @@ def _force(page: HtmlReport, r: SessionReader, t0: int) -> None:
     gaps = [g for g in r.gaps() if g["stream"] in ("force", "camera")]
     host0 = r.stream_times("force")[1][0] - (t[0] - t0)  # host time of the plot's zero
     for g in gaps:
-        ax.axvspan((g["t_host_ns"] - host0) / 1e9, (g["t_host_ns"] - host0) / 1e9 + 0.02,
-                   color="red", alpha=0.4)
+        ax.axvspan(
+            (g["t_host_ns"] - host0) / 1e9,
+            (g["t_host_ns"] - host0) / 1e9 + 0.02,
+            color="red",
+            alpha=0.4,
+        )
     ax.set_xlabel("time since the first frame (s)")
     ax.set_ylabel("force (N)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
-    page.inline_image(png_bytes(fig), f"trocar force; orange lines: {len(drops)} sequence "
-                      f"drops ({audit.dropped} samples), red bands: {len(gaps)} recorder gaps")
+    page.inline_image(
+        png_bytes(fig),
+        f"trocar force; orange lines: {len(drops)} sequence "
+        f"drops ({audit.dropped} samples), red bands: {len(gaps)} recorder gaps",
+    )
 
 
 def _frames(page: HtmlReport, r: SessionReader, t0: int) -> None:
@@ -110,8 +146,11 @@ def _frames(page: HtmlReport, r: SessionReader, t0: int) -> None:
     for i in np.unique(np.linspace(0, r.n_frames - 1, THUMBNAILS).round().astype(int)):
         image = r.frame(int(i)).left
         h, w = image.shape[:2]
-        small = cv2.resize(image, (THUMBNAIL_WIDTH, max(1, round(h * THUMBNAIL_WIDTH / w))),
-                           interpolation=cv2.INTER_AREA)
+        small = cv2.resize(
+            image,
+            (THUMBNAIL_WIDTH, max(1, round(h * THUMBNAIL_WIDTH / w))),
+            interpolation=cv2.INTER_AREA,
+        )
         ok, jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 80])
         strip.append((jpeg.tobytes(), f"frame {i}, {(t[i] - t0) / 1e9:.2f} s"))
     page.inline_strip(strip)
@@ -125,13 +164,36 @@ def _streams(page: HtmlReport, r: SessionReader) -> None:
         rate, median, jitter = _intervals(t_host)
         audit = audit_sequence(seq)
         gaps = [g for g in r.gaps() if g["stream"] == stream]
-        rows.append((stream, len(t_host), f"{rate:.2f}", f"{median:.3f}", f"{jitter:.3f}",
-                     audit.dropped, f"{100 * audit.drop_fraction:.2f} %", len(gaps),
-                     sum(g["count"] for g in gaps)))
-    page.table(["stream", "samples", "rate (Hz)", "median interval (ms)", "interval jitter (ms)",
-                "dropped (seq)", "drop fraction", "recorder gaps", "lost in gaps"], rows)
-    page.paragraph("Rates and intervals from the host arrival times; jitter is 1.4826·MAD of "
-                   "the intervals.")
+        rows.append(
+            (
+                stream,
+                len(t_host),
+                f"{rate:.2f}",
+                f"{median:.3f}",
+                f"{jitter:.3f}",
+                audit.dropped,
+                f"{100 * audit.drop_fraction:.2f} %",
+                len(gaps),
+                sum(g["count"] for g in gaps),
+            )
+        )
+    page.table(
+        [
+            "stream",
+            "samples",
+            "rate (Hz)",
+            "median interval (ms)",
+            "interval jitter (ms)",
+            "dropped (seq)",
+            "drop fraction",
+            "recorder gaps",
+            "lost in gaps",
+        ],
+        rows,
+    )
+    page.paragraph(
+        "Rates and intervals from the host arrival times; jitter is 1.4826·MAD of the intervals."
+    )
 
 
 def _clocks(page: HtmlReport, r: SessionReader) -> None:
@@ -140,26 +202,47 @@ def _clocks(page: HtmlReport, r: SessionReader) -> None:
     for stream in ("camera", "force"):
         fit = r.clock_fit(stream)
         t_dev, t_host, _ = r.stream_times(stream)
-        rows.append((stream, f"{fit.drift_ppm:+.1f} ± {fit.drift_uncertainty_ppm:.1f}",
-                     f"{fit.offset_ns / 1e9:.6f}", f"{fit.latency_ns / 1e6:.3f}",
-                     f"{fit.jitter_ns / 1e6:.3f}", fit.n_pairs))
+        rows.append(
+            (
+                stream,
+                f"{fit.drift_ppm:+.1f} ± {fit.drift_uncertainty_ppm:.1f}",
+                f"{fit.offset_ns / 1e9:.6f}",
+                f"{fit.latency_ns / 1e6:.3f}",
+                f"{fit.jitter_ns / 1e6:.3f}",
+                fit.n_pairs,
+            )
+        )
         if len(t_dev) > 1:
             residual = (t_host - fit.to_host(t_dev)) / 1e6
             ax.plot((t_host - t_host[0]) / 1e9, residual, ".", ms=2, label=stream)
-    page.table(["stream", "drift (ppm)", "host − device offset (s)", "latency (ms)",
-                "jitter (ms)", "pairs"], rows)
+    page.table(
+        [
+            "stream",
+            "drift (ppm)",
+            "host − device offset (s)",
+            "latency (ms)",
+            "jitter (ms)",
+            "pairs",
+        ],
+        rows,
+    )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("arrival − fit (ms)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    page.inline_image(png_bytes(fig), "host arrival minus the device→host clock fit: a "
-                      "trend left in it is drift the fit missed, the spread is transport jitter")
+    page.inline_image(
+        png_bytes(fig),
+        "host arrival minus the device→host clock fit: a "
+        "trend left in it is drift the fit missed, the spread is transport jitter",
+    )
     pairs = r.clock_pairs()
     if len(pairs) > 1:
         offset = (pairs[:, 0] - pairs[:, 1]) / 1e6
-        page.paragraph(f"{len(pairs)} wall-clock pairs: UTC − host offset varies by "
-                       f"{offset.max() - offset.min():.3f} ms over the session.")
+        page.paragraph(
+            f"{len(pairs)} wall-clock pairs: UTC − host offset varies by "
+            f"{offset.max() - offset.min():.3f} ms over the session."
+        )
 
 
 def _projector(page: HtmlReport, r: SessionReader, t0: int) -> None:
@@ -169,9 +252,13 @@ def _projector(page: HtmlReport, r: SessionReader, t0: int) -> None:
         page.paragraph("No projector events.")
         return
     host0 = r.stream_times("camera")[1][0] if r.n_frames else events[0].t_host_ns
-    page.table(["time (s, host)", "pattern", "frame ID", "seq"],
-               [(f"{(e.t_host_ns - host0) / 1e9:.3f}", e.pattern, e.frame_id, e.seq)
-                for e in events[:EVENT_ROWS]])
+    page.table(
+        ["time (s, host)", "pattern", "frame ID", "seq"],
+        [
+            (f"{(e.t_host_ns - host0) / 1e9:.3f}", e.pattern, e.frame_id, e.seq)
+            for e in events[:EVENT_ROWS]
+        ],
+    )
     if len(events) > EVENT_ROWS:
         page.paragraph(f"… and {len(events) - EVENT_ROWS} more.")
 
@@ -183,13 +270,18 @@ def _sync(page: HtmlReport, r: SessionReader) -> None:
         page.paragraph("Not verified: run `vbfe verify-sync` on the session.")
         return
     reasons = json.loads(a.get("sync_reasons", "[]") or "[]")
-    rows = [("verdict", str(a["sync_verdict"]).upper()),
-            ("protocol", a.get("sync_protocol", "")),
-            ("image − force offset", f"{1e3 * a['sync_offset_s']:+.2f} ms"),
-            ("95 % interval", f"{1e3 * a.get('sync_offset_ci95_low_s', np.nan):+.2f} … "
-                              f"{1e3 * a.get('sync_offset_ci95_high_s', np.nan):+.2f} ms"),
-            ("residual after correction", f"{1e3 * a.get('sync_residual_offset_s', np.nan):+.2f} ms"),
-            ("frame-time correction", f"{a.get('frame_time_correction_ns', 0) / 1e6:+.2f} ms")]
+    rows = [
+        ("verdict", str(a["sync_verdict"]).upper()),
+        ("protocol", a.get("sync_protocol", "")),
+        ("image − force offset", f"{1e3 * a['sync_offset_s']:+.2f} ms"),
+        (
+            "95 % interval",
+            f"{1e3 * a.get('sync_offset_ci95_low_s', np.nan):+.2f} … "
+            f"{1e3 * a.get('sync_offset_ci95_high_s', np.nan):+.2f} ms",
+        ),
+        ("residual after correction", f"{1e3 * a.get('sync_residual_offset_s', np.nan):+.2f} ms"),
+        ("frame-time correction", f"{a.get('frame_time_correction_ns', 0) / 1e6:+.2f} ms"),
+    ]
     rows += [("reason", reason) for reason in reasons]
     page.table(["", ""], rows)
 
@@ -198,8 +290,10 @@ def _calibration(page: HtmlReport, r: SessionReader) -> None:
     page.heading("Calibration")
     text = r.calibration_yaml()
     if text is None:
-        page.paragraph("No calibration stored: `vbfe calibrate stereo` and `--calib`, or "
-                       "`reconstruct --calib`.")
+        page.paragraph(
+            "No calibration stored: `vbfe calibrate stereo` and `--calib`, or "
+            "`reconstruct --calib`."
+        )
         return
     from vbfe.calib.calibration import Calibration
     from vbfe.calib.errors import CalibrationError
@@ -238,9 +332,12 @@ def _reconstruction(page: HtmlReport, clouds_path: Path | None, t0: int) -> None
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    page.inline_image(png_bytes(fig), f"{clouds_path.name}: {len(density)} frames, median "
-                      f"density {100 * np.nanmedian(density):.1f} %, lowest "
-                      f"{100 * np.nanmin(density):.1f} %")
+    page.inline_image(
+        png_bytes(fig),
+        f"{clouds_path.name}: {len(density)} frames, median "
+        f"density {100 * np.nanmedian(density):.1f} %, lowest "
+        f"{100 * np.nanmin(density):.1f} %",
+    )
 
 
 def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
@@ -260,8 +357,7 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
     if known.any():
         values = force_target(r.force_at_frames()[at[known]], target)
         measured[known] = np.linalg.norm(values, axis=1) if values.shape[1] > 1 else values[:, 0]
-    estimated = (np.linalg.norm(e.force_n, axis=1) if e.force_n.shape[1] > 1
-                 else e.force_n[:, 0])
+    estimated = np.linalg.norm(e.force_n, axis=1) if e.force_n.shape[1] > 1 else e.force_n[:, 0]
     t = (r.frame_times_ns()[np.clip(at, 0, None)] - t0) / 1e9
     fig, ax = _figure(10, 2.8)
     ax.plot(t[known], measured[known], color="black", label="trocar")
@@ -274,10 +370,13 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
     both = known & np.isfinite(measured) & np.isfinite(estimated)
     mae = float(np.mean(np.abs(estimated[both] - measured[both]))) if both.any() else float("nan")
     latency = e.latency_s * 1e3
-    page.inline_image(png_bytes(fig), f"{len(e)} estimates ({e.attrs.get('target', '')}); MAE "
-                      f"{mae:.3f} N against the trocar on {int(both.sum())} frames; latency "
-                      f"p50 {np.percentile(latency, 50):.1f} ms, p95 "
-                      f"{np.percentile(latency, 95):.1f} ms")
+    page.inline_image(
+        png_bytes(fig),
+        f"{len(e)} estimates ({e.attrs.get('target', '')}); MAE "
+        f"{mae:.3f} N against the trocar on {int(both.sum())} frames; latency "
+        f"p50 {np.percentile(latency, 50):.1f} ms, p95 "
+        f"{np.percentile(latency, 95):.1f} ms",
+    )
 
 
 def session_page(session_path: str | Path, clouds_path: str | Path | None = None) -> HtmlReport:
@@ -303,7 +402,8 @@ def session_page(session_path: str | Path, clouds_path: str | Path | None = None
     return page
 
 
-def write_session_report(session_path: str | Path, out_path: str | Path,
-                         clouds_path: str | Path | None = None) -> Path:
+def write_session_report(
+    session_path: str | Path, out_path: str | Path, clouds_path: str | Path | None = None
+) -> Path:
     """Write the page of one session to ``out_path``; returns its path."""
     return session_page(session_path, clouds_path).write(out_path)

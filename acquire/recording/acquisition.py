@@ -82,10 +82,17 @@ class AcquisitionStats:
 class _Pump(threading.Thread):
     """Reads one device into a bounded queue; reports overflow and disconnection as gaps."""
 
-    def __init__(self, stream: str, device: Any, out: queue.Queue, control: queue.Queue,
-                 stop: threading.Event, paced: bool = False,
-                 read_until_ns: Callable[[], int | None] = lambda: None,
-                 demand: threading.Semaphore | None = None) -> None:
+    def __init__(
+        self,
+        stream: str,
+        device: Any,
+        out: queue.Queue,
+        control: queue.Queue,
+        stop: threading.Event,
+        paced: bool = False,
+        read_until_ns: Callable[[], int | None] = lambda: None,
+        demand: threading.Semaphore | None = None,
+    ) -> None:
         super().__init__(name=f"vbfe-read-{stream}", daemon=True)
         self.stream, self._device, self._out = stream, device, out
         self._control, self._halt = control, stop
@@ -182,9 +189,15 @@ class Acquisition:
     consumers in lock-step with the projector (show, then the frames after it).
     """
 
-    def __init__(self, rig: Rig, pattern: PatternSource | None = None,
-                 pattern_name: str = PATTERN_NAME, queue_size: int = 256,
-                 listeners: tuple[Listener, ...] = (), on_demand: bool = False) -> None:
+    def __init__(
+        self,
+        rig: Rig,
+        pattern: PatternSource | None = None,
+        pattern_name: str = PATTERN_NAME,
+        queue_size: int = 256,
+        listeners: tuple[Listener, ...] = (),
+        on_demand: bool = False,
+    ) -> None:
         self.rig = rig
         self.pattern, self.pattern_name = pattern, pattern_name
         self.listeners: list[Listener] = list(listeners)
@@ -239,17 +252,27 @@ class Acquisition:
                     listener.on_stop(self)
             raise
         streams = dict(self.rig.streams())
-        self.paced = any(d.describe().get("realtime") is False for s, d in streams.items()
-                         if s == "camera")
+        self.paced = any(
+            d.describe().get("realtime") is False for s, d in streams.items() if s == "camera"
+        )
         for stream, device in streams.items():
             size = self._queue_size * (1 if stream == "camera" else _SAMPLE_QUEUE_FACTOR)
             self._queues[stream] = queue.Queue(maxsize=size)
-            self._pumps.append(_Pump(stream, device, self._queues[stream], self._control,
-                                     self._halt, self.paced,
-                                     (lambda: None) if stream == "camera" else self._reached_end_ns,
-                                     self._demand if stream == "camera" else None))
-        self._dispatcher = threading.Thread(target=self._dispatch_loop, name="vbfe-dispatch",
-                                            daemon=True)
+            self._pumps.append(
+                _Pump(
+                    stream,
+                    device,
+                    self._queues[stream],
+                    self._control,
+                    self._halt,
+                    self.paced,
+                    (lambda: None) if stream == "camera" else self._reached_end_ns,
+                    self._demand if stream == "camera" else None,
+                )
+            )
+        self._dispatcher = threading.Thread(
+            target=self._dispatch_loop, name="vbfe-dispatch", daemon=True
+        )
         self._dispatcher.start()
         for pump in self._pumps:
             pump.start()
@@ -274,11 +297,13 @@ class Acquisition:
         self._control.put(event)
         return event
 
-    def run(self, duration_s: float | None = None,
-            on_progress: Callable[[AcquisitionStats], None] | None = None,
-            progress_interval_s: float = 0.5,
-            on_tick: Callable[["Acquisition", AcquisitionStats], None] | None = None
-            ) -> AcquisitionStats:
+    def run(
+        self,
+        duration_s: float | None = None,
+        on_progress: Callable[[AcquisitionStats], None] | None = None,
+        progress_interval_s: float = 0.5,
+        on_tick: Callable[[Acquisition, AcquisitionStats], None] | None = None,
+    ) -> AcquisitionStats:
         """Run until ``duration_s`` of frames (host clock) are in, a device is gone, a listener
         halts it, Ctrl-C or SIGTERM; then stop cleanly. Listeners' ``on_tick`` (and
         ``on_tick``) are called every 50 ms. Returns the final statistics."""
@@ -378,12 +403,13 @@ class Acquisition:
             raise self.error
         return stats
 
-    def __enter__(self) -> "Acquisition":
+    def __enter__(self) -> Acquisition:
         self.start()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: Any) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: Any
+    ) -> None:
         self.stop()
 
     @contextlib.contextmanager
@@ -396,11 +422,18 @@ class Acquisition:
 
         def on_signal(signum: int, frame: Any) -> None:
             if self._stop_request is None and not self._halt.is_set():
-                self._stop_request = ("stopped by operator" if signum == signal.SIGINT
-                                      else f"stopped by {signal.Signals(signum).name}")
+                self._stop_request = (
+                    "stopped by operator"
+                    if signum == signal.SIGINT
+                    else f"stopped by {signal.Signals(signum).name}"
+                )
             else:
-                print(f"vbfe: finishing {self.what}, please wait (Ctrl-C is ignored until it "
-                      "is closed)", file=sys.stderr, flush=True)
+                print(
+                    f"vbfe: finishing {self.what}, please wait (Ctrl-C is ignored until it "
+                    "is closed)",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
         previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -421,8 +454,9 @@ class Acquisition:
         s.wall_s = time.monotonic() - self._t_start if self._t_start else 0.0
         s.elapsed_s = (self._frame_t_host[1] - self._frame_t_host[0]) / 1e9
         s.first_frame_host_ns = self._frame_t_host[0]
-        s.newest_read_host_ns = max((p.last_t_host_ns for p in self._pumps
-                                     if p.stream == "camera"), default=0)
+        s.newest_read_host_ns = max(
+            (p.last_t_host_ns for p in self._pumps if p.stream == "camera"), default=0
+        )
         devices = dict(self.rig.streams())
         s.queue_dropped = {p.stream: p.dropped for p in self._pumps}
         s.dropped = {p.stream: p.dropped + devices[p.stream].stats.dropped for p in self._pumps}
@@ -438,8 +472,9 @@ class Acquisition:
                 pumps_done = self._halt.is_set() and not any(p.is_alive() for p in self._pumps)
                 batches = {}
                 if "camera" in self._queues:
-                    batches["camera"] = self._within_duration(_drain(
-                        self._queues["camera"], _FRAME_BATCH, 0.0 if pumps_done else 0.02))
+                    batches["camera"] = self._within_duration(
+                        _drain(self._queues["camera"], _FRAME_BATCH, 0.0 if pumps_done else 0.02)
+                    )
                 elif not pumps_done:
                     time.sleep(0.02)
                 for stream in others:

@@ -34,7 +34,7 @@ class Listener:
     hook stops the acquisition; ``stop`` raises it after every listener's ``on_stop``.
     """
 
-    def on_start(self, acquisition: "Acquisition") -> None:
+    def on_start(self, acquisition: Acquisition) -> None:
         """The rig is open and about to be read."""
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
@@ -63,10 +63,10 @@ class Listener:
     def on_round(self) -> None:
         """After each dispatch round (about every 20 ms at most): periodic work such as flushes."""
 
-    def on_tick(self, acquisition: "Acquisition", stats: "AcquisitionStats") -> None:
+    def on_tick(self, acquisition: Acquisition, stats: AcquisitionStats) -> None:
         """Every 50 ms while :meth:`Acquisition.run` runs, in its thread (e.g. to show
         patterns with ``acquisition.show``)."""
 
-    def on_stop(self, acquisition: "Acquisition") -> None:
+    def on_stop(self, acquisition: Acquisition) -> None:
         """Reading has ended and every record was dispatched; ``acquisition.stats.end_reason``
         says why and ``acquisition.error`` holds a failure of a record hook, if any."""

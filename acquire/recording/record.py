@@ -25,16 +25,23 @@ if TYPE_CHECKING:
     from vbfe.acquire.recording.sync_session import SyncProtocol
 
 
-def record_session(config: dict[str, dict[str, Any]], path: str | Path,
-                   duration_s: float | None = None, operator: str = "", notes: str = "",
-                   conditions: dict[str, Any] | None = None, compression: str | None = None,
-                   calibration_yaml: str | None = None,
-                   on_progress: Callable[[AcquisitionStats], None] | None = None,
-                   tare: bool = False, overwrite: bool = False,
-                   protocol: SyncProtocol | None = None,
-                   calibration_size: tuple[int, int] | None = None,
-                   calibration_name: str = "the calibration",
-                   on_warning: Callable[[str], None] | None = None) -> AcquisitionStats:
+def record_session(
+    config: dict[str, dict[str, Any]],
+    path: str | Path,
+    duration_s: float | None = None,
+    operator: str = "",
+    notes: str = "",
+    conditions: dict[str, Any] | None = None,
+    compression: str | None = None,
+    calibration_yaml: str | None = None,
+    on_progress: Callable[[AcquisitionStats], None] | None = None,
+    tare: bool = False,
+    overwrite: bool = False,
+    protocol: SyncProtocol | None = None,
+    calibration_size: tuple[int, int] | None = None,
+    calibration_name: str = "the calibration",
+    on_warning: Callable[[str], None] | None = None,
+) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
     is zeroed first from ``[record] tare_samples`` samples (not recorded; the offset is
@@ -53,9 +60,20 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
     rig = open_rig(config, options)
     check_camera_size(rig, calibration_size, calibration_name)
     listeners = ((protocol,) if protocol else ()) + (
-        (MissingStreams(on_warning),) if on_warning else ())
-    recorder = session_recorder(config, path, rig, operator, notes, conditions,
-                                compression, calibration_yaml, overwrite, listeners)
+        (MissingStreams(on_warning),) if on_warning else ()
+    )
+    recorder = session_recorder(
+        config,
+        path,
+        rig,
+        operator,
+        notes,
+        conditions,
+        compression,
+        calibration_yaml,
+        overwrite,
+        listeners,
+    )
     if protocol is not None:
         recorder.metadata["protocol"] = protocol.describe()
     if tare:
@@ -69,41 +87,64 @@ def record_session(config: dict[str, dict[str, Any]], path: str | Path,
         recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
     stats = recorder.run(duration_s, on_progress)
     if settings.frame_time_correction_s:
-        store_analysis(path, {FRAME_CORRECTION_ATTR:
-                              int(round(settings.frame_time_correction_s * 1e9))})
+        store_analysis(
+            path, {FRAME_CORRECTION_ATTR: int(round(settings.frame_time_correction_s * 1e9))}
+        )
     return stats
 
 
-def check_camera_size(rig: Rig, calibration_size: tuple[int, int] | None,
-                      calibration_name: str = "the calibration") -> None:
+def check_camera_size(
+    rig: Rig, calibration_size: tuple[int, int] | None, calibration_name: str = "the calibration"
+) -> None:
     """SessionError unless the calibration (when given) is of the camera's image size."""
     if calibration_size is not None:
-        mismatch = size_mismatch("the camera gives", (rig.camera.width, rig.camera.height),
-                                 calibration_name, calibration_size)
+        mismatch = size_mismatch(
+            "the camera gives",
+            (rig.camera.width, rig.camera.height),
+            calibration_name,
+            calibration_size,
+        )
         if mismatch:
             raise SessionError(mismatch)
 
 
-def session_recorder(config: dict[str, dict[str, Any]], path: str | Path, rig: Rig,
-                     operator: str = "", notes: str = "",
-                     conditions: dict[str, Any] | None = None, compression: str | None = None,
-                     calibration_yaml: str | None = None, overwrite: bool = False,
-                     listeners: tuple[Listener, ...] = (),
-                     streams: tuple[StreamSpec, ...] = ()) -> Recorder:
+def session_recorder(
+    config: dict[str, dict[str, Any]],
+    path: str | Path,
+    rig: Rig,
+    operator: str = "",
+    notes: str = "",
+    conditions: dict[str, Any] | None = None,
+    compression: str | None = None,
+    calibration_yaml: str | None = None,
+    overwrite: bool = False,
+    listeners: tuple[Listener, ...] = (),
+    streams: tuple[StreamSpec, ...] = (),
+) -> Recorder:
     """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
     pattern, a traction session's metadata) over ``rig``, with further ``listeners`` and
     extra ``streams``; not started yet."""
     settings = record_settings(config)
-    metadata: dict[str, Any] = {"operator": operator, "notes": notes,
-                                "conditions": dict(conditions or {}),
-                                "protocol": {"kind": "traction"}}
-    return Recorder(rig, path, compression=compression or settings.compression,
-                    flush_interval_s=settings.flush_interval_s,
-                    metadata=metadata, calibration_yaml=calibration_yaml,
-                    queue_size=settings.queue_size,
-                    min_free_bytes=int(settings.min_free_gb * 1e9),
-                    pattern=make_pattern, overwrite=overwrite, listeners=listeners,
-                    streams=streams)
+    metadata: dict[str, Any] = {
+        "operator": operator,
+        "notes": notes,
+        "conditions": dict(conditions or {}),
+        "protocol": {"kind": "traction"},
+    }
+    return Recorder(
+        rig,
+        path,
+        compression=compression or settings.compression,
+        flush_interval_s=settings.flush_interval_s,
+        metadata=metadata,
+        calibration_yaml=calibration_yaml,
+        queue_size=settings.queue_size,
+        min_free_bytes=int(settings.min_free_gb * 1e9),
+        pattern=make_pattern,
+        overwrite=overwrite,
+        listeners=listeners,
+        streams=streams,
+    )
 
 
 class MissingStreams(Listener):

@@ -23,16 +23,34 @@ class Recorder(Acquisition):
     :meth:`stop` yourself; the rig is opened at the start and closed at the stop.
     """
 
-    def __init__(self, rig: Rig, path: str | Path, compression: str = "lzf",
-                 flush_interval_s: float = 1.0, metadata: dict[str, Any] | None = None,
-                 calibration_yaml: str | None = None, queue_size: int = 256,
-                 min_free_bytes: int = 1 << 30, pattern: PatternSource | None = None,
-                 pattern_name: str = PATTERN_NAME,
-                 on_flush: Callable[[AcquisitionStats], None] | None = None,
-                 overwrite: bool = False, listeners: tuple[Listener, ...] = (),
-                 streams: tuple[StreamSpec, ...] = ()) -> None:
-        self.sink = SessionSink(path, compression, flush_interval_s, metadata, calibration_yaml,
-                                min_free_bytes, overwrite, on_flush, streams)
+    def __init__(
+        self,
+        rig: Rig,
+        path: str | Path,
+        compression: str = "lzf",
+        flush_interval_s: float = 1.0,
+        metadata: dict[str, Any] | None = None,
+        calibration_yaml: str | None = None,
+        queue_size: int = 256,
+        min_free_bytes: int = 1 << 30,
+        pattern: PatternSource | None = None,
+        pattern_name: str = PATTERN_NAME,
+        on_flush: Callable[[AcquisitionStats], None] | None = None,
+        overwrite: bool = False,
+        listeners: tuple[Listener, ...] = (),
+        streams: tuple[StreamSpec, ...] = (),
+    ) -> None:
+        self.sink = SessionSink(
+            path,
+            compression,
+            flush_interval_s,
+            metadata,
+            calibration_yaml,
+            min_free_bytes,
+            overwrite,
+            on_flush,
+            streams,
+        )
         super().__init__(rig, pattern, pattern_name, queue_size, (self.sink, *listeners))
         self.what = str(self.sink.path)
 

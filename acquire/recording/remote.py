@@ -32,14 +32,19 @@ from typing import Any, Protocol
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.record import check_camera_size, session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.drivers.registry import open_rig
 from vbfe.common.errors import VbfeError
+from vbfe.drivers.registry import open_rig
 
 DEFAULT_PORT = 22345  # LabRecorder's RCSPort
 DEFAULT_TEMPLATE = "exp%n/block_%b.h5"  # LabRecorder's legacy default
 _OPTION = re.compile(r"\{(\w+?):([^}]*)\}")
-_FIELDS = {"task": "%b", "participant": "%p", "session": "%s", "acquisition": "%a",
-           "modality": "%m"}
+_FIELDS = {
+    "task": "%b",
+    "participant": "%p",
+    "session": "%s",
+    "acquisition": "%a",
+    "modality": "%m",
+}
 _MAX_LINE = 64 * 1024
 
 
@@ -72,8 +77,10 @@ def parse_command(line: str) -> Command:
         return Command(verb, options=options)
     if verb == "mark" and rest.strip():
         return Command(verb, rest.strip())
-    raise SessionError(f"unknown command {line[:80]!r}; known: filename, start, stop, update, "
-                       "select all, mark <text>")
+    raise SessionError(
+        f"unknown command {line[:80]!r}; known: filename, start, stop, update, "
+        "select all, mark <text>"
+    )
 
 
 def session_path(options: dict[str, str]) -> Path:
@@ -100,16 +107,20 @@ class RemoteRecording:
     the session's event marks) in a thread of its own until :meth:`stop`; ``options`` go to
     :func:`~vbfe.acquire.recording.record.session_recorder`."""
 
-    def __init__(self, config: dict[str, dict[str, Any]], path: Path,
-                 calibration_size: tuple[int, int] | None = None,
-                 calibration_name: str = "the calibration", **options: Any) -> None:
+    def __init__(
+        self,
+        config: dict[str, dict[str, Any]],
+        path: Path,
+        calibration_size: tuple[int, int] | None = None,
+        calibration_name: str = "the calibration",
+        **options: Any,
+    ) -> None:
         rig = open_rig(config)
         check_camera_size(rig, calibration_size, calibration_name)
         self.recorder = session_recorder(config, path, rig, streams=(marks_stream(),), **options)
         self.error: BaseException | None = None
         self.recorder.start()
-        self._thread = threading.Thread(target=self._run, name="vbfe-remote-recording",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name="vbfe-remote-recording", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
@@ -129,16 +140,22 @@ class RemoteRecording:
         if self.error is not None:
             raise SessionError(f"recording {self.recorder.path} failed: {self.error}")
         stats = self.recorder.stats
-        return (f"{self.recorder.path}: {stats.frames} frames, {stats.samples} force samples, "
-                f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}")
+        return (
+            f"{self.recorder.path}: {stats.frames} frames, {stats.samples} force samples, "
+            f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}"
+        )
 
 
 class RemoteSessions:
     """The recorder's side of the commands: ``begin(path)`` starts a recording into ``path``
     (a new file; existing ones are refused unless ``overwrite``) and returns it."""
 
-    def __init__(self, begin: Callable[[Path], Recording], overwrite: bool = False,
-                 on_message: Callable[[str], None] = print) -> None:
+    def __init__(
+        self,
+        begin: Callable[[Path], Recording],
+        overwrite: bool = False,
+        on_message: Callable[[str], None] = print,
+    ) -> None:
         self._begin, self._overwrite, self._say = begin, overwrite, on_message
         self._options: dict[str, str] = {}
         self._recording: Recording | None = None
@@ -179,8 +196,9 @@ class RemoteSessions:
             raise SessionError("start: send filename {root:…} {template:…} first")
         path = session_path(self._options)
         if path.exists() and not self._overwrite:
-            raise SessionError(f"start: {path} already exists; send a new filename (e.g. the "
-                               "next {run:N})")
+            raise SessionError(
+                f"start: {path} already exists; send a new filename (e.g. the next {{run:N}})"
+            )
         path.parent.mkdir(parents=True, exist_ok=True)
         self._recording, self._path = self._begin(path), path
         self._say(f"remote: recording {path}")
@@ -198,14 +216,16 @@ class RemoteControl:
     """A TCP server that reads command lines from any number of clients and hands them to
     ``sessions``; bound to ``bind`` (localhost unless told otherwise)."""
 
-    def __init__(self, sessions: RemoteSessions, port: int = DEFAULT_PORT,
-                 bind: str = "127.0.0.1") -> None:
+    def __init__(
+        self, sessions: RemoteSessions, port: int = DEFAULT_PORT, bind: str = "127.0.0.1"
+    ) -> None:
         self.sessions = sessions
         try:
             self._server = socket.create_server((bind, port), reuse_port=False)
         except OSError as exc:
-            raise SessionError(f"cannot listen for remote control on {bind}:{port}: "
-                               f"{exc.strerror or exc}") from None
+            raise SessionError(
+                f"cannot listen for remote control on {bind}:{port}: {exc.strerror or exc}"
+            ) from None
         self.port = self._server.getsockname()[1]
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._accept, name="vbfe-remote", daemon=True)
@@ -217,8 +237,9 @@ class RemoteControl:
                 client, _ = self._server.accept()
             except OSError:
                 return
-            threading.Thread(target=self._serve, args=(client,), name="vbfe-remote-client",
-                             daemon=True).start()
+            threading.Thread(
+                target=self._serve, args=(client,), name="vbfe-remote-client", daemon=True
+            ).start()
 
     def _serve(self, client: socket.socket) -> None:
         with client, client.makefile("rb") as lines:
@@ -228,8 +249,9 @@ class RemoteControl:
                     reply = "ERROR line too long"
                 else:
                     try:
-                        self.sessions.handle(parse_command(raw.decode("utf-8", "replace")),
-                                             t_host_ns)
+                        self.sessions.handle(
+                            parse_command(raw.decode("utf-8", "replace")), t_host_ns
+                        )
                         reply = "OK"
                     except VbfeError as exc:  # bad command, missing device, full disk, …
                         reply = f"ERROR {exc}"
@@ -250,6 +272,7 @@ class RemoteControl:
 def serve(server: RemoteControl, on_ready: Callable[[int], None]) -> None:
     """Serve until Ctrl-C or SIGTERM (``on_ready(port)`` once listening), then stop a
     recording still running (finalized) and the server."""
+
     def stop(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
@@ -266,13 +289,16 @@ def serve(server: RemoteControl, on_ready: Callable[[int], None]) -> None:
         server.sessions.close()
 
 
-def send_command(line: str, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
-                 timeout_s: float = 60.0) -> str:
+def send_command(
+    line: str, port: int = DEFAULT_PORT, host: str = "127.0.0.1", timeout_s: float = 60.0
+) -> str:
     """Send one command line to a remote-control port and return its reply."""
     try:
         with socket.create_connection((host, port), timeout=timeout_s) as sock:
             sock.sendall(line.encode() + b"\n")
             return sock.recv(4096).decode("utf-8", "replace")
     except OSError as exc:
-        raise SessionError(f"no recorder answers on {host}:{port} ({exc.strerror or exc}); "
-                           f"start one with `vbfe record --remote {port}`") from None
+        raise SessionError(
+            f"no recorder answers on {host}:{port} ({exc.strerror or exc}); "
+            f"start one with `vbfe record --remote {port}`"
+        ) from None

@@ -44,7 +44,8 @@ _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with t
 def _is_write_failure(exc: BaseException) -> bool:
     """An expected failure of the file (h5py raises RuntimeError for some failed flushes)."""
     return isinstance(exc, (OSError, SessionError)) or (
-        isinstance(exc, RuntimeError) and "errno =" in str(exc))
+        isinstance(exc, RuntimeError) and "errno =" in str(exc)
+    )
 
 
 def _failure_reason(exc: BaseException) -> str:
@@ -89,11 +90,18 @@ class SessionSink(Listener):
     made.
     """
 
-    def __init__(self, path: str | Path, compression: str = "lzf", flush_interval_s: float = 1.0,
-                 metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
-                 min_free_bytes: int = 1 << 30, overwrite: bool = False,
-                 on_flush: Callable[["AcquisitionStats"], None] | None = None,
-                 streams: Sequence[StreamSpec] = ()) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        compression: str = "lzf",
+        flush_interval_s: float = 1.0,
+        metadata: dict[str, Any] | None = None,
+        calibration_yaml: str | None = None,
+        min_free_bytes: int = 1 << 30,
+        overwrite: bool = False,
+        on_flush: Callable[[AcquisitionStats], None] | None = None,
+        streams: Sequence[StreamSpec] = (),
+    ) -> None:
         if flush_interval_s <= 0:
             raise SessionError(f"flush_interval_s must be positive, got {flush_interval_s}")
         self.path = check_destination(path, min_free_bytes, overwrite)
@@ -125,20 +133,32 @@ class SessionSink(Listener):
             raise
 
     # -- listener hooks -------------------------------------------------------------------
-    def on_start(self, acquisition: "Acquisition") -> None:
+    def on_start(self, acquisition: Acquisition) -> None:
         rig = acquisition.rig
         self._acquisition = acquisition
-        self.streams += tuple(lsl_stream_spec(device.info) for _, device in rig.streams()
-                              if isinstance(getattr(device, "info", None), StreamInfo))
+        self.streams += tuple(
+            lsl_stream_spec(device.info)
+            for _, device in rig.streams()
+            if isinstance(getattr(device, "info", None), StreamInfo)
+        )
         known = {*STREAMS, *(spec.name for spec in self.streams)}
         missing = sorted(stream for stream, _ in rig.streams() if stream not in known)
         if missing:
-            raise SessionError(f"the rig's streams {missing} have no session stream to go to; "
-                               "give their specs to the recorder (streams=...)")
+            raise SessionError(
+                f"the rig's streams {missing} have no session stream to go to; "
+                "give their specs to the recorder (streams=...)"
+            )
         self.metadata = _merged_metadata(self.metadata, rig.describe())
-        self._writer = SessionWriter(self.path, (rig.camera.width, rig.camera.height),
-                                     self.compression, self.metadata, self.calibration_yaml,
-                                     rig.trocar.axes, self.flush_interval_s, self.streams)
+        self._writer = SessionWriter(
+            self.path,
+            (rig.camera.width, rig.camera.height),
+            self.compression,
+            self.metadata,
+            self.calibration_yaml,
+            rig.trocar.axes,
+            self.flush_interval_s,
+            self.streams,
+        )
         self._next_flush = time.monotonic() + self._flush_period_s()
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
@@ -149,8 +169,9 @@ class SessionSink(Listener):
 
     def on_gap(self, gap: Gap) -> None:
         with self._writing():
-            self._writer.add_gap(gap.stream, gap.reason, gap.last_seq, gap.next_seq,
-                                 gap.t_host_ns, gap.count)
+            self._writer.add_gap(
+                gap.stream, gap.reason, gap.last_seq, gap.next_seq, gap.t_host_ns, gap.count
+            )
 
     def mark(self, text: str, t_host_ns: int) -> None:
         """Put an event mark at host time ``t_host_ns`` into the session (any thread; written
@@ -179,14 +200,16 @@ class SessionSink(Listener):
                 if self._next_flush <= time.monotonic():
                     self._next_flush = time.monotonic()
             check_every = max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
-            if (now >= self._next_space_check
-                    or writer.bytes_written - self._checked_at_bytes >= check_every):
+            if (
+                now >= self._next_space_check
+                or writer.bytes_written - self._checked_at_bytes >= check_every
+            ):
                 self._check_space()
                 self._next_space_check = now + _SPACE_CHECK_S
                 self._checked_at_bytes = writer.bytes_written
         stats.bytes_written = writer.bytes_written
 
-    def on_stop(self, acquisition: "Acquisition") -> None:
+    def on_stop(self, acquisition: Acquisition) -> None:
         writer, stats = self._writer, acquisition.stats
         if self._error is None:
             with contextlib.suppress(Exception), self._writing():
@@ -200,15 +223,20 @@ class SessionSink(Listener):
             reason = _failure_reason(self._error)
             if closed and free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
                 with contextlib.suppress(SessionError, OSError, RuntimeError):
-                    finalize_session(self.path, self._final_attrs(acquisition,
-                                                                  f"write failed: {reason}"))
-            raise SessionError(f"writing {self.path} failed ({reason}); recording stopped, the "
-                               "file keeps what was written before the failure (see `vbfe "
-                               f"inspect {self.path}`)") from None
+                    finalize_session(
+                        self.path, self._final_attrs(acquisition, f"write failed: {reason}")
+                    )
+            raise SessionError(
+                f"writing {self.path} failed ({reason}); recording stopped, the "
+                "file keeps what was written before the failure (see `vbfe "
+                f"inspect {self.path}`)"
+            ) from None
         finalize_session(self.path, self._final_attrs(acquisition), self._truth(acquisition))
         if self._fault is not None:
-            raise SessionError(f"{self._fault}; recording stopped and {self.path} finalized with "
-                               f"{stats.frames} frames")
+            raise SessionError(
+                f"{self._fault}; recording stopped and {self.path} finalized with "
+                f"{stats.frames} frames"
+            )
 
     # -- internals ------------------------------------------------------------------------
     def _flush_period_s(self) -> float:
@@ -224,8 +252,10 @@ class SessionSink(Listener):
         cost = time.monotonic() - started
         self._flush_cost_s = max(cost, 0.9 * self._flush_cost_s)  # slow flushes count for a while
         stats = self._acquisition.update_stats()
-        stats.flushed, stats.bytes_written = dict(self._writer.flushed_counts), \
-            self._writer.bytes_written
+        stats.flushed, stats.bytes_written = (
+            dict(self._writer.flushed_counts),
+            self._writer.bytes_written,
+        )
         if self.on_flush is not None:
             self.on_flush(stats)
 
@@ -234,12 +264,15 @@ class SessionSink(Listener):
         quarter of ``min_free_bytes``."""
         free = free_bytes(self.path.parent)
         if free < self.min_free_bytes // 4 and self._fault is None:
-            self._fault = (f"disk almost full: {free / 1e9:.3f} GB left on {self.path.parent} "
-                           f"(limit {self.min_free_bytes / 4e9:.3f} GB, a quarter of min_free_gb)")
+            self._fault = (
+                f"disk almost full: {free / 1e9:.3f} GB left on {self.path.parent} "
+                f"(limit {self.min_free_bytes / 4e9:.3f} GB, a quarter of min_free_gb)"
+            )
             self._acquisition.halt(self._fault)
 
-    def _final_attrs(self, acquisition: "Acquisition",
-                     end_reason: str | None = None) -> dict[str, Any]:
+    def _final_attrs(
+        self, acquisition: Acquisition, end_reason: str | None = None
+    ) -> dict[str, Any]:
         stats = acquisition.stats
         attrs: dict[str, Any] = {"end_reason": end_reason or stats.end_reason}
         readers = dict(acquisition.rig.streams())
@@ -249,11 +282,16 @@ class SessionSink(Listener):
             attrs[f"{stream}_device_malformed"] = int(device.stats.malformed)
             attrs[f"{stream}_device_errors"] = int(device.stats.errors)
         attrs["devices_at_end_json"] = json.dumps(  # e.g. the trocar's clock, decided at frame 1
-            {name: d.describe() for name, d in acquisition.rig.devices.items()
-             if d.stream is not None}, default=str)
+            {
+                name: d.describe()
+                for name, d in acquisition.rig.devices.items()
+                if d.stream is not None
+            },
+            default=str,
+        )
         return attrs
 
-    def _truth(self, acquisition: "Acquisition") -> dict[str, np.ndarray] | None:
+    def _truth(self, acquisition: Acquisition) -> dict[str, np.ndarray] | None:
         truth = acquisition.rig.truth
         if truth is None or not self._frame_t_device:
             return None

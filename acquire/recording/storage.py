@@ -27,13 +27,17 @@ def check_destination(path: str | Path, min_free_bytes: int, overwrite: bool = F
         with tempfile.NamedTemporaryFile(dir=directory, prefix=".vbfe-write-test-"):
             pass
     except OSError as exc:
-        raise SessionError(f"cannot record to {path}: directory {directory} is not writable "
-                           f"({exc.strerror}); choose another directory") from None
+        raise SessionError(
+            f"cannot record to {path}: directory {directory} is not writable "
+            f"({exc.strerror}); choose another directory"
+        ) from None
     free = free_bytes(directory)
     if free < min_free_bytes:
-        raise SessionError(f"cannot record to {path}: only {free / 1e9:.2f} GB free on "
-                           f"{directory}, need at least {min_free_bytes / 1e9:.2f} GB; free space "
-                           "or record elsewhere")
+        raise SessionError(
+            f"cannot record to {path}: only {free / 1e9:.2f} GB free on "
+            f"{directory}, need at least {min_free_bytes / 1e9:.2f} GB; free space "
+            "or record elsewhere"
+        )
     if not os.access(directory, os.W_OK):
         raise SessionError(f"cannot record to {path}: directory {directory} is not writable")
     return path

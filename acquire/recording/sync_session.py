@@ -41,8 +41,10 @@ def flash_schedule(n: int, duration_s: float, rng: np.random.Generator) -> np.nd
     apart, inside ``[1 s, duration_s - 1.5 s]`` (slack for a flash shown late)."""
     span = duration_s - 2.5 * _LEAD_S - (n - 1) * MIN_FLASH_GAP_S
     if n < 1 or span <= 0:
-        raise SessionError(f"{n} flashes need at least {2.5 * _LEAD_S + (n - 1) * MIN_FLASH_GAP_S:.1f}"
-                           f" s; record for longer (--duration) or ask for fewer (--flashes)")
+        raise SessionError(
+            f"{n} flashes need at least {2.5 * _LEAD_S + (n - 1) * MIN_FLASH_GAP_S:.1f}"
+            f" s; record for longer (--duration) or ask for fewer (--flashes)"
+        )
     gaps = rng.dirichlet(np.ones(n + 1))[:-1] * span
     return _LEAD_S + np.cumsum(gaps) + np.arange(n) * MIN_FLASH_GAP_S
 
@@ -74,8 +76,11 @@ class TapCounter:
                 continue
             away = float(np.linalg.norm(force - self._rest))
             if away > self._threshold:
-                if not self._in_tap and self._quiet_since_ns is not None and (
-                        sample.t_host_ns - self._quiet_since_ns >= _TAP_QUIET_S * 1e9):
+                if (
+                    not self._in_tap
+                    and self._quiet_since_ns is not None
+                    and (sample.t_host_ns - self._quiet_since_ns >= _TAP_QUIET_S * 1e9)
+                ):
                     self.count += 1
                 self._in_tap, self._quiet_since_ns = True, None
             elif away < self._threshold / 2:
@@ -102,21 +107,29 @@ class SyncProtocol(Listener):
     def __post_init__(self) -> None:
         if self.taps < 1:
             raise SessionError(f"the sync protocol needs at least one tap, got {self.taps}")
-        self.schedule_s = flash_schedule(self.flashes, self.duration_s,
-                                         np.random.default_rng(self.seed))
+        self.schedule_s = flash_schedule(
+            self.flashes, self.duration_s, np.random.default_rng(self.seed)
+        )
 
     def instructions(self) -> str:
         """What the operator has to do."""
-        return (f"sync protocol, {self.duration_s:g} s: keep the instrument still on the tissue; "
-                f"tap the tissue {self.taps} times, briefly and firmly, at irregular intervals "
-                f"(at least 0.5 s apart). The projector will flash {self.flashes} times; keep "
-                "the camera's exposure and gain fixed (auto exposure off).")
+        return (
+            f"sync protocol, {self.duration_s:g} s: keep the instrument still on the tissue; "
+            f"tap the tissue {self.taps} times, briefly and firmly, at irregular intervals "
+            f"(at least 0.5 s apart). The projector will flash {self.flashes} times; keep "
+            "the camera's exposure and gain fixed (auto exposure off)."
+        )
 
     def describe(self) -> dict[str, Any]:
         """Session metadata of the protocol."""
-        return {"kind": "sync", "taps_requested": self.taps, "flashes_requested": self.flashes,
-                "duration_s": self.duration_s, "flash_patterns": [PATTERN_NAME, DIM_NAME],
-                "dim_level": DIM_LEVEL}
+        return {
+            "kind": "sync",
+            "taps_requested": self.taps,
+            "flashes_requested": self.flashes,
+            "duration_s": self.duration_s,
+            "flash_patterns": [PATTERN_NAME, DIM_NAME],
+            "dim_level": DIM_LEVEL,
+        }
 
     def rig_options(self) -> RigOptions:
         """How the rig runs the protocol: a simulated operator taps as asked, in real time
@@ -143,11 +156,11 @@ class SyncProtocol(Listener):
         if self._patterns is None:
             self._patterns = (acquisition.pattern, dim(acquisition.pattern))
         self.shown += 1
-        event = acquisition.show(self._patterns[self.shown % 2],
-                              DIM_NAME if self.shown % 2 else PATTERN_NAME)
+        event = acquisition.show(
+            self._patterns[self.shown % 2], DIM_NAME if self.shown % 2 else PATTERN_NAME
+        )
         self._last_flash_ns = event.t_host_ns
 
     def progress(self) -> str:
         """The events collected so far, for the progress line."""
-        return (f"flashes {self.shown}/{self.flashes}, taps {self.tap_counter.count}/"
-                f"{self.taps}")
+        return f"flashes {self.shown}/{self.flashes}, taps {self.tap_counter.count}/{self.taps}"

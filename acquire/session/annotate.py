@@ -17,8 +17,9 @@ def store_calibration(session_path: str | Path, yaml_text: str) -> None:
     store_analysis(session_path, {}, calibration_yaml=yaml_text)
 
 
-def store_analysis(session_path: str | Path, values: dict[str, Any],
-                   calibration_yaml: str | None = None) -> None:
+def store_analysis(
+    session_path: str | Path, values: dict[str, Any], calibration_yaml: str | None = None
+) -> None:
     """Add attributes to ``/analysis`` (and optionally the calibration) of a closed session
     (refused, naming the process, while another one writes it)."""
     with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:

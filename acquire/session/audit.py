@@ -33,6 +33,11 @@ def audit_sequence(seq: np.ndarray, max_gaps: int = 100) -> StreamAudit:
     jumps = np.flatnonzero(step > 1)
     unique = np.unique(seq)
     expected = int(seq.max() - seq.min() + 1)
-    return StreamAudit(stored=len(seq), expected=expected, dropped=expected - len(unique),
-                       duplicated=len(seq) - len(unique), reordered=int((step < 0).sum()),
-                       gaps=[(int(seq[i]), int(seq[i + 1])) for i in jumps[:max_gaps]])
+    return StreamAudit(
+        stored=len(seq),
+        expected=expected,
+        dropped=expected - len(unique),
+        duplicated=len(seq) - len(unique),
+        reordered=int((step < 0).sum()),
+        gaps=[(int(seq[i]), int(seq[i + 1])) for i in jumps[:max_gaps]],
+    )

@@ -70,12 +70,20 @@ class ClockFit:
         return {**asdict(self), "drift_ppm": self.drift_ppm, "offset_ns": self.offset_ns}
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "ClockFit":
+    def from_attrs(cls, attrs: dict) -> ClockFit:
         """Rebuild a fit from :meth:`to_attrs` output (extra keys are ignored)."""
-        return cls(int(attrs["ref_device_ns"]), int(attrs["ref_host_ns"]),
-                   float(attrs["intercept_ns"]), float(attrs["slope"]), float(attrs["jitter_ns"]),
-                   float(attrs["latency_ns"]), int(attrs["n_pairs"]), int(attrs.get("span_ns", 0)),
-                   float(attrs.get("envelope_ns", 0.0)), float(attrs.get("drift_std_ppm", -1.0)))
+        return cls(
+            int(attrs["ref_device_ns"]),
+            int(attrs["ref_host_ns"]),
+            float(attrs["intercept_ns"]),
+            float(attrs["slope"]),
+            float(attrs["jitter_ns"]),
+            float(attrs["latency_ns"]),
+            int(attrs["n_pairs"]),
+            int(attrs.get("span_ns", 0)),
+            float(attrs.get("envelope_ns", 0.0)),
+            float(attrs.get("drift_std_ppm", -1.0)),
+        )
 
 
 def identity_fit(t_host_ns: np.ndarray) -> ClockFit:
@@ -99,8 +107,7 @@ def _n_segments(n_pairs: int) -> int:
     return int(min(np.clip(n_pairs // _POINTS_PER_SEGMENT, 2, _SEGMENTS), max(n_pairs, 1)))
 
 
-def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float,
-                  b: float) -> tuple[float, float, float]:
+def _envelope_fit(x: np.ndarray, y: np.ndarray, a: float, b: float) -> tuple[float, float, float]:
     """Line through the lowest point of each segment: ``(intercept, slope, scatter)``."""
     segments = np.array_split(np.arange(len(x)), _n_segments(len(x)))
     residual = y - (a + b * x)
@@ -142,9 +149,18 @@ def fit_clock(t_device_ns: np.ndarray, t_host_ns: np.ndarray) -> ClockFit:
     level = float(np.mean([seg.min() for seg in segments if len(seg)]))  # the envelope
     med = float(np.median(residual))
     jitter = 1.4826 * float(np.median(np.abs(residual - med)))
-    return ClockFit(ref_dev, ref_host, med, b, jitter, med - level, int(len(dev)),
-                    int(dev[-1] - dev[0]), scatter,
-                    float(1e6 * slope_std / b ** 2) if np.isfinite(slope_std) else -1.0)
+    return ClockFit(
+        ref_dev,
+        ref_host,
+        med,
+        b,
+        jitter,
+        med - level,
+        int(len(dev)),
+        int(dev[-1] - dev[0]),
+        scatter,
+        float(1e6 * slope_std / b**2) if np.isfinite(slope_std) else -1.0,
+    )
 
 
 def _trimmed_line(x: np.ndarray, y: np.ndarray, slope: float) -> tuple[float, float]:

@@ -44,9 +44,13 @@ class EstimateStream:
 def write_estimates(f: h5py.File, stream: EstimateStream) -> None:
     """Write (or replace) the ``/estimate`` group in a session file open for writing."""
     n = len(stream)
-    columns = {"force_n": (stream.force_n, "N"), "frame_seq": (stream.frame_seq, ""),
-               "t_frame_host_ns": (stream.t_frame_host_ns, "ns"),
-               "t_ready_host_ns": (stream.t_ready_host_ns, "ns"), "stage_s": (stream.stage_s, "s")}
+    columns = {
+        "force_n": (stream.force_n, "N"),
+        "frame_seq": (stream.frame_seq, ""),
+        "t_frame_host_ns": (stream.t_frame_host_ns, "ns"),
+        "t_ready_host_ns": (stream.t_ready_host_ns, "ns"),
+        "stage_s": (stream.stage_s, "s"),
+    }
     for name, (values, _) in columns.items():
         if len(values) != n:
             raise SessionError(f"estimate column {name} has {len(values)} rows, expected {n}")
@@ -68,11 +72,16 @@ def read_estimates(f: h5py.File, path: Path) -> EstimateStream | None:
         return None
     try:
         return EstimateStream(
-            force_n=group["force_n"][()], frame_seq=group["frame_seq"][()],
+            force_n=group["force_n"][()],
+            frame_seq=group["frame_seq"][()],
             t_frame_host_ns=group["t_frame_host_ns"][()],
-            t_ready_host_ns=group["t_ready_host_ns"][()], stage_s=group["stage_s"][()],
+            t_ready_host_ns=group["t_ready_host_ns"][()],
+            stage_s=group["stage_s"][()],
             stages=json.loads(group.attrs["stages"]),
-            attrs=json.loads(group.attrs.get("attrs_json", "{}")))
+            attrs=json.loads(group.attrs.get("attrs_json", "{}")),
+        )
     except (KeyError, OSError, ValueError) as exc:
-        raise SessionError(f"the estimate stream of {path} is damaged ({exc}); it can be "
-                           f"recorded again with 'vbfe live --record'") from None
+        raise SessionError(
+            f"the estimate stream of {path} is damaged ({exc}); it can be "
+            f"recorded again with 'vbfe live --record'"
+        ) from None

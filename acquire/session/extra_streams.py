@@ -24,16 +24,34 @@ def lsl_stream_spec(info: StreamInfo) -> StreamSpec:
     """The layout of one LSL stream: ``values`` (n × channels float64, attributes
     ``channels``, ``channel_units``) or, for a marker stream, ``text``; the stream's
     description (LSL name, type, source id, host, nominal rate, its XML) in the attributes."""
-    described = (("lsl_name", info.lsl_name), ("lsl_type", info.type),
-                 ("source_id", info.source_id), ("hostname", info.hostname),
-                 ("nominal_rate_hz", info.nominal_rate_hz), ("info_xml", info.info_xml))
+    described = (
+        ("lsl_name", info.lsl_name),
+        ("lsl_type", info.type),
+        ("source_id", info.source_id),
+        ("hostname", info.hostname),
+        ("nominal_rate_hz", info.nominal_rate_hz),
+        ("info_xml", info.info_xml),
+    )
     if info.markers:
         return StreamSpec(info.name, (Column("text", TEXT, attrs=described),), chunk=64)
     units = set(info.units)
-    return StreamSpec(info.name, (Column(
-        "values", np.float64, (info.n_channels,), units.pop() if len(units) == 1 else "",
-        (("channels", list(info.channels)), ("channel_units", list(info.units)), *described)),),
-        chunk=int(min(4096, max(64, info.nominal_rate_hz))))
+    return StreamSpec(
+        info.name,
+        (
+            Column(
+                "values",
+                np.float64,
+                (info.n_channels,),
+                units.pop() if len(units) == 1 else "",
+                (
+                    ("channels", list(info.channels)),
+                    ("channel_units", list(info.units)),
+                    *described,
+                ),
+            ),
+        ),
+        chunk=int(min(4096, max(64, info.nominal_rate_hz))),
+    )
 
 
 @dataclass

@@ -56,7 +56,8 @@ class Column:
         """The column's values of ``records`` as one array."""
         get = self.value or (lambda r: getattr(r, self.name))
         return np.array([get(r) for r in records], dtype=self.dtype).reshape(
-            len(records), *self.shape)
+            len(records), *self.shape
+        )
 
     def kind(self) -> str:
         """The dtype kind a reader accepts for it."""
@@ -64,8 +65,12 @@ class Column:
 
     def describe(self) -> dict[str, Any]:
         """JSON-able spec (what a reader needs to check it)."""
-        return {"name": self.name, "dtype": "text" if self.kind() == "T" else np.dtype(
-            self.dtype).str, "shape": list(self.shape), "units": self.units}
+        return {
+            "name": self.name,
+            "dtype": "text" if self.kind() == "T" else np.dtype(self.dtype).str,
+            "shape": list(self.shape),
+            "units": self.units,
+        }
 
 
 @dataclass(frozen=True)
@@ -93,23 +98,38 @@ class StreamSpec:
 
     def describe(self) -> dict[str, Any]:
         """JSON-able spec, stored in sessions for streams beyond the core ones."""
-        return {"name": self.name, "chunk": self.chunk, "clock": self.clock,
-                "columns": [c.describe() for c in self.columns]}
+        return {
+            "name": self.name,
+            "chunk": self.chunk,
+            "clock": self.clock,
+            "columns": [c.describe() for c in self.columns],
+        }
 
     @classmethod
-    def from_description(cls, d: dict[str, Any]) -> "StreamSpec":
+    def from_description(cls, d: dict[str, Any]) -> StreamSpec:
         """The spec :meth:`describe` stored (without value getters: for reading)."""
-        columns = tuple(Column(c["name"], TEXT if c["dtype"] == "text" else np.dtype(c["dtype"]),
-                               tuple(c["shape"]), c.get("units", "")) for c in d["columns"])
+        columns = tuple(
+            Column(
+                c["name"],
+                TEXT if c["dtype"] == "text" else np.dtype(c["dtype"]),
+                tuple(c["shape"]),
+                c.get("units", ""),
+            )
+            for c in d["columns"]
+        )
         return cls(d["name"], columns, int(d.get("chunk", 4096)), d.get("clock", "device"))
 
 
-def vector_stream(name: str, channels: Sequence[str], units: str = "",
-                  clock: str = "device") -> StreamSpec:
+def vector_stream(
+    name: str, channels: Sequence[str], units: str = "", clock: str = "device"
+) -> StreamSpec:
     """A stream of N float channels per record (record attribute ``values``), e.g. robot
     kinematics from LSL."""
-    return StreamSpec(name, (Column("values", np.float64, (len(channels),), units,
-                                    (("channels", list(channels)),)),), clock=clock)
+    return StreamSpec(
+        name,
+        (Column("values", np.float64, (len(channels),), units, (("channels", list(channels)),)),),
+        clock=clock,
+    )
 
 
 def marker_stream(name: str, clock: str = "device") -> StreamSpec:
@@ -117,24 +137,38 @@ def marker_stream(name: str, clock: str = "device") -> StreamSpec:
     return StreamSpec(name, (Column("text", TEXT),), chunk=64, clock=clock)
 
 
-def core_streams(frame_size: tuple[int, int], encoding: str,
-                 force_axes: Sequence[str]) -> tuple[StreamSpec, ...]:
+def core_streams(
+    frame_size: tuple[int, int], encoding: str, force_axes: Sequence[str]
+) -> tuple[StreamSpec, ...]:
     """The camera (``raw`` or ``jpeg`` images), force and projector streams."""
     width, height = frame_size
     if encoding == "jpeg":
-        images = tuple(Column(f"{eye}_jpeg_index", np.int64, (2,), "byte",
-                              (("columns", ["offset", "length"]),)) for eye in ("left", "right"))
+        images = tuple(
+            Column(
+                f"{eye}_jpeg_index", np.int64, (2,), "byte", (("columns", ["offset", "length"]),)
+            )
+            for eye in ("left", "right")
+        )
         blobs = ("left_jpeg", "right_jpeg")
     else:
-        images = tuple(Column(eye, np.uint8, (height, width, 3), chunk=1, image=True)
-                       for eye in ("left", "right"))
+        images = tuple(
+            Column(eye, np.uint8, (height, width, 3), chunk=1, image=True)
+            for eye in ("left", "right")
+        )
         blobs = ()
     camera = StreamSpec("camera", images, chunk=256, blobs=blobs)
-    force = StreamSpec("force", (Column("force_n", np.float64, (len(force_axes),), "N",
-                                        (("axes", list(force_axes)),)),))
-    projector = StreamSpec("projector", (
-        Column("pattern", PATTERN_NAME_DTYPE, value=lambda e: e.pattern.encode()[:64]),
-        Column("frame_id", np.int64)), chunk=64)
+    force = StreamSpec(
+        "force",
+        (Column("force_n", np.float64, (len(force_axes),), "N", (("axes", list(force_axes)),)),),
+    )
+    projector = StreamSpec(
+        "projector",
+        (
+            Column("pattern", PATTERN_NAME_DTYPE, value=lambda e: e.pattern.encode()[:64]),
+            Column("frame_id", np.int64),
+        ),
+        chunk=64,
+    )
     return camera, force, projector
 
 
@@ -151,8 +185,11 @@ def session_streams(f: h5py.File) -> tuple[StreamSpec, ...]:
     camera = f["camera"]
     size = (int(camera.attrs.get("width", 0)), int(camera.attrs.get("height", 0)))
     force = f.get("force/force_n")
-    axes = [str(a) for a in force.attrs.get("axes", ["x", "y", "z"])] if force is not None \
+    axes = (
+        [str(a) for a in force.attrs.get("axes", ["x", "y", "z"])]
+        if force is not None
         else ["x", "y", "z"]
+    )
     encoding = str(camera.attrs.get("encoding", "raw"))
     return (*core_streams(size, encoding, axes), *extra_streams(f.attrs))
 

@@ -21,15 +21,23 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.common.files import is_hdf5
-from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at
-from vbfe.acquire.session.h5attrs import plain_attrs, text
-from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
+from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
-from vbfe.acquire.session.layout import (FORMAT_NAME, GAP_COLUMNS, GAP_REASONS, SCHEMA_VERSION,
-                                         STREAMS, TIME_COLUMNS, StreamSpec, session_streams)
+from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
+from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.acquire.session.layout import (
+    FORMAT_NAME,
+    GAP_COLUMNS,
+    GAP_REASONS,
+    SCHEMA_VERSION,
+    STREAMS,
+    TIME_COLUMNS,
+    StreamSpec,
+    session_streams,
+)
+from vbfe.common.files import is_hdf5
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
@@ -112,18 +120,23 @@ def open_session_file(path: str | Path, mode: str = "r") -> tuple[h5py.File, boo
         raise SessionError(f"session file {path} does not exist")
     declared, actual = _declared_size(path), path.stat().st_size
     if declared is not None and actual < declared:
-        raise SessionError(f"{path} is truncated: {actual} bytes of the {declared} its header "
-                           "declares (copied or written only in part); nothing can be read")
+        raise SessionError(
+            f"{path} is truncated: {actual} bytes of the {declared} its header "
+            "declares (copied or written only in part); nothing can be read"
+        )
     try:
         return _open_retrying(path, mode), True
     except OSError as exc:
         if "already open for write" not in str(exc) and "open for read-only" not in str(exc):
-            raise SessionError(f"{path} is not a readable HDF5 file (truncated or corrupt?): "
-                               f"{exc}") from None
+            raise SessionError(
+                f"{path} is not a readable HDF5 file (truncated or corrupt?): {exc}"
+            ) from None
     if mode != "r":
-        raise SessionError(f"{path} was not closed cleanly (the recorder stopped mid-recording); "
-                           "it can be read but not changed: copy it into a clean file with "
-                           "`vbfe inspect --recover OUT.h5`")
+        raise SessionError(
+            f"{path} was not closed cleanly (the recorder stopped mid-recording); "
+            "it can be read but not changed: copy it into a clean file with "
+            "`vbfe inspect --recover OUT.h5`"
+        )
     try:
         return h5py.File(path, "r", swmr=True, locking=False), False
     except OSError as exc:
@@ -146,13 +159,16 @@ def check_session(f: h5py.File, path: Path) -> None:
     """Refuse a file that is not a vbfe session or is of a newer schema (closing it)."""
     if f.attrs.get("format") != FORMAT_NAME:
         f.close()
-        raise SessionError(f"{path} is an HDF5 file but not a vbfe session (no "
-                           f"format={FORMAT_NAME!r} attribute)")
+        raise SessionError(
+            f"{path} is an HDF5 file but not a vbfe session (no format={FORMAT_NAME!r} attribute)"
+        )
     version = int(f.attrs.get("schema_version", -1))
     if version > SCHEMA_VERSION:
         f.close()
-        raise SessionError(f"{path} has session schema {version}, newer than this vbfe "
-                           f"understands ({SCHEMA_VERSION}); update vbfe")
+        raise SessionError(
+            f"{path} has session schema {version}, newer than this vbfe "
+            f"understands ({SCHEMA_VERSION}); update vbfe"
+        )
 
 
 _KINDS = {"i": "iu", "f": "f", "u": "u", "S": "S", "T": "OST"}  # layout kind -> dtype kinds read
@@ -168,16 +184,19 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
     for attr in ("width", "height"):
         value = camera.attrs.get(attr)
         if not isinstance(value, (int, np.integer)) or value <= 0:
-            raise SessionError(f"{path}: camera attribute {attr!r} is missing or not a positive "
-                               f"integer ({value!r}): {damaged}")
+            raise SessionError(
+                f"{path}: camera attribute {attr!r} is missing or not a positive "
+                f"integer ({value!r}): {damaged}"
+            )
     encoding = str(camera.attrs.get("encoding", "raw"))
     if encoding not in ("raw", "jpeg"):
         raise SessionError(f"{path}: unknown camera encoding {encoding!r}: {damaged}")
     try:
         streams = session_streams(f)
     except (ValueError, KeyError, TypeError) as exc:
-        raise SessionError(f"{path}: the declared extra streams cannot be read ({exc}): "
-                           f"{damaged}") from None
+        raise SessionError(
+            f"{path}: the declared extra streams cannot be read ({exc}): {damaged}"
+        ) from None
     datasets = [d for spec in streams for d in spec.datasets()]
     datasets += [("gaps", 2, "i"), ("clock_pairs", 2, "i")]
     for name, ndim, kind in datasets:
@@ -185,18 +204,23 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
         if not isinstance(ds, h5py.Dataset):
             raise SessionError(f"{path} has no dataset {name!r}: {damaged}")
         if ds.ndim != ndim or ds.dtype.kind not in _KINDS[kind]:
-            raise SessionError(f"{path}: dataset {name!r} is {ds.dtype} {ds.shape}, not the "
-                               f"session layout's: {damaged}")
+            raise SessionError(
+                f"{path}: dataset {name!r} is {ds.dtype} {ds.shape}, not the "
+                f"session layout's: {damaged}"
+            )
     for spec in streams:
         for column in spec.columns:
             stored = f[f"{spec.name}/{column.name}"].shape[1:]
             if stored != column.shape:
-                what = ("images" if column.image else "columns")
-                raise SessionError(f"{path}: {spec.name}/{column.name} holds {stored} {what}, "
-                                   f"the session says {column.shape}: {damaged}")
+                what = "images" if column.image else "columns"
+                raise SessionError(
+                    f"{path}: {spec.name}/{column.name} holds {stored} {what}, "
+                    f"the session says {column.shape}: {damaged}"
+                )
     if f["gaps"].shape[1] != len(GAP_COLUMNS) or f["clock_pairs"].shape[1] != 2:
-        raise SessionError(f"{path}: gaps or clock_pairs has the wrong number of columns: "
-                           f"{damaged}")
+        raise SessionError(
+            f"{path}: gaps or clock_pairs has the wrong number of columns: {damaged}"
+        )
     return encoding, streams
 
 
@@ -210,9 +234,10 @@ class SessionReader:
             self._open()
         except (OSError, KeyError, ValueError, TypeError) as exc:
             self._file.close()
-            raise SessionError(f"{self.path} cannot be read (corrupt or truncated?): "
-                               f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-                               ) from None
+            raise SessionError(
+                f"{self.path} cannot be read (corrupt or truncated?): "
+                f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            ) from None
         except SessionError:
             self._file.close()
             raise
@@ -225,14 +250,23 @@ class SessionReader:
         self.streams = {spec.name: spec for spec in streams}
         self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
         cam = f["camera"]
-        self._lengths = {spec.name: min([consistent_rows(f[spec.name])] + [
-            f[spec.name][c.name].shape[0] for c in spec.columns]) for spec in streams}
+        self._lengths = {
+            spec.name: min(
+                [consistent_rows(f[spec.name])]
+                + [f[spec.name][c.name].shape[0] for c in spec.columns]
+            )
+            for spec in streams
+        }
         self._fits: dict[str, ClockFit] = {}
         self._times: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._image_data = {eye: cam[f"{eye}_jpeg" if self.encoding == "jpeg" else eye]
-                            for eye in ("left", "right")}
-        self._jpeg_index = ({eye: cam[f"{eye}_jpeg_index"][:self.n_frames]
-                             for eye in ("left", "right")} if self.encoding == "jpeg" else {})
+        self._image_data = {
+            eye: cam[f"{eye}_jpeg" if self.encoding == "jpeg" else eye] for eye in ("left", "right")
+        }
+        self._jpeg_index = (
+            {eye: cam[f"{eye}_jpeg_index"][: self.n_frames] for eye in ("left", "right")}
+            if self.encoding == "jpeg"
+            else {}
+        )
 
     @property
     def growing(self) -> bool:
@@ -255,11 +289,15 @@ class SessionReader:
         """Close the file."""
         self._file.close()
 
-    def __enter__(self) -> "SessionReader":
+    def __enter__(self) -> SessionReader:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
     def _read(self, name: str, n: int | None = None) -> np.ndarray:
@@ -267,8 +305,9 @@ class SessionReader:
             ds = self._file[name]
             return ds[:n] if n is not None else ds[()]
         except (OSError, KeyError, ValueError) as exc:
-            raise SessionError(f"cannot read {name} from {self.path} (damaged?): "
-                               f"{read_failure_reason(exc)}") from None
+            raise SessionError(
+                f"cannot read {name} from {self.path} (damaged?): {read_failure_reason(exc)}"
+            ) from None
 
     # -- frames -------------------------------------------------------------------------
     @property
@@ -287,14 +326,16 @@ class SessionReader:
         try:
             if self.encoding == "jpeg":
                 offset, length = self._jpeg_index[eye][i]
-                image = cv2.imdecode(data[offset:offset + length], cv2.IMREAD_COLOR)
+                image = cv2.imdecode(data[offset : offset + length], cv2.IMREAD_COLOR)
                 if image is None:
                     raise OSError("JPEG data does not decode")
                 return image
             return data[i]
         except OSError as exc:
-            raise SessionError(f"frame {i} of {self.path} is damaged: dataset "
-                               f"{data.name} cannot be read ({read_failure_reason(exc)})") from None
+            raise SessionError(
+                f"frame {i} of {self.path} is damaged: dataset "
+                f"{data.name} cannot be read ({read_failure_reason(exc)})"
+            ) from None
 
     def encoded_frame(self, i: int) -> tuple[bytes, bytes] | None:
         """The stored JPEG bytes (left, right) of frame ``i`` of an ``mjpeg`` session (the
@@ -305,10 +346,11 @@ class SessionReader:
         for eye in ("left", "right"):
             offset, length = self._jpeg_index[eye][i]
             try:
-                blobs.append(self._image_data[eye][offset:offset + length].tobytes())
+                blobs.append(self._image_data[eye][offset : offset + length].tobytes())
             except OSError as exc:
-                raise SessionError(f"frame {i} of {self.path} is damaged: "
-                                   f"{read_failure_reason(exc)}") from None
+                raise SessionError(
+                    f"frame {i} of {self.path} is damaged: {read_failure_reason(exc)}"
+                ) from None
         return blobs[0], blobs[1]
 
     def frame(self, i: int) -> StereoFrame:
@@ -317,8 +359,13 @@ class SessionReader:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
         t_dev, t_host, seq = self.stream_times("camera")
-        return StereoFrame(left=self._image("left", i), right=self._image("right", i),
-                           seq=int(seq[i]), t_device_ns=int(t_dev[i]), t_host_ns=int(t_host[i]))
+        return StereoFrame(
+            left=self._image("left", i),
+            right=self._image("right", i),
+            seq=int(seq[i]),
+            t_device_ns=int(t_dev[i]),
+            t_host_ns=int(t_host[i]),
+        )
 
     def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[StereoFrame]:
         """Frames ``start`` … ``stop - 1`` in order."""
@@ -338,8 +385,9 @@ class SessionReader:
     def stream_length(self, stream: str) -> int:
         """Complete records of ``stream``."""
         if stream not in self._lengths:
-            raise SessionError(f"{self.path} has no stream {stream!r} (streams: "
-                               f"{list(self.streams)})")
+            raise SessionError(
+                f"{self.path} has no stream {stream!r} (streams: {list(self.streams)})"
+            )
         return self._lengths[stream]
 
     def stream_column(self, stream: str, column: str) -> np.ndarray:
@@ -389,8 +437,9 @@ class SessionReader:
         Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
         get NaN rather than an invented value.
         """
-        return resample_at(self.frame_times_ns(), self.force_times_ns(), self.forces_n(),
-                           max_gap_s * 1e9)
+        return resample_at(
+            self.frame_times_ns(), self.force_times_ns(), self.forces_n(), max_gap_s * 1e9
+        )
 
     # -- extra streams (``[streams]``) and event marks ----------------------------------------
     def stream_names(self) -> list[str]:
@@ -401,8 +450,10 @@ class SessionReader:
         """An extra stream (e.g. ``"robot"``): values or marker text, host and publisher times,
         channel names and units, the time corrections measured while recording."""
         if name not in self.stream_names():
-            raise SessionError(f"{self.path} has no stream {name!r}; it has "
-                               f"{', '.join(self.stream_names()) or 'no extra streams'}")
+            raise SessionError(
+                f"{self.path} has no stream {name!r}; it has "
+                f"{', '.join(self.stream_names()) or 'no extra streams'}"
+            )
         column = self.streams[name].columns[0].name
         attrs = plain_attrs(self._file[f"{name}/{column}"].attrs)
         data = self.stream_column(name, column)
@@ -413,13 +464,17 @@ class SessionReader:
             at_end = {}
         channels = [str(c) for c in attrs.pop("channels", [column])]
         return RecordedStream(
-            name=name, channels=channels,
+            name=name,
+            channels=channels,
             units=[str(u) for u in attrs.pop("channel_units", [attrs.get("units", "")])],
-            t_host_ns=t_host, t_device_ns=t_device, seq=seq,
+            t_host_ns=t_host,
+            t_device_ns=t_device,
+            seq=seq,
             values=None if column == "text" else data.reshape(len(seq), -1),
             text=data if column == "text" else None,
             corrections=np.array(at_end.get("time_corrections", []), np.int64).reshape(-1, 2),
-            attrs=attrs)
+            attrs=attrs,
+        )
 
     def at_frames(self, name: str, max_gap_s: float | None = None) -> np.ndarray:
         """A numeric extra stream at each frame's synchronized time: ``(n_frames, channels)``,
@@ -427,25 +482,34 @@ class SessionReader:
         five sample periods of its nominal rate, else 50 ms)."""
         stream = self.stream(name)
         if stream.markers:
-            raise SessionError(f"stream {name} of {self.path} holds event markers, not values; "
-                               "read them with events()")
+            raise SessionError(
+                f"stream {name} of {self.path} holds event markers, not values; "
+                "read them with events()"
+            )
         if max_gap_s is None:
             rate = float(stream.attrs.get("nominal_rate_hz", 0.0))
             max_gap_s = 5 / rate if rate > 0 else 0.05
-        return resample_at(self.frame_times_ns(), stream.t_host_ns, stream.values,
-                           max_gap_s * 1e9)
+        return resample_at(self.frame_times_ns(), stream.t_host_ns, stream.values, max_gap_s * 1e9)
 
     def events(self) -> list[dict[str, Any]]:
         """Every event mark by host time: ``{"t_host_ns", "source", "text"}`` (source
         ``"mark"`` for ``vbfe mark``, else the marker stream's name)."""
         events = []
-        marker_streams = [n for n, spec in self.streams.items()
-                          if n not in STREAMS and [c.name for c in spec.columns] == ["text"]]
+        marker_streams = [
+            n
+            for n, spec in self.streams.items()
+            if n not in STREAMS and [c.name for c in spec.columns] == ["text"]
+        ]
         for name in marker_streams:
             t_host = self.stream_times(name)[1]
-            events += [{"t_host_ns": int(t), "source": "mark" if name == MARKS else name,
-                        "text": str(text)}
-                       for t, text in zip(t_host, self.stream_column(name, "text"))]
+            events += [
+                {
+                    "t_host_ns": int(t),
+                    "source": "mark" if name == MARKS else name,
+                    "text": str(text),
+                }
+                for t, text in zip(t_host, self.stream_column(name, "text"), strict=False)
+            ]
         return sorted(events, key=lambda e: e["t_host_ns"])
 
     # -- events, gaps, metadata ---------------------------------------------------------
@@ -455,9 +519,16 @@ class SessionReader:
         t_dev, t_host, seq = self.stream_times("projector")
         names = self._read("projector/pattern", n)
         ids = self._read("projector/frame_id", n)
-        return [ProjectorEvent(pattern=names[i].decode(), frame_id=int(ids[i]), seq=int(seq[i]),
-                               t_host_ns=int(t_host[i]), t_device_ns=int(t_dev[i]))
-                for i in range(n)]
+        return [
+            ProjectorEvent(
+                pattern=names[i].decode(),
+                frame_id=int(ids[i]),
+                seq=int(seq[i]),
+                t_host_ns=int(t_host[i]),
+                t_device_ns=int(t_dev[i]),
+            )
+            for i in range(n)
+        ]
 
     def gaps(self) -> list[dict[str, Any]]:
         """Gaps the recorder marked (queue overflow, device disconnected), as dicts."""
@@ -465,7 +536,7 @@ class SessionReader:
         streams = [text(v) for v in self._file["gaps"].attrs.get("streams", STREAMS)]
         out = []
         for row in rows:
-            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row)))
+            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row), strict=False))
             gap["stream"] = streams[gap["stream"]]
             gap["reason"] = GAP_REASONS[gap["reason"]]
             out.append(gap)
@@ -481,8 +552,9 @@ class SessionReader:
         try:
             return plain_attrs(self._file.attrs)
         except OSError as exc:
-            raise SessionError(f"cannot read the attributes of {self.path} (corrupt?): "
-                               f"{exc}") from None
+            raise SessionError(
+                f"cannot read the attributes of {self.path} (corrupt?): {exc}"
+            ) from None
 
     @property
     def metadata(self) -> dict[str, Any]:
@@ -491,12 +563,20 @@ class SessionReader:
         try:
             meta = json.loads(attrs.get("metadata_json", "{}"))
         except (json.JSONDecodeError, TypeError):
-            raise SessionError(f"{self.path}: the metadata_json attribute is not JSON (damaged "
-                               "file); record it again or restore a copy") from None
+            raise SessionError(
+                f"{self.path}: the metadata_json attribute is not JSON (damaged "
+                "file); record it again or restore a copy"
+            ) from None
         if not isinstance(meta, dict):
             raise SessionError(f"{self.path}: the metadata_json attribute is not a JSON object")
-        for key in ("operator", "notes", "schema_version", "software_version", "compression",
-                    "start_utc_ns"):
+        for key in (
+            "operator",
+            "notes",
+            "schema_version",
+            "software_version",
+            "compression",
+            "start_utc_ns",
+        ):
             meta.setdefault(key, attrs.get(key))
         return meta
 

@@ -45,8 +45,9 @@ def _keep_consistent_rows(f: h5py.File) -> dict[str, int]:
     return dropped
 
 
-def recover_session(path: str | Path, out_path: str | Path,
-                    overwrite: bool = False) -> tuple[Path, dict[str, int]]:
+def recover_session(
+    path: str | Path, out_path: str | Path, overwrite: bool = False
+) -> tuple[Path, dict[str, int]]:
     """Copy a session whose recorder died (SWMR write flag still set) into a clean, finalized
     file ``out_path``: every row up to the last flush whose timestamps are consistent, plus
     clock fits. Returns the new file and the rows dropped per stream. The copy is written under
@@ -55,12 +56,14 @@ def recover_session(path: str | Path, out_path: str | Path,
     if out_path.exists() and not overwrite:
         raise SessionError(f"{out_path} already exists; choose a new file for the recovered copy")
     if not out_path.parent.is_dir():
-        raise SessionError(f"cannot recover into {out_path}: folder {out_path.parent} does not "
-                           "exist")
+        raise SessionError(
+            f"cannot recover into {out_path}: folder {out_path.parent} does not exist"
+        )
     with SessionReader(path):  # a damaged file fails here, naming what is wrong
         pass
-    require_free_space(out_path.parent, Path(path).stat().st_size + RESERVE_BYTES,
-                       f"the recovered copy {out_path}")
+    require_free_space(
+        out_path.parent, Path(path).stat().st_size + RESERVE_BYTES, f"the recovered copy {out_path}"
+    )
     src, _ = open_session_file(path)
     tmp = partial_path(out_path)
     try:
@@ -71,13 +74,20 @@ def recover_session(path: str | Path, out_path: str | Path,
             for name in src:
                 src.copy(src[name], dst, name=name)
             dropped = _keep_consistent_rows(dst)
-            finish_file(dst, {"end_reason": "recovered: the recording was interrupted",
-                              "recovered_from": str(Path(path).absolute()),
-                              **{f"{s}_recovery_dropped": n for s, n in dropped.items()}}, None)
+            finish_file(
+                dst,
+                {
+                    "end_reason": "recovered: the recording was interrupted",
+                    "recovered_from": str(Path(path).absolute()),
+                    **{f"{s}_recovery_dropped": n for s, n in dropped.items()},
+                },
+                None,
+            )
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise SessionError(f"{path} cannot be recovered (damaged beyond its last flush?): "
-                           f"{exc}") from None
+        raise SessionError(
+            f"{path} cannot be recovered (damaged beyond its last flush?): {exc}"
+        ) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -27,10 +27,13 @@ class Damage:
 
     def text(self) -> str:
         """One line naming what is damaged."""
-        what = (f"frame{'s' if len(self.frames) > 1 else ''} "
-                f"{', '.join(map(str, self.frames))}" if self.frames
-                else f"rows {self.first_row}-{self.last_row}" if self.first_row >= 0
-                else "structure (HDF5 metadata)")
+        what = (
+            f"frame{'s' if len(self.frames) > 1 else ''} {', '.join(map(str, self.frames))}"
+            if self.frames
+            else f"rows {self.first_row}-{self.last_row}"
+            if self.first_row >= 0
+            else "structure (HDF5 metadata)"
+        )
         return f"damaged   {self.dataset}: {what} ({self.reason})"
 
 
@@ -81,6 +84,13 @@ def verify_session(path: str | Path) -> tuple[int, list[Damage]]:
                     ds[sel]
                 except OSError as exc:
                     first, last = sel[0].start, sel[0].stop - 1
-                    damage.append(Damage(ds.name.lstrip("/"), first, last,
-                                         _frames_of(f, ds, first, last), read_failure_reason(exc)))
+                    damage.append(
+                        Damage(
+                            ds.name.lstrip("/"),
+                            first,
+                            last,
+                            _frames_of(f, ds, first, last),
+                            read_failure_reason(exc),
+                        )
+                    )
         return chunks, damage

@@ -29,13 +29,23 @@ import numpy as np
 import vbfe
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.clock import fit_clock
-from vbfe.acquire.session.layout import (COMPRESSIONS, EXTRA_STREAMS_ATTR, FORMAT_NAME,
-                                         GAP_COLUMNS, GAP_REASONS, JPEG_QUALITY, SCHEMA_VERSION,
-                                         TIME_COLUMNS, StreamSpec, core_streams,
-                                         image_filter, session_streams)
+from vbfe.acquire.session.layout import (
+    COMPRESSIONS,
+    EXTRA_STREAMS_ATTR,
+    FORMAT_NAME,
+    GAP_COLUMNS,
+    GAP_REASONS,
+    JPEG_QUALITY,
+    SCHEMA_VERSION,
+    TIME_COLUMNS,
+    StreamSpec,
+    core_streams,
+    image_filter,
+    session_streams,
+)
 from vbfe.acquire.session.reader import consistent_rows
-from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.common.files import WriterLock
+from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _JPEG_CHUNK = 1 << 20
 RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
@@ -57,14 +67,26 @@ def _reserve_space(directory: Path) -> int | None:
     return fd
 
 
-def _series(group: h5py.Group, name: str, dtype: Any, shape: tuple[int, ...] = (),
-            chunk: int = 4096, **kwargs: Any) -> h5py.Dataset:
+def _series(
+    group: h5py.Group,
+    name: str,
+    dtype: Any,
+    shape: tuple[int, ...] = (),
+    chunk: int = 4096,
+    **kwargs: Any,
+) -> h5py.Dataset:
     """A resizable, chunked dataset of rows of ``shape``; checksummed unless it holds text
     (HDF5 filters cannot apply to variable-length data)."""
     checksum = h5py.check_string_dtype(np.dtype(dtype)) is None
-    return group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape),
-                                chunks=(chunk, *shape), dtype=dtype, fletcher32=checksum,
-                                **kwargs)
+    return group.create_dataset(
+        name,
+        shape=(0, *shape),
+        maxshape=(None, *shape),
+        chunks=(chunk, *shape),
+        dtype=dtype,
+        fletcher32=checksum,
+        **kwargs,
+    )
 
 
 def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
@@ -84,23 +106,37 @@ class SessionWriter:
     """Writes one session file: the core streams and ``extra_streams``; call the ``append*``
     methods from a single thread."""
 
-    def __init__(self, path: str | Path, frame_size: tuple[int, int], compression: str = "lzf",
-                 metadata: dict[str, Any] | None = None, calibration_yaml: str | None = None,
-                 force_axes: Sequence[str] = ("x", "y", "z"), flush_interval_s: float = 1.0,
-                 extra_streams: Sequence[StreamSpec] = ()) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        frame_size: tuple[int, int],
+        compression: str = "lzf",
+        metadata: dict[str, Any] | None = None,
+        calibration_yaml: str | None = None,
+        force_axes: Sequence[str] = ("x", "y", "z"),
+        flush_interval_s: float = 1.0,
+        extra_streams: Sequence[StreamSpec] = (),
+    ) -> None:
         if compression not in COMPRESSIONS:
-            raise SessionError(f"unknown compression {compression!r} for {path}; choose one of "
-                               f"{COMPRESSIONS}")
+            raise SessionError(
+                f"unknown compression {compression!r} for {path}; choose one of {COMPRESSIONS}"
+            )
         self.path = Path(path)
         self.compression = compression
         self.bytes_written = 0  # uncompressed payload bytes
         encoding = "jpeg" if compression == "mjpeg" else "raw"
         specs = (*core_streams(frame_size, encoding, force_axes), *extra_streams)
         self.streams: dict[str, StreamSpec] = {spec.name: spec for spec in specs}
-        if len(self.streams) < len(specs) or set(self.streams) & {"gaps", "clock_pairs",
-                                                                  "clock", "truth"}:
-            raise SessionError(f"stream names for {path} must be unique and not a session "
-                               f"dataset's: {[spec.name for spec in specs]}")
+        if len(self.streams) < len(specs) or set(self.streams) & {
+            "gaps",
+            "clock_pairs",
+            "clock",
+            "truth",
+        }:
+            raise SessionError(
+                f"stream names for {path} must be unique and not a session "
+                f"dataset's: {[spec.name for spec in specs]}"
+            )
         metadata = dict(metadata or {})
         self._lock = WriterLock(self.path).acquire()  # before the old file is truncated
         self._reserve = _reserve_space(self.path.parent)
@@ -110,30 +146,43 @@ class SessionWriter:
             self._release_reserve()
             raise SessionError(f"cannot create session file {self.path}: {exc}") from None
         f = self._file
-        f.attrs.update({
-            "format": FORMAT_NAME, "schema_version": SCHEMA_VERSION,
-            "software_version": vbfe.__version__, "compression": compression,
-            "operator": str(metadata.get("operator", "")), "notes": str(metadata.get("notes", "")),
-            "start_utc_ns": time.time_ns(), "start_host_ns": time.monotonic_ns(),
-            "metadata_json": json.dumps(metadata, default=str), "complete": False,
-            "flush_interval_s": float(flush_interval_s),
-            "writer_host": socket.gethostname(), "writer_pid": os.getpid(),
-        })
+        f.attrs.update(
+            {
+                "format": FORMAT_NAME,
+                "schema_version": SCHEMA_VERSION,
+                "software_version": vbfe.__version__,
+                "compression": compression,
+                "operator": str(metadata.get("operator", "")),
+                "notes": str(metadata.get("notes", "")),
+                "start_utc_ns": time.time_ns(),
+                "start_host_ns": time.monotonic_ns(),
+                "metadata_json": json.dumps(metadata, default=str),
+                "complete": False,
+                "flush_interval_s": float(flush_interval_s),
+                "writer_host": socket.gethostname(),
+                "writer_pid": os.getpid(),
+            }
+        )
         if extra_streams:
             f.attrs[EXTRA_STREAMS_ATTR] = json.dumps([spec.describe() for spec in extra_streams])
         self._data: dict[str, dict[str, h5py.Dataset]] = {}
         for spec in specs:
             self._data[spec.name] = self._create(f.create_group(spec.name), spec)
-        f["camera"].attrs.update({"width": frame_size[0], "height": frame_size[1],
-                                  "encoding": encoding, "color": "BGR"})
+        f["camera"].attrs.update(
+            {"width": frame_size[0], "height": frame_size[1], "encoding": encoding, "color": "BGR"}
+        )
         self._gaps = _series(f, "gaps", np.int64, (len(GAP_COLUMNS),), 64)
-        self._gaps.attrs.update({"columns": list(GAP_COLUMNS), "streams": list(self.streams),
-                                 "reasons": list(GAP_REASONS)})
+        self._gaps.attrs.update(
+            {
+                "columns": list(GAP_COLUMNS),
+                "streams": list(self.streams),
+                "reasons": list(GAP_REASONS),
+            }
+        )
         self._wall = _series(f, "clock_pairs", np.int64, (2,), 64)
         self._wall.attrs["columns"] = ["t_utc_ns", "t_host_ns"]
         if calibration_yaml is not None:
-            f.create_dataset("calibration_yaml", data=calibration_yaml,
-                             dtype=h5py.string_dtype())
+            f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
         f.swmr_mode = True
         self.counts = {name: 0 for name in self.streams}
         self.flushed_counts = dict(self.counts)
@@ -147,8 +196,9 @@ class SessionWriter:
                 data[key].attrs["units"] = "ns"
         for column in spec.columns:
             extra = {**image_filter(self.compression), **_IMAGE_CACHE} if column.image else {}
-            data[column.name] = _series(group, column.name, column.dtype, column.shape,
-                                        column.chunk or spec.chunk, **extra)
+            data[column.name] = _series(
+                group, column.name, column.dtype, column.shape, column.chunk or spec.chunk, **extra
+            )
             if column.units:
                 data[column.name].attrs["units"] = column.units
             data[column.name].attrs.update(dict(column.attrs))
@@ -163,8 +213,10 @@ class SessionWriter:
             return
         spec = self.streams.get(stream)
         if spec is None:
-            raise SessionError(f"{self.path} has no stream {stream!r} (streams: "
-                               f"{list(self.streams)}); give its spec to the writer")
+            raise SessionError(
+                f"{self.path} has no stream {stream!r} (streams: "
+                f"{list(self.streams)}); give its spec to the writer"
+            )
         if stream == "camera":
             self._append_images(records)
         else:
@@ -184,8 +236,10 @@ class SessionWriter:
         data = self._data["camera"]
         if self.compression == "mjpeg":
             for i, eye in enumerate(("left", "right")):
-                blobs = [fr.encoded[i] if fr.encoded is not None
-                         else _encode_jpeg(getattr(fr, eye)) for fr in frames]
+                blobs = [
+                    fr.encoded[i] if fr.encoded is not None else _encode_jpeg(getattr(fr, eye))
+                    for fr in frames
+                ]
                 start = data[f"{eye}_jpeg"].shape[0]
                 lengths = np.array([len(b) for b in blobs], dtype=np.int64)
                 offsets = start + np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -196,8 +250,10 @@ class SessionWriter:
         expected = data["left"].shape[1:]
         for fr in frames:
             if fr.left.shape != expected or fr.right.shape != expected:
-                raise SessionError(f"frame {fr.seq} for {self.path} is {fr.left.shape}, "
-                                   f"expected {expected} (did the camera change size?)")
+                raise SessionError(
+                    f"frame {fr.seq} for {self.path} is {fr.left.shape}, "
+                    f"expected {expected} (did the camera change size?)"
+                )
         for eye in ("left", "right"):
             ds = data[eye]
             n = ds.shape[0]
@@ -218,12 +274,26 @@ class SessionWriter:
         """Append projector events (pattern shown, frame ID)."""
         self.append("projector", events)
 
-    def add_gap(self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int,
-                count: int) -> None:
+    def add_gap(
+        self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int, count: int
+    ) -> None:
         """Mark a gap in a stream: records lost between ``last_seq`` and ``next_seq``."""
-        _append(self._gaps, np.array([[list(self.streams).index(stream),
-                                       GAP_REASONS.index(reason), last_seq, next_seq, t_host_ns,
-                                       count]], dtype=np.int64))
+        _append(
+            self._gaps,
+            np.array(
+                [
+                    [
+                        list(self.streams).index(stream),
+                        GAP_REASONS.index(reason),
+                        last_seq,
+                        next_seq,
+                        t_host_ns,
+                        count,
+                    ]
+                ],
+                dtype=np.int64,
+            ),
+        )
 
     def flush(self, clock_pair: tuple[int, int] | None = None) -> dict[str, int]:
         """Make everything appended so far durable and visible to readers; returns the counts.
@@ -265,8 +335,9 @@ class SessionWriter:
         self._release_reserve()
 
 
-def finalize_session(path: str | Path, attrs: dict[str, Any],
-                     truth: dict[str, np.ndarray] | None = None) -> None:
+def finalize_session(
+    path: str | Path, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None = None
+) -> None:
     """After a clean close: store clock fits per stream, end attributes and optional truth.
 
     The file is reopened without HDF5's file lock (``locking=False``): a reader that has the
@@ -280,8 +351,7 @@ def finalize_session(path: str | Path, attrs: dict[str, Any],
             finish_file(f, attrs, truth)
 
 
-def finish_file(f: h5py.File, attrs: dict[str, Any],
-                truth: dict[str, np.ndarray] | None) -> None:
+def finish_file(f: h5py.File, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None) -> None:
     """Clock fits of every stream, optional truth and the end attributes, in an open file."""
     clock = f.require_group("clock")
     for spec in session_streams(f):
@@ -294,5 +364,11 @@ def finish_file(f: h5py.File, attrs: dict[str, Any],
             if name in group:
                 del group[name]
             group.create_dataset(name, data=np.asarray(values), fletcher32=True)
-    f.attrs.update({"end_utc_ns": time.time_ns(), "end_host_ns": time.monotonic_ns(),
-                    "complete": True, **attrs})
+    f.attrs.update(
+        {
+            "end_utc_ns": time.time_ns(),
+            "end_host_ns": time.monotonic_ns(),
+            "complete": True,
+            **attrs,
+        }
+    )

@@ -20,16 +20,21 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.session.annotate import store_analysis
-from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.recording.settings import record_settings
+from vbfe.acquire.session.annotate import store_analysis
+from vbfe.acquire.session.audit import StreamAudit, audit_sequence
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.acquire.sync.protocol import (
+    EventEstimate,
+    ProtocolResult,
+    ProtocolSettings,
+    analyse_protocol,
+)
 from vbfe.acquire.sync.streams import stream_offset
 from vbfe.common.files import save_figure
-from vbfe.acquire.sync.protocol import EventEstimate, ProtocolResult, ProtocolSettings, analyse_protocol
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass
@@ -45,11 +50,15 @@ class SyncLimits:
     max_force_drop: float = 0.05
 
     @classmethod
-    def from_config(cls, config: dict[str, dict[str, Any]]) -> "SyncLimits":
+    def from_config(cls, config: dict[str, dict[str, Any]]) -> SyncLimits:
         """Limits from a rig configuration's ``[record]`` table."""
         table = record_settings(config)
-        return cls(table.sync_max_offset_s, table.sync_max_ci_halfwidth_s,
-                   table.sync_max_frame_drop, table.sync_max_force_drop)
+        return cls(
+            table.sync_max_offset_s,
+            table.sync_max_ci_halfwidth_s,
+            table.sync_max_frame_drop,
+            table.sync_max_force_drop,
+        )
 
 
 @dataclass
@@ -84,33 +93,44 @@ class SyncReport:
     def text(self) -> str:
         """Human-readable report."""
         e = self.estimate
-        lines = [f"session    {self.path}",
-                 f"offset     image - force = {1e3 * e.offset_s:+.2f} ms ± {1e3 * e.std_s:.2f} ms"
-                 f" (95% CI {1e3 * e.ci95_s[0]:+.2f} … {1e3 * e.ci95_s[1]:+.2f} ms, "
-                 f"{e.method})",
-                 f"correction {1e3 * self.correction_s:+.2f} ms applied to frame times; residual "
-                 f"{1e3 * self.residual_offset_s:+.2f} ms"]
+        lines = [
+            f"session    {self.path}",
+            f"offset     image - force = {1e3 * e.offset_s:+.2f} ms ± {1e3 * e.std_s:.2f} ms"
+            f" (95% CI {1e3 * e.ci95_s[0]:+.2f} … {1e3 * e.ci95_s[1]:+.2f} ms, "
+            f"{e.method})",
+            f"correction {1e3 * self.correction_s:+.2f} ms applied to frame times; residual "
+            f"{1e3 * self.residual_offset_s:+.2f} ms",
+        ]
         if self.protocol is not None:
             lines += _protocol_lines(self.protocol)
         for name, found in self.streams.items():
-            lines.append(f"stream     {name} - force = {1e3 * found.offset_s:+.2f} ms ± "
-                         f"{1e3 * found.std_s:.2f} ms ({found.corners} corners; image - {name} "
-                         f"= {1e3 * (e.offset_s - found.offset_s):+.2f} ms)"
-                         if isinstance(found, OffsetEstimate) else
-                         f"stream     {name}: no clock check ({found})")
+            lines.append(
+                f"stream     {name} - force = {1e3 * found.offset_s:+.2f} ms ± "
+                f"{1e3 * found.std_s:.2f} ms ({found.corners} corners; image - {name} "
+                f"= {1e3 * (e.offset_s - found.offset_s):+.2f} ms)"
+                if isinstance(found, OffsetEstimate)
+                else f"stream     {name}: no clock check ({found})"
+            )
         for stream, ppm in self.drift_ppm.items():
-            lines.append(f"clock      {stream}: drift {ppm:+.1f} ± "
-                         f"{self.drift_uncertainty_ppm[stream]:.1f} ppm vs host, jitter "
-                         f"{1e3 * self.jitter_s[stream]:.3f} ms")
+            lines.append(
+                f"clock      {stream}: drift {ppm:+.1f} ± "
+                f"{self.drift_uncertainty_ppm[stream]:.1f} ppm vs host, jitter "
+                f"{1e3 * self.jitter_s[stream]:.3f} ms"
+            )
         for stream, au in self.audits.items():
-            lines.append(f"audit      {stream}: {au.stored} stored, {au.dropped} dropped "
-                         f"({100 * au.drop_fraction:.2f}%), {au.duplicated} duplicated, "
-                         f"{au.reordered} out of order")
+            lines.append(
+                f"audit      {stream}: {au.stored} stored, {au.dropped} dropped "
+                f"({100 * au.drop_fraction:.2f}%), {au.duplicated} duplicated, "
+                f"{au.reordered} out of order"
+            )
         verdict = self.verdict
         if self.verdict == INCONCLUSIVE:
             verdict += " - record a sync protocol session (vbfe record --protocol sync)"
-        lines.append("verdict    " + verdict + "".join(
-            ("; " if i else ": ") + r for i, r in enumerate(self.reasons)))
+        lines.append(
+            "verdict    "
+            + verdict
+            + "".join(("; " if i else ": ") + r for i, r in enumerate(self.reasons))
+        )
         if self.plot_path is not None:
             lines.append(f"plot       {self.plot_path}")
         return "\n".join(lines)
@@ -118,52 +138,78 @@ class SyncReport:
     def to_attrs(self) -> dict[str, Any]:
         """What is stored in the session's ``/analysis`` attributes."""
         e = self.estimate
-        return {"sync_offset_s": e.offset_s, "sync_offset_std_s": e.std_s,
-                "sync_offset_ci95_low_s": e.ci95_s[0], "sync_offset_ci95_high_s": e.ci95_s[1],
-                "sync_residual_offset_s": self.residual_offset_s, "sync_method": e.method,
-                "sync_verdict": self.verdict.lower(),
-                "sync_protocol": "sync" if self.protocol is not None else "traction",
-                "sync_reasons": json.dumps(self.reasons),
-                "sync_drift_ppm": json.dumps(self.drift_ppm),
-                "sync_frame_drop_fraction": self.audits["camera"].drop_fraction,
-                "sync_force_drop_fraction": self.audits["force"].drop_fraction,
-                "sync_limits": json.dumps(self.limits.__dict__),
-                FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
-                "sync_stream_offsets_s": json.dumps(
-                    {n: [f.offset_s, f.std_s] for n, f in self.streams.items()
-                     if isinstance(f, OffsetEstimate)}),
-                **(_protocol_attrs(self.protocol) if self.protocol is not None else {})}
+        return {
+            "sync_offset_s": e.offset_s,
+            "sync_offset_std_s": e.std_s,
+            "sync_offset_ci95_low_s": e.ci95_s[0],
+            "sync_offset_ci95_high_s": e.ci95_s[1],
+            "sync_residual_offset_s": self.residual_offset_s,
+            "sync_method": e.method,
+            "sync_verdict": self.verdict.lower(),
+            "sync_protocol": "sync" if self.protocol is not None else "traction",
+            "sync_reasons": json.dumps(self.reasons),
+            "sync_drift_ppm": json.dumps(self.drift_ppm),
+            "sync_frame_drop_fraction": self.audits["camera"].drop_fraction,
+            "sync_force_drop_fraction": self.audits["force"].drop_fraction,
+            "sync_limits": json.dumps(self.limits.__dict__),
+            FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
+            "sync_stream_offsets_s": json.dumps(
+                {
+                    n: [f.offset_s, f.std_s]
+                    for n, f in self.streams.items()
+                    if isinstance(f, OffsetEstimate)
+                }
+            ),
+            **(_protocol_attrs(self.protocol) if self.protocol is not None else {}),
+        }
 
 
 def _interval(e: EventEstimate) -> str:
-    return (f"{1e3 * e.value_s:+.2f} ms (95% CI {1e3 * e.ci95_s[0]:+.2f} … "
-            f"{1e3 * e.ci95_s[1]:+.2f} ms, {e.n_used} events")
+    return (
+        f"{1e3 * e.value_s:+.2f} ms (95% CI {1e3 * e.ci95_s[0]:+.2f} … "
+        f"{1e3 * e.ci95_s[1]:+.2f} ms, {e.n_used} events"
+    )
 
 
 def _protocol_lines(p: ProtocolResult) -> list[str]:
-    lines = [f"taps       {p.taps_found} found" + (f", offset {_interval(p.offset)})"
-                                                   if p.offset else ", none measurable")]
+    lines = [
+        f"taps       {p.taps_found} found"
+        + (f", offset {_interval(p.offset)})" if p.offset else ", none measurable")
+    ]
     if p.flash_latency is not None:
-        lines.append(f"flashes    {p.flashes_seen} of {p.flashes_shown} seen, flash latency "
-                     f"{_interval(p.flash_latency)}); camera latency "
-                     f"{1e3 * p.camera_latency_s:+.2f} ms")
+        lines.append(
+            f"flashes    {p.flashes_seen} of {p.flashes_shown} seen, flash latency "
+            f"{_interval(p.flash_latency)}); camera latency "
+            f"{1e3 * p.camera_latency_s:+.2f} ms"
+        )
     else:
         lines.append(f"flashes    none of {p.flashes_shown} seen")
     for name, drift in (("offset", p.offset_drift), ("latency", p.latency_drift)):
         if drift is not None:
             lo, hi = drift.ci95_s
-            lines.append(f"drift      {name}: late - early {1e3 * drift.change_s:+.2f} ms (95% CI "
-                         f"{1e3 * lo:+.2f} … {1e3 * hi:+.2f} ms)")
+            lines.append(
+                f"drift      {name}: late - early {1e3 * drift.change_s:+.2f} ms (95% CI "
+                f"{1e3 * lo:+.2f} … {1e3 * hi:+.2f} ms)"
+            )
     return lines
 
 
 def _protocol_attrs(p: ProtocolResult) -> dict[str, Any]:
-    out: dict[str, Any] = {"sync_taps_found": p.taps_found, "sync_flashes_shown": p.flashes_shown,
-                           "sync_flashes_seen": p.flashes_seen}
+    out: dict[str, Any] = {
+        "sync_taps_found": p.taps_found,
+        "sync_flashes_shown": p.flashes_shown,
+        "sync_flashes_seen": p.flashes_seen,
+    }
     for name, e in (("tap_offset", p.offset), ("flash_latency", p.flash_latency)):
         if e is not None:
-            out.update({f"sync_{name}_s": e.value_s, f"sync_{name}_ci95_low_s": e.ci95_s[0],
-                        f"sync_{name}_ci95_high_s": e.ci95_s[1], f"sync_{name}_events": e.n_used})
+            out.update(
+                {
+                    f"sync_{name}_s": e.value_s,
+                    f"sync_{name}_ci95_low_s": e.ci95_s[0],
+                    f"sync_{name}_ci95_high_s": e.ci95_s[1],
+                    f"sync_{name}_events": e.n_used,
+                }
+            )
     for name, d in (("offset", p.offset_drift), ("latency", p.latency_drift)):
         if d is not None:
             out[f"sync_{name}_drift_s"] = d.change_s
@@ -179,18 +225,23 @@ def _plot(path: Path, report: SyncReport) -> None:
     e = report.estimate
     fig, ax = plt.subplots(figsize=(7, 3.5))
     if e.corners:
-        ax.errorbar(e.corner_times_s, e.corner_lags_s * 1e3, yerr=1.96e3 * e.corner_std_s,
-                    fmt="o", color="tab:blue", capsize=3, label=f"lag at each {e.method[:-1]} (95%)")
+        ax.errorbar(
+            e.corner_times_s,
+            e.corner_lags_s * 1e3,
+            yerr=1.96e3 * e.corner_std_s,
+            fmt="o",
+            color="tab:blue",
+            capsize=3,
+            label=f"lag at each {e.method[:-1]} (95%)",
+        )
         ax.axhline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
-        ax.axhspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2,
-                   label="95% CI")
+        ax.axhspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2, label="95% CI")
         ax.set_xlabel("time in the session (s)")
         ax.set_ylabel("image time - force time (ms)")
     else:
         ax.plot(e.lags_s * 1e3, e.correlation, color="tab:blue", label="correlation")
         ax.axvline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
-        ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2,
-                   label="95% CI")
+        ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2, label="95% CI")
         ax.set_xlabel("image time - force time (ms)")
         ax.set_ylabel("normalized cross-correlation")
     ax.set_title(f"{report.path.name}: {report.verdict}")
@@ -209,20 +260,23 @@ def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEsti
     t_frames = reader.frame_times_ns()
     found, errors = [], []
     try:
-        found.append(corner_offset(t_frames, frame_components(reader), t_force, forces,
-                                   max_lag_s=max_lag_s))
+        found.append(
+            corner_offset(t_frames, frame_components(reader), t_force, forces, max_lag_s=max_lag_s)
+        )
     except SessionError as err:
         errors.append(str(err))
     period_s = float(np.median(np.diff(t_frames))) / 1e9
     try:
         t_motion, motion = motion_energy(reader)
-        found.append(change_offset(t_motion, motion, t_force, forces, period_s,
-                                   max_lag_s=max_lag_s))
+        found.append(
+            change_offset(t_motion, motion, t_force, forces, period_s, max_lag_s=max_lag_s)
+        )
     except SessionError as err:
         errors.append(str(err))
     if not found:
-        raise SessionError(f"{reader.path}: cannot measure the image-force offset: "
-                           + "; ".join(errors))
+        raise SessionError(
+            f"{reader.path}: cannot measure the image-force offset: " + "; ".join(errors)
+        )
     corners = [e for e in found if e.method == "force corners"]
     if corners and corners[0].ci95_s[1] - corners[0].ci95_s[0] <= 2 * period_s:
         return corners[0]  # sub-frame alignment on the force's kinks: the sharper measurement
@@ -233,16 +287,29 @@ def _tap_estimate(result: ProtocolResult, path: Path) -> OffsetEstimate:
     """The protocol's tap offset as an :class:`OffsetEstimate` (one lag per tap)."""
     e = result.offset
     if e is None:
-        raise SessionError(f"{path}: no tap could be measured ({result.taps_found} found in the "
-                           "force); record the protocol again, tapping briefly and firmly")
+        raise SessionError(
+            f"{path}: no tap could be measured ({result.taps_found} found in the "
+            "force); record the protocol again, tapping briefly and firmly"
+        )
     used = e.used
-    return OffsetEstimate(offset_s=e.value_s, std_s=e.std_s, ci95_s=e.ci95_s, method="taps",
-                          corner_times_s=e.times_s[used], corner_lags_s=e.values_s[used],
-                          corner_std_s=e.stds_s[used])
+    return OffsetEstimate(
+        offset_s=e.value_s,
+        std_s=e.std_s,
+        ci95_s=e.ci95_s,
+        method="taps",
+        corner_times_s=e.times_s[used],
+        corner_lags_s=e.values_s[used],
+        corner_std_s=e.stds_s[used],
+    )
 
 
-def _verdict(estimate: OffsetEstimate, residual: float, protocol: ProtocolResult | None,
-             audits: dict[str, StreamAudit], limits: SyncLimits) -> tuple[str, list[str]]:
+def _verdict(
+    estimate: OffsetEstimate,
+    residual: float,
+    protocol: ProtocolResult | None,
+    audits: dict[str, StreamAudit],
+    limits: SyncLimits,
+) -> tuple[str, list[str]]:
     """PASS/FAIL (protocol sessions, or any definite failure) or INCONCLUSIVE (a passive
     estimate too uncertain to judge), with the reasons."""
     half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
@@ -253,28 +320,38 @@ def _verdict(estimate: OffsetEstimate, residual: float, protocol: ProtocolResult
         definite = low > limits.max_offset_s or high < -limits.max_offset_s
         (failures if definite or protocol is not None else doubts).append(text)
     if half_ci > limits.max_ci_halfwidth_s:
-        text = (f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
-                f"{1e3 * limits.max_ci_halfwidth_s:g} ms")
+        text = (
+            f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
+            f"{1e3 * limits.max_ci_halfwidth_s:g} ms"
+        )
         (failures if protocol is not None else doubts).append(text)
     for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
         if audits[stream].drop_fraction > limit:
-            failures.append(f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
-                            f"(limit {100 * limit:g}%)")
+            failures.append(
+                f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
+                f"(limit {100 * limit:g}%)"
+            )
     if protocol is not None:
         if protocol.offset is not None and protocol.offset.n_used < MIN_TAPS:
             failures.append(f"only {protocol.offset.n_used} taps measured (need {MIN_TAPS})")
         if protocol.flashes_shown and protocol.flashes_seen < protocol.flashes_shown / 2:
-            failures.append(f"only {protocol.flashes_seen} of {protocol.flashes_shown} projector "
-                            "flashes seen (is the projector lighting the view, auto exposure off?)")
-        for name, drift in (("image-force offset (taps)", protocol.offset_drift),
-                            ("camera latency (flashes)", protocol.latency_drift)):
+            failures.append(
+                f"only {protocol.flashes_seen} of {protocol.flashes_shown} projector "
+                "flashes seen (is the projector lighting the view, auto exposure off?)"
+            )
+        for name, drift in (
+            ("image-force offset (taps)", protocol.offset_drift),
+            ("camera latency (flashes)", protocol.latency_drift),
+        ):
             if drift is None:
                 continue
             lo, hi = drift.ci95_s
             if abs(drift.change_s) > limits.max_offset_s and (lo > 0 or hi < 0):
-                failures.append(f"{name} changed by {1e3 * drift.change_s:+.2f} ms from the first "
-                                "to the second half of the session (a lost frame or a change "
-                                "in the camera's buffering?)")
+                failures.append(
+                    f"{name} changed by {1e3 * drift.change_s:+.2f} ms from the first "
+                    "to the second half of the session (a lost frame or a change "
+                    "in the camera's buffering?)"
+                )
     if failures:
         return FAIL, failures + doubts
     return (INCONCLUSIVE, doubts) if doubts else (PASS, [])
@@ -287,10 +364,15 @@ def _stream_check(reader: SessionReader, name: str, max_lag_s: float) -> OffsetE
         return str(exc)
 
 
-def verify_sync(path: str | Path, limits: SyncLimits | None = None,
-                plot_path: str | Path | None = None, store: bool = True,
-                apply_correction: bool = False, max_lag_s: float = 0.25,
-                settings: ProtocolSettings | None = None) -> SyncReport:
+def verify_sync(
+    path: str | Path,
+    limits: SyncLimits | None = None,
+    plot_path: str | Path | None = None,
+    store: bool = True,
+    apply_correction: bool = False,
+    max_lag_s: float = 0.25,
+    settings: ProtocolSettings | None = None,
+) -> SyncReport:
     """Measure the image-force offset of a session, audit drops, judge against ``limits``.
 
     A sync protocol session is measured from its taps and flashes (``settings``: the camera's
@@ -312,19 +394,30 @@ def verify_sync(path: str | Path, limits: SyncLimits | None = None,
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}
-        streams = {name: _stream_check(reader, name, max_lag_s) for name in reader.stream_names()
-                   if not reader.stream(name).markers}
+        streams = {
+            name: _stream_check(reader, name, max_lag_s)
+            for name in reader.stream_names()
+            if not reader.stream(name).markers
+        }
     applied = estimate.offset_s if apply_correction else 0.0
     residual = estimate.offset_s - applied
     verdict, reasons = _verdict(estimate, residual, protocol, audits, limits)
-    report = SyncReport(path=Path(path), estimate=estimate, correction_s=previous + applied,
-                        residual_offset_s=residual,
-                        drift_ppm={s: f.drift_ppm for s, f in fits.items()},
-                        drift_uncertainty_ppm={s: f.drift_uncertainty_ppm for s, f in fits.items()},
-                        jitter_s={s: f.jitter_ns / 1e9 for s, f in fits.items()},
-                        audits=audits, limits=limits, verdict=verdict, reasons=reasons,
-                        plot_path=Path(plot_path) if plot_path else None, protocol=protocol,
-                        streams=streams)
+    report = SyncReport(
+        path=Path(path),
+        estimate=estimate,
+        correction_s=previous + applied,
+        residual_offset_s=residual,
+        drift_ppm={s: f.drift_ppm for s, f in fits.items()},
+        drift_uncertainty_ppm={s: f.drift_uncertainty_ppm for s, f in fits.items()},
+        jitter_s={s: f.jitter_ns / 1e9 for s, f in fits.items()},
+        audits=audits,
+        limits=limits,
+        verdict=verdict,
+        reasons=reasons,
+        plot_path=Path(plot_path) if plot_path else None,
+        protocol=protocol,
+        streams=streams,
+    )
     if report.plot_path is not None:
         _plot(report.plot_path, report)
     if store:

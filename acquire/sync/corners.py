@@ -78,8 +78,9 @@ def frame_components(reader: SessionReader) -> np.ndarray:
     return _leading_components(pixels, _COMPONENTS)
 
 
-def _leading_components(x: np.ndarray, k: int, oversample: int = 8,
-                        power_iterations: int = 3) -> np.ndarray:
+def _leading_components(
+    x: np.ndarray, k: int, oversample: int = 8, power_iterations: int = 3
+) -> np.ndarray:
     """``U·S`` of the ``k`` leading singular vectors of ``x`` (randomized range finder with power
     iterations: a full SVD of frames × pixels is needlessly slow)."""
     rng = np.random.default_rng(0)
@@ -122,11 +123,11 @@ def force_corners(t_s: np.ndarray, force: np.ndarray) -> list[Corner]:
     if len(grid) < 2 * m + 1:
         return []
     ramp = np.arange(m) - (m - 1) / 2
-    ramp /= np.sum(ramp ** 2) * _CORNER_GRID_S  # slope of a least-squares line over m points
+    ramp /= np.sum(ramp**2) * _CORNER_GRID_S  # slope of a least-squares line over m points
     slope = np.convolve(f, ramp[::-1], "valid")  # slope[i]: line through f[i:i+m]
     before, after = np.zeros(len(grid)), np.zeros(len(grid))
-    before[m:len(slope) + 1] = slope[:len(slope) - m + 1]
-    after[m:len(slope) + 1] = slope[m - 1:]
+    before[m : len(slope) + 1] = slope[: len(slope) - m + 1]
+    after[m : len(slope) + 1] = slope[m - 1 :]
     change = np.abs(after - before)
     if not change.any():
         return []
@@ -136,36 +137,42 @@ def force_corners(t_s: np.ndarray, force: np.ndarray) -> list[Corner]:
     corners = []
     for i in peaks:
         lo, hi = sorted((abs(before[i]), abs(after[i])))
-        flat = ("before" if abs(before[i]) < abs(after[i]) else "after") if lo < _FLAT_RATIO * hi \
+        flat = (
+            ("before" if abs(before[i]) < abs(after[i]) else "after")
+            if lo < _FLAT_RATIO * hi
             else ""
+        )
         corners.append(Corner(float(grid[i]), flat))
     return corners
 
 
-def _spline_designs(t_s: np.ndarray, knots_s: np.ndarray, scale_s: float,
-                    flat: str = "") -> np.ndarray:
+def _spline_designs(
+    t_s: np.ndarray, knots_s: np.ndarray, scale_s: float, flat: str = ""
+) -> np.ndarray:
     """Columns (knots × samples × p) of continuous quadratic splines with one knot each: slope
     and curvature may change at the knot; on a ``flat`` side ("before"/"after") it is constant."""
     s = (t_s[None, :] - knots_s[:, None]) / scale_s
     h, n = np.maximum(s, 0.0), np.minimum(s, 0.0)
     one = np.ones_like(s)
     if flat == "before":
-        return np.stack([one, h, h ** 2], axis=2)
+        return np.stack([one, h, h**2], axis=2)
     if flat == "after":
-        return np.stack([one, n, n ** 2], axis=2)
-    return np.stack([one, s, s ** 2, h, h ** 2], axis=2)
+        return np.stack([one, n, n**2], axis=2)
+    return np.stack([one, s, s**2, h, h**2], axis=2)
 
 
-def _knot_profile(t_s: np.ndarray, values: np.ndarray, knots_s: np.ndarray, scale_s: float,
-                  flat: str = "") -> tuple[float, float]:
+def _knot_profile(
+    t_s: np.ndarray, values: np.ndarray, knots_s: np.ndarray, scale_s: float, flat: str = ""
+) -> tuple[float, float]:
     """Least-squares knot of a one-knot quadratic spline through ``values`` (n, or n×k columns
     with their own noise levels) among ``knots_s``: position (s) and standard error from the 95%
     profile-likelihood interval."""
     values = values.reshape(len(t_s), -1)
     design = _spline_designs(t_s, knots_s, scale_s, flat)
     normal = np.einsum("knp,knq->kpq", design, design)
-    coef = np.linalg.solve(normal + 1e-12 * np.eye(design.shape[2]),
-                           np.einsum("knp,nc->kpc", design, values))
+    coef = np.linalg.solve(
+        normal + 1e-12 * np.eye(design.shape[2]), np.einsum("knp,nc->kpc", design, values)
+    )
     rss = np.sum((values[None] - design @ coef) ** 2, axis=1)
     deviance = len(t_s) * np.sum(np.log(np.maximum(rss, 1e-300)), axis=1)  # −2·log-likelihood
     k = int(np.argmin(deviance))
@@ -190,34 +197,44 @@ def _bounds(inside: np.ndarray, k: int) -> tuple[int, int]:
 def _vertex(curve: np.ndarray, k: int) -> float:
     """Index of the minimum ``k`` refined by a parabola through it and its neighbours."""
     if 0 < k < len(curve) - 1:
-        ym, y0, yp = curve[k - 1:k + 2]
+        ym, y0, yp = curve[k - 1 : k + 2]
         denom = ym - 2 * y0 + yp
         if denom > 0:
             return k + float(np.clip(0.5 * (ym - yp) / denom, -0.5, 0.5))
     return float(k)
 
 
-def _corner_lag(t_force: np.ndarray, force: np.ndarray, t_frames: np.ndarray,
-                components: np.ndarray, corner: Corner,
-                max_lag_s: float) -> tuple[float, float, float] | None:
+def _corner_lag(
+    t_force: np.ndarray,
+    force: np.ndarray,
+    t_frames: np.ndarray,
+    components: np.ndarray,
+    corner: Corner,
+    max_lag_s: float,
+) -> tuple[float, float, float] | None:
     """Force knot, image-minus-force lag and its standard error at one corner (None: too few
     frames around it)."""
     near = np.abs(t_force - corner.time_s) <= _FORCE_WINDOW_S
     knots = corner.time_s + np.arange(-_FORCE_SEARCH_S, _FORCE_SEARCH_S + 1e-9, _SEARCH_STEP_S)
-    knot, knot_std = _knot_profile(t_force[near], force[near], knots, _FORCE_WINDOW_S,
-                                   corner.flat)
+    knot, knot_std = _knot_profile(t_force[near], force[near], knots, _FORCE_WINDOW_S, corner.flat)
     reach = max_lag_s + _IMAGE_WINDOW_S
     frames = np.abs(t_frames - knot) <= reach
     if frames.sum() < _MIN_FRAMES or not (t_frames[frames][0] < knot < t_frames[frames][-1]):
         return None
     lags = np.arange(-max_lag_s, max_lag_s + 1e-9, _SEARCH_STEP_S)
-    image_knot, image_std = _knot_profile(t_frames[frames], components[frames], knot + lags,
-                                          _IMAGE_WINDOW_S)
+    image_knot, image_std = _knot_profile(
+        t_frames[frames], components[frames], knot + lags, _IMAGE_WINDOW_S
+    )
     return knot, image_knot - knot, float(np.hypot(knot_std, image_std))
 
 
-def corner_offset(t_frames_ns: np.ndarray, components: np.ndarray, t_force_ns: np.ndarray,
-                    forces: np.ndarray, max_lag_s: float = 0.25) -> OffsetEstimate:
+def corner_offset(
+    t_frames_ns: np.ndarray,
+    components: np.ndarray,
+    t_force_ns: np.ndarray,
+    forces: np.ndarray,
+    max_lag_s: float = 0.25,
+) -> OffsetEstimate:
     """Lag (s) by which the frames (``components``, stamped ``t_frames_ns``) follow the force.
 
     Raises :class:`SessionError` when the force has no corner inside the camera record.
@@ -230,17 +247,24 @@ def corner_offset(t_frames_ns: np.ndarray, components: np.ndarray, t_force_ns: n
     found = [_corner_lag(t_force, axis, t_frames, components, c, max_lag_s) for c in corners]
     found = [f for f in found if f is not None and np.isfinite(f[2])]
     if not found:
-        raise SessionError("the force never changes slope sharply inside the camera record (no "
-                           "clear start or end of a pull), so there is nothing to align the "
-                           "images on; record a pull with a rest before and a hold after it")
-    times, lags, stds = (np.array(x) for x in zip(*found))
+        raise SessionError(
+            "the force never changes slope sharply inside the camera record (no "
+            "clear start or end of a pull), so there is nothing to align the "
+            "images on; record a pull with a rest before and a hold after it"
+        )
+    times, lags, stds = (np.array(x) for x in zip(*found, strict=False))
     weights = 1.0 / np.maximum(stds, _SEARCH_STEP_S / 2) ** 2
     offset = float(np.sum(weights * lags) / np.sum(weights))
     std = float(np.sqrt(1.0 / np.sum(weights)))
     if len(lags) > 1:  # corners that disagree beyond their errors widen the interval
         chi2 = float(np.sum(weights * (lags - offset) ** 2)) / (len(lags) - 1)
         std *= np.sqrt(max(1.0, chi2))
-    return OffsetEstimate(offset_s=offset, std_s=std,
-                          ci95_s=(offset - 1.96 * std, offset + 1.96 * std),
-                          method="force corners", corner_times_s=times, corner_lags_s=lags,
-                          corner_std_s=stds)
+    return OffsetEstimate(
+        offset_s=offset,
+        std_s=std,
+        ci95_s=(offset - 1.96 * std, offset + 1.96 * std),
+        method="force corners",
+        corner_times_s=times,
+        corner_lags_s=lags,
+        corner_std_s=stds,
+    )

@@ -31,10 +31,16 @@ import cv2
 import numpy as np
 
 from vbfe.acquire.errors import SessionError
-from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
-from vbfe.acquire.sync.corners import (_bounds, _box, _knot_profile, _leading_components, _vertex,
-                                       force_axis)
 from vbfe.acquire.recording.sync_session import DIM_NAME, PATTERN_NAME
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
+from vbfe.acquire.sync.corners import (
+    _bounds,
+    _box,
+    _knot_profile,
+    _leading_components,
+    _vertex,
+    force_axis,
+)
 
 _WIDTH = 96  # frames are downscaled to this width
 _COMPONENTS = 3
@@ -59,12 +65,14 @@ class ProtocolSettings:
     projector_latency_s: float = 0.0  # known command-to-light delay of the projector
 
     @classmethod
-    def from_config(cls, config: dict[str, dict[str, Any]]) -> "ProtocolSettings":
+    def from_config(cls, config: dict[str, dict[str, Any]]) -> ProtocolSettings:
         """Settings from a rig configuration's ``[record]`` table."""
         table = config.get("record", {})
-        return cls(float(table.get("sync_exposure_s", 0.0)),
-                   float(table.get("sync_line_time_s", 0.0)),
-                   float(table.get("sync_projector_latency_s", 0.0)))
+        return cls(
+            float(table.get("sync_exposure_s", 0.0)),
+            float(table.get("sync_line_time_s", 0.0)),
+            float(table.get("sync_projector_latency_s", 0.0)),
+        )
 
 
 @dataclass
@@ -108,8 +116,9 @@ def combine(times_s: np.ndarray, values_s: np.ndarray, stds_s: np.ndarray) -> Ev
         chi2 = float(np.sum(w * (values[used] - mean) ** 2)) / (n - 1)
         std *= np.sqrt(max(1.0, chi2))
     q = float(student_t.ppf(0.975, max(n - 1, 1)))
-    return EventEstimate(mean, std, (mean - q * std, mean + q * std), np.asarray(times_s, float),
-                         values, stds, used)
+    return EventEstimate(
+        mean, std, (mean - q * std, mean + q * std), np.asarray(times_s, float), values, stds, used
+    )
 
 
 @dataclass
@@ -163,8 +172,9 @@ def frame_signals(reader: SessionReader) -> tuple[np.ndarray, np.ndarray]:
     size = (min(_WIDTH, width), max(1, round(height * min(_WIDTH, width) / width)))
     rows, pixels = [], []
     for frame in reader.iter_frames():
-        grey = cv2.resize(cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY), size,
-                          interpolation=cv2.INTER_AREA).astype(np.float32)
+        grey = cv2.resize(
+            cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY), size, interpolation=cv2.INTER_AREA
+        ).astype(np.float32)
         mean = grey.mean(axis=1, keepdims=True)
         rows.append(mean[:, 0])
         pixels.append(((grey - mean) / np.maximum(grey.std(axis=1, keepdims=True), 1.0)).ravel())
@@ -179,8 +189,9 @@ def _row_delays(n_rows: int, sensor_rows: int, line_time_s: float) -> np.ndarray
     return (centre - (sensor_rows - 1) / 2) * line_time_s
 
 
-def _exposed_share(t: np.ndarray, delays: np.ndarray, change: np.ndarray,
-                   exposure_s: float) -> np.ndarray:
+def _exposed_share(
+    t: np.ndarray, delays: np.ndarray, change: np.ndarray, exposure_s: float
+) -> np.ndarray:
     """Share of each frame-row exposure (frames ``t`` × rows) after a light change at each
     instant of ``change`` (grid × frames × rows)."""
     start = t[None, :, None] + delays[None, None, :] - exposure_s / 2
@@ -189,9 +200,15 @@ def _exposed_share(t: np.ndarray, delays: np.ndarray, change: np.ndarray,
     return np.clip((start + exposure_s - change[:, None, None]) / exposure_s, 0.0, 1.0)
 
 
-def flash_instant(t: np.ndarray, brightness: np.ndarray, h: float, window: tuple[float, float],
-                  settings: ProtocolSettings, sensor_rows: int,
-                  max_lag_s: float) -> tuple[float, float] | None:
+def flash_instant(
+    t: np.ndarray,
+    brightness: np.ndarray,
+    h: float,
+    window: tuple[float, float],
+    settings: ProtocolSettings,
+    sensor_rows: int,
+    max_lag_s: float,
+) -> tuple[float, float] | None:
     """When the light changed after a projector command at ``h`` (frames' clock, s) and its
     standard error; None when the switch is not seen. ``window``: the light is steady from
     the previous switch's settling to the next command."""
@@ -210,22 +227,25 @@ def flash_instant(t: np.ndarray, brightness: np.ndarray, h: float, window: tuple
         return None
     near = (t + reach >= h) & (t - reach <= h + max_lag_s)
     share = (brightness[near][:, rows] - before[rows]) / contrast[rows]
-    steady = np.concatenate([(brightness[pre][:, rows] - before[rows]) / contrast[rows],
-                             (brightness[post][:, rows] - after[rows]) / contrast[rows]])
+    steady = np.concatenate(
+        [
+            (brightness[pre][:, rows] - before[rows]) / contrast[rows],
+            (brightness[post][:, rows] - after[rows]) / contrast[rows],
+        ]
+    )
     sigma = max(1.4826 * float(np.median(np.abs(steady))), _SHARE_FLOOR)
     change = h + np.arange(0.0, max_lag_s, _GRID_S)
     predicted = _exposed_share(t[near], delays[rows], change, e)
     sse = np.sum((share[None] - predicted) ** 2, axis=(1, 2))
     k = int(np.argmin(sse))
     # rows of one frame err together (a tap's shading, flicker): the threshold counts frames
-    low, high = _bounds(np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma ** 2 * rows.sum()), k)
+    low, high = _bounds(np.flatnonzero(sse - sse[k] <= _CHI2_95 * sigma**2 * rows.sum()), k)
     if low == 0 or high == len(change) - 1:
         return None
     return (change[low] + change[high]) / 2, (high - low + 1) * _GRID_S / np.sqrt(12)
 
 
-def tap_onsets(t_force: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray,
-                                                                 np.ndarray]:
+def tap_onsets(t_force: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Force onsets of the taps (s), their standard errors, and where each tap ends: the force
     rises above the noise (8 σ of the smoothed force, at least 5% of the largest tap) after
     ``_TAP_QUIET_S`` at rest; the onset is the knot of a spline flat before it."""
@@ -249,7 +269,7 @@ def tap_onsets(t_force: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.n
         last_end = end_t
         if not quiet or t_force[i] - t_force[0] < _TAP_QUIET_S:
             continue
-        rise = smooth[i:int(np.searchsorted(t_force, end_t)) + 1]
+        rise = smooth[i : int(np.searchsorted(t_force, end_t)) + 1]
         peak = i + int(np.argmax(rise >= 0.6 * rise.max()))
         fit = (t_force >= t_force[i] - 0.25) & (t_force <= t_force[peak])
         knots = t_force[i] + np.arange(-_ONSET_SEARCH_S, 0.002, 0.0001)
@@ -261,9 +281,14 @@ def tap_onsets(t_force: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.n
     return np.array(onsets), np.array(stds), np.array(ends)
 
 
-def tap_lag(t_frames: np.ndarray, components: np.ndarray, t_force: np.ndarray,
-            template: np.ndarray, window: tuple[float, float],
-            max_lag_s: float) -> tuple[float, float] | None:
+def tap_lag(
+    t_frames: np.ndarray,
+    components: np.ndarray,
+    t_force: np.ndarray,
+    template: np.ndarray,
+    window: tuple[float, float],
+    max_lag_s: float,
+) -> tuple[float, float] | None:
     """Lag (s) of the image motion behind the force over one tap, and its standard error: the
     frames' components in ``window`` fitted by a quadratic in the delayed force template."""
     inside = (t_frames >= window[0]) & (t_frames <= window[1])
@@ -285,8 +310,9 @@ def tap_lag(t_frames: np.ndarray, components: np.ndarray, t_force: np.ndarray,
     return lag, (high - low + 1) * _LAG_STEP_S / (2 * 1.96)
 
 
-def analyse_protocol(reader: SessionReader, settings: ProtocolSettings,
-                     max_lag_s: float = 0.3) -> ProtocolResult:
+def analyse_protocol(
+    reader: SessionReader, settings: ProtocolSettings, max_lag_s: float = 0.3
+) -> ProtocolResult:
     """Flash latency, tap offset and their drifts of a sync protocol session."""
     t_frames_ns = reader.frame_times_ns()
     t0 = int(t_frames_ns[0])
@@ -298,34 +324,44 @@ def analyse_protocol(reader: SessionReader, settings: ProtocolSettings,
     commands = np.array([(e.t_host_ns - t0) / 1e9 for e in events])
     flashes = []
     for i, h in enumerate(commands):
-        window = (commands[i - 1] + max_lag_s if i else -np.inf,
-                  commands[i + 1] if i + 1 < len(commands) else np.inf)
-        found = flash_instant(t_frames + correction_s, brightness, float(h), window, settings,
-                              sensor_rows, max_lag_s)
+        window = (
+            commands[i - 1] + max_lag_s if i else -np.inf,
+            commands[i + 1] if i + 1 < len(commands) else np.inf,
+        )
+        found = flash_instant(
+            t_frames + correction_s, brightness, float(h), window, settings, sensor_rows, max_lag_s
+        )
         if found is not None:
             flashes.append((h, found[0] - h, found[1]))
-    flash_latency = combine(*map(np.array, zip(*flashes))) if flashes else None
+    flash_latency = combine(*map(np.array, zip(*flashes, strict=False))) if flashes else None
 
     t_force = (reader.force_times_ns() - t0) / 1e9
     force = force_axis(reader.forces_n())
     onsets, onset_stds, ends = tap_onsets(t_force, force)
     sign = 1.0 if np.abs(force.max()) >= np.abs(force.min()) else -1.0
     step = float(np.median(np.diff(t_force)))
-    template = _box(sign * (force - np.median(force)),
-                    max(1, int(round(settings.exposure_s / step))))
+    template = _box(
+        sign * (force - np.median(force)), max(1, int(round(settings.exposure_s / step)))
+    )
     taps = []
-    for j, (onset, std) in enumerate(zip(onsets, onset_stds)):
-        window = (max(onset - _TAP_MARGIN_S, ends[j - 1] + 0.1 if j else -np.inf),
-                  min(ends[j] + _TAP_MARGIN_S, onsets[j + 1] - 0.1 if j + 1 < len(onsets)
-                      else np.inf))
+    for j, (onset, std) in enumerate(zip(onsets, onset_stds, strict=False)):
+        window = (
+            max(onset - _TAP_MARGIN_S, ends[j - 1] + 0.1 if j else -np.inf),
+            min(ends[j] + _TAP_MARGIN_S, onsets[j + 1] - 0.1 if j + 1 < len(onsets) else np.inf),
+        )
         found = tap_lag(t_frames, components, t_force, template, window, max_lag_s)
         if found is not None:
             taps.append((onset, found[0], float(np.hypot(found[1], std))))
-    offset = combine(*map(np.array, zip(*taps))) if taps else None
+    offset = combine(*map(np.array, zip(*taps, strict=False))) if taps else None
     return ProtocolResult(
-        offset=offset, flash_latency=flash_latency,
-        camera_latency_s=(flash_latency.value_s - settings.projector_latency_s
-                          if flash_latency else None),
+        offset=offset,
+        flash_latency=flash_latency,
+        camera_latency_s=(
+            flash_latency.value_s - settings.projector_latency_s if flash_latency else None
+        ),
         offset_drift=early_late(offset) if offset else None,
         latency_drift=early_late(flash_latency) if flash_latency else None,
-        taps_found=len(onsets), flashes_shown=len(events), flashes_seen=len(flashes))
+        taps_found=len(onsets),
+        flashes_shown=len(events),
+        flashes_seen=len(flashes),
+    )

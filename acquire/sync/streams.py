@@ -15,7 +15,6 @@ from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset
 
-
 _MAX_RATE_HZ = 250.0  # faster streams are averaged in blocks down to this (the fit's cost)
 
 
@@ -26,8 +25,10 @@ def _block_means(t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.n
     if block <= 1:
         return t_ns, values
     n = len(t_ns) // block * block
-    return (t_ns[:n].reshape(-1, block).mean(axis=1).astype(np.int64),
-            values[:n].reshape(-1, block, values.shape[1]).mean(axis=1))
+    return (
+        t_ns[:n].reshape(-1, block).mean(axis=1).astype(np.int64),
+        values[:n].reshape(-1, block, values.shape[1]).mean(axis=1),
+    )
 
 
 def stream_offset(reader: SessionReader, name: str, max_lag_s: float = 0.25) -> OffsetEstimate:

@@ -8,8 +8,9 @@ from vbfe.drivers.device import SampleStream
 from vbfe.drivers.samples import StereoFrame
 
 
-def first_frame_after(read: Callable[[float], StereoFrame | None], t_host_ns: int,
-                      timeout_s: float) -> StereoFrame | None:
+def first_frame_after(
+    read: Callable[[float], StereoFrame | None], t_host_ns: int, timeout_s: float
+) -> StereoFrame | None:
     """The first frame ``read`` gives that arrived at or after host time ``t_host_ns`` (older
     ones are dropped, e.g. while a new projector pattern settles); ``None`` on a timeout."""
     while True:
@@ -41,4 +42,9 @@ class StereoCamera(SampleStream[StereoFrame]):
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata."""
-        return {"kind": type(self).__name__, "width": self.width, "height": self.height, "fps": self.fps}
+        return {
+            "kind": type(self).__name__,
+            "width": self.width,
+            "height": self.height,
+            "fps": self.fps,
+        }

@@ -63,8 +63,10 @@ def fourcc_name(code: int) -> str:
 def timestamp_clock(flags: int) -> str:
     """Which clock a V4L2 buffer's timestamp is on and what instant it marks, from its flags."""
     kind = flags & BUF_FLAG_TIMESTAMP_MASK
-    clock = {BUF_FLAG_TIMESTAMP_MONOTONIC: "CLOCK_MONOTONIC",
-             BUF_FLAG_TIMESTAMP_COPY: "copied from the output stream"}.get(kind, "unknown clock")
+    clock = {
+        BUF_FLAG_TIMESTAMP_MONOTONIC: "CLOCK_MONOTONIC",
+        BUF_FLAG_TIMESTAMP_COPY: "copied from the output stream",
+    }.get(kind, "unknown clock")
     source = "start of exposure" if flags & BUF_FLAG_TSTAMP_SRC_SOE else "end of frame"
     return f"V4L2 buffer timestamp ({clock}, {source})"
 
@@ -108,17 +110,26 @@ class LinuxpyStereoCamera(StereoCamera):
     gain = 0, white_balance_automatic = false, white_balance_temperature = 4600}``.
     """
 
-    def __init__(self, device: str | None = None, devices: Sequence[str] | None = None,
-                 width: int = 1920, height: int = 1080, fps: float = 30.0, fourcc: str = "MJPG",
-                 controls: dict[str, ControlValue] | None = None, buffers: int = 4,
-                 stall_timeout_s: float = 5.0,
-                 device_factory: Callable[[str], Any] = linuxpy_device,
-                 capture_factory: Callable[[Any, int], Any] = linuxpy_capture,
-                 host_clock: Callable[[], int] = time.monotonic_ns) -> None:
+    def __init__(
+        self,
+        device: str | None = None,
+        devices: Sequence[str] | None = None,
+        width: int = 1920,
+        height: int = 1080,
+        fps: float = 30.0,
+        fourcc: str = "MJPG",
+        controls: dict[str, ControlValue] | None = None,
+        buffers: int = 4,
+        stall_timeout_s: float = 5.0,
+        device_factory: Callable[[str], Any] = linuxpy_device,
+        capture_factory: Callable[[Any, int], Any] = linuxpy_capture,
+        host_clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
         super().__init__()
         if (device is None) == (devices is None):
-            raise DeviceError("give the camera either device (one side-by-side device) or "
-                              "devices = [left, right]")
+            raise DeviceError(
+                "give the camera either device (one side-by-side device) or devices = [left, right]"
+            )
         self.paths = [str(device)] if device is not None else [str(d) for d in devices or []]
         if len(self.paths) not in (1, 2):
             raise DeviceError(f"camera devices must be [left, right], got {self.paths}")
@@ -151,16 +162,18 @@ class LinuxpyStereoCamera(StereoCamera):
                 self._open_node(path)
             for node in self._nodes:
                 node.capture.open()
-            self.clock = timestamp_clock(int(self._nodes[0].capture.query_buffer(MEMORY_MMAP,
-                                                                                 0).flags))
+            self.clock = timestamp_clock(
+                int(self._nodes[0].capture.query_buffer(MEMORY_MMAP, 0).flags)
+            )
         except DeviceError:
             self._close()
             raise
         except OSError as exc:
             self._close()
-            raise DeviceError(f"cannot start {self.label}: {exc}; check it is plugged in, that "
-                              "you may read it (group 'video') and 'v4l2-ctl --list-devices'"
-                              ) from None
+            raise DeviceError(
+                f"cannot start {self.label}: {exc}; check it is plugged in, that "
+                "you may read it (group 'video') and 'v4l2-ctl --list-devices'"
+            ) from None
         self._last_good = time.monotonic()
 
     def _open_node(self, path: str) -> None:
@@ -168,21 +181,28 @@ class LinuxpyStereoCamera(StereoCamera):
             device = self._device_factory(path)
             device.open()
         except OSError as exc:
-            raise DeviceError(f"cannot open camera {path}: {exc.strerror or exc}; check it is "
-                              "plugged in, that you may read it (group 'video') and "
-                              "'v4l2-ctl --list-devices'") from None
+            raise DeviceError(
+                f"cannot open camera {path}: {exc.strerror or exc}; check it is "
+                "plugged in, that you may read it (group 'video') and "
+                "'v4l2-ctl --list-devices'"
+            ) from None
         node = _Node(path, device, None)
         self._nodes.append(node)  # closed by _close if what follows fails
         node.capture = self._capture_factory(device, self.buffers)
         want_w = 2 * self.width if self.side_by_side else self.width
         node.capture.set_format(want_w, self.height, self.fourcc)
         got = node.capture.get_format()
-        if (got.width, got.height, fourcc_name(got.pixel_format)) != (want_w, self.height,
-                                                                       self.fourcc):
-            raise DeviceError(f"camera {path} gives {got.width}x{got.height} "
-                              f"{fourcc_name(got.pixel_format)}, not the requested "
-                              f"{want_w}x{self.height} {self.fourcc}; list its modes with "
-                              f"'vbfe devices' or 'v4l2-ctl -d {path} --list-formats-ext'")
+        if (got.width, got.height, fourcc_name(got.pixel_format)) != (
+            want_w,
+            self.height,
+            self.fourcc,
+        ):
+            raise DeviceError(
+                f"camera {path} gives {got.width}x{got.height} "
+                f"{fourcc_name(got.pixel_format)}, not the requested "
+                f"{want_w}x{self.height} {self.fourcc}; list its modes with "
+                f"'vbfe devices' or 'v4l2-ctl -d {path} --list-formats-ext'"
+            )
         node.capture.set_fps(self.fps)
         actual = float(node.capture.get_fps())
         if actual > 0:
@@ -194,8 +214,10 @@ class LinuxpyStereoCamera(StereoCamera):
         by_name = {c.config_name: c for c in device.controls.values()}
         unknown = [name for name in self.requested_controls if name not in by_name]
         if unknown:
-            raise DeviceError(f"camera {path} has no control {unknown[0]!r}; it has "
-                              f"{', '.join(sorted(by_name))} (see 'vbfe devices')")
+            raise DeviceError(
+                f"camera {path} has no control {unknown[0]!r}; it has "
+                f"{', '.join(sorted(by_name))} (see 'vbfe devices')"
+            )
         order = sorted(self.requested_controls, key=lambda name: "auto" not in name)
         readback: dict[str, ControlValue] = {}
         for name in order:
@@ -205,20 +227,26 @@ class LinuxpyStereoCamera(StereoCamera):
                 control.value = want
                 got = control.value
             except (AttributeError, OSError, ValueError) as exc:
-                raise DeviceError(f"camera {path} refused control {name} = {want!r}: {exc}"
-                                  ) from None
+                raise DeviceError(
+                    f"camera {path} refused control {name} = {want!r}: {exc}"
+                ) from None
             if got != want:
-                raise DeviceError(f"camera {path} control {name}: set {want!r}, reads back "
-                                  f"{got!r} (range {control.minimum}..{control.maximum}, step "
-                                  f"{control.step}); choose a value it accepts")
+                raise DeviceError(
+                    f"camera {path} control {name}: set {want!r}, reads back "
+                    f"{got!r} (range {control.minimum}..{control.maximum}, step "
+                    f"{control.step}); choose a value it accepts"
+                )
             readback[name] = got
         return readback
 
     def _close(self) -> None:
         """Stop streaming and release the node(s)."""
         for node in self._nodes:
-            releases = [node.device.close] if node.capture is None else [node.capture.close,
-                                                                         node.device.close]
+            releases = (
+                [node.device.close]
+                if node.capture is None
+                else [node.capture.close, node.device.close]
+            )
             for release in releases:
                 try:
                     release()
@@ -231,8 +259,10 @@ class LinuxpyStereoCamera(StereoCamera):
             frame = node.take(timeout_s)
         except OSError as exc:
             if exc.errno in (errno.ENODEV, errno.EIO, errno.ENXIO, errno.EBADF):
-                raise DeviceError(f"camera {node.path} vanished (unplugged or powered off); "
-                                  "reconnect it and start again") from None
+                raise DeviceError(
+                    f"camera {node.path} vanished (unplugged or powered off); "
+                    "reconnect it and start again"
+                ) from None
             raise DeviceError(f"camera {node.path} failed: {exc}") from None
         if frame is not None:
             self._last_good = time.monotonic()
@@ -240,9 +270,11 @@ class LinuxpyStereoCamera(StereoCamera):
                 self.stats.malformed += 1
                 return None
         elif time.monotonic() - self._last_good > self.stall_timeout_s:
-            raise DeviceError(f"camera {node.path} delivered no frame for "
-                              f"{self.stall_timeout_s} s; check cable, power and "
-                              "'v4l2-ctl --list-devices'")
+            raise DeviceError(
+                f"camera {node.path} delivered no frame for "
+                f"{self.stall_timeout_s} s; check cable, power and "
+                "'v4l2-ctl --list-devices'"
+            )
         return frame
 
     def _read_sample(self, timeout_s: float) -> StereoFrame | None:
@@ -272,22 +304,29 @@ class LinuxpyStereoCamera(StereoCamera):
         head = frames[0]
         seq, t_device_ns = int(head.buff.sequence), buffer_time_ns(head.buff)
         if self.fourcc == "MJPG" and not self.side_by_side:
-            return JpegStereoFrame((bytes(frames[0].data), bytes(frames[1].data)), seq,
-                                   t_device_ns, t_host_ns)
+            return JpegStereoFrame(
+                (bytes(frames[0].data), bytes(frames[1].data)), seq, t_device_ns, t_host_ns
+            )
         images = [self._decode(frame) for frame in frames]
         if self.side_by_side:
             half = images[0].shape[1] // 2
-            images = [images[0][:, :half], images[0][:, half:2 * half]]
-        return StereoFrame(left=np.ascontiguousarray(images[0]),
-                           right=np.ascontiguousarray(images[1]), seq=seq,
-                           t_device_ns=t_device_ns, t_host_ns=t_host_ns)
+            images = [images[0][:, :half], images[0][:, half : 2 * half]]
+        return StereoFrame(
+            left=np.ascontiguousarray(images[0]),
+            right=np.ascontiguousarray(images[1]),
+            seq=seq,
+            t_device_ns=t_device_ns,
+            t_host_ns=t_host_ns,
+        )
 
     def _decode(self, frame: Any) -> np.ndarray:
         data = np.frombuffer(frame.data, np.uint8)
         if self.fourcc == "YUYV":
             width = 2 * self.width if self.side_by_side else self.width
-            return cv2.cvtColor(data[:width * self.height * 2].reshape(self.height, width, 2),
-                                cv2.COLOR_YUV2BGR_YUYV)
+            return cv2.cvtColor(
+                data[: width * self.height * 2].reshape(self.height, width, 2),
+                cv2.COLOR_YUV2BGR_YUYV,
+            )
         image = cv2.imdecode(data, cv2.IMREAD_COLOR)
         if image is None:
             raise DeviceError(f"{self.label}: frame {frame.buff.sequence} is not a JPEG")
@@ -295,7 +334,13 @@ class LinuxpyStereoCamera(StereoCamera):
 
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: nodes, layout, format, rate, clock, controls."""
-        return {**super().describe(), "backend": "linuxpy", "devices": list(self.paths),
-                "layout": "side-by-side" if self.side_by_side else "two-devices",
-                "fourcc": self.fourcc, "buffers": self.buffers, "device_clock": self.clock,
-                "controls": {path: dict(values) for path, values in self.controls.items()}}
+        return {
+            **super().describe(),
+            "backend": "linuxpy",
+            "devices": list(self.paths),
+            "layout": "side-by-side" if self.side_by_side else "two-devices",
+            "fourcc": self.fourcc,
+            "buffers": self.buffers,
+            "device_clock": self.clock,
+            "controls": {path: dict(values) for path, values in self.controls.items()},
+        }

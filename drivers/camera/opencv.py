@@ -48,15 +48,24 @@ class OpenCVStereoCamera(StereoCamera):
     ``fourcc`` is the pixel format the camera sends (``"MJPG"`` or ``"YUYV"``).
     """
 
-    def __init__(self, device: Device | None = None, devices: Sequence[Device] | None = None,
-                 width: int = 1920, height: int = 1080, fps: float = 30.0, fourcc: str = "MJPG",
-                 capture_factory: CaptureFactory = v4l2_capture,
-                 host_clock: Callable[[], int] = time.monotonic_ns, queue_size: int = 8,
-                 stall_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        device: Device | None = None,
+        devices: Sequence[Device] | None = None,
+        width: int = 1920,
+        height: int = 1080,
+        fps: float = 30.0,
+        fourcc: str = "MJPG",
+        capture_factory: CaptureFactory = v4l2_capture,
+        host_clock: Callable[[], int] = time.monotonic_ns,
+        queue_size: int = 8,
+        stall_timeout_s: float = 5.0,
+    ) -> None:
         super().__init__()
         if (device is None) == (devices is None):
-            raise DeviceError("give the camera either device (one side-by-side device) or "
-                              "devices = [left, right]")
+            raise DeviceError(
+                "give the camera either device (one side-by-side device) or devices = [left, right]"
+            )
         self.devices: list[Device] = [device] if device is not None else list(devices or [])
         if len(self.devices) not in (1, 2):
             raise DeviceError(f"camera devices must be [left, right], got {self.devices}")
@@ -96,8 +105,10 @@ class OpenCVStereoCamera(StereoCamera):
             self._caps.append(cap)
             if not cap.isOpened():
                 self._release()
-                raise DeviceError(f"cannot open camera {dev}; check it is plugged in, that you "
-                                  "may read it (group 'video') and 'v4l2-ctl --list-devices'")
+                raise DeviceError(
+                    f"cannot open camera {dev}; check it is plugged in, that you "
+                    "may read it (group 'video') and 'v4l2-ctl --list-devices'"
+                )
             cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*self.fourcc))
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, want_w)
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.height)
@@ -105,16 +116,19 @@ class OpenCVStereoCamera(StereoCamera):
             got = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
             if got != (want_w, self.height):
                 self._release()
-                raise DeviceError(f"camera {dev} gives {got[0]}x{got[1]}, not the requested "
-                                  f"{want_w}x{self.height} {self.fourcc}; list its modes with "
-                                  f"'v4l2-ctl -d {dev} --list-formats-ext'")
+                raise DeviceError(
+                    f"camera {dev} gives {got[0]}x{got[1]}, not the requested "
+                    f"{want_w}x{self.height} {self.fourcc}; list its modes with "
+                    f"'v4l2-ctl -d {dev} --list-formats-ext'"
+                )
             actual_fps = float(cap.get(cv2.CAP_PROP_FPS))
             if actual_fps > 0:
                 self.fps = actual_fps
         self._stop.clear()
         self._seq = None
-        self._thread = threading.Thread(target=self._grab_loop, daemon=True,
-                                        name=f"v4l2-{self.devices[0]}")
+        self._thread = threading.Thread(
+            target=self._grab_loop, daemon=True, name=f"v4l2-{self.devices[0]}"
+        )
         self._thread.start()
 
     def _close(self) -> None:
@@ -141,9 +155,13 @@ class OpenCVStereoCamera(StereoCamera):
 
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: devices, layout, pixel format, actual rate."""
-        return {**super().describe(), "devices": [str(d) for d in self.devices],
-                "layout": "side-by-side" if self.side_by_side else "two-devices",
-                "fourcc": self.fourcc, "device_clock": "V4L2 buffer timestamp (CLOCK_MONOTONIC)"}
+        return {
+            **super().describe(),
+            "devices": [str(d) for d in self.devices],
+            "layout": "side-by-side" if self.side_by_side else "two-devices",
+            "fourcc": self.fourcc,
+            "device_clock": "V4L2 buffer timestamp (CLOCK_MONOTONIC)",
+        }
 
     def _release(self) -> None:
         for cap in self._caps:
@@ -170,9 +188,13 @@ class OpenCVStereoCamera(StereoCamera):
                 last_good = time.monotonic()
                 self._put(self._frame(*grabbed))
             elif time.monotonic() - last_good > self.stall_timeout_s:
-                self._put(DeviceError(f"camera {self.devices} delivered no frame for "
-                                      f"{self.stall_timeout_s} s; check cable, power and "
-                                      "'v4l2-ctl --list-devices'"))
+                self._put(
+                    DeviceError(
+                        f"camera {self.devices} delivered no frame for "
+                        f"{self.stall_timeout_s} s; check cable, power and "
+                        "'v4l2-ctl --list-devices'"
+                    )
+                )
                 return
             else:
                 self._stop.wait(0.01)  # a failing grab may return at once: do not spin
@@ -182,8 +204,10 @@ class OpenCVStereoCamera(StereoCamera):
         cap, dev = self._caps[index], self.devices[index]
         if not cap.grab():
             if not cap.isOpened() or not device_node_present(dev):
-                raise DeviceError(f"camera {dev} vanished (unplugged or powered off); "
-                                  "reconnect it and start again")
+                raise DeviceError(
+                    f"camera {dev} vanished (unplugged or powered off); "
+                    "reconnect it and start again"
+                )
             return None
         t_ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
         return round(t_ms * 1e6) if t_ms > 0 else self._host_clock()
@@ -217,7 +241,7 @@ class OpenCVStereoCamera(StereoCamera):
     def _frame(self, images: list[np.ndarray], t_device_ns: int, t_host_ns: int) -> StereoFrame:
         if self.side_by_side:
             half = images[0].shape[1] // 2
-            left, right = images[0][:, :half], images[0][:, half:2 * half]
+            left, right = images[0][:, :half], images[0][:, half : 2 * half]
         else:
             left, right = images
         if self._seq is None:
@@ -225,5 +249,10 @@ class OpenCVStereoCamera(StereoCamera):
         else:
             seq = self._seq + max(1, round((t_device_ns - self._last_t_ns) / self.period_ns))
         self._seq, self._last_t_ns = seq, t_device_ns
-        return StereoFrame(left=np.ascontiguousarray(left), right=np.ascontiguousarray(right),
-                           seq=seq, t_device_ns=int(t_device_ns), t_host_ns=int(t_host_ns))
+        return StereoFrame(
+            left=np.ascontiguousarray(left),
+            right=np.ascontiguousarray(right),
+            seq=seq,
+            t_device_ns=int(t_device_ns),
+            t_host_ns=int(t_host_ns),
+        )

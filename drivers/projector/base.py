@@ -31,8 +31,9 @@ class Projector(Device):
         """Put ``pattern`` on the projector and return the event describing it."""
         self.require_open()
         frame_id = self._show(pattern, name, self._seq)
-        event = ProjectorEvent(pattern=name, frame_id=int(frame_id), seq=self._seq,
-                               t_host_ns=int(self._host_clock()))
+        event = ProjectorEvent(
+            pattern=name, frame_id=int(frame_id), seq=self._seq, t_host_ns=int(self._host_clock())
+        )
         self._seq += 1
         return event
 

@@ -22,13 +22,16 @@ def patch_size(cell_px: int = 8, n_bits: int = N_BITS) -> tuple[int, int]:
     return (n_bits + 3) * cell_px, cell_px
 
 
-def stamp_frame_id(image: np.ndarray, frame_id: int, cell_px: int = 8,
-                   n_bits: int = N_BITS) -> np.ndarray:
+def stamp_frame_id(
+    image: np.ndarray, frame_id: int, cell_px: int = 8, n_bits: int = N_BITS
+) -> np.ndarray:
     """A copy of ``image`` (H×W×3 or H×W) with ``frame_id mod 2**n_bits`` stamped top-left."""
     width, height = patch_size(cell_px, n_bits)
     if image.shape[0] < height or image.shape[1] < width:
-        raise ValueError(f"image {image.shape[1]}x{image.shape[0]} is smaller than the "
-                         f"{width}x{height} frame-ID patch")
+        raise ValueError(
+            f"image {image.shape[1]}x{image.shape[0]} is smaller than the "
+            f"{width}x{height} frame-ID patch"
+        )
     out = image.copy()
     cells = np.repeat(np.array(_cells(frame_id % (1 << n_bits), n_bits), np.uint8) * 255, cell_px)
     out[:height, :width] = cells[None, :, None] if out.ndim == 3 else cells[None, :]
@@ -47,10 +50,10 @@ def decode_frame_id(image_region: np.ndarray, n_bits: int = N_BITS) -> int | Non
     edges = np.linspace(0, grey.shape[1], n_cells + 1)
     h = grey.shape[0]
     values = []
-    for left, right in zip(edges[:-1], edges[1:]):
+    for left, right in zip(edges[:-1], edges[1:], strict=False):
         margin = (right - left) / 4  # sample the cell's centre, away from blurred edges
         rows = slice(h // 4, h - h // 4 or h)
-        values.append(grey[rows, int(left + margin): int(np.ceil(right - margin))].mean())
+        values.append(grey[rows, int(left + margin) : int(np.ceil(right - margin))].mean())
     white, black = values[0], values[1]
     if white - black < 16:
         return None

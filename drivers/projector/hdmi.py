@@ -29,8 +29,13 @@ class HdmiProjector(Projector):
     cells of ``cell_px`` pixels unless ``stamp`` is false.
     """
 
-    def __init__(self, screen: int = 1, stamp: bool = True, cell_px: int = 8,
-                 host_clock: Callable[[], int] = time.monotonic_ns) -> None:
+    def __init__(
+        self,
+        screen: int = 1,
+        stamp: bool = True,
+        cell_px: int = 8,
+        host_clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
         super().__init__(host_clock)
         self.screen, self.stamp, self.cell_px = int(screen), stamp, int(cell_px)
         self.width = self.height = 0
@@ -47,16 +52,21 @@ class HdmiProjector(Projector):
         self._app = qt_application()
         screens = QtGui.QGuiApplication.screens()
         if not 0 <= self.screen < len(screens):
-            names = [f"{i}: {s.name()} {s.geometry().width()}x{s.geometry().height()}"
-                     for i, s in enumerate(screens)]
-            raise DeviceError(f"projector screen {self.screen} does not exist; screens: {names}; "
-                              "connect the projector's HDMI cable or set the projector option "
-                              "'screen'")
+            names = [
+                f"{i}: {s.name()} {s.geometry().width()}x{s.geometry().height()}"
+                for i, s in enumerate(screens)
+            ]
+            raise DeviceError(
+                f"projector screen {self.screen} does not exist; screens: {names}; "
+                "connect the projector's HDMI cable or set the projector option "
+                "'screen'"
+            )
         geometry = screens[self.screen].geometry()
         self.width, self.height = geometry.width(), geometry.height()
         window = QtWidgets.QLabel()
-        window.setWindowFlags(QtCore.Qt.WindowType.FramelessWindowHint
-                              | QtCore.Qt.WindowType.WindowStaysOnTopHint)
+        window.setWindowFlags(
+            QtCore.Qt.WindowType.FramelessWindowHint | QtCore.Qt.WindowType.WindowStaysOnTopHint
+        )
         window.setStyleSheet("background-color: black;")
         window.setAlignment(QtCore.Qt.AlignmentFlag.AlignLeft | QtCore.Qt.AlignmentFlag.AlignTop)
         window.setGeometry(geometry)
@@ -79,14 +89,21 @@ class HdmiProjector(Projector):
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
         if image.shape[:2] != (self.height, self.width):
-            log.debug("pattern %s is %dx%d, scaled to screen %dx%d", name, image.shape[1],
-                      image.shape[0], self.width, self.height)
+            log.debug(
+                "pattern %s is %dx%d, scaled to screen %dx%d",
+                name,
+                image.shape[1],
+                image.shape[0],
+                self.width,
+                self.height,
+            )
             image = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_NEAREST)
         frame_id = seq % (1 << N_BITS)
         if self.stamp:
             image = stamp_frame_id(image, frame_id, self.cell_px)
-        qimage = QtGui.QImage(image.data, self.width, self.height, image.strides[0],
-                              QtGui.QImage.Format.Format_BGR888)
+        qimage = QtGui.QImage(
+            image.data, self.width, self.height, image.strides[0], QtGui.QImage.Format.Format_BGR888
+        )
         self._window.setPixmap(QtGui.QPixmap.fromImage(qimage))
         self._window.repaint()
         self._app.processEvents()
@@ -97,9 +114,14 @@ class HdmiProjector(Projector):
         self.require_open()
         qimage = self._window.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_BGR888)
         rows = np.frombuffer(qimage.constBits(), np.uint8).reshape(qimage.height(), -1)
-        return rows[:, :qimage.width() * 3].reshape(qimage.height(), qimage.width(), 3).copy()
+        return rows[:, : qimage.width() * 3].reshape(qimage.height(), qimage.width(), 3).copy()
 
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: screen index and frame-ID stamp."""
-        return {**super().describe(), "screen": self.screen, "frame_id_stamp": self.stamp,
-                "frame_id_cell_px": self.cell_px, "frame_id_bits": N_BITS}
+        return {
+            **super().describe(),
+            "screen": self.screen,
+            "frame_id_stamp": self.stamp,
+            "frame_id_cell_px": self.cell_px,
+            "frame_id_bits": N_BITS,
+        }

@@ -36,7 +36,7 @@ def de_bruijn(n_symbols: int = 3, order: int = 4) -> np.ndarray:
     def db(t: int, p: int) -> None:
         if t > order:
             if order % p == 0:
-                out.extend(a[1:p + 1])
+                out.extend(a[1 : p + 1])
             return
         a[t] = a[t - p]
         db(t + 1, p)
@@ -56,8 +56,9 @@ def fringe_symbols(n_fringes: int = DEFAULT_FRINGES) -> np.ndarray:
     return sequence[:n_fringes]
 
 
-def fringe_coordinates(width: int, n_fringes: int = DEFAULT_FRINGES
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def fringe_coordinates(
+    width: int, n_fringes: int = DEFAULT_FRINGES
+) -> tuple[np.ndarray, np.ndarray]:
     """For each projector column: fringe index (int) and phase within the fringe in [0, 1)."""
     position = (np.arange(width) + 0.5) * n_fringes / width
     index = np.minimum(np.floor(position).astype(np.int32), n_fringes - 1)
@@ -67,8 +68,10 @@ def fringe_coordinates(width: int, n_fringes: int = DEFAULT_FRINGES
 def make_pattern(width: int, height: int, n_fringes: int = DEFAULT_FRINGES) -> np.ndarray:
     """The pattern as a BGR ``uint8`` image of ``height × width`` (projector resolution)."""
     if width < 2 * n_fringes or height < 1:
-        raise DeviceError(f"pattern of {width}x{height} px is too small for {n_fringes} fringes "
-                         f"(need at least 2 px per fringe)")
+        raise DeviceError(
+            f"pattern of {width}x{height} px is too small for {n_fringes} fringes "
+            f"(need at least 2 px per fringe)"
+        )
     symbols = fringe_symbols(n_fringes)
     index, phase = fringe_coordinates(width, n_fringes)
     value = 0.5 - 0.5 * np.cos(2 * np.pi * phase)  # 1 at the fringe centre (phase 0.5), 0 at edges
@@ -81,11 +84,14 @@ def make_pattern(width: int, height: int, n_fringes: int = DEFAULT_FRINGES) -> n
     return np.ascontiguousarray(np.broadcast_to(row, (height, width, 3)))
 
 
-def save_pattern(path: str | Path, width: int, height: int,
-                 n_fringes: int = DEFAULT_FRINGES) -> Path:
+def save_pattern(
+    path: str | Path, width: int, height: int, n_fringes: int = DEFAULT_FRINGES
+) -> Path:
     """Write the pattern as a PNG for a projector of ``width × height`` pixels."""
     path = Path(path)
     if not cv2.imwrite(str(path), make_pattern(width, height, n_fringes)):
-        raise DeviceError(f"could not write pattern image {path}; check the folder exists and the "
-                         f"name ends in .png")
+        raise DeviceError(
+            f"could not write pattern image {path}; check the folder exists and the "
+            f"name ends in .png"
+        )
     return path

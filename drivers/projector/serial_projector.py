@@ -56,29 +56,42 @@ class CommandTable:
     on_close: tuple[str, ...]
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> "CommandTable":
+    def load(cls, path: str | Path | None = None) -> CommandTable:
         """Read and check a command table; DeviceError naming the file when it is wrong."""
         path = Path(path) if path is not None else default_commands_path()
         data = read_toml(path, "projector command table", DeviceError)
         try:
             proto = data.get("protocol", {})
             ack, error = proto.get("ack", r"^OK\b"), proto.get("error", r"^ERR\s*(?P<reason>.*)$")
-            commands = {name: CommandSpec(spec["send"], re.compile(spec.get("ack", ack)),
-                                          re.compile(spec.get("error", error)))
-                        for name, spec in data.get("commands", {}).items()}
-            table = cls(path=path, line_ending=proto.get("line_ending", "\r\n"),
-                        encoding=proto.get("encoding", "ascii"),
-                        timeout_s=float(proto.get("timeout_s", 1.0)), commands=commands,
-                        patterns={k: int(v) for k, v in data.get("patterns", {}).items()},
-                        on_open=tuple(proto.get("on_open", ())),
-                        on_close=tuple(proto.get("on_close", ())))
+            commands = {
+                name: CommandSpec(
+                    spec["send"],
+                    re.compile(spec.get("ack", ack)),
+                    re.compile(spec.get("error", error)),
+                )
+                for name, spec in data.get("commands", {}).items()
+            }
+            table = cls(
+                path=path,
+                line_ending=proto.get("line_ending", "\r\n"),
+                encoding=proto.get("encoding", "ascii"),
+                timeout_s=float(proto.get("timeout_s", 1.0)),
+                commands=commands,
+                patterns={k: int(v) for k, v in data.get("patterns", {}).items()},
+                on_open=tuple(proto.get("on_open", ())),
+                on_close=tuple(proto.get("on_close", ())),
+            )
         except (KeyError, TypeError, ValueError, re.error) as exc:
-            raise DeviceError(f"projector command table {path} is malformed ({exc!r}); see the "
-                              "format described in the shipped commands.toml") from None
+            raise DeviceError(
+                f"projector command table {path} is malformed ({exc!r}); see the "
+                "format described in the shipped commands.toml"
+            ) from None
         unknown = [c for c in (*table.on_open, *table.on_close) if c not in commands]
         if unknown:
-            raise DeviceError(f"projector command table {path}: on_open/on_close name unknown "
-                              f"command(s) {unknown}")
+            raise DeviceError(
+                f"projector command table {path}: on_open/on_close name unknown "
+                f"command(s) {unknown}"
+            )
         return table
 
 
@@ -89,9 +102,16 @@ class SerialProjector(Projector):
     table's ``[patterns]``. Events carry ``frame_id = -1`` (no frame-ID stamp over serial).
     """
 
-    def __init__(self, port: str, baudrate: int = 115200, commands: str | Path | None = None,
-                 timeout_s: float | None = None, width: int = 1280, height: int = 720,
-                 host_clock: Callable[[], int] = time.monotonic_ns) -> None:
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 115200,
+        commands: str | Path | None = None,
+        timeout_s: float | None = None,
+        width: int = 1280,
+        height: int = 720,
+        host_clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
         super().__init__(host_clock)
         self.port, self.baudrate = str(port), int(baudrate)
         self.table = CommandTable.load(commands)
@@ -110,8 +130,10 @@ class SerialProjector(Projector):
         try:
             self._serial = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=0.02)
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open projector port {self.port}: {exc}; check the adapter "
-                              "is plugged in and that you may use it (group 'dialout')") from None
+            raise DeviceError(
+                f"cannot open projector port {self.port}: {exc}; check the adapter "
+                "is plugged in and that you may use it (group 'dialout')"
+            ) from None
         try:
             for name in self.table.on_open:
                 self._command(name)
@@ -146,9 +168,10 @@ class SerialProjector(Projector):
             spec = self.table.commands[name]
             line = spec.send.format(**params)
         except KeyError as exc:
-            raise DeviceError(f"projector command {name!r} needs {exc} (table "
-                              f"{self.table.path}, commands: {sorted(self.table.commands)})"
-                              ) from None
+            raise DeviceError(
+                f"projector command {name!r} needs {exc} (table "
+                f"{self.table.path}, commands: {sorted(self.table.commands)})"
+            ) from None
         except ValueError as exc:
             raise DeviceError(f"projector command {name!r} cannot use {params}: {exc}") from None
         self._serial.reset_input_buffer()
@@ -172,19 +195,28 @@ class SerialProjector(Projector):
                 if (good := spec.ack.search(reply)) is not None:
                     return good.groupdict()
                 log.debug("projector on %s: skipped reply %r", self.port, reply)
-        raise DeviceError(f"projector on {self.port} did not acknowledge {line!r} within "
-                          f"{self.timeout_s} s; check the cable, baud rate ({self.baudrate}) "
-                          "and that the projector is on")
+        raise DeviceError(
+            f"projector on {self.port} did not acknowledge {line!r} within "
+            f"{self.timeout_s} s; check the cable, baud rate ({self.baudrate}) "
+            "and that the projector is on"
+        )
 
     def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
         """Select the stored pattern ``name`` (``pattern`` is only what it should look like)."""
         if name not in self.table.patterns:
-            raise DeviceError(f"projector on {self.port} has no stored pattern {name!r} in "
-                              f"{self.table.path}; known: {sorted(self.table.patterns)}")
+            raise DeviceError(
+                f"projector on {self.port} has no stored pattern {name!r} in "
+                f"{self.table.path}; known: {sorted(self.table.patterns)}"
+            )
         self._command("pattern", index=self.table.patterns[name])
         return -1
 
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: port, baud rate and command table."""
-        return {**super().describe(), "port": self.port, "baudrate": self.baudrate,
-                "commands": str(self.table.path), "patterns": dict(self.table.patterns)}
+        return {
+            **super().describe(),
+            "port": self.port,
+            "baudrate": self.baudrate,
+            "commands": str(self.table.path),
+            "patterns": dict(self.table.patterns),
+        }

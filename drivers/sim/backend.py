@@ -24,8 +24,11 @@ class SimBackend:
         if options.seed is not None:
             table["seed"] = int(options.seed)
         if options.taps is not None:
-            table.update(protocol="sync", sync_taps=options.taps.taps,
-                         sync_duration_s=options.taps.duration_s)
+            table.update(
+                protocol="sync",
+                sync_taps=options.taps.taps,
+                sync_duration_s=options.taps.duration_s,
+            )
         self.bench = SimBench.from_config(table)
         self.truth = self.bench
 

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vbfe.common.settings import parse_kwargs
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
@@ -27,16 +28,27 @@ from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
-from vbfe.common.settings import parse_kwargs
 
 SCENES = ("tissue", "plane", "board")
 PROTOCOLS = ("traction", "sync", "freehand")
 FORCE_RANGE_N = 5.0  # TRF85D measuring range
-_STREAMS = ("sample", "clocks", "render", "camera_transport", "force_transport", "force_noise",
-            "texture", "board", "taps", "projector", "freehand")
+_STREAMS = (
+    "sample",
+    "clocks",
+    "render",
+    "camera_transport",
+    "force_transport",
+    "force_noise",
+    "texture",
+    "board",
+    "taps",
+    "projector",
+    "freehand",
+)
 
 
 MAX_PIXELS = 8192 * 8192  # per camera image: larger is a typo, not a camera
+
 
 class SimBench:
     """A simulated rig: stereo endoscope, projector, trocar and a hose pulled once.
@@ -62,77 +74,137 @@ class SimBench:
     frames' clock is ``image_latency_ms + projector_latency_ms``.
     """
 
-    def __init__(self, rig: StereoRig | None = None, seed: int = 0, width: int = 640,
-                 height: int = 360, fps: float = 30.0, scene: str = "tissue",
-                 stiffness_n_per_m: float = 80.0, pull_speed_m_per_s: float = 0.005,
-                 target_force_n: float = 3.0, rest_s: float = 0.5, hold_s: float = 3.0,
-                 image_latency_ms: float = 45.0, force_latency_ms: float = 8.0,
-                 image_jitter_ms: float = 1.0, force_jitter_ms: float = 0.2,
-                 camera_drift_ppm: float = 40.0, trocar_drift_ppm: float = -60.0,
-                 trocar_rate_hz: float = 1000.0, force_noise_n: float = 0.03,
-                 force_resolution_n: float = 0.01, noise_sigma: float = 1.0,
-                 ambient: float = 0.15, textured: bool = False, distortion: bool = False,
-                 baseline_m: float = 0.004, working_distance_m: float = 0.06,
-                 deformation_scale: float = 0.15, realtime: bool = False,
-                 board: str = "charuco", board_squares_x: int = 9, board_squares_y: int = 7,
-                 board_square_mm: float = 3.0, board_marker_mm: float = 2.2,
-                 board_dictionary: str = "DICT_5X5_100", board_legacy: bool = False,
-                 board_poses: list[list[float]] | None = None, board_hold_s: float = 0.0,
-                 board_p_still: float = 0.25, board_p_blur: float = 0.15, board_blur_px: int = 5,
-                 board_distance_mm: tuple[float, float] = (30.0, 70.0),
-                 board_max_tilt_deg: float = 35.0, board_in_projector: bool = False,
-                 albedo_bgr: tuple[float, float, float] | None = None,
-                 subsurface_blur_mm: float = 0.0, specular: float = 0.0,
-                 crosstalk: float = 0.0, projector_gamma: float = 1.0, vignetting: float = 0.0,
-                 motion_blur_exposure_ms: float = 0.0,
-                 protocol: Literal["traction", "sync", "freehand"] = "traction",
-                 sync_taps: int = 20, sync_duration_s: float = 20.0,
-                 tap_force_n: float = 1.0, freehand_duration_s: float = 15.0,
-                 freehand_stiffness_n_per_m: tuple[float, float] = (70.0, 95.0),
-                 projector_latency_ms: float = 0.0,
-                 exposure_ms: float = 0.0, line_time_us: float = 0.0) -> None:
+    def __init__(
+        self,
+        rig: StereoRig | None = None,
+        seed: int = 0,
+        width: int = 640,
+        height: int = 360,
+        fps: float = 30.0,
+        scene: str = "tissue",
+        stiffness_n_per_m: float = 80.0,
+        pull_speed_m_per_s: float = 0.005,
+        target_force_n: float = 3.0,
+        rest_s: float = 0.5,
+        hold_s: float = 3.0,
+        image_latency_ms: float = 45.0,
+        force_latency_ms: float = 8.0,
+        image_jitter_ms: float = 1.0,
+        force_jitter_ms: float = 0.2,
+        camera_drift_ppm: float = 40.0,
+        trocar_drift_ppm: float = -60.0,
+        trocar_rate_hz: float = 1000.0,
+        force_noise_n: float = 0.03,
+        force_resolution_n: float = 0.01,
+        noise_sigma: float = 1.0,
+        ambient: float = 0.15,
+        textured: bool = False,
+        distortion: bool = False,
+        baseline_m: float = 0.004,
+        working_distance_m: float = 0.06,
+        deformation_scale: float = 0.15,
+        realtime: bool = False,
+        board: str = "charuco",
+        board_squares_x: int = 9,
+        board_squares_y: int = 7,
+        board_square_mm: float = 3.0,
+        board_marker_mm: float = 2.2,
+        board_dictionary: str = "DICT_5X5_100",
+        board_legacy: bool = False,
+        board_poses: list[list[float]] | None = None,
+        board_hold_s: float = 0.0,
+        board_p_still: float = 0.25,
+        board_p_blur: float = 0.15,
+        board_blur_px: int = 5,
+        board_distance_mm: tuple[float, float] = (30.0, 70.0),
+        board_max_tilt_deg: float = 35.0,
+        board_in_projector: bool = False,
+        albedo_bgr: tuple[float, float, float] | None = None,
+        subsurface_blur_mm: float = 0.0,
+        specular: float = 0.0,
+        crosstalk: float = 0.0,
+        projector_gamma: float = 1.0,
+        vignetting: float = 0.0,
+        motion_blur_exposure_ms: float = 0.0,
+        protocol: Literal["traction", "sync", "freehand"] = "traction",
+        sync_taps: int = 20,
+        sync_duration_s: float = 20.0,
+        tap_force_n: float = 1.0,
+        freehand_duration_s: float = 15.0,
+        freehand_stiffness_n_per_m: tuple[float, float] = (70.0, 95.0),
+        projector_latency_ms: float = 0.0,
+        exposure_ms: float = 0.0,
+        line_time_us: float = 0.0,
+    ) -> None:
         if scene not in SCENES:
             raise DeviceError(f"[bench] scene must be one of {SCENES}, got {scene!r}")
         if fps <= 0 or trocar_rate_hz <= 0:
             raise DeviceError("[bench] fps and trocar_rate_hz must be positive")
         if width <= 0 or height <= 0 or width * height > MAX_PIXELS:
-            raise DeviceError(f"[bench] width x height = {width}x{height}: give positive sizes "
-                              f"of at most {MAX_PIXELS // 10**6} megapixels")
+            raise DeviceError(
+                f"[bench] width x height = {width}x{height}: give positive sizes "
+                f"of at most {MAX_PIXELS // 10**6} megapixels"
+            )
         if protocol not in PROTOCOLS:
             raise DeviceError(f"[bench] protocol must be one of {PROTOCOLS}, got {protocol!r}")
         if protocol == "freehand" and not (
-                0 < freehand_stiffness_n_per_m[0] <= freehand_stiffness_n_per_m[1]
-                and freehand_duration_s >= 2.0 and target_force_n >= 1.0):
-            raise DeviceError("[bench] freehand protocol: freehand_stiffness_n_per_m must be "
-                              "[low, high] with 0 < low <= high, freehand_duration_s >= 2 and "
-                              "target_force_n >= 1")
+            0 < freehand_stiffness_n_per_m[0] <= freehand_stiffness_n_per_m[1]
+            and freehand_duration_s >= 2.0
+            and target_force_n >= 1.0
+        ):
+            raise DeviceError(
+                "[bench] freehand protocol: freehand_stiffness_n_per_m must be "
+                "[low, high] with 0 < low <= high, freehand_duration_s >= 2 and "
+                "target_force_n >= 1"
+            )
         if not 0 <= exposure_ms <= 1e3 / fps or projector_latency_ms < 0 or line_time_us < 0:
-            raise DeviceError("[bench] exposure_ms must be within [0, 1000/fps]; "
-                              "projector_latency_ms and line_time_us must not be negative")
-        if (image_latency_ms + projector_latency_ms
-                < (exposure_ms + line_time_us * 1e-3 * height) / 2 + 3 * image_jitter_ms):
-            raise DeviceError("[bench] image_latency_ms + projector_latency_ms must exceed half the "
-                              "exposure and readout plus 3x image_jitter_ms (a pattern must not "
-                              "light frames that have already arrived)")
+            raise DeviceError(
+                "[bench] exposure_ms must be within [0, 1000/fps]; "
+                "projector_latency_ms and line_time_us must not be negative"
+            )
+        if (
+            image_latency_ms + projector_latency_ms
+            < (exposure_ms + line_time_us * 1e-3 * height) / 2 + 3 * image_jitter_ms
+        ):
+            raise DeviceError(
+                "[bench] image_latency_ms + projector_latency_ms must exceed half the "
+                "exposure and readout plus 3x image_jitter_ms (a pattern must not "
+                "light frames that have already arrived)"
+            )
         if image_latency_ms < 3 * image_jitter_ms or force_latency_ms < 3 * force_jitter_ms:
-            raise DeviceError("[bench] each latency must be at least 3x its jitter "
-                              "(image_latency_ms/image_jitter_ms, force_latency_ms/force_jitter_ms)")
-        self._params = {name: value for name, value in locals().items()
-                        if name not in ("self", "rig")}
-        for key, value in {"stiffness_n_per_m": stiffness_n_per_m,
-                           "pull_speed_m_per_s": pull_speed_m_per_s,
-                           "target_force_n": target_force_n, "tap_force_n": tap_force_n,
-                           "sync_duration_s": sync_duration_s, "baseline_m": baseline_m,
-                           "working_distance_m": working_distance_m}.items():
+            raise DeviceError(
+                "[bench] each latency must be at least 3x its jitter "
+                "(image_latency_ms/image_jitter_ms, force_latency_ms/force_jitter_ms)"
+            )
+        self._params = {
+            name: value for name, value in locals().items() if name not in ("self", "rig")
+        }
+        for key, value in {
+            "stiffness_n_per_m": stiffness_n_per_m,
+            "pull_speed_m_per_s": pull_speed_m_per_s,
+            "target_force_n": target_force_n,
+            "tap_force_n": tap_force_n,
+            "sync_duration_s": sync_duration_s,
+            "baseline_m": baseline_m,
+            "working_distance_m": working_distance_m,
+        }.items():
             if not value > 0:
                 raise DeviceError(f"[bench] {key} = {value} must be positive")
-        for key, value in {"rest_s": rest_s, "hold_s": hold_s, "noise_sigma": noise_sigma,
-                           "force_noise_n": force_noise_n, "ambient": ambient,
-                           "force_resolution_n": force_resolution_n}.items():
+        for key, value in {
+            "rest_s": rest_s,
+            "hold_s": hold_s,
+            "noise_sigma": noise_sigma,
+            "force_noise_n": force_noise_n,
+            "ambient": ambient,
+            "force_resolution_n": force_resolution_n,
+        }.items():
             if value < 0:
                 raise DeviceError(f"[bench] {key} = {value} must not be negative")
-        self.rig = rig if rig is not None else default_rig(width, height, baseline_m,
-                                                           working_distance_m, distortion)
+        self.rig = (
+            rig
+            if rig is not None
+            else default_rig(width, height, baseline_m, working_distance_m, distortion)
+        )
         self._params.update(width=self.rig.left.width, height=self.rig.left.height)
         self.seed, self.fps, self.scene, self.realtime = seed, float(fps), scene, realtime
         self.trocar_rate_hz = float(trocar_rate_hz)
@@ -140,55 +212,105 @@ class SimBench:
         self.force_range_n = FORCE_RANGE_N
         self.frame_period_ns = int(round(1e9 / fps))
         self.sample_period_ns = int(round(1e9 / trocar_rate_hz))
-        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in
-                                   np.random.SeedSequence(seed).spawn(len(_STREAMS)))))
+        rngs = dict(
+            zip(
+                _STREAMS,
+                (
+                    np.random.default_rng(s)
+                    for s in np.random.SeedSequence(seed).spawn(len(_STREAMS))
+                ), strict=False,
+            )
+        )
         self._force_rng = rngs["force_noise"]
         if protocol == "sync":
-            protocol = TapProtocol.random(rngs["taps"], sync_taps, sync_duration_s,
-                                          stiffness_n_per_m, tap_force_n)
+            protocol = TapProtocol.random(
+                rngs["taps"], sync_taps, sync_duration_s, stiffness_n_per_m, tap_force_n
+            )
         elif protocol == "freehand":
-            protocol = _freehand(rngs["freehand"], freehand_stiffness_n_per_m,
-                                 freehand_duration_s, target_force_n, rest_s)
+            protocol = _freehand(
+                rngs["freehand"],
+                freehand_stiffness_n_per_m,
+                freehand_duration_s,
+                target_force_n,
+                rest_s,
+            )
         else:
-            protocol = TractionProtocol(stiffness_n_per_m, pull_speed_m_per_s, target_force_n,
-                                        rest_s, hold_s)
+            protocol = TractionProtocol(
+                stiffness_n_per_m, pull_speed_m_per_s, target_force_n, rest_s, hold_s
+            )
         self._board = None
         if scene == "board":
-            target = board_target(board, board_squares_x, board_squares_y, board_square_mm,
-                                  board_marker_mm, board_dictionary, board_legacy)
+            target = board_target(
+                board,
+                board_squares_x,
+                board_squares_y,
+                board_square_mm,
+                board_marker_mm,
+                board_dictionary,
+                board_legacy,
+            )
             if any(len(p) != 6 for p in (board_poses or [])):
                 raise DeviceError("[bench] board_poses must be rows [rx, ry, rz, tx, ty, tz]")
-            poses = [(np.asarray(p[:3], np.float64), np.asarray(p[3:], np.float64))
-                     for p in (board_poses or [])]
+            poses = [
+                (np.asarray(p[:3], np.float64), np.asarray(p[3:], np.float64))
+                for p in (board_poses or [])
+            ]
             self._board = BoardScene(
-                self.rig, target, rngs["board"], self.frame_period_ns, poses, board_hold_s,
-                board_p_still, board_p_blur, board_blur_px,
-                (board_distance_mm[0] * 1e-3, board_distance_mm[1] * 1e-3), board_max_tilt_deg,
-                board_in_projector)
-        self.trial = Trial(protocol, TissueSample.random(rngs["sample"], working_distance_m),
-                           deformation_scale)
+                self.rig,
+                target,
+                rngs["board"],
+                self.frame_period_ns,
+                poses,
+                board_hold_s,
+                board_p_still,
+                board_p_blur,
+                board_blur_px,
+                (board_distance_mm[0] * 1e-3, board_distance_mm[1] * 1e-3),
+                board_max_tilt_deg,
+                board_in_projector,
+            )
+        self.trial = Trial(
+            protocol, TissueSample.random(rngs["sample"], working_distance_m), deformation_scale
+        )
         tint = tuple(albedo_bgr) if albedo_bgr is not None else UniformAlbedo().bgr
         albedo = tissue_texture(rngs["texture"], tint_bgr=tint) if textured else UniformAlbedo(tint)
         self._tissue = TissueSurface(distance_m=working_distance_m, texture=albedo)
-        self._plane = Plane(np.eye(3), np.array([0.0, 0.0, working_distance_m]),
-                            texture=UniformAlbedo((1.0, 1.0, 1.0)))
+        self._plane = Plane(
+            np.eye(3),
+            np.array([0.0, 0.0, working_distance_m]),
+            texture=UniformAlbedo((1.0, 1.0, 1.0)),
+        )
         clock_rng = rngs["clocks"]
         self.camera_clock = DeviceClock(int(clock_rng.integers(10**9, 10**12)), camera_drift_ppm)
-        self.trocar_clock = DeviceClock(int(clock_rng.integers(10**9, 10**12)), trocar_drift_ppm,
-                                        tick_ns=1000)
+        self.trocar_clock = DeviceClock(
+            int(clock_rng.integers(10**9, 10**12)), trocar_drift_ppm, tick_ns=1000
+        )
         # not in real time the host clock is simulated too: its epoch comes from the seed, so
         # two recordings of one bench hold the same host timestamps
         self._sim_host_epoch_ns = int(clock_rng.integers(10**9, 10**12))
         self.image_latency_ns = int(round(image_latency_ms * 1e6))
         self.force_latency_ns = int(round(force_latency_ms * 1e6))
-        self.camera_transport = Transport(self.image_latency_ns, image_jitter_ms * 1e6,
-                                          rngs["camera_transport"])
-        self.force_transport = Transport(self.force_latency_ns, force_jitter_ms * 1e6,
-                                         rngs["force_transport"])
-        self.renderer = StereoRenderer(self.rig, ambient=ambient, noise_sigma=noise_sigma,
-                                       rng=rngs["render"], nuisance=self._nuisance(
-            subsurface_blur_mm, specular, crosstalk, projector_gamma, vignetting,
-            pull_speed_m_per_s * motion_blur_exposure_ms * 1e-3, working_distance_m))
+        self.camera_transport = Transport(
+            self.image_latency_ns, image_jitter_ms * 1e6, rngs["camera_transport"]
+        )
+        self.force_transport = Transport(
+            self.force_latency_ns, force_jitter_ms * 1e6, rngs["force_transport"]
+        )
+        self.renderer = StereoRenderer(
+            self.rig,
+            ambient=ambient,
+            noise_sigma=noise_sigma,
+            rng=rngs["render"],
+            nuisance=self._nuisance(
+                subsurface_blur_mm,
+                specular,
+                crosstalk,
+                projector_gamma,
+                vignetting,
+                pull_speed_m_per_s * motion_blur_exposure_ms * 1e-3,
+                working_distance_m,
+            ),
+        )
         self.projector_latency_ns = int(round(projector_latency_ms * 1e6))
         self.exposure_ns = int(round(exposure_ms * 1e6))
         self.line_time_ns = line_time_us * 1e3
@@ -201,24 +323,35 @@ class SimBench:
         self._camera_open = False
         self.host_epoch_ns = 0
 
-    def _nuisance(self, subsurface_blur_mm: float, specular: float, crosstalk: float,
-                  projector_gamma: float, vignetting: float, travel_m: float,
-                  distance_m: float) -> Nuisance:
+    def _nuisance(
+        self,
+        subsurface_blur_mm: float,
+        specular: float,
+        crosstalk: float,
+        projector_gamma: float,
+        vignetting: float,
+        travel_m: float,
+        distance_m: float,
+    ) -> Nuisance:
         """The tissue/optics nuisances; motion blur is the grasp's travel during one exposure
         at the pull speed, seen at the working distance (an upper bound for the whole view)."""
         dx, dy, _ = self.trial.sample.pull_direction
         try:
-            return Nuisance(subsurface_blur_mm=subsurface_blur_mm, specular=specular,
-                            crosstalk=crosstalk, projector_gamma=projector_gamma,
-                            vignetting=vignetting,
-                            motion_blur_px=travel_m * self.rig.left.f / distance_m,
-                            motion_blur_deg=math.degrees(math.atan2(dy, dx)))
+            return Nuisance(
+                subsurface_blur_mm=subsurface_blur_mm,
+                specular=specular,
+                crosstalk=crosstalk,
+                projector_gamma=projector_gamma,
+                vignetting=vignetting,
+                motion_blur_px=travel_m * self.rig.left.f / distance_m,
+                motion_blur_deg=math.degrees(math.atan2(dy, dx)),
+            )
         except ValueError as exc:
             raise DeviceError(f"[bench] {exc}") from None
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def from_config(cls, table: dict[str, Any]) -> "SimBench":
+    def from_config(cls, table: dict[str, Any]) -> SimBench:
         """A bench from the rig config's ``[bench]`` table (keys are constructor arguments)."""
         return cls(**parse_kwargs(cls, table, "bench", skip=("rig",)))
 
@@ -227,7 +360,7 @@ class SimBench:
         return {**self._params, "rig": rig_to_dict(self.rig), "trial": self.trial.describe()}
 
     @classmethod
-    def from_description(cls, description: dict[str, Any]) -> "SimBench":
+    def from_description(cls, description: dict[str, Any]) -> SimBench:
         """Rebuild the bench :meth:`describe` described (same seed: same trial and noise)."""
         params = {k: v for k, v in description.items() if k not in ("rig", "trial")}
         rig = rig_from_dict(description["rig"]) if "rig" in description else None
@@ -241,32 +374,68 @@ class SimBench:
         if value["protocol"] == "sync":
             return float(value["sync_duration_s"])
         if value["protocol"] == "freehand":
-            rng = np.random.default_rng(np.random.SeedSequence(value["seed"]).spawn(
-                len(_STREAMS))[_STREAMS.index("freehand")])
-            return _freehand(rng, value["freehand_stiffness_n_per_m"],
-                             value["freehand_duration_s"], value["target_force_n"],
-                             value["rest_s"]).duration_s()
-        return TractionProtocol(*(value[k] for k in (
-            "stiffness_n_per_m", "pull_speed_m_per_s", "target_force_n", "rest_s",
-            "hold_s"))).duration_s()
+            rng = np.random.default_rng(
+                np.random.SeedSequence(value["seed"]).spawn(len(_STREAMS))[
+                    _STREAMS.index("freehand")
+                ]
+            )
+            return _freehand(
+                rng,
+                value["freehand_stiffness_n_per_m"],
+                value["freehand_duration_s"],
+                value["target_force_n"],
+                value["rest_s"],
+            ).duration_s()
+        return TractionProtocol(
+            *(
+                value[k]
+                for k in (
+                    "stiffness_n_per_m",
+                    "pull_speed_m_per_s",
+                    "target_force_n",
+                    "rest_s",
+                    "hold_s",
+                )
+            )
+        ).duration_s()
 
     def conditions(self) -> dict[str, Any]:
         """Experimental conditions of the trial, for session metadata."""
         p, s = self.trial.protocol, self.trial.sample
         if isinstance(p, TapProtocol):
-            return {"protocol": "sync", "stiffness_n_per_m": p.stiffness_n_per_m,
-                    "taps": len(p.tap_times_s), "thickness_m": s.thickness_m,
-                    "scene": self.scene, "seed": self.seed, "simulated": True}
+            return {
+                "protocol": "sync",
+                "stiffness_n_per_m": p.stiffness_n_per_m,
+                "taps": len(p.tap_times_s),
+                "thickness_m": s.thickness_m,
+                "scene": self.scene,
+                "seed": self.seed,
+                "simulated": True,
+            }
         if isinstance(p, FreehandProtocol):
-            return {"protocol": "freehand", "label": f"freehand {p.stiffness_n_per_m:.0f} N/m",
-                    "stiffness_n_per_m": p.stiffness_n_per_m,
-                    "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
-                    "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
-                    "scene": self.scene, "seed": self.seed, "simulated": True}
-        return {"stiffness_n_per_m": p.stiffness_n_per_m, "pull_speed_m_per_s": p.pull_speed_m_per_s,
-                "target_force_n": p.target_force_n, "thickness_m": s.thickness_m,
-                "contact_m": list(s.contact_m), "pull_direction": list(s.pull_direction),
-                "scene": self.scene, "seed": self.seed, "simulated": True}
+            return {
+                "protocol": "freehand",
+                "label": f"freehand {p.stiffness_n_per_m:.0f} N/m",
+                "stiffness_n_per_m": p.stiffness_n_per_m,
+                "target_force_n": p.target_force_n,
+                "thickness_m": s.thickness_m,
+                "contact_m": list(s.contact_m),
+                "pull_direction": list(s.pull_direction),
+                "scene": self.scene,
+                "seed": self.seed,
+                "simulated": True,
+            }
+        return {
+            "stiffness_n_per_m": p.stiffness_n_per_m,
+            "pull_speed_m_per_s": p.pull_speed_m_per_s,
+            "target_force_n": p.target_force_n,
+            "thickness_m": s.thickness_m,
+            "contact_m": list(s.contact_m),
+            "pull_direction": list(s.pull_direction),
+            "scene": self.scene,
+            "seed": self.seed,
+            "simulated": True,
+        }
 
     def duration_s(self) -> float:
         """Length of one traction trial (rest, pull until the target force, hold), of the
@@ -291,8 +460,9 @@ class SimBench:
         ``drives_time`` (its frames move the simulated host clock)."""
         with self._time:
             if not self._open_devices:
-                self.host_epoch_ns = (time.monotonic_ns() if self.realtime
-                                      else self._sim_host_epoch_ns)
+                self.host_epoch_ns = (
+                    time.monotonic_ns() if self.realtime else self._sim_host_epoch_ns
+                )
             self._open_devices.add(id(device))
             self._camera_open |= drives_time
 
@@ -328,8 +498,9 @@ class SimBench:
             if not self._camera_open:  # nobody drives time: the reader does
                 self._now_host_ns = max(self._now_host_ns, host_ns)
                 return True
-            return self._time.wait_for(lambda: self._now_host_ns >= host_ns
-                                       or not self._camera_open, timeout_s)
+            return self._time.wait_for(
+                lambda: self._now_host_ns >= host_ns or not self._camera_open, timeout_s
+            )
 
     def frames_due(self) -> int:
         """Index of the newest frame that has arrived at the host (real-time mode)."""
@@ -369,13 +540,18 @@ class SimBench:
             light.insert(0, (-(2**62), default))
             with self._time:
                 self._light.insert(0, light[0])
-        rows = (np.arange(self.rig.left.height) - (self.rig.left.height - 1) / 2) * self.line_time_ns
+        rows = (
+            np.arange(self.rig.left.height) - (self.rig.left.height - 1) / 2
+        ) * self.line_time_ns
         start = true_ns + rows - self.exposure_ns / 2
         end = start + self.exposure_ns
         shares = []
-        for (on, pattern), (off, _) in zip(light, light[1:] + [(2**62, None)]):
+        for (on, pattern), (off, _) in zip(light, light[1:] + [(2**62, None)], strict=False):
             if self.exposure_ns > 0:
-                share = np.clip(np.minimum(end, off) - np.maximum(start, on), 0, None) / self.exposure_ns
+                share = (
+                    np.clip(np.minimum(end, off) - np.maximum(start, on), 0, None)
+                    / self.exposure_ns
+                )
             else:
                 share = ((start >= on) & (start < off)).astype(np.float64)
             if share.any():
@@ -430,10 +606,17 @@ class SimBench:
         true = (first + np.arange(n, dtype=np.int64)) * self.sample_period_ns
         force = self.trial.forces(true / 1e9)
         force = force + self._force_rng.normal(0.0, self.force_noise_n, force.shape)
-        force = np.clip(np.round(force / self.force_resolution_n) * self.force_resolution_n,
-                        -self.force_range_n, self.force_range_n)
-        return {"true": true, "device": self.trocar_clock.device_ns(true),
-                "host": self.force_transport.host_ns(true), "force": force}
+        force = np.clip(
+            np.round(force / self.force_resolution_n) * self.force_resolution_n,
+            -self.force_range_n,
+            self.force_range_n,
+        )
+        return {
+            "true": true,
+            "device": self.trocar_clock.device_ns(true),
+            "host": self.force_transport.host_ns(true),
+            "force": force,
+        }
 
     # -- ground truth ---------------------------------------------------------------------
     def session_truth(self, frame_t_device_ns: np.ndarray) -> dict[str, np.ndarray]:
@@ -459,7 +642,8 @@ class SimBench:
             "grasper_displacement_m": u,
             "phase": phase.astype(np.int8),
             "image_minus_force_host_offset_ns": np.full(
-                n, self.image_latency_ns - self.force_latency_ns, np.int64),
+                n, self.image_latency_ns - self.force_latency_ns, np.int64
+            ),
         }
 
     def render_truth(self, frame_t_device_ns: int) -> dict[str, np.ndarray]:
@@ -469,8 +653,13 @@ class SimBench:
         return self.renderer.truth(self.surface_at(true_ns))
 
 
-def _freehand(rng: np.random.Generator, stiffness_range: tuple[float, float], duration_s: float,
-              target_force_n: float, rest_s: float) -> FreehandProtocol:
+def _freehand(
+    rng: np.random.Generator,
+    stiffness_range: tuple[float, float],
+    duration_s: float,
+    target_force_n: float,
+    rest_s: float,
+) -> FreehandProtocol:
     """The freehand trial of a seed: stiffness log-uniform in ``stiffness_range``, then steps."""
     stiffness = float(np.exp(rng.uniform(*np.log(stiffness_range))))
     return FreehandProtocol.random(rng, stiffness, duration_s, target_force_n, rest_s)
@@ -478,6 +667,7 @@ def _freehand(rng: np.random.Generator, stiffness_range: tuple[float, float], du
 
 def _mix(parts: list[tuple[np.ndarray, np.ndarray | float]]) -> np.ndarray:
     """Weighted sum of images (per-row weights or one weight each), as ``uint8``."""
-    total = sum(np.asarray(w, np.float32).reshape(-1, 1, 1) * image.astype(np.float32)
-                for image, w in parts)
+    total = sum(
+        np.asarray(w, np.float32).reshape(-1, 1, 1) * image.astype(np.float32) for image, w in parts
+    )
     return np.clip(total + 0.5, 0, 255).astype(np.uint8)

@@ -20,8 +20,14 @@ import cv2
 import numpy as np
 
 from vbfe.drivers.errors import DeviceError
-from vbfe.drivers.sim.charuco_scene import (BoardTarget, ChessboardPattern, Pose, charuco_target,
-                                            random_board_poses, render_board_views)
+from vbfe.drivers.sim.charuco_scene import (
+    BoardTarget,
+    ChessboardPattern,
+    Pose,
+    charuco_target,
+    random_board_poses,
+    render_board_views,
+)
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig
 from vbfe.drivers.sim.tissue import ImageTexture, Plane
@@ -39,26 +45,42 @@ def motion_blur(image: np.ndarray, length_px: int, angle_deg: float) -> np.ndarr
     return cv2.filter2D(image, -1, kernel / kernel.sum())
 
 
-def board_target(kind: str, squares_x: int, squares_y: int, square_mm: float, marker_mm: float,
-                 dictionary: str, legacy: bool) -> BoardTarget:
+def board_target(
+    kind: str,
+    squares_x: int,
+    squares_y: int,
+    square_mm: float,
+    marker_mm: float,
+    dictionary: str,
+    legacy: bool,
+) -> BoardTarget:
     """The target a ``[bench]`` table's ``board_*`` keys describe (a chessboard of
     ``squares_x`` × ``squares_y`` squares has one inner corner fewer each way)."""
     if kind not in BOARDS:
         raise DeviceError(f"[bench] board must be one of {BOARDS}, got {kind!r}")
     if kind == "chessboard":
         if min(squares_x, squares_y) < 3 or square_mm <= 0:
-            raise DeviceError("[bench] a chessboard needs at least 3x3 squares and a positive "
-                              "board_square_mm")
+            raise DeviceError(
+                "[bench] a chessboard needs at least 3x3 squares and a positive board_square_mm"
+            )
         return charuco_target(ChessboardPattern((squares_x - 1, squares_y - 1), square_mm * 1e-3))
     dict_id = getattr(cv2.aruco, str(dictionary), None)
     if not str(dictionary).startswith("DICT_") or dict_id is None:
-        raise DeviceError(f"[bench] board_dictionary {dictionary!r} is not an ArUco dictionary "
-                          "(e.g. DICT_5X5_100)")
+        raise DeviceError(
+            f"[bench] board_dictionary {dictionary!r} is not an ArUco dictionary "
+            "(e.g. DICT_5X5_100)"
+        )
     if not 0 < marker_mm < square_mm:
-        raise DeviceError(f"[bench] board_marker_mm ({marker_mm}) must be positive and smaller "
-                          f"than board_square_mm ({square_mm})")
-    board = cv2.aruco.CharucoBoard((int(squares_x), int(squares_y)), square_mm * 1e-3,
-                                   marker_mm * 1e-3, cv2.aruco.getPredefinedDictionary(dict_id))
+        raise DeviceError(
+            f"[bench] board_marker_mm ({marker_mm}) must be positive and smaller "
+            f"than board_square_mm ({square_mm})"
+        )
+    board = cv2.aruco.CharucoBoard(
+        (int(squares_x), int(squares_y)),
+        square_mm * 1e-3,
+        marker_mm * 1e-3,
+        cv2.aruco.getPredefinedDictionary(dict_id),
+    )
     board.setLegacyPattern(bool(legacy))
     return charuco_target(board)
 
@@ -74,14 +96,26 @@ class BoardView:
 class BoardScene:
     """The board's motion over true time and its rendering (see the module docstring)."""
 
-    def __init__(self, rig: StereoRig, target: BoardTarget, rng: np.random.Generator,
-                 frame_period_ns: int, poses: list[Pose] | None = None, hold_s: float = 0.0,
-                 p_still: float = 0.25, p_blur: float = 0.15, blur_px: int = 5,
-                 distance_m: tuple[float, float] = DISTANCE_M, max_tilt_deg: float = 35.0,
-                 in_projector: bool = False) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        target: BoardTarget,
+        rng: np.random.Generator,
+        frame_period_ns: int,
+        poses: list[Pose] | None = None,
+        hold_s: float = 0.0,
+        p_still: float = 0.25,
+        p_blur: float = 0.15,
+        blur_px: int = 5,
+        distance_m: tuple[float, float] = DISTANCE_M,
+        max_tilt_deg: float = 35.0,
+        in_projector: bool = False,
+    ) -> None:
         if hold_s < 0 or not (0 <= p_still <= 1 and 0 <= p_blur <= 1) or blur_px < 2:
-            raise DeviceError("[bench] board_hold_s must be >= 0, board_p_still and board_p_blur "
-                              "in [0, 1], board_blur_px >= 2")
+            raise DeviceError(
+                "[bench] board_hold_s must be >= 0, board_p_still and board_p_blur "
+                "in [0, 1], board_blur_px >= 2"
+            )
         self.rig, self.target, self.rng = rig, target, rng
         self.slot_ns = int(round(hold_s * 1e9)) if hold_s > 0 else frame_period_ns
         self.hand_held = hold_s == 0
@@ -90,8 +124,9 @@ class BoardScene:
         self.in_projector = in_projector
         self._given = list(poses or [])
         self._views: list[BoardView] = []
-        self._texture = ImageTexture(target.texture / 255.0, target.px_per_m,
-                                     (0.5 / target.px_per_m, 0.5 / target.px_per_m))
+        self._texture = ImageTexture(
+            target.texture / 255.0, target.px_per_m, (0.5 / target.px_per_m, 0.5 / target.px_per_m)
+        )
 
     def _lit_by_projector(self, pose: Pose, margin_px: float = 8.0) -> bool:
         R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
@@ -109,9 +144,15 @@ class BoardScene:
             pose = (rvec + self.rng.normal(0, 1e-3, 3), tvec + self.rng.normal(0, 2e-5, 3))
         else:
             accept = self._lit_by_projector if self.in_projector else None
-            pose, = random_board_poses(1, self.rng, distance_m=self.distance_m,
-                                       max_tilt_deg=self.max_tilt_deg, rig=self.rig,
-                                       board=self.target, accept=accept)
+            (pose,) = random_board_poses(
+                1,
+                self.rng,
+                distance_m=self.distance_m,
+                max_tilt_deg=self.max_tilt_deg,
+                rig=self.rig,
+                board=self.target,
+                accept=accept,
+            )
         blurred = self.hand_held and self.rng.random() < self.p_blur
         return BoardView(pose, float(self.rng.uniform(0, 180)) if blurred else None)
 
@@ -128,12 +169,14 @@ class BoardScene:
         R_board, _ = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3))
         return Plane(R_board, np.asarray(tvec, np.float64), texture=self._texture)
 
-    def render(self, true_ns: int, renderer: StereoRenderer | None) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, true_ns: int, renderer: StereoRenderer | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Both views at ``true_ns``: in room light (``renderer`` None) or lit by the pattern
         ``renderer`` holds."""
         view = self.view_at(true_ns)
         if renderer is None:
-            (left, right), = render_board_views(self.rig, self.target, [view.pose], rng=self.rng)
+            ((left, right),) = render_board_views(self.rig, self.target, [view.pose], rng=self.rng)
         else:
             left, right = renderer.render(self.surface_at(true_ns))
         if view.blur_angle_deg is not None:

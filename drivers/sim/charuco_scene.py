@@ -53,11 +53,16 @@ class ChessboardPattern:
         """Inner corners (n×3, m) in the board frame."""
         nx, ny = self.inner_corners
         col, row = np.meshgrid(np.arange(2, nx + 2), np.arange(2, ny + 2))
-        return (np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)])
-                * self.square_m).astype(np.float32)
+        return (
+            np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)]) * self.square_m
+        ).astype(np.float32)
 
-    def generateImage(self, size: tuple[int, int], marginSize: int = 0,  # noqa: N802, N803
-                      borderBits: int = 1) -> np.ndarray:  # noqa: N803 (unused, as ChArUco)
+    def generateImage(
+        self,
+        size: tuple[int, int],
+        marginSize: int = 0,  # noqa: N802, N803
+        borderBits: int = 1,
+    ) -> np.ndarray:  # noqa: N803 (unused, as ChArUco)
         """The sheet as a grey ``uint8`` image of ``size`` (w, h) pixels, black top-left
         square, white margin, plus ``marginSize`` extra white pixels around."""
         w, h = size[0] - 2 * marginSize, size[1] - 2 * marginSize
@@ -65,19 +70,22 @@ class ChessboardPattern:
         u = (np.arange(w) + 0.5) * sx / w
         v = (np.arange(h) + 0.5) * sy / h
         cu, cv_ = np.floor(u).astype(int), np.floor(v).astype(int)
-        black = ((cu[None, :] + cv_[:, None]) % 2 == 0)
+        black = (cu[None, :] + cv_[:, None]) % 2 == 0
         inside = ((cu >= 1) & (cu <= sx - 2))[None, :] & ((cv_ >= 1) & (cv_ <= sy - 2))[:, None]
         sheet = np.where(black & inside, 0, 255).astype(np.uint8)
-        return cv2.copyMakeBorder(sheet, marginSize, marginSize, marginSize, marginSize,
-                                  cv2.BORDER_CONSTANT, value=255)
+        return cv2.copyMakeBorder(
+            sheet, marginSize, marginSize, marginSize, marginSize, cv2.BORDER_CONSTANT, value=255
+        )
 
 
 def board_size_m(board: cv2.aruco.CharucoBoard) -> tuple[float, float]:
     """Board width and height in metres; raises if the board was not built in metres."""
     square = float(board.getSquareLength())
     if not 0 < square < 0.1:
-        raise DeviceError(f"ChArUco board square length {square} does not look like metres; "
-                          "build the board with lengths in metres (e.g. 0.003 for 3 mm)")
+        raise DeviceError(
+            f"ChArUco board square length {square} does not look like metres; "
+            "build the board with lengths in metres (e.g. 0.003 for 3 mm)"
+        )
     nx, ny = board.getChessboardSize()
     return nx * square, ny * square
 
@@ -107,37 +115,60 @@ class BoardTarget:
 
 def charuco_target(board: cv2.aruco.CharucoBoard, px_per_m: float = 40000.0) -> BoardTarget:
     """The ChArUco ``board`` (built in metres) as a :class:`BoardTarget`."""
-    return BoardTarget(board_texture(board, px_per_m), px_per_m,
-                       np.asarray(board.getChessboardCorners(), np.float64).reshape(-1, 3))
+    return BoardTarget(
+        board_texture(board, px_per_m),
+        px_per_m,
+        np.asarray(board.getChessboardCorners(), np.float64).reshape(-1, 3),
+    )
 
 
-def _geometry(board: cv2.aruco.CharucoBoard | BoardTarget) -> tuple[tuple[float, float],
-                                                                      np.ndarray]:
+def _geometry(
+    board: cv2.aruco.CharucoBoard | BoardTarget,
+) -> tuple[tuple[float, float], np.ndarray]:
     """Size (m) and object points of a ChArUco board or a target."""
     if isinstance(board, BoardTarget):
         return board.size_m, board.object_points
     return board_size_m(board), np.asarray(board.getChessboardCorners(), np.float64)
 
 
-def _render_view(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | None,
-                 texture: np.ndarray, px_per_m: float, pose: Pose, supersample: int) -> np.ndarray:
+def _render_view(
+    camera: PinholeCamera,
+    R: np.ndarray | None,
+    T: np.ndarray | None,
+    texture: np.ndarray,
+    px_per_m: float,
+    pose: Pose,
+    supersample: int,
+) -> np.ndarray:
     origin, dirs = camera_rays(camera, R, T, supersample)
     R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
     x, y, _, valid = intersect_plane(origin, dirs, R_board, np.asarray(pose[1], np.float64))
     map_x = x * np.float32(px_per_m) - np.float32(0.5)
     map_y = y * np.float32(px_per_m) - np.float32(0.5)
     map_x[~valid] = -1e6
-    image = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                      borderValue=BACKGROUND)
+    image = cv2.remap(
+        texture,
+        map_x,
+        map_y,
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=BACKGROUND,
+    )
     if supersample > 1:
         image = cv2.resize(image, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
     return image
 
 
-def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget,
-                       poses: list[Pose], board_px_per_m: float = 40000.0,
-                       noise_sigma: float = 1.5, blur_sigma_px: float = 0.5, supersample: int = 3,
-                       rng: np.random.Generator | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+def render_board_views(
+    rig: StereoRig,
+    board: cv2.aruco.CharucoBoard | BoardTarget,
+    poses: list[Pose],
+    board_px_per_m: float = 40000.0,
+    noise_sigma: float = 1.5,
+    blur_sigma_px: float = 0.5,
+    supersample: int = 3,
+    rng: np.random.Generator | None = None,
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Left/right BGR ``uint8`` views of ``board`` at each pose (board → left camera), in
     even room light.
 
@@ -152,28 +183,68 @@ def render_board_views(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarg
     texture, board_px_per_m = board.texture, board.px_per_m
     views = []
     for pose in poses:
-        pair = [_render_eye(camera, R, T, texture, board_px_per_m, pose, supersample,
-                            noise_sigma, blur_sigma_px, rng)
-                for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T))]
+        pair = [
+            _render_eye(
+                camera,
+                R,
+                T,
+                texture,
+                board_px_per_m,
+                pose,
+                supersample,
+                noise_sigma,
+                blur_sigma_px,
+                rng,
+            )
+            for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T))
+        ]
         views.append((pair[0], pair[1]))
     return views
 
 
-def render_mono_views(camera: PinholeCamera, board: cv2.aruco.CharucoBoard, poses: list[Pose],
-                      board_px_per_m: float = 40000.0, noise_sigma: float = 1.5,
-                      blur_sigma_px: float = 0.5, supersample: int = 3,
-                      rng: np.random.Generator | None = None) -> list[np.ndarray]:
+def render_mono_views(
+    camera: PinholeCamera,
+    board: cv2.aruco.CharucoBoard,
+    poses: list[Pose],
+    board_px_per_m: float = 40000.0,
+    noise_sigma: float = 1.5,
+    blur_sigma_px: float = 0.5,
+    supersample: int = 3,
+    rng: np.random.Generator | None = None,
+) -> list[np.ndarray]:
     """BGR ``uint8`` views of ``board`` (board → camera poses) seen by one camera, rendered as
     :func:`render_board_views` renders each eye."""
     rng = np.random.default_rng() if rng is None else rng
     texture = board_texture(board, board_px_per_m)
-    return [_render_eye(camera, None, None, texture, board_px_per_m, pose, supersample,
-                        noise_sigma, blur_sigma_px, rng) for pose in poses]
+    return [
+        _render_eye(
+            camera,
+            None,
+            None,
+            texture,
+            board_px_per_m,
+            pose,
+            supersample,
+            noise_sigma,
+            blur_sigma_px,
+            rng,
+        )
+        for pose in poses
+    ]
 
 
-def _render_eye(camera: PinholeCamera, R: np.ndarray | None, T: np.ndarray | None,
-                texture: np.ndarray, px_per_m: float, pose: Pose, supersample: int,
-                noise_sigma: float, blur_sigma_px: float, rng: np.random.Generator) -> np.ndarray:
+def _render_eye(
+    camera: PinholeCamera,
+    R: np.ndarray | None,
+    T: np.ndarray | None,
+    texture: np.ndarray,
+    px_per_m: float,
+    pose: Pose,
+    supersample: int,
+    noise_sigma: float,
+    blur_sigma_px: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
     grey = _render_view(camera, R, T, texture, px_per_m, pose, supersample)
     if blur_sigma_px > 0:
         grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma_px)
@@ -189,8 +260,9 @@ def _rotation(tilt_x_deg: float, tilt_y_deg: float, roll_deg: float) -> np.ndarr
     return rx @ ry @ rz
 
 
-def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget, pose: Pose,
-                     margin_px: float = 4.0) -> float:
+def visible_fraction(
+    rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget, pose: Pose, margin_px: float = 4.0
+) -> float:
     """Fraction of chessboard corners inside both views (with a margin), board facing the camera."""
     _, corners = _geometry(board)
     R_board, _ = cv2.Rodrigues(np.asarray(pose[0], np.float64).reshape(3))
@@ -200,17 +272,27 @@ def visible_fraction(rig: StereoRig, board: cv2.aruco.CharucoBoard | BoardTarget
     inside = np.ones(len(points), dtype=bool)
     for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T)):
         uv = camera.project(points, R, T)
-        inside &= ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
-                   & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px))
+        inside &= (
+            (uv[:, 0] >= margin_px)
+            & (uv[:, 0] <= camera.width - 1 - margin_px)
+            & (uv[:, 1] >= margin_px)
+            & (uv[:, 1] <= camera.height - 1 - margin_px)
+        )
     return float(inside.mean())
 
 
-def random_board_poses(n: int, rng: np.random.Generator, distance_m: tuple[float, float] = (0.04, 0.09),
-                       max_tilt_deg: float = 35.0, max_roll_deg: float = 25.0,
-                       rig: StereoRig | None = None,
-                       board: cv2.aruco.CharucoBoard | BoardTarget | None = None,
-                       min_visible: float = 0.85, max_tries: int = 2000,
-                       accept: Callable[[Pose], bool] | None = None) -> list[Pose]:
+def random_board_poses(
+    n: int,
+    rng: np.random.Generator,
+    distance_m: tuple[float, float] = (0.04, 0.09),
+    max_tilt_deg: float = 35.0,
+    max_roll_deg: float = 25.0,
+    rig: StereoRig | None = None,
+    board: cv2.aruco.CharucoBoard | BoardTarget | None = None,
+    min_visible: float = 0.85,
+    max_tries: int = 2000,
+    accept: Callable[[Pose], bool] | None = None,
+) -> list[Pose]:
     """``n`` varied board poses (rvec, tvec; board → left camera) facing the endoscope.
 
     The board centre is placed on a random line of sight at a random distance, tilted up to
@@ -229,25 +311,31 @@ def random_board_poses(n: int, rng: np.random.Generator, distance_m: tuple[float
     for _ in range(max_tries):
         if len(poses) == n:
             break
-        R_board = _rotation(rng.uniform(-max_tilt_deg, max_tilt_deg),
-                            rng.uniform(-max_tilt_deg, max_tilt_deg),
-                            rng.uniform(-max_roll_deg, max_roll_deg))
+        R_board = _rotation(
+            rng.uniform(-max_tilt_deg, max_tilt_deg),
+            rng.uniform(-max_tilt_deg, max_tilt_deg),
+            rng.uniform(-max_roll_deg, max_roll_deg),
+        )
         distance = rng.uniform(*distance_m)
         if rig is not None:
             hx = math.atan((rig.left.width / 2) / rig.left.K[0, 0])
             hy = math.atan((rig.left.height / 2) / rig.left.K[1, 1])
         else:
             hx = hy = math.radians(20.0)
-        direction = np.array([math.tan(rng.uniform(-0.6, 0.6) * hx),
-                              math.tan(rng.uniform(-0.6, 0.6) * hy), 1.0])
+        direction = np.array(
+            [math.tan(rng.uniform(-0.6, 0.6) * hx), math.tan(rng.uniform(-0.6, 0.6) * hy), 1.0]
+        )
         centre = direction / np.linalg.norm(direction) * distance
         tvec = centre - R_board @ half
         rvec, _ = cv2.Rodrigues(R_board)
         pose = (rvec.reshape(3), tvec)
-        if ((rig is None or visible_fraction(rig, board, pose) >= min_visible)
-                and (accept is None or accept(pose))):
+        if (rig is None or visible_fraction(rig, board, pose) >= min_visible) and (
+            accept is None or accept(pose)
+        ):
             poses.append(pose)
     if len(poses) < n:
-        raise DeviceError(f"could only place {len(poses)} of {n} board poses in view; widen "
-                          "distance_m or lower max_tilt_deg / min_visible")
+        raise DeviceError(
+            f"could only place {len(poses)} of {n} board poses in view; widen "
+            "distance_m or lower max_tilt_deg / min_visible"
+        )
     return poses

@@ -46,14 +46,19 @@ class Transport:
 
     def __post_init__(self) -> None:
         if self.latency_ns < 3 * self.jitter_ns:
-            raise ValueError(f"latency {self.latency_ns} ns must be at least 3× jitter "
-                             f"{self.jitter_ns} ns so samples do not arrive before they exist")
+            raise ValueError(
+                f"latency {self.latency_ns} ns must be at least 3× jitter "
+                f"{self.jitter_ns} ns so samples do not arrive before they exist"
+            )
 
     def host_ns(self, true_ns: np.ndarray) -> np.ndarray:
         """Host arrival times (int64, non-decreasing) of samples taken at ``true_ns`` (sorted)."""
         true = np.asarray(true_ns, np.int64)
-        jitter = np.clip(self.rng.normal(0.0, self.jitter_ns, true.shape), -3 * self.jitter_ns,
-                         3 * self.jitter_ns)
+        jitter = np.clip(
+            self.rng.normal(0.0, self.jitter_ns, true.shape),
+            -3 * self.jitter_ns,
+            3 * self.jitter_ns,
+        )
         host = true + self.latency_ns + np.rint(jitter).astype(np.int64)
         host = np.maximum.accumulate(np.maximum(host, self._last_host_ns))
         if host.size:

@@ -29,14 +29,16 @@ SAMPLE_BLOCK = 256  # trocar samples generated at once
 
 def _check_no_options(family: str, options: dict) -> None:
     if options:
-        raise DeviceError(f"the simulated {family} takes no options, got {sorted(options)}; "
-                          f"remove them from [{family}] or set its backend")
+        raise DeviceError(
+            f"the simulated {family} takes no options, got {sorted(options)}; "
+            f"remove them from [{family}] or set its backend"
+        )
 
 
 class _BenchStream:
     """Open/close register the device with its bench (the bench's time starts at the first open)."""
 
-    bench: "SimBench"
+    bench: SimBench
     drives_time = False  # the camera's frames move the bench's simulated host clock
 
     def _open(self) -> None:
@@ -53,7 +55,7 @@ class SimCamera(_BenchStream, StereoCamera):
 
     drives_time = True
 
-    def __init__(self, bench: "SimBench", **options: object) -> None:
+    def __init__(self, bench: SimBench, **options: object) -> None:
         super().__init__()
         _check_no_options("camera", options)
         self.bench = bench
@@ -76,21 +78,29 @@ class SimCamera(_BenchStream, StereoCamera):
         self._next = k + 1
         if not bench.realtime:
             bench.advance_to(host_ns)
-        return StereoFrame(left=left, right=right, seq=k,
-                           t_device_ns=int(bench.camera_clock.device_ns(t_true_ns)),
-                           t_host_ns=host_ns + bench.host_epoch_ns)
+        return StereoFrame(
+            left=left,
+            right=right,
+            seq=k,
+            t_device_ns=int(bench.camera_clock.device_ns(t_true_ns)),
+            t_host_ns=host_ns + bench.host_epoch_ns,
+        )
 
     def describe(self) -> dict[str, object]:
         """Size, rate, whether frames come in real time (if not, the consumer paces the
         camera) and the simulated clock's nominal parameters."""
-        return {**super().describe(), "simulated": True, "realtime": self.bench.realtime,
-                "drift_ppm": self.bench.camera_clock.drift_ppm}
+        return {
+            **super().describe(),
+            "simulated": True,
+            "realtime": self.bench.realtime,
+            "drift_ppm": self.bench.camera_clock.drift_ppm,
+        }
 
 
 class SimTrocar(_BenchStream, ForceSensor):
     """The bench's TRF85D: true force + Gaussian noise, quantized, at ``trocar_rate_hz``."""
 
-    def __init__(self, bench: "SimBench", **options: object) -> None:
+    def __init__(self, bench: SimBench, **options: object) -> None:
         super().__init__()
         _check_no_options("trocar", options)
         self.bench = bench
@@ -113,22 +123,32 @@ class SimTrocar(_BenchStream, ForceSensor):
         device_ns, host_ns, force = self._sample(self._next)
         if not self.bench.wait_until(host_ns, timeout_s):
             return None
-        sample = ForceSample(force_n=force, seq=self._next, t_device_ns=device_ns,
-                             t_host_ns=host_ns + self.bench.host_epoch_ns)
+        sample = ForceSample(
+            force_n=force,
+            seq=self._next,
+            t_device_ns=device_ns,
+            t_host_ns=host_ns + self.bench.host_epoch_ns,
+        )
         self._next += 1
         return sample
 
     def describe(self) -> dict[str, object]:
         """Rate, axes, noise model and the simulated clock's nominal parameters."""
-        return {**super().describe(), "simulated": True, "axes_frame": "left camera",
-                "noise_n": self.bench.force_noise_n, "resolution_n": self.bench.force_resolution_n,
-                "range_n": self.bench.force_range_n, "drift_ppm": self.bench.trocar_clock.drift_ppm}
+        return {
+            **super().describe(),
+            "simulated": True,
+            "axes_frame": "left camera",
+            "noise_n": self.bench.force_noise_n,
+            "resolution_n": self.bench.force_resolution_n,
+            "range_n": self.bench.force_range_n,
+            "drift_ppm": self.bench.trocar_clock.drift_ppm,
+        }
 
 
 class SimProjector(Projector):
     """The bench's projector: what it shows is what the simulated cameras see."""
 
-    def __init__(self, bench: "SimBench", **options: object) -> None:
+    def __init__(self, bench: SimBench, **options: object) -> None:
         super().__init__(lambda: self._shown_at_ns)  # events carry the bench's command time
         _check_no_options("projector", options)
         self._shown_at_ns = 0
@@ -142,8 +162,10 @@ class SimProjector(Projector):
         """Project ``pattern`` (must be the projector's size) from now on (after the bench's
         projector latency); frame ID = ``seq``."""
         if pattern.shape[:2] != (self.height, self.width):
-            raise DeviceError(f"pattern {name!r} is {pattern.shape[1]}x{pattern.shape[0]} but the "
-                              f"simulated projector is {self.width}x{self.height}; make it that size")
+            raise DeviceError(
+                f"pattern {name!r} is {pattern.shape[1]}x{pattern.shape[0]} but the "
+                f"simulated projector is {self.width}x{self.height}; make it that size"
+            )
         self._shown_at_ns = self.bench.show_pattern(pattern)
         return seq
 

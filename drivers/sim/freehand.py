@@ -37,9 +37,15 @@ class FreehandProtocol:
     relaxation_time_s: float = 1.5
 
     @classmethod
-    def random(cls, rng: np.random.Generator, stiffness_n_per_m: float, session_s: float,
-               target_force_n: float = 3.0, rest_s: float = 0.5,
-               force_rate_n_per_s: tuple[float, float] = (0.15, 1.5)) -> "FreehandProtocol":
+    def random(
+        cls,
+        rng: np.random.Generator,
+        stiffness_n_per_m: float,
+        session_s: float,
+        target_force_n: float = 3.0,
+        rest_s: float = 0.5,
+        force_rate_n_per_s: tuple[float, float] = (0.15, 1.5),
+    ) -> FreehandProtocol:
         """A random trial: force levels uniform in ``[0.15, 1] × target_force_n`` (at least
         0.3 N from the force before), reached at force rates (``k·v``) log-uniform in
         ``force_rate_n_per_s`` that change every 0.2–1 s, with pauses, force holds and still
@@ -77,8 +83,9 @@ class FreehandProtocol:
     def _force(self, u: float | np.ndarray, q: float | np.ndarray) -> float | np.ndarray:
         return self.stiffness_n_per_m * u + self._k1 * (u - q)
 
-    def _evolve(self, u0: np.ndarray, q0: np.ndarray, kind: np.ndarray, speed: np.ndarray,
-                dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _evolve(
+        self, u0: np.ndarray, q0: np.ndarray, kind: np.ndarray, speed: np.ndarray, dt: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Grasper displacement and Maxwell-arm state ``dt`` into a step from ``(u0, q0)``."""
         k, k1, tau = self.stiffness_n_per_m, self._k1, self.relaxation_time_s
         # moving at speed v (v = 0: still): q follows u with lag v·τ
@@ -93,15 +100,17 @@ class FreehandProtocol:
 
     def _after(self, u: float, q: float, step: tuple[int, float, float]) -> tuple[float, float]:
         kind, speed, seconds = step
-        un, qn = self._evolve(np.array(u), np.array(q), np.array(kind), np.array(speed),
-                              np.array(seconds))
+        un, qn = self._evolve(
+            np.array(u), np.array(q), np.array(kind), np.array(speed), np.array(seconds)
+        )
         return float(un), float(qn)
 
     def _reach(self, u: float, q: float, speed: float, seconds: float, level: float) -> float:
         """How long to move at ``speed`` (at most ``seconds``) until the force reaches ``level``."""
         times = np.linspace(0.0, seconds, 201)
-        un, qn = self._evolve(np.full(201, u), np.full(201, q), np.full(201, MOVE),
-                              np.full(201, speed), times)
+        un, qn = self._evolve(
+            np.full(201, u), np.full(201, q), np.full(201, MOVE), np.full(201, speed), times
+        )
         past = np.flatnonzero(np.sign(speed) * (self._force(un, qn) - level) >= 0)
         if not len(past):
             return seconds
@@ -143,6 +152,7 @@ class FreehandProtocol:
         resting = t < self.rest_s
         u, q = np.where(resting, 0.0, u), np.where(resting, 0.0, q)
         moving = (kind[i] == MOVE) & ~resting
-        phase = np.where(resting, REST, np.where(~moving, HOLD,
-                                                 np.where(speed[i] > 0, PULL, RELEASE)))
+        phase = np.where(
+            resting, REST, np.where(~moving, HOLD, np.where(speed[i] > 0, PULL, RELEASE))
+        )
         return u, self._force(u, q), phase

@@ -59,7 +59,9 @@ class TractionProtocol:
         lo, hi = 0.0, self.target_force_n / (self.stiffness_n_per_m * self.pull_speed_m_per_s)
         for _ in range(60):  # bisection: the pull force rises monotonically
             mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if self._pull_force(np.array(mid)) < self.target_force_n else (lo, mid)
+            lo, hi = (
+                (mid, hi) if self._pull_force(np.array(mid)) < self.target_force_n else (lo, mid)
+            )
         return hi
 
     def duration_s(self) -> float:
@@ -76,7 +78,12 @@ class TractionProtocol:
         After the trial the hold continues indefinitely; before it the tissue is at rest.
         """
         t = np.asarray(t_s, np.float64)
-        k, k1, v, tau = self.stiffness_n_per_m, self._k1, self.pull_speed_m_per_s, self.relaxation_time_s
+        k, k1, v, tau = (
+            self.stiffness_n_per_m,
+            self._k1,
+            self.pull_speed_m_per_s,
+            self.relaxation_time_s,
+        )
         t_pull = self.pull_duration_s()
         tp = np.clip(t - self.rest_s, 0.0, t_pull)
         u = v * tp
@@ -103,16 +110,23 @@ class TissueSample:
     pull_direction: tuple[float, float, float]  # unit vector, left-camera frame (−z: to camera)
 
     @classmethod
-    def random(cls, rng: np.random.Generator, distance_m: float = 0.06,
-               thickness_m: tuple[float, float] = (0.002, 0.004),
-               elevation_deg: tuple[float, float] = (20.0, 50.0)) -> "TissueSample":
+    def random(
+        cls,
+        rng: np.random.Generator,
+        distance_m: float = 0.06,
+        thickness_m: tuple[float, float] = (0.002, 0.004),
+        elevation_deg: tuple[float, float] = (20.0, 50.0),
+    ) -> TissueSample:
         """A random grasp within the central part of the view at ``distance_m``."""
         half_w, half_h = 0.35 * distance_m, 0.2 * distance_m
         contact = (float(rng.uniform(-half_w, half_w)), float(rng.uniform(-half_h, half_h)))
         azimuth = rng.uniform(0, 2 * math.pi)
         elevation = math.radians(rng.uniform(*elevation_deg))
-        direction = (math.cos(elevation) * math.cos(azimuth),
-                     math.cos(elevation) * math.sin(azimuth), -math.sin(elevation))
+        direction = (
+            math.cos(elevation) * math.cos(azimuth),
+            math.cos(elevation) * math.sin(azimuth),
+            -math.sin(elevation),
+        )
         return cls(contact, float(rng.uniform(*thickness_m)), direction)
 
 
@@ -131,12 +145,16 @@ class Trial:
             raise DeviceError(
                 f"[bench] target_force_n={self.protocol.target_force_n} N at stiffness "
                 f"{self.protocol.stiffness_n_per_m} N/m would fold the simulated tissue; lower "
-                "target_force_n or deformation_scale, or raise the stiffness")
+                "target_force_n or deformation_scale, or raise the stiffness"
+            )
 
     def radius_m(self) -> float:
         """Spread of the deformation for this stiffness and thickness."""
-        return (self.radius_ref_m * (self.protocol.stiffness_n_per_m / 80.0) ** 0.25
-                * (self.sample.thickness_m / 0.003) ** 0.75)
+        return (
+            self.radius_ref_m
+            * (self.protocol.stiffness_n_per_m / 80.0) ** 0.25
+            * (self.sample.thickness_m / 0.003) ** 0.75
+        )
 
     def load(self, grasper_displacement_m: float) -> MembraneLoad:
         """The surface load for a grasper displacement."""
@@ -147,7 +165,11 @@ class Trial:
     def at(self, t_s: float) -> tuple[MembraneLoad, np.ndarray, int]:
         """Load, force vector (N, left-camera axes, along the pull) and phase at trial time ``t_s``."""
         u, force, phase = self.protocol.state(np.array([t_s]))
-        return self.load(float(u[0])), float(force[0]) * np.asarray(self.sample.pull_direction), int(phase[0])
+        return (
+            self.load(float(u[0])),
+            float(force[0]) * np.asarray(self.sample.pull_direction),
+            int(phase[0]),
+        )
 
     def forces(self, t_s: np.ndarray) -> np.ndarray:
         """True force vectors (n×3, N) at trial times ``t_s``."""
@@ -156,9 +178,13 @@ class Trial:
 
     def describe(self) -> dict:
         """JSON-able parameters of the trial."""
-        return {"protocol": asdict(self.protocol), "sample": asdict(self.sample),
-                "deformation_scale": self.deformation_scale, "radius_ref_m": self.radius_ref_m,
-                "radius_m": self.radius_m()}
+        return {
+            "protocol": asdict(self.protocol),
+            "sample": asdict(self.sample),
+            "deformation_scale": self.deformation_scale,
+            "radius_ref_m": self.radius_ref_m,
+            "radius_m": self.radius_m(),
+        }
 
 
 TAP = 3  # phase of a sync-protocol tap (REST between taps)
@@ -180,20 +206,35 @@ class TapProtocol:
     session_s: float = 20.0
 
     @classmethod
-    def random(cls, rng: np.random.Generator, taps: int, session_s: float,
-               stiffness_n_per_m: float = 80.0, peak_n: float = 1.0,
-               tap_s: float = 0.15, lead_s: float = 0.8, min_gap_s: float = 0.4) -> "TapProtocol":
+    def random(
+        cls,
+        rng: np.random.Generator,
+        taps: int,
+        session_s: float,
+        stiffness_n_per_m: float = 80.0,
+        peak_n: float = 1.0,
+        tap_s: float = 0.15,
+        lead_s: float = 0.8,
+        min_gap_s: float = 0.4,
+    ) -> TapProtocol:
         """``taps`` taps at random (irregular) times in ``[lead_s, session_s - lead_s]``, at
         least ``min_gap_s`` apart, with peaks between 0.7 and 1.3 × ``peak_n``."""
         span = session_s - 2 * lead_s - taps * (tap_s + min_gap_s)
         if taps < 1 or span <= 0:
-            raise DeviceError(f"[bench] {taps} taps of {tap_s} s do not fit in {session_s} s "
-                              "(at least 0.4 s apart); lengthen sync_duration_s or tap less")
+            raise DeviceError(
+                f"[bench] {taps} taps of {tap_s} s do not fit in {session_s} s "
+                "(at least 0.4 s apart); lengthen sync_duration_s or tap less"
+            )
         gaps = rng.dirichlet(np.ones(taps + 1)) * span
         starts = lead_s + np.cumsum(gaps[:-1]) + np.arange(taps) * (tap_s + min_gap_s)
         peaks = peak_n * rng.uniform(0.7, 1.3, taps)
-        return cls(stiffness_n_per_m, tuple(float(t) for t in starts),
-                   tuple(float(p) for p in peaks), tap_s, session_s)
+        return cls(
+            stiffness_n_per_m,
+            tuple(float(t) for t in starts),
+            tuple(float(p) for p in peaks),
+            tap_s,
+            session_s,
+        )
 
     @property
     def target_force_n(self) -> float:
@@ -212,7 +253,7 @@ class TapProtocol:
         """Grasper displacement (m), force (N) and phase (REST or TAP) at times ``t_s``."""
         t = np.asarray(t_s, np.float64)
         force = np.zeros_like(t)
-        for start, peak in zip(self.tap_times_s, self.peaks_n):
+        for start, peak in zip(self.tap_times_s, self.peaks_n, strict=False):
             s = (t - start) / self.tap_s
             inside = (s > 0) & (s < 1)
             force[inside] = peak * np.sin(np.pi * s[inside])

@@ -42,14 +42,21 @@ class Nuisance:
     motion_blur_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        checks = {"subsurface_blur_mm": self.subsurface_blur_mm >= 0,
-                  "specular": self.specular >= 0, "specular_shininess": self.specular_shininess > 0,
-                  "crosstalk": 0 <= self.crosstalk < 2 / 3, "projector_gamma": self.projector_gamma > 0,
-                  "vignetting": 0 <= self.vignetting < 1, "motion_blur_px": self.motion_blur_px >= 0}
+        checks = {
+            "subsurface_blur_mm": self.subsurface_blur_mm >= 0,
+            "specular": self.specular >= 0,
+            "specular_shininess": self.specular_shininess > 0,
+            "crosstalk": 0 <= self.crosstalk < 2 / 3,
+            "projector_gamma": self.projector_gamma > 0,
+            "vignetting": 0 <= self.vignetting < 1,
+            "motion_blur_px": self.motion_blur_px >= 0,
+        }
         wrong = [name for name, ok in checks.items() if not ok]
         if wrong:
-            raise ValueError(f"nuisance setting(s) out of range: "
-                             f"{', '.join(f'{n}={getattr(self, n)}' for n in wrong)}")
+            raise ValueError(
+                f"nuisance setting(s) out of range: "
+                f"{', '.join(f'{n}={getattr(self, n)}' for n in wrong)}"
+            )
 
     def projector_image(self, pattern: np.ndarray) -> np.ndarray:
         """The pattern as the projector's gamma displays it (``uint8``)."""
@@ -78,30 +85,32 @@ class Nuisance:
     def camera(self, image: np.ndarray) -> np.ndarray:
         """Lens vignetting and motion blur of the image reaching the sensor (``uint8``)."""
         if self.vignetting > 0:
-            image = cv2.multiply(image, _vignette(image.shape[:2], self.vignetting),
-                                 dtype=cv2.CV_8U)
+            image = cv2.multiply(
+                image, _vignette(image.shape[:2], self.vignetting), dtype=cv2.CV_8U
+            )
         if self.motion_blur_px > 0:
-            image = cv2.filter2D(image, -1, _line_kernel(self.motion_blur_px,
-                                                         self.motion_blur_deg))
+            image = cv2.filter2D(image, -1, _line_kernel(self.motion_blur_px, self.motion_blur_deg))
         return image
 
 
-def specular_gain(normal: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray,
-                  nuisance: Nuisance) -> np.ndarray:
+def specular_gain(
+    normal: np.ndarray, to_light: np.ndarray, to_eye: np.ndarray, nuisance: Nuisance
+) -> np.ndarray:
     """Blinn–Phong highlight strength per pixel (float32) from unit normals and unnormalised
     directions to the light and the eye (H×W×3)."""
     half = to_light / np.linalg.norm(to_light, axis=-1, keepdims=True)
     half += to_eye / np.linalg.norm(to_eye, axis=-1, keepdims=True)
     half /= np.linalg.norm(half, axis=-1, keepdims=True)
     cos = np.maximum(np.sum(normal * half, axis=-1), 0)
-    return (nuisance.specular * cos ** nuisance.specular_shininess).astype(np.float32)
+    return (nuisance.specular * cos**nuisance.specular_shininess).astype(np.float32)
 
 
 def _vignette(shape: tuple[int, int], strength: float) -> np.ndarray:
     height, width = shape
     v, u = np.mgrid[0:height, 0:width].astype(np.float32)
-    r2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / ((width / 2) ** 2
-                                                                      + (height / 2) ** 2)
+    r2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (
+        (width / 2) ** 2 + (height / 2) ** 2
+    )
     return cv2.merge([1 - strength * r2] * 3)
 
 

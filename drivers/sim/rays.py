@@ -18,8 +18,9 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 @lru_cache(maxsize=32)
-def _normalized_rays(K_bytes: bytes, dist_bytes: bytes, xs: tuple[float, float, int],
-                     ys: tuple[float, float, int]) -> np.ndarray:
+def _normalized_rays(
+    K_bytes: bytes, dist_bytes: bytes, xs: tuple[float, float, int], ys: tuple[float, float, int]
+) -> np.ndarray:
     K = np.frombuffer(K_bytes, dtype=np.float64).reshape(3, 3)
     dist = np.frombuffer(dist_bytes, dtype=np.float64)
     u = xs[0] + xs[1] * np.arange(xs[2], dtype=np.float64)
@@ -47,8 +48,13 @@ def _axis(n: int, supersample: int, stride: int) -> tuple[float, float, int]:
     return (0.5 / supersample - 0.5, 1.0 / supersample, n * supersample)
 
 
-def camera_rays(camera: PinholeCamera, R: np.ndarray | None = None, T: np.ndarray | None = None,
-                supersample: int = 1, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def camera_rays(
+    camera: PinholeCamera,
+    R: np.ndarray | None = None,
+    T: np.ndarray | None = None,
+    supersample: int = 1,
+    stride: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
     """Ray ``origin`` (3,) and ``directions`` (rows × cols × 3, float32) in the left-camera frame.
 
     ``R, T`` map left-camera coordinates into this camera's frame (identity for the left
@@ -60,10 +66,12 @@ def camera_rays(camera: PinholeCamera, R: np.ndarray | None = None, T: np.ndarra
     """
     if stride > 1 and (camera.width % stride or camera.height % stride):
         raise ValueError(f"image size {camera.width}x{camera.height} not divisible by {stride}")
-    rays = _normalized_rays(np.ascontiguousarray(camera.K, np.float64).tobytes(),
-                            np.ascontiguousarray(camera.dist, np.float64).tobytes(),
-                            _axis(camera.width, supersample, stride),
-                            _axis(camera.height, supersample, stride))
+    rays = _normalized_rays(
+        np.ascontiguousarray(camera.K, np.float64).tobytes(),
+        np.ascontiguousarray(camera.dist, np.float64).tobytes(),
+        _axis(camera.width, supersample, stride),
+        _axis(camera.height, supersample, stride),
+    )
     if R is None or np.allclose(R, np.eye(3)):
         dirs = rays
     else:
@@ -85,8 +93,9 @@ def upsample_strided(field: np.ndarray, stride: int, out: np.ndarray | None = No
     return out[stride:-stride, stride:-stride]
 
 
-def intersect_plane(origin: np.ndarray, dirs: np.ndarray, R_plane: np.ndarray,
-                    t_plane: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def intersect_plane(
+    origin: np.ndarray, dirs: np.ndarray, R_plane: np.ndarray, t_plane: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where rays hit the plane ``z = 0`` of a frame with pose ``R_plane, t_plane`` (frame → left).
 
     Returns the plane coordinates ``x, y`` (m, H×W float32), the ray parameter ``s`` and a mask

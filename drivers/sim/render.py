@@ -38,8 +38,14 @@ class RenderedPair:
     valid_left: np.ndarray  # bool: the left pixel sees the surface
 
 
-def project_points(camera: PinholeCamera, x: np.ndarray, y: np.ndarray, z: np.ndarray,
-                   R: np.ndarray | None = None, T: np.ndarray | None = None) -> np.ndarray:
+def project_points(
+    camera: PinholeCamera,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    R: np.ndarray | None = None,
+    T: np.ndarray | None = None,
+) -> np.ndarray:
     """Pixel coordinates (…×2, dtype of ``x``) of points given as coordinate arrays (left frame)."""
     dtype = x.dtype
     if R is not None:
@@ -49,8 +55,9 @@ def project_points(camera: PinholeCamera, x: np.ndarray, y: np.ndarray, z: np.nd
         inv_z = 1 / z
     if np.any(camera.dist != 0):
         pts = np.stack([x * inv_z, y * inv_z, np.ones_like(z)], axis=-1).reshape(-1, 1, 3)
-        uv, _ = cv2.projectPoints(pts.astype(np.float64), np.zeros(3), np.zeros(3), camera.K,
-                                  camera.dist)
+        uv, _ = cv2.projectPoints(
+            pts.astype(np.float64), np.zeros(3), np.zeros(3), camera.K, camera.dist
+        )
         return uv.reshape(*x.shape, 2).astype(dtype)
     K = np.asarray(camera.K, dtype)
     uv = np.empty((*x.shape, 2), dtype)
@@ -68,8 +75,11 @@ def pattern_blur_px(rig: StereoRig, distance_m: float) -> float:
 
 def _default_stride(camera: PinholeCamera) -> int:
     """About 160 coarse columns: geometry interpolation error stays < 0.05 projector pixels."""
-    return next(k for k in (8, 4, 2, 1) if camera.width % k == 0 and camera.height % k == 0
-                and (camera.width // k >= 160 or k == 1))
+    return next(
+        k
+        for k in (8, 4, 2, 1)
+        if camera.width % k == 0 and camera.height % k == 0 and (camera.width // k >= 160 or k == 1)
+    )
 
 
 @dataclass
@@ -90,9 +100,16 @@ class StereoRenderer:
     tissue and optics do to the pattern (:mod:`vbfe.drivers.sim.nuisance`).
     """
 
-    def __init__(self, rig: StereoRig, ambient: float = 0.15, noise_sigma: float = 1.0,
-                 shading: bool = True, stride: int | None = None,
-                 rng: np.random.Generator | None = None, nuisance: Nuisance | None = None) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        ambient: float = 0.15,
+        noise_sigma: float = 1.0,
+        shading: bool = True,
+        stride: int | None = None,
+        rng: np.random.Generator | None = None,
+        nuisance: Nuisance | None = None,
+    ) -> None:
         self.rig = rig
         self.nuisance = nuisance or Nuisance()
         self._distance_m = 0.06
@@ -107,21 +124,24 @@ class StereoRenderer:
         self._offset_banks: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray | None]] = {}
         self._pattern: np.ndarray | None = None
 
-    def set_pattern(self, pattern_bgr: np.ndarray, blur_sigma_px: float | None = None,
-                    distance_m: float = 0.06) -> None:
+    def set_pattern(
+        self, pattern_bgr: np.ndarray, blur_sigma_px: float | None = None, distance_m: float = 0.06
+    ) -> None:
         """The projector image (BGR or grey ``uint8``), low-passed against aliasing."""
         if blur_sigma_px is None:
             blur_sigma_px = pattern_blur_px(self.rig, distance_m)
-        pattern = pattern_bgr if pattern_bgr.ndim == 3 else cv2.cvtColor(pattern_bgr,
-                                                                          cv2.COLOR_GRAY2BGR)
+        pattern = (
+            pattern_bgr if pattern_bgr.ndim == 3 else cv2.cvtColor(pattern_bgr, cv2.COLOR_GRAY2BGR)
+        )
         pattern = self.nuisance.projector_image(pattern)
         self._distance_m = distance_m
         if blur_sigma_px > 0:
             pattern = cv2.GaussianBlur(pattern, (0, 0), blur_sigma_px)
         self._pattern = np.ascontiguousarray(pattern, np.uint8)
 
-    def _coarse(self, eye: _Eye, surface: Surface
-                ) -> tuple[Hit, np.ndarray, np.ndarray, np.ndarray | None]:
+    def _coarse(
+        self, eye: _Eye, surface: Surface
+    ) -> tuple[Hit, np.ndarray, np.ndarray, np.ndarray | None]:
         """Hits, projector coordinates, light gain (uint8 BGR) and specular gain (float32, None
         without highlights) on the strided grid."""
         origin, dirs = camera_rays(eye.camera, eye.R, eye.T, stride=self.stride)
@@ -131,7 +151,9 @@ class StereoRenderer:
         proj_uv = project_points(self.rig.projector, x, y, z, self.rig.R_proj, self.rig.T_proj)
         gain = np.where(hit.valid, np.float32(1.0), np.float32(0.0))
         if self.shading:
-            centre = (-np.asarray(self.rig.R_proj).T @ np.asarray(self.rig.T_proj)).astype(np.float32)
+            centre = (-np.asarray(self.rig.R_proj).T @ np.asarray(self.rig.T_proj)).astype(
+                np.float32
+            )
             lx, ly, lz = centre[0] - x, centre[1] - y, centre[2] - z
             cos = hit.normal[..., 0] * lx + hit.normal[..., 1] * ly + hit.normal[..., 2] * lz
             gain *= np.maximum(cos / np.sqrt(lx * lx + ly * ly + lz * lz), 0)
@@ -142,8 +164,16 @@ class StereoRenderer:
             points = np.stack([x, y, z], axis=-1)
             to_eye = origin.astype(np.float32) - points
             tip = (-0.5 * np.asarray(self.rig.R).T @ np.asarray(self.rig.T)).astype(np.float32)
-            specular = np.stack([specular_gain(hit.normal, source - points, to_eye, self.nuisance)
-                                 for source in (centre, tip)], axis=-1) * hit.valid[..., None]
+            specular = (
+                np.stack(
+                    [
+                        specular_gain(hit.normal, source - points, to_eye, self.nuisance)
+                        for source in (centre, tip)
+                    ],
+                    axis=-1,
+                )
+                * hit.valid[..., None]
+            )
         tint = np.asarray(_uniform_bgr(surface.texture) or (1.0, 1.0, 1.0), np.float32)
         gain_bgr = gain[..., None] * (tint * np.float32(255 * (1 - self.ambient)))
         return hit, proj_uv, np.clip(gain_bgr + 0.5, 0, 255).astype(np.uint8), specular
@@ -157,8 +187,14 @@ class StereoRenderer:
         hit, proj_uv, gain, specular = self._coarse(eye, surface)
         proj_map = upsample_strided(proj_uv, k, eye.map_buffer)
         eye.map_buffer = proj_map.base if proj_map.base is not None else proj_map
-        light = cv2.remap(self._pattern, proj_map, None, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+        light = cv2.remap(
+            self._pattern,
+            proj_map,
+            None,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=(0, 0, 0),
+        )
         light = self.nuisance.surface_light(light, eye.camera.f / (1e3 * self._distance_m))
         gain_full = upsample_strided(gain, k, eye.gain_buffer)
         eye.gain_buffer = gain_full.base if gain_full.base is not None else gain_full
@@ -168,18 +204,20 @@ class StereoRenderer:
         if uniform is not None or surface.texture is None:
             offset = tuple(ambient * c for c in (uniform or (1.0, 1.0, 1.0)))
         else:
-            material = np.ascontiguousarray(upsample_strided(
-                np.dstack([hit.material_x, hit.material_y]), k))
+            material = np.ascontiguousarray(
+                upsample_strided(np.dstack([hit.material_x, hit.material_y]), k)
+            )
             albedo = surface.texture.sample(material[..., 0], material[..., 1])
-            image = np.clip((image.astype(np.float32) + np.float32(ambient)) * albedo + 0.5,
-                            0, 255).astype(np.uint8)
+            image = np.clip(
+                (image.astype(np.float32) + np.float32(ambient)) * albedo + 0.5, 0, 255
+            ).astype(np.uint8)
             offset = (0.0, 0.0, 0.0)
         if specular is not None:  # mirrored light: no albedo, saturates the sensor
             projector, tip = cv2.split(np.ascontiguousarray(upsample_strided(specular, k)))
-            image = cv2.add(image, cv2.multiply(light, cv2.merge([projector] * 3),
-                                                dtype=cv2.CV_8U))
-            image = cv2.add(image, cv2.merge([tip * np.float32(255 * self.ambient)] * 3),
-                            dtype=cv2.CV_8U)
+            image = cv2.add(image, cv2.multiply(light, cv2.merge([projector] * 3), dtype=cv2.CV_8U))
+            image = cv2.add(
+                image, cv2.merge([tip * np.float32(255 * self.ambient)] * 3), dtype=cv2.CV_8U
+            )
         if self.nuisance.affects_camera:
             image = self.nuisance.camera(cv2.add(image, offset + (0.0,)))
             offset = (0.0, 0.0, 0.0)
@@ -191,14 +229,16 @@ class StereoRenderer:
         if offset_bgr not in self._offset_banks:
             total = self._noise + np.rint(np.asarray(offset_bgr)).astype(np.int16)
             negative = np.clip(-total, 0, 255).astype(np.uint8)
-            self._offset_banks[offset_bgr] = (np.clip(total, 0, 255).astype(np.uint8),
-                                              negative if negative.any() else None)
+            self._offset_banks[offset_bgr] = (
+                np.clip(total, 0, 255).astype(np.uint8),
+                negative if negative.any() else None,
+            )
         positive, negative = self._offset_banks[offset_bgr]
         oy, ox = self.rng.integers(0, NOISE_MARGIN_PX, 2)
         h, w = image.shape[:2]
-        image = cv2.add(image, positive[oy:oy + h, ox:ox + w])
+        image = cv2.add(image, positive[oy : oy + h, ox : ox + w])
         if negative is not None:
-            image = cv2.subtract(image, negative[oy:oy + h, ox:ox + w])
+            image = cv2.subtract(image, negative[oy : oy + h, ox : ox + w])
         return image
 
     def render(self, surface: Surface) -> tuple[np.ndarray, np.ndarray]:
@@ -244,11 +284,18 @@ class _Retextured:
         return self.base.hit(origin, dirs, s0)
 
 
-def render_scene(rig: StereoRig, surface: Surface, pattern_bgr: np.ndarray,
-                 texture: Texture | None = None, ambient: float = 0.15, noise_sigma: float = 1.0,
-                 rng: np.random.Generator | None = None, shading: bool = True,
-                 pattern_blur: float | None = None,
-                 nuisance: Nuisance | None = None) -> RenderedPair:
+def render_scene(
+    rig: StereoRig,
+    surface: Surface,
+    pattern_bgr: np.ndarray,
+    texture: Texture | None = None,
+    ambient: float = 0.15,
+    noise_sigma: float = 1.0,
+    rng: np.random.Generator | None = None,
+    shading: bool = True,
+    pattern_blur: float | None = None,
+    nuisance: Nuisance | None = None,
+) -> RenderedPair:
     """Render ``surface`` lit by ``pattern_bgr`` (projector image, ``uint8``) in both cameras.
 
     ``texture`` overrides the surface's albedo; ``ambient`` is the fraction of light not from the
@@ -258,8 +305,9 @@ def render_scene(rig: StereoRig, surface: Surface, pattern_bgr: np.ndarray,
     surface point, i.e. ``f·B/z`` for a parallel rig without distortion. ``nuisance`` degrades
     the images (not the truth) as real tissue and optics do.
     """
-    renderer = StereoRenderer(rig, ambient=ambient, noise_sigma=noise_sigma, shading=shading,
-                              rng=rng, nuisance=nuisance)
+    renderer = StereoRenderer(
+        rig, ambient=ambient, noise_sigma=noise_sigma, shading=shading, rng=rng, nuisance=nuisance
+    )
     renderer.set_pattern(pattern_bgr, pattern_blur, float(getattr(surface, "distance_m", 0.06)))
     if texture is not None:
         surface = _Retextured(surface, texture)

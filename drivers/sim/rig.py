@@ -36,24 +36,40 @@ class PinholeCamera:
     def cy(self) -> float:
         return float(self.K[1, 2])
 
-    def project(self, points: np.ndarray, R: np.ndarray | None = None,
-                T: np.ndarray | None = None) -> np.ndarray:
+    def project(
+        self, points: np.ndarray, R: np.ndarray | None = None, T: np.ndarray | None = None
+    ) -> np.ndarray:
         """Pixel coordinates (N×2) of points (N×3, metres) given in the frame ``R, T`` maps from."""
         R = np.eye(3) if R is None else R
         T = np.zeros(3) if T is None else T
         rvec, _ = cv2.Rodrigues(np.asarray(R, dtype=np.float64))
-        uv, _ = cv2.projectPoints(np.asarray(points, dtype=np.float64).reshape(-1, 1, 3), rvec,
-                                  np.asarray(T, dtype=np.float64), self.K, self.dist)
+        uv, _ = cv2.projectPoints(
+            np.asarray(points, dtype=np.float64).reshape(-1, 1, 3),
+            rvec,
+            np.asarray(T, dtype=np.float64),
+            self.K,
+            self.dist,
+        )
         return uv.reshape(-1, 2)
 
 
-def pinhole(width: int, height: int, hfov_deg: float, dist: tuple[float, ...] = (0, 0, 0, 0, 0),
-            principal_offset: tuple[float, float] = (0.0, 0.0)) -> PinholeCamera:
+def pinhole(
+    width: int,
+    height: int,
+    hfov_deg: float,
+    dist: tuple[float, ...] = (0, 0, 0, 0, 0),
+    principal_offset: tuple[float, float] = (0.0, 0.0),
+) -> PinholeCamera:
     """A camera of the given size and horizontal field of view, square pixels."""
     f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
-    K = np.array([[f, 0, (width - 1) / 2 + principal_offset[0]],
-                  [0, f, (height - 1) / 2 + principal_offset[1]],
-                  [0, 0, 1]], dtype=np.float64)
+    K = np.array(
+        [
+            [f, 0, (width - 1) / 2 + principal_offset[0]],
+            [0, f, (height - 1) / 2 + principal_offset[1]],
+            [0, 0, 1],
+        ],
+        dtype=np.float64,
+    )
     return PinholeCamera(K=K, dist=np.asarray(dist, dtype=np.float64), width=width, height=height)
 
 
@@ -87,8 +103,13 @@ class StereoRig:
         return float(np.linalg.norm(self.T))
 
 
-def default_rig(width: int = 640, height: int = 360, baseline_m: float = 0.004,
-                working_distance_m: float = 0.06, distortion: bool = False) -> StereoRig:
+def default_rig(
+    width: int = 640,
+    height: int = 360,
+    baseline_m: float = 0.004,
+    working_distance_m: float = 0.06,
+    distortion: bool = False,
+) -> StereoRig:
     """A 3D-endoscope-like rig: ~70° HFOV, few-mm baseline, projector beside it aimed at the scene.
 
     With ``distortion`` the two cameras get mild, different radial distortion and slightly
@@ -100,34 +121,59 @@ def default_rig(width: int = 640, height: int = 360, baseline_m: float = 0.004,
     else:
         left = right = pinhole(width, height, 70.0)
     projector = pinhole(1024, 768, 62.0)
-    R_proj, T_proj = look_at(np.array([-0.012, -0.006, -0.004]),
-                             np.array([0.0, 0.0, working_distance_m]))
-    return StereoRig(left=left, right=right, R=np.eye(3), T=np.array([-baseline_m, 0.0, 0.0]),
-                     projector=projector, R_proj=R_proj, T_proj=T_proj)
+    R_proj, T_proj = look_at(
+        np.array([-0.012, -0.006, -0.004]), np.array([0.0, 0.0, working_distance_m])
+    )
+    return StereoRig(
+        left=left,
+        right=right,
+        R=np.eye(3),
+        T=np.array([-baseline_m, 0.0, 0.0]),
+        projector=projector,
+        R_proj=R_proj,
+        T_proj=T_proj,
+    )
 
 
 def _camera_to_dict(camera: PinholeCamera) -> dict[str, object]:
-    return {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "width": camera.width,
-            "height": camera.height}
+    return {
+        "K": camera.K.tolist(),
+        "dist": camera.dist.tolist(),
+        "width": camera.width,
+        "height": camera.height,
+    }
 
 
 def _camera_from_dict(d: dict) -> PinholeCamera:
-    return PinholeCamera(K=np.asarray(d["K"], np.float64), dist=np.asarray(d["dist"], np.float64),
-                         width=int(d["width"]), height=int(d["height"]))
+    return PinholeCamera(
+        K=np.asarray(d["K"], np.float64),
+        dist=np.asarray(d["dist"], np.float64),
+        width=int(d["width"]),
+        height=int(d["height"]),
+    )
 
 
 def rig_to_dict(rig: StereoRig) -> dict[str, object]:
     """JSON-able description of a rig (inverse: :func:`rig_from_dict`)."""
-    return {"left": _camera_to_dict(rig.left), "right": _camera_to_dict(rig.right),
-            "projector": _camera_to_dict(rig.projector), "R": np.asarray(rig.R).tolist(),
-            "T": np.asarray(rig.T).tolist(), "R_proj": np.asarray(rig.R_proj).tolist(),
-            "T_proj": np.asarray(rig.T_proj).tolist()}
+    return {
+        "left": _camera_to_dict(rig.left),
+        "right": _camera_to_dict(rig.right),
+        "projector": _camera_to_dict(rig.projector),
+        "R": np.asarray(rig.R).tolist(),
+        "T": np.asarray(rig.T).tolist(),
+        "R_proj": np.asarray(rig.R_proj).tolist(),
+        "T_proj": np.asarray(rig.T_proj).tolist(),
+    }
 
 
 def rig_from_dict(d: dict) -> StereoRig:
     """The rig a :func:`rig_to_dict` description holds."""
-    return StereoRig(left=_camera_from_dict(d["left"]), right=_camera_from_dict(d["right"]),
-                     R=np.asarray(d["R"], np.float64), T=np.asarray(d["T"], np.float64),
-                     projector=_camera_from_dict(d["projector"]),
-                     R_proj=np.asarray(d["R_proj"], np.float64),
-                     T_proj=np.asarray(d["T_proj"], np.float64))
+    return StereoRig(
+        left=_camera_from_dict(d["left"]),
+        right=_camera_from_dict(d["right"]),
+        R=np.asarray(d["R"], np.float64),
+        T=np.asarray(d["T"], np.float64),
+        projector=_camera_from_dict(d["projector"]),
+        R_proj=np.asarray(d["R_proj"], np.float64),
+        T_proj=np.asarray(d["T_proj"], np.float64),
+    )

@@ -61,8 +61,14 @@ class ImageTexture:
         scale = np.float32(self.px_per_m)
         map_x = (material_x - np.float32(self.origin_m[0])) * scale
         map_y = (material_y - np.float32(self.origin_m[1])) * scale
-        out = cv2.remap(self.image, map_x, map_y, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=(self.border,) * 3)
+        out = cv2.remap(
+            self.image,
+            map_x,
+            map_y,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=(self.border,) * 3,
+        )
         if out.ndim == 2:
             out = cv2.merge([out, out, out])
         return out
@@ -79,8 +85,12 @@ class UniformAlbedo:
         return np.broadcast_to(np.asarray(self.bgr, np.float32), (*material_x.shape, 3))
 
 
-def tissue_texture(rng: np.random.Generator, extent_m: float = 0.2, px_per_m: float = 8000.0,
-                   tint_bgr: tuple[float, float, float] = (0.72, 0.74, 0.95)) -> ImageTexture:
+def tissue_texture(
+    rng: np.random.Generator,
+    extent_m: float = 0.2,
+    px_per_m: float = 8000.0,
+    tint_bgr: tuple[float, float, float] = (0.72, 0.74, 0.95),
+) -> ImageTexture:
     """A procedural pinkish tissue albedo: smooth mottling plus a few darker vessel-like lines.
 
     Covers ``±extent_m / 2`` around the material origin; albedo stays in roughly [0.5, 0.95] so
@@ -116,8 +126,9 @@ class Plane:
         normal = -np.asarray(self.R, np.float32)[:, 2]
         if float(normal @ (np.asarray(self.t, np.float32) - origin.astype(np.float32))) > 0:
             normal = -normal  # face the camera
-        return Hit(s=s, material_x=x, material_y=y,
-                   normal=np.broadcast_to(normal, dirs.shape), valid=valid)
+        return Hit(
+            s=s, material_x=x, material_y=y, normal=np.broadcast_to(normal, dirs.shape), valid=valid
+        )
 
 
 @dataclass(frozen=True)
@@ -136,7 +147,7 @@ class MembraneLoad:
     def displacement(self, mx: np.ndarray, my: np.ndarray) -> tuple[np.ndarray, ...]:
         """Displacement (dx, dy, dz) in metres of the material points ``mx, my``."""
         r2 = (mx - self.contact_m[0]) ** 2 + (my - self.contact_m[1]) ** 2
-        g = np.exp(r2 * np.float32(-0.5 / self.radius_m ** 2))
+        g = np.exp(r2 * np.float32(-0.5 / self.radius_m**2))
         return tuple(g * np.float32(c) for c in self.vector_m)
 
     def max_lateral_strain(self) -> float:
@@ -166,22 +177,35 @@ class TissueSurface:
     newton_iterations: int = 10  # at most; stops at NEWTON_TOL_M
     _grid: tuple | None = field(default=None, init=False, repr=False)
 
-    def with_load(self, load: MembraneLoad | None) -> "TissueSurface":
+    def with_load(self, load: MembraneLoad | None) -> TissueSurface:
         """The same tissue under another load (shares the texture)."""
-        return TissueSurface(self.distance_m, self.slope, self.hose_radius_m, self.hose_axis_deg,
-                             self.bumps_m, load, self.texture, self.half_extent_m,
-                             self.grid_spacing_m, self.newton_iterations)
+        return TissueSurface(
+            self.distance_m,
+            self.slope,
+            self.hose_radius_m,
+            self.hose_axis_deg,
+            self.bumps_m,
+            load,
+            self.texture,
+            self.half_extent_m,
+            self.grid_spacing_m,
+            self.newton_iterations,
+        )
 
     def rest_height(self, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
         """Depth z (m, left-camera frame) of the undeformed surface at material point (mx, my)."""
         axis = math.radians(self.hose_axis_deg)
         across = -math.sin(axis) * mx + math.cos(axis) * my
-        bumps = (np.sin(mx * np.float32(2 * math.pi / 0.023) + 0.7)
-                 * np.cos(my * np.float32(2 * math.pi / 0.031) - 0.3))
-        return (np.float32(self.distance_m) + np.float32(self.slope[0]) * mx
-                + np.float32(self.slope[1]) * my
-                + across * across * np.float32(0.5 / self.hose_radius_m)
-                + np.float32(self.bumps_m) * bumps)
+        bumps = np.sin(mx * np.float32(2 * math.pi / 0.023) + 0.7) * np.cos(
+            my * np.float32(2 * math.pi / 0.031) - 0.3
+        )
+        return (
+            np.float32(self.distance_m)
+            + np.float32(self.slope[0]) * mx
+            + np.float32(self.slope[1]) * my
+            + across * across * np.float32(0.5 / self.hose_radius_m)
+            + np.float32(self.bumps_m) * bumps
+        )
 
     def grid(self) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float]]:
         """Deformed heightfield on a spatial grid.
@@ -199,8 +223,10 @@ class TissueSurface:
             dz = np.zeros_like(gx)
             if self.load is not None:
                 if self.load.max_lateral_strain() >= 0.9:
-                    raise ValueError(f"load {self.load} folds the tissue (lateral strain "
-                                     f"{self.load.max_lateral_strain():.2f} >= 0.9)")
+                    raise ValueError(
+                        f"load {self.load} folds the tissue (lateral strain "
+                        f"{self.load.max_lateral_strain():.2f} >= 0.9)"
+                    )
                 for _ in range(40):  # invert x = m + d(m) by fixed point
                     dx, dy, dz = self.load.displacement(mx, my)
                     new_mx, new_my = gx - dx, gy - dy
@@ -216,8 +242,16 @@ class TissueSurface:
             self._grid = (geometry, material, (float(xs[0]), float(ys[0]), h))
         return self._grid
 
-    def _newton(self, s: np.ndarray, bx: np.ndarray, by: np.ndarray, dz: np.ndarray,
-                ax: np.float32, ay: np.float32, oz: np.float32) -> tuple:
+    def _newton(
+        self,
+        s: np.ndarray,
+        bx: np.ndarray,
+        by: np.ndarray,
+        dz: np.ndarray,
+        ax: np.float32,
+        ay: np.float32,
+        oz: np.float32,
+    ) -> tuple:
         """Newton iterations from ``s``: (s, geometry sample, map_x, map_y, residual)."""
         geometry, _, (_, _, h) = self.grid()
         for iteration in range(self.newton_iterations + 1):
@@ -235,17 +269,28 @@ class TissueSurface:
         (e.g. the previous frame's solution) or from the rest distance."""
         geometry, material, (x0, y0, h) = self.grid()
         inv_h = np.float32(1.0 / h)
-        args = (dirs[..., 0] * inv_h, dirs[..., 1] * inv_h, dirs[..., 2],
-                np.float32((origin[0] - x0) / h), np.float32((origin[1] - y0) / h),
-                np.float32(origin[2]))
+        args = (
+            dirs[..., 0] * inv_h,
+            dirs[..., 1] * inv_h,
+            dirs[..., 2],
+            np.float32((origin[0] - x0) / h),
+            np.float32((origin[1] - y0) / h),
+            np.float32(origin[2]),
+        )
         cold = (np.float32(self.distance_m) - args[5]) / args[2]
         s, g, map_x, map_y, residual = self._newton(cold if s0 is None else s0, *args)
         if s0 is not None and np.abs(residual).max() >= NEWTON_TOL_M:
             s, g, map_x, map_y, residual = self._newton(cold, *args)
         m = cv2.remap(material, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rows, cols = geometry.shape[:2]
-        valid = ((map_x >= 0) & (map_x <= cols - 1) & (map_y >= 0) & (map_y <= rows - 1) & (s > 0)
-                 & (np.abs(residual) < 1e-7))
+        valid = (
+            (map_x >= 0)
+            & (map_x <= cols - 1)
+            & (map_y >= 0)
+            & (map_y <= rows - 1)
+            & (s > 0)
+            & (np.abs(residual) < 1e-7)
+        )
         normal = np.empty(dirs.shape, np.float32)
         normal[..., 0], normal[..., 1], normal[..., 2] = g[..., 1], g[..., 2], -1.0
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)

@@ -41,7 +41,8 @@ def pylsl() -> Any:
     import pylsl as module
 
     if not os.environ.get("LSLAPICFG") and not any(
-            Path(p).expanduser().is_file() for p in _USER_CONFIGS):
+        Path(p).expanduser().is_file() for p in _USER_CONFIGS
+    ):
         module.set_config_content(_LOG_CONFIG)
     return module
 
@@ -68,28 +69,38 @@ def _channels(info: Any, count: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
 def describe_info(key: str, info: Any) -> StreamInfo:
     """A :class:`StreamInfo` from a pylsl ``StreamInfo`` with its full metadata."""
     labels, units = _channels(info, info.channel_count())
-    return StreamInfo(name=key, lsl_name=info.name(), type=info.type(),
-                      source_id=info.source_id(), hostname=info.hostname(), channels=labels,
-                      units=units, nominal_rate_hz=float(info.nominal_srate()),
-                      markers=info.channel_format() == pylsl().cf_string,
-                      info_xml=info.as_xml())
+    return StreamInfo(
+        name=key,
+        lsl_name=info.name(),
+        type=info.type(),
+        source_id=info.source_id(),
+        hostname=info.hostname(),
+        channels=labels,
+        units=units,
+        nominal_rate_hz=float(info.nominal_srate()),
+        markers=info.channel_format() == pylsl().cf_string,
+        info_xml=info.as_xml(),
+    )
 
 
 def resolve(source: StreamSource) -> Any:
     """The one LSL stream ``source`` names, within its ``resolve_timeout_s``; DeviceError when
     none or several (then naming their source ids) are found."""
-    found = pylsl().resolve_bypred(source.predicate(), minimum=1,
-                                   timeout=source.resolve_timeout_s)
+    found = pylsl().resolve_bypred(source.predicate(), minimum=1, timeout=source.resolve_timeout_s)
     if found:  # the first answer ends the wait: listen a little longer for a second publisher
         found += pylsl().resolve_bypred(source.predicate(), minimum=2, timeout=_AMBIGUITY_WAIT_S)
     if not found:
-        raise DeviceError(f"stream {source.describe()} was not found on the network within "
-                          f"{source.resolve_timeout_s:g} s")
+        raise DeviceError(
+            f"stream {source.describe()} was not found on the network within "
+            f"{source.resolve_timeout_s:g} s"
+        )
     uids = {info.uid() for info in found}
     if len(uids) > 1:
         ids = ", ".join(sorted({repr(f"{i.source_id()}@{i.hostname()}") for i in found}))
-        raise DeviceError(f"stream {source.describe()} matches {len(uids)} LSL streams ({ids}); "
-                          "add its source_id to tell them apart")
+        raise DeviceError(
+            f"stream {source.describe()} matches {len(uids)} LSL streams ({ids}); "
+            "add its source_id to tell them apart"
+        )
     return found[0]
 
 
@@ -133,12 +144,14 @@ class LslStream(SampleStream[StreamSample]):
             found = resolve(self.source)
         except DeviceError as exc:
             if self.source.required:
-                raise DeviceError(f"{exc}; start its publisher (or mark it required = false)"
-                                  ) from None
+                raise DeviceError(
+                    f"{exc}; start its publisher (or mark it required = false)"
+                ) from None
             self.missing = f"optional {exc}; recording without it"
             return
-        self._inlet = lsl.StreamInlet(found, max_buflen=360, recover=True,
-                                      processing_flags=lsl.proc_none)
+        self._inlet = lsl.StreamInlet(
+            found, max_buflen=360, recover=True, processing_flags=lsl.proc_none
+        )
         try:
             self._inlet.open_stream(timeout=_OPEN_TIMEOUT_S)
             self.info = describe_info(self.source.key, self._inlet.info(timeout=_OPEN_TIMEOUT_S))
@@ -146,8 +159,10 @@ class LslStream(SampleStream[StreamSample]):
             self._measure_correction(_FIRST_CORRECTION_TIMEOUT_S)
         except (TimeoutError, lsl.util.LostError) as exc:
             self._inlet = None
-            raise DeviceError(f"{self.label}: found but it does not answer ({exc}); is its "
-                              "publisher still running?") from None
+            raise DeviceError(
+                f"{self.label}: found but it does not answer ({exc}); is its "
+                "publisher still running?"
+            ) from None
         self._buffer.clear()
         self._seq, self._last_stamp_ns = 0, None
 
@@ -177,30 +192,37 @@ class LslStream(SampleStream[StreamSample]):
         """Pull what arrived within ``timeout_s`` into the buffer, mapped to the host clock."""
         if time.monotonic() >= self._next_correction:
             self._measure_correction(0.0)
-        values, stamps = self._inlet.pull_chunk(timeout=timeout_s, max_samples=_CHUNK_SAMPLES,
-                                                min_samples=1, as_numpy=True)
+        values, stamps = self._inlet.pull_chunk(
+            timeout=timeout_s, max_samples=_CHUNK_SAMPLES, min_samples=1, as_numpy=True
+        )
         if len(stamps) == 0:
             return
         t_device = np.round(np.asarray(stamps, np.float64) * 1e9).astype(np.int64)
         t_host = t_device + self._correction_ns
         self._count_gaps(t_device)
         if self.info.markers:
-            rows = [("\t".join(v.decode("utf-8", "replace") for v in row), None)
-                    for row in values]
+            rows = [("\t".join(v.decode("utf-8", "replace") for v in row), None) for row in values]
         else:
-            rows = [(None, row) for row in np.asarray(values, np.float64).reshape(
-                len(t_device), -1)]
-        self._buffer.extend(StreamSample(values=row, text=text, seq=self._seq + i,
-                                     t_device_ns=int(td), t_host_ns=int(th))
-                        for i, ((text, row), td, th) in enumerate(zip(rows, t_device, t_host)))
+            rows = [
+                (None, row) for row in np.asarray(values, np.float64).reshape(len(t_device), -1)
+            ]
+        self._buffer.extend(
+            StreamSample(
+                values=row, text=text, seq=self._seq + i, t_device_ns=int(td), t_host_ns=int(th)
+            )
+            for i, ((text, row), td, th) in enumerate(zip(rows, t_device, t_host, strict=False))
+        )
         self._seq += len(t_device)
 
     def _count_gaps(self, t_device: np.ndarray) -> None:
         rate = self.info.nominal_rate_hz
         if rate <= 0:
             return
-        stamps = t_device if self._last_stamp_ns is None else np.concatenate(
-            [[self._last_stamp_ns], t_device])
+        stamps = (
+            t_device
+            if self._last_stamp_ns is None
+            else np.concatenate([[self._last_stamp_ns], t_device])
+        )
         period = 1e9 / rate
         offset = self._seq - (0 if self._last_stamp_ns is None else 1)
         for i in np.flatnonzero(np.diff(stamps) > _GAP_PERIODS * period):
@@ -210,8 +232,12 @@ class LslStream(SampleStream[StreamSample]):
 
     def describe(self) -> dict[str, Any]:
         """JSON-able: what was asked for, what was found, the clock corrections measured."""
-        out: dict[str, Any] = {"backend": "lsl", "predicate": self.source.predicate(),
-                               "required": self.source.required, "missing": self.missing}
+        out: dict[str, Any] = {
+            "backend": "lsl",
+            "predicate": self.source.predicate(),
+            "required": self.source.required,
+            "missing": self.missing,
+        }
         if self.info is not None:
             out.update({k: v for k, v in vars(self.info).items() if k != "info_xml"})
             out["time_corrections"] = [list(c) for c in self.time_corrections]

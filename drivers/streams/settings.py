@@ -16,8 +16,19 @@ from typing import Any, Literal
 from vbfe.common.config import ConfigError
 from vbfe.common.settings import parse_table, setting
 
-RESERVED = ("camera", "force", "projector", "estimate", "marks", "gaps", "clock", "clock_pairs",
-            "truth", "analysis", "calibration_yaml")  # the session's own groups and datasets
+RESERVED = (
+    "camera",
+    "force",
+    "projector",
+    "estimate",
+    "marks",
+    "gaps",
+    "clock",
+    "clock_pairs",
+    "truth",
+    "analysis",
+    "calibration_yaml",
+)  # the session's own groups and datasets
 _KEY = re.compile(r"[a-z][a-z0-9_]{0,31}")
 
 
@@ -35,9 +46,15 @@ class StreamSource:
 
     def predicate(self) -> str:
         """The LSL XPath predicate matching every property given."""
-        parts = [f"{field}='{value}'" for field, value in
-                 (("name", self.name), ("type", self.type), ("source_id", self.source_id))
-                 if value]
+        parts = [
+            f"{field}='{value}'"
+            for field, value in (
+                ("name", self.name),
+                ("type", self.type),
+                ("source_id", self.source_id),
+            )
+            if value
+        ]
         return " and ".join(parts)
 
     def describe(self) -> str:
@@ -51,19 +68,25 @@ def stream_sources(config: dict[str, dict[str, Any]]) -> list[StreamSource]:
     for key, table in config.get("streams", {}).items():
         where = f"streams.{key}"
         if not isinstance(table, dict):
-            raise ConfigError(f"[streams] {key} = {table!r} is not a table; write "
-                              f"[streams.{key}] with name = \"<LSL stream name>\"")
+            raise ConfigError(
+                f"[streams] {key} = {table!r} is not a table; write "
+                f'[streams.{key}] with name = "<LSL stream name>"'
+            )
         if not _KEY.fullmatch(key) or key in RESERVED:
-            raise ConfigError(f"[{where}]: {key!r} cannot name a session stream; use lower-case "
-                              f"letters, digits and _ (not one of {', '.join(RESERVED)})")
+            raise ConfigError(
+                f"[{where}]: {key!r} cannot name a session stream; use lower-case "
+                f"letters, digits and _ (not one of {', '.join(RESERVED)})"
+            )
         if "key" in table:
             raise ConfigError(f"unknown key 'key' in [{where}]; the table's name is the key")
         source = parse_table(StreamSource, {**table, "key": key}, where)
         if not source.predicate():
-            raise ConfigError(f"[{where}] names no stream: give its LSL name, type or "
-                              "source_id")
-        for field, value in (("name", source.name), ("type", source.type),
-                             ("source_id", source.source_id)):
+            raise ConfigError(f"[{where}] names no stream: give its LSL name, type or source_id")
+        for field, value in (
+            ("name", source.name),
+            ("type", source.type),
+            ("source_id", source.source_id),
+        ):
             if "'" in value:
                 raise ConfigError(f"[{where}] {field} = {value!r} must not contain a quote")
         sources.append(source)

@@ -42,13 +42,19 @@ class ForceSensor(SampleStream[ForceSample]):
         while len(raw) < n_samples:
             sample = self.read(timeout_s)
             if sample is None:
-                raise DeviceError(f"{self.label} sent no sample for {timeout_s} s while taring "
-                                  f"({len(raw)}/{n_samples} collected)")
+                raise DeviceError(
+                    f"{self.label} sent no sample for {timeout_s} s while taring "
+                    f"({len(raw)}/{n_samples} collected)"
+                )
             raw.append(sample.force_n + self.offset_n)
         self.offset_n = np.mean(raw, axis=0)
         return self.offset_n.copy()
 
     def describe(self) -> dict[str, object]:
         """Static facts about the device for session metadata (with the tare offset)."""
-        return {"kind": type(self).__name__, "rate_hz": self.rate_hz, "axes": list(self.axes),
-                "offset_n": self.offset_n.tolist()}
+        return {
+            "kind": type(self).__name__,
+            "rate_hz": self.rate_hz,
+            "axes": list(self.axes),
+            "offset_n": self.offset_n.tolist(),
+        }

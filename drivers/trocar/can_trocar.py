@@ -13,10 +13,18 @@ import can
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.trocar.base import ForceSensor
-from vbfe.drivers.trocar.can_clock import (HOST_CLOCK, INTERFACE_CLOCKS, check_clock_choice,
-                                           interface_stamps)
-from vbfe.drivers.trocar.dbc import (DEFAULT_FORCE_SIGNALS, DEFAULT_MESSAGE, MalformedFrame,
-                                     load_frame_format)
+from vbfe.drivers.trocar.can_clock import (
+    HOST_CLOCK,
+    INTERFACE_CLOCKS,
+    check_clock_choice,
+    interface_stamps,
+)
+from vbfe.drivers.trocar.dbc import (
+    DEFAULT_FORCE_SIGNALS,
+    DEFAULT_MESSAGE,
+    MalformedFrame,
+    load_frame_format,
+)
 
 log = logging.getLogger(__name__)
 
@@ -38,16 +46,25 @@ class CanTrocar(ForceSensor):
     and controller state changes count in ``stats.errors`` and are marked as gaps.
     """
 
-    def __init__(self, interface: str = "socketcan", channel: str = "can0",
-                 bitrate: int | None = None, dbc: str | Path | None = None,
-                 message: str = DEFAULT_MESSAGE, rate_hz: float = 1000.0,
-                 host_clock: Callable[[], int] = time.monotonic_ns, bus: can.BusABC | None = None,
-                 force_signals: tuple[str, ...] = DEFAULT_FORCE_SIGNALS,
-                 counter_signal: str | None = "Counter",
-                 checksum_signal: str | None = "Checksum", clock: str = "auto") -> None:
+    def __init__(
+        self,
+        interface: str = "socketcan",
+        channel: str = "can0",
+        bitrate: int | None = None,
+        dbc: str | Path | None = None,
+        message: str = DEFAULT_MESSAGE,
+        rate_hz: float = 1000.0,
+        host_clock: Callable[[], int] = time.monotonic_ns,
+        bus: can.BusABC | None = None,
+        force_signals: tuple[str, ...] = DEFAULT_FORCE_SIGNALS,
+        counter_signal: str | None = "Counter",
+        checksum_signal: str | None = "Checksum",
+        clock: str = "auto",
+    ) -> None:
         super().__init__()
-        self.format = load_frame_format(dbc, message, tuple(force_signals),
-                                        counter_signal or None, checksum_signal or None)
+        self.format = load_frame_format(
+            dbc, message, tuple(force_signals), counter_signal or None, checksum_signal or None
+        )
         self.interface, self.channel, self.bitrate = interface, str(channel), bitrate
         self.dbc_path = str(dbc) if dbc is not None else "trf85d.dbc (shipped)"
         self.rate_hz = float(rate_hz)
@@ -70,8 +87,10 @@ class CanTrocar(ForceSensor):
         if self._use_interface_time is None:
             if self.clock == "host" or not interface_stamps(self.interface):
                 return HOST_CLOCK
-            return (f"interface timestamp if the first frame carries one ({self.clock}): "
-                    f"{INTERFACE_CLOCKS[self.interface]}; else {HOST_CLOCK}")
+            return (
+                f"interface timestamp if the first frame carries one ({self.clock}): "
+                f"{INTERFACE_CLOCKS[self.interface]}; else {HOST_CLOCK}"
+            )
         if self._use_interface_time:
             return INTERFACE_CLOCKS.get(self.interface, f"{self.interface} interface timestamp")
         return HOST_CLOCK
@@ -93,7 +112,8 @@ class CanTrocar(ForceSensor):
             raise DeviceError(
                 f"cannot open {self.label}: {exc}; check the adapter is plugged in "
                 f"and, for socketcan, bring it up with 'sudo ip link set {self.channel} up type "
-                "can bitrate 1000000'") from None
+                "can bitrate 1000000'"
+            ) from None
 
     def _close(self) -> None:
         """Release the bus (a bus passed in by the caller stays open)."""
@@ -106,8 +126,10 @@ class CanTrocar(ForceSensor):
         try:
             msg = self._bus.recv(timeout=timeout_s)
         except (can.CanError, OSError) as exc:
-            raise DeviceError(f"{self.label} stopped: {exc}; check the cable, "
-                              "termination and that the interface is up") from None
+            raise DeviceError(
+                f"{self.label} stopped: {exc}; check the cable, "
+                "termination and that the interface is up"
+            ) from None
         if msg is None:
             return None
         return self._accept(msg, self._host_clock())
@@ -115,11 +137,18 @@ class CanTrocar(ForceSensor):
     def describe(self) -> dict[str, object]:
         """Static facts for session metadata: interface, channel, DBC, message, resolution and
         the clock of ``t_device_ns``."""
-        return {**super().describe(), "interface": self.interface, "channel": self.channel,
-                "dbc": self.dbc_path, "message": self.format.message.name,
-                "frame_id": self.format.frame_id, "resolution_n": self.format.resolution_n,
-                "clock_option": self.clock, "device_clock": self.device_clock,
-                "bus_errors": self.stats.errors}
+        return {
+            **super().describe(),
+            "interface": self.interface,
+            "channel": self.channel,
+            "dbc": self.dbc_path,
+            "message": self.format.message.name,
+            "frame_id": self.format.frame_id,
+            "resolution_n": self.format.resolution_n,
+            "clock_option": self.clock,
+            "device_clock": self.device_clock,
+            "bus_errors": self.stats.errors,
+        }
 
     def _count_malformed(self, reason: str) -> None:
         self.stats.malformed += 1
@@ -130,22 +159,30 @@ class CanTrocar(ForceSensor):
     def _bus_error(self, msg: can.Message, t_host_ns: int) -> None:
         """Count an error frame or controller state change and mark it as a gap."""
         if msg.arbitration_id & CAN_ERR_BUSOFF:
-            raise DeviceError(f"{self.label}: controller is bus-off; check "
-                              "wiring, termination and bitrate, then restart the interface")
+            raise DeviceError(
+                f"{self.label}: controller is bus-off; check "
+                "wiring, termination and bitrate, then restart the interface"
+            )
         self.stats.errors += 1
         reason = "bus state change" if msg.arbitration_id & BUS_STATE_BITS else "device error"
         last = -1 if self._seq is None else self._seq
         self.stats.mark_gap(reason, last, -1, t_host_ns, 1)
         if self.stats.errors <= 10:
-            log.warning("%s: %s frame 0x%x data %s", self.label, reason,
-                        msg.arbitration_id, bytes(msg.data).hex())
+            log.warning(
+                "%s: %s frame 0x%x data %s",
+                self.label,
+                reason,
+                msg.arbitration_id,
+                bytes(msg.data).hex(),
+            )
 
     def _device_ns(self, msg: can.Message, t_host_ns: int) -> int | None:
         """The sample's device time on the clock chosen at the first frame; None if missing."""
         stamped = msg.timestamp > 0
         if self._use_interface_time is None:
-            self._use_interface_time = stamped and interface_stamps(self.interface) or (
-                self.clock == "interface")
+            self._use_interface_time = (
+                stamped and interface_stamps(self.interface) or (self.clock == "interface")
+            )
         if not self._use_interface_time:
             return int(t_host_ns)
         return round(msg.timestamp * 1e9) if stamped else None
@@ -154,8 +191,11 @@ class CanTrocar(ForceSensor):
         if msg.is_error_frame:
             self._bus_error(msg, t_host_ns)
             return None
-        if (msg.arbitration_id != self.format.frame_id or msg.is_remote_frame
-                or msg.is_extended_id != self.format.message.is_extended_frame):
+        if (
+            msg.arbitration_id != self.format.frame_id
+            or msg.is_remote_frame
+            or msg.is_extended_id != self.format.message.is_extended_frame
+        ):
             return None
         try:
             frame = self.format.decode(bytes(msg.data))
@@ -170,8 +210,9 @@ class CanTrocar(ForceSensor):
         if seq is None:
             self._count_malformed(f"repeated counter {frame.counter}")
             return None
-        return ForceSample(force_n=frame.force_n, seq=seq, t_device_ns=t_device_ns,
-                           t_host_ns=int(t_host_ns))
+        return ForceSample(
+            force_n=frame.force_n, seq=seq, t_device_ns=t_device_ns, t_host_ns=int(t_host_ns)
+        )
 
     def _sequence(self, counter: int | None, rx_s: float) -> int | None:
         """Unwrap the rolling counter into a sample number; None for a repeat."""

@@ -74,7 +74,7 @@ class TrocarFrameFormat:
 
     def _expected_checksum(self, data: bytes) -> int:
         index = self._checksum_byte()
-        return checksum(data[:index] + data[index + 1:])
+        return checksum(data[:index] + data[index + 1 :])
 
     def decode(self, data: bytes) -> DecodedFrame:
         """Decode one payload; raises :class:`MalformedFrame` when it is not a valid sample."""
@@ -95,7 +95,7 @@ class TrocarFrameFormat:
     def encode(self, force_n: np.ndarray, counter: int = 0) -> bytes:
         """Pack one sample the way the sensor would (the fake trocar and tests use this)."""
         values: dict[str, float | int] = {s.name: 0 for s in self.message.signals}
-        values.update({s: float(f) for s, f in zip(self.force_signals, force_n)})
+        values.update({s: float(f) for s, f in zip(self.force_signals, force_n, strict=False)})
         if self.counter_signal is not None:
             values[self.counter_signal] = counter % self.counter_modulo
         data = bytearray(self.message.encode(values, strict=True))
@@ -104,10 +104,13 @@ class TrocarFrameFormat:
         return bytes(data)
 
 
-def load_frame_format(dbc: str | Path | None = None, message: str = DEFAULT_MESSAGE,
-                      force_signals: tuple[str, ...] = DEFAULT_FORCE_SIGNALS,
-                      counter_signal: str | None = "Counter",
-                      checksum_signal: str | None = "Checksum") -> TrocarFrameFormat:
+def load_frame_format(
+    dbc: str | Path | None = None,
+    message: str = DEFAULT_MESSAGE,
+    force_signals: tuple[str, ...] = DEFAULT_FORCE_SIGNALS,
+    counter_signal: str | None = "Counter",
+    checksum_signal: str | None = "Checksum",
+) -> TrocarFrameFormat:
     """Read the force message layout from ``dbc`` (default: the shipped TRF85D DBC).
 
     Raises :class:`DeviceError` naming the file when it is missing or unreadable, or when the
@@ -117,25 +120,33 @@ def load_frame_format(dbc: str | Path | None = None, message: str = DEFAULT_MESS
     try:
         database = cantools.database.load_file(str(path), database_format="dbc")
     except FileNotFoundError:
-        raise DeviceError(f"trocar DBC file {path} does not exist; set the trocar option 'dbc' "
-                          "to your sensor's DBC or leave it out to use the shipped one") from None
+        raise DeviceError(
+            f"trocar DBC file {path} does not exist; set the trocar option 'dbc' "
+            "to your sensor's DBC or leave it out to use the shipped one"
+        ) from None
     except Exception as exc:  # cantools raises several parser-specific types
         raise DeviceError(f"trocar DBC file {path} cannot be parsed: {exc}") from None
     try:
         msg = database.get_message_by_name(message)
     except KeyError:
         names = sorted(m.name for m in database.messages)
-        raise DeviceError(f"trocar DBC file {path} has no message {message!r}; it has {names}; "
-                          "set the trocar option 'message'") from None
+        raise DeviceError(
+            f"trocar DBC file {path} has no message {message!r}; it has {names}; "
+            "set the trocar option 'message'"
+        ) from None
     present = {s.name for s in msg.signals}
     wanted = [*force_signals, *(s for s in (counter_signal, checksum_signal) if s is not None)]
     missing = [s for s in wanted if s not in present]
     if missing:
-        raise DeviceError(f"message {message!r} in trocar DBC file {path} lacks signal(s) "
-                          f"{missing}; it has {sorted(present)}")
+        raise DeviceError(
+            f"message {message!r} in trocar DBC file {path} lacks signal(s) "
+            f"{missing}; it has {sorted(present)}"
+        )
     if checksum_signal is not None:
         sig = msg.get_signal_by_name(checksum_signal)
         if sig.length != 8 or sig.start % 8 or sig.byte_order != "little_endian":
-            raise DeviceError(f"checksum signal {checksum_signal!r} in {path} must be one whole "
-                              "byte; pass checksum_signal=None if your sensor uses another scheme")
+            raise DeviceError(
+                f"checksum signal {checksum_signal!r} in {path} must be one whole "
+                "byte; pass checksum_signal=None if your sensor uses another scheme"
+            )
     return TrocarFrameFormat(msg, tuple(force_signals), counter_signal, checksum_signal)

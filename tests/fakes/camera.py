@@ -51,10 +51,20 @@ class FakeStereoCapture:
     frames behind, as the kernel does; otherwise frames come as fast as they are read.
     """
 
-    def __init__(self, width: int, height: int, fps: float = 30.0, n_frames: int | None = None,
-                 drop_seqs: Iterable[int] = (), disconnect_after: int | None = None,
-                 clock_offset_ns: int = 0, clock_drift_ppm: float = 0.0, realtime: bool = True,
-                 eye: str = "both", n_buffers: int = 4) -> None:
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        fps: float = 30.0,
+        n_frames: int | None = None,
+        drop_seqs: Iterable[int] = (),
+        disconnect_after: int | None = None,
+        clock_offset_ns: int = 0,
+        clock_drift_ppm: float = 0.0,
+        realtime: bool = True,
+        eye: str = "both",
+        n_buffers: int = 4,
+    ) -> None:
         self.width, self.height, self.fps, self.eye = width, height, float(fps), eye
         self.n_frames, self.drop_seqs = n_frames, frozenset(drop_seqs)
         self.disconnect_after, self.realtime, self.n_buffers = disconnect_after, realtime, n_buffers
@@ -136,17 +146,38 @@ class FakeStereoCapture:
 class FakeStereoCamera(OpenCVStereoCamera):
     """The real V4L2 driver reading a side-by-side :class:`FakeStereoCapture` in real time."""
 
-    def __init__(self, width: int = 64, height: int = 48, fps: float = 30.0,
-                 n_frames: int | None = None, drop_seqs: Iterable[int] = (),
-                 disconnect_after: int | None = None, clock_offset_ns: int = 0,
-                 clock_drift_ppm: float = 0.0) -> None:
+    def __init__(
+        self,
+        width: int = 64,
+        height: int = 48,
+        fps: float = 30.0,
+        n_frames: int | None = None,
+        drop_seqs: Iterable[int] = (),
+        disconnect_after: int | None = None,
+        clock_offset_ns: int = 0,
+        clock_drift_ppm: float = 0.0,
+    ) -> None:
         self.captures: list[FakeStereoCapture] = []
 
         def factory(device: str | int) -> FakeStereoCapture:
-            capture = FakeStereoCapture(width, height, fps, n_frames, drop_seqs, disconnect_after,
-                                        clock_offset_ns, clock_drift_ppm)
+            capture = FakeStereoCapture(
+                width,
+                height,
+                fps,
+                n_frames,
+                drop_seqs,
+                disconnect_after,
+                clock_offset_ns,
+                clock_drift_ppm,
+            )
             self.captures.append(capture)
             return capture
 
-        super().__init__(device="fake-endoscope", width=width, height=height, fps=fps,
-                         fourcc="YUYV", capture_factory=factory)
+        super().__init__(
+            device="fake-endoscope",
+            width=width,
+            height=height,
+            fps=fps,
+            fourcc="YUYV",
+            capture_factory=factory,
+        )

@@ -24,12 +24,14 @@ class FakeRobot(ThreadedFake):
     their time comes (each stamped with its due time); ``pushed`` counts them. Joint 0 is still
     until ``onset_ns`` (host clock), then moves at 0.5 rad/s (a motion onset to find)."""
 
-    def __init__(self, name: str, rate_hz: float = 1000.0, joints: int = 7,
-                 onset_ns: int | None = None) -> None:
+    def __init__(
+        self, name: str, rate_hz: float = 1000.0, joints: int = 7, onset_ns: int | None = None
+    ) -> None:
         super().__init__(f"fake-robot-{name}")
         self.name, self.rate_hz, self.joints, self.onset_ns = name, rate_hz, joints, onset_ns
-        info = pylsl.StreamInfo(name, "RobotState", joints, rate_hz, pylsl.cf_double64,
-                                f"{name}-serial-1")
+        info = pylsl.StreamInfo(
+            name, "RobotState", joints, rate_hz, pylsl.cf_double64, f"{name}-serial-1"
+        )
         channels = info.desc().append_child("channels")
         for j in range(joints):
             channel = channels.append_child("channel")
@@ -52,9 +54,9 @@ class FakeRobot(ThreadedFake):
         self.first_ns = time.monotonic_ns()
         while not self._stop.is_set():
             time.sleep(0.004)
-            due = self.first_ns + period_ns * np.arange(self.pushed,
-                                                        (time.monotonic_ns() - self.first_ns)
-                                                        // period_ns + 1)
+            due = self.first_ns + period_ns * np.arange(
+                self.pushed, (time.monotonic_ns() - self.first_ns) // period_ns + 1
+            )
             if len(due):
                 self.outlet.push_chunk(self.value(due), (due / 1e9).tolist())
                 self.pushed += len(due)
@@ -69,8 +71,9 @@ class MarkerOutlet:
 
     def __init__(self, name: str) -> None:
         self.name = name
-        info = pylsl.StreamInfo(name, "Markers", 1, pylsl.IRREGULAR_RATE, pylsl.cf_string,
-                                f"{name}-script")
+        info = pylsl.StreamInfo(
+            name, "Markers", 1, pylsl.IRREGULAR_RATE, pylsl.cf_string, f"{name}-script"
+        )
         self.outlet = pylsl.StreamOutlet(info)
         self.sent: list[tuple[int, str]] = []
 

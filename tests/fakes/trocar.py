@@ -31,10 +31,18 @@ class FakeTrocar(ThreadedFake):
     ``corrupt_samples`` and ``dropped_samples`` hold the sample numbers of the injected faults.
     """
 
-    def __init__(self, channel: str, profile: Callable[[float], np.ndarray],
-                 rate_hz: float = 1000.0, noise_n: float = 0.0, corrupt_fraction: float = 0.0,
-                 drop_counters: tuple[int, ...] = (), disconnect_after: int | None = None,
-                 clock_drift_ppm: float = 0.0, seed: int = 0) -> None:
+    def __init__(
+        self,
+        channel: str,
+        profile: Callable[[float], np.ndarray],
+        rate_hz: float = 1000.0,
+        noise_n: float = 0.0,
+        corrupt_fraction: float = 0.0,
+        drop_counters: tuple[int, ...] = (),
+        disconnect_after: int | None = None,
+        clock_drift_ppm: float = 0.0,
+        seed: int = 0,
+    ) -> None:
         super().__init__(name=f"fake-trocar-{channel}")
         self.channel, self.profile, self.rate_hz = channel, profile, float(rate_hz)
         self.noise_n, self.corrupt_fraction = noise_n, corrupt_fraction
@@ -79,28 +87,39 @@ class FakeTrocar(ThreadedFake):
                 bit = int(self._rng.integers(0, 8 * len(data)))
                 data[bit // 8] ^= 1 << (bit % 8)
             else:
-                data = data[:int(self._rng.integers(0, len(data)))]
+                data = data[: int(self._rng.integers(0, len(data)))]
             with self._lock:
                 self.corrupt_samples.add(n)
         else:
             with self._lock:
                 self.sent_forces_n[n] = force
-        return can.Message(arbitration_id=self.frame_format.frame_id, data=bytes(data),
-                           is_extended_id=False, timestamp=timestamp)
+        return can.Message(
+            arbitration_id=self.frame_format.frame_id,
+            data=bytes(data),
+            is_extended_id=False,
+            timestamp=timestamp,
+        )
 
     def _run(self) -> None:
         # Frames carry the time an ideal sensor would have sent them, so a stalled test thread
         # looks like a late reader (as on a real bus), not like a sensor that paused.
         period_s = 1.0 / (self.rate_hz * (1.0 + self.clock_drift_ppm * 1e-6))
         try:
-            with can.Bus(interface="virtual", channel=self.channel,
-                         preserve_timestamps=True) as bus:
+            with can.Bus(
+                interface="virtual", channel=self.channel, preserve_timestamps=True
+            ) as bus:
                 start_ns, wall_start, n = time.monotonic_ns(), time.time(), 0
                 while not self._stop.is_set():
                     if self.disconnect_after is not None and n >= self.disconnect_after:
-                        bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
-                                             is_extended_id=False, data=bytes(8),
-                                             timestamp=wall_start + n * period_s))
+                        bus.send(
+                            can.Message(
+                                arbitration_id=CAN_ERR_BUSOFF,
+                                is_error_frame=True,
+                                is_extended_id=False,
+                                data=bytes(8),
+                                timestamp=wall_start + n * period_s,
+                            )
+                        )
                         self._stop.set()
                         break
                     sleep_until(start_ns + int(n * period_s * 1e9))

@@ -27,8 +27,14 @@ from typing import Any
 import cv2
 import numpy as np
 from linuxpy.video import raw
-from linuxpy.video.device import (BufferType, Format, Frame, FrameIntervalType, FrameType,
-                                  ImageFormat)
+from linuxpy.video.device import (
+    BufferType,
+    Format,
+    Frame,
+    FrameIntervalType,
+    FrameType,
+    ImageFormat,
+)
 
 from tests.fakes.camera import DISPARITY_PX, render_eye
 
@@ -47,7 +53,7 @@ class FakeControl:
     step: int = 1
     default: int = 0
     inactive_unless: tuple[str, int] | None = None  # (control, value) that makes it writable
-    node: "FakeV4L2Node | None" = None
+    node: FakeV4L2Node | None = None
     current: int | None = None
 
     @property
@@ -59,20 +65,24 @@ class FakeControl:
         if self.inactive_unless is not None and self.node is not None:
             name, needed = self.inactive_unless
             if self.node.controls_by_name[name].value != needed:
-                raise AttributeError(f"IntegerControl {self.config_name} is not writeable: "
-                                     "inactive")
+                raise AttributeError(
+                    f"IntegerControl {self.config_name} is not writeable: inactive"
+                )
         clipped = min(max(int(value), self.minimum), self.maximum)
         self.current = self.minimum + (clipped - self.minimum) // self.step * self.step
 
 
 def default_controls() -> list[FakeControl]:
     """The exposure/gain/white-balance controls of a typical UVC endoscope."""
-    return [FakeControl("auto_exposure", 0, 3, 1, 3),  # 1 = manual, 3 = aperture priority
-            FakeControl("exposure_time_absolute", 3, 2047, 1, 156, ("auto_exposure", 1)),
-            FakeControl("gain", 0, 255, 1, 32),
-            FakeControl("white_balance_automatic", 0, 1, 1, 1),
-            FakeControl("white_balance_temperature", 2800, 6500, 10, 4600,
-                        ("white_balance_automatic", 0))]
+    return [
+        FakeControl("auto_exposure", 0, 3, 1, 3),  # 1 = manual, 3 = aperture priority
+        FakeControl("exposure_time_absolute", 3, 2047, 1, 156, ("auto_exposure", 1)),
+        FakeControl("gain", 0, 255, 1, 32),
+        FakeControl("white_balance_automatic", 0, 1, 1, 1),
+        FakeControl(
+            "white_balance_temperature", 2800, 6500, 10, 4600, ("white_balance_automatic", 0)
+        ),
+    ]
 
 
 def yuyv_bytes(image: np.ndarray) -> bytes:
@@ -80,9 +90,9 @@ def yuyv_bytes(image: np.ndarray) -> bytes:
     OpenCV's BT.601 I420 conversion, chroma rows repeated)."""
     h, w = image.shape[:2]
     planes = cv2.cvtColor(image, cv2.COLOR_BGR2YUV_I420).reshape(-1)
-    y = planes[:h * w].reshape(h, w)
-    u = planes[h * w:h * w * 5 // 4].reshape(h // 2, w // 2).repeat(2, axis=0)
-    v = planes[h * w * 5 // 4:].reshape(h // 2, w // 2).repeat(2, axis=0)
+    y = planes[: h * w].reshape(h, w)
+    u = planes[h * w : h * w * 5 // 4].reshape(h // 2, w // 2).repeat(2, axis=0)
+    v = planes[h * w * 5 // 4 :].reshape(h // 2, w // 2).repeat(2, axis=0)
     out = np.empty((h, w, 2), np.uint8)
     out[..., 0], out[:, 0::2, 1], out[:, 1::2, 1] = y, u, v
     return out.tobytes()
@@ -91,27 +101,57 @@ def yuyv_bytes(image: np.ndarray) -> bytes:
 class FakeV4L2Node:
     """One ``/dev/videoN`` of a stereo endoscope: ``eye`` is ``left``, ``right`` or ``both``."""
 
-    def __init__(self, path: str, width: int = 64, height: int = 48, fps: float = 30.0,
-                 fourcc: str = "MJPG", eye: str = "left", n_frames: int | None = None,
-                 drop_seqs: Iterable[int] = (), vanish_after: int | None = None,
-                 error_seqs: Iterable[int] = (), realtime: bool = False,
-                 timestamp_flags: int = MONOTONIC_SOE,
-                 clock_offset_ns: int = 0, controls: list[FakeControl] | None = None,
-                 start_ns: int | None = None) -> None:
+    def __init__(
+        self,
+        path: str,
+        width: int = 64,
+        height: int = 48,
+        fps: float = 30.0,
+        fourcc: str = "MJPG",
+        eye: str = "left",
+        n_frames: int | None = None,
+        drop_seqs: Iterable[int] = (),
+        vanish_after: int | None = None,
+        error_seqs: Iterable[int] = (),
+        realtime: bool = False,
+        timestamp_flags: int = MONOTONIC_SOE,
+        clock_offset_ns: int = 0,
+        controls: list[FakeControl] | None = None,
+        start_ns: int | None = None,
+    ) -> None:
         self.path, self.width, self.height, self.fps = path, width, height, float(fps)
         self.fourcc, self.eye, self.n_frames = fourcc, eye, n_frames
         self.drop_seqs, self.vanish_after = frozenset(drop_seqs), vanish_after
         self.error_seqs = frozenset(error_seqs)  # delivered with V4L2_BUF_FLAG_ERROR
-        self.realtime, self.timestamp_flags, self.clock_offset_ns = realtime, timestamp_flags, clock_offset_ns
+        self.realtime, self.timestamp_flags, self.clock_offset_ns = (
+            realtime,
+            timestamp_flags,
+            clock_offset_ns,
+        )
         self.controls_by_name = {c.config_name: c for c in (controls or default_controls())}
         for control in self.controls_by_name.values():
             control.node = self
         self.controls = SimpleNamespace(values=lambda: list(self.controls_by_name.values()))
-        self.info = SimpleNamespace(card=f"Fake endoscope {eye}", formats=[
-            ImageFormat(BufferType.VIDEO_CAPTURE, name, 0, FOURCC_CODES[name])
-            for name in ("MJPG", "YUYV")], frame_types=[
-            FrameType(FrameIntervalType.DISCRETE, FOURCC_CODES[name], self.frame_width, height,
-                      rate, rate, rate) for name in ("MJPG", "YUYV") for rate in (30, 15)])
+        self.info = SimpleNamespace(
+            card=f"Fake endoscope {eye}",
+            formats=[
+                ImageFormat(BufferType.VIDEO_CAPTURE, name, 0, FOURCC_CODES[name])
+                for name in ("MJPG", "YUYV")
+            ],
+            frame_types=[
+                FrameType(
+                    FrameIntervalType.DISCRETE,
+                    FOURCC_CODES[name],
+                    self.frame_width,
+                    height,
+                    rate,
+                    rate,
+                    rate,
+                )
+                for name in ("MJPG", "YUYV")
+                for rate in (30, 15)
+            ],
+        )
         self.delivered: dict[int, bytes] = {}
         self.times: dict[int, int] = {}  # kernel timestamp (ns, µs resolution) per delivered seq
         self.kernel_dropped: list[int] = []

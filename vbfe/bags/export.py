@@ -62,19 +62,41 @@ def _camera_infos(calibration_yaml: str | None, size: tuple[int, int]) -> dict[s
     from vbfe.calib.export import ros_distortion_model
 
     cal = Calibration.from_yaml_text(calibration_yaml, source="the session's calibration")
-    roi = msg("sensor_msgs/msg/RegionOfInterest", x_offset=0, y_offset=0, height=0, width=0,
-              do_rectify=False)
-    return {eye: {"height": size[1], "width": size[0], "distortion_model":
-                  ros_distortion_model(D), "d": D.astype(np.float64), "k": K.ravel(),
-                  "r": R.ravel(), "p": P.ravel(), "binning_x": 0, "binning_y": 0, "roi": roi}
-            for eye, K, D, R, P in (("left", cal.K1, cal.D1, cal.R1, cal.P1),
-                                    ("right", cal.K2, cal.D2, cal.R2, cal.P2))}
+    roi = msg(
+        "sensor_msgs/msg/RegionOfInterest",
+        x_offset=0,
+        y_offset=0,
+        height=0,
+        width=0,
+        do_rectify=False,
+    )
+    return {
+        eye: {
+            "height": size[1],
+            "width": size[0],
+            "distortion_model": ros_distortion_model(D),
+            "d": D.astype(np.float64),
+            "k": K.ravel(),
+            "r": R.ravel(),
+            "p": P.ravel(),
+            "binning_x": 0,
+            "binning_y": 0,
+            "roi": roi,
+        }
+        for eye, K, D, R, P in (
+            ("left", cal.K1, cal.D1, cal.R1, cal.P1),
+            ("right", cal.K2, cal.D2, cal.R2, cal.P2),
+        )
+    }
 
 
 def _header(t_ns: int, frame_id: str) -> Any:
     t_ns = int(t_ns)
-    return msg("std_msgs/msg/Header", frame_id=frame_id, stamp=msg(
-        "builtin_interfaces/msg/Time", sec=t_ns // 10**9, nanosec=t_ns % 10**9))
+    return msg(
+        "std_msgs/msg/Header",
+        frame_id=frame_id,
+        stamp=msg("builtin_interfaces/msg/Time", sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+    )
 
 
 class _Mcap:
@@ -89,22 +111,30 @@ class _Mcap:
         self.first_ns: int | None = None
         self.last_ns = 0
 
-    def write(self, topic: str, msgtype: str, message: Any, t_ns: int,
-              publish_ns: int | None = None) -> None:
+    def write(
+        self, topic: str, msgtype: str, message: Any, t_ns: int, publish_ns: int | None = None
+    ) -> None:
         """Add ``message`` (a :func:`msg` object) on ``topic`` at Unix time ``t_ns``."""
         if topic not in self._channels:
             if msgtype not in self._schemas:
                 self._schemas[msgtype] = self.writer.register_schema(
-                    msgtype, SchemaEncoding.ROS2, schema_text(msgtype).encode())
+                    msgtype, SchemaEncoding.ROS2, schema_text(msgtype).encode()
+                )
             self._channels[topic] = self.writer.register_channel(
-                topic, MessageEncoding.CDR, self._schemas[msgtype])
+                topic, MessageEncoding.CDR, self._schemas[msgtype]
+            )
         if t_ns < MIN_UNIX_NS:
-            raise BagError(f"a {topic} message would be stamped {t_ns} ns, before the year "
-                           "2000: the session's clock pairs do not place it in Unix time")
-        self.writer.add_message(self._channels[topic], log_time=t_ns,
-                                data=typestore().serialize_cdr(message, msgtype),
-                                publish_time=publish_ns if publish_ns is not None else t_ns,
-                                sequence=self.counts.get(topic, 0))
+            raise BagError(
+                f"a {topic} message would be stamped {t_ns} ns, before the year "
+                "2000: the session's clock pairs do not place it in Unix time"
+            )
+        self.writer.add_message(
+            self._channels[topic],
+            log_time=t_ns,
+            data=typestore().serialize_cdr(message, msgtype),
+            publish_time=publish_ns if publish_ns is not None else t_ns,
+            sequence=self.counts.get(topic, 0),
+        )
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self.first_ns = t_ns if self.first_ns is None else min(self.first_ns, t_ns)
         self.last_ns = max(self.last_ns, t_ns)
@@ -158,8 +188,13 @@ class _Prefetch:
         self._pool.shutdown(cancel_futures=True)
 
 
-def _frame_writer(reader: SessionReader, out: _Mcap, infos: dict[str, dict] | None,
-                  to_unix: Callable[[Any], Any], frames: _Prefetch) -> Callable[[int], None]:
+def _frame_writer(
+    reader: SessionReader,
+    out: _Mcap,
+    infos: dict[str, dict] | None,
+    to_unix: Callable[[Any], Any],
+    frames: _Prefetch,
+) -> Callable[[int], None]:
     """Writes frame ``i`` (``frames.get(i)``: JPEG bytes or a decoded frame)."""
     width, height = reader.frame_size
     t_sync = to_unix(reader.frame_times_ns())
@@ -171,24 +206,50 @@ def _frame_writer(reader: SessionReader, out: _Mcap, infos: dict[str, dict] | No
         for k, eye in enumerate(("left", "right")):
             header = _header(t, FRAME_IDS[eye])
             if encoded is not None:
-                out.write(TOPICS[f"{eye}_image"] + "/compressed", "sensor_msgs/msg/CompressedImage",
-                          msg("sensor_msgs/msg/CompressedImage", header=header, format="jpeg",
-                              data=np.frombuffer(encoded[k], np.uint8)), t, arrival)
+                out.write(
+                    TOPICS[f"{eye}_image"] + "/compressed",
+                    "sensor_msgs/msg/CompressedImage",
+                    msg(
+                        "sensor_msgs/msg/CompressedImage",
+                        header=header,
+                        format="jpeg",
+                        data=np.frombuffer(encoded[k], np.uint8),
+                    ),
+                    t,
+                    arrival,
+                )
             else:
-                out.write(TOPICS[f"{eye}_image"], "sensor_msgs/msg/Image",
-                          msg("sensor_msgs/msg/Image", header=header, height=height, width=width,
-                              encoding="bgr8", is_bigendian=0, step=width * 3,
-                              data=np.ascontiguousarray(getattr(frame, eye)).reshape(-1)),
-                          t, arrival)
+                out.write(
+                    TOPICS[f"{eye}_image"],
+                    "sensor_msgs/msg/Image",
+                    msg(
+                        "sensor_msgs/msg/Image",
+                        header=header,
+                        height=height,
+                        width=width,
+                        encoding="bgr8",
+                        is_bigendian=0,
+                        step=width * 3,
+                        data=np.ascontiguousarray(getattr(frame, eye)).reshape(-1),
+                    ),
+                    t,
+                    arrival,
+                )
             if infos is not None:
-                out.write(TOPICS[f"{eye}_info"], "sensor_msgs/msg/CameraInfo",
-                          msg("sensor_msgs/msg/CameraInfo", header=header, **infos[eye]),
-                          t, arrival)
+                out.write(
+                    TOPICS[f"{eye}_info"],
+                    "sensor_msgs/msg/CameraInfo",
+                    msg("sensor_msgs/msg/CameraInfo", header=header, **infos[eye]),
+                    t,
+                    arrival,
+                )
+
     return write
 
 
-def _force_writer(reader: SessionReader, out: _Mcap,
-                  to_unix: Callable[[Any], Any]) -> Callable[[int], None]:
+def _force_writer(
+    reader: SessionReader, out: _Mcap, to_unix: Callable[[Any], Any]
+) -> Callable[[int], None]:
     t_sync = to_unix(reader.force_times_ns())
     t_arrival = to_unix(reader.stream_times("force")[1])
     forces = reader.forces_n()
@@ -198,28 +259,59 @@ def _force_writer(reader: SessionReader, out: _Mcap,
     zero = msg(vector, x=0.0, y=0.0, z=0.0)
 
     def write(i: int) -> None:
-        force = msg(vector, **{axis: float(forces[i, columns[axis]]) if axis in columns
-                               else 0.0 for axis in ("x", "y", "z")})
-        out.write(TOPICS["wrench"], "geometry_msgs/msg/WrenchStamped",
-                  msg("geometry_msgs/msg/WrenchStamped",
-                      header=_header(t_sync[i], FRAME_IDS["trocar"]),
-                      wrench=msg("geometry_msgs/msg/Wrench", force=force, torque=zero)),
-                  int(t_sync[i]), int(t_arrival[i]))
+        force = msg(
+            vector,
+            **{
+                axis: float(forces[i, columns[axis]]) if axis in columns else 0.0
+                for axis in ("x", "y", "z")
+            },
+        )
+        out.write(
+            TOPICS["wrench"],
+            "geometry_msgs/msg/WrenchStamped",
+            msg(
+                "geometry_msgs/msg/WrenchStamped",
+                header=_header(t_sync[i], FRAME_IDS["trocar"]),
+                wrench=msg("geometry_msgs/msg/Wrench", force=force, torque=zero),
+            ),
+            int(t_sync[i]),
+            int(t_arrival[i]),
+        )
+
     return write
 
 
-def _events(reader: SessionReader, to_unix: Callable[[Any], Any]) -> Iterator[tuple[int, str, str, Any]]:
+def _events(
+    reader: SessionReader, to_unix: Callable[[Any], Any]
+) -> Iterator[tuple[int, str, str, Any]]:
     """(Unix time, topic, type, message) of the small streams."""
     for e in reader.projector_events():
         t = int(to_unix(e.t_host_ns))
         kind = "vbfe_msgs/msg/ProjectorEvent"
-        yield t, TOPICS["projector"], kind, msg(kind, header=_header(t, "projector"),
-                                                pattern=e.pattern, frame_id=e.frame_id, seq=e.seq)
+        yield (
+            t,
+            TOPICS["projector"],
+            kind,
+            msg(
+                kind,
+                header=_header(t, "projector"),
+                pattern=e.pattern,
+                frame_id=e.frame_id,
+                seq=e.seq,
+            ),
+        )
     for gap in reader.gaps():
         t = int(to_unix(gap["t_host_ns"]))
-        yield t, TOPICS["gaps"], "vbfe_msgs/msg/Gap", msg(
-            "vbfe_msgs/msg/Gap", header=_header(t, gap["stream"]), **{k: gap[k] for k in (
-                "stream", "reason", "last_seq", "next_seq", "count")})
+        yield (
+            t,
+            TOPICS["gaps"],
+            "vbfe_msgs/msg/Gap",
+            msg(
+                "vbfe_msgs/msg/Gap",
+                header=_header(t, gap["stream"]),
+                **{k: gap[k] for k in ("stream", "reason", "last_seq", "next_seq", "count")},
+            ),
+        )
     estimates = reader.estimates()
     if estimates is not None and len(estimates):
         target = str(estimates.attrs.get("target", ""))
@@ -228,23 +320,38 @@ def _events(reader: SessionReader, to_unix: Callable[[Any], Any]) -> Iterator[tu
             axes = [f"f{k}" for k in range(estimates.force_n.shape[1])]
         for k in range(len(estimates)):
             t = int(to_unix(estimates.t_frame_host_ns[k]))
-            yield t, TOPICS["estimate"], "vbfe_msgs/msg/ForceEstimate", msg(
-                "vbfe_msgs/msg/ForceEstimate", header=_header(t, FRAME_IDS["trocar"]),
-                target=target, axes=axes, force_n=estimates.force_n[k].astype(np.float64),
-                frame_seq=int(estimates.frame_seq[k]), latency_s=float(estimates.latency_s[k]))
+            yield (
+                t,
+                TOPICS["estimate"],
+                "vbfe_msgs/msg/ForceEstimate",
+                msg(
+                    "vbfe_msgs/msg/ForceEstimate",
+                    header=_header(t, FRAME_IDS["trocar"]),
+                    target=target,
+                    axes=axes,
+                    force_n=estimates.force_n[k].astype(np.float64),
+                    frame_seq=int(estimates.frame_seq[k]),
+                    latency_s=float(estimates.latency_s[k]),
+                ),
+            )
 
 
-def _cloud_writer(clouds: Any, t_unix: np.ndarray, reader: SessionReader,
-                  out: _Mcap) -> Callable[[int], None]:
+def _cloud_writer(
+    clouds: Any, t_unix: np.ndarray, reader: SessionReader, out: _Mcap
+) -> Callable[[int], None]:
     """Writes frame ``i`` of an open :class:`~vbfe.recon.clouds.CloudReader` as PointCloud2
     (x, y, z float32 in metres and PCL's packed ``rgb``)."""
     if clouds.n_frames != reader.n_frames:
-        raise BagError(f"{clouds.path} has {clouds.n_frames} frames, the session "
-                       f"{reader.n_frames}: it belongs to another session (or an older one); "
-                       "run `vbfe reconstruct` again")
+        raise BagError(
+            f"{clouds.path} has {clouds.n_frames} frames, the session "
+            f"{reader.n_frames}: it belongs to another session (or an older one); "
+            "run `vbfe reconstruct` again"
+        )
 
-    fields = [msg("sensor_msgs/msg/PointField", name=name, offset=4 * k, datatype=_FLOAT32,
-                  count=1) for k, name in enumerate(("x", "y", "z", "rgb"))]
+    fields = [
+        msg("sensor_msgs/msg/PointField", name=name, offset=4 * k, datatype=_FLOAT32, count=1)
+        for k, name in enumerate(("x", "y", "z", "rgb"))
+    ]
 
     def write(i: int) -> None:
         points, colors = clouds.cloud(i)
@@ -252,17 +359,34 @@ def _cloud_writer(clouds: Any, t_unix: np.ndarray, reader: SessionReader,
         packed = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).view(np.float32)
         data = np.column_stack([points.astype(np.float32), packed])
         t = int(t_unix[i])
-        out.write(TOPICS["points"], "sensor_msgs/msg/PointCloud2", msg(
-            "sensor_msgs/msg/PointCloud2", header=_header(t, FRAME_IDS["points"]), height=1,
-            width=len(points), fields=fields, is_bigendian=False, point_step=16,
-            row_step=16 * len(points), data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),
-            is_dense=True), t)
+        out.write(
+            TOPICS["points"],
+            "sensor_msgs/msg/PointCloud2",
+            msg(
+                "sensor_msgs/msg/PointCloud2",
+                header=_header(t, FRAME_IDS["points"]),
+                height=1,
+                width=len(points),
+                fields=fields,
+                is_bigendian=False,
+                point_step=16,
+                row_step=16 * len(points),
+                data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),
+                is_dense=True,
+            ),
+            t,
+        )
+
     return write
 
 
-def export_mcap(session_path: str | Path, out_path: str | Path,
-                clouds_path: str | Path | None = None, compression: str = "lz4",
-                on_progress: Callable[[int, int], None] | None = None) -> ExportSummary:
+def export_mcap(
+    session_path: str | Path,
+    out_path: str | Path,
+    clouds_path: str | Path | None = None,
+    compression: str = "lz4",
+    on_progress: Callable[[int, int], None] | None = None,
+) -> ExportSummary:
     """Write the session (and optionally its clouds) to ``out_path`` as MCAP, in time order,
     under a temporary name renamed when complete. ``on_progress(done, total)`` per frame."""
     if compression not in COMPRESSIONS:
@@ -271,11 +395,14 @@ def export_mcap(session_path: str | Path, out_path: str | Path,
     tmp = out_path.with_name(f".{out_path.name}.partial")
     with SessionReader(session_path) as reader:
         attrs = reader.attrs
-        ref = host_to_unix(reader.clock_pairs(), attrs.get("start_utc_ns"),
-                           attrs.get("start_host_ns"))
+        ref = host_to_unix(
+            reader.clock_pairs(), attrs.get("start_utc_ns"), attrs.get("start_host_ns")
+        )
         if ref is None:
-            raise BagError(f"{session_path} has no clock pairs and no start time: its host "
-                           "times cannot be placed in Unix time")
+            raise BagError(
+                f"{session_path} has no clock pairs and no start time: its host "
+                "times cannot be placed in Unix time"
+            )
         host_ref, utc_ref = ref
 
         def to_unix(t_host: Any) -> Any:
@@ -298,28 +425,44 @@ def export_mcap(session_path: str | Path, out_path: str | Path,
     return ExportSummary(out_path, summary.counts, summary.first_ns or 0, summary.last_ns)
 
 
-def _write_all(reader: SessionReader, out: _Mcap, infos: dict[str, dict] | None,
-               to_unix: Callable[[Any], Any], clouds_path: str | Path | None,
-               on_progress: Callable[[int, int], None] | None) -> _Mcap:
+def _write_all(
+    reader: SessionReader,
+    out: _Mcap,
+    infos: dict[str, dict] | None,
+    to_unix: Callable[[Any], Any],
+    clouds_path: str | Path | None,
+    on_progress: Callable[[int, int], None] | None,
+) -> _Mcap:
     n = reader.n_frames
     frame_t = to_unix(reader.frame_times_ns())
     force_t = to_unix(reader.force_times_ns())
-    first = min([int(t[0]) for t in (frame_t, force_t) if len(t)]
-                or [int(to_unix(reader.attrs.get("start_host_ns", 0)))])
-    session = {"attrs": {k: v for k, v in reader.attrs.items() if k != "metadata_json"},
-               "metadata": reader.metadata, "force_axes": reader.force_axes,
-               "analysis": reader.analysis(), "frame_size": list(reader.frame_size),
-               "encoding": reader.encoding}
+    first = min(
+        [int(t[0]) for t in (frame_t, force_t) if len(t)]
+        or [int(to_unix(reader.attrs.get("start_host_ns", 0)))]
+    )
+    session = {
+        "attrs": {k: v for k, v in reader.attrs.items() if k != "metadata_json"},
+        "metadata": reader.metadata,
+        "force_axes": reader.force_axes,
+        "analysis": reader.analysis(),
+        "frame_size": list(reader.frame_size),
+        "encoding": reader.encoding,
+    }
     string = "std_msgs/msg/String"
-    out.write(TOPICS["session"], string, msg(string, data=json.dumps(session, default=str)),
-              first)
+    out.write(TOPICS["session"], string, msg(string, data=json.dumps(session, default=str)), first)
     yaml_text = reader.calibration_yaml()
     if yaml_text is not None:
         out.write(TOPICS["calibration"], string, msg(string, data=yaml_text), first)
     write_force = _force_writer(reader, out, to_unix)
     with contextlib.ExitStack() as stack:
-        prefetch = _Prefetch(lambda i: (reader.encoded_frame(i), None)
-                             if reader.encoding == "jpeg" else (None, reader.frame(i)), n)
+        prefetch = _Prefetch(
+            lambda i: (
+                (reader.encoded_frame(i), None)
+                if reader.encoding == "jpeg"
+                else (None, reader.frame(i))
+            ),
+            n,
+        )
         stack.callback(prefetch.close)
         write_frame = _frame_writer(reader, out, infos, to_unix, prefetch)
 
@@ -332,16 +475,20 @@ def _write_all(reader: SessionReader, out: _Mcap, infos: dict[str, dict] | None,
         streams: list[Iterator[tuple[int, int, Callable[[], None]]]] = [
             ((int(frame_t[i]), 0, partial(frame, i)) for i in range(n)),
             ((int(force_t[i]), 1, partial(write_force, i)) for i in range(len(force_t))),
-            ((t, 2, partial(out.write, topic, typ, msg, t))
-             for t, topic, typ, msg in sorted(_events(reader, to_unix), key=lambda e: e[0]))]
+            (
+                (t, 2, partial(out.write, topic, typ, msg, t))
+                for t, topic, typ, msg in sorted(_events(reader, to_unix), key=lambda e: e[0])
+            ),
+        ]
         if clouds_path is not None:
             from vbfe.recon.clouds import CloudReader
 
             clouds = stack.enter_context(CloudReader(clouds_path))
             cloud_t = to_unix(clouds.frame_table("t_host_ns"))
             write_cloud = _cloud_writer(clouds, cloud_t, reader, out)
-            streams.append((int(cloud_t[i]), 3, partial(write_cloud, i))
-                           for i in range(len(cloud_t)))
+            streams.append(
+                (int(cloud_t[i]), 3, partial(write_cloud, i)) for i in range(len(cloud_t))
+            )
         for _, _, write in heapq.merge(*streams, key=lambda item: item[:2]):
             write()
     return out

@@ -35,17 +35,26 @@ from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, ProjectorEvent, StereoFrame
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-FORCE_TYPES = ("geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/Wrench",
-               "geometry_msgs/msg/Vector3Stamped")
+FORCE_TYPES = (
+    "geometry_msgs/msg/WrenchStamped",
+    "geometry_msgs/msg/Wrench",
+    "geometry_msgs/msg/Vector3Stamped",
+)
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 _READ_ERRORS = (AnyReaderError, Rosbag1ReaderError, Rosbag2ReaderError, SerdeError)
 # what rosbags and its decompressors raise on damaged data met while reading messages
 _DAMAGED = (*_READ_ERRORS, RuntimeError, OSError, EOFError, struct.error, ValueError)
 _HOST_START_NS = 10**12  # the bag's first message sits at this host time (1000 s)
 _FLUSH_FRAMES = 64
-_CHANNELS = {"bgr8": (3, None), "rgb8": (3, cv2.COLOR_RGB2BGR), "mono8": (1, cv2.COLOR_GRAY2BGR),
-             "8UC1": (1, cv2.COLOR_GRAY2BGR), "8UC3": (3, None),
-             "bgra8": (4, cv2.COLOR_BGRA2BGR), "rgba8": (4, cv2.COLOR_RGBA2BGR)}
+_CHANNELS = {
+    "bgr8": (3, None),
+    "rgb8": (3, cv2.COLOR_RGB2BGR),
+    "mono8": (1, cv2.COLOR_GRAY2BGR),
+    "8UC1": (1, cv2.COLOR_GRAY2BGR),
+    "8UC3": (3, None),
+    "bgra8": (4, cv2.COLOR_BGRA2BGR),
+    "rgba8": (4, cv2.COLOR_RGBA2BGR),
+}
 
 
 @dataclass
@@ -84,8 +93,10 @@ def open_bag(path: str | Path) -> Iterator[AnyReader]:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except (*_READ_ERRORS, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"{path} cannot be read as an MCAP file, rosbag2 folder or ROS 1 bag: "
-                       f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        raise BagError(
+            f"{path} cannot be read as an MCAP file, rosbag2 folder or ROS 1 bag: "
+            f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        ) from None
     try:
         yield reader
     finally:
@@ -113,34 +124,48 @@ def choose_topics(topics: dict[str, str], given: TopicChoice) -> TopicChoice:
     """Fill in what was not given from the bag's topics; an ambiguous or missing choice is a
     :class:`BagError` listing the candidates and the flag to pass."""
     choice = TopicChoice(**vars(given))
-    for flag, topic in (("--left", choice.left), ("--right", choice.right),
-                        ("--image", choice.image), ("--force", choice.force),
-                        ("--left-info", choice.left_info), ("--right-info", choice.right_info)):
+    for flag, topic in (
+        ("--left", choice.left),
+        ("--right", choice.right),
+        ("--image", choice.image),
+        ("--force", choice.force),
+        ("--left-info", choice.left_info),
+        ("--right-info", choice.right_info),
+    ):
         if topic is not None and topic not in topics:
-            raise BagError(f"{flag} {topic}: no such topic; the bag has "
-                           f"{', '.join(sorted(topics)) or 'no topics'}")
+            raise BagError(
+                f"{flag} {topic}: no such topic; the bag has "
+                f"{', '.join(sorted(topics)) or 'no topics'}"
+            )
     images = sorted(t for t, m in topics.items() if m in IMAGE_TYPES)
     if not images:
-        raise BagError("the bag has no image topics (sensor_msgs/Image or CompressedImage); "
-                       f"its topics: {_listing(topics, tuple(topics.values()))}")
+        raise BagError(
+            "the bag has no image topics (sensor_msgs/Image or CompressedImage); "
+            f"its topics: {_listing(topics, tuple(topics.values()))}"
+        )
     if choice.image is None and (choice.left is None or choice.right is None):
         lefts = [t for t in images if "left" in t.lower() and t != choice.right]
         rights = [t for t in images if "right" in t.lower() and t != choice.left]
         choice.left = choice.left or (lefts[0] if len(lefts) == 1 else None)
         choice.right = choice.right or (rights[0] if len(rights) == 1 else None)
         if choice.left is None or choice.right is None:
-            raise BagError(f"cannot tell the stereo image topics apart; image topics: "
-                           f"{_listing(topics, IMAGE_TYPES)}; pass --left and --right, or "
-                           "--image for one side-by-side topic")
+            raise BagError(
+                f"cannot tell the stereo image topics apart; image topics: "
+                f"{_listing(topics, IMAGE_TYPES)}; pass --left and --right, or "
+                "--image for one side-by-side topic"
+            )
     forces = sorted(t for t, m in topics.items() if m in FORCE_TYPES)
     if choice.force is None:
         if len(forces) != 1:
-            raise BagError(f"{'several' if forces else 'no'} force topics; candidates: "
-                           f"{_listing(topics, FORCE_TYPES)}; pass --force TOPIC")
+            raise BagError(
+                f"{'several' if forces else 'no'} force topics; candidates: "
+                f"{_listing(topics, FORCE_TYPES)}; pass --force TOPIC"
+            )
         choice.force = forces[0]
     if topics[choice.force] not in FORCE_TYPES:
-        raise BagError(f"--force {choice.force} is {topics[choice.force]}, not one of "
-                       f"{', '.join(FORCE_TYPES)}")
+        raise BagError(
+            f"--force {choice.force} is {topics[choice.force]}, not one of {', '.join(FORCE_TYPES)}"
+        )
     for topic in (choice.left, choice.right, choice.image):
         if topic is not None and topics[topic] not in IMAGE_TYPES:
             raise BagError(f"{topic} is {topics[topic]}, not an image topic")
@@ -158,11 +183,13 @@ def _decode(msg: Any, topic: str) -> np.ndarray:
             raise BagError(f"{topic}: a {msg.format!r} CompressedImage does not decode")
         return image
     if msg.encoding not in _CHANNELS:
-        raise BagError(f"{topic}: image encoding {msg.encoding!r} is not supported (use "
-                       f"{', '.join(_CHANNELS)})")
+        raise BagError(
+            f"{topic}: image encoding {msg.encoding!r} is not supported (use "
+            f"{', '.join(_CHANNELS)})"
+        )
     channels, conversion = _CHANNELS[msg.encoding]
     rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
-    image = rows[:, :msg.width * channels].reshape(msg.height, msg.width, channels)
+    image = rows[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
     return cv2.cvtColor(image, conversion) if conversion is not None else image.copy()
 
 
@@ -185,16 +212,28 @@ def calibration_from_camera_info(left: Any, right: Any) -> str:
     P1, P2 = (np.asarray(_field(m, "p"), float).reshape(3, 4) for m in (left, right))
     D1, D2 = (np.asarray(_field(m, "d"), float) for m in (left, right))
     if P2[0, 3] == 0 or P2[0, 0] <= 0:
-        raise BagError("the right camera_info has no stereo baseline (P[0,3] = 0): it is not "
-                       "a rectified stereo calibration")
+        raise BagError(
+            "the right camera_info has no stereo baseline (P[0,3] = 0): it is not "
+            "a rectified stereo calibration"
+        )
     tx = P2[0, 3] / P2[0, 0]
     f, cx1, cy, cx2 = P1[0, 0], P1[0, 2], P1[1, 2], P2[0, 2]
-    Q = np.array([[1, 0, 0, -cx1], [0, 1, 0, -cy], [0, 0, 0, f],
-                  [0, 0, -1 / tx, (cx1 - cx2) / tx]])
-    calibration = Calibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R2.T @ R1,
-                              T=R2.T @ np.array([tx, 0.0, 0.0]), R1=R1, R2=R2, P1=P1, P2=P2, Q=Q,
-                              image_size=(int(left.width), int(left.height)),
-                              info={"source": "ROS camera_info"})
+    Q = np.array([[1, 0, 0, -cx1], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, -1 / tx, (cx1 - cx2) / tx]])
+    calibration = Calibration(
+        K1=K1,
+        D1=D1,
+        K2=K2,
+        D2=D2,
+        R=R2.T @ R1,
+        T=R2.T @ np.array([tx, 0.0, 0.0]),
+        R1=R1,
+        R2=R2,
+        P1=P1,
+        P2=P2,
+        Q=Q,
+        image_size=(int(left.width), int(left.height)),
+        info={"source": "ROS camera_info"},
+    )
     return calibration.to_yaml_text()
 
 
@@ -250,33 +289,41 @@ class _SessionSink:
     def frame(self, t_ns: int, left: Any, right: Any, topics: tuple[str, str]) -> None:
         host = self.host(t_ns)
         if _is_jpeg(left) and _is_jpeg(right):
-            frame: StereoFrame = JpegStereoFrame((bytes(left.data), bytes(right.data)),
-                                                 self.frames, host, host)
+            frame: StereoFrame = JpegStereoFrame(
+                (bytes(left.data), bytes(right.data)), self.frames, host, host
+            )
             compression = "mjpeg"
         else:
-            frame = StereoFrame(_decode(left, topics[0]), _decode(right, topics[1]),
-                                self.frames, host, host)
+            frame = StereoFrame(
+                _decode(left, topics[0]), _decode(right, topics[1]), self.frames, host, host
+            )
             compression = "lzf"
         self._append(frame, compression)
 
     def side_by_side(self, t_ns: int, msg: Any, topic: str) -> None:
         image = _decode(msg, topic)
         if image.shape[1] % 2:
-            raise BagError(f"{topic} is {image.shape[1]} pixels wide, not two equal eyes side "
-                           "by side")
+            raise BagError(
+                f"{topic} is {image.shape[1]} pixels wide, not two equal eyes side by side"
+            )
         half = image.shape[1] // 2
         host = self.host(t_ns)
-        self._append(StereoFrame(image[:, :half].copy(), image[:, half:].copy(), self.frames,
-                                 host, host), "lzf")
+        self._append(
+            StereoFrame(image[:, :half].copy(), image[:, half:].copy(), self.frames, host, host),
+            "lzf",
+        )
 
     def _append(self, frame: StereoFrame, compression: str) -> None:
         if self.writer is None:
             height, width = frame.left.shape[:2]
-            self.writer = SessionWriter(self.out, (width, height), compression, self.metadata,
-                                        self.calibration_yaml)  # force axes x, y, z
+            self.writer = SessionWriter(
+                self.out, (width, height), compression, self.metadata, self.calibration_yaml
+            )  # force axes x, y, z
         if frame.left.shape != frame.right.shape:
-            raise BagError(f"frame {self.frames}: the left image is {frame.left.shape[:2]}, the "
-                           f"right {frame.right.shape[:2]}; vbfe needs equal eyes")
+            raise BagError(
+                f"frame {self.frames}: the left image is {frame.left.shape[:2]}, the "
+                f"right {frame.right.shape[:2]}; vbfe needs equal eyes"
+            )
         self.writer.append_frames([frame])
         self.frames += 1
         if self.frames % _FLUSH_FRAMES == 0:
@@ -288,9 +335,15 @@ class _SessionSink:
         self.forces += 1
 
     def event(self, t_ns: int, msg: Any) -> None:
-        self.pending_events.append(ProjectorEvent(pattern=msg.pattern, frame_id=msg.frame_id,
-                                                  seq=msg.seq, t_host_ns=self.host(t_ns),
-                                                  t_device_ns=-1))
+        self.pending_events.append(
+            ProjectorEvent(
+                pattern=msg.pattern,
+                frame_id=msg.frame_id,
+                seq=msg.seq,
+                t_host_ns=self.host(t_ns),
+                t_device_ns=-1,
+            )
+        )
 
     def flush(self) -> None:
         if self.writer is not None:
@@ -301,13 +354,20 @@ class _SessionSink:
 
 
 def _force_vector(msg: Any) -> np.ndarray:
-    vector = msg.wrench.force if hasattr(msg, "wrench") else (
-        msg.force if hasattr(msg, "force") else msg.vector)
+    vector = (
+        msg.wrench.force
+        if hasattr(msg, "wrench")
+        else (msg.force if hasattr(msg, "force") else msg.vector)
+    )
     return np.array([vector.x, vector.y, vector.z], np.float64)
 
 
-def import_bag(bag_path: str | Path, out_path: str | Path, given: TopicChoice,
-               on_progress: Callable[[int], None] | None = None) -> ImportSummary:
+def import_bag(
+    bag_path: str | Path,
+    out_path: str | Path,
+    given: TopicChoice,
+    on_progress: Callable[[int], None] | None = None,
+) -> ImportSummary:
     """Write the chosen topics of a bag as a session ``out_path`` (under a temporary name
     renamed when complete); ``on_progress(frames)`` as frames are written."""
     out_path = Path(out_path)
@@ -316,48 +376,71 @@ def import_bag(bag_path: str | Path, out_path: str | Path, given: TopicChoice,
         return _import(bag_path, out_path, tmp, given, on_progress)
     except _DAMAGED as exc:
         tmp.unlink(missing_ok=True)
-        raise BagError(f"{bag_path} is damaged and cannot be read to the end "
-                       f"({type(exc).__name__}: {exc})") from None
+        raise BagError(
+            f"{bag_path} is damaged and cannot be read to the end ({type(exc).__name__}: {exc})"
+        ) from None
 
 
-def _import(bag_path: str | Path, out_path: Path, tmp: Path, given: TopicChoice,
-            on_progress: Callable[[int], None] | None) -> ImportSummary:
+def _import(
+    bag_path: str | Path,
+    out_path: Path,
+    tmp: Path,
+    given: TopicChoice,
+    on_progress: Callable[[int], None] | None,
+) -> ImportSummary:
     with open_bag(bag_path) as reader:
         topics = topic_types(reader)
         choice = choose_topics(topics, given)
         vbfe_session = _first_string(reader, TOPICS["session"])
         session = json.loads(vbfe_session) if vbfe_session else {}
-        metadata = {**session.get("metadata", {}), "imported_from": str(Path(bag_path).absolute()),
-                    "imported_topics": {k: v for k, v in vars(choice).items()
-                                        if isinstance(v, str)}}
+        metadata = {
+            **session.get("metadata", {}),
+            "imported_from": str(Path(bag_path).absolute()),
+            "imported_topics": {k: v for k, v in vars(choice).items() if isinstance(v, str)},
+        }
         metadata.setdefault("protocol", {"kind": "traction"})
         calibration, how = _calibration(reader, topics, choice)
         sink = _SessionSink(tmp, metadata, calibration)
         try:
             _copy_messages(reader, topics, choice, sink, on_progress)
             if sink.writer is None:
-                raise BagError(f"{bag_path} has no complete stereo frame on the chosen topics "
-                               f"({choice.image or f'{choice.left}, {choice.right}'})")
+                raise BagError(
+                    f"{bag_path} has no complete stereo frame on the chosen topics "
+                    f"({choice.image or f'{choice.left}, {choice.right}'})"
+                )
             sink.flush()
             sink.writer.close(sink.clock_pair())
             first_ns = sink.base_ns or 0
-            finalize_session(tmp, {
-                "start_utc_ns": first_ns, "start_host_ns": _HOST_START_NS,
-                "end_utc_ns": sink.last_ns, "end_host_ns": sink.host(sink.last_ns),
-                "end_reason": f"imported from {Path(bag_path).name}"})
+            finalize_session(
+                tmp,
+                {
+                    "start_utc_ns": first_ns,
+                    "start_host_ns": _HOST_START_NS,
+                    "end_utc_ns": sink.last_ns,
+                    "end_host_ns": sink.host(sink.last_ns),
+                    "end_reason": f"imported from {Path(bag_path).name}",
+                },
+            )
         except BaseException:
             if sink.writer is not None:
                 sink.writer.abort()
             tmp.unlink(missing_ok=True)
             raise
     tmp.replace(out_path)
-    return ImportSummary(out_path, sink.frames, sink.forces, sink.unpaired, how,
-                         {k: v for k, v in vars(choice).items() if isinstance(v, str)})
+    return ImportSummary(
+        out_path,
+        sink.frames,
+        sink.forces,
+        sink.unpaired,
+        how,
+        {k: v for k, v in vars(choice).items() if isinstance(v, str)},
+    )
 
 
 def _first_string(reader: AnyReader, topic: str) -> str | None:
-    connections = [c for c in reader.connections if c.topic == topic
-                   and c.msgtype == "std_msgs/msg/String"]
+    connections = [
+        c for c in reader.connections if c.topic == topic and c.msgtype == "std_msgs/msg/String"
+    ]
     if not connections:  # rosbags reads every topic when given none
         return None
     for connection, _, raw in reader.messages(connections=connections):
@@ -365,8 +448,9 @@ def _first_string(reader: AnyReader, topic: str) -> str | None:
     return None
 
 
-def _calibration(reader: AnyReader, topics: dict[str, str],
-                 choice: TopicChoice) -> tuple[str | None, str]:
+def _calibration(
+    reader: AnyReader, topics: dict[str, str], choice: TopicChoice
+) -> tuple[str | None, str]:
     """The calibration YAML and where it came from."""
     yaml_text = _first_string(reader, TOPICS["calibration"])
     if yaml_text is not None:
@@ -387,8 +471,13 @@ def _calibration(reader: AnyReader, topics: dict[str, str],
         return None, f"none: {exc}"
 
 
-def _copy_messages(reader: AnyReader, topics: dict[str, str], choice: TopicChoice,
-                   sink: _SessionSink, on_progress: Callable[[int], None] | None) -> None:
+def _copy_messages(
+    reader: AnyReader,
+    topics: dict[str, str],
+    choice: TopicChoice,
+    sink: _SessionSink,
+    on_progress: Callable[[int], None] | None,
+) -> None:
     eyes = {choice.left: "left", choice.right: "right"} if choice.image is None else {}
     wanted = {*eyes, choice.image, choice.force}
     if topics.get(TOPICS["projector"]) == "vbfe_msgs/msg/ProjectorEvent":

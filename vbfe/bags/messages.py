@@ -13,22 +13,32 @@ from rosbags.typesys.store import Typestore
 # vbfe's own messages (ROS 2 .msg syntax); header.stamp is the synchronized Unix time.
 CUSTOM_MSGS = {
     "vbfe_msgs/msg/ProjectorEvent": "std_msgs/Header header\nstring pattern\nint64 frame_id\n"
-                                    "int64 seq\n",
+    "int64 seq\n",
     "vbfe_msgs/msg/Gap": "std_msgs/Header header\nstring stream\nstring reason\nint64 last_seq\n"
-                         "int64 next_seq\nint64 count\n",
+    "int64 next_seq\nint64 count\n",
     "vbfe_msgs/msg/ForceEstimate": "std_msgs/Header header\nstring target\nstring[] axes\n"
-                                   "float64[] force_n\nint64 frame_seq\nfloat64 latency_s\n",
+    "float64[] force_n\nint64 frame_seq\nfloat64 latency_s\n",
 }
 
 TOPICS = {
-    "left_image": "/stereo/left/image_raw", "right_image": "/stereo/right/image_raw",
-    "left_info": "/stereo/left/camera_info", "right_info": "/stereo/right/camera_info",
-    "wrench": "/trocar/wrench", "points": "/stereo/points", "projector": "/projector/events",
-    "gaps": "/vbfe/gaps", "estimate": "/vbfe/estimate", "session": "/vbfe/session",
+    "left_image": "/stereo/left/image_raw",
+    "right_image": "/stereo/right/image_raw",
+    "left_info": "/stereo/left/camera_info",
+    "right_info": "/stereo/right/camera_info",
+    "wrench": "/trocar/wrench",
+    "points": "/stereo/points",
+    "projector": "/projector/events",
+    "gaps": "/vbfe/gaps",
+    "estimate": "/vbfe/estimate",
+    "session": "/vbfe/session",
     "calibration": "/vbfe/calibration",
 }
-FRAME_IDS = {"left": "stereo_left_optical", "right": "stereo_right_optical", "trocar": "trocar",
-             "points": "stereo_left_rectified"}
+FRAME_IDS = {
+    "left": "stereo_left_optical",
+    "right": "stereo_right_optical",
+    "trocar": "trocar",
+    "points": "stereo_left_rectified",
+}
 MIN_UNIX_NS = 946_684_800 * 10**9  # 2000-01-01: anything earlier is not a wall-clock time
 
 
@@ -51,8 +61,9 @@ def stamp_ns(value: object) -> int:
     return int(value.sec) * 10**9 + int(getattr(value, "nanosec", getattr(value, "nsec", 0)))
 
 
-def host_to_unix(clock_pairs: np.ndarray, start_utc_ns: int | None,
-                 start_host_ns: int | None) -> tuple[int, int] | None:
+def host_to_unix(
+    clock_pairs: np.ndarray, start_utc_ns: int | None, start_host_ns: int | None
+) -> tuple[int, int] | None:
     """``(host_ref, utc_ref)`` so ``utc = host - host_ref + utc_ref``: the median offset of the
     session's (UTC, host) clock pairs, else its start attributes; None without either."""
     pairs = np.asarray(clock_pairs, np.int64).reshape(-1, 2)

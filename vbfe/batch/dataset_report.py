@@ -11,10 +11,19 @@ from vbfe.acquire.errors import SessionError
 from vbfe.batch.manifest import SessionEntry
 from vbfe.common.report import HtmlReport, Link
 
-COLUMNS = (("status", "status"), ("condition", "condition"), ("operator", "operator"),
-           ("date_utc", "date (UTC)"), ("duration_s", "duration (s)"), ("frames", "frames"),
-           ("frame_drops", "frame drops"), ("force_drops", "force drops"),
-           ("sync_verdict", "sync"), ("calibration_hash", "calibration"), ("clouds", "clouds"))
+COLUMNS = (
+    ("status", "status"),
+    ("condition", "condition"),
+    ("operator", "operator"),
+    ("date_utc", "date (UTC)"),
+    ("duration_s", "duration (s)"),
+    ("frames", "frames"),
+    ("frame_drops", "frame drops"),
+    ("force_drops", "force drops"),
+    ("sync_verdict", "sync"),
+    ("calibration_hash", "calibration"),
+    ("clouds", "clouds"),
+)
 
 
 def page_name(shown_path: str) -> str:
@@ -22,9 +31,13 @@ def page_name(shown_path: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", shown_path.removesuffix(".h5")) + ".html"
 
 
-def write_dataset_report(folder: str | Path, entries: Sequence[SessionEntry], out_dir: str | Path,
-                         relative_to: str | Path | None = None,
-                         on_session: Callable[[int, int], None] | None = None) -> Path:
+def write_dataset_report(
+    folder: str | Path,
+    entries: Sequence[SessionEntry],
+    out_dir: str | Path,
+    relative_to: str | Path | None = None,
+    on_session: Callable[[int, int], None] | None = None,
+) -> Path:
     """Write ``out_dir/index.html`` and one page per readable session into ``out_dir``
     (created); ``entries`` as :func:`~vbfe.batch.manifest.scan_dataset` gave them for
     ``folder``, paths relative to ``relative_to`` (default ``folder``). Returns the index."""
@@ -48,8 +61,10 @@ def write_dataset_report(folder: str | Path, entries: Sequence[SessionEntry], ou
             on_session(k + 1, len(entries))
     page = HtmlReport(f"Dataset {Path(folder).resolve().name}")
     unreadable = sum(e.status.startswith("unreadable") for e in entries)
-    page.paragraph(f"{len(entries)} sessions under {Path(folder).resolve()}, {unreadable} "
-                   "unreadable; each name links to the session's page.")
+    page.paragraph(
+        f"{len(entries)} sessions under {Path(folder).resolve()}, {unreadable} "
+        "unreadable; each name links to the session's page."
+    )
     page.table(["session"] + [label for _, label in COLUMNS], rows)
     return page.write(out_dir / "index.html")
 
@@ -58,4 +73,4 @@ def _shown(value: object, width: int = 60) -> object:
     text = str(value)
     if not text:
         return "-"
-    return value if len(text) <= width else text[:width - 1] + "…"
+    return value if len(text) <= width else text[: width - 1] + "…"

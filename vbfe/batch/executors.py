@@ -43,8 +43,9 @@ def _call(fn: Callable[[str], Any], item: str) -> tuple[bool, Any]:
         return False, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
 
 
-def _child(fn: Callable[[str], Any], item: str,
-           conn: multiprocessing.connection.Connection) -> None:
+def _child(
+    fn: Callable[[str], Any], item: str, conn: multiprocessing.connection.Connection
+) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     signal.signal(signal.SIGTERM, lambda signum, frame: raise_for(signum))  # cleanups run
     die_with_parent()
@@ -61,8 +62,9 @@ def _died(exitcode: int | None) -> str:
     return f"worker exited with status {exitcode} before reporting"
 
 
-def run_local(fn: Callable[[str], Any], items: Sequence[str],
-              workers: int | None = None) -> Iterator[TaskOutcome]:
+def run_local(
+    fn: Callable[[str], Any], items: Sequence[str], workers: int | None = None
+) -> Iterator[TaskOutcome]:
     """Tasks in at most ``workers`` spawned processes (default: one per CPU core)."""
     ctx = multiprocessing.get_context("spawn")
     pending = list(items)
@@ -103,28 +105,41 @@ def _check_reachable(address: str | None, timeout_s: float = 3.0) -> None:
     try:
         socket.create_connection((match[1], int(match[2])), timeout=timeout_s).close()
     except OSError as exc:
-        raise BatchError(f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); "
-                         "start it with 'ray start --head' or check --ray-address") from None
+        raise BatchError(
+            f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); "
+            "start it with 'ray start --head' or check --ray-address"
+        ) from None
 
 
-def run_ray(fn: Callable[[str], Any], items: Sequence[str], address: str | None = None,
-            num_cpus: int | None = None) -> Iterator[TaskOutcome]:
+def run_ray(
+    fn: Callable[[str], Any],
+    items: Sequence[str],
+    address: str | None = None,
+    num_cpus: int | None = None,
+) -> Iterator[TaskOutcome]:
     """Tasks on a Ray cluster at ``address`` (``None``: a local Ray with ``num_cpus``)."""
     _check_reachable(address)
     try:
         import ray
     except ImportError:
-        raise BatchError("--executor ray needs Ray: pip install -e '.[cluster]' "
-                         "(or use --executor local)") from None
+        raise BatchError(
+            "--executor ray needs Ray: pip install -e '.[cluster]' (or use --executor local)"
+        ) from None
     started_here = not ray.is_initialized()
     try:
         if started_here:
-            ray.init(address=address, num_cpus=None if address else num_cpus,
-                     include_dashboard=False, log_to_driver=False,
-                     configure_logging=False)
+            ray.init(
+                address=address,
+                num_cpus=None if address else num_cpus,
+                include_dashboard=False,
+                log_to_driver=False,
+                configure_logging=False,
+            )
     except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise BatchError(f"cannot reach the Ray cluster at {address or 'local'}: {exc}; "
-                         f"start it with 'ray start --head' or check --ray-address") from None
+        raise BatchError(
+            f"cannot reach the Ray cluster at {address or 'local'}: {exc}; "
+            f"start it with 'ray start --head' or check --ray-address"
+        ) from None
     remote = ray.remote(num_cpus=1, max_retries=0)(_call)
     refs = {remote.remote(fn, item): item for item in items}
     try:
@@ -144,9 +159,13 @@ def run_ray(fn: Callable[[str], Any], items: Sequence[str], address: str | None 
             ray.shutdown()
 
 
-def run_tasks(fn: Callable[[str], Any], items: Sequence[str], executor: str = "local",
-              workers: int | None = None, ray_address: str | None = None
-              ) -> Iterator[TaskOutcome]:
+def run_tasks(
+    fn: Callable[[str], Any],
+    items: Sequence[str],
+    executor: str = "local",
+    workers: int | None = None,
+    ray_address: str | None = None,
+) -> Iterator[TaskOutcome]:
     """One task ``fn(item)`` per item on the chosen executor; outcomes as they finish.
     ``fn`` must be picklable (a module-level function or a dataclass instance with __call__)."""
     if executor == "local":

@@ -55,8 +55,9 @@ def find_sessions(folder: str | Path) -> list[Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise BatchError(f"dataset folder {folder} does not exist or is not a folder")
-    return sorted(p for p in folder.rglob("*.h5")
-                  if p.is_file() and not p.name.endswith(SIDECAR_SUFFIXES))
+    return sorted(
+        p for p in folder.rglob("*.h5") if p.is_file() and not p.name.endswith(SIDECAR_SUFFIXES)
+    )
 
 
 def _condition_text(conditions: dict) -> str:
@@ -72,17 +73,25 @@ def describe_session(path: Path, shown_as: str, sgbm_params: SgbmParams) -> Sess
         clouds = str(clouds_status(path, sgbm_params))
     except SessionError as exc:
         return SessionEntry(path=shown_as, status=f"unreadable: {exc}")
-    start = datetime.datetime.fromtimestamp(int(summary.attrs.get("start_utc_ns") or 0) / 1e9,
-                                            datetime.timezone.utc)
+    start = datetime.datetime.fromtimestamp(
+        int(summary.attrs.get("start_utc_ns") or 0) / 1e9, datetime.timezone.utc
+    )
     camera, force = summary.audits["camera"], summary.audits["force"]
     return SessionEntry(
-        path=shown_as, status="not closed" if summary.truncated else "complete",
+        path=shown_as,
+        status="not closed" if summary.truncated else "complete",
         condition=_condition_text(summary.metadata.get("conditions") or {}),
         operator=str(summary.metadata.get("operator") or ""),
-        date_utc=f"{start:%Y-%m-%d %H:%M:%S}", duration_s=round(summary.duration_s, 3),
-        frames=camera.stored, frame_drops=camera.dropped, force_samples=force.stored,
-        force_drops=force.dropped, sync_verdict=str(summary.analysis.get("sync_verdict", "")),
-        calibration_hash=text_hash(calibration), clouds=clouds)
+        date_utc=f"{start:%Y-%m-%d %H:%M:%S}",
+        duration_s=round(summary.duration_s, 3),
+        frames=camera.stored,
+        frame_drops=camera.dropped,
+        force_samples=force.stored,
+        force_drops=force.dropped,
+        sync_verdict=str(summary.analysis.get("sync_verdict", "")),
+        calibration_hash=text_hash(calibration),
+        clouds=clouds,
+    )
 
 
 def _shown_path(path: Path, base: Path) -> str:
@@ -92,8 +101,9 @@ def _shown_path(path: Path, base: Path) -> str:
         return str(path.resolve())
 
 
-def scan_dataset(folder: str | Path, sgbm_params: SgbmParams | None = None,
-                 relative_to: str | Path | None = None) -> list[SessionEntry]:
+def scan_dataset(
+    folder: str | Path, sgbm_params: SgbmParams | None = None, relative_to: str | Path | None = None
+) -> list[SessionEntry]:
     """One row per session below ``folder``; paths relative to ``relative_to`` (the manifest's
     folder; default ``folder``) where possible."""
     base = Path(relative_to) if relative_to is not None else Path(folder)
@@ -123,8 +133,10 @@ def read_manifest(path: str | Path) -> list[Path]:
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise BatchError(f"cannot read manifest {path}: {exc}") from None
     if not rows or "path" not in rows[0]:
-        raise BatchError(f"manifest {path} has no 'path' column or no rows; write one with "
-                         f"'vbfe dataset DIR --manifest {path.name}'")
+        raise BatchError(
+            f"manifest {path} has no 'path' column or no rows; write one with "
+            f"'vbfe dataset DIR --manifest {path.name}'"
+        )
     return [(path.parent / row["path"]) for row in rows if row["path"]]
 
 

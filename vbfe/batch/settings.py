@@ -17,8 +17,9 @@ class BatchSettings:
     ray_address: str = ""  # "": a local Ray
 
 
-def batch_settings(table: dict[str, Any], executor: str | None = None,
-                   ray_address: str | None = None) -> tuple[str, str | None]:
+def batch_settings(
+    table: dict[str, Any], executor: str | None = None, ray_address: str | None = None
+) -> tuple[str, str | None]:
     """The executor and Ray address: the given ones (command-line options) over the table."""
     settings = parse_table(BatchSettings, table, "batch")
     return executor or settings.executor, ray_address or settings.ray_address or None

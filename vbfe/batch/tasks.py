@@ -42,11 +42,21 @@ class ReconstructTask:
         if status.state == "stale" and not self.overwrite:
             raise BatchError(f"{out} is {status}; pass --overwrite to rebuild it")
         cv2.setNumThreads(self.threads)
-        reconstruct_session(session, calibration=self.calibration, workers=1,
-                            sgbm_params=params, verify=self.verify, settings=settings)
+        reconstruct_session(
+            session,
+            calibration=self.calibration,
+            workers=1,
+            sgbm_params=params,
+            verify=self.verify,
+            settings=settings,
+        )
         with CloudReader(out) as clouds:
-            return {"action": "reconstructed", "out": str(out), "frames": clouds.n_frames,
-                    "summary": summary_line(clouds)}
+            return {
+                "action": "reconstructed",
+                "out": str(out),
+                "frames": clouds.n_frames,
+                "summary": summary_line(clouds),
+            }
 
 
 @dataclass(frozen=True)
@@ -64,14 +74,26 @@ class VerifySyncTask:
         plot = Path(session).with_suffix(".sync.png")
         with SessionReader(session) as reader:
             stored = reader.analysis()
-        same_limits = stored.get("sync_limits") and json.loads(stored["sync_limits"]) == \
-            limits.__dict__
+        same_limits = (
+            stored.get("sync_limits") and json.loads(stored["sync_limits"]) == limits.__dict__
+        )
         if same_limits and plot.exists() and not (self.apply or self.overwrite):
-            return {"action": "up to date", "verdict": str(stored["sync_verdict"]).upper(),
-                    "offset_ms": 1e3 * float(stored["sync_offset_s"])}
+            return {
+                "action": "up to date",
+                "verdict": str(stored["sync_verdict"]).upper(),
+                "offset_ms": 1e3 * float(stored["sync_offset_s"]),
+            }
         check_outputs([plot], [session], self.overwrite or same_limits)  # ours when same limits
-        report = verify_sync(session, limits, plot_path=plot, store=True,
-                             apply_correction=self.apply,
-                             settings=ProtocolSettings(**self.settings))
-        return {"action": "checked", "verdict": report.verdict,
-                "offset_ms": 1e3 * report.estimate.offset_s}
+        report = verify_sync(
+            session,
+            limits,
+            plot_path=plot,
+            store=True,
+            apply_correction=self.apply,
+            settings=ProtocolSettings(**self.settings),
+        )
+        return {
+            "action": "checked",
+            "verdict": report.verdict,
+            "offset_ms": 1e3 * report.estimate.offset_s,
+        }

@@ -15,21 +15,28 @@ from vbfe.common.config import load_config
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--config rig.toml`` (defaults run the simulated bench)."""
-    parser.add_argument("--config", metavar="RIG.toml", default=None,
-                        help="rig configuration (default: the simulated bench)")
+    parser.add_argument(
+        "--config",
+        metavar="RIG.toml",
+        default=None,
+        help="rig configuration (default: the simulated bench)",
+    )
 
 
 def positive(kind: type = float, zero: bool = False) -> Callable[[str], Any]:
     """An argparse type: a finite number of type ``kind`` above 0 (from 0 with ``zero``)."""
+
     def parse(text: str) -> Any:
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(
-                f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+                f"{text!r} is not {'an integer' if kind is int else 'a number'}"
+            ) from None
         if not math.isfinite(value) or value < 0 or (value == 0 and not zero):
-            raise argparse.ArgumentTypeError(f"must be {'0 or more' if zero else 'positive'}, "
-                                             f"got {text}")
+            raise argparse.ArgumentTypeError(
+                f"must be {'0 or more' if zero else 'positive'}, got {text}"
+            )
         return value
 
     parse.__name__ = kind.__name__  # argparse names the type in its messages
@@ -43,8 +50,9 @@ def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
 
 def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm:
     """A progress bar on stderr; quiet when stderr is not a terminal and CI is set."""
-    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True,
-                mininterval=0.5)
+    return tqdm(
+        total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, mininterval=0.5
+    )
 
 
 class LazyProgress:
@@ -60,7 +68,7 @@ class LazyProgress:
             self._bar = progress(total=total, desc=self.desc, unit=self.unit)
         self._bar.update(done - self._bar.n)
 
-    def __enter__(self) -> "LazyProgress":
+    def __enter__(self) -> LazyProgress:
         return self
 
     def __exit__(self, *exc: object) -> None:

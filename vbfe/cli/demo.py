@@ -12,13 +12,18 @@ from vbfe.cli.outputs import add_overwrite_option, check_outputs
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `demo` subcommand."""
     parser = sub.add_parser(
-        "demo", help="run board → calibration → recording → sync check → reconstruction → "
+        "demo",
+        help="run board → calibration → recording → sync check → reconstruction → "
         "training → evaluation on the simulated bench and write an HTML report",
         description="Runs the whole pipeline on the simulated bench (no hardware needed) and "
-        "writes OUT/index.html with every figure next to the bench's ground truth.")
+        "writes OUT/index.html with every figure next to the bench's ground truth.",
+    )
     parser.add_argument("--out", default="vbfe-demo", help="report folder (default: vbfe-demo)")
-    parser.add_argument("--quick", action="store_true",
-                        help="small images, fewer trials and epochs (about two minutes)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="small images, fewer trials and epochs (about two minutes)",
+    )
     add_overwrite_option(parser)
     parser.set_defaults(func=run)
 

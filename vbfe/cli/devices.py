@@ -12,10 +12,13 @@ from vbfe.drivers.devices_list import format_inventory, list_devices
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `devices` subcommand."""
-    parser = sub.add_parser("devices", help="list cameras, CAN interfaces and serial ports",
-                            description="List V4L2 cameras (pixel formats, frame sizes and "
-                            "rates, controls), CAN interfaces and serial ports; says plainly "
-                            "when none are found.")
+    parser = sub.add_parser(
+        "devices",
+        help="list cameras, CAN interfaces and serial ports",
+        description="List V4L2 cameras (pixel formats, frame sizes and "
+        "rates, controls), CAN interfaces and serial ports; says plainly "
+        "when none are found.",
+    )
     parser.add_argument("--json", action="store_true", help="print the list as JSON")
     parser.set_defaults(func=run)
 

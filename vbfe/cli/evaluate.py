@@ -12,19 +12,30 @@ from vbfe.common.config import section
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `evaluate` subcommand."""
-    parser = sub.add_parser("evaluate", help="evaluate a trained model and the baselines",
-                            description="MAE, RMSE (with 95 % block-bootstrap intervals) and σ "
-                            "of the selected model, every other candidate and the baselines, "
-                            "overall and per condition; writes metrics.json, predictions.csv "
-                            "(per frame), report.md/.html and plots. "
-                            "Without sessions, the model's recorded test split is used. With "
-                            "--live SESSION.h5, scores the estimates that `vbfe live --record` "
-                            "stored in the session against its trocar.")
+    parser = sub.add_parser(
+        "evaluate",
+        help="evaluate a trained model and the baselines",
+        description="MAE, RMSE (with 95 % block-bootstrap intervals) and σ "
+        "of the selected model, every other candidate and the baselines, "
+        "overall and per condition; writes metrics.json, predictions.csv "
+        "(per frame), report.md/.html and plots. "
+        "Without sessions, the model's recorded test split is used. With "
+        "--live SESSION.h5, scores the estimates that `vbfe live --record` "
+        "stored in the session against its trocar.",
+    )
     parser.add_argument("model", metavar="MODEL.pt", nargs="?")
-    parser.add_argument("sessions", nargs="*", metavar="SESSION.h5|MANIFEST.csv",
-                        help="sessions, or a manifest CSV written by vbfe dataset")
-    parser.add_argument("--live", metavar="SESSION.h5", default=None,
-                        help="score the live estimate stream of this session")
+    parser.add_argument(
+        "sessions",
+        nargs="*",
+        metavar="SESSION.h5|MANIFEST.csv",
+        help="sessions, or a manifest CSV written by vbfe dataset",
+    )
+    parser.add_argument(
+        "--live",
+        metavar="SESSION.h5",
+        default=None,
+        help="score the live estimate stream of this session",
+    )
     parser.add_argument("--out", metavar="DIR", default=None, help="report directory")
     add_overwrite_option(parser)
     add_config_option(parser)
@@ -37,13 +48,17 @@ def _run_live(args: argparse.Namespace) -> int:
     check_outputs([], [args.live], args.overwrite, directories=[args.out])
     score = score_live_stream(args.live, args.out)
     e = score["error"]
-    print(f"live estimates of {args.live}: MAE {e['mae_n']:.3f} N (σ {e['sd_abs_error_n']:.3f}), "
-          f"RMSE {e['rmse_n']:.3f} N over {score['compared']} of {score['estimates']} estimates "
-          f"(target {score['target']}, synchronised times)")
-    print(f"rate {score['rate_hz']:.1f} estimates/s, latency p50 {score['latency_ms']['p50']:.1f}"
-          f" ms, p95 {score['latency_ms']['p95']:.1f} ms, {score['skipped_frames']} frames "
-          f"skipped; per stage (median): " + ", ".join(
-              f"{k} {v:.1f} ms" for k, v in score["stage_median_ms"].items()))
+    print(
+        f"live estimates of {args.live}: MAE {e['mae_n']:.3f} N (σ {e['sd_abs_error_n']:.3f}), "
+        f"RMSE {e['rmse_n']:.3f} N over {score['compared']} of {score['estimates']} estimates "
+        f"(target {score['target']}, synchronised times)"
+    )
+    print(
+        f"rate {score['rate_hz']:.1f} estimates/s, latency p50 {score['latency_ms']['p50']:.1f}"
+        f" ms, p95 {score['latency_ms']['p95']:.1f} ms, {score['skipped_frames']} frames "
+        f"skipped; per stage (median): "
+        + ", ".join(f"{k} {v:.1f} ms" for k, v in score["stage_median_ms"].items())
+    )
     for path in score.get("files", []):
         print(f"wrote {path}")
     return 0
@@ -55,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.live:
         if args.model or args.sessions:
-            raise EstimateError("--live scores a recorded estimate stream: give only "
-                                "--live SESSION.h5 [--out DIR], no model or sessions")
+            raise EstimateError(
+                "--live scores a recorded estimate stream: give only "
+                "--live SESSION.h5 [--out DIR], no model or sessions"
+            )
         return _run_live(args)
     if not args.model or not args.out:
         raise EstimateError("give MODEL.pt and --out DIR (or --live SESSION.h5)")
@@ -74,15 +91,21 @@ def run(args: argparse.Namespace) -> int:
     for method, numbers in report.metrics.items():
         o = numbers["overall"]
         shipped = " (selected)" if method == report.selected else ""
-        print(f"{method + shipped:>35}: MAE {o['mae_n']:.3f} N [95 % {o['mae_ci95_n'][0]:.3f}, "
-              f"{o['mae_ci95_n'][1]:.3f}], RMSE {o['rmse_n']:.3f} N [{o['rmse_ci95_n'][0]:.3f}, "
-              f"{o['rmse_ci95_n'][1]:.3f}] over {o['n_frames']} frames")
+        print(
+            f"{method + shipped:>35}: MAE {o['mae_n']:.3f} N [95 % {o['mae_ci95_n'][0]:.3f}, "
+            f"{o['mae_ci95_n'][1]:.3f}], RMSE {o['rmse_n']:.3f} N [{o['rmse_ci95_n'][0]:.3f}, "
+            f"{o['rmse_ci95_n'][1]:.3f}] over {o['n_frames']} frames"
+        )
     print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")
-    skipped = {key: sum(v[key] for v in report.skipped.values()) for key in ("no_force", "no_cloud")}
-    print(f"frames not scored: {skipped['no_force']} without a force, {skipped['no_cloud']} with "
-          "too few points in the region of interest")
+    skipped = {
+        key: sum(v[key] for v in report.skipped.values()) for key in ("no_force", "no_cloud")
+    }
+    print(
+        f"frames not scored: {skipped['no_force']} without a force, {skipped['no_cloud']} with "
+        "too few points in the region of interest"
+    )
     print(f"per-frame predictions: {report.out_dir / 'predictions.csv'}")
     print(f"report: {report.out_dir / 'report.md'}")
     return 0

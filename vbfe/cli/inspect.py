@@ -16,13 +16,23 @@ QUICK_VERIFY_BYTES = 256 << 20  # sessions up to this size are checksummed by ev
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `inspect` subcommand."""
     parser = sub.add_parser("inspect", help="summarize a recorded session or a cloud file")
-    parser.add_argument("session", metavar="SESSION.h5",
-                        help="a session, or a SESSION.clouds.h5 file (per-frame quality)")
-    parser.add_argument("--recover", metavar="OUT.h5", default=None,
-                        help="copy an interrupted session into a clean, finalized file")
-    parser.add_argument("--verify", action="store_true",
-                        help="read every chunk and report those whose checksum fails (done "
-                        f"anyway for sessions up to {QUICK_VERIFY_BYTES >> 20} MB)")
+    parser.add_argument(
+        "session",
+        metavar="SESSION.h5",
+        help="a session, or a SESSION.clouds.h5 file (per-frame quality)",
+    )
+    parser.add_argument(
+        "--recover",
+        metavar="OUT.h5",
+        default=None,
+        help="copy an interrupted session into a clean, finalized file",
+    )
+    parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="read every chunk and report those whose checksum fails (done "
+        f"anyway for sessions up to {QUICK_VERIFY_BYTES >> 20} MB)",
+    )
     add_overwrite_option(parser)
     parser.set_defaults(func=run)
 
@@ -37,8 +47,10 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([args.recover], [args.session], args.overwrite, writes="session")
         _, dropped = recover_session(args.session, args.recover, overwrite=args.overwrite)
         lost = ", ".join(f"{n} {stream}" for stream, n in dropped.items() if n) or "none"
-        print(f"recovered {args.session} into {args.recover}; rows dropped for inconsistent "
-              f"timestamps: {lost}")
+        print(
+            f"recovered {args.session} into {args.recover}; rows dropped for inconsistent "
+            f"timestamps: {lost}"
+        )
         args.session = args.recover
     damaged = False
     if args.verify or Path(args.session).stat().st_size <= QUICK_VERIFY_BYTES:
@@ -59,7 +71,9 @@ def _inspect_clouds(path: str) -> int:
 
     with CloudReader(path) as clouds:
         print(summary_line(clouds))
-        print(f"  source: {clouds.session_path} ({clouds.attrs.get('source_kind', 'session')}), "
-              f"verify: {bool(clouds.attrs.get('verify'))}")
+        print(
+            f"  source: {clouds.session_path} ({clouds.attrs.get('source_kind', 'session')}), "
+            f"verify: {bool(clouds.attrs.get('verify'))}"
+        )
         print("\n".join(frame_lines(clouds)))
     return 0

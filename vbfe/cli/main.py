@@ -8,22 +8,56 @@ import sys
 from collections.abc import Sequence
 
 from vbfe import __version__
-from vbfe.cli import (calibrate, dataset, demo, devices, evaluate, export, import_data, inspect,
-                      live, mark, reconstruct, record, report, train, verify_sync, view)
+from vbfe.cli import (
+    calibrate,
+    dataset,
+    demo,
+    devices,
+    evaluate,
+    export,
+    import_data,
+    inspect,
+    live,
+    mark,
+    reconstruct,
+    record,
+    report,
+    train,
+    verify_sync,
+    view,
+)
 from vbfe.common.config import ConfigError
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import os_error_text
 from vbfe.common.signals import Terminated, sigterm_as_interrupt
 
-COMMANDS = (devices, record, mark, view, inspect, report, verify_sync, calibrate, dataset,
-            reconstruct, import_data, export, train, evaluate, live, demo)
+COMMANDS = (
+    devices,
+    record,
+    mark,
+    view,
+    inspect,
+    report,
+    verify_sync,
+    calibrate,
+    dataset,
+    reconstruct,
+    import_data,
+    export,
+    train,
+    evaluate,
+    live,
+    demo,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand registered."""
     parser = argparse.ArgumentParser(
-        prog="vbfe", description="Vision-based force estimation: record, calibrate, reconstruct, "
-        "train and evaluate with a structured-light stereo endoscope and a force trocar.")
+        prog="vbfe",
+        description="Vision-based force estimation: record, calibrate, reconstruct, "
+        "train and evaluate with a structured-light stereo endoscope and a force trocar.",
+    )
     parser.add_argument("--version", action="version", version=f"vbfe {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS:
@@ -51,8 +85,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"vbfe {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
         return 2
     except MemoryError:
-        print(f"vbfe {args.command}: error: not enough memory; use smaller inputs or settings",
-              file=sys.stderr)
+        print(
+            f"vbfe {args.command}: error: not enough memory; use smaller inputs or settings",
+            file=sys.stderr,
+        )
         return 2
     except Terminated:
         print(f"vbfe {args.command}: terminated", file=sys.stderr)

@@ -19,9 +19,12 @@ __all__ = ["OutputError", "add_overwrite_option", "check_outputs", "command_inpu
 
 def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
     """Add ``--overwrite`` (replace existing output files)."""
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace existing output files (never the command's own inputs, "
-                        "never a session by another kind of file)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing output files (never the command's own inputs, "
+        "never a session by another kind of file)",
+    )
 
 
 def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -> list[Path]:
@@ -46,22 +49,33 @@ def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -
         for path in (item, *listed):
             if path is not item:
                 out.append(path)
-            if sidecars and path.suffix.lower() in (".h5", ".hdf5") \
-                    and not path.name.endswith(".clouds.h5"):
+            if (
+                sidecars
+                and path.suffix.lower() in (".h5", ".hdf5")
+                and not path.name.endswith(".clouds.h5")
+            ):
                 out.append(sidecar_path(path))
     return out
 
 
-def add_session_output_options(parser: argparse.ArgumentParser, suffix: str, what: str,
-                               clouds_help: str) -> None:
+def add_session_output_options(
+    parser: argparse.ArgumentParser, suffix: str, what: str, clouds_help: str
+) -> None:
     """``SESSION.h5``, ``-o/--out`` (default: the session's name with ``suffix`` beside it),
     ``--clouds X.clouds.h5`` and ``--overwrite``: a command that turns one session into one
     file; :func:`session_and_output` reads them back, checked."""
     parser.add_argument("session", metavar="SESSION.h5")
-    parser.add_argument("-o", "--out", type=Path, default=None, metavar=f"OUT{suffix}",
-                        help=f"{what} (default: SESSION{suffix} beside the session)")
-    parser.add_argument("--clouds", type=Path, default=None, metavar="X.clouds.h5",
-                        help=clouds_help)
+    parser.add_argument(
+        "-o",
+        "--out",
+        type=Path,
+        default=None,
+        metavar=f"OUT{suffix}",
+        help=f"{what} (default: SESSION{suffix} beside the session)",
+    )
+    parser.add_argument(
+        "--clouds", type=Path, default=None, metavar="X.clouds.h5", help=clouds_help
+    )
     add_overwrite_option(parser)
 
 
@@ -74,10 +88,14 @@ def session_and_output(args: argparse.Namespace, suffix: str) -> tuple[Path, Pat
     return session, out
 
 
-
-def check_outputs(outputs: Iterable[str | Path | None], inputs: Iterable[str | Path | None] = (),
-                  overwrite: bool = False, directories: Iterable[str | Path | None] = (),
-                  writes: Writes = "file", sidecars: bool = True) -> None:
+def check_outputs(
+    outputs: Iterable[str | Path | None],
+    inputs: Iterable[str | Path | None] = (),
+    overwrite: bool = False,
+    directories: Iterable[str | Path | None] = (),
+    writes: Writes = "file",
+    sidecars: bool = True,
+) -> None:
     """:func:`vbfe.common.files.check_outputs` against everything the inputs stand for (without the
     sessions' sidecars when ``sidecars`` is false: a command that writes them)."""
     _check(outputs, command_inputs(inputs, sidecars), overwrite, directories, writes)

@@ -7,10 +7,15 @@ import sys
 from functools import partial
 
 from vbfe.acquire import AcquisitionStats, record_session
-from vbfe.acquire.recording.remote import (DEFAULT_PORT, RemoteControl, RemoteRecording,
-                                           RemoteSessions, serve)
-from vbfe.acquire.session.layout import COMPRESSIONS
+from vbfe.acquire.recording.remote import (
+    DEFAULT_PORT,
+    RemoteControl,
+    RemoteRecording,
+    RemoteSessions,
+    serve,
+)
 from vbfe.acquire.recording.sync_session import SyncProtocol
+from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.cli.common import add_config_option, config_from, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
@@ -18,40 +23,91 @@ from vbfe.common.errors import VbfeError
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `record` subcommand."""
-    parser = sub.add_parser("record", help="record a session (stereo video + force + projector) "
-                            "until Ctrl-C or --duration")
-    parser.add_argument("output", metavar="SESSION.h5", nargs="?", default=None,
-                        help="new session file (not with --remote)")
-    parser.add_argument("--duration", type=_positive_seconds, default=None, metavar="S",
-                        help="stop after this many seconds of video (default: Ctrl-C)")
+    parser = sub.add_parser(
+        "record",
+        help="record a session (stereo video + force + projector) until Ctrl-C or --duration",
+    )
+    parser.add_argument(
+        "output",
+        metavar="SESSION.h5",
+        nargs="?",
+        default=None,
+        help="new session file (not with --remote)",
+    )
+    parser.add_argument(
+        "--duration",
+        type=_positive_seconds,
+        default=None,
+        metavar="S",
+        help="stop after this many seconds of video (default: Ctrl-C)",
+    )
     parser.add_argument("--operator", default="", help="who recorded")
     parser.add_argument("--notes", default="", help="free text stored with the session")
-    parser.add_argument("--condition", action="append", default=[], metavar="KEY=VALUE",
-                        help="experimental condition to store (repeatable)")
-    parser.add_argument("--compression", choices=COMPRESSIONS, default=None,
-                        help="frame storage (default: [record] compression of the rig config)")
-    parser.add_argument("--calib", metavar="CALIB.yaml", default=None,
-                        help="calibration file to store with the session")
-    parser.add_argument("--tare", action="store_true",
-                        help="zero the unloaded trocar from its first [record] tare_samples "
-                        "samples before recording (the offset is stored with the session)")
+    parser.add_argument(
+        "--condition",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="experimental condition to store (repeatable)",
+    )
+    parser.add_argument(
+        "--compression",
+        choices=COMPRESSIONS,
+        default=None,
+        help="frame storage (default: [record] compression of the rig config)",
+    )
+    parser.add_argument(
+        "--calib",
+        metavar="CALIB.yaml",
+        default=None,
+        help="calibration file to store with the session",
+    )
+    parser.add_argument(
+        "--tare",
+        action="store_true",
+        help="zero the unloaded trocar from its first [record] tare_samples "
+        "samples before recording (the offset is stored with the session)",
+    )
     add_overwrite_option(parser)
-    parser.add_argument("--protocol", choices=("traction", "sync"), default="traction",
-                        help="sync: a short sync check session (projector flashes, operator "
-                             "taps; --duration defaults to 20 s), then run verify-sync on it")
-    parser.add_argument("--taps", type=int, default=20, metavar="N",
-                        help="taps the operator is asked for (sync protocol)")
-    parser.add_argument("--flashes", type=int, default=20, metavar="N",
-                        help="projector flashes (sync protocol)")
-    parser.add_argument("--seed", type=int, default=None,
-                        help="seed of the random flash times (sync protocol; default: fresh)")
-    parser.add_argument("--remote", type=int, default=None, metavar="PORT",
-                        help=f"wait for LabRecorder's remote-control commands on this TCP port "
-                        f"(its default: {DEFAULT_PORT}; 0: any free port) and record whenever "
-                        "told to (docs/streams.md); Ctrl-C to quit")
-    parser.add_argument("--remote-bind", default="127.0.0.1", metavar="ADDRESS",
-                        help="address the remote-control port listens on (default: localhost "
-                        "only; 0.0.0.0 for every interface)")
+    parser.add_argument(
+        "--protocol",
+        choices=("traction", "sync"),
+        default="traction",
+        help="sync: a short sync check session (projector flashes, operator "
+        "taps; --duration defaults to 20 s), then run verify-sync on it",
+    )
+    parser.add_argument(
+        "--taps",
+        type=int,
+        default=20,
+        metavar="N",
+        help="taps the operator is asked for (sync protocol)",
+    )
+    parser.add_argument(
+        "--flashes", type=int, default=20, metavar="N", help="projector flashes (sync protocol)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the random flash times (sync protocol; default: fresh)",
+    )
+    parser.add_argument(
+        "--remote",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help=f"wait for LabRecorder's remote-control commands on this TCP port "
+        f"(its default: {DEFAULT_PORT}; 0: any free port) and record whenever "
+        "told to (docs/streams.md); Ctrl-C to quit",
+    )
+    parser.add_argument(
+        "--remote-bind",
+        default="127.0.0.1",
+        metavar="ADDRESS",
+        help="address the remote-control port listens on (default: localhost "
+        "only; 0.0.0.0 for every interface)",
+    )
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -83,13 +139,18 @@ def run(args: argparse.Namespace) -> int:
     """Record until the duration is reached, a device is gone or Ctrl-C."""
     if args.remote is not None:
         if args.output or args.duration or args.protocol != "traction" or args.tare:
-            raise VbfeError("--remote records into the files the `filename` command names, "
-                            "until `stop`: drop SESSION.h5, --duration, --protocol and --tare")
+            raise VbfeError(
+                "--remote records into the files the `filename` command names, "
+                "until `stop`: drop SESSION.h5, --duration, --protocol and --tare"
+            )
     elif args.output is None:
-        raise VbfeError("name the new session file (SESSION.h5), or wait for remote-control "
-                        "commands with --remote PORT")
-    check_outputs([args.output] if args.output else [], [args.calib], args.overwrite,
-                  writes="session")
+        raise VbfeError(
+            "name the new session file (SESSION.h5), or wait for remote-control "
+            "commands with --remote PORT"
+        )
+    check_outputs(
+        [args.output] if args.output else [], [args.calib], args.overwrite, writes="session"
+    )
     calibration, calibration_size = None, None
     if args.calib:
         from vbfe.calib.calibration import Calibration  # checked before anything is recorded
@@ -100,53 +161,89 @@ def run(args: argparse.Namespace) -> int:
         return _run_remote(args, calibration, calibration_size)
     protocol = None
     if args.protocol == "sync":
-        protocol = SyncProtocol(taps=args.taps, flashes=args.flashes,
-                                duration_s=args.duration or 20.0, seed=args.seed)
+        protocol = SyncProtocol(
+            taps=args.taps, flashes=args.flashes, duration_s=args.duration or 20.0, seed=args.seed
+        )
         print(protocol.instructions(), file=sys.stderr)
     bar = progress(total=None, desc="recording", unit="frame")
 
     def show(stats: AcquisitionStats) -> None:
         bar.n = stats.frames
         events = f"{protocol.progress()}, " if protocol else ""
-        bar.set_postfix_str(f"{events}{stats.elapsed_s:.1f} s, {stats.samples} force samples, "
-                            f"dropped {sum(stats.dropped.values())}, "
-                            f"{stats.write_rate_mb_s:.0f} MB/s", refresh=True)
+        bar.set_postfix_str(
+            f"{events}{stats.elapsed_s:.1f} s, {stats.samples} force samples, "
+            f"dropped {sum(stats.dropped.values())}, "
+            f"{stats.write_rate_mb_s:.0f} MB/s",
+            refresh=True,
+        )
 
     try:
-        stats = record_session(config_from(args), args.output, args.duration,
-                               operator=args.operator, notes=args.notes,
-                               conditions=_conditions(args.condition),
-                               compression=args.compression, calibration_yaml=calibration,
-                               on_progress=show, tare=args.tare, overwrite=args.overwrite,
-                               protocol=protocol, calibration_size=calibration_size,
-                               calibration_name=args.calib,
-                               on_warning=lambda w: bar.write(f"vbfe record: warning: {w}",
-                                                              file=sys.stderr))
+        stats = record_session(
+            config_from(args),
+            args.output,
+            args.duration,
+            operator=args.operator,
+            notes=args.notes,
+            conditions=_conditions(args.condition),
+            compression=args.compression,
+            calibration_yaml=calibration,
+            on_progress=show,
+            tare=args.tare,
+            overwrite=args.overwrite,
+            protocol=protocol,
+            calibration_size=calibration_size,
+            calibration_name=args.calib,
+            on_warning=lambda w: bar.write(f"vbfe record: warning: {w}", file=sys.stderr),
+        )
         show(stats)
     finally:
         bar.close()
-    extra = "".join(f", {stream} {n} samples" for stream, n in stats.counts.items()
-                    if stream not in ("camera", "force", "projector"))
-    print(f"{args.output}: {stats.frames} frames, {stats.samples} force samples{extra}, "
-          f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}")
+    extra = "".join(
+        f", {stream} {n} samples"
+        for stream, n in stats.counts.items()
+        if stream not in ("camera", "force", "projector")
+    )
+    print(
+        f"{args.output}: {stats.frames} frames, {stats.samples} force samples{extra}, "
+        f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}"
+    )
     if protocol is not None:
-        print(f"sync protocol: collected {protocol.progress()}; check it with "
-              f"`vbfe verify-sync {args.output}`")
+        print(
+            f"sync protocol: collected {protocol.progress()}; check it with "
+            f"`vbfe verify-sync {args.output}`"
+        )
     return 0
 
 
-def _run_remote(args: argparse.Namespace, calibration: str | None,
-                calibration_size: tuple[int, int] | None) -> int:
+def _run_remote(
+    args: argparse.Namespace, calibration: str | None, calibration_size: tuple[int, int] | None
+) -> int:
     """Serve LabRecorder's commands: each start..stop records one session."""
-    begin = partial(RemoteRecording, config_from(args), operator=args.operator, notes=args.notes,
-                    conditions=_conditions(args.condition), compression=args.compression,
-                    calibration_yaml=calibration, calibration_size=calibration_size,
-                    calibration_name=args.calib, overwrite=args.overwrite)
+    begin = partial(
+        RemoteRecording,
+        config_from(args),
+        operator=args.operator,
+        notes=args.notes,
+        conditions=_conditions(args.condition),
+        compression=args.compression,
+        calibration_yaml=calibration,
+        calibration_size=calibration_size,
+        calibration_name=args.calib,
+        overwrite=args.overwrite,
+    )
     sessions = RemoteSessions(begin, args.overwrite, on_message=lambda m: print(m, flush=True))
     server = RemoteControl(sessions, args.remote, args.remote_bind)
-    serve(server, lambda port: print(f"remote control: listening on {args.remote_bind}:{port} "
-                                     "(filename, start, stop, update, select all, mark; Ctrl-C "
-                                     "quits)", flush=True))
-    print(f"remote control: {len(sessions.finished)} session(s) recorded"
-          + "".join(f"\n  {path}" for path in sessions.finished))
+    serve(
+        server,
+        lambda port: print(
+            f"remote control: listening on {args.remote_bind}:{port} "
+            "(filename, start, stop, update, select all, mark; Ctrl-C "
+            "quits)",
+            flush=True,
+        ),
+    )
+    print(
+        f"remote control: {len(sessions.finished)} session(s) recorded"
+        + "".join(f"\n  {path}" for path in sessions.finished)
+    )
     return 0

@@ -17,41 +17,77 @@ MODEL_FREE_BYTES = 64 << 20  # a model file with its baselines and training reco
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `train` subcommand."""
-    parser = sub.add_parser("train", help="train the force estimators on reconstructed sessions",
-                            description="Fit every candidate (PointNet, the temporal model, "
-                            "ridge on depth-change thumbnails, a small CNN on the depth-change "
-                            "image, the mean of that CNN and Hooke's law) and the baselines on the training part, and ship the "
-                            "candidate with the lowest validation MAE (or the one --model "
-                            "forces). Each session needs its <session>.clouds.h5 sidecar (run "
-                            "`vbfe reconstruct` first) or is a clouds file from `vbfe import`. "
-                            "Defaults come from the [train] table of the rig config.")
-    parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv",
-                        help="sessions, or a manifest CSV written by vbfe dataset")
+    parser = sub.add_parser(
+        "train",
+        help="train the force estimators on reconstructed sessions",
+        description="Fit every candidate (PointNet, the temporal model, "
+        "ridge on depth-change thumbnails, a small CNN on the depth-change "
+        "image, the mean of that CNN and Hooke's law) and the baselines on the training part, and ship the "
+        "candidate with the lowest validation MAE (or the one --model "
+        "forces). Each session needs its <session>.clouds.h5 sidecar (run "
+        "`vbfe reconstruct` first) or is a clouds file from `vbfe import`. "
+        "Defaults come from the [train] table of the rig config.",
+    )
+    parser.add_argument(
+        "sessions",
+        nargs="+",
+        metavar="SESSION.h5|MANIFEST.csv",
+        help="sessions, or a manifest CSV written by vbfe dataset",
+    )
     parser.add_argument("--out", required=True, metavar="MODEL.pt", help="model file to write")
     parser.add_argument("--epochs", type=int, help="maximum epochs (early stopping may end sooner)")
     parser.add_argument("--points", type=int, dest="n_points", help="points per cloud")
     parser.add_argument("--batch-size", type=int)
     parser.add_argument("--learning-rate", type=float)
-    parser.add_argument("--target", metavar="magnitude|xyz|AXIS",
-                        help="regress |F|, the 3 axes, or one signed axis (x, -z, ...)")
-    parser.add_argument("--model", metavar="auto|pointnet|temporal|ridge|cnn|ensemble|hooke_texture",
-                        help="auto (default): the candidate best on validation; else force one")
-    parser.add_argument("--split", metavar="session|time", help="hold out whole sessions (default) or "
-                        "the end of each session in time (train, then validation, then test)")
+    parser.add_argument(
+        "--target",
+        metavar="magnitude|xyz|AXIS",
+        help="regress |F|, the 3 axes, or one signed axis (x, -z, ...)",
+    )
+    parser.add_argument(
+        "--model",
+        metavar="auto|pointnet|temporal|ridge|cnn|ensemble|hooke_texture",
+        help="auto (default): the candidate best on validation; else force one",
+    )
+    parser.add_argument(
+        "--split",
+        metavar="session|time",
+        help="hold out whole sessions (default) or "
+        "the end of each session in time (train, then validation, then test)",
+    )
     for part, example in (("train", "0:565"), ("val", "595:700"), ("test", "730:1000")):
-        parser.add_argument(f"--{part}", dest=f"{part}_frames", metavar="START:STOP",
-                            help=f"time split: the {part} frames of every session, e.g. {example}")
-    parser.add_argument("--folds", type=int, metavar="K", help="blocked cross-validation in time "
-                        "with K folds first (mean ± sd per method), then the shipped model")
-    parser.add_argument("--gap", type=int, dest="gap_frames", metavar="FRAMES",
-                        help="time split: frames left out at every boundary between parts")
+        parser.add_argument(
+            f"--{part}",
+            dest=f"{part}_frames",
+            metavar="START:STOP",
+            help=f"time split: the {part} frames of every session, e.g. {example}",
+        )
+    parser.add_argument(
+        "--folds",
+        type=int,
+        metavar="K",
+        help="blocked cross-validation in time "
+        "with K folds first (mean ± sd per method), then the shipped model",
+    )
+    parser.add_argument(
+        "--gap",
+        type=int,
+        dest="gap_frames",
+        metavar="FRAMES",
+        help="time split: frames left out at every boundary between parts",
+    )
     parser.add_argument("--val-fraction", type=float, help="share held out for validation")
     parser.add_argument("--test-fraction", type=float, help="share held out for test")
-    parser.add_argument("--temporal-frames", type=int, metavar="K",
-                        help="also train the temporal model on a causal window of K frames")
+    parser.add_argument(
+        "--temporal-frames",
+        type=int,
+        metavar="K",
+        help="also train the temporal model on a causal window of K frames",
+    )
     parser.add_argument("--device", metavar="auto|cpu|cuda", help="cpu (default), cuda, or auto")
-    parser.add_argument("--time-limit", type=positive(float), dest="time_limit_s",
-                        metavar="SECONDS")
+    parser.add_argument(
+        "--time-limit", type=positive(float), dest="time_limit_s", metavar="SECONDS"
+    )
     parser.add_argument("--seed", type=int)
     add_overwrite_option(parser)
     add_config_option(parser)
@@ -66,10 +102,26 @@ def run(args: argparse.Namespace) -> int:
 
     check_outputs([args.out], args.sessions, args.overwrite)
     require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
-    overrides = {key: getattr(args, key) for key in
-                 ("epochs", "n_points", "batch_size", "learning_rate", "target", "split",
-                  "gap_frames", "val_fraction", "test_fraction", "temporal_frames", "device",
-                  "time_limit_s", "seed", "model", "folds")}
+    overrides = {
+        key: getattr(args, key)
+        for key in (
+            "epochs",
+            "n_points",
+            "batch_size",
+            "learning_rate",
+            "target",
+            "split",
+            "gap_frames",
+            "val_fraction",
+            "test_fraction",
+            "temporal_frames",
+            "device",
+            "time_limit_s",
+            "seed",
+            "model",
+            "folds",
+        )
+    }
     for part in ("train", "val", "test"):
         text = getattr(args, f"{part}_frames")
         overrides[f"{part}_frames"] = parse_range(text, f"--{part}") if text else None
@@ -78,31 +130,41 @@ def run(args: argparse.Namespace) -> int:
     config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
     bars = StageProgress()
     try:
-        result = train([str(p) for p in expand_sessions(args.sessions)], args.out, config,
-                       progress=bars)
+        result = train(
+            [str(p) for p in expand_sessions(args.sessions)], args.out, config, progress=bars
+        )
     finally:
         bars.close()
     for note in result.notes:
         print(note, file=sys.stderr if note.startswith("warning:") else sys.stdout)
-    print("validation MAE (N): " + ", ".join(f"{name} {mae:.3f}"
-                                             for name, mae in result.val_mae_n.items()))
+    print(
+        "validation MAE (N): "
+        + ", ".join(f"{name} {mae:.3f}" for name, mae in result.val_mae_n.items())
+    )
     if result.cross_validation:
         print_cross_validation(result.cross_validation)
-    print(f"model written to {result.model_path}: ships {result.selected} "
-          f"({result.duration_s:.0f} s, torch on {config.threads} thread(s))")
-    skipped = {key: sum(v[key] for v in result.skipped.values())
-               for key in ("no_force", "no_cloud")}
+    print(
+        f"model written to {result.model_path}: ships {result.selected} "
+        f"({result.duration_s:.0f} s, torch on {config.threads} thread(s))"
+    )
+    skipped = {
+        key: sum(v[key] for v in result.skipped.values()) for key in ("no_force", "no_cloud")
+    }
     if any(skipped.values()):
-        print(f"frames not used: {skipped['no_force']} without a force, {skipped['no_cloud']} "
-              "with too few points in the region of interest")
+        print(
+            f"frames not used: {skipped['no_force']} without a force, {skipped['no_cloud']} "
+            "with too few points in the region of interest"
+        )
     return 0
 
 
 def print_cross_validation(cv: dict) -> None:
     """Every fold's frame ranges and test MAEs, then mean ± sd per method."""
     for k, fold in enumerate(cv["folds"]):
-        print(f"fold {k + 1}: {fold['description']}; selected {fold['selected']}; test MAE (N): "
-              + ", ".join(f"{m} {v:.3f}" for m, v in fold["test_mae_n"].items()))
+        print(
+            f"fold {k + 1}: {fold['description']}; selected {fold['selected']}; test MAE (N): "
+            + ", ".join(f"{m} {v:.3f}" for m, v in fold["test_mae_n"].items())
+        )
     print(f"{len(cv['folds'])}-fold blocked cross-validation, test MAE mean ± sd (N):")
     for method, s in sorted(cv["summary"].items(), key=lambda kv: kv[1]["mean_mae_n"]):
         print(f"  {method:>24}: {s['mean_mae_n']:.3f} ± {s['sd_mae_n']:.3f}")

@@ -16,19 +16,36 @@ EXIT_CODES = {PASS: 0, FAIL: 1}  # anything else (INCONCLUSIVE): 3
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `verify-sync` subcommand."""
-    parser = sub.add_parser("verify-sync", help="estimate the image-force time offset, clock "
-                            "drift and drops of sessions; PASS/FAIL against the rig's limits "
-                            "(exit 0/1; 3: inconclusive, record --protocol sync)")
+    parser = sub.add_parser(
+        "verify-sync",
+        help="estimate the image-force time offset, clock "
+        "drift and drops of sessions; PASS/FAIL against the rig's limits "
+        "(exit 0/1; 3: inconclusive, record --protocol sync)",
+    )
     parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv")
-    parser.add_argument("--plot", metavar="PNG", default=None,
-                        help="plot of the offset measurement (default: SESSION.sync.png)")
-    parser.add_argument("--apply", action="store_true",
-                        help="store the measured offset as a frame-time correction and print "
-                             "the rig config line that applies it to new sessions")
-    parser.add_argument("--no-store", action="store_true",
-                        help="do not write the results into the session (single session)")
-    parser.add_argument("--workers", type=positive(int), default=None,
-                        help="sessions checked at once (default: one per CPU core)")
+    parser.add_argument(
+        "--plot",
+        metavar="PNG",
+        default=None,
+        help="plot of the offset measurement (default: SESSION.sync.png)",
+    )
+    parser.add_argument(
+        "--apply",
+        action="store_true",
+        help="store the measured offset as a frame-time correction and print "
+        "the rig config line that applies it to new sessions",
+    )
+    parser.add_argument(
+        "--no-store",
+        action="store_true",
+        help="do not write the results into the session (single session)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=positive(int),
+        default=None,
+        help="sessions checked at once (default: one per CPU core)",
+    )
     add_batch_options(parser)
     add_overwrite_option(parser)
     add_config_option(parser)
@@ -46,22 +63,42 @@ def run(args: argparse.Namespace) -> int:
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
         check_outputs([plot], [sessions[0]], args.overwrite)
-        report = verify_sync(sessions[0], limits, plot_path=plot, store=not args.no_store,
-                             apply_correction=args.apply, settings=settings)
+        report = verify_sync(
+            sessions[0],
+            limits,
+            plot_path=plot,
+            store=not args.no_store,
+            apply_correction=args.apply,
+            settings=settings,
+        )
         print(report.text())
         if args.apply:
-            print(f"rig config  add to [record] of your rig.toml so new sessions are corrected: "
-                  f"{report.config_suggestion()}")
+            print(
+                f"rig config  add to [record] of your rig.toml so new sessions are corrected: "
+                f"{report.config_suggestion()}"
+            )
         return EXIT_CODES.get(report.verdict, 3)
     if args.plot or args.no_store:
-        raise BatchError("--plot and --no-store take a single session; with several, each "
-                         "result is stored in its session and plotted next to it")
+        raise BatchError(
+            "--plot and --no-store take a single session; with several, each "
+            "result is stored in its session and plotted next to it"
+        )
     from vbfe.batch.tasks import VerifySyncTask
 
     executor, address = batch_settings(args, config.get("batch", {}))
-    task = VerifySyncTask(limits=dict(limits.__dict__), settings=dict(settings.__dict__),
-                          apply=args.apply, overwrite=args.overwrite)
-    outcomes = run_batch(task, sessions, executor, args.workers, address, "verify-sync",
-                         lambda v: f"{v['verdict']} offset {v['offset_ms']:+.2f} ms"
-                         f" ({v['action']})")
+    task = VerifySyncTask(
+        limits=dict(limits.__dict__),
+        settings=dict(settings.__dict__),
+        apply=args.apply,
+        overwrite=args.overwrite,
+    )
+    outcomes = run_batch(
+        task,
+        sessions,
+        executor,
+        args.workers,
+        address,
+        "verify-sync",
+        lambda v: f"{v['verdict']} offset {v['offset_ms']:+.2f} ms ({v['action']})",
+    )
     return max(EXIT_CODES.get(o.value["verdict"], 3) for o in outcomes)

@@ -10,8 +10,9 @@ from vbfe.common.errors import VbfeError
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `view` subcommand."""
-    parser = sub.add_parser("view", help="replay a session (images, force, drops) or watch the "
-                            "devices live (--live)")
+    parser = sub.add_parser(
+        "view", help="replay a session (images, force, drops) or watch the devices live (--live)"
+    )
     parser.add_argument("session", metavar="SESSION.h5", nargs="?", default=None)
     parser.add_argument("--live", action="store_true", help="show the rig's devices live")
     add_config_option(parser)

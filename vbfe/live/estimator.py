@@ -71,9 +71,17 @@ class FrameEstimator:
     the rows, stays; the cloud has fewer points, and the model samples its own few from it.
     """
 
-    def __init__(self, model: ForceModel, calibration: Calibration,
-                 sgbm_params: SgbmParams | None = None, verify: bool = True, scale: float = 1.0,
-                 device: str = "cpu", seed: int = 0, row_scale: float = 1.0) -> None:
+    def __init__(
+        self,
+        model: ForceModel,
+        calibration: Calibration,
+        sgbm_params: SgbmParams | None = None,
+        verify: bool = True,
+        scale: float = 1.0,
+        device: str = "cpu",
+        seed: int = 0,
+        row_scale: float = 1.0,
+    ) -> None:
         for name, value in (("scale", scale), ("row scale", row_scale)):
             if not 0.1 <= value <= 1.0:
                 raise EstimateError(f"live {name} must be in 0.1 … 1.0, got {value}")
@@ -82,10 +90,16 @@ class FrameEstimator:
         params = sgbm_params or SgbmParams()
         if row_scale != 1.0:  # the fringe code is read on rows as far apart as before
             params = dataclasses.replace(
-                params, decode_row_step=max(1, round(params.decode_row_step * row_scale)))
+                params, decode_row_step=max(1, round(params.decode_row_step * row_scale))
+            )
         self.reconstructor = Reconstructor(
-            calibration.scaled(scale, scale * row_scale) if (scale, row_scale) != (1.0, 1.0)
-            else calibration, params, verify=verify, parallel_decode=(os.cpu_count() or 1) > 1)
+            calibration.scaled(scale, scale * row_scale)
+            if (scale, row_scale) != (1.0, 1.0)
+            else calibration,
+            params,
+            verify=verify,
+            parallel_decode=(os.cpu_count() or 1) > 1,
+        )
         network = getattr(model.estimators[model.selected], "network", None)
         if network is not None:
             network.to(torch.device(device))
@@ -94,16 +108,21 @@ class FrameEstimator:
     def describe(self) -> str:
         """One line: what is reconstructed, the stages and the thread counts used."""
         width, height = self.reconstructor.calibration.image_size
-        return (f"reconstruct {width}x{height} of the camera's {self.full_size[0]}x"
-                f"{self.full_size[1]}; stages {' -> '.join(n for n, _ in self.stages())} on "
-                f"their own threads; OpenCV threads {cv2.getNumThreads()}, torch threads "
-                f"{torch.get_num_threads()}")
+        return (
+            f"reconstruct {width}x{height} of the camera's {self.full_size[0]}x"
+            f"{self.full_size[1]}; stages {' -> '.join(n for n, _ in self.stages())} on "
+            f"their own threads; OpenCV threads {cv2.getNumThreads()}, torch threads "
+            f"{torch.get_num_threads()}"
+        )
 
     def stages(self) -> list[tuple[str, Callable[[FrameWork], FrameWork | LiveEstimate]]]:
         """The (name, function) of each stage, in order, for a :class:`Pipeline` fed with
         :class:`FrameWork` items."""
-        return [("reconstruct", self.reconstruct), ("prepare", self.prepare),
-                ("model", self.estimate_force)]
+        return [
+            ("reconstruct", self.reconstruct),
+            ("prepare", self.prepare),
+            ("model", self.estimate_force),
+        ]
 
     def estimate(self, frame: StereoFrame) -> LiveEstimate:
         """The force estimate of one frame, with the duration of each stage."""
@@ -117,8 +136,10 @@ class FrameEstimator:
         if size == self.full_size:
             left, right = frame.left, frame.right
         else:
-            left, right = (cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-                           for image in (frame.left, frame.right))
+            left, right = (
+                cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+                for image in (frame.left, frame.right)
+            )
         t1 = time.perf_counter()
         cloud = self.reconstructor.process(left, right)
         work.points, work.colors = cloud.points, cloud.colors
@@ -138,10 +159,17 @@ class FrameEstimator:
     def estimate_force(self, work: FrameWork) -> LiveEstimate:
         """The model's force from the prepared features (NaN without features)."""
         t0 = time.perf_counter()
-        force = (self._predictor.model_force(work.features) if work.features is not None
-                 else np.full(self.model.config.n_outputs, np.nan))
+        force = (
+            self._predictor.model_force(work.features)
+            if work.features is not None
+            else np.full(self.model.config.n_outputs, np.nan)
+        )
         t1 = time.perf_counter()
-        return LiveEstimate(force_n=np.asarray(force, np.float64), frame_seq=work.frame.seq,
-                            t_frame_host_ns=work.frame.t_host_ns,
-                            t_ready_host_ns=time.monotonic_ns(),
-                            stage_s=(*work.stage_s, t1 - t0), n_points=len(work.points))
+        return LiveEstimate(
+            force_n=np.asarray(force, np.float64),
+            frame_seq=work.frame.seq,
+            t_frame_host_ns=work.frame.t_host_ns,
+            t_ready_host_ns=time.monotonic_ns(),
+            stage_s=(*work.stage_s, t1 - t0),
+            n_points=len(work.points),
+        )

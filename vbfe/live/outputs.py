@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vbfe.acquire import Listener
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.streams.lsl import pylsl
 from vbfe.live.errors import LiveError
-from vbfe.acquire import Listener
 
 if TYPE_CHECKING:
     from vbfe.acquire import Acquisition
@@ -43,8 +43,9 @@ def target_channels(target: str) -> list[str]:
     return [f"force_{target.replace('-', 'minus_')}"]
 
 
-def _outlet(name: str, stream_type: str, channels: Sequence[tuple[str, str]], rate_hz: float,
-            source_id: str) -> Any:
+def _outlet(
+    name: str, stream_type: str, channels: Sequence[tuple[str, str]], rate_hz: float, source_id: str
+) -> Any:
     lsl = pylsl()
     info = lsl.StreamInfo(name, stream_type, len(channels), rate_hz, lsl.cf_double64, source_id)
     desc = info.desc()
@@ -71,26 +72,35 @@ class LslOutput(EstimateOutput):
 
     def on_start(self, acquisition: Acquisition) -> None:
         names = target_channels(self.target)
-        self.estimate = _outlet(ESTIMATE_STREAM, "Force",
-                                [(n, "N") for n in names] + [("t_frame_s", "s"),
-                                                             ("latency_s", "s")],
-                                pylsl().IRREGULAR_RATE, f"{self.source_id}-estimate")
-        self.trocar = _outlet(TROCAR_STREAM, "Force", [("force_x", "N"), ("force_y", "N"),
-                                                       ("force_z", "N")],
-                              float(acquisition.rig.trocar.rate_hz or 0.0),
-                              f"{self.source_id}-trocar")
+        self.estimate = _outlet(
+            ESTIMATE_STREAM,
+            "Force",
+            [(n, "N") for n in names] + [("t_frame_s", "s"), ("latency_s", "s")],
+            pylsl().IRREGULAR_RATE,
+            f"{self.source_id}-estimate",
+        )
+        self.trocar = _outlet(
+            TROCAR_STREAM,
+            "Force",
+            [("force_x", "N"), ("force_y", "N"), ("force_z", "N")],
+            float(acquisition.rig.trocar.rate_hz or 0.0),
+            f"{self.source_id}-trocar",
+        )
 
     def on_estimate(self, estimate: LiveEstimate) -> None:
         """Publish one estimate (time stamp: its frame's capture time)."""
         t_frame_s = estimate.t_frame_host_ns / 1e9
-        self.estimate.push_sample([*estimate.force_n.tolist(), t_frame_s, estimate.latency_s],
-                                  t_frame_s)
+        self.estimate.push_sample(
+            [*estimate.force_n.tolist(), t_frame_s, estimate.latency_s], t_frame_s
+        )
 
     def on_samples(self, samples: Sequence[ForceSample]) -> None:
         """Publish trocar samples (each stamped with its host time)."""
         if samples:
-            self.trocar.push_chunk(np.array([s.force_n for s in samples], np.float64),
-                                   [s.t_host_ns / 1e9 for s in samples])
+            self.trocar.push_chunk(
+                np.array([s.force_n for s in samples], np.float64),
+                [s.t_host_ns / 1e9 for s in samples],
+            )
 
     def on_stop(self, acquisition: Acquisition) -> None:
         """Withdraw both outlets."""
@@ -118,20 +128,26 @@ class UdpOutput(EstimateOutput):
     def __init__(self, address: tuple[str, int], target: str) -> None:
         self.target = target
         try:
-            family, kind, proto, _, sockaddr = socket.getaddrinfo(*address,
-                                                                  type=socket.SOCK_DGRAM)[0]
+            family, kind, proto, _, sockaddr = socket.getaddrinfo(*address, type=socket.SOCK_DGRAM)[
+                0
+            ]
         except socket.gaierror as exc:
-            raise LiveError(f"--udp {address[0]}:{address[1]}: cannot resolve the host "
-                            f"({exc.strerror})") from None
+            raise LiveError(
+                f"--udp {address[0]}:{address[1]}: cannot resolve the host ({exc.strerror})"
+            ) from None
         self._sock = socket.socket(family, kind, proto)
         self._to = sockaddr
 
     def on_estimate(self, estimate: LiveEstimate) -> None:
         """Send one estimate (a full socket buffer or an unreachable port drops it)."""
-        message = {"frame_seq": estimate.frame_seq, "t_frame_host_ns": estimate.t_frame_host_ns,
-                   "t_ready_host_ns": estimate.t_ready_host_ns, "latency_s": estimate.latency_s,
-                   "target": self.target,
-                   "force_n": [None if math.isnan(v) else v for v in estimate.force_n.tolist()]}
+        message = {
+            "frame_seq": estimate.frame_seq,
+            "t_frame_host_ns": estimate.t_frame_host_ns,
+            "t_ready_host_ns": estimate.t_ready_host_ns,
+            "latency_s": estimate.latency_s,
+            "target": self.target,
+            "force_n": [None if math.isnan(v) else v for v in estimate.force_n.tolist()],
+        }
         try:
             self._sock.sendto(json.dumps(message).encode(), self._to)
         except OSError:

@@ -23,8 +23,9 @@ class Pipeline:
     returning ``None`` drops its item. The first exception of any stage halts the pipeline
     and is kept in ``error`` (as ``"<stage>: <message>"``)."""
 
-    def __init__(self, stages: Sequence[tuple[str, Callable[[Any], Any]]],
-                 sink: Callable[[Any], None]) -> None:
+    def __init__(
+        self, stages: Sequence[tuple[str, Callable[[Any], Any]]], sink: Callable[[Any], None]
+    ) -> None:
         if not stages:
             raise ValueError("a pipeline needs at least one stage")
         self.names = tuple(name for name, _ in stages)
@@ -33,9 +34,12 @@ class Pipeline:
         self._halt = threading.Event()
         self._flow = threading.Condition()  # guards _in_flight
         self._in_flight = 0  # items in a mailbox or in a stage's hands
-        self._threads = [threading.Thread(target=self._run, args=(k, work),
-                                          name=f"vbfe-live-{name}", daemon=True)
-                         for k, (name, work) in enumerate(stages)]
+        self._threads = [
+            threading.Thread(
+                target=self._run, args=(k, work), name=f"vbfe-live-{name}", daemon=True
+            )
+            for k, (name, work) in enumerate(stages)
+        ]
         self.error: str | None = None
 
     def start(self) -> None:

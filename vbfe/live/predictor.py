@@ -29,10 +29,10 @@ class LivePredictor:
         estimator = model.estimators[model.selected]
         self._pool_only = isinstance(estimator, NetworkEstimator)
         # a single-frame network reads the newest pool alone: called directly
-        self._network = (estimator.network.eval() if self._pool_only and not estimator.window
-                         else None)
-        self._device = (next(estimator.network.parameters()).device if self._pool_only
-                        else None)
+        self._network = (
+            estimator.network.eval() if self._pool_only and not estimator.window else None
+        )
+        self._device = next(estimator.network.parameters()).device if self._pool_only else None
 
     def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
         """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or
@@ -45,8 +45,9 @@ class LivePredictor:
         if self.model.config.roi == "all" and np.isfinite(points).all():
             if len(points) < MIN_FRAME_POINTS:
                 raise too_few_points()
-            draw = self._full.rng.choice(len(points), size=pool_size,
-                                         replace=len(points) < pool_size)
+            draw = self._full.rng.choice(
+                len(points), size=pool_size, replace=len(points) < pool_size
+            )
             pool = np.asarray(points[draw], np.float64)
         else:
             pool = sample_points(self._full.cropped(points), pool_size, self._full.rng)
@@ -56,6 +57,6 @@ class LivePredictor:
         """Force (outputs,) of the newest prepared frame (after the frames before it)."""
         if self._network is None:
             return self._full.predict_features(features)
-        points = torch.from_numpy(features.pool[None, :self.model.config.n_points])
+        points = torch.from_numpy(features.pool[None, : self.model.config.n_points])
         with torch.no_grad():
             return self._network(points.to(self._device))[0].cpu().double().numpy()

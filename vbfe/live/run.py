@@ -12,10 +12,10 @@ import collections
 import os
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -31,12 +31,12 @@ from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
-from vbfe.estimate.preparation import force_target
 from vbfe.estimate.model_file import ForceModel
+from vbfe.estimate.preparation import force_target
 from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
-from vbfe.live.pipeline import Pipeline
 from vbfe.live.outputs import EstimateOutput
+from vbfe.live.pipeline import Pipeline
 from vbfe.live.settings import LiveSettings, live_settings
 from vbfe.recon.matching import SgbmParams
 
@@ -61,12 +61,17 @@ class LiveStatus:
 
     def line(self) -> str:
         """One status line for headless runs."""
-        mae = (f"MAE vs trocar {self.mae_n:.3f} N (n={self.mae_count})" if self.mae_count
-               else "MAE vs trocar -")
-        return (f"live {self.wall_s:6.1f} s | {self.rate_hz:5.1f} est/s | latency p50 "
-                f"{self.latency_p50_ms:5.1f} ms p95 {self.latency_p95_ms:5.1f} ms | skipped "
-                f"{self.skipped} of {self.frames} frames | {mae} | estimate "
-                f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N")
+        mae = (
+            f"MAE vs trocar {self.mae_n:.3f} N (n={self.mae_count})"
+            if self.mae_count
+            else "MAE vs trocar -"
+        )
+        return (
+            f"live {self.wall_s:6.1f} s | {self.rate_hz:5.1f} est/s | latency p50 "
+            f"{self.latency_p50_ms:5.1f} ms p95 {self.latency_p95_ms:5.1f} ms | skipped "
+            f"{self.skipped} of {self.frames} frames | {mae} | estimate "
+            f"{self.last_estimate_n:+.2f} N trocar {self.last_trocar_n:+.2f} N"
+        )
 
 
 def use_threads(settings: LiveSettings) -> None:
@@ -78,9 +83,16 @@ def use_threads(settings: LiveSettings) -> None:
     cv2.setNumThreads(settings.opencv_threads or os.cpu_count() or 1)
 
 
-def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, model: ForceModel,
-                   calibration: Calibration, scale: float | None = None, verify: bool = True,
-                   device: str | None = None, row_scale: float | None = None) -> FrameEstimator:
+def live_estimator(
+    config: dict[str, dict[str, Any]],
+    settings: LiveSettings,
+    model: ForceModel,
+    calibration: Calibration,
+    scale: float | None = None,
+    verify: bool = True,
+    device: str | None = None,
+    row_scale: float | None = None,
+) -> FrameEstimator:
     """The estimator of a live run: ``[sgbm]``, the ``[live]`` defaults where ``scale``,
     ``row_scale`` and ``device`` are not given (``auto``: CUDA when torch sees it), torch's
     and OpenCV's thread counts."""
@@ -92,28 +104,56 @@ def live_estimator(config: dict[str, dict[str, Any]], settings: LiveSettings, mo
     elif device == "cuda" and not torch.cuda.is_available():
         raise LiveError("--device cuda: torch sees no CUDA device; use --device cpu")
     use_threads(settings)
-    return FrameEstimator(model, calibration, SgbmParams.from_config(section(config, "sgbm")),
-                          verify=verify and settings.verify, scale=scale or settings.scale,
-                          device=device, row_scale=row_scale or settings.row_scale)
+    return FrameEstimator(
+        model,
+        calibration,
+        SgbmParams.from_config(section(config, "sgbm")),
+        verify=verify and settings.verify,
+        scale=scale or settings.scale,
+        device=device,
+        row_scale=row_scale or settings.row_scale,
+    )
 
 
-def live_run(config: dict[str, dict[str, Any]], estimator: FrameEstimator,
-             calibration: Calibration, calibration_name: str, record: str | Path | None = None,
-             model_name: str = "", outputs: Sequence[EstimateOutput] = ()) -> LiveRun:
+def live_run(
+    config: dict[str, dict[str, Any]],
+    estimator: FrameEstimator,
+    calibration: Calibration,
+    calibration_name: str,
+    record: str | Path | None = None,
+    model_name: str = "",
+    outputs: Sequence[EstimateOutput] = (),
+) -> LiveRun:
     """The live run over the config's rig, run at the camera's own pace (a simulated one in
     real time too), recording into ``record`` when given, handing every estimate to
     ``outputs``; not started yet. The calibration must be of the camera's mode."""
     rig = open_rig(config, RigOptions(realtime=True))
-    mismatch = size_mismatch("the camera delivers", (rig.camera.width, rig.camera.height),
-                             calibration_name, calibration.image_size)
+    mismatch = size_mismatch(
+        "the camera delivers",
+        (rig.camera.width, rig.camera.height),
+        calibration_name,
+        calibration.image_size,
+    )
     if mismatch:
         raise LiveError(mismatch)
-    acquisition = (session_recorder(config, record, rig,
-                                    calibration_yaml=calibration.to_yaml_text(),
-                                    streams=(marks_stream(),))
-                   if record else Acquisition(rig, pattern=make_pattern))
-    return LiveRun(acquisition, estimator, model_name, outputs,
-                   live_settings(section(config, "live")).max_frame_age_s)
+    acquisition = (
+        session_recorder(
+            config,
+            record,
+            rig,
+            calibration_yaml=calibration.to_yaml_text(),
+            streams=(marks_stream(),),
+        )
+        if record
+        else Acquisition(rig, pattern=make_pattern)
+    )
+    return LiveRun(
+        acquisition,
+        estimator,
+        model_name,
+        outputs,
+        live_settings(section(config, "live")).max_frame_age_s,
+    )
 
 
 class LiveRun(Listener):
@@ -126,9 +166,14 @@ class LiveRun(Listener):
     it would hold the recorder back further while giving a stale force.
     """
 
-    def __init__(self, acquisition: Acquisition, estimator: FrameEstimator,
-                 model_name: str = "", outputs: Sequence[EstimateOutput] = (),
-                 max_frame_age_s: float = 0.25) -> None:
+    def __init__(
+        self,
+        acquisition: Acquisition,
+        estimator: FrameEstimator,
+        model_name: str = "",
+        outputs: Sequence[EstimateOutput] = (),
+        max_frame_age_s: float = 0.25,
+    ) -> None:
         acquisition.add(self)
         # first of the listeners: each frame reaches the estimator before a recorder writes it
         acquisition.listeners.insert(0, acquisition.listeners.pop())
@@ -177,7 +222,7 @@ class LiveRun(Listener):
         status = self.status()
         if recording and self.error is None:
             with SessionReader(self.acquisition.path) as reader:
-                recorded = reader.stream_times("camera")[2][:reader.n_frames]
+                recorded = reader.stream_times("camera")[2][: reader.n_frames]
             store_estimates(self.acquisition.path, self.stream(status, recorded))
         return status
 
@@ -229,15 +274,18 @@ class LiveRun(Listener):
         """The trocar samples from ``t_host_ns`` on, and the one before (host time order)."""
         samples: list[ForceSample] = list(self._forces)
         start = bisect.bisect_left(samples, t_host_ns, key=lambda s: s.t_host_ns)
-        return samples[max(0, start - 1):]
+        return samples[max(0, start - 1) :]
 
     def _trocar_at(self, t_host_ns: int) -> float:
         """The trocar's force (in the model's target, as one number) at a host time."""
         samples = self._forces_since(t_host_ns)[:3]
         if len(samples) < 2:
             return float("nan")
-        force = resample_at(np.array([t_host_ns]), np.array([s.t_host_ns for s in samples]),
-                            np.array([s.force_n for s in samples]))
+        force = resample_at(
+            np.array([t_host_ns]),
+            np.array([s.t_host_ns for s in samples]),
+            np.array([s.force_n for s in samples]),
+        )
         return float(self._scalars(force_target(force, self.target))[0])
 
     def status(self) -> LiveStatus:
@@ -252,17 +300,24 @@ class LiveRun(Listener):
         recent = sum(e.t_ready_host_ns >= now_ns - 3e9 for e in last)
         window = min(3.0, wall)
         return LiveStatus(
-            wall_s=wall, frames=self._frames_seen, estimates=count,
-            skipped=self._pipeline.skipped + self._frames_late, rate_hz=recent / window if window > 0 else 0.0,
+            wall_s=wall,
+            frames=self._frames_seen,
+            estimates=count,
+            skipped=self._pipeline.skipped + self._frames_late,
+            rate_hz=recent / window if window > 0 else 0.0,
             latency_p50_ms=float(np.percentile(latency, 50)) if len(latency) else float("nan"),
             latency_p95_ms=float(np.percentile(latency, 95)) if len(latency) else float("nan"),
-            mae_n=mae_sum / mae_count if mae_count else float("nan"), mae_count=mae_count,
-            last_estimate_n=(float(self._scalars(last[-1].force_n[None])[0]) if last
-                             else float("nan")),
-            last_trocar_n=trocar[0] if trocar else float("nan"))
+            mae_n=mae_sum / mae_count if mae_count else float("nan"),
+            mae_count=mae_count,
+            last_estimate_n=(
+                float(self._scalars(last[-1].force_n[None])[0]) if last else float("nan")
+            ),
+            last_trocar_n=trocar[0] if trocar else float("nan"),
+        )
 
-    def curves(self, window_s: float, max_points: int = 2000
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def curves(
+        self, window_s: float, max_points: int = 2000
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Estimate and trocar (model target as one number) against host time in seconds,
         over the last ``window_s``: ``(t_est, est, t_trocar, trocar)``; each curve thinned
         to at most ``max_points`` points."""
@@ -271,15 +326,23 @@ class LiveRun(Listener):
         with self._lock:
             start = bisect.bisect_left(self.estimates, since, key=lambda e: e.t_frame_host_ns)
             estimates = self.estimates[start:]
-        estimates = estimates[::len(estimates) // max_points + 1]
+        estimates = estimates[:: len(estimates) // max_points + 1]
         samples = self._forces_since(since)
-        samples = samples[::len(samples) // max_points + 1]
+        samples = samples[:: len(samples) // max_points + 1]
         t_est = np.array([e.t_frame_host_ns for e in estimates], np.float64)
-        est = self._scalars(np.array([e.force_n for e in estimates], np.float64).reshape(
-            len(estimates), -1)) if estimates else np.zeros(0)
+        est = (
+            self._scalars(
+                np.array([e.force_n for e in estimates], np.float64).reshape(len(estimates), -1)
+            )
+            if estimates
+            else np.zeros(0)
+        )
         t_trc = np.array([s.t_host_ns for s in samples], np.float64)
-        trc = (self._scalars(force_target(np.array([s.force_n for s in samples]), self.target))
-               if samples else np.zeros(0))
+        trc = (
+            self._scalars(force_target(np.array([s.force_n for s in samples]), self.target))
+            if samples
+            else np.zeros(0)
+        )
         return (t_est - now) / 1e9, est, (t_trc - now) / 1e9, trc
 
     def stream(self, status: LiveStatus, recorded_seqs: np.ndarray) -> EstimateStream:
@@ -287,7 +350,7 @@ class LiveRun(Listener):
         frame past the recording's end, or lost by the recorder, keeps no estimate)."""
         with self._lock:
             kept = np.isin([e.frame_seq for e in self.estimates], recorded_seqs)
-            estimates = [e for e, k in zip(self.estimates, kept) if k]
+            estimates = [e for e, k in zip(self.estimates, kept, strict=False) if k]
         outputs = self.estimator.model.config.n_outputs
         return EstimateStream(
             force_n=np.array([e.force_n for e in estimates], np.float64).reshape(-1, outputs),
@@ -296,15 +359,27 @@ class LiveRun(Listener):
             t_ready_host_ns=np.array([e.t_ready_host_ns for e in estimates], np.int64),
             stage_s=np.array([e.stage_s for e in estimates], np.float64).reshape(-1, len(STAGES)),
             stages=list(STAGES),
-            attrs={"target": self.target, "outputs": outputs, "frames_seen": status.frames,
-                   "estimated": status.estimates, "of_unrecorded_frames": int((~kept).sum()),
-                   "skipped_frames": status.skipped, "scale": self.estimator.scale,
-                   "row_scale": self.estimator.row_scale,
-                   "running_mae_n": status.mae_n, "model": self.model_name})
+            attrs={
+                "target": self.target,
+                "outputs": outputs,
+                "frames_seen": status.frames,
+                "estimated": status.estimates,
+                "of_unrecorded_frames": int((~kept).sum()),
+                "skipped_frames": status.skipped,
+                "scale": self.estimator.scale,
+                "row_scale": self.estimator.row_scale,
+                "running_mae_n": status.mae_n,
+                "model": self.model_name,
+            },
+        )
 
 
-def run_headless(run: LiveRun, duration_s: float | None, on_status: Callable[[LiveStatus], None],
-                 interval_s: float = 1.0) -> LiveStatus:
+def run_headless(
+    run: LiveRun,
+    duration_s: float | None,
+    on_status: Callable[[LiveStatus], None],
+    interval_s: float = 1.0,
+) -> LiveStatus:
     """Wait until ``duration_s`` (wall clock), the end of the recording, or Ctrl-C, reporting
     the status every ``interval_s``; then stop the run."""
     reason = "duration reached"

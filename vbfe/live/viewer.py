@@ -16,8 +16,9 @@ class LiveEstimateWindow(QtWidgets.QWidget):
     """Plot of the last ``WINDOW_S`` seconds and a status line; closes at ``duration_s``. The
     M key puts an event mark ("key M <n>") into the recording (``vbfe live --record``)."""
 
-    def __init__(self, run: LiveRun, duration_s: float | None = None,
-                 interval_ms: int = 100) -> None:
+    def __init__(
+        self, run: LiveRun, duration_s: float | None = None, interval_ms: int = 100
+    ) -> None:
         QtWidgets.QApplication.instance() or QtWidgets.QApplication([])
         super().__init__()
         self.run, self.duration_s = run, duration_s
@@ -29,8 +30,9 @@ class LiveEstimateWindow(QtWidgets.QWidget):
         self.plot.setLabel("bottom", "time before now", units="s")
         self.plot.addLegend(offset=(5, 5))
         self.trocar = self.plot.plot(pen=pg.mkPen("#4363d8", width=2), name="trocar")
-        self.estimate = self.plot.plot(pen=None, symbol="o", symbolSize=5,
-                                       symbolBrush="#e6194b", name="estimate")
+        self.estimate = self.plot.plot(
+            pen=None, symbol="o", symbolSize=5, symbolBrush="#e6194b", name="estimate"
+        )
         self.plot.setXRange(-WINDOW_S, 0.0)
         layout.addWidget(self.plot)
         self.status_label = QtWidgets.QLabel()
@@ -78,5 +80,10 @@ def show_live(run: LiveRun, duration_s: float | None) -> LiveStatus:
     app.exec()
     window.deleteLater()
     QtWidgets.QApplication.sendPostedEvents(None, 0)
-    return run.stop("window closed" if window.last_status is None or duration_s is None
-                    or window.last_status.wall_s < duration_s else "duration reached")
+    return run.stop(
+        "window closed"
+        if window.last_status is None
+        or duration_s is None
+        or window.last_status.wall_s < duration_s
+        else "duration reached"
+    )

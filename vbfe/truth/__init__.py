@@ -9,6 +9,14 @@ from vbfe.truth.bench import TruthError, session_bench, trial_duration_s, true_r
 from vbfe.truth.calibration import calibration_from_rig
 from vbfe.truth.scenes import board_config
 
-__all__ = ["AccuracyReport", "TruthError", "board_config", "calibration_from_rig",
-           "evaluate_against_truth", "rectified_truth", "session_bench", "trial_duration_s",
-           "true_rig"]
+__all__ = [
+    "AccuracyReport",
+    "TruthError",
+    "board_config",
+    "calibration_from_rig",
+    "evaluate_against_truth",
+    "rectified_truth",
+    "session_bench",
+    "trial_duration_s",
+    "true_rig",
+]

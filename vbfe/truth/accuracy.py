@@ -29,10 +29,15 @@ class AccuracyReport:
         return asdict(self)
 
 
-def evaluate_against_truth(estimate: FrameCloud | np.ndarray, truth_disparity_px: np.ndarray,
-                           truth_depth_m: np.ndarray, truth_valid: np.ndarray | None = None,
-                           f_px: float | None = None, baseline_m: float | None = None,
-                           bad_threshold_px: float = BAD_PIXEL_PX) -> AccuracyReport:
+def evaluate_against_truth(
+    estimate: FrameCloud | np.ndarray,
+    truth_disparity_px: np.ndarray,
+    truth_depth_m: np.ndarray,
+    truth_valid: np.ndarray | None = None,
+    f_px: float | None = None,
+    baseline_m: float | None = None,
+    bad_threshold_px: float = BAD_PIXEL_PX,
+) -> AccuracyReport:
     """Compare a frame cloud, or a disparity map (px, NaN invalid, needs ``f_px``/``baseline_m``),
     with truth maps on the same (rectified left) pixel grid."""
     if isinstance(estimate, FrameCloud):
@@ -47,8 +52,10 @@ def evaluate_against_truth(estimate: FrameCloud | np.ndarray, truth_disparity_px
         depth = np.zeros(valid.shape, np.float64)
         depth[valid] = f_px * baseline_m / disparity[valid]
     if disparity.shape != truth_disparity_px.shape:
-        raise ReconError(f"estimate is {disparity.shape} but the truth is "
-                         f"{truth_disparity_px.shape}; evaluate on the same pixel grid")
+        raise ReconError(
+            f"estimate is {disparity.shape} but the truth is "
+            f"{truth_disparity_px.shape}; evaluate on the same pixel grid"
+        )
     covered = truth_depth_m > 0 if truth_valid is None else truth_valid & (truth_depth_m > 0)
     both = valid & covered
     n = int(both.sum())
@@ -57,15 +64,17 @@ def evaluate_against_truth(estimate: FrameCloud | np.ndarray, truth_disparity_px
     depth_error = np.abs(depth[both] - truth_depth_m[both])
     disparity_error = np.abs(disparity[both] - truth_disparity_px[both])
     return AccuracyReport(
-        valid_fraction=n / max(int(covered.sum()), 1), n_valid=n,
+        valid_fraction=n / max(int(covered.sum()), 1),
+        n_valid=n,
         median_abs_depth_error_m=float(np.median(depth_error)),
         p95_abs_depth_error_m=float(np.percentile(depth_error, 95)),
-        bad_pixel_rate=float(np.mean(disparity_error > bad_threshold_px)))
+        bad_pixel_rate=float(np.mean(disparity_error > bad_threshold_px)),
+    )
 
 
-def rectified_truth(calibration: Calibration, depth_left_m: np.ndarray,
-                    valid_left: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rectified_truth(
+    calibration: Calibration, depth_left_m: np.ndarray, valid_left: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Truth disparity (px), depth (m) and validity of the raw left view, moved onto the
     rectified left pixel grid the reconstruction reports in (the argument order of
     :func:`evaluate_against_truth`).
@@ -81,12 +90,17 @@ def rectified_truth(calibration: Calibration, depth_left_m: np.ndarray,
     raw_depth = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST, borderValue=0)
     v, u = np.mgrid[0:height, 0:width]
     f, cx, cy = calibration.f, calibration.cx, calibration.cy
-    ray_z = (calibration.R1.T @ np.stack([(u.ravel() - cx) / f, (v.ravel() - cy) / f,
-                                            np.ones(u.size)]))[2].reshape(height, width)
+    ray_z = (
+        calibration.R1.T @ np.stack([(u.ravel() - cx) / f, (v.ravel() - cy) / f, np.ones(u.size)])
+    )[2].reshape(height, width)
     depth_rect = raw_depth / ray_z
     valid_rect = raw_depth > 0
     doffs = -calibration.doffs  # here: left minus right
-    disparity = np.where(valid_rect, calibration.f * calibration.B
-                         / np.where(valid_rect, depth_rect, 1.0) + doffs, 0)
-    return (disparity.astype(np.float32),
-            np.where(valid_rect, depth_rect, 0).astype(np.float32), valid_rect)
+    disparity = np.where(
+        valid_rect, calibration.f * calibration.B / np.where(valid_rect, depth_rect, 1.0) + doffs, 0
+    )
+    return (
+        disparity.astype(np.float32),
+        np.where(valid_rect, depth_rect, 0).astype(np.float32),
+        valid_rect,
+    )

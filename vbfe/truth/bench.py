@@ -5,9 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 from vbfe.acquire import SessionReader
+from vbfe.common.errors import VbfeError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.rig import StereoRig
-from vbfe.common.errors import VbfeError
 
 
 class TruthError(VbfeError):
@@ -28,6 +28,7 @@ def session_bench(reader: SessionReader) -> SimBench:
     """The bench that recorded an open session, rebuilt from the description stored in it."""
     description = reader.metadata.get("bench")
     if description is None:
-        raise TruthError(f"{reader.path} was not recorded on the simulated bench; it has no "
-                         "ground truth")
+        raise TruthError(
+            f"{reader.path} was not recorded on the simulated bench; it has no ground truth"
+        )
     return SimBench.from_description(description)

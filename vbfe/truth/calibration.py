@@ -18,12 +18,33 @@ def calibration_from_rig(rig: StereoRig) -> Calibration:
     """
     size = (rig.left.width, rig.left.height)
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        rig.left.K, rig.left.dist, rig.right.K, rig.right.dist, size, np.asarray(rig.R, np.float64),
+        rig.left.K,
+        rig.left.dist,
+        rig.right.K,
+        rig.right.dist,
+        size,
+        np.asarray(rig.R, np.float64),
         np.asarray(rig.T, np.float64).reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
-    return Calibration(K1=rig.left.K, D1=rig.left.dist, K2=rig.right.K, D2=rig.right.dist,
-                       R=rig.R, T=rig.T, R1=R1, R2=R2, P1=P1, P2=P2, Q=Q, image_size=size,
-                       K_proj=rig.projector.K, D_proj=rig.projector.dist, R_proj=rig.R_proj,
-                       T_proj=rig.T_proj,
-                       projector_size=(rig.projector.width, rig.projector.height),
-                       info={"source": "simulated bench truth"})
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=0,
+    )
+    return Calibration(
+        K1=rig.left.K,
+        D1=rig.left.dist,
+        K2=rig.right.K,
+        D2=rig.right.dist,
+        R=rig.R,
+        T=rig.T,
+        R1=R1,
+        R2=R2,
+        P1=P1,
+        P2=P2,
+        Q=Q,
+        image_size=size,
+        K_proj=rig.projector.K,
+        D_proj=rig.projector.dist,
+        R_proj=rig.R_proj,
+        T_proj=rig.T_proj,
+        projector_size=(rig.projector.width, rig.projector.height),
+        info={"source": "simulated bench truth"},
+    )

@@ -12,8 +12,14 @@ HAND_HELD = {"scene": "board", "board_hold_s": 0.0}
 # The board on a stand inside the projected area, moved every 6 s (longer than the 43 frames of
 # a Gray-code pose at 10 fps), tilted more so that the projector's pose is well determined; an
 # ideal projector (no latency, instant exposure), so every frame after a command shows it.
-ON_A_STAND = {"scene": "board", "board_hold_s": 6.0, "board_in_projector": True,
-              "board_max_tilt_deg": 45.0, "projector_latency_ms": 0.0, "exposure_ms": 0.0}
+ON_A_STAND = {
+    "scene": "board",
+    "board_hold_s": 6.0,
+    "board_in_projector": True,
+    "board_max_tilt_deg": 45.0,
+    "projector_latency_ms": 0.0,
+    "exposure_ms": 0.0,
+}
 
 
 def board_config(config: Config, on_a_stand: bool = False, **bench: Any) -> Config:
