@@ -93,6 +93,7 @@ def _clouds(session):
         return [clouds.cloud(i)[0] for i in range(clouds.n_frames)]
 
 
+@pytest.mark.slow
 def test_local_pool_and_ray_give_the_same_clouds_and_skip_current_ones(dataset, tmp_path):
     root, sessions = dataset
     manifest = tmp_path / "all.csv"

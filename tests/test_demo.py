@@ -8,6 +8,8 @@ import pytest
 
 from vbfe.cli.main import main
 
+pytestmark = pytest.mark.slow  # the whole pipeline: about three minutes
+
 
 @pytest.fixture(scope="module")
 def demo_out(tmp_path_factory) -> Path:

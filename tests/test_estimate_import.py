@@ -73,6 +73,7 @@ def depth_dataset(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_depth_import_trains_and_evaluates_with_a_time_split(depth_dataset, tmp_path):
     data = tmp_path / "tissue.clouds.h5"
     imported = vbfe(

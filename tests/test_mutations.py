@@ -314,6 +314,7 @@ def test_damaged_sessions(corpus, capsys, headless_viewer, command):
     run_cases(cases, capsys)
 
 
+@pytest.mark.slow
 def test_damaged_sessions_for_training(corpus, capsys):
     """`vbfe train` reads the session next to its clouds sidecar."""
     cases = []

@@ -85,6 +85,7 @@ def test_synchronised_rig_passes_directly(tmp_path, seed):
     assert report.verdict == PASS, report.reasons
 
 
+@pytest.mark.slow
 def test_a_one_frame_latency_jump_halfway_is_reported(tmp_path, monkeypatch):
     config = bench_config(7)
 
@@ -172,6 +173,7 @@ def _vbfe(*args: str, cwd) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_cli_records_a_protocol_session_and_applies_its_correction(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text(
