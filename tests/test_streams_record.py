@@ -178,3 +178,42 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         frames_t = reader.frame_times_ns()
     assert event["source"] == "mark" and event["text"] == "grasp begins"
     assert frames_t[0] < event["t_host_ns"] < frames_t[-1]
+
+
+@pytest.mark.slow
+def test_a_paused_publisher_is_one_irregular_gap_with_nothing_lost(tmp_path: Path) -> None:
+    """A 500 Hz robot that stalls for 200 ms mid-recording sent nothing then: `vbfe record`,
+    `vbfe inspect` and the session report say late/irregular publisher, 1 gap of ~202 ms,
+    lost 0."""
+    robot = FakeRobot(unique("stall"), rate_hz=500.0, joints=2)
+    toml = tmp_path / "rig.toml"
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n')
+    path = tmp_path / "s.h5"
+    with robot:
+        proc = subprocess.Popen(
+            vbfe("record", path, "--duration", 4, "--config", toml),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert robot.outlet.wait_for_consumers(60.0), "the recorder never subscribed"
+        time.sleep(1.5)
+        robot.pause(0.2)
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    with SessionReader(path) as reader:
+        t_device = reader.stream("robot").t_device_ns
+    steps = np.diff(t_device)
+    assert np.sum(steps > 3_000_000) == 1  # the stall is in the data, once
+    worst_ms = steps.max() / 1e6
+    assert 200 <= worst_ms <= 204
+    line = f"lost 0 (0.00%); late/irregular publisher 1 gap ({round(worst_ms / 2) - 1} sample "
+    assert f"stream robot: {line}" in out
+    result = subprocess.run(vbfe("inspect", path), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert line in result.stdout and f"worst {worst_ms:.1f} ms" in result.stdout
+    report = tmp_path / "report.html"
+    result = subprocess.run(vbfe("report", path, "-o", report), capture_output=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    html = report.read_text()
+    assert "late/irregular publisher gaps" in html and f"<td>{worst_ms:.1f}</td>" in html
