@@ -17,6 +17,7 @@ from typing import Any
 SUBPROTOCOLS = "foxglove.sdk.v1, foxglove.websocket.v1"
 _TEXT, _BINARY, _CLOSE, _PING, _PONG = 1, 2, 8, 9, 10
 _MESSAGE_DATA = 1
+_SETTLE_S = 0.3
 
 
 class FoxgloveClient:
@@ -52,6 +53,11 @@ class FoxgloveClient:
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
 
     def close(self) -> None:
+        """Say goodbye (a WebSocket close frame, status 1000) and close the socket."""
+        try:
+            self._send(_CLOSE, struct.pack("!H", 1000))
+        except OSError:
+            pass  # the server is gone already
         self._sock.close()
 
     def __enter__(self) -> FoxgloveClient:
@@ -127,7 +133,11 @@ class FoxgloveClient:
         while True:
             by_topic = {c["topic"]: c for c in self.channels.values()}
             if topics <= by_topic.keys():
-                return by_topic
+                # foxglove-sdk advertises a channel a moment before it takes subscriptions
+                # to it (a subscription at once is refused as an "unknown channel")
+                for _ in self.messages(_SETTLE_S):
+                    pass
+                return {c["topic"]: c for c in self.channels.values()}
             if time.monotonic() > deadline:
                 raise TimeoutError(f"never advertised: {sorted(topics - by_topic.keys())}")
             opcode, payload = self._frame()
