@@ -51,6 +51,7 @@ class FoxgloveClient:
         self.channels: dict[int, dict[str, Any]] = {}  # advertised, by channel id
         self.server_info: dict[str, Any] = {}
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
+        self.closed = False  # the server closed the connection
 
     def close(self) -> None:
         """Say goodbye (a WebSocket close frame, status 1000) and close the socket."""
@@ -155,13 +156,16 @@ class FoxgloveClient:
 
     def messages(self, timeout_s: float) -> Iterator[tuple[dict[str, Any], int, bytes]]:
         """(advertised channel, log time ns, payload) of each message received, for
-        ``timeout_s``."""
+        ``timeout_s`` or until the server closes the connection (then ``closed``)."""
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not self.closed:
             self._sock.settimeout(max(0.05, deadline - time.monotonic()))
             try:
                 opcode, payload = self._frame()
             except TimeoutError:
+                return
+            except ConnectionError:
+                self.closed = True
                 return
             if opcode == _TEXT:
                 self._handle_text(payload)

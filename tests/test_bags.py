@@ -574,3 +574,63 @@ def test_images_option_is_checked_in_one_line(sessions, tmp_path, capsys):
         assert not out.exists()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all("--images" in line and "png" in line for line in err)
+
+
+# -- the Foxglove layout shipped in docs/ ---------------------------------------------------
+LAYOUT = Path(__file__).parents[1] / "docs" / "foxglove" / "vbfe-layout.json"
+
+
+def _layout_topics(layout):
+    """Every topic a panel of the layout reads: image topics, plot paths, 3D topics."""
+    topics = set()
+    for config in layout["configById"].values():
+        topics |= {v for k, v in config.get("imageMode", {}).items() if k.endswith("Topic")}
+        topics |= {path["value"].split(".")[0] for path in config.get("paths", [])}
+        topics |= set(config.get("topics", {}))
+    return topics
+
+
+def _layout_panels(node):
+    return (
+        {node}
+        if isinstance(node, str)
+        else set().union(*(_layout_panels(node[side]) for side in ("first", "second")))
+    )
+
+
+def test_layout_names_only_topics_the_export_and_the_live_server_write(sessions, tmp_path):
+    import json
+
+    from tests.foxglove_client import FoxgloveClient
+    from vbfe.acquire import Acquisition
+    from vbfe.drivers.registry import open_rig
+    from vbfe.drivers.rig import RigOptions
+    from vbfe.live.foxglove_server import FoxgloveServer
+
+    layout = json.loads(LAYOUT.read_text())
+    assert _layout_panels(layout["layout"]) == set(layout["configById"])
+    wanted = _layout_topics(layout)
+    assert {"/trocar/wrench", "/stereo/points", "/vbfe/estimate"} <= wanted
+    # the export of a session with live estimates and its clouds (default --images png)
+    clouds, bag = tmp_path / "raw.clouds.h5", tmp_path / "raw.mcap"
+    assert (
+        main(
+            ["reconstruct", str(sessions["raw"]), "--workers", "1", "--no-verify"]
+            + ["--out", str(clouds)]
+        )
+        == 0
+    )
+    assert main(["export", str(sessions["raw"]), "-o", str(bag), "--clouds", str(clouds)]) == 0
+    exported = {topic for topic, _, _ in _decoded(bag)[1]}
+    assert wanted <= exported, wanted - exported
+    # the live server (a live run's: with estimates and clouds) over the bench
+    config = default_config()
+    config["bench"].update(width=160, height=90, fps=15.0)
+    server = FoxgloveServer(0, target="magnitude")
+    acquisition = Acquisition(open_rig(config, RigOptions(realtime=True)), listeners=(server,))
+    acquisition.start()
+    try:
+        with FoxgloveClient("127.0.0.1", server.port) as client:
+            client.wait_for_topics(wanted, timeout_s=10.0)  # TimeoutError names what is not
+    finally:
+        acquisition.stop()
