@@ -379,3 +379,29 @@ def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
     assert clouds[0].width > 100 and clouds[0].point_step == 16
     points = np.frombuffer(bytes(clouds[0].data), np.float32).reshape(-1, 4)[:, :3]
     assert 0.03 < np.median(points[:, 2]) < 0.1  # the tissue, at the working distance (m)
+
+
+def test_foxglove_options_are_checked_before_anything_is_recorded(tmp_path, capsys):
+    """A busy port, a bad --images and --images without --foxglove: one line each, exit 2,
+    no session file."""
+    import socket
+
+    from vbfe.cli.main import main
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        session = tmp_path / "s.h5"
+        for args in (
+            ["--foxglove", str(port)],
+            ["--foxglove", "0", "--images", "gif"],
+            ["--images", "png"],
+            ["--foxglove", "70000"],
+        ):
+            assert main(["record", str(session), "--duration", "1", *args]) == 2
+            assert not session.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all(line.startswith("vbfe record: error: ") for line in err)
+    assert f"--foxglove {port}: cannot serve" in err[0] and "another port" in err[0]
+    assert "--images 'gif'" in err[1] and "--foxglove" in err[2] and "70000" in err[3]

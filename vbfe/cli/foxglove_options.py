@@ -35,8 +35,9 @@ def add_foxglove_options(parser: argparse.ArgumentParser) -> None:
 
 
 def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServer | None:
-    """The server ``--foxglove`` asks for (None without it), printing its address once it
-    listens; LiveError for a bad port, BagError for a bad ``--images``."""
+    """The server ``--foxglove`` asks for, listening already (None without it), printing its
+    address once the rig runs; LiveError for a bad or busy port, BagError for a bad
+    ``--images``."""
     from vbfe.bags.images import image_codec
     from vbfe.live.errors import LiveError
     from vbfe.live.foxglove_server import LIVE_IMAGES, FoxgloveServer
@@ -48,7 +49,7 @@ def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServe
     if not 0 <= args.foxglove < 65536:
         raise LiveError(f"--foxglove {args.foxglove}: give a TCP port 1-65535 (0: any free one)")
     images = image_codec(args.images) if args.images is not None else LIVE_IMAGES
-    return FoxgloveServer(
+    server = FoxgloveServer(
         args.foxglove,
         images,
         target=target,
@@ -56,3 +57,5 @@ def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServe
             f"Foxglove: open {url} (docs/foxglove.md)", file=sys.stderr, flush=True
         ),
     )
+    server.open()  # a busy port is refused before anything is recorded
+    return server

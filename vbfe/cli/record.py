@@ -159,11 +159,11 @@ def run(args: argparse.Namespace) -> int:
 
         loaded = Calibration.load(args.calib)
         calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size
-    server = foxglove_server(args)
     if args.remote is not None:
-        if server is not None:
+        if args.foxglove is not None:
             raise VbfeError("--foxglove serves one recording: drop it with --remote")
         return _run_remote(args, calibration, calibration_size)
+    server = foxglove_server(args)
     protocol = None
     if args.protocol == "sync":
         protocol = SyncProtocol(

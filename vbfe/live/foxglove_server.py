@@ -106,7 +106,7 @@ class FoxgloveServer(EstimateOutput):
     ``cloud_hz`` a second; ``target`` names the estimate's model target (a live run's; none:
     no estimate or cloud channel); ``on_ready`` hears the ``ws://`` address once it listens.
 
-    :raises LiveError: at start, when the port cannot be opened.
+    :raises LiveError: by :meth:`open` (or at start), when the port cannot be opened.
     """
 
     def __init__(
@@ -136,11 +136,15 @@ class FoxgloveServer(EstimateOutput):
         self._stream_labels: dict[str, tuple[str, ...]] = {}
 
     # -- lifecycle --------------------------------------------------------------------------
-    def on_start(self, acquisition: Acquisition) -> None:
-        """Open the server and its channels; start the sending thread."""
+    def open(self) -> None:
+        """Start listening (done by :meth:`on_start` unless done before: open it before the
+        acquisition starts to refuse a busy port before anything is recorded).
+
+        :raises LiveError: when the port cannot be opened."""
         import foxglove
 
-        self._to_unix_ns = time.time_ns() - time.monotonic_ns()
+        if self._server is not None:
+            return
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
@@ -152,6 +156,13 @@ class FoxgloveServer(EstimateOutput):
                 "give another port"
             ) from None
         self.port = int(self._server.port)
+
+    def on_start(self, acquisition: Acquisition) -> None:
+        """Open the server (unless open) and its channels; start the sending thread."""
+        import foxglove
+
+        self.open()
+        self._to_unix_ns = time.time_ns() - time.monotonic_ns()
         image_type = builders.COMPRESSED_IMAGE if self.images.compressed else builders.IMAGE
         suffix = "/compressed" if self.images.compressed else ""
         for eye in ("left", "right"):
@@ -169,7 +180,7 @@ class FoxgloveServer(EstimateOutput):
             if name in ("camera", "force", "projector") or info is None:
                 continue
             self._stream_labels[name] = info.channels
-            fields = (
+            fields: dict[str, dict[str, Any]] = (
                 {"text": {"type": "string"}}
                 if info.markers
                 else {label: {"type": ["number", "null"]} for label in info.channels}
