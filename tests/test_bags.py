@@ -634,3 +634,15 @@ def test_layout_names_only_topics_the_export_and_the_live_server_write(sessions,
             client.wait_for_topics(wanted, timeout_s=10.0)  # TimeoutError names what is not
     finally:
         acquisition.stop()
+
+
+def test_the_fast_wrench_packing_gives_rosbags_own_cdr_bytes():
+    from vbfe.bags import builders
+
+    t_ns = np.array([1_700_000_000_123_456_789, 1_700_000_001_000_000_001, 2_000_000_000 * 10**9])
+    forces = np.array([[0.1, -0.2, 3.5], [1e-3, 2.0, -7.25], [np.nan, np.inf, 0.0]])
+    by_rosbags = [
+        builders.cdr(builders.wrench(int(t), dict(zip("xyz", f, strict=True))), builders.WRENCH)
+        for t, f in zip(t_ns, forces, strict=True)
+    ]
+    assert builders.wrench_cdr(t_ns, forces) == by_rosbags

@@ -1,15 +1,15 @@
 """``--foxglove [PORT]``: the running rig served to Foxglove over its WebSocket protocol
 (foxglove-sdk), as one more listener of the acquisition.
 
-Topics and schemas are the MCAP export's (:data:`vbfe.bags.messages.TOPICS`, ROS 2 messages
-in CDR, which Foxglove reads without plugins): both eyes' images as
+Topics and schemas are the MCAP export's (:data:`vbfe.bags.messages.TOPICS`, ROS 2 messages in
+CDR, which Foxglove reads without plugins): both eyes' images as
 ``sensor_msgs/CompressedImage`` (``--images``: JPEG 90 by default, PNG, or raw
-``sensor_msgs/Image``), the trocar's ``geometry_msgs/WrenchStamped``, the projector's
-``vbfe_msgs/ProjectorEvent``, the point cloud as ``sensor_msgs/PointCloud2`` at most
-``cloud_hz`` times a second; the live estimate as JSON on ``/vbfe/estimate`` with every field
-of the estimate record (a JSON schema made from the record's fields: what the estimator adds
-flows through); each extra stream as JSON on ``/vbfe/streams/<name>``. Stamps are Unix time
-(the host clock mapped at start).
+``sensor_msgs/Image``) at most ``image_hz`` frames a second, the trocar's
+``geometry_msgs/WrenchStamped``, the projector's ``vbfe_msgs/ProjectorEvent``, the point cloud
+as ``sensor_msgs/PointCloud2`` at most ``cloud_hz`` times a second; the live estimate as JSON
+on ``/vbfe/estimate`` with every field of the estimate record (a JSON schema made from the
+record's fields: what the estimator adds flows through); each extra stream as JSON on
+``/vbfe/streams/<name>``. Stamps are Unix time (the host clock mapped at start).
 
 Nothing here slows the recording: the listener hooks only hand records over, the newest frame
 and cloud through one-slot mailboxes (a frame not yet sent is replaced, counted in
@@ -102,7 +102,8 @@ def estimate_json(estimate: LiveEstimate, target: str) -> dict[str, Any]:
 
 class FoxgloveServer(EstimateOutput):
     """A Foxglove WebSocket server on ``host:port`` (0: a free port; :attr:`port` says which
-    once started) while the rig runs; images as ``images`` says; the point cloud at most
+    once started) while the rig runs; images as ``images`` says, at most ``image_hz`` frames
+    a second (a viewer needs no more; each costs two encodings); the point cloud at most
     ``cloud_hz`` a second; ``target`` names the estimate's model target (a live run's; none:
     no estimate or cloud channel); ``on_ready`` hears the ``ws://`` address once it listens.
 
@@ -115,18 +116,20 @@ class FoxgloveServer(EstimateOutput):
         images: ImageCodec = LIVE_IMAGES,
         host: str = "127.0.0.1",
         target: str = "",
+        image_hz: float = 10.0,
         cloud_hz: float = 2.0,
         on_ready: Callable[[str], None] | None = None,
     ) -> None:
         self.on_ready = on_ready  # told the server's ws:// address once it listens
         self.host, self.port, self.images, self.target = host, port, images, target
+        self.image_interval_ns = int(1e9 / image_hz)
         self.cloud_interval_ns = int(1e9 / cloud_hz)
         self.frames_skipped = self.records_dropped = 0
         self.sent: dict[str, int] = {}  # messages sent per topic
         self._frames: Mailbox[StereoFrame] = Mailbox()
         self._clouds: Mailbox[tuple[int, np.ndarray, np.ndarray]] = Mailbox()
         self._records: queue.Queue[tuple[str, Any]] = queue.Queue(_QUEUE_RECORDS)
-        self._last_cloud_ns = 0
+        self._last_cloud_ns = self._last_frame_ns = 0
         self._to_unix_ns = 0
         self._halt = threading.Event()
         self._thread: threading.Thread | None = None
@@ -230,7 +233,8 @@ class FoxgloveServer(EstimateOutput):
             super().on_records(stream, records)
 
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:
-        if frames:
+        if frames and frames[-1].t_host_ns - self._last_frame_ns >= self.image_interval_ns:
+            self._last_frame_ns = frames[-1].t_host_ns
             self._frames.put(frames[-1])
 
     def on_samples(self, samples: Sequence[ForceSample]) -> None:
@@ -292,10 +296,13 @@ class FoxgloveServer(EstimateOutput):
     def _send_record(self, kind: str, item: Any) -> None:
         if kind == "force":
             if self._channels[TOPICS["wrench"]].has_sinks():
-                for s in item:
-                    t = s.t_host_ns + self._to_unix_ns
-                    force = dict(zip("xyz", np.asarray(s.force_n, float).tolist(), strict=False))
-                    self._send(TOPICS["wrench"], builders.WRENCH, t, builders.wrench(t, force))
+                t = np.array([s.t_host_ns for s in item], np.int64) + self._to_unix_ns
+                forces = np.zeros((len(item), 3))
+                for k, sample in enumerate(item):
+                    force = np.asarray(sample.force_n, np.float64)[:3]
+                    forces[k, : len(force)] = force
+                for t_ns, data in zip(t, builders.wrench_cdr(t, forces), strict=True):
+                    self._log(TOPICS["wrench"], int(t_ns), data)
         elif kind == "projector":
             for e in item:
                 t = e.t_host_ns + self._to_unix_ns
