@@ -217,3 +217,40 @@ def test_a_paused_publisher_is_one_irregular_gap_with_nothing_lost(tmp_path: Pat
     assert result.returncode == 0, result.stderr
     html = report.read_text()
     assert "late/irregular publisher gaps" in html and f"<td>{worst_ms:.1f}</td>" in html
+
+
+def test_the_foxglove_server_sends_extra_streams_with_their_channel_labels() -> None:
+    """A rig with a 500 Hz robot stream served by the Foxglove server: a client on loopback
+    receives its samples as JSON, one number per joint label, as the robot published them."""
+    import json
+
+    from tests.foxglove_client import FoxgloveClient
+    from vbfe.acquire import Acquisition
+    from vbfe.common.config import default_config
+    from vbfe.drivers.registry import open_rig
+    from vbfe.live.foxglove_server import FoxgloveServer
+
+    with FakeRobot(unique("fox"), rate_hz=500.0, joints=2) as robot:
+        config = default_config()
+        config["bench"].update(width=160, height=90, fps=10.0)
+        config["streams"] = {"robot": {"name": robot.name}}
+        server = FoxgloveServer(0)
+        acquisition = Acquisition(open_rig(config), listeners=(server,))
+        acquisition.start()
+        try:
+            with FoxgloveClient("127.0.0.1", server.port) as client:
+                channel = client.wait_for_topics({"/vbfe/streams/robot"})["/vbfe/streams/robot"]
+                client.subscribe([channel["id"]])
+                received = [json.loads(data) for _, _, data in client.messages(1.5)]
+        finally:
+            acquisition.stop()
+    properties = json.loads(channel["schema"])["properties"]
+    assert set(properties) == {"joint1_position", "joint2_position", "t_device_ns"}
+    assert len(received) >= 500  # 1.5 s of 500 Hz
+    due = robot.due_times_ns()
+    t = np.array([m["t_device_ns"] for m in received])
+    index = np.searchsorted(due, t)
+    assert np.array_equal(due[index], t)  # each one a sample the robot sent
+    expected = robot.value(due[index])
+    got = np.array([[m["joint1_position"], m["joint2_position"]] for m in received])
+    np.testing.assert_allclose(got, expected)
