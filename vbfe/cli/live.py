@@ -157,6 +157,8 @@ def run(args: argparse.Namespace) -> int:
             f"frames skipped for the viewer, {server.records_dropped} records dropped for the "
             "viewer"
         )
+        if server.error:
+            print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if args.record:
         print(
             f"session with estimate stream: {args.record} (score it: vbfe evaluate --live "

@@ -220,6 +220,8 @@ def run(args: argparse.Namespace) -> int:
             f"frames skipped for the viewer (none for the file), {server.records_dropped} "
             "records dropped for the viewer"
         )
+        if server.error:
+            print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if protocol is not None:
         print(
             f"sync protocol: collected {protocol.progress()}; check it with "

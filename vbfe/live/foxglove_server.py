@@ -125,6 +125,7 @@ class FoxgloveServer(EstimateOutput):
         self.image_interval_ns = int(1e9 / image_hz)
         self.cloud_interval_ns = int(1e9 / cloud_hz)
         self.frames_skipped = self.records_dropped = 0
+        self.error: str | None = None  # why the sending thread stopped early
         self.sent: dict[str, int] = {}  # messages sent per topic
         self._frames: Mailbox[StereoFrame] = Mailbox()
         self._clouds: Mailbox[tuple[int, np.ndarray, np.ndarray]] = Mailbox()
@@ -253,6 +254,14 @@ class FoxgloveServer(EstimateOutput):
 
     # -- the sending thread -----------------------------------------------------------------
     def _run(self) -> None:
+        """Send until stopped; a failure stops the viewer only (kept in ``error``), never the
+        acquisition."""
+        try:
+            self._send_all()
+        except Exception as exc:  # noqa: BLE001 - reported by the command, not raised
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    def _send_all(self) -> None:
         while not self._halt.is_set():
             frame = self._frames.take(_POLL_S)
             if frame is not None:
