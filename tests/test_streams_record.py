@@ -219,38 +219,70 @@ def test_a_paused_publisher_is_one_irregular_gap_with_nothing_lost(tmp_path: Pat
     assert "late/irregular publisher gaps" in html and f"<td>{worst_ms:.1f}</td>" in html
 
 
-def test_the_foxglove_server_sends_extra_streams_with_their_channel_labels() -> None:
-    """A rig with a 500 Hz robot stream served by the Foxglove server: a client on loopback
-    receives its samples as JSON, one number per joint label, as the robot published them."""
+@pytest.mark.slow
+def test_record_serves_foxglove_the_streams_while_recording_every_frame(tmp_path: Path) -> None:
+    """`vbfe record --foxglove PORT --images png` with a 500 Hz robot stream, watched by a
+    WebSocket client on loopback: the robot's samples come as JSON, one number per joint label,
+    each one the robot published; the images are lossless PNG of the recorded frames; the
+    session keeps every frame the camera gave (the viewer only ever skips)."""
     import json
+    import socket
+
+    import cv2
 
     from tests.foxglove_client import FoxgloveClient
-    from vbfe.acquire import Acquisition
-    from vbfe.common.config import default_config
-    from vbfe.drivers.registry import open_rig
-    from vbfe.live.foxglove_server import FoxgloveServer
 
-    with FakeRobot(unique("fox"), rate_hz=500.0, joints=2) as robot:
-        config = default_config()
-        config["bench"].update(width=160, height=90, fps=10.0)
-        config["streams"] = {"robot": {"name": robot.name}}
-        server = FoxgloveServer(0)
-        acquisition = Acquisition(open_rig(config), listeners=(server,))
-        acquisition.start()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    robot = FakeRobot(unique("fox"), rate_hz=500.0, joints=2)
+    toml = tmp_path / "rig.toml"
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n')
+    path = tmp_path / "s.h5"
+    topics = {"/vbfe/streams/robot", "/stereo/left/image_raw/compressed", "/trocar/wrench"}
+    with robot:
+        proc = subprocess.Popen(
+            vbfe("record", path, "--duration", 6, "--config", toml)
+            + ["--foxglove", str(port), "--images", "png"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
-            with FoxgloveClient("127.0.0.1", server.port) as client:
-                channel = client.wait_for_topics({"/vbfe/streams/robot"})["/vbfe/streams/robot"]
-                client.subscribe([channel["id"]])
-                received = [json.loads(data) for _, _, data in client.messages(1.5)]
+            with FoxgloveClient("127.0.0.1", port, timeout_s=60) as client:
+                channels = client.wait_for_topics(topics, timeout_s=60)
+                client.subscribe([channels[t]["id"] for t in topics])
+                got: dict[str, list] = {t: [] for t in topics}
+                for channel, _, data in client.messages(2.0):
+                    got[channel["topic"]].append(data)
         finally:
-            acquisition.stop()
-    properties = json.loads(channel["schema"])["properties"]
+            out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "Foxglove: sent" in out and "frames skipped for the viewer (none for the file)" in out
+    properties = json.loads(channels["/vbfe/streams/robot"]["schema"])["properties"]
     assert set(properties) == {"joint1_position", "joint2_position", "t_device_ns"}
-    assert len(received) >= 500  # 1.5 s of 500 Hz
+    received = [json.loads(data) for data in got["/vbfe/streams/robot"]]
+    assert len(received) >= 500  # 2 s of 500 Hz
     due = robot.due_times_ns()
     t = np.array([m["t_device_ns"] for m in received])
     index = np.searchsorted(due, t)
     assert np.array_equal(due[index], t)  # each one a sample the robot sent
-    expected = robot.value(due[index])
-    got = np.array([[m["joint1_position"], m["joint2_position"]] for m in received])
-    np.testing.assert_allclose(got, expected)
+    got_values = np.array([[m["joint1_position"], m["joint2_position"]] for m in received])
+    np.testing.assert_allclose(got_values, robot.value(due[index]))
+    assert len(got["/trocar/wrench"]) >= 1500
+    images = got["/stereo/left/image_raw/compressed"]
+    assert len(images) >= 10
+    with SessionReader(path) as reader:
+        recorded = [reader.frame(i).left for i in range(reader.n_frames)]
+        attrs = reader.attrs
+    assert attrs["camera_queue_dropped"] == 0  # the recorder kept every frame it was given
+    # PNG (lossless): every image sent is one of the recorded frames, pixel for pixel
+    from mcap_ros2._dynamic import generate_dynamic
+
+    channel = channels["/stereo/left/image_raw/compressed"]
+    decode = generate_dynamic(channel["schemaName"], channel["schema"])[channel["schemaName"]]
+    for data in images[:5]:
+        image = decode(data)
+        assert image.format == "png"
+        pixels = cv2.imdecode(np.frombuffer(bytes(image.data), np.uint8), cv2.IMREAD_COLOR)
+        assert any(np.array_equal(pixels, frame) for frame in recorded)
