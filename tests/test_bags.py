@@ -539,7 +539,7 @@ def _export_images(session, out, images):
     }
 
 
-def test_png_export_is_lossless_and_3x_smaller_than_raw_jpeg_10x(bench_640, tmp_path):
+def test_png_export_is_lossless_and_2x_smaller_than_raw_jpeg90_10x(bench_640, tmp_path):
     sizes, decoded = {}, {}
     for images in ("raw", "png", "jpeg:90"):
         out = tmp_path / f"{images.replace(':', '')}.mcap"

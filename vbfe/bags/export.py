@@ -161,18 +161,20 @@ class _BackgroundFile:
 
 
 class _Prefetch:
-    """Loads item ``i + 1`` in a background thread while item ``i`` is written, so reading
-    (HDF5 decompression) and writing (chunk compression) overlap."""
+    """Loads items ``i + 1`` … ``i + depth`` in ``depth`` background threads while item ``i``
+    is written, so reading (HDF5 decompression), image encoding and writing (chunk
+    compression) overlap."""
 
-    def __init__(self, load: Callable[[int], Any], n: int) -> None:
-        self._load, self._n = load, n
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="export-read")
+    def __init__(self, load: Callable[[int], Any], n: int, depth: int = 1) -> None:
+        self._load, self._n, self._depth = load, n, depth
+        self._pool = ThreadPoolExecutor(max_workers=depth, thread_name_prefix="export-read")
         self._pending: dict[int, Future] = {}
 
     def get(self, i: int) -> Any:
         future = self._pending.pop(i, None) or self._pool.submit(self._load, i)
-        if i + 1 < self._n:
-            self._pending[i + 1] = self._pool.submit(self._load, i + 1)
+        for j in range(i + 1, min(i + 1 + self._depth, self._n)):
+            if j not in self._pending:
+                self._pending[j] = self._pool.submit(self._load, j)
         return future.result()
 
     def close(self) -> None:
@@ -407,7 +409,10 @@ def _write_all(
         out.write(TOPICS["calibration"], string, msg(string, data=yaml_text), first)
     write_force = _force_writer(reader, out, to_unix)
     with contextlib.ExitStack() as stack:
-        prefetch = _Prefetch(partial(_load_frame, reader, images), n)
+        encoding = images.compressed and reader.encoding != "jpeg"  # OpenCV encodes in parallel
+        prefetch = _Prefetch(
+            partial(_load_frame, reader, images), n, min(2, os.cpu_count() or 1) if encoding else 1
+        )
         stack.callback(prefetch.close)
         write_frame = _frame_writer(reader, out, infos, to_unix, prefetch)
 
