@@ -1,9 +1,11 @@
-"""MCAP export of a bench session against the time to read it.
+"""MCAP export of a bench session against the time to read it, and its size per image format.
 
-Records a session on the simulated bench (default 20 s of 640×360 at 30 fps, lzf), then in the
+Records a session on the simulated bench (default 8 s of 640×360 at 30 fps, lzf), then in the
 same run times reading every frame and force sample through ``SessionReader`` and exporting it
-with ``vbfe export`` (zstd and lz4 chunks), and prints each time with its ratio to the read
-(goal: export ≤ 2× read) and the machine load. Run:
+with ``vbfe export --images raw`` (zstd and lz4 chunks), and prints each time with its ratio to
+the read (goal: export ≤ 2× read); then exports it with each ``--images`` format (raw, png,
+jpeg:90, jpeg:75; lz4 chunks) and prints size, time, the size ratio to raw (goals: png ≥ 3×,
+jpeg:90 ≥ 10×) and whether the images decode pixel-identical; and the machine load. Run:
 ``python benchmarks/bench_export.py [--seconds S] [--width W --height H] [--repeats N]``.
 """
 
@@ -13,10 +15,17 @@ import argparse
 import os
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+
+import cv2
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.bags.export import export_mcap
+from vbfe.bags.images import image_codec
 from vbfe.common.config import load_config
 from vbfe.truth import calibration_from_rig, true_rig
 
@@ -32,6 +41,27 @@ def read_all(path: Path) -> int:
     return total
 
 
+def identical(session: Path, mcap: Path) -> bool:
+    """Whether every exported left and right image decodes to the session's pixels."""
+    with open(mcap, "rb") as fh, SessionReader(session) as reader:
+        messages = make_reader(fh, decoder_factories=[DecoderFactory()])
+        count = {"left": 0, "right": 0}
+        for _, channel, _, image in messages.iter_decoded_messages(log_time_order=False):
+            if not channel.topic.startswith("/stereo/") or "image_raw" not in channel.topic:
+                continue
+            eye = channel.topic.split("/")[2]
+            if hasattr(image, "format"):
+                pixels = cv2.imdecode(np.frombuffer(bytes(image.data), np.uint8), cv2.IMREAD_COLOR)
+            else:
+                pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(
+                    image.height, image.width, 3
+                )
+            if not np.array_equal(pixels, getattr(reader.frame(count[eye]), eye)):
+                return False
+            count[eye] += 1
+        return count["left"] == count["right"] == reader.n_frames
+
+
 def best_of(repeats: int, run) -> tuple[float, float]:
     """Shortest wall time and CPU time (all threads) of ``repeats`` runs (the least disturbed
     by other load)."""
@@ -45,7 +75,7 @@ def best_of(repeats: int, run) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=360)
     parser.add_argument("--repeats", type=int, default=3)
@@ -74,12 +104,26 @@ def main() -> None:
         for compression in ("zstd", "lz4"):
             out = Path(tmp) / f"session.{compression}.mcap"
             export_s, export_cpu = best_of(
-                args.repeats, lambda: export_mcap(session, out, None, compression)
+                args.repeats,
+                partial(export_mcap, session, out, None, compression, images=image_codec("raw")),
             )
             print(
                 f"export {compression:<4} wall {export_s:6.2f} s  cpu {export_cpu:6.2f} s  "
                 f"({out.stat().st_size / 1e6:.0f} MB): wall {export_s / read_s:.2f}x read "
                 f"(goal <= 2x), cpu {export_cpu / read_cpu:.2f}x"
+            )
+        raw_mb = 0.0
+        for images in ("raw", "png", "jpeg:90", "jpeg:75"):
+            out = Path(tmp) / f"session.{images.replace(':', '')}.mcap"
+            wall, cpu = best_of(
+                args.repeats, partial(export_mcap, session, out, images=image_codec(images))
+            )
+            mb = out.stat().st_size / 1e6
+            raw_mb = raw_mb or mb
+            print(
+                f"images {images:<8} wall {wall:6.2f} s  cpu {cpu:6.2f} s  {mb:7.1f} MB  "
+                f"{raw_mb / mb:5.1f}x smaller than raw; pixel-identical: "
+                f"{'yes' if identical(session, out) else 'no'}"
             )
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
 

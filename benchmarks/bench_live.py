@@ -10,14 +10,18 @@ thread counts.
 
 ``--background-load N`` runs every configuration twice, without and then beside N busy
 processes (a lab PC also runs the recorder and the viewer); ``--record`` adds runs that also
-record the session (HDF5, as ``vbfe live --record``). ``--scale``, ``--row-scale`` and the
-thread counts default to the ``[live]`` table, as in ``vbfe live``. The endoscope is the real OpenCV camera
-driver reading a capture that replays frames the bench rendered beforehand, paced on the host
-clock: a real endoscope's frames cost the host nothing to make, while the bench's live
-rendering would take a large share of the two cores (``--render-live`` measures that instead).
-Run: ``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--row-scale 1.0]
-[--background-load 1] [--record [--compression blosc-lz4]] [--sizes 640x360,1280x720]
-[--render-live]``.
+record the session (HDF5, as ``vbfe live --record``). ``--foxglove`` runs every configuration
+``--repeats`` times without and with ``vbfe live --foxglove``'s server (JPEG 90 images, a
+WebSocket client on loopback subscribed to every topic, as the Foxglove app would be),
+alternating, and prints the median estimate rate with the server over the rate without (goal:
+within 5 %). ``--scale``, ``--row-scale`` and the thread counts default to the ``[live]``
+table, as in ``vbfe live``. The endoscope is the real OpenCV camera driver reading a capture
+that replays frames the bench rendered beforehand, paced on the host clock: a real endoscope's
+frames cost the host nothing to make, while the bench's live rendering would take a large share
+of the two cores (``--render-live`` measures that instead). Run: ``python -m
+benchmarks.bench_live [--seconds S] [--scale 1.0] [--row-scale 1.0] [--background-load 1]
+[--record [--compression blosc-lz4]] [--sizes 640x360,1280x720] [--render-live] [--foxglove
+[--repeats 3]]``.
 """
 
 from __future__ import annotations
@@ -28,13 +32,17 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from tests.foxglove_client import FoxgloveClient
 from vbfe.acquire import Acquisition
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
@@ -49,6 +57,7 @@ from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.live.estimator import STAGES, FrameEstimator
+from vbfe.live.foxglove_server import LIVE_IMAGES, FoxgloveServer
 from vbfe.live.run import LiveRun, run_headless, use_threads
 from vbfe.live.settings import live_settings
 from vbfe.recon import SgbmParams
@@ -142,6 +151,30 @@ def busy_processes(n: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
+@contextmanager
+def watching(server: FoxgloveServer) -> Iterator[dict[str, int]]:
+    """A client subscribed to every topic of a started ``server``, reading in a thread until
+    the block ends; yields its message counts by topic."""
+    counts: dict[str, int] = {}
+    done = threading.Event()
+
+    def watch() -> None:
+        with FoxgloveClient("127.0.0.1", server.port) as client:
+            client.wait_for_topics({"/trocar/wrench", "/vbfe/estimate"})
+            client.subscribe(list(client.channels))
+            while not done.is_set() and not client.closed:
+                for channel, _, _ in client.messages(0.5):
+                    counts[channel["topic"]] = counts.get(channel["topic"], 0) + 1
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    try:
+        yield counts
+    finally:
+        done.set()
+        thread.join()
+
+
 def measure(
     config: dict,
     frames: list[np.ndarray] | None,
@@ -150,9 +183,11 @@ def measure(
     row_scale: float,
     conv_channels: list[int],
     record: Path | None,
+    foxglove: bool = False,
 ) -> dict[str, float]:
     """Run live estimation on a real-time bench for ``seconds`` (replaying ``frames``, or
-    rendering live when None), recording into ``record`` when given."""
+    rendering live when None), recording into ``record`` when given, served to a Foxglove
+    client when ``foxglove``."""
     rig = (
         open_rig(config, RigOptions(realtime=True))
         if frames is None
@@ -171,17 +206,26 @@ def measure(
         if record
         else Acquisition(rig, pattern=make_pattern)
     )
+    server = FoxgloveServer(0, LIVE_IMAGES, target="magnitude") if foxglove else None
     run = LiveRun(
         acquisition,
         estimator,
+        outputs=(server,) if server is not None else (),
         max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s,
     )
     run.start()
-    cpu0, wall0 = time.process_time(), time.monotonic()
-    status = run_headless(run, seconds, lambda s: None)
-    cores = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    with watching(server) if server is not None else nullcontext({}) as viewer:
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        status = run_headless(run, seconds, lambda s: None)
+        cores = (time.process_time() - cpu0) / (time.monotonic() - wall0)
     if run.error:
         raise SystemExit(f"live run failed: {run.error}")
+    if server is not None:
+        print(
+            "  the Foxglove client received "
+            + ", ".join(f"{n} {topic}" for topic, n in sorted(viewer.items()))
+            + f"; {server.frames_skipped} frames skipped for it"
+        )
     if len(run.estimates) < 2:  # e.g. every frame came later than [live] max_frame_age_s
         return {
             "rate": 0.0,
@@ -226,6 +270,14 @@ def main() -> None:
         "--compression", default=None, help="of the recorded frames (default: [record] compression)"
     )
     parser.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="compare each configuration with and without the Foxglove server (and a client)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="--foxglove: runs of each, alternating"
+    )
+    parser.add_argument(
         "--paper-network",
         action="store_true",
         help="PointNet 64-128-1024 instead of the demo's 32-64-256",
@@ -254,13 +306,15 @@ def main() -> None:
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
         f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
-        f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
+        f"{args.row_scale}, "
+        f"{'bench rendering live' if args.render_live else 'replayed bench frames'}"
         f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
         f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
         f"threads; recording compression {compression}"
     )
     print(
-        f"{'camera':>10} {'record':>6} {'busy':>4} {'est/s':>6} {'p50 ms':>7} {'p95 ms':>7} "
+        f"{'camera':>10} {'record':>6} {'busy':>4} {'fox':>3} {'est/s':>6} {'p50 ms':>7} "
+        f"{'p95 ms':>7} "
         f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES)
     )
     loads = [0] + ([args.background_load] if args.background_load else [])
@@ -270,30 +324,43 @@ def main() -> None:
             config["bench"].update(width=width, height=height, fps=FPS)
             config["record"]["compression"] = compression
             frames = None if args.render_live else rendered_frames(config, REPLAY_FRAMES)
+            foxglove = [False, True] * args.repeats if args.foxglove else [False]
             for record in [False] + ([True] if args.record else []):
                 for load in loads:
-                    busy = busy_processes(load)
-                    try:
-                        path = Path(folder) / f"live-{width}-{record}-{load}.h5"
-                        r = measure(
-                            config,
-                            frames,
-                            args.seconds,
-                            args.scale,
-                            args.row_scale,
-                            channels,
-                            path if record else None,
+                    rates: dict[bool, list[float]] = {False: [], True: []}
+                    for k, fox in enumerate(foxglove):
+                        busy = busy_processes(load)
+                        try:
+                            path = Path(folder) / f"live-{width}-{record}-{load}-{k}.h5"
+                            r = measure(
+                                config,
+                                frames,
+                                args.seconds,
+                                args.scale,
+                                args.row_scale,
+                                channels,
+                                path if record else None,
+                                fox,
+                            )
+                        finally:
+                            for process in busy:
+                                process.kill()
+                                process.wait()
+                        rates[fox].append(r["rate"])
+                        print(
+                            f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
+                            f"{'on' if fox else 'off':>3} {r['rate']:6.1f} {r['p50']:7.1f} "
+                            f"{r['p95']:7.1f} {r['skipped']:7.0%} "
+                            f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
+                            flush=True,
                         )
-                    finally:
-                        for process in busy:
-                            process.kill()
-                            process.wait()
-                    print(
-                        f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
-                        f"{r['rate']:6.1f} {r['p50']:7.1f} {r['p95']:7.1f} {r['skipped']:7.0%} "
-                        f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
-                        flush=True,
-                    )
+                    if args.foxglove:
+                        on, off = np.median(rates[True]), np.median(rates[False])
+                        print(
+                            f"  Foxglove server on / off: median {on:.2f} / {off:.2f} est/s = "
+                            f"{on / off:.3f} (goal >= 0.95)",
+                            flush=True,
+                        )
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

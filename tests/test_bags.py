@@ -4,6 +4,7 @@ topic names a robot publishes."""
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -90,6 +91,8 @@ def test_export_reads_back_with_the_mcap_reader_and_ros2_decoder(sessions, tmp_p
                 str(out),
                 "--compression",
                 "zstd",
+                "--images",
+                "raw",
             ]
         )
         == 0
@@ -513,3 +516,133 @@ def test_damaged_bag_is_one_line_and_leaves_nothing(sessions, tmp_path, capsys):
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 1 and "raw.mcap is damaged" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["raw.mcap"]
+
+
+# -- image codecs: a bench session at the camera's 640x360 ----------------------------------
+@pytest.fixture(scope="module")
+def bench_640(tmp_path_factory):
+    """1 s of the bench at 640x360 (the sizes scale with the frame count: the ratios are an
+    8 s session's)."""
+    path = tmp_path_factory.mktemp("codecs") / "bench.h5"
+    config = default_config()
+    config["bench"].update(width=640, height=360)
+    record_session(config, path, duration_s=1.0)
+    return path
+
+
+def _export_images(session, out, images):
+    assert main(["export", str(session), "-o", str(out), "--images", images]) == 0
+    _, messages = _decoded(out)
+    return {
+        eye: [d for topic, _, d in messages if topic.startswith(f"/stereo/{eye}/image_raw")]
+        for eye in ("left", "right")
+    }
+
+
+def test_png_export_is_lossless_and_2x_smaller_than_raw_jpeg90_10x(bench_640, tmp_path):
+    sizes, decoded = {}, {}
+    for images in ("raw", "png", "jpeg:90"):
+        out = tmp_path / f"{images.replace(':', '')}.mcap"
+        decoded[images] = _export_images(bench_640, out, images)
+        sizes[images] = out.stat().st_size
+    # lossless cannot reach the issue's 3x here: the bench's sensor noise (sigma 1 grey level)
+    # leaves ~3 bits per sample after the best neighbour prediction (LOCO-I residual entropy
+    # 2.9-3.2 bits, an upper bound of ~2.6x); PNG level 1 gets ~2.1x
+    assert sizes["raw"] >= 2 * sizes["png"], sizes
+    assert sizes["raw"] >= 10 * sizes["jpeg:90"], sizes
+    with SessionReader(bench_640) as reader:
+        n = reader.n_frames
+        assert n >= 25 and all(len(decoded[k]["left"]) == n for k in decoded)
+        psnr = []
+        for eye in ("left", "right"):
+            for i, (png, jpeg) in enumerate(
+                zip(decoded["png"][eye], decoded["jpeg:90"][eye], strict=True)
+            ):
+                original = getattr(reader.frame(i), eye)
+                assert png.format == "png" and jpeg.format == "jpeg"
+                image = cv2.imdecode(np.frombuffer(bytes(png.data), np.uint8), cv2.IMREAD_COLOR)
+                assert np.array_equal(image, original)  # pixel-identical
+                lossy = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
+                psnr.append(cv2.PSNR(lossy, original))
+    assert min(psnr) > 30.0  # the same image, at JPEG 90's quality
+
+
+def test_images_option_is_checked_in_one_line(sessions, tmp_path, capsys):
+    for bad in ("gif", "jpeg:0", "jpeg:101", "png:3"):
+        out = tmp_path / "x.mcap"
+        assert main(["export", str(sessions["raw"]), "-o", str(out), "--images", bad]) == 2
+        assert not out.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all("--images" in line and "png" in line for line in err)
+
+
+# -- the Foxglove layout shipped in docs/ ---------------------------------------------------
+LAYOUT = Path(__file__).parents[1] / "docs" / "foxglove" / "vbfe-layout.json"
+
+
+def _layout_topics(layout):
+    """Every topic a panel of the layout reads: image topics, plot paths, 3D topics."""
+    topics = set()
+    for config in layout["configById"].values():
+        topics |= {v for k, v in config.get("imageMode", {}).items() if k.endswith("Topic")}
+        topics |= {path["value"].split(".")[0] for path in config.get("paths", [])}
+        topics |= set(config.get("topics", {}))
+    return topics
+
+
+def _layout_panels(node):
+    return (
+        {node}
+        if isinstance(node, str)
+        else set().union(*(_layout_panels(node[side]) for side in ("first", "second")))
+    )
+
+
+def test_layout_names_only_topics_the_export_and_the_live_server_write(sessions, tmp_path):
+    import json
+
+    from tests.foxglove_client import FoxgloveClient
+    from vbfe.acquire import Acquisition
+    from vbfe.drivers.registry import open_rig
+    from vbfe.drivers.rig import RigOptions
+    from vbfe.live.foxglove_server import FoxgloveServer
+
+    layout = json.loads(LAYOUT.read_text())
+    assert _layout_panels(layout["layout"]) == set(layout["configById"])
+    wanted = _layout_topics(layout)
+    assert {"/trocar/wrench", "/stereo/points", "/vbfe/estimate"} <= wanted
+    # the export of a session with live estimates and its clouds (default --images png)
+    clouds, bag = tmp_path / "raw.clouds.h5", tmp_path / "raw.mcap"
+    assert (
+        main(
+            ["reconstruct", str(sessions["raw"]), "--workers", "1", "--no-verify"]
+            + ["--out", str(clouds)]
+        )
+        == 0
+    )
+    assert main(["export", str(sessions["raw"]), "-o", str(bag), "--clouds", str(clouds)]) == 0
+    exported = {topic for topic, _, _ in _decoded(bag)[1]}
+    assert wanted <= exported, wanted - exported
+    # the live server (a live run's: with estimates and clouds) over the bench
+    config = default_config()
+    config["bench"].update(width=160, height=90, fps=15.0)
+    server = FoxgloveServer(0, target="magnitude")
+    acquisition = Acquisition(open_rig(config, RigOptions(realtime=True)), listeners=(server,))
+    acquisition.start()
+    try:
+        with FoxgloveClient("127.0.0.1", server.port) as client:
+            client.wait_for_topics(wanted, timeout_s=10.0)  # TimeoutError names what is not
+    finally:
+        acquisition.stop()
+
+
+def test_the_fast_wrench_packing_gives_rosbags_own_cdr_bytes():
+    from vbfe.bags import builders
+
+    t_ns = np.array([1_700_000_000_123_456_789, 1_700_000_001_000_000_001, 2_000_000_000 * 10**9])
+    forces = np.array([[0.1, -0.2, 3.5], [1e-3, 2.0, -7.25], [np.nan, np.inf, 0.0]])
+    by_rosbags = [
+        builders.cdr(builders.wrench(int(t), dict(zip("xyz", f, strict=True))), builders.WRENCH)
+        for t, f in zip(t_ns, forces, strict=True)
+    ]
+    assert builders.wrench_cdr(t_ns, forces) == by_rosbags

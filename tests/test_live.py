@@ -122,7 +122,7 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
         toml,
     )
     assert result.returncode == 0, result.stderr
-    status_lines = [l for l in result.stdout.splitlines() if l.startswith("live ")]
+    status_lines = [line for line in result.stdout.splitlines() if line.startswith("live ")]
     assert len(status_lines) >= 2 and "est/s" in status_lines[-1]
     with SessionReader(session) as reader:
         stream = reader.estimates()
@@ -277,3 +277,131 @@ def test_the_m_key_marks_the_live_recording(rig, tmp_path):
         (event,) = reader.events()
     assert event["source"] == "mark" and event["text"] == "key M 1"
     assert t_before <= event["t_host_ns"] <= t_after
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _decoder(channel):
+    """A decoder of the channel's messages made from its advertised schema alone."""
+    import json
+
+    from mcap_ros2._dynamic import generate_dynamic
+
+    if channel["schemaEncoding"] == "ros2msg":
+        assert channel["encoding"] == "cdr"
+        return generate_dynamic(channel["schemaName"], channel["schema"])[channel["schemaName"]]
+    assert channel["schemaEncoding"] == "jsonschema" and channel["encoding"] == "json"
+    properties = json.loads(channel["schema"])["properties"]
+    kinds = {"integer": int, "number": (int, float), "string": str, "array": list}
+
+    def decode(data):
+        message = json.loads(data)
+        assert set(message) <= set(properties), set(message) - set(properties)
+        for key, value in message.items():
+            allowed = np.atleast_1d(properties[key].get("type", [])).tolist()
+            if value is not None and allowed:
+                assert isinstance(value, tuple(kinds[k] for k in allowed if k in kinds)), key
+            elif value is None:
+                assert "null" in allowed, key
+        return message
+
+    return decode
+
+
+@pytest.mark.slow
+def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
+    """`vbfe live --foxglove PORT` on the bench, watched by a WebSocket client on loopback as
+    the Foxglove app would: every message decodes with the schema its channel advertised
+    (ROS 2 message definitions, JSON schema); images are the camera's, the wrench is at the
+    trocar's rate, estimates carry every field of the estimate record."""
+    import time
+
+    import cv2
+
+    from tests.foxglove_client import FoxgloveClient
+
+    folder, model, calib, toml = rig
+    port = _free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "vbfe.cli.main", "live", "--model", model, "--calib", calib]
+        + ["--duration", "9", "--headless", "--config", toml, "--foxglove", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    topics = {
+        "/stereo/left/image_raw/compressed",
+        "/stereo/right/image_raw/compressed",
+        "/trocar/wrench",
+        "/projector/events",
+        "/vbfe/estimate",
+        "/stereo/points",
+    }
+    got: dict[str, list] = {topic: [] for topic in topics}
+    try:
+        with FoxgloveClient("127.0.0.1", port, timeout_s=120) as client:
+            channels = client.wait_for_topics(topics, timeout_s=60)
+            decoders = {topic: _decoder(channels[topic]) for topic in topics}
+            client.subscribe([channels[topic]["id"] for topic in topics])
+            start_ns = time.time_ns()
+            for channel, log_time, data in client.messages(4.0):
+                got[channel["topic"]].append((log_time, decoders[channel["topic"]](data)))
+    finally:
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert f"Foxglove: open ws://127.0.0.1:{port}" in err
+    assert "Foxglove: sent" in out and "frames skipped for the viewer" in out
+    for eye in ("left", "right"):
+        images = got[f"/stereo/{eye}/image_raw/compressed"]
+        assert len(images) >= 10  # ~4 s of 15 fps, some skipped for the viewer
+        for log_time, image in images[:3]:
+            assert image.format == "jpeg" and image.header.frame_id == f"stereo_{eye}_optical"
+            pixels = cv2.imdecode(np.frombuffer(bytes(image.data), np.uint8), cv2.IMREAD_COLOR)
+            assert pixels.shape == (180, 320, 3) and pixels.std() > 5  # the lit tissue
+            assert log_time == image.header.stamp.sec * 10**9 + image.header.stamp.nanosec
+            assert abs(log_time - start_ns) < 10e9  # Unix time
+    wrenches = got["/trocar/wrench"]
+    assert len(wrenches) >= 3000  # 4 s of a 1 kHz trocar, none dropped on loopback
+    forces = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for _, w in wrenches])
+    assert np.all(np.isfinite(forces)) and np.ptp(forces, axis=0).max() > 0
+    estimates = [e for _, e in got["/vbfe/estimate"]]
+    assert len(estimates) >= 3
+    assert {"force_n", "frame_seq", "t_frame_host_ns", "latency_s", "target"} <= set(estimates[0])
+    assert all(e["target"] == "magnitude" and len(e["force_n"]) == 1 for e in estimates)
+    clouds = [c for _, c in got["/stereo/points"]]
+    assert 2 <= len(clouds) <= 10  # at most 2 a second
+    assert clouds[0].width > 100 and clouds[0].point_step == 16
+    points = np.frombuffer(bytes(clouds[0].data), np.float32).reshape(-1, 4)[:, :3]
+    assert 0.03 < np.median(points[:, 2]) < 0.1  # the tissue, at the working distance (m)
+
+
+def test_foxglove_options_are_checked_before_anything_is_recorded(tmp_path, capsys):
+    """A busy port, a bad --images and --images without --foxglove: one line each, exit 2,
+    no session file."""
+    import socket
+
+    from vbfe.cli.main import main
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        session = tmp_path / "s.h5"
+        for args in (
+            ["--foxglove", str(port)],
+            ["--foxglove", "0", "--images", "gif"],
+            ["--images", "png"],
+            ["--foxglove", "70000"],
+        ):
+            assert main(["record", str(session), "--duration", "1", *args]) == 2
+            assert not session.exists()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all(line.startswith("vbfe record: error: ") for line in err)
+    assert f"--foxglove {port}: cannot serve" in err[0] and "another port" in err[0]
+    assert "--images 'gif'" in err[1] and "--foxglove" in err[2] and "70000" in err[3]

@@ -79,17 +79,39 @@ def test_robot_stream_on_the_host_clock_with_metadata() -> None:
     assert all(s.t_host_ns - s.t_device_ns == correction_ns for s in samples[:100])
 
 
-def test_gaps_in_a_regular_stream_are_counted() -> None:
+def test_a_gap_in_the_publishers_stamps_is_its_timing_not_a_loss() -> None:
     name = unique("gappy")
     outlet = pylsl.StreamOutlet(pylsl.StreamInfo(name, "Test", 1, 100.0, pylsl.cf_float32, name))
     with LslStream(StreamSource(key="gappy", name=name)) as stream:
         outlet.wait_for_consumers(5.0)
         now = time.monotonic()
-        stamps = [now + i / 100 for i in list(range(10)) + list(range(20, 25))]  # 10 lost
+        stamps = [now + i / 100 for i in list(range(10)) + list(range(20, 25))]  # 10 not sent
         outlet.push_chunk([[float(i)] for i in range(15)], stamps)
         samples = _read_all(stream, time.monotonic() + 0.3)
-    assert [s.values[0] for s in samples] == list(range(15))
-    assert stream.stats.dropped == 10 and len(stream.stats.gaps) == 1
+    assert [s.values[0] for s in samples] == list(range(15))  # everything sent arrived
+    assert stream.stats.dropped == 0 and stream.stats.gaps == []
+    timing = stream.describe()["publisher_timing"]
+    assert timing == {"gaps": 1, "missing_periods": 10, "worst_gap_ns": timing["worst_gap_ns"]}
+    assert abs(timing["worst_gap_ns"] - 110_000_000) <= 1_000
+
+
+def test_an_inlet_buffer_overflow_counts_the_samples_lost() -> None:
+    """A 500 Hz robot read into a 1 s inlet buffer that is not read for 2.5 s: liblsl drops
+    the oldest samples; exactly those are counted lost, and the publisher was regular."""
+    with FakeRobot(unique("flood"), rate_hz=500.0, joints=2) as robot:
+        source = StreamSource(key="robot", name=robot.name, buffer_s=1.0)
+        with LslStream(source) as stream:
+            robot.outlet.wait_for_consumers(5.0)
+            samples = _read_all(stream, time.monotonic() + 0.5)
+            time.sleep(2.5)  # the recorder stalls: the buffer holds 1 s of the 2.5
+            samples += _read_all(stream, time.monotonic() + 0.5)
+    due = robot.due_times_ns()
+    index = np.searchsorted(due, [s.t_device_ns for s in samples])
+    assert np.all(due[index] == [s.t_device_ns for s in samples])  # each one the robot sent
+    never_received = int(index[-1] - index[0] + 1 - len(index))
+    assert never_received >= 600  # ~1.5 s of 500 Hz dropped by liblsl
+    assert stream.stats.dropped == never_received and len(stream.stats.gaps) == 1
+    assert stream.describe()["publisher_timing"]["gaps"] == 0
 
 
 def test_markers_arrive_as_text() -> None:

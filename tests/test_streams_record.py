@@ -178,3 +178,111 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         frames_t = reader.frame_times_ns()
     assert event["source"] == "mark" and event["text"] == "grasp begins"
     assert frames_t[0] < event["t_host_ns"] < frames_t[-1]
+
+
+@pytest.mark.slow
+def test_a_paused_publisher_is_one_irregular_gap_with_nothing_lost(tmp_path: Path) -> None:
+    """A 500 Hz robot that stalls for 200 ms mid-recording sent nothing then: `vbfe record`,
+    `vbfe inspect` and the session report say late/irregular publisher, 1 gap of ~202 ms,
+    lost 0."""
+    robot = FakeRobot(unique("stall"), rate_hz=500.0, joints=2)
+    toml = tmp_path / "rig.toml"
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n')
+    path = tmp_path / "s.h5"
+    with robot:
+        proc = subprocess.Popen(
+            vbfe("record", path, "--duration", 4, "--config", toml),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert robot.outlet.wait_for_consumers(60.0), "the recorder never subscribed"
+        time.sleep(1.5)
+        robot.pause(0.2)
+        out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    with SessionReader(path) as reader:
+        t_device = reader.stream("robot").t_device_ns
+    steps = np.diff(t_device)
+    assert np.sum(steps > 3_000_000) == 1  # the stall is in the data, once
+    worst_ms = steps.max() / 1e6
+    assert 200 <= worst_ms <= 204
+    line = f"lost 0 (0.00%); late/irregular publisher 1 gap ({round(worst_ms / 2) - 1} sample "
+    assert f"stream robot: {line}" in out
+    result = subprocess.run(vbfe("inspect", path), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert line in result.stdout and f"worst {worst_ms:.1f} ms" in result.stdout
+    report = tmp_path / "report.html"
+    result = subprocess.run(vbfe("report", path, "-o", report), capture_output=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    html = report.read_text()
+    assert "late/irregular publisher gaps" in html and f"<td>{worst_ms:.1f}</td>" in html
+
+
+@pytest.mark.slow
+def test_record_serves_foxglove_the_streams_while_recording_every_frame(tmp_path: Path) -> None:
+    """`vbfe record --foxglove PORT --images png` with a 500 Hz robot stream, watched by a
+    WebSocket client on loopback: the robot's samples come as JSON, one number per joint label,
+    each one the robot published; the images are lossless PNG of the recorded frames; the
+    session keeps every frame the camera gave (the viewer only ever skips)."""
+    import json
+    import socket
+
+    import cv2
+
+    from tests.foxglove_client import FoxgloveClient
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    robot = FakeRobot(unique("fox"), rate_hz=500.0, joints=2)
+    toml = tmp_path / "rig.toml"
+    toml.write_text(BENCH + f'[streams.robot]\nname = "{robot.name}"\n')
+    path = tmp_path / "s.h5"
+    topics = {"/vbfe/streams/robot", "/stereo/left/image_raw/compressed", "/trocar/wrench"}
+    with robot:
+        proc = subprocess.Popen(
+            vbfe("record", path, "--duration", 6, "--config", toml)
+            + ["--foxglove", str(port), "--images", "png"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            with FoxgloveClient("127.0.0.1", port, timeout_s=60) as client:
+                channels = client.wait_for_topics(topics, timeout_s=60)
+                client.subscribe([channels[t]["id"] for t in topics])
+                got: dict[str, list] = {t: [] for t in topics}
+                for channel, _, data in client.messages(2.0):
+                    got[channel["topic"]].append(data)
+        finally:
+            out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "Foxglove: sent" in out and "frames skipped for the viewer (none for the file)" in out
+    properties = json.loads(channels["/vbfe/streams/robot"]["schema"])["properties"]
+    assert set(properties) == {"joint1_position", "joint2_position", "t_device_ns"}
+    received = [json.loads(data) for data in got["/vbfe/streams/robot"]]
+    assert len(received) >= 500  # 2 s of 500 Hz
+    due = robot.due_times_ns()
+    t = np.array([m["t_device_ns"] for m in received])
+    index = np.searchsorted(due, t)
+    assert np.array_equal(due[index], t)  # each one a sample the robot sent
+    got_values = np.array([[m["joint1_position"], m["joint2_position"]] for m in received])
+    np.testing.assert_allclose(got_values, robot.value(due[index]))
+    assert len(got["/trocar/wrench"]) >= 1500
+    images = got["/stereo/left/image_raw/compressed"]
+    assert len(images) >= 10
+    with SessionReader(path) as reader:
+        recorded = [reader.frame(i).left for i in range(reader.n_frames)]
+        attrs = reader.attrs
+    assert attrs["camera_queue_dropped"] == 0  # the recorder kept every frame it was given
+    # PNG (lossless): every image sent is one of the recorded frames, pixel for pixel
+    from mcap_ros2._dynamic import generate_dynamic
+
+    channel = channels["/stereo/left/image_raw/compressed"]
+    decode = generate_dynamic(channel["schemaName"], channel["schema"])[channel["schemaName"]]
+    for data in images[:5]:
+        image = decode(data)
+        assert image.format == "png"
+        pixels = cv2.imdecode(np.frombuffer(bytes(image.data), np.uint8), cv2.IMREAD_COLOR)
+        assert any(np.array_equal(pixels, frame) for frame in recorded)

@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 
 from vbfe.acquire import SessionReader
 from vbfe.acquire.session.audit import audit_sequence
+from vbfe.acquire.session.extra_streams import stream_accounting
 from vbfe.common.report import HtmlReport, png_bytes
 
 THUMBNAILS = 8
@@ -47,7 +48,8 @@ def _figure(width: float = 10, height: float = 3.2) -> tuple[Figure, Any]:
 
 
 def _utc(t_ns: int) -> str:
-    return f"{datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc):%Y-%m-%d %H:%M:%S} UTC"
+    when = datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc)
+    return f"{when:%Y-%m-%d %H:%M:%S} UTC"
 
 
 def _intervals(t_ns: np.ndarray) -> tuple[float, float, float]:
@@ -193,6 +195,47 @@ def _streams(page: HtmlReport, r: SessionReader) -> None:
     )
     page.paragraph(
         "Rates and intervals from the host arrival times; jitter is 1.4826·MAD of the intervals."
+    )
+    _extra_streams(page, r)
+
+
+def _extra_streams(page: HtmlReport, r: SessionReader) -> None:
+    """Lost samples (never received) apart from the publisher's irregular time stamps."""
+    rows = []
+    for name in r.stream_names():
+        stream = r.stream(name)
+        if stream.markers:
+            continue
+        acc = stream_accounting(r.attrs, name)
+        rows.append(
+            (
+                name,
+                len(stream),
+                f"{float(stream.attrs.get('nominal_rate_hz', 0.0)):g}",
+                acc.lost,
+                acc.irregular_gaps,
+                acc.missing_periods,
+                f"{acc.worst_gap_ns / 1e6:.1f}",
+            )
+        )
+    if not rows:
+        return
+    page.table(
+        [
+            "extra stream",
+            "samples",
+            "nominal rate (Hz)",
+            "lost (never received)",
+            "late/irregular publisher gaps",
+            "periods without a sample",
+            "worst gap (ms)",
+        ],
+        rows,
+    )
+    page.paragraph(
+        "Lost: samples the recorder never received (the inlet's buffer overflowed, a full "
+        "queue). Late/irregular publisher: steps of the publisher's own time stamps over 1.5 "
+        "sample periods; it sent nothing then, and nothing was lost."
     )
 
 

@@ -41,6 +41,7 @@ def record_session(
     calibration_size: tuple[int, int] | None = None,
     calibration_name: str = "the calibration",
     on_warning: Callable[[str], None] | None = None,
+    listeners: tuple[Listener, ...] = (),
 ) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
@@ -52,15 +53,18 @@ def record_session(
     With a sync ``protocol`` the projector flashes and the taps are counted while recording
     (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
     non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
-    correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found."""
+    correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found;
+    further ``listeners`` (e.g. a live viewer) follow the recorder's."""
     settings = record_settings(config)
     options = RigOptions()
     if protocol is not None:
         options, duration_s = protocol.rig_options(), protocol.duration_s
     rig = open_rig(config, options)
     check_camera_size(rig, calibration_size, calibration_name)
-    listeners = ((protocol,) if protocol else ()) + (
-        (MissingStreams(on_warning),) if on_warning else ()
+    listeners = (
+        ((protocol,) if protocol else ())
+        + ((MissingStreams(on_warning),) if on_warning else ())
+        + listeners
     )
     recorder = session_recorder(
         config,

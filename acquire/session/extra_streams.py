@@ -4,6 +4,7 @@ back."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -79,3 +80,42 @@ class RecordedStream:
 
     def __len__(self) -> int:
         return len(self.t_host_ns)
+
+
+@dataclass(frozen=True)
+class StreamAccounting:
+    """What happened to an extra stream's samples: ``lost`` (never received by the recorder:
+    the inlet's buffer overflowed, or a full queue), and the publisher's own timing: stamp
+    ``irregular_gaps`` (steps over 1.5 sample periods, ``missing_periods`` periods without a
+    sample between them; nothing lost) and the ``worst_gap_ns`` step."""
+
+    lost: int
+    irregular_gaps: int
+    missing_periods: int
+    worst_gap_ns: int
+
+    def text(self, received: int) -> str:
+        """``lost 0 (0.00%); late/irregular publisher 1 gap, worst 201.0 ms``."""
+        share = 100 * self.lost / max(received + self.lost, 1)
+        late = (
+            f"{self.irregular_gaps} gap{'s' if self.irregular_gaps != 1 else ''} "
+            f"({self.missing_periods} sample periods without a sample), worst "
+            f"{self.worst_gap_ns / 1e6:.1f} ms"
+            if self.irregular_gaps
+            else "none"
+        )
+        return f"lost {self.lost} ({share:.2f}%); late/irregular publisher {late}"
+
+
+def stream_accounting(attrs: dict[str, Any], name: str) -> StreamAccounting:
+    """The accounting of extra stream ``name`` from a finalized session's attributes (the
+    recorder's drop counters and the device description at the end)."""
+    lost = sum(int(attrs.get(f"{name}_{k}_dropped", 0)) for k in ("device", "queue"))
+    devices = json.loads(attrs.get("devices_at_end_json") or "{}")
+    timing = devices.get(name, {}).get("publisher_timing", {})
+    return StreamAccounting(
+        lost,
+        int(timing.get("gaps", 0)),
+        int(timing.get("missing_periods", 0)),
+        int(timing.get("worst_gap_ns", 0)),
+    )

@@ -12,7 +12,7 @@ import numpy as np
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.clock import ClockFit
 from vbfe.acquire.session.estimates import EstimateStream
-from vbfe.acquire.session.extra_streams import RecordedStream
+from vbfe.acquire.session.extra_streams import RecordedStream, stream_accounting
 from vbfe.acquire.session.reader import SessionReader
 
 
@@ -43,16 +43,17 @@ class SessionSummary:
         span_s = (s.t_host_ns[-1] - s.t_host_ns[0]) / 1e9 if len(s) > 1 else 0.0
         rate = (len(s) - 1) / span_s if span_s > 0 else 0.0
         nominal = float(s.attrs.get("nominal_rate_hz", 0.0))
-        lost = sum(int(self.attrs.get(f"{s.name}_{k}_dropped", 0)) for k in ("device", "queue"))
-        channels = ", ".join(f"{c} [{u}]" if u else c for c, u in zip(s.channels, s.units, strict=False))
+        channels = ", ".join(
+            f"{c} [{u}]" if u else c for c, u in zip(s.channels, s.units, strict=False)
+        )
         correction = (
             f"; time correction {s.corrections[-1, 1] / 1e6:+.3f} ms" if len(s.corrections) else ""
         )
         what = (
             "markers"
             if s.markers
-            else f"samples at {rate:.1f} Hz (nominal {nominal:g}), lost {lost} "
-            f"({100 * lost / max(len(s) + lost, 1):.2f}%)"
+            else f"samples at {rate:.1f} Hz (nominal {nominal:g}), "
+            + stream_accounting(self.attrs, s.name).text(len(s))
         )
         return (
             f"stream    {s.name}: {len(s)} {what}; LSL {s.attrs.get('lsl_name')!r} "

@@ -7,6 +7,12 @@ another), which is re-measured every ``correction_interval_s``; the measurements
 from the data (``LslStream.time_corrections``, in its description) so the session stores how
 the mapping was made. liblsl's own post-processing stays off: the raw stamps are stored beside
 the mapped ones.
+
+What the stamps show is told apart from what the recorder lost. LSL has no sequence numbers and
+does not drop samples on a live inlet, except when the inlet's buffer (``buffer_s``) fills
+because it was not read: liblsl then drops the oldest. So a stamp gap at the head of a pull that
+found the buffer full is samples *lost* (``stats.dropped``); any other stamp step over 1.5 sample
+periods is a *late or irregular publisher* (:class:`PublisherTiming`): it sent nothing then.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import collections
 import functools
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +52,22 @@ def pylsl() -> Any:
     ):
         module.set_config_content(_LOG_CONFIG)
     return module
+
+
+@dataclass
+class PublisherTiming:
+    """Irregularities of a regular-rate publisher's own time stamps (not data lost): steps of
+    more than 1.5 sample periods, the sample periods they span without a sample, the longest."""
+
+    gaps: int = 0
+    missing_periods: int = 0
+    worst_gap_ns: int = 0
+
+    def add(self, step_ns: int, period_ns: float) -> None:
+        """Count one stamp step of ``step_ns`` (longer than 1.5 periods)."""
+        self.gaps += 1
+        self.missing_periods += int(round(step_ns / period_ns)) - 1
+        self.worst_gap_ns = max(self.worst_gap_ns, int(step_ns))
 
 
 def host_ns(lsl_seconds: float) -> int:
@@ -107,11 +130,12 @@ def resolve(source: StreamSource) -> Any:
 class LslStream(SampleStream[StreamSample]):
     """One extra stream read from LSL, sample by sample (pulled in chunks underneath).
 
-    ``stats.dropped`` and ``stats.gaps`` count samples a regular-rate stream's time stamps show
-    missing (a step over 1.5 sample periods): LSL has no sequence numbers, so ``seq`` counts
-    the samples received. ``time_corrections`` is the history of ``(t_host_ns,
-    correction_ns)`` measurements (in :meth:`describe`, stored with the session). ``stream``
-    is the session's name for it (what an acquisition files its records under)."""
+    ``stats.dropped`` and ``stats.gaps`` count samples lost when the inlet's buffer overflowed
+    (the oldest, dropped by liblsl); ``timing`` the publisher's own irregular stamps (module
+    docstring). LSL has no sequence numbers, so ``seq`` counts the samples received.
+    ``time_corrections`` is the history of ``(t_host_ns, correction_ns)`` measurements (in
+    :meth:`describe`, stored with the session). ``stream`` is the session's name for it (what
+    an acquisition files its records under)."""
 
     def __init__(self, source: StreamSource, correction_interval_s: float = 5.0) -> None:
         super().__init__()
@@ -124,6 +148,8 @@ class LslStream(SampleStream[StreamSample]):
         self._buffer: collections.deque[StreamSample] = collections.deque()
         self._seq = 0
         self._last_stamp_ns: int | None = None
+        self.timing = PublisherTiming()
+        self._capacity = 0  # samples the inlet's buffer holds
         self._correction_ns = 0
         self._next_correction = 0.0
 
@@ -149,9 +175,12 @@ class LslStream(SampleStream[StreamSample]):
                 ) from None
             self.missing = f"optional {exc}; recording without it"
             return
+        buffer_s = max(1, round(self.source.buffer_s))
         self._inlet = lsl.StreamInlet(
-            found, max_buflen=360, recover=True, processing_flags=lsl.proc_none
+            found, max_buflen=buffer_s, recover=True, processing_flags=lsl.proc_none
         )
+        rate = found.nominal_srate()
+        self._capacity = int(buffer_s * rate) if rate > 0 else buffer_s * 100  # as liblsl sizes it
         try:
             self._inlet.open_stream(timeout=_OPEN_TIMEOUT_S)
             self.info = describe_info(self.source.key, self._inlet.info(timeout=_OPEN_TIMEOUT_S))
@@ -165,6 +194,7 @@ class LslStream(SampleStream[StreamSample]):
             ) from None
         self._buffer.clear()
         self._seq, self._last_stamp_ns = 0, None
+        self.timing = PublisherTiming()
 
     def _close(self) -> None:
         inlet, self._inlet = self._inlet, None
@@ -192,6 +222,7 @@ class LslStream(SampleStream[StreamSample]):
         """Pull what arrived within ``timeout_s`` into the buffer, mapped to the host clock."""
         if time.monotonic() >= self._next_correction:
             self._measure_correction(0.0)
+        overflowed = self._inlet.samples_available() >= self._capacity - 1
         values, stamps = self._inlet.pull_chunk(
             timeout=timeout_s, max_samples=_CHUNK_SAMPLES, min_samples=1, as_numpy=True
         )
@@ -199,7 +230,7 @@ class LslStream(SampleStream[StreamSample]):
             return
         t_device = np.round(np.asarray(stamps, np.float64) * 1e9).astype(np.int64)
         t_host = t_device + self._correction_ns
-        self._count_gaps(t_device)
+        self._count_gaps(t_device, overflowed)
         if self.info.markers:
             rows = [("\t".join(v.decode("utf-8", "replace") for v in row), None) for row in values]
         else:
@@ -214,7 +245,9 @@ class LslStream(SampleStream[StreamSample]):
         )
         self._seq += len(t_device)
 
-    def _count_gaps(self, t_device: np.ndarray) -> None:
+    def _count_gaps(self, t_device: np.ndarray, overflowed: bool) -> None:
+        """Stamp steps over 1.5 periods: lost when it is the step into a pull that found the
+        buffer full (liblsl dropped the oldest samples there), else the publisher's timing."""
         rate = self.info.nominal_rate_hz
         if rate <= 0:
             return
@@ -224,10 +257,15 @@ class LslStream(SampleStream[StreamSample]):
             else np.concatenate([[self._last_stamp_ns], t_device])
         )
         period = 1e9 / rate
-        offset = self._seq - (0 if self._last_stamp_ns is None else 1)
-        for i in np.flatnonzero(np.diff(stamps) > _GAP_PERIODS * period):
-            self.stats.dropped += int(round((stamps[i + 1] - stamps[i]) / period)) - 1
-            self.stats.gaps.append((offset + int(i), offset + int(i) + 1))
+        head = self._last_stamp_ns is not None  # stamps[0] is the previous pull's last
+        offset = self._seq - (1 if head else 0)
+        steps = np.diff(stamps)
+        for i in np.flatnonzero(steps > _GAP_PERIODS * period):
+            if head and overflowed and i == 0:
+                self.stats.dropped += int(round(steps[i] / period)) - 1
+                self.stats.gaps.append((offset + int(i), offset + int(i) + 1))
+            else:
+                self.timing.add(int(steps[i]), period)
         self._last_stamp_ns = int(t_device[-1])
 
     def describe(self) -> dict[str, Any]:
@@ -241,4 +279,5 @@ class LslStream(SampleStream[StreamSample]):
         if self.info is not None:
             out.update({k: v for k, v in vars(self.info).items() if k != "info_xml"})
             out["time_corrections"] = [list(c) for c in self.time_corrections]
+            out["publisher_timing"] = vars(self.timing).copy()
         return out

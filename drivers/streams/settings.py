@@ -5,6 +5,8 @@ Each sub-table names one stream; its key is the stream's name in the session::
     [streams.robot]            # recorded as the session stream "robot"
     name = "KUKA-LBR-state"    # the LSL stream's name, type and/or source id (all given must match)
     required = true            # missing at start: the recording is refused (else a warning)
+    buffer_s = 360.0           # how long the inlet keeps samples not yet read; past it the
+                               # oldest are lost (counted as lost)
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ class StreamSource:
     source_id: str = ""
     required: bool = True
     resolve_timeout_s: float = setting(5.0, gt=0, le=600)
+    buffer_s: float = setting(360.0, gt=0, le=3600)
 
     def predicate(self) -> str:
         """The LSL XPath predicate matching every property given."""

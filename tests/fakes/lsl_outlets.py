@@ -21,8 +21,9 @@ class FakeRobot(ThreadedFake):
     """Publishes ``joints`` joint positions (rad) at ``rate_hz``, stamped on the host clock.
 
     Samples are due on an exact ``rate_hz`` grid from the start and pushed in small batches as
-    their time comes (each stamped with its due time); ``pushed`` counts them. Joint 0 is still
-    until ``onset_ns`` (host clock), then moves at 0.5 rad/s (a motion onset to find)."""
+    their time comes (each stamped with its due time); ``pushed`` counts them. :meth:`pause`
+    makes it skip the samples due for a while (a publisher that stalled: they are never sent).
+    Joint 0 is still until ``onset_ns`` (host clock), then moves at 0.5 rad/s."""
 
     def __init__(
         self, name: str, rate_hz: float = 1000.0, joints: int = 7, onset_ns: int | None = None
@@ -40,6 +41,15 @@ class FakeRobot(ThreadedFake):
         self.outlet = pylsl.StreamOutlet(info, chunk_size=1)
         self.pushed = 0
         self.first_ns: int | None = None
+        self._next = 0  # grid index of the next sample due
+        self._sent: list[np.ndarray] = []  # grid indices pushed
+        self._pause_ns: tuple[int, int] | None = None
+
+    def pause(self, duration_s: float) -> None:
+        """Send nothing for ``duration_s`` from now; the samples due meanwhile are skipped."""
+        now = time.monotonic_ns()
+        self._pause_ns = (now, now + int(duration_s * 1e9))
+        time.sleep(duration_s)
 
     def value(self, t_ns: np.ndarray) -> np.ndarray:
         """The joint positions due at host times ``t_ns`` (n × joints)."""
@@ -54,16 +64,24 @@ class FakeRobot(ThreadedFake):
         self.first_ns = time.monotonic_ns()
         while not self._stop.is_set():
             time.sleep(0.004)
-            due = self.first_ns + period_ns * np.arange(
-                self.pushed, (time.monotonic_ns() - self.first_ns) // period_ns + 1
-            )
-            if len(due):
+            index = np.arange(self._next, (time.monotonic_ns() - self.first_ns) // period_ns + 1)
+            due = self.first_ns + period_ns * index
+            if self._pause_ns is not None:
+                start, end = self._pause_ns
+                if time.monotonic_ns() < end:
+                    continue
+                keep = (due < start) | (due >= end)
+                index, due = index[keep], due[keep]
+            if len(index):
                 self.outlet.push_chunk(self.value(due), (due / 1e9).tolist())
-                self.pushed += len(due)
+                self._sent.append(index)
+                self.pushed += len(index)
+                self._next = int(index[-1]) + 1
 
     def due_times_ns(self) -> np.ndarray:
         """Host times of every sample pushed so far."""
-        return self.first_ns + int(round(1e9 / self.rate_hz)) * np.arange(self.pushed)
+        index = np.concatenate(self._sent) if self._sent else np.zeros(0, np.int64)
+        return self.first_ns + int(round(1e9 / self.rate_hz)) * index
 
 
 class MarkerOutlet:

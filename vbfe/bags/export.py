@@ -1,7 +1,9 @@
 """``vbfe export --format mcap``: a session as an MCAP file of ROS 2 messages.
 
-Topics (see :data:`messages.TOPICS`): ``sensor_msgs/Image`` ``bgr8`` per eye (lossless), or
-``sensor_msgs/CompressedImage`` (``.../compressed``) holding the session's own JPEG bytes;
+Topics (see :data:`messages.TOPICS`): per eye ``sensor_msgs/CompressedImage``
+(``.../compressed``) as ``--images`` says (:mod:`vbfe.bags.images`: PNG, lossless, by default;
+JPEG; an ``mjpeg`` session's own JPEG bytes, not encoded again), or ``sensor_msgs/Image``
+``bgr8`` with ``raw``;
 ``sensor_msgs/CameraInfo`` per eye from the stored calibration; ``geometry_msgs/WrenchStamped``
 for the trocar; ``sensor_msgs/PointCloud2`` from a clouds sidecar; ``vbfe_msgs`` projector
 events, gaps and live estimates; ``std_msgs/String`` with the session's attributes (JSON) and
@@ -32,17 +34,15 @@ from mcap.writer import CompressionType, Writer
 
 import vbfe
 from vbfe.acquire import SessionReader
+from vbfe.bags import builders
+from vbfe.bags.builders import header, msg
 from vbfe.bags.errors import BagError
+from vbfe.bags.images import ImageCodec
 from vbfe.bags.messages import FRAME_IDS, MIN_UNIX_NS, TOPICS, host_to_unix, schema_text, typestore
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 _CHUNK_BYTES = 4 << 20
-_FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
-
-
-def msg(msgtype: str, **fields: Any) -> Any:
-    """A message object of rosbags' type store (ROS 2 Humble + vbfe_msgs)."""
-    return typestore().types[msgtype](**fields)
+EXPORT_IMAGES = ImageCodec("png")  # lossless
 
 
 @dataclass
@@ -88,15 +88,6 @@ def _camera_infos(calibration_yaml: str | None, size: tuple[int, int]) -> dict[s
             ("right", cal.K2, cal.D2, cal.R2, cal.P2),
         )
     }
-
-
-def _header(t_ns: int, frame_id: str) -> Any:
-    t_ns = int(t_ns)
-    return msg(
-        "std_msgs/msg/Header",
-        frame_id=frame_id,
-        stamp=msg("builtin_interfaces/msg/Time", sec=t_ns // 10**9, nanosec=t_ns % 10**9),
-    )
 
 
 class _Mcap:
@@ -170,18 +161,20 @@ class _BackgroundFile:
 
 
 class _Prefetch:
-    """Loads item ``i + 1`` in a background thread while item ``i`` is written, so reading
-    (HDF5 decompression) and writing (chunk compression) overlap."""
+    """Loads items ``i + 1`` … ``i + depth`` in ``depth`` background threads while item ``i``
+    is written, so reading (HDF5 decompression), image encoding and writing (chunk
+    compression) overlap."""
 
-    def __init__(self, load: Callable[[int], Any], n: int) -> None:
-        self._load, self._n = load, n
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="export-read")
+    def __init__(self, load: Callable[[int], Any], n: int, depth: int = 1) -> None:
+        self._load, self._n, self._depth = load, n, depth
+        self._pool = ThreadPoolExecutor(max_workers=depth, thread_name_prefix="export-read")
         self._pending: dict[int, Future] = {}
 
     def get(self, i: int) -> Any:
         future = self._pending.pop(i, None) or self._pool.submit(self._load, i)
-        if i + 1 < self._n:
-            self._pending[i + 1] = self._pool.submit(self._load, i + 1)
+        for j in range(i + 1, min(i + 1 + self._depth, self._n)):
+            if j not in self._pending:
+                self._pending[j] = self._pool.submit(self._load, j)
         return future.result()
 
     def close(self) -> None:
@@ -195,43 +188,28 @@ def _frame_writer(
     to_unix: Callable[[Any], Any],
     frames: _Prefetch,
 ) -> Callable[[int], None]:
-    """Writes frame ``i`` (``frames.get(i)``: JPEG bytes or a decoded frame)."""
-    width, height = reader.frame_size
+    """Writes frame ``i`` (``frames.get(i)``: ``(format, (left, right) bytes)`` or
+    ``(None, decoded frame)``)."""
     t_sync = to_unix(reader.frame_times_ns())
     t_arrival = to_unix(reader.stream_times("camera")[1])
 
     def write(i: int) -> None:
         t, arrival = int(t_sync[i]), int(t_arrival[i])
-        encoded, frame = frames.get(i)
+        image_format, loaded = frames.get(i)
         for k, eye in enumerate(("left", "right")):
-            header = _header(t, FRAME_IDS[eye])
-            if encoded is not None:
+            if image_format is not None:
                 out.write(
                     TOPICS[f"{eye}_image"] + "/compressed",
-                    "sensor_msgs/msg/CompressedImage",
-                    msg(
-                        "sensor_msgs/msg/CompressedImage",
-                        header=header,
-                        format="jpeg",
-                        data=np.frombuffer(encoded[k], np.uint8),
-                    ),
+                    builders.COMPRESSED_IMAGE,
+                    builders.compressed_image(t, eye, image_format, loaded[k]),
                     t,
                     arrival,
                 )
             else:
                 out.write(
                     TOPICS[f"{eye}_image"],
-                    "sensor_msgs/msg/Image",
-                    msg(
-                        "sensor_msgs/msg/Image",
-                        header=header,
-                        height=height,
-                        width=width,
-                        encoding="bgr8",
-                        is_bigendian=0,
-                        step=width * 3,
-                        data=np.ascontiguousarray(getattr(frame, eye)).reshape(-1),
-                    ),
+                    builders.IMAGE,
+                    builders.raw_image(t, eye, getattr(loaded, eye)),
                     t,
                     arrival,
                 )
@@ -239,7 +217,9 @@ def _frame_writer(
                 out.write(
                     TOPICS[f"{eye}_info"],
                     "sensor_msgs/msg/CameraInfo",
-                    msg("sensor_msgs/msg/CameraInfo", header=header, **infos[eye]),
+                    msg(
+                        "sensor_msgs/msg/CameraInfo", header=header(t, FRAME_IDS[eye]), **infos[eye]
+                    ),
                     t,
                     arrival,
                 )
@@ -255,24 +235,12 @@ def _force_writer(
     forces = reader.forces_n()
     columns = {axis: k for k, axis in enumerate(reader.force_axes)}
 
-    vector = "geometry_msgs/msg/Vector3"
-    zero = msg(vector, x=0.0, y=0.0, z=0.0)
-
     def write(i: int) -> None:
-        force = msg(
-            vector,
-            **{
-                axis: float(forces[i, columns[axis]]) if axis in columns else 0.0
-                for axis in ("x", "y", "z")
-            },
-        )
         out.write(
             TOPICS["wrench"],
-            "geometry_msgs/msg/WrenchStamped",
-            msg(
-                "geometry_msgs/msg/WrenchStamped",
-                header=_header(t_sync[i], FRAME_IDS["trocar"]),
-                wrench=msg("geometry_msgs/msg/Wrench", force=force, torque=zero),
+            builders.WRENCH,
+            builders.wrench(
+                t_sync[i], {axis: forces[i, k] for axis, k in columns.items() if axis in "xyz"}
             ),
             int(t_sync[i]),
             int(t_arrival[i]),
@@ -287,18 +255,11 @@ def _events(
     """(Unix time, topic, type, message) of the small streams."""
     for e in reader.projector_events():
         t = int(to_unix(e.t_host_ns))
-        kind = "vbfe_msgs/msg/ProjectorEvent"
         yield (
             t,
             TOPICS["projector"],
-            kind,
-            msg(
-                kind,
-                header=_header(t, "projector"),
-                pattern=e.pattern,
-                frame_id=e.frame_id,
-                seq=e.seq,
-            ),
+            builders.PROJECTOR_EVENT,
+            builders.projector_event(t, e.pattern, e.frame_id, e.seq),
         )
     for gap in reader.gaps():
         t = int(to_unix(gap["t_host_ns"]))
@@ -308,7 +269,7 @@ def _events(
             "vbfe_msgs/msg/Gap",
             msg(
                 "vbfe_msgs/msg/Gap",
-                header=_header(t, gap["stream"]),
+                header=header(t, gap["stream"]),
                 **{k: gap[k] for k in ("stream", "reason", "last_seq", "next_seq", "count")},
             ),
         )
@@ -326,7 +287,7 @@ def _events(
                 "vbfe_msgs/msg/ForceEstimate",
                 msg(
                     "vbfe_msgs/msg/ForceEstimate",
-                    header=_header(t, FRAME_IDS["trocar"]),
+                    header=header(t, FRAME_IDS["trocar"]),
                     target=target,
                     axes=axes,
                     force_n=estimates.force_n[k].astype(np.float64),
@@ -336,11 +297,21 @@ def _events(
             )
 
 
+def _load_frame(reader: SessionReader, images: ImageCodec, i: int) -> tuple[str | None, Any]:
+    """Frame ``i`` as :func:`_frame_writer` takes it: an ``mjpeg`` session's own JPEG pair
+    unless ``raw`` is asked for, else encoded by ``images`` (or decoded for ``raw``)."""
+    if reader.encoding == "jpeg" and images.compressed:
+        return "jpeg", reader.encoded_frame(i)
+    frame = reader.frame(i)
+    if not images.compressed:
+        return None, frame
+    return images.kind, (images.encode(frame.left), images.encode(frame.right))
+
+
 def _cloud_writer(
     clouds: Any, t_unix: np.ndarray, reader: SessionReader, out: _Mcap
 ) -> Callable[[int], None]:
-    """Writes frame ``i`` of an open :class:`~vbfe.recon.clouds.CloudReader` as PointCloud2
-    (x, y, z float32 in metres and PCL's packed ``rgb``)."""
+    """Writes frame ``i`` of an open :class:`~vbfe.recon.clouds.CloudReader` as PointCloud2."""
     if clouds.n_frames != reader.n_frames:
         raise BagError(
             f"{clouds.path} has {clouds.n_frames} frames, the session "
@@ -348,33 +319,11 @@ def _cloud_writer(
             "run `vbfe reconstruct` again"
         )
 
-    fields = [
-        msg("sensor_msgs/msg/PointField", name=name, offset=4 * k, datatype=_FLOAT32, count=1)
-        for k, name in enumerate(("x", "y", "z", "rgb"))
-    ]
-
     def write(i: int) -> None:
         points, colors = clouds.cloud(i)
-        rgb = colors.astype(np.uint32)
-        packed = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).view(np.float32)
-        data = np.column_stack([points.astype(np.float32), packed])
         t = int(t_unix[i])
         out.write(
-            TOPICS["points"],
-            "sensor_msgs/msg/PointCloud2",
-            msg(
-                "sensor_msgs/msg/PointCloud2",
-                header=_header(t, FRAME_IDS["points"]),
-                height=1,
-                width=len(points),
-                fields=fields,
-                is_bigendian=False,
-                point_step=16,
-                row_step=16 * len(points),
-                data=np.ascontiguousarray(data).view(np.uint8).reshape(-1),
-                is_dense=True,
-            ),
-            t,
+            TOPICS["points"], builders.POINT_CLOUD, builders.point_cloud(t, points, colors), t
         )
 
     return write
@@ -386,9 +335,11 @@ def export_mcap(
     clouds_path: str | Path | None = None,
     compression: str = "lz4",
     on_progress: Callable[[int, int], None] | None = None,
+    images: ImageCodec = EXPORT_IMAGES,
 ) -> ExportSummary:
     """Write the session (and optionally its clouds) to ``out_path`` as MCAP, in time order,
-    under a temporary name renamed when complete. ``on_progress(done, total)`` per frame."""
+    under a temporary name renamed when complete, its images as ``images`` says.
+    ``on_progress(done, total)`` per frame."""
     if compression not in COMPRESSIONS:
         raise BagError(f"unknown MCAP compression {compression!r}; use zstd or lz4")
     out_path = Path(out_path)
@@ -414,7 +365,9 @@ def export_mcap(
                 stream = _BackgroundFile(fh)
                 try:
                     out = _Mcap(stream, compression)
-                    summary = _write_all(reader, out, infos, to_unix, clouds_path, on_progress)
+                    summary = _write_all(
+                        reader, out, infos, to_unix, clouds_path, on_progress, images
+                    )
                     out.writer.finish()
                 finally:
                     stream.close()
@@ -432,6 +385,7 @@ def _write_all(
     to_unix: Callable[[Any], Any],
     clouds_path: str | Path | None,
     on_progress: Callable[[int, int], None] | None,
+    images: ImageCodec,
 ) -> _Mcap:
     n = reader.n_frames
     frame_t = to_unix(reader.frame_times_ns())
@@ -455,13 +409,9 @@ def _write_all(
         out.write(TOPICS["calibration"], string, msg(string, data=yaml_text), first)
     write_force = _force_writer(reader, out, to_unix)
     with contextlib.ExitStack() as stack:
+        encoding = images.compressed and reader.encoding != "jpeg"  # OpenCV encodes in parallel
         prefetch = _Prefetch(
-            lambda i: (
-                (reader.encoded_frame(i), None)
-                if reader.encoding == "jpeg"
-                else (None, reader.frame(i))
-            ),
-            n,
+            partial(_load_frame, reader, images), n, min(2, os.cpu_count() or 1) if encoding else 1
         )
         stack.callback(prefetch.close)
         write_frame = _frame_writer(reader, out, infos, to_unix, prefetch)

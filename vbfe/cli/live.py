@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import check_outputs
 from vbfe.common.config import section
 
@@ -85,6 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="where the model runs (auto: CUDA when torch sees it)",
     )
+    add_foxglove_options(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -109,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
             )
     calibration = load_calibration(args.calib)
     model = load_model(args.model)
+    server = foxglove_server(args, model.config.target)
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(
         config,
@@ -126,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))
     if udp is not None:
         outputs.append(UdpOutput(udp, model.config.target))
+    if server is not None:
+        outputs.append(server)
     live = live_run(
         config, estimator, calibration, args.calib, args.record, str(args.model), outputs
     )
@@ -146,6 +151,14 @@ def run(args: argparse.Namespace) -> int:
         f"{status.latency_p95_ms:.1f} ms; MAE vs trocar {status.mae_n:.3f} N "
         f"(raw host times, {status.mae_count} estimates)"
     )
+    if server is not None:
+        print(
+            f"Foxglove: sent {sum(server.sent.values())} messages; {server.frames_skipped} "
+            f"frames skipped for the viewer, {server.records_dropped} records dropped for the "
+            "viewer"
+        )
+        if server.error:
+            print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if args.record:
         print(
             f"session with estimate stream: {args.record} (score it: vbfe evaluate --live "

@@ -17,6 +17,7 @@ from vbfe.acquire.recording.remote import (
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.layout import COMPRESSIONS
 from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
 
@@ -108,6 +109,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="address the remote-control port listens on (default: localhost "
         "only; 0.0.0.0 for every interface)",
     )
+    add_foxglove_options(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
 
@@ -158,7 +160,10 @@ def run(args: argparse.Namespace) -> int:
         loaded = Calibration.load(args.calib)
         calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size
     if args.remote is not None:
+        if args.foxglove is not None:
+            raise VbfeError("--foxglove serves one recording: drop it with --remote")
         return _run_remote(args, calibration, calibration_size)
+    server = foxglove_server(args)
     protocol = None
     if args.protocol == "sync":
         protocol = SyncProtocol(
@@ -194,6 +199,7 @@ def run(args: argparse.Namespace) -> int:
             calibration_size=calibration_size,
             calibration_name=args.calib,
             on_warning=lambda w: bar.write(f"vbfe record: warning: {w}", file=sys.stderr),
+            listeners=(server,) if server is not None else (),
         )
         show(stats)
     finally:
@@ -207,12 +213,35 @@ def run(args: argparse.Namespace) -> int:
         f"{args.output}: {stats.frames} frames, {stats.samples} force samples{extra}, "
         f"{stats.elapsed_s:.2f} s, dropped {stats.dropped}; {stats.end_reason}"
     )
+    _print_stream_accounting(args.output, stats)
+    if server is not None:
+        print(
+            f"Foxglove: sent {sum(server.sent.values())} messages; {server.frames_skipped} "
+            f"frames skipped for the viewer (none for the file), {server.records_dropped} "
+            "records dropped for the viewer"
+        )
+        if server.error:
+            print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if protocol is not None:
         print(
             f"sync protocol: collected {protocol.progress()}; check it with "
             f"`vbfe verify-sync {args.output}`"
         )
     return 0
+
+
+def _print_stream_accounting(path: str, stats: AcquisitionStats) -> None:
+    """One line per extra stream: samples lost by the recorder vs the publisher's timing."""
+    from vbfe.acquire import SessionReader
+    from vbfe.acquire.session.extra_streams import stream_accounting
+
+    extra = [s for s in stats.counts if s not in ("camera", "force", "projector")]
+    if not extra:
+        return
+    with SessionReader(path) as reader:
+        attrs = reader.attrs
+    for stream in extra:
+        print(f"stream {stream}: " + stream_accounting(attrs, stream).text(stats.counts[stream]))
 
 
 def _run_remote(

@@ -27,11 +27,15 @@ TROCAR_STREAM = "vbfe-trocar"
 
 
 class EstimateOutput(Listener):
-    """A listener of the acquisition that also receives every estimate (from the estimator's
-    thread: it must not block)."""
+    """A listener of the acquisition that also receives every estimate and cloud (from the
+    estimator's threads: it must not block)."""
 
     def on_estimate(self, estimate: LiveEstimate) -> None:
         """One new estimate."""
+
+    def on_cloud(self, t_host_ns: int, points: np.ndarray, colors: np.ndarray) -> None:
+        """The cloud of the frame captured at ``t_host_ns`` (points N×3 in metres, rectified
+        left camera; colours N×3 RGB), from the estimator's reconstruct thread."""
 
 
 def target_channels(target: str) -> list[str]:

@@ -183,7 +183,7 @@ class LiveRun(Listener):
         self.acquisition = acquisition
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
-        self._pipeline = Pipeline(estimator.stages(), self._record)
+        self._pipeline = Pipeline(self._stages(), self._record)
         self._frames_seen = self._frames_late = 0
         self._max_age_ns = max_frame_age_s * 1e9 or float("inf")
         rate = float(acquisition.rig.trocar.rate_hz or 1000.0)
@@ -194,6 +194,18 @@ class LiveRun(Listener):
         self._lock = threading.Lock()
         self.error: str | None = None
         self._t0 = 0.0
+
+    def _stages(self) -> list[tuple[str, Callable[[Any], Any]]]:
+        """The estimator's stages, its reconstruction handing each cloud to the outputs."""
+        (name, reconstruct), *rest = self.estimator.stages()
+
+        def reconstruct_and_hand_on(work: FrameWork) -> FrameWork:
+            work = reconstruct(work)
+            for output in self.outputs:
+                output.on_cloud(work.frame.t_host_ns, work.points, work.colors)
+            return work
+
+        return [(name, reconstruct_and_hand_on), *rest]
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self, duration_s: float | None = None) -> None:
