@@ -74,8 +74,8 @@ def test_every_layout_pairs_the_same_images_in_the_same_order_as_the_globs(tmp_p
     views = load_views(source if not kwargs else None, **kwargs)
     reference = load_views(**GLOBS)
     assert len(views) == len(reference) == 13 and views.unpaired == []
-    for (l, r), (l_ref, r_ref) in zip(views.pairs, reference.pairs, strict=True):
-        assert np.array_equal(l, l_ref) and np.array_equal(r, r_ref)
+    for (left, right), (left_ref, right_ref) in zip(views.pairs, reference.pairs, strict=True):
+        assert np.array_equal(left, left_ref) and np.array_equal(right, right_ref)
 
 
 def _stereo(*args: str) -> int:
