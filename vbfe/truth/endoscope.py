@@ -29,9 +29,9 @@ SD_ENDOSCOPE: dict[str, Any] = {
     "principal_offsets_px": [[-45.0, 0.0], [45.0, 0.0]],
     "distortion": True,
 }
-DIM_GAIN = 0.2  # white paper at about 50 grey levels, black at the offset
-DIM_OFFSET = 6.0
-NOISE_SIGMA = 3.0
+DIM_GAIN = 0.3  # white paper at about 80 grey levels, black at the offset
+DIM_OFFSET = 4.0
+NOISE_SIGMA = 2.0
 DISTANCE_M = (0.035, 0.07)
 
 
