@@ -3,8 +3,9 @@ lab's image folder (``left/leftNN.png`` + ``right/rightNN.png``), with the bench
 
 Two SD analog channels digitised at 640×480: non-square pixels (fx / fy = 1.1), the eyes'
 principal points 90 px apart in x (the digitiser samples the two channels' lines from
-different starts), a 6 mm baseline, mild lens distortion; the images dim (mean grey about 30)
-and noisy (σ 3 grey levels), as an endoscope's light at the edge of its range gives them.
+different starts), a 6 mm baseline, mild lens distortion; the images dim (mean grey about 40,
+white paper at about 80) and noisy (σ 2 grey levels), as an endoscope's light at the edge of its
+range gives them.
 """
 
 from __future__ import annotations
