@@ -138,7 +138,8 @@ def endoscope_rows(n_views: int, seeds: int) -> None:
                 rig = write_sd_endoscope_views(folder, inner, 3.0, n_views, seed=300 + seed)
                 out = Path(tmp) / "c.yaml"
                 args = ["calibrate", "stereo", str(folder), "--inner-corners", name]
-                with contextlib.redirect_stdout(io.StringIO()):
+                quiet = io.StringIO()
+                with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
                     code = vbfe([*args, "--square-mm", "3", "-o", str(out), "--no-report"])
                 rows = []
                 if code == 0:

@@ -28,6 +28,7 @@ def _stereo(*args: str) -> int:
     return main(["calibrate", "stereo", str(DATA), *BOARD, *args])
 
 
+@pytest.mark.slow  # three calibrations of the sample
 def test_an_image_folder_is_not_the_bench_its_nominal_baseline_only_where_stated(tmp_path, capsys):
     out = tmp_path / "c.yaml"
     # 1.6 mm squares: B = 5.3 mm, 33 % beyond the built-in bench's 4 mm, which is not this rig
@@ -112,3 +113,30 @@ def test_fixed_intrinsics_solve_and_rectify_as_plain_opencv(tmp_path):
     for ours, theirs in ((cal.R1, R1), (cal.R2, R2), (cal.P1, P1), (cal.P2, P2)):
         assert np.allclose(ours, theirs, atol=1e-6)
     assert 0 <= cal.cx < 640 and 0 <= cal.cy < 480
+
+
+@pytest.mark.slow  # two calibrations of the sample
+def test_a_session_recorded_with_the_rig_is_checked_against_the_rigs_nominal_baseline(
+    tmp_path, capsys
+):
+    from vbfe.acquire import SessionWriter, finalize_session
+    from vbfe.drivers.samples import StereoFrame
+
+    views = load_views(DATA)
+    session = tmp_path / "rig.h5"
+    writer = SessionWriter(session, (640, 480))
+    writer.append_frames(
+        [
+            StereoFrame(left=left, right=right, seq=i, t_device_ns=i, t_host_ns=i)
+            for i, (left, right) in enumerate(views.pairs)
+        ]
+    )
+    writer.close()
+    finalize_session(session, {})
+    out = tmp_path / "c.yaml"
+    # B = 5.3 mm: the configured rig (the bench, 4 mm ± 25 %) recorded the session, so its
+    # nominal baseline applies, as it does not to the same images in a folder
+    args = ["calibrate", "stereo", str(session), *BOARD[:2], "--square-mm", "1.6", "-o", str(out)]
+    assert main([*args, "--no-report"]) == 2 and not out.exists()
+    assert "from the rig's nominal 4 mm (limit 25 %)" in capsys.readouterr().err
+    assert main([*args, "--no-report", "--nominal-baseline-mm", "0"]) == 0

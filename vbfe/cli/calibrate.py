@@ -443,7 +443,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "check_max_depth_error_mm",
         "check_max_epipolar_px",
         "max_rms_px",
+        "min_baseline_mm",
         "nominal_baseline_mm",
+        "baseline_tolerance",
+        "min_rectified_fraction",
     )
     _board_options(p)
     add_config_option(p)
