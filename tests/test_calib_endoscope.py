@@ -6,6 +6,7 @@ bench's truth."""
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -99,3 +100,24 @@ def test_intrinsics_fixed_from_per_eye_camera_runs(endoscope, tmp_path, capsys):
     assert main([*stereo, "--intrinsics", *files[::-1], "-o", str(tmp_path / "x.yaml")]) == 2
     assert not (tmp_path / "x.yaml").exists()
     assert "--intrinsics LEFT RIGHT look exchanged" in capsys.readouterr().err
+
+
+def test_zero_disparity_gives_way_to_the_principal_point_offset_the_cause_is_named(
+    endoscope, tmp_path, capsys
+):
+    folder, rig = endoscope["9x6"]
+    out = tmp_path / "c.yaml"
+    stereo = ["calibrate", "stereo", str(folder), *_board("9x6"), "--no-report"]
+    strict = ["--min-rectified-fraction", "0.8"]  # zero disparity keeps about 2/3 of the image
+    assert main([*stereo, *strict, "--zero-disparity", "on", "-o", str(out)]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "the cause is the offset between the eyes' principal points" in line
+    assert "--zero-disparity off" in line
+    offset = re.search(r"principal points ([+-][\d.]+) px apart in x", line)
+    assert offset and float(offset[1]) == pytest.approx(90.0, abs=2.0)
+    # auto (the default): each eye keeps its principal point, the offset is stored as doffs
+    assert main([*stereo, *strict, "-o", str(out)]) == 0
+    cal = load_calibration(out)
+    assert cal.info["zero_disparity"] == 0  # stored as an integer
+    assert cal.doffs == pytest.approx(rig.right.K[0, 2] - rig.left.K[0, 2], abs=2.0)
+    assert {row[3] for row in cal.info["gates"]} == {"pass", "not checked"}
