@@ -24,8 +24,8 @@ PAIR_NAMING = (
     "camera_calibration's left-0000.png + right-0000.png; also L01/R01), subfolders left/ + "
     "right/ (or L/ + R/) with the same file names or eye-named ones (left/left01.png + "
     "right/right01.png), Kalibr's cam0/ + cam1/ with nanosecond-stamped names (paired by "
-    "nearest stamp), an OpenCV stereo_calib image list (.xml/.yaml, left and right names in "
-    "turn), or --pairs FILE.csv (left,right per line)"
+    "nearest stamp), or an OpenCV stereo_calib image list (.xml/.yaml, left and right names "
+    "in turn)"
 )
 
 # Each regex names the eye and the pair key of a file stem; tried in this order:
@@ -177,8 +177,8 @@ def pair_files(folder: str | Path, ext: str | None = None) -> Pairing | None:
     raise CalibrationError(
         f"{folder}: no left image pairs with a right one; the closest rule, {closest.rule}, "
         f"found {len(closest.left)} left and {len(closest.right)} right images but no common "
-        f"names (left | right: {'; '.join(side)}); rename them to one rule or give --pairs "
-        "FILE.csv; " + PAIR_NAMING
+        f"names (left | right: {'; '.join(side)}); rename them to one rule or list the pairs "
+        "(calibrate: --pairs FILE.csv); " + PAIR_NAMING
     )
 
 

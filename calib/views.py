@@ -23,7 +23,10 @@ from vbfe.calib.pairs import (
     pair_files,
 )
 
-NAMING_RULES = PAIR_NAMING + ", or one side-by-side image per view (left half = left eye)"
+NAMING_RULES = (
+    PAIR_NAMING + ", --pairs FILE.csv (one left,right line per pair), or one side-by-side image "
+    "per view (left half = left eye)"
+)
 
 
 @dataclass
