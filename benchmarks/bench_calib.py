@@ -5,7 +5,13 @@ distortion); prints the worst relative error of fx, fy, cx, cy (both cameras) an
 stereo RMS, and the solve time (corner detection + calibrations), also as a ratio to the time of
 detecting the board in one image measured in the same run. Projector: Gray-code captures at
 P poses; prints the relative error of the projector's fx, fy, cx, cy and of its translation.
-Run: ``python -m benchmarks.bench_calib [--views 10 20 30] [--seeds 3] [--poses 8]``.
+SD endoscope (vbfe.truth.endoscope: 640×480, fx/fy = 1.1, principal points 90 px apart, 6 mm
+baseline, dim and noisy; 9×6 and 7×7 boards): vbfe's `calibrate stereo FOLDER` as a user runs
+it beside plain OpenCV (findChessboardCorners + cornerSubPix 11×11, calibrateCamera per eye,
+stereoCalibrate with the intrinsics as a guess) on the same images: worst error of f (fx, fy),
+of cx, cy (px) and of B, stereo RMS, views used.
+Run: ``python -m benchmarks.bench_calib [--views 10 20 30] [--seeds 3] [--poses 8]
+[--endoscope-views 20]``.
 """
 
 from __future__ import annotations
@@ -63,11 +69,107 @@ def stereo_rows(rig, spec: BoardSpec, n_views: int, seeds: int):
         yield views, worst, abs(cal.B / rig.baseline_m - 1), cal.rms_stereo_px, seconds
 
 
+def _truth_errors(K1, K2, B: float, rig) -> tuple[float, float, float]:
+    """Worst |f / f_true - 1| (fx, fy, both eyes), worst |c - c_true| (px), |B / B_true - 1|."""
+    f_err = max(
+        abs(K[i, i] / cam.K[i, i] - 1)
+        for K, cam in ((K1, rig.left), (K2, rig.right))
+        for i in (0, 1)
+    )
+    c_err = max(
+        float(np.abs(K[:2, 2] - cam.K[:2, 2]).max()) for K, cam in ((K1, rig.left), (K2, rig.right))
+    )
+    return f_err, c_err, abs(B / rig.baseline_m - 1)
+
+
+def plain_opencv_stereo(folder, inner: tuple[int, int], square_m: float, rig):
+    """Plain OpenCV on an endoscope folder: (errors, stereo RMS, views used)."""
+    import cv2
+
+    obj = np.zeros((inner[0] * inner[1], 3), np.float32)
+    obj[:, :2] = np.mgrid[0 : inner[0], 0 : inner[1]].T.reshape(-1, 2) * square_m
+    subpix = (cv2.TERM_CRITERIA_MAX_ITER + cv2.TERM_CRITERIA_EPS, 30, 0.01)
+    corners: dict[str, list] = {"left": [], "right": []}
+    for left in sorted((folder / "left").iterdir()):
+        right = folder / "right" / left.name.replace("left", "right")
+        found = []
+        for path in (left, right):
+            grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            ok, c = cv2.findChessboardCorners(
+                grey, inner, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+            )
+            found.append(cv2.cornerSubPix(grey, c, (5, 5), (-1, -1), subpix) if ok else None)
+        if all(c is not None for c in found):
+            corners["left"].append(found[0])
+            corners["right"].append(found[1])
+    n = len(corners["left"])
+    objs, size = [obj] * n, (640, 480)
+    _, K1, D1, _, _ = cv2.calibrateCamera(objs, corners["left"], size, None, None)
+    _, K2, D2, _, _ = cv2.calibrateCamera(objs, corners["right"], size, None, None)
+    rms, K1, D1, K2, D2, R, T, _, _ = cv2.stereoCalibrate(
+        objs, corners["left"], corners["right"], K1, D1, K2, D2, size,
+        flags=cv2.CALIB_USE_INTRINSIC_GUESS,
+    )  # fmt: skip
+    _, _, _, P2, _, _, _ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T)
+    return _truth_errors(K1, K2, float(-P2[0, 3] / P2[0, 0]), rig), float(rms), n
+
+
+def endoscope_rows(n_views: int, seeds: int) -> None:
+    """Print vbfe (the CLI with the board options only) beside plain OpenCV on SD endoscope
+    renders, per board and seed."""
+    import contextlib
+    import io
+    from pathlib import Path
+
+    from vbfe.calib.calibration import load_calibration
+    from vbfe.cli.main import main as vbfe
+    from vbfe.truth.endoscope import write_sd_endoscope_views
+
+    print(f"\nSD endoscope ({n_views} views, 640x480, fx/fy 1.1, cx 90 px apart, B 6 mm, dim)")
+    print(
+        f"{'board':>5} {'seed':>4} {'tool':>6} {'max df/f':>9} {'max dc px':>9} {'dB/B':>7} "
+        f"{'RMS px':>7} {'views':>5}"
+    )
+    for inner in ((9, 6), (7, 7)):
+        name = f"{inner[0]}x{inner[1]}"
+        for seed in range(seeds):
+            with tempfile.TemporaryDirectory() as tmp:
+                folder = Path(tmp) / "views"
+                rig = write_sd_endoscope_views(folder, inner, 3.0, n_views, seed=300 + seed)
+                out = Path(tmp) / "c.yaml"
+                args = ["calibrate", "stereo", str(folder), "--inner-corners", name]
+                quiet = io.StringIO()
+                with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+                    code = vbfe([*args, "--square-mm", "3", "-o", str(out), "--no-report"])
+                rows = []
+                if code == 0:
+                    cal = load_calibration(out)
+                    rows.append(
+                        (
+                            "vbfe",
+                            _truth_errors(cal.K1, cal.K2, cal.B, rig),
+                            cal.rms_stereo_px,
+                            len(cal.info["views"]),
+                        )
+                    )
+                else:
+                    print(f"{name:>5} {seed:>4} {'vbfe':>6} refused (exit {code})")
+                rows.append(("opencv", *plain_opencv_stereo(folder, inner, 3e-3, rig)))
+                for tool, (f_err, c_err, b_err), rms, n in rows:
+                    print(
+                        f"{name:>5} {seed:>4} {tool:>6} {f_err * 100:>8.3f}% {c_err:>9.2f} "
+                        f"{b_err * 100:>6.3f}% {rms:>7.3f} {n:>5}"
+                    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, nargs="+", default=[10, 20, 30])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--poses", type=int, default=8, help="projector poses (0: skip)")
+    parser.add_argument(
+        "--endoscope-views", type=int, default=20, help="SD endoscope views per set (0: skip)"
+    )
     args = parser.parse_args()
     rig = default_rig(640, 360, distortion=True)
     spec = BoardSpec()
@@ -112,6 +214,9 @@ def main() -> None:
                 f"render {render_s:.1f} s  solve {solve_s:.1f} s "
                 f"({solve_s / reference:.0f} x detect)"
             )
+
+    if args.endoscope_views:
+        endoscope_rows(args.endoscope_views, args.seeds)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The ``vbfe calibrate`` commands as Python functions (the CLI only parses and shows progress).
 
-Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and thresholds of
-its ``[calib]`` table.
+Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and
+thresholds of its ``[calib]`` table.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.options import calib_settings
+from vbfe.calib.pairs import LIST_SUFFIXES
 from vbfe.calib.projector import (
     ProjectorOptions,
     calibrate_projector,
@@ -125,6 +126,28 @@ def _calib_table(config: Config, settings: dict[str, Any] | None = None) -> dict
     return {**section(config, "calib"), **(settings or {})}
 
 
+def _gate_table(
+    config: Config, settings: dict[str, Any] | None, recorded_with_rig: bool
+) -> dict[str, Any]:
+    """The ``[calib]`` table for gating views or a file: the configuration's nominal baseline
+    is that of the rig the configuration describes (the bench's 4 mm by default), so it is
+    checked for sessions recorded with it; for image folders and other tools' files only when
+    ``settings`` state one (a command-line flag, or the user's own rig file)."""
+    table = _calib_table(config, settings)
+    if not recorded_with_rig and "nominal_baseline_mm" not in (settings or {}):
+        table["nominal_baseline_mm"] = 0.0
+    return table
+
+
+def is_session(source: str | Path | None) -> bool:
+    """Whether a views source is a recorded session (not a folder, image list or glob)."""
+    return (
+        source is not None
+        and Path(source).is_file()
+        and Path(source).suffix.lower() not in LIST_SUFFIXES
+    )
+
+
 def stereo(
     config: Config,
     source: str | Path | None,
@@ -136,20 +159,38 @@ def stereo(
     right_glob: str | None = None,
     intrinsics: tuple[str | Path, str | Path] | None = None,
     settings: dict[str, Any] | None = None,
+    ext: str | None = None,
+    pairs_file: str | Path | None = None,
+    swap_eyes: bool = False,
     **overrides: Any,
 ) -> StereoOutcome:
-    """Calibrate from a folder of view pairs, ``--left``/``--right`` globs or a session, with
-    the cameras' intrinsics solved or fixed from two camera files; refuse a result failing the
-    sanity gates; write the YAML (and report). ``settings`` replace ``[calib]`` values."""
+    """Calibrate from a folder of view pairs (any layout of
+    :data:`~vbfe.calib.pairs.PAIR_NAMING`; ``ext`` picks one image type), an image list, a CSV
+    of pairs (``pairs_file``), ``--left``/``--right`` globs or a session, with the cameras'
+    intrinsics solved or fixed from two camera files (``swap_eyes`` exchanges the eyes); refuse
+    a result failing the sanity gates; write the YAML (and report). ``settings`` replace
+    ``[calib]`` values; a nominal baseline is checked as :func:`_gate_table` says."""
     spec = board_spec(config, **overrides)
-    views = load_views(source, left_glob=left_glob, right_glob=right_glob)
+    views = load_views(
+        source,
+        left_glob=left_glob,
+        right_glob=right_glob,
+        ext=ext,
+        pairs_file=pairs_file,
+        swap_eyes=swap_eyes,
+    )
     fixed = (
         None
         if intrinsics is None
         else (CameraModel.load(intrinsics[0]), CameraModel.load(intrinsics[1]))
     )
-    options = StereoOptions.from_config(_calib_table(config, settings))
+    if fixed is not None and swap_eyes:
+        fixed = (fixed[1], fixed[0])
+    options = StereoOptions.from_config(
+        _gate_table(config, settings, is_session(source) and left_glob is None)
+    )
     result = calibrate_stereo(views, spec, options, step, fixed)
+    result.calibration.info["unpaired_files"] = views.unpaired
     out_path = Path(out_path)
     result.calibration.save(out_path)
     reports = write_report(result, views, out_path.with_suffix("")) if report else None
@@ -167,18 +208,21 @@ def camera(
     eye: str | None = None,
     step: Callable[[], None] | None = None,
     settings: dict[str, Any] | None = None,
+    ext: str | None = None,
     **overrides: Any,
 ) -> MonoResult:
-    """Calibrate one camera from a folder or glob of images (or one eye of stereo views);
-    write the camera YAML. ``settings`` replace ``[calib]`` values."""
+    """Calibrate one camera from a folder or glob of images (or one eye of stereo views; only
+    files ending in ``ext`` when given); write the camera YAML. ``settings`` replace
+    ``[calib]`` values."""
     spec = board_spec(config, **overrides)
     table = _calib_table(config, settings)
     result = calibrate_mono(
-        load_images(source, eye),
+        load_images(source, eye, ext=ext),
         spec,
         CameraOptions.from_config(table),
         GateLimits.from_config(table),
         step,
+        camera=eye or "camera",
     )
     result.model.save(out_path)
     return result
@@ -195,7 +239,9 @@ def import_files(
     """Read another tool's calibration (:func:`import_calibration`), refuse it when it fails
     the sanity gates, write it as vbfe's calibration file; returns it and the format read."""
     calibration, fmt = import_calibration(paths, image_size, unit_mm * 1e-3)
-    problems = stereo_problems(calibration, GateLimits.from_config(_calib_table(config, settings)))
+    problems = stereo_problems(
+        calibration, GateLimits.from_config(_gate_table(config, settings, False))
+    )
     if problems:
         raise CalibrationError(
             f"{' + '.join(map(str, paths))}: imported {fmt} calibration "

@@ -1,14 +1,16 @@
 """Sanity gates: physically impossible or unusable calibrations are refused, not written.
 
 A stereo calibration is refused when its baseline is not finite, negative (eyes swapped),
-below a minimum or far from the rig's nominal baseline, when a rectified principal point lies
-outside the image, when rectification keeps less than a fraction of the image, or when its
-RMS reprojection error is above a limit. ``calibrate stereo`` raises on these before writing;
-``calibrate check`` says NO-GO for such a file.
+below a minimum or far from the rig's nominal baseline (when one is stated), when a rectified
+principal point lies outside the image, when rectification keeps less than a fraction of the
+image, or when its RMS reprojection error is above a limit. ``calibrate stereo`` raises on
+these before writing; ``calibrate check`` says NO-GO for such a file. Every gate's outcome
+(measured value, limit, verdict) is a :class:`Gate` row for the report.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -16,8 +18,9 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.rectify import rectified_fractions, stereo_rectify, worst_fraction
 
-_GRID_STEP = 8  # px between sampled pixels when measuring rectification coverage
+PASS, FAIL, UNCHECKED = "pass", "FAIL", "not checked"
 
 
 @dataclass
@@ -36,109 +39,217 @@ class GateLimits:
         return from_table(cls, calib_table)
 
 
-def _grid(size: tuple[int, int]) -> np.ndarray:
-    u, v = np.meshgrid(
-        np.arange(0, size[0], _GRID_STEP, dtype=np.float64),
-        np.arange(0, size[1], _GRID_STEP, dtype=np.float64),
+@dataclass
+class Gate:
+    """One gate's outcome: the measured value, the limit (with the option that sets it), the
+    verdict (:data:`PASS`, :data:`FAIL` or :data:`UNCHECKED`) and, when it fails, why and what
+    to do."""
+
+    name: str
+    measured: str
+    limit: str
+    verdict: str
+    problem: str | None = None
+
+    def row(self) -> list[str]:
+        """[name, measured, limit, verdict] (the report's and the calibration file's row)."""
+        return [self.name, self.measured, self.limit, self.verdict]
+
+
+def _baseline_gates(cal: Calibration, limits: GateLimits) -> list[Gate]:
+    B, T = cal.B, float(np.linalg.norm(cal.T))
+    measured = f"{B * 1e3:.4f} mm"
+    limit = f"> {limits.min_baseline_m * 1e3:g} mm (--min-baseline-mm)"
+    if not np.isfinite(B) or not np.isfinite(T):
+        gate = Gate("baseline", "not finite", limit, FAIL, "baseline is not a finite number")
+    elif B < 0:
+        gate = Gate(
+            "baseline",
+            measured,
+            "> 0 mm (left eye left of the right one)",
+            FAIL,
+            f"baseline {B * 1e3:.4f} mm is negative (limit: above 0): the right eye's "
+            "images come from the camera left of the left eye's, so the files' eye labels "
+            "are reversed with respect to the geometry; exchange the eyes' files "
+            "(left <-> right) or give --swap-eyes",
+        )
+    elif min(abs(B), T) < limits.min_baseline_m:
+        gate = Gate(
+            "baseline",
+            measured,
+            limit,
+            FAIL,
+            f"baseline {abs(min(B, T, key=abs)) * 1e3:.4f} mm is below the minimum "
+            f"{limits.min_baseline_m * 1e3:g} mm (--min-baseline-mm): the left "
+            "and right images look like one camera's; check the eyes are two "
+            "cameras, and that --square-mm is the board's square in mm",
+        )
+    else:
+        gate = Gate("baseline", measured, limit, PASS)
+    nominal = limits.nominal_baseline_m
+    if nominal <= 0 or gate.verdict == FAIL:
+        return [
+            gate,
+            Gate(
+                "nominal baseline",
+                measured,
+                "none stated (--nominal-baseline-mm)",
+                UNCHECKED,
+            ),
+        ]
+    off = abs(B / nominal - 1)
+    limit = (
+        f"{nominal * 1e3:g} mm ± {limits.baseline_tolerance * 100:g} % "
+        "(--nominal-baseline-mm, --baseline-tolerance)"
     )
-    return np.column_stack([u.ravel(), v.ravel()])
+    problem = None
+    if off > limits.baseline_tolerance:
+        problem = (
+            f"baseline {B * 1e3:.4f} mm is {off * 100:.1f} % from the rig's nominal "
+            f"{nominal * 1e3:g} mm (limit {limits.baseline_tolerance * 100:g} %); if the "
+            "rig's baseline is not that, give it with --nominal-baseline-mm (0 = not "
+            "checked) or widen --baseline-tolerance"
+        )
+    return [gate, Gate("nominal baseline", measured, limit, FAIL if problem else PASS, problem)]
 
 
-def _inside(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    return (
-        np.isfinite(uv).all(axis=1)
-        & (uv[:, 0] >= 0)
-        & (uv[:, 0] <= size[0] - 1)
-        & (uv[:, 1] >= 0)
-        & (uv[:, 1] <= size[1] - 1)
+def rectification_cause(cal: Calibration, min_fraction: float) -> str:
+    """What crops the rectified images, measured: the share of the image rectification would
+    keep without each candidate cause (zero disparity with the principal-point offset between
+    the eyes, the distortion, the rotation between the eyes); the cause whose removal keeps most
+    is named, with what fixes it."""
+    size = cal.image_size
+    alpha = float(cal.info.get("rectify_alpha", 0.0))
+    zero = abs(cal.doffs) < 1e-6
+    angle = math.degrees(float(np.linalg.norm(cv2.Rodrigues(cal.R)[0])))
+    dx, dy = cal.K2[0, 2] - cal.K1[0, 2], cal.K2[1, 2] - cal.K1[1, 2]
+
+    def kept(D1: np.ndarray, D2: np.ndarray, zero_disparity: bool, R: np.ndarray) -> float:
+        rect = stereo_rectify(cal.K1, D1, cal.K2, D2, size, R, cal.T, alpha, zero_disparity)
+        return worst_fraction(cal.K1, D1, cal.K2, D2, rect, size)
+
+    no_distortion = np.zeros_like(cal.D1), np.zeros_like(cal.D2)
+    without = {
+        "distortion": kept(*no_distortion, zero, cal.R),
+        "rotation": kept(cal.D1, cal.D2, zero, np.eye(3)),
+    }
+    if zero:
+        without["offset"] = kept(cal.D1, cal.D2, False, cal.R)
+    cause = max(without, key=lambda k: without[k])
+    measured = (
+        f"measured: {kept(cal.D1, cal.D2, zero, cal.R) * 100:.0f} % kept as solved, "
+        + (f"{without['offset'] * 100:.0f} % without zero disparity, " if zero else "")
+        + f"{without['distortion'] * 100:.0f} % without distortion, "
+        f"{without['rotation'] * 100:.0f} % without the rotation between the eyes; the eyes "
+        f"are {angle:.2f}° apart, their principal points {dx:+.1f} px apart in x and {dy:+.1f} "
+        f"px in y, k1 {cal.D1[0]:.3f} / {cal.D2[0]:.3f}"
     )
+    fixes = {
+        "offset": "the offset between the eyes' principal points: zero-disparity rectification "
+        "gives both rectified eyes one principal point, which crops the image by about the "
+        "offset; rectify without forcing zero disparity (--zero-disparity off, or auto), "
+        "which keeps each eye's principal point and stores the offset as doffs",
+        "distortion": "the distortion, which bends the image border out of the rectified view: "
+        "if the lens does not distort that much it is poorly determined (add views with the "
+        "board in the image corners, or --fix-k3); if it does, keep the whole camera image "
+        "with free scaling (--rectify-alpha 1, black borders in the rectified image)",
+        "rotation": "the rotation between the eyes (rectification turns both images by half "
+        "of it): keep the whole camera image with free scaling (--rectify-alpha 1, black "
+        "borders in the rectified image); more views do not change it",
+    }
+    return f"the cause is {fixes[cause]} ({measured})"
 
 
-def rectified_fractions(
-    K: np.ndarray, D: np.ndarray, R: np.ndarray, P: np.ndarray, size: tuple[int, int]
-) -> tuple[float, float]:
-    """(valid, kept) for one eye: the fraction of the rectified image that shows the camera
-    image, and the fraction of the camera image that appears in the rectified image."""
-    grid = _grid(size)
-    K_rect = P[:, :3]
-    if not np.all(np.isfinite(K_rect)) or abs(np.linalg.det(K_rect)) < 1e-12:
-        return 0.0, 0.0
-    rays = np.column_stack([grid, np.ones(len(grid))]) @ np.linalg.inv(K_rect).T @ R
-    front = rays[:, 2] > 0
-    valid = 0.0
-    if front.any():
-        raw, _ = cv2.projectPoints(rays[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
-        valid = _inside(raw.reshape(-1, 2), size).sum() / len(grid)
-    rect = cv2.undistortPoints(grid.reshape(-1, 1, 2), K, D, R=R, P=P).reshape(-1, 2)
-    kept = _inside(rect, size).mean()
-    return float(valid), float(kept)
+def stereo_gates(
+    cal: Calibration, limits: GateLimits, view_names: list[str] | None = None
+) -> list[Gate]:
+    """Every sanity gate's outcome for ``cal``; ``view_names`` (of the rows of
+    ``cal.per_view_rms_px``) let a high RMS name its worst views."""
+    gates = _baseline_gates(cal, limits)
+    w, h = cal.image_size
+    geometry = gates[0].verdict != FAIL  # with swapped eyes the rectification means nothing
+    cause: list[str] = []  # measured once, for the first gate that needs it
+
+    def why() -> str:
+        if not cause:
+            cause.append(rectification_cause(cal, limits.min_rectified_fraction))
+        return cause[0]
+
+    points = [(eye, P[0, 2], P[1, 2]) for eye, P in (("left", cal.P1), ("right", cal.P2))]
+    outside = [
+        (eye, cx, cy)
+        for eye, cx, cy in points
+        if not (np.isfinite(cx) and np.isfinite(cy) and 0 <= cx < w and 0 <= cy < h)
+    ]
+    gates.append(
+        Gate(
+            "rectified principal points",
+            " / ".join(f"{eye} ({cx:.1f}, {cy:.1f}) px" for eye, cx, cy in points),
+            f"inside the {w}x{h} image",
+            UNCHECKED if not geometry else FAIL if outside else PASS,
+            None
+            if not (geometry and outside)
+            else "; ".join(
+                f"rectified {eye} principal point ({cx:.1f}, {cy:.1f}) px lies outside the "
+                f"{w}x{h} image"
+                for eye, cx, cy in outside
+            )
+            + ": "
+            + why(),
+        )
+    )
+    fractions = {
+        eye: rectified_fractions(K, D, R, P, cal.image_size)
+        for eye, K, D, R, P in (
+            ("left", cal.K1, cal.D1, cal.R1, cal.P1),
+            ("right", cal.K2, cal.D2, cal.R2, cal.P2),
+        )
+    }
+    low = {eye: f for eye, f in fractions.items() if min(f) < limits.min_rectified_fraction}
+    gates.append(
+        Gate(
+            "rectified image kept",
+            " / ".join(f"{eye} {min(f) * 100:.0f} %" for eye, f in fractions.items()),
+            f">= {limits.min_rectified_fraction * 100:g} % (--min-rectified-fraction)",
+            UNCHECKED if not geometry else FAIL if low else PASS,
+            None
+            if not (geometry and low)
+            else "; ".join(
+                f"rectified {eye} image shows {valid * 100:.0f} % valid pixels and keeps "
+                f"{kept * 100:.0f} % of the camera image"
+                for eye, (valid, kept) in low.items()
+            )
+            + f" (limit {limits.min_rectified_fraction * 100:g} %, --min-rectified-fraction): "
+            + why(),
+        )
+    )
+    finite = [v for v in (cal.rms_left_px, cal.rms_right_px, cal.rms_stereo_px) if np.isfinite(v)]
+    rms = max(finite, default=float("nan"))
+    high = np.isfinite(rms) and rms > limits.max_rms_px
+    gates.append(
+        Gate(
+            "RMS reprojection error",
+            f"{rms:.3f} px" if np.isfinite(rms) else "not stored",
+            f"<= {limits.max_rms_px:g} px (--max-rms-px)",
+            UNCHECKED if not np.isfinite(rms) else FAIL if high else PASS,
+            None
+            if not high
+            else (
+                f"RMS reprojection error {rms:.3f} px (left {cal.rms_left_px:.3f}, right "
+                f"{cal.rms_right_px:.3f}, stereo {cal.rms_stereo_px:.3f}) is above the "
+                f"limit {limits.max_rms_px:g} px (--max-rms-px)" + _rms_remedy(cal, view_names)
+            ),
+        )
+    )
+    return gates
 
 
 def stereo_problems(
     cal: Calibration, limits: GateLimits, view_names: list[str] | None = None
 ) -> list[str]:
     """Why ``cal`` is not a usable stereo calibration (empty when it passes every gate), each
-    with the quantity, its value and limit, and a remedy; ``view_names`` (of the rows of
-    ``cal.per_view_rms_px``) let a high RMS name its worst views."""
-    problems = []
-    B, T = cal.B, float(np.linalg.norm(cal.T))
-    if not np.isfinite(B) or not np.isfinite(T):
-        problems.append("baseline is not a finite number")
-    elif min(abs(B), T) < limits.min_baseline_m:
-        problems.append(
-            f"baseline {abs(min(B, T, key=abs)) * 1e3:.4f} mm is below the minimum "
-            f"{limits.min_baseline_m * 1e3:g} mm ([calib] min_baseline_mm): the left "
-            "and right images look like one camera's; check the eyes are two "
-            "cameras, and that --square-mm is the board's square in mm"
-        )
-    elif B < 0:
-        problems.append(
-            f"baseline {B * 1e3:.4f} mm is negative (limit: above 0): the left and "
-            "right images look swapped; exchange the eyes' files"
-        )
-    elif (
-        limits.nominal_baseline_m > 0
-        and abs(B / limits.nominal_baseline_m - 1) > limits.baseline_tolerance
-    ):
-        problems.append(
-            f"baseline {B * 1e3:.4f} mm is more than "
-            f"{limits.baseline_tolerance * 100:g} % from the rig's nominal "
-            f"{limits.nominal_baseline_m * 1e3:g} mm; set the rig's baseline as "
-            "[calib] nominal_baseline_mm or --nominal-baseline-mm (0 = not checked)"
-        )
-    w, h = cal.image_size
-    for eye, P in (("left", cal.P1), ("right", cal.P2)):
-        cx, cy = P[0, 2], P[1, 2]
-        if not (np.isfinite(cx) and np.isfinite(cy) and 0 <= cx < w and 0 <= cy < h):
-            problems.append(
-                f"rectified {eye} principal point ({cx:.1f}, {cy:.1f}) px lies "
-                f"outside the {w}x{h} image: the views do not pin the cameras down; "
-                "add views that fill the image corners, tilted by 20-40°"
-            )
-    for eye, K, D, R, P in (
-        ("left", cal.K1, cal.D1, cal.R1, cal.P1),
-        ("right", cal.K2, cal.D2, cal.R2, cal.P2),
-    ):
-        valid, kept = rectified_fractions(K, D, R, P, cal.image_size)
-        if min(valid, kept) < limits.min_rectified_fraction:
-            problems.append(
-                f"rectified {eye} image shows {valid * 100:.0f} % valid pixels and "
-                f"keeps {kept * 100:.0f} % of the camera image (limit "
-                f"{limits.min_rectified_fraction * 100:g} %, [calib] "
-                "min_rectified_fraction): the eyes look far apart in angle or the "
-                "distortion is poorly determined; add views near the image edges"
-            )
-    rms = max(
-        (v for v in (cal.rms_left_px, cal.rms_right_px, cal.rms_stereo_px) if np.isfinite(v)),
-        default=float("nan"),
-    )
-    if np.isfinite(rms) and rms > limits.max_rms_px:
-        problems.append(
-            f"RMS reprojection error {rms:.3f} px (left {cal.rms_left_px:.3f}, right "
-            f"{cal.rms_right_px:.3f}, stereo {cal.rms_stereo_px:.3f}) is above the "
-            f"limit {limits.max_rms_px:g} px (--max-rms-px)" + _rms_remedy(cal, view_names)
-        )
-    return problems
+    with the quantity, its value and limit, and a remedy (:func:`stereo_gates`)."""
+    return [g.problem for g in stereo_gates(cal, limits, view_names) if g.problem]
 
 
 def _rms_remedy(cal: Calibration, view_names: list[str] | None) -> str:

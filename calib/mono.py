@@ -38,9 +38,12 @@ def calibrate_mono(
     options: CameraOptions | None = None,
     limits: GateLimits | None = None,
     step: Callable[[], None] | None = None,
+    camera: str = "camera",
 ) -> MonoResult:
     """Detect the board in every image, drop views with too few corners and outlier views,
-    calibrate with corner rejection; refuse an unusable result (``CalibrationError``)."""
+    calibrate with corner rejection; refuse an unusable result (``CalibrationError``).
+    ``camera`` names the camera (``left``/``right`` for one eye of stereo views) in the
+    rejected corners and the reasons views were dropped."""
     options, limits = options or CameraOptions(), limits or GateLimits()
     size = image_size(images)
     detector = BoardDetector(spec)
@@ -61,7 +64,7 @@ def calibrate_mono(
             "match the printed board"
         )
     need_views(len(dets), options, images.source, dropped)
-    outliers, fit = outlier_views(spec, dets, names, size, "camera", options)
+    outliers, fit = outlier_views(spec, dets, names, size, camera, options)
     if outliers:
         keep = [n not in outliers for n in names]
         dets = [d for d, k in zip(dets, keep, strict=False) if k]
@@ -73,7 +76,7 @@ def calibrate_mono(
             dets,
             names,
             size,
-            "camera",
+            camera,
             options.outlier_sigma,
             options.outlier_min_px,
             flags=solve_flags(options),

@@ -50,6 +50,7 @@ class CalibSettings:
     desync_min_px: float = _ranged(ge=0)
     reject_desync: bool
     rectify_alpha: float = _ranged(ge=0, le=1)
+    zero_disparity: Literal["auto", "on", "off"]
     working_distance_mm: float = _ranged(gt=0)
     capture_views: int = _ranged(ge=1)
     capture_max_views: int = _ranged(ge=1)

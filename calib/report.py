@@ -27,6 +27,20 @@ def epipolar_overlay(
     return pair
 
 
+GATE_COLUMNS = ("gate", "measured", "limit", "verdict")
+
+
+def gate_lines(calibration: Calibration) -> list[str]:
+    """The gate table stored with a calibration as aligned text lines (header first)."""
+    rows = [list(GATE_COLUMNS), *calibration.info.get("gates", [])]
+    if len(rows) == 1:
+        return []
+    widths = [max(len(str(r[k])) for r in rows) for k in range(len(GATE_COLUMNS))]
+    return [
+        "  ".join(f"{str(v):<{w}}" for v, w in zip(r, widths, strict=True)).rstrip() for r in rows
+    ]
+
+
 def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
     """(label, value) rows describing a calibration, for reports and the CLI."""
     info = calibration.info
@@ -152,6 +166,8 @@ def write_report(result: StereoResult, views: ViewSet, out_stem: str | Path) -> 
 
     report = HtmlReport("Stereo calibration")
     report.table(["quantity", "value"], summary_rows(cal))
+    report.heading("Sanity gates")
+    report.table(list(GATE_COLUMNS), cal.info.get("gates", []))
     report.image(png, "per-view error, corner coverage, rectified pair", out_stem.parent)
     if result.uncertainty is not None:
         report.heading("Uncertainty at the working distance")

@@ -29,8 +29,9 @@ from vbfe.calib.camera import (
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.gates import GateLimits, stereo_problems
+from vbfe.calib.gates import FAIL, GateLimits, stereo_gates
 from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.rectify import rectify
 from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
 
@@ -42,6 +43,7 @@ class StereoOptions(CameraOptions):
     desync_min_px: float = calib_field("desync_min_px")
     reject_desync: bool = calib_field("reject_desync")
     rectify_alpha: float = calib_field("rectify_alpha")
+    zero_disparity: str = calib_field("zero_disparity")  # auto | on | off
     working_distance_m: float = calib_field("working_distance_mm", 1e-3)
     gates: GateLimits = field(default_factory=GateLimits)
 
@@ -146,7 +148,9 @@ def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndar
     T = np.median(rel_t, axis=0)
     obj_all = spec.object_points()
     out = np.zeros((len(left.rvecs), 2))
-    for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs, strict=False)):
+    for v, (dr, rvec, tvec) in enumerate(
+        zip(right.detections, left.rvecs, left.tvecs, strict=False)
+    ):
         Rl, _ = cv2.Rodrigues(rvec)
         rr, _ = cv2.Rodrigues(R @ Rl)
         out[v] = -residuals(
@@ -197,7 +201,7 @@ def calibrate_stereo(
     options = options or StereoOptions()
     image_size = check_sizes(views)
     detections = detect_views(views, spec, step)
-    if all(len(l) == 0 and len(r) == 0 for l, r in detections):
+    if all(len(left) == 0 and len(right) == 0 for left, right in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
             f"board options ({spec.describe()}) match the printed board"
@@ -217,6 +221,40 @@ def _check_intrinsics(
                 f"{model.image_size[0]}x{model.image_size[1]} images but the "
                 f"views are {image_size[0]}x{image_size[1]}"
             )
+
+
+def _pose_rms(spec: BoardSpec, detections: list[Detection], model: CameraModel) -> float:
+    """RMS (px) of the board poses solved for ``detections`` with ``model``'s intrinsics."""
+    obj, img = points(spec.object_points(), detections)
+    squares = []
+    for o, i in zip(obj, img, strict=True):
+        ok, rvec, tvec = cv2.solvePnP(o, i, model.K, model.D)
+        if ok:
+            squares.append(np.sum(residuals(o, i, rvec, tvec, model.K, model.D) ** 2, axis=1))
+    return float(np.sqrt(np.mean(np.concatenate(squares)))) if squares else float("inf")
+
+
+_EXCHANGED_RATIO = 2.0  # given order fits this many times worse than exchanged: refused
+
+
+def _check_eye_order(
+    spec: BoardSpec,
+    pairs: list[tuple[Detection, Detection]],
+    intrinsics: tuple[CameraModel, CameraModel],
+) -> None:
+    """Refuse camera files given in the wrong eye order: a camera file fixed on the other eye
+    still fits each view (the board pose absorbs the principal-point offset) but turns the
+    eyes apart in the stereo solve, so the rectified principal point leaves the image."""
+    lefts, rights = [p[0] for p in pairs], [p[1] for p in pairs]
+    given = (_pose_rms(spec, lefts, intrinsics[0]), _pose_rms(spec, rights, intrinsics[1]))
+    exchanged = (_pose_rms(spec, lefts, intrinsics[1]), _pose_rms(spec, rights, intrinsics[0]))
+    if sum(exchanged) * _EXCHANGED_RATIO < sum(given):
+        raise CalibrationError(
+            "--intrinsics LEFT RIGHT look exchanged: the board poses fit the left and right "
+            f"views with RMS {given[0]:.3f} / {given[1]:.3f} px in the order given, "
+            f"{exchanged[0]:.3f} / {exchanged[1]:.3f} px exchanged; give the left eye's "
+            "camera file first (and with --swap-eyes, the files as their names say)"
+        )
 
 
 def calibrate_detections(
@@ -258,6 +296,8 @@ def calibrate_detections(
         names.append(name)
         pairs.append((dl, dr))
     need_views(len(pairs), options, source, dropped)
+    if intrinsics is not None:
+        _check_eye_order(spec, pairs, intrinsics)
     outliers, fits = {}, []
     for k, eye in enumerate(("left", "right")):
         found, fit = outlier_views(
@@ -311,16 +351,17 @@ def calibrate_detections(
     rms, K1, D1, K2, D2, R, T, rvecs, tvecs, per_view = _stereo_solve(
         spec, stereo_pairs, left, right, image_size, intrinsics is not None, solve_flags(options)
     )
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+    rect = rectify(
         K1,
         D1,
         K2,
         D2,
         image_size,
         R,
-        T.reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY,
-        alpha=options.rectify_alpha,
+        T,
+        options.rectify_alpha,
+        options.zero_disparity,
+        options.gates.min_rectified_fraction,
     )
     per_view_rms = np.column_stack(
         [
@@ -336,18 +377,20 @@ def calibrate_detections(
         D2=D2,
         R=R,
         T=T,
-        R1=R1,
-        R2=R2,
-        P1=P1,
-        P2=P2,
-        Q=Q,
+        R1=rect.R1,
+        R2=rect.R2,
+        P1=rect.P1,
+        P2=rect.P2,
+        Q=rect.Q,
         image_size=image_size,
         rms_left_px=left.rms_px,
         rms_right_px=right.rms_px,
         rms_stereo_px=float(rms),
         per_view_rms_px=per_view_rms,
+        info={"rectify_alpha": options.rectify_alpha},
     )
-    problems = stereo_problems(calibration, options.gates, names)
+    gates = stereo_gates(calibration, options.gates, names)
+    problems = [g.problem for g in gates if g.verdict == FAIL]
     if problems:
         raise CalibrationError(
             f"{source}: stereo calibration refused, nothing written: " + "; ".join(problems)
@@ -357,6 +400,8 @@ def calibrate_detections(
         calibration, spec, options, names, left, right, stereo_pairs, dropped, desync
     )
     calibration.info["renumbered_views"] = renumbered
+    calibration.info["zero_disparity"] = rect.zero_disparity
+    calibration.info["gates"] = [g.row() for g in gates]
     if weak:
         calibration.info["weakly_determined"] = weak
     solve = StereoSolve(
@@ -429,6 +474,7 @@ def _info(
         "std_right": dict(zip(names_std, map(float, right.std_intrinsics), strict=False)),
         "sigma_B_m": sigma_B,
         "working_distance_m": z,
+        "rectify_alpha": options.rectify_alpha,
         "depth_sigma_at_working_distance_m": depth_sigma,
         "depth_per_px_disparity_at_working_distance_m": z * z / (cal.f * cal.B),
         "epipolar_rms_px": float(np.sqrt(np.mean(epi**2))) if epi.size else float("nan"),

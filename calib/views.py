@@ -5,16 +5,28 @@ from __future__ import annotations
 
 import glob
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from vbfe.calib.errors import CalibrationError
-from vbfe.calib.pairs import IMAGE_SUFFIXES, PAIR_NAMING, images_in, pair_files
+from vbfe.calib.pairs import (
+    IMAGE_SUFFIXES,
+    LIST_SUFFIXES,
+    PAIR_NAMING,
+    Pairing,
+    csv_pairs,
+    images_in,
+    list_pairs,
+    pair_files,
+)
 
-NAMING_RULES = PAIR_NAMING + ", or one side-by-side image per view (left half = left eye)"
+NAMING_RULES = (
+    PAIR_NAMING + ", --pairs FILE.csv (one left,right line per pair), or one side-by-side image "
+    "per view (left half = left eye)"
+)
 
 
 @dataclass
@@ -24,6 +36,7 @@ class ViewSet:
     pairs: list[tuple[np.ndarray, np.ndarray]]
     names: list[str]
     source: str
+    unpaired: list[str] = field(default_factory=list)  # files of one eye only, left out
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -36,19 +49,14 @@ def _read(path: Path) -> np.ndarray:
     return image
 
 
-def _folder_pairs(folder: Path) -> tuple[list[Path], list[Path], list[str]] | None:
-    """Paired left/right files of a folder, or ``None`` when no pair naming applies."""
-    found = pair_files(folder)
-    if found is None:
-        return None
-    lefts, rights = found
-    unpaired = sorted(set(lefts) ^ set(rights))
-    if unpaired:
+def _paired(where: Path | str, pairing: Pairing) -> tuple[list[Path], list[Path], list[str]]:
+    """The paired files of ``pairing``; names only one eye has are refused."""
+    if pairing.one_eye:
         raise CalibrationError(
-            f"{folder}: views without their other eye: {', '.join(unpaired)}; {NAMING_RULES}"
+            f"{where}: views without their other eye: {', '.join(pairing.one_eye)}; {NAMING_RULES}"
         )
-    names = sorted(lefts)
-    return [lefts[n] for n in names], [rights[n] for n in names], names
+    names = pairing.names
+    return [pairing.left[n] for n in names], [pairing.right[n] for n in names], names
 
 
 def _glob(pattern: str) -> list[Path]:
@@ -76,33 +84,54 @@ def _split_side_by_side(image: np.ndarray, path: Path) -> tuple[np.ndarray, np.n
     return image[:, :half], image[:, half:]
 
 
+def _swapped(views: ViewSet, swap_eyes: bool) -> ViewSet:
+    if swap_eyes:
+        views.pairs = [(right, left) for left, right in views.pairs]
+        views.source += " (eyes swapped)"
+    return views
+
+
 def load_views(
     path: str | Path | None = None,
     every: int = 1,
     left_glob: str | None = None,
     right_glob: str | None = None,
+    ext: str | None = None,
+    pairs_file: str | Path | None = None,
+    swap_eyes: bool = False,
 ) -> ViewSet:
-    """Pairs from a folder (naming rules: :data:`NAMING_RULES`), from ``left_glob`` /
-    ``right_glob`` (paired in sorted order) or from a recorded session (``.h5``, every
-    ``every``-th frame)."""
+    """Pairs from a folder (naming rules: :data:`NAMING_RULES`; only files ending in ``ext``
+    when given), an OpenCV image list file, a CSV of pairs (``pairs_file``), ``left_glob`` /
+    ``right_glob`` (paired in sorted order) or a recorded session (``.h5``, every ``every``-th
+    frame); ``swap_eyes`` exchanges the eyes of every pair."""
     if left_glob is not None or right_glob is not None:
         if left_glob is None or right_glob is None:
             raise CalibrationError("give both --left GLOB and --right GLOB")
         lefts, rights, names = _glob_pairs(left_glob, right_glob)
         pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=False)]
-        return ViewSet(pairs, names, f"--left {left_glob} --right {right_glob}")
+        return _swapped(
+            ViewSet(pairs, names, f"--left {left_glob} --right {right_glob}"), swap_eyes
+        )
+    if pairs_file is not None:
+        lefts, rights, names = _paired(pairs_file, csv_pairs(pairs_file))
+        pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=True)]
+        return _swapped(ViewSet(pairs, names, f"--pairs {pairs_file}"), swap_eyes)
     if path is None:
-        raise CalibrationError("give a folder of image pairs, a session, or --left/--right globs")
+        raise CalibrationError(
+            "give a folder of image pairs, a session, --pairs FILE.csv or --left/--right globs"
+        )
     path = Path(path)
     if not path.exists():
         raise CalibrationError(f"{path} does not exist; give a folder of image pairs or a session")
-    if path.is_dir():
-        found = _folder_pairs(path)
-        if found is not None:
-            lefts, rights, names = found
-            pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=False)]
+    unpaired: list[str] = []
+    if path.is_dir() or path.suffix.lower() in LIST_SUFFIXES:
+        pairing = pair_files(path, ext) if path.is_dir() else list_pairs(path)
+        if pairing is not None:
+            lefts, rights, names = _paired(path, pairing)
+            unpaired = pairing.unpaired
+            pairs = [(_read(a), _read(b)) for a, b in zip(lefts, rights, strict=True)]
         else:
-            files = images_in(path)
+            files = images_in(path, ext)
             pairs = [_split_side_by_side(_read(f), f) for f in files]
             names = [f.stem for f in files]
     else:
@@ -119,7 +148,7 @@ def load_views(
             f"{path} holds no image pairs; capture some with "
             f"'vbfe calibrate capture' ({NAMING_RULES})"
         )
-    return ViewSet(pairs, names, str(path))
+    return _swapped(ViewSet(pairs, names, str(path), unpaired), swap_eyes)
 
 
 @dataclass
@@ -134,10 +163,12 @@ class ImageSet:
         return len(self.images)
 
 
-def load_images(source: str | Path, eye: str | None = None, every: int = 1) -> ImageSet:
+def load_images(
+    source: str | Path, eye: str | None = None, every: int = 1, ext: str | None = None
+) -> ImageSet:
     """One camera's images: every image of a folder or of a glob pattern, or with ``eye``
     (``left``/``right``) that eye of stereo views (any :func:`load_views` source; a session
-    defaults to the left eye)."""
+    defaults to the left eye); only files ending in ``ext`` when given."""
     source_text = str(source)
     path = Path(source)
     if eye is None and not any(c in source_text for c in "*?[") and path.is_file():
@@ -145,17 +176,17 @@ def load_images(source: str | Path, eye: str | None = None, every: int = 1) -> I
     if eye is not None:
         if eye not in ("left", "right"):
             raise CalibrationError(f"--eye {eye!r}: use left or right")
-        views = load_views(path, every)
+        views = load_views(path, every, ext=ext)
         k = 0 if eye == "left" else 1
         return ImageSet(
             [pair[k] for pair in views.pairs], views.names, f"{views.source} ({eye} eye)"
         )
     if path.is_dir():
-        if _folder_pairs(path) is not None:
+        if pair_files(path, ext) is not None:
             raise CalibrationError(
                 f"{path} holds stereo image pairs; say which camera with --eye left or --eye right"
             )
-        files = images_in(path)
+        files = images_in(path, ext)
     elif any(c in source_text for c in "*?["):
         files = _glob(source_text)
     else:

@@ -81,7 +81,7 @@ def find_pairs(folder: str | Path) -> ImagePairs:
     found = pair_files(folder)
     if found is None:
         raise ReconError(f"{folder} holds no stereo pairs; {PAIR_NAMING}")
-    return _paired(folder, *found)
+    return _paired(folder, found.left, found.right)
 
 
 def image_pairs(paths: list[str | Path]) -> ImagePairs:

@@ -152,7 +152,13 @@ def _vbfe(capsys, *args: str) -> subprocess.CompletedProcess:
     [
         ("--min-views", "20", "only 13 usable views, need at least 20 (--min-views)"),
         ("--max-rms-px", "0.1", "is above the limit 0.1 px (--max-rms-px)"),
-        ("--nominal-baseline-mm", "10", "more than 25 % from the rig's nominal 10 mm"),
+        ("--nominal-baseline-mm", "10", "% from the rig's nominal 10 mm (limit 25 %)"),
+        (
+            "--min-rectified-fraction",
+            "0.99",
+            "keeps 8",  # about 85 % of each eye's image at alpha 0
+        ),
+        ("--min-baseline-mm", "100", "below the minimum 100 mm (--min-baseline-mm)"),
     ],
 )
 def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value, says):

@@ -58,10 +58,12 @@ class SimBench:
     of the endoscope, see :mod:`vbfe.drivers.sim.board_scene`: ``board_*`` arguments; the
     ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
     translation in m, board → left camera; empty: random). The trocar always follows the
-    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
-    reader's clock fits map each stream to its median arrival, so
-    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
-    when the first device is opened.
+    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays
+    of each stream; the reader's clock fits map each stream to its median arrival, so
+    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find.
+    Time starts (true time 0, the trial's start) when the first device is opened.
+    ``pixel_aspect`` (fx / fy) and ``principal_offsets_px`` ([[left dx, dy], [right dx, dy]])
+    shape the endoscope's cameras (:func:`~vbfe.drivers.sim.rig.default_rig`).
 
     ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
     ``sync_duration_s``, peak about ``tap_force_n``); ``protocol = "freehand"`` by a
@@ -101,6 +103,8 @@ class SimBench:
         textured: bool = False,
         distortion: bool = False,
         baseline_m: float = 0.004,
+        pixel_aspect: float = 1.0,
+        principal_offsets_px: list[list[float]] | None = None,
         working_distance_m: float = 0.06,
         deformation_scale: float = 0.15,
         realtime: bool = False,
@@ -200,10 +204,28 @@ class SimBench:
         }.items():
             if value < 0:
                 raise DeviceError(f"[bench] {key} = {value} must not be negative")
+        if not 0.5 <= pixel_aspect <= 2.0:
+            raise DeviceError(f"[bench] pixel_aspect = {pixel_aspect} must be within [0.5, 2]")
+        offsets = None
+        if principal_offsets_px is not None:
+            if np.shape(principal_offsets_px) != (2, 2):
+                raise DeviceError(
+                    "[bench] principal_offsets_px must be [[left dx, dy], [right dx, dy]] (px)"
+                )
+            (lx, ly), (rx, ry) = principal_offsets_px
+            offsets = ((float(lx), float(ly)), (float(rx), float(ry)))
         self.rig = (
             rig
             if rig is not None
-            else default_rig(width, height, baseline_m, working_distance_m, distortion)
+            else default_rig(
+                width,
+                height,
+                baseline_m,
+                working_distance_m,
+                distortion,
+                pixel_aspect,
+                offsets,
+            )
         )
         self._params.update(width=self.rig.left.width, height=self.rig.left.height)
         self.seed, self.fps, self.scene, self.realtime = seed, float(fps), scene, realtime
@@ -218,7 +240,8 @@ class SimBench:
                 (
                     np.random.default_rng(s)
                     for s in np.random.SeedSequence(seed).spawn(len(_STREAMS))
-                ), strict=False,
+                ),
+                strict=False,
             )
         )
         self._force_rng = rngs["force_noise"]

@@ -59,13 +59,15 @@ def pinhole(
     hfov_deg: float,
     dist: tuple[float, ...] = (0, 0, 0, 0, 0),
     principal_offset: tuple[float, float] = (0.0, 0.0),
+    pixel_aspect: float = 1.0,
 ) -> PinholeCamera:
-    """A camera of the given size and horizontal field of view, square pixels."""
+    """A camera of the given size and horizontal field of view; ``pixel_aspect`` is fx / fy
+    (1: square pixels; an SD analog channel digitised at 640 px per line: about 1.1)."""
     f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
     K = np.array(
         [
             [f, 0, (width - 1) / 2 + principal_offset[0]],
-            [0, f, (height - 1) / 2 + principal_offset[1]],
+            [0, f / pixel_aspect, (height - 1) / 2 + principal_offset[1]],
             [0, 0, 1],
         ],
         dtype=np.float64,
@@ -74,7 +76,8 @@ def pinhole(
 
 
 def look_at(position: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``R, T`` (left-camera frame → device frame) of a device at ``position`` looking at ``target``."""
+    """``R, T`` (left-camera frame → device frame) of a device at ``position`` looking at
+    ``target``."""
     z = np.asarray(target, float) - np.asarray(position, float)
     z /= np.linalg.norm(z)
     x = np.cross([0.0, 1.0, 0.0], z)
@@ -109,17 +112,30 @@ def default_rig(
     baseline_m: float = 0.004,
     working_distance_m: float = 0.06,
     distortion: bool = False,
+    pixel_aspect: float = 1.0,
+    principal_offsets_px: tuple[tuple[float, float], tuple[float, float]] | None = None,
 ) -> StereoRig:
     """A 3D-endoscope-like rig: ~70° HFOV, few-mm baseline, projector beside it aimed at the scene.
 
     With ``distortion`` the two cameras get mild, different radial distortion and slightly
-    different principal points, as real endoscope optics have.
+    different principal points, as real endoscope optics have. ``pixel_aspect`` is both eyes'
+    fx / fy; ``principal_offsets_px`` ((left dx, dy), (right dx, dy)) moves each eye's principal
+    point from the image centre (instead of the small offsets ``distortion`` brings), as a
+    digitiser that samples the two channels' lines from different starts does.
     """
+    offsets = principal_offsets_px
     if distortion:
-        left = pinhole(width, height, 70.0, (-0.08, 0.02, 0.0005, -0.0003, 0.0), (3.0, -2.0))
-        right = pinhole(width, height, 70.0, (-0.07, 0.015, -0.0004, 0.0002, 0.0), (-2.5, 1.5))
+        offsets = offsets or ((3.0, -2.0), (-2.5, 1.5))
+        left = pinhole(
+            width, height, 70.0, (-0.08, 0.02, 0.0005, -0.0003, 0.0), offsets[0], pixel_aspect
+        )
+        right = pinhole(
+            width, height, 70.0, (-0.07, 0.015, -0.0004, 0.0002, 0.0), offsets[1], pixel_aspect
+        )
     else:
-        left = right = pinhole(width, height, 70.0)
+        offsets = offsets or ((0.0, 0.0), (0.0, 0.0))
+        left = pinhole(width, height, 70.0, principal_offset=offsets[0], pixel_aspect=pixel_aspect)
+        right = pinhole(width, height, 70.0, principal_offset=offsets[1], pixel_aspect=pixel_aspect)
     projector = pinhole(1024, 768, 62.0)
     R_proj, T_proj = look_at(
         np.array([-0.012, -0.006, -0.004]), np.array([0.0, 0.0, working_distance_m])

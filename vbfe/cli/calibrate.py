@@ -5,6 +5,7 @@ to OpenCV, Kalibr, ROS and Middlebury files."""
 from __future__ import annotations
 
 import argparse
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -15,11 +16,12 @@ from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import FORMATS
-from vbfe.calib.report import summary_rows
+from vbfe.calib.rectify import ZERO_DISPARITY
+from vbfe.calib.report import gate_lines, summary_rows
 from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
+from vbfe.common.config import read_toml, section
 
 _BOARD_KEYS = (
     "target",
@@ -125,19 +127,97 @@ _GATE_FLAGS = {
 }
 
 
+def _fraction(text: str) -> float:
+    value = positive(float, zero=True)(text)
+    if value > 1:
+        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {text}")
+    return value
+
+
+_STEREO_FLAGS = {
+    "min_baseline_mm": (
+        "--min-baseline-mm",
+        positive(float, zero=True),
+        "MM",
+        "refuse a baseline below this (default: [calib] min_baseline_mm)",
+    ),
+    "baseline_tolerance": (
+        "--baseline-tolerance",
+        positive(float),
+        "FRACTION",
+        "refuse a baseline further than this fraction from the nominal one "
+        "(default: [calib] baseline_tolerance)",
+    ),
+    "min_rectified_fraction": (
+        "--min-rectified-fraction",
+        _fraction,
+        "FRACTION",
+        "refuse a rectification keeping less than this fraction of an eye's image "
+        "(default: [calib] min_rectified_fraction)",
+    ),
+    "rectify_alpha": (
+        "--rectify-alpha",
+        _fraction,
+        "ALPHA",
+        "stereoRectify's free scaling: 0 = only valid pixels, 1 = the whole camera image "
+        "(default: [calib] rectify_alpha)",
+    ),
+    "zero_disparity": (
+        "--zero-disparity",
+        str,
+        "auto|on|off",
+        "on: one principal point for both rectified eyes (OpenCV's CALIB_ZERO_DISPARITY); "
+        "off: each eye keeps its own, their offset stored as doffs; auto: on unless that "
+        "keeps less than --min-rectified-fraction (default: [calib] zero_disparity)",
+    ),
+}
+_GATE_FLAGS.update(_STEREO_FLAGS)
+_STEREO_GATES = (
+    "min_views",
+    "max_rms_px",
+    "min_baseline_mm",
+    "nominal_baseline_mm",
+    "baseline_tolerance",
+    "min_rectified_fraction",
+    "rectify_alpha",
+    "zero_disparity",
+    "working_distance_mm",
+)
+
+
 def _gate_options(parser: argparse.ArgumentParser, *keys: str) -> None:
-    group = parser.add_argument_group("limits (defaults: the [calib] table of the rig config)")
+    group = parser.add_argument_group(
+        "limits and rectification (defaults: the [calib] table of the rig config)"
+    )
     for key in keys:
         flag, kind, metavar, text = _GATE_FLAGS[key]
-        group.add_argument(flag, type=kind, dest=key, metavar=metavar, default=None, help=text)
+        choices = ZERO_DISPARITY if key == "zero_disparity" else None
+        group.add_argument(
+            flag, type=kind, dest=key, metavar=metavar, default=None, help=text, choices=choices
+        )
 
 
 def _settings(args: argparse.Namespace) -> dict[str, Any]:
-    """The ``[calib]`` values given on the command line (gate flags, --fix-k3)."""
+    """The ``[calib]`` values the user states: the command-line flags (gates, --fix-k3) and,
+    for the nominal baseline, the user's own rig file (--config)."""
     given = {key: getattr(args, key, None) for key in _GATE_FLAGS}
     if getattr(args, "fix_k3", None):
         given["fix_k3"] = True
+    config = getattr(args, "config", None)
+    if given.get("nominal_baseline_mm") is None and config is not None:
+        given["nominal_baseline_mm"] = (
+            read_toml(config, "rig config").get("calib", {}).get("nominal_baseline_mm")
+        )
     return {key: value for key, value in given.items() if value is not None}
+
+
+def _layout_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--ext",
+        metavar="EXT",
+        help="only images ending in this (e.g. png) where a folder holds one view twice "
+        "(left01.jpg and left01.png)",
+    )
 
 
 def _config_and_board(args: argparse.Namespace) -> tuple[dict, dict[str, Any]]:
@@ -217,6 +297,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("left", "right"),
         help="take this eye of stereo views (" + NAMING_RULES + ")",
     )
+    _layout_options(p)
     _solve_options(p)
     _gate_options(p, "min_views", "max_rms_px")
     _board_options(p)
@@ -229,11 +310,29 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="calibrate the stereo pair from views",
         description="Calibrate the stereo pair; " + NAMING_RULES + "; or "
         "give --left 'GLOB' --right 'GLOB'. "
-        "A result with an impossible baseline, a rectified principal point "
-        "outside the image, a rectification keeping less than half the image "
-        "or a high RMS is refused and nothing is written.",
+        "A result with an impossible baseline (or one far from a stated nominal "
+        "baseline), a rectified principal point outside the image, a rectification "
+        "keeping less than --min-rectified-fraction of the image or a high RMS is "
+        "refused and nothing is written; the report lists every gate with its "
+        "measured value, limit and verdict.",
     )
-    p.add_argument("source", nargs="?", help="folder of view pairs or a session .h5")
+    p.add_argument(
+        "source",
+        nargs="?",
+        help="folder of view pairs, an OpenCV image list (.xml/.yaml) or a session .h5",
+    )
+    p.add_argument(
+        "--pairs",
+        metavar="FILE.csv",
+        dest="pairs_file",
+        help="pairs listed in a CSV file, one 'left,right' line each (paths relative to it)",
+    )
+    p.add_argument(
+        "--swap-eyes",
+        action="store_true",
+        help="exchange the eyes: the files labelled right are the left camera's",
+    )
+    _layout_options(p)
     p.add_argument(
         "--left",
         metavar="GLOB",
@@ -253,7 +352,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--store-in", metavar="SESSION.h5", help="also store the calibration inside this session"
     )
     _solve_options(p)
-    _gate_options(p, "min_views", "max_rms_px", "nominal_baseline_mm", "working_distance_mm")
+    _gate_options(p, *_STEREO_GATES)
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)
@@ -298,7 +397,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="length of one unit of an OpenCV file's T, in mm (default 1000: metres; "
         "OpenCV's sample measures in board squares)",
     )
-    _gate_options(p, "nominal_baseline_mm")
+    _gate_options(
+        p,
+        "max_rms_px",
+        "min_baseline_mm",
+        "nominal_baseline_mm",
+        "baseline_tolerance",
+        "min_rectified_fraction",
+    )
     add_overwrite_option(p)
     add_config_option(p)
     p.set_defaults(func=run_import)
@@ -337,7 +443,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "check_max_depth_error_mm",
         "check_max_epipolar_px",
         "max_rms_px",
+        "min_baseline_mm",
         "nominal_baseline_mm",
+        "baseline_tolerance",
+        "min_rectified_fraction",
     )
     _board_options(p)
     add_config_option(p)
@@ -426,9 +535,9 @@ def _print_solve_notes(dropped: dict[str, str], rejected: list, weak: str | None
     for name, why in dropped.items():
         print(f"  dropped {name}: {why}")
     for view, camera, corner, px in rejected[:_NAMED_CORNERS]:
+        eye = f" ({camera} eye)" if camera in ("left", "right") else ""
         print(
-            f"  rejected corner {corner} of view {view} ({camera} eye): {px:.2f} px from the "
-            "fit, an outlier"
+            f"  rejected corner {corner} of view {view}{eye}: {px:.2f} px from the fit, an outlier"
         )
     if len(rejected) > _NAMED_CORNERS:
         print(
@@ -451,6 +560,7 @@ def run_camera(args: argparse.Namespace) -> int:
             args.eye,
             step=lambda: bar.update(1),
             settings=_settings(args),
+            ext=args.ext,
             **board,
         )
     model = result.model
@@ -478,13 +588,36 @@ def run_camera(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_session_target(path: str) -> None:
+    """``--store-in``: an existing session this process can read and write."""
+    from vbfe.acquire import SessionReader
+
+    if not Path(path).is_file():
+        raise CalibrationError(f"--store-in {path}: no such session; give a recorded session")
+    with SessionReader(path):
+        pass
+    if not os.access(path, os.W_OK):
+        raise CalibrationError(f"--store-in {path}: the session is read-only; make it writable")
+
+
 def run_stereo(args: argparse.Namespace) -> int:
-    """Calibrate and print the summary."""
+    """Calibrate and print the summary; every destination is checked before the work."""
+    out = Path(args.out)
+    reports = [] if args.no_report else [out.with_suffix(".png"), out.with_suffix(".html")]
     check_outputs(
-        [args.out],
-        [args.source, args.store_in, args.left_glob, args.right_glob, *(args.intrinsics or ())],
+        [out, *reports],
+        [
+            args.source,
+            args.store_in,
+            args.left_glob,
+            args.right_glob,
+            args.pairs_file,
+            *(args.intrinsics or ()),
+        ],
         args.overwrite,
     )
+    if args.store_in is not None:
+        _check_session_target(args.store_in)
     config, board = _config_and_board(args)
     intrinsics = tuple(args.intrinsics) if args.intrinsics else None
     with progress(desc="detecting corners", unit="view") as bar:
@@ -499,6 +632,9 @@ def run_stereo(args: argparse.Namespace) -> int:
             right_glob=args.right_glob,
             intrinsics=intrinsics,
             settings=_settings(args),
+            ext=args.ext,
+            pairs_file=args.pairs_file,
+            swap_eyes=args.swap_eyes,
             **board,
         )
     result = outcome.result
@@ -507,6 +643,9 @@ def run_stereo(args: argparse.Namespace) -> int:
         + (f", report {outcome.report_paths[1]}" if outcome.report_paths else "")
     )
     _print_rows(summary_rows(result.calibration))
+    print("  sanity gates:")
+    for line in gate_lines(result.calibration):
+        print(f"    {line}")
     for eye, fit in (("left", result.left), ("right", result.right)):
         print(
             f"  {eye} "
@@ -518,6 +657,9 @@ def run_stereo(args: argparse.Namespace) -> int:
             f"  the eyes numbered the chessboard from opposite ends in views "
             f"{', '.join(result.renumbered)}: the right eye's corners were renumbered to match"
         )
+    unpaired = result.calibration.info["unpaired_files"]
+    if unpaired:
+        print(f"  left out {len(unpaired)} images without a partner: {', '.join(unpaired)}")
     _print_solve_notes(
         result.dropped, result.calibration.info["rejected_corners"], None
     )  # a weak result is noted in the summary rows

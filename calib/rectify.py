@@ -1,0 +1,137 @@
+"""Stereo rectification of a solved pair (OpenCV's ``stereoRectify``) and how much of each
+eye's image it keeps.
+
+OpenCV's zero-disparity rectification gives both rectified eyes one principal point. When the
+eyes' own principal points lie far apart (an analog endoscope's digitiser samples the two
+channels' lines from different starts) that crops most of the image; rectifying without it
+keeps each eye's principal point and stores their offset as ``doffs`` (d = f·B/z − doffs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+ZERO_DISPARITY = ("auto", "on", "off")  # auto: on unless it keeps less than the gate's fraction
+_GRID_STEP = 8  # px between sampled pixels when measuring rectification coverage
+
+
+@dataclass
+class Rectification:
+    """``stereoRectify``'s rotations and projections, and whether zero disparity was forced."""
+
+    R1: np.ndarray
+    R2: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+    zero_disparity: bool
+
+
+def _grid(size: tuple[int, int]) -> np.ndarray:
+    u, v = np.meshgrid(
+        np.arange(0, size[0], _GRID_STEP, dtype=np.float64),
+        np.arange(0, size[1], _GRID_STEP, dtype=np.float64),
+    )
+    return np.column_stack([u.ravel(), v.ravel()])
+
+
+def _inside(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    return (
+        np.isfinite(uv).all(axis=1)
+        & (uv[:, 0] >= 0)
+        & (uv[:, 0] <= size[0] - 1)
+        & (uv[:, 1] >= 0)
+        & (uv[:, 1] <= size[1] - 1)
+    )
+
+
+def rectified_fractions(
+    K: np.ndarray, D: np.ndarray, R: np.ndarray, P: np.ndarray, size: tuple[int, int]
+) -> tuple[float, float]:
+    """(valid, kept) for one eye: the fraction of the rectified image that shows the camera
+    image, and the fraction of the camera image that appears in the rectified image."""
+    grid = _grid(size)
+    K_rect = P[:, :3]
+    if not np.all(np.isfinite(K_rect)) or abs(np.linalg.det(K_rect)) < 1e-12:
+        return 0.0, 0.0
+    rays = np.column_stack([grid, np.ones(len(grid))]) @ np.linalg.inv(K_rect).T @ R
+    front = rays[:, 2] > 0
+    valid = 0.0
+    if front.any():
+        raw, _ = cv2.projectPoints(rays[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+        valid = _inside(raw.reshape(-1, 2), size).sum() / len(grid)
+    rect = cv2.undistortPoints(grid.reshape(-1, 1, 2), K, D, R=R, P=P).reshape(-1, 2)
+    kept = _inside(rect, size).mean()
+    return float(valid), float(kept)
+
+
+def worst_fraction(
+    K1: np.ndarray,
+    D1: np.ndarray,
+    K2: np.ndarray,
+    D2: np.ndarray,
+    rect: Rectification,
+    size: tuple[int, int],
+) -> float:
+    """The smaller of valid and kept (:func:`rectified_fractions`) over both eyes."""
+    return min(
+        min(rectified_fractions(K1, D1, rect.R1, rect.P1, size)),
+        min(rectified_fractions(K2, D2, rect.R2, rect.P2, size)),
+    )
+
+
+def stereo_rectify(
+    K1: np.ndarray,
+    D1: np.ndarray,
+    K2: np.ndarray,
+    D2: np.ndarray,
+    size: tuple[int, int],
+    R: np.ndarray,
+    T: np.ndarray,
+    alpha: float,
+    zero_disparity: bool,
+) -> Rectification:
+    """``cv2.stereoRectify`` (the new image size is the image size)."""
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        K1,
+        D1,
+        K2,
+        D2,
+        size,
+        R,
+        np.asarray(T, np.float64).reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY if zero_disparity else 0,
+        alpha=alpha,
+        newImageSize=size,
+    )
+    return Rectification(R1, R2, P1, P2, Q, zero_disparity)
+
+
+def rectify(
+    K1: np.ndarray,
+    D1: np.ndarray,
+    K2: np.ndarray,
+    D2: np.ndarray,
+    size: tuple[int, int],
+    R: np.ndarray,
+    T: np.ndarray,
+    alpha: float,
+    zero_disparity: str,
+    min_fraction: float,
+) -> Rectification:
+    """The pair's rectification: ``zero_disparity`` ``on``/``off`` forces or leaves out
+    OpenCV's zero-disparity flag; ``auto`` forces it unless that keeps less than
+    ``min_fraction`` of an eye's image and leaving it out keeps more."""
+    if zero_disparity not in ZERO_DISPARITY:
+        raise ValueError(f"zero_disparity must be one of {ZERO_DISPARITY}, got {zero_disparity!r}")
+    forced = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha, zero_disparity != "off")
+    if zero_disparity != "auto" or worst_fraction(K1, D1, K2, D2, forced, size) >= min_fraction:
+        return forced
+    free = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha, False)
+    better = worst_fraction(K1, D1, K2, D2, free, size) > worst_fraction(
+        K1, D1, K2, D2, forced, size
+    )
+    return free if better else forced
