@@ -192,6 +192,10 @@ class Detection:
     def __len__(self) -> int:
         return len(self.ids)
 
+    def corners_of(self, candidate: Candidate | None) -> np.ndarray:
+        """The corners of ``candidate``; this detection's own when None."""
+        return self.corners if candidate is None else candidate.corners
+
     def using(self, candidate: Candidate) -> Detection:
         """This detection with the corners of ``candidate`` (its candidates dropped)."""
         return Detection(self.ids, candidate.corners, (), self.finder, self.edge_width_px)

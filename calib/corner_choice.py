@@ -109,7 +109,10 @@ def choose_corners(
                 K, D = fixed.K, fixed.D
             else:
                 solved = _intrinsics(
-                    obj, [picked[k].corners for k in comparable], image_size, flags
+                    obj,
+                    [detections[k].corners_of(picked[k]) for k in comparable],
+                    image_size,
+                    flags,
                 )
                 if solved is None:
                     break

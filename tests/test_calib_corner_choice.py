@@ -96,9 +96,8 @@ def test_camera_on_the_dark_set_fits_as_well_as_the_best_plain_pipeline(capsys, 
 
 
 def test_every_dark_image_is_found_and_offers_each_refinement():
-    """The darkened sample (mean grey 20, σ 3, JPEG): the board is found in all 26 images and
-    each detection carries the adaptive, OpenCV-sized and sector-detector corners, all within
-    a pixel of each other and numbered alike."""
+    """The darkened sample (mean grey 20, σ 3, JPEG): the board is found in the images and each
+    detection carries the adaptive, OpenCV-sized and sector-detector corners, numbered alike."""
     detector = BoardDetector(SPEC, candidates=True)
     labels = set()
     for pair in sets.dark()[:4]:

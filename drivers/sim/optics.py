@@ -77,5 +77,8 @@ class Optics:
             ok, encoded = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
             if not ok:
                 raise DeviceError("OpenCV could not JPEG-encode a simulated image")
-            grey = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
+            decoded = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE)
+            if decoded is None:
+                raise DeviceError("OpenCV could not decode a simulated JPEG image")
+            grey = decoded
         return grey
