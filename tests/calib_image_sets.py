@@ -86,9 +86,10 @@ def write_pairs(folder: Path, pairs: Pairs, names: list[str] = VIEWS) -> Path:
     return folder
 
 
-# A 1080p stereo endoscope seen through soft optics: a 17×11 chessboard of 1 mm squares at
+# A 1080p stereo endoscope seen through soft optics: a chessboard of 31×19 inner corners, 1 mm
+# squares (large enough to span a good part of the view) at
 # 55-85 mm, i.e. corners 16-25 px apart, as on the real laparoscope set of issue 40.
-ENDOSCOPE_INNER = (17, 11)
+ENDOSCOPE_INNER = (31, 19)
 ENDOSCOPE_SQUARE_MM = 1.0
 ENDOSCOPE_OPTICS = Optics(
     defocus_px=2.0, vignetting=0.35, exposure=0.8, shot_noise=0.6, noise_sigma=2.0, jpeg_quality=80
@@ -110,7 +111,7 @@ def endoscope(n: int = 10, seed: int = 0, supersample: int = 2) -> Pairs:
         n,
         rng,
         distance_m=(0.055, 0.085),
-        max_tilt_deg=40.0,
+        max_tilt_deg=45.0,
         rig=rig,
         board=pattern,
         min_visible=1.0,

@@ -159,16 +159,23 @@ def test_endoscope_renders_fit_as_well_as_the_best_plain_pipeline_and_the_truth(
     assert run.returncode == 0, run.stderr
     cal = Calibration.load(out)
     results = plain_opencv.all_stereo(pairs, sets.ENDOSCOPE_INNER, sets.ENDOSCOPE_SQUARE_MM * 1e-3)
+    rig = sets.endoscope_rig()
+    summary = {
+        p: (r.n_pairs, round(r.rms, 3), f"{r.T_norm / rig.baseline_m - 1:+.3%}")
+        for p, r in results.items()
+    }
+    print("endoscope renders: vbfe", cal.rms_stereo_px, cal.B / rig.baseline_m - 1, summary)
     assert results["subpix5"].rms > 1.3 * results["sb_accuracy"].rms  # the failure reproduced
     pipeline, best = plain_opencv.best(results)
     assert len(cal.info["views"]) == best.n_pairs and not cal.info["dropped_views"]
-    assert cal.rms_stereo_px <= 1.02 * best.rms, (cal.rms_stereo_px, pipeline)
-    assert np.linalg.norm(cal.T) == pytest.approx(best.T_norm, rel=0.003), pipeline
-    rig = sets.endoscope_rig()
+    assert cal.rms_stereo_px <= 1.02 * best.rms, (cal.rms_stereo_px, pipeline, summary)
     for K, camera in ((cal.K1, rig.left), (cal.K2, rig.right)):
         assert K[0, 0] == pytest.approx(camera.K[0, 0], rel=0.0005)
         assert K[1, 1] == pytest.approx(camera.K[1, 1], rel=0.0005)
-    assert cal.B == pytest.approx(rig.baseline_m, rel=0.001)  # issue 40 asks 0.05 %: see notes
+    # |T| against the truth, which the renders know, rather than against the best plain
+    # pipeline's: on these 8 views the sector detector's |T| is 0.4 % long (issue 40 asks 0.3 %
+    # from it); issue 40 asks 0.05 % from the truth, vbfe's corners give 0.05-0.07 % here
+    assert cal.B == pytest.approx(rig.baseline_m, rel=0.0005)
 
 
 def test_a_square_board_is_numbered_one_way_in_every_eye_and_view():
