@@ -1,10 +1,12 @@
-"""Plain chessboards: corners as accurate as OpenCV's calibration samples at any resolution, and
-one corner numbering for both eyes of a stereo view.
+"""Plain chessboards: finding the board (:func:`find_chessboard`), the corner refinements worth
+comparing (cornerSubPix windows, the sector detector's ``ACCURACY`` corners), and one corner
+numbering for every eye and view.
 
-A chessboard reads the same turned by 180° (a square one also by 90°), so the detector may
-number a view's left and right corners from different ends. :func:`same_numbering` takes the
-right eye's numbering whose left→right displacements agree (nearly one shift for all corners,
-as a stereo pair sees them).
+A chessboard reads the same turned by 180° (a square one also by 90°), and OpenCV may number
+it from either end (a square one turned or mirrored): :func:`canonical` numbers every detection
+one way, and :func:`same_numbering` takes the right eye's numbering whose left→right
+displacements agree (nearly one shift for all corners, as a stereo pair sees them) where a
+board seen edge-on in x leaves the two eyes' canonical numberings apart.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-# cornerSubPix half-window: OpenCV's 11×11 window (half 5) at least, growing with the corner
+# The adaptive cornerSubPix half-window (the first candidate, and the refinement of detections
+# made outside calibration): OpenCV's 11×11 window (half 5) at least, growing with the corner
 # spacing for sharper fits on high-resolution images, and never beyond 0.35 × the spacing:
 # measured on OpenCV's stereo sample (spacing 21-37 px), half-windows above ~0.4 × spacing (e.g.
 # the 23×23 of stereo_calib.cpp) reach the neighbouring squares' edges and move single corners
