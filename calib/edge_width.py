@@ -25,9 +25,7 @@ def neighbour_pairs(ids: np.ndarray, row_length: int) -> tuple[np.ndarray, np.nd
     return np.asarray(first, int), np.asarray(second, int)
 
 
-def edge_width_px(
-    grey: np.ndarray, ids: np.ndarray, corners: np.ndarray, row_length: int
-) -> float:
+def edge_width_px(grey: np.ndarray, ids: np.ndarray, corners: np.ndarray, row_length: int) -> float:
     """The 10-90 % width (px) of the board's edges, from the mean profile across the edges
     joining neighbouring corners (``ids`` row by row, ``row_length`` to a row); NaN when the
     detection holds no neighbours."""

@@ -240,9 +240,7 @@ def calibrate_detections(
     fixed = (None, None) if intrinsics is None else intrinsics
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
-    detections, choices = _chosen_corners(
-        detections, view_names, image_size, spec, options, fixed
-    )
+    detections, choices = _chosen_corners(detections, view_names, image_size, spec, options, fixed)
     names, pairs, dropped, renumbered = [], [], {}, []
     for name, (dl, dr) in zip(view_names, detections, strict=False):
         if spec.target == "chessboard" and len(dl) and len(dr):

@@ -60,11 +60,11 @@ class SimBench:
     ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
     translation in m, board → left camera; empty: random; ``board_optics`` the camera's optics
     and sensor in room light, :class:`vbfe.drivers.sim.optics.Optics` fields).
-    The trocar always follows the
-    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
-    reader's clock fits map each stream to its median arrival, so
-    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
-    when the first device is opened.
+    The trocar always follows the protocol. Latencies are the mean (= median, the jitter being
+    symmetric) host arrival delays of each stream; the reader's clock fits map each stream to its
+    median arrival, so ``image_latency_ms − force_latency_ms`` is the offset a synchronisation
+    tool must find. Time starts (true time 0, the trial's start) when the first device is
+    opened.
 
     ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
     ``sync_duration_s``, peak about ``tap_force_n``); ``protocol = "freehand"`` by a
@@ -222,7 +222,8 @@ class SimBench:
                 (
                     np.random.default_rng(s)
                     for s in np.random.SeedSequence(seed).spawn(len(_STREAMS))
-                ), strict=False,
+                ),
+                strict=False,
             )
         )
         self._force_rng = rngs["force_noise"]
