@@ -8,7 +8,6 @@ import numpy as np
 
 _REACH = 0.3  # the profile runs ±0.3 × the corner spacing across an edge (clear of markers)
 _STEP_PX = 0.25
-_GAUSSIAN_WIDTH_PER_SIGMA = 2.563  # 10-90 % rise of a step blurred by a Gaussian of σ = 1
 
 
 def neighbour_pairs(ids: np.ndarray, row_length: int) -> tuple[np.ndarray, np.ndarray]:
@@ -66,8 +65,3 @@ def _crossing(steps: np.ndarray, profile: np.ndarray, level: float) -> float:
     k = above[0]
     t = (level - profile[k - 1]) / (profile[k] - profile[k - 1])
     return float(steps[k - 1] + t * (steps[k] - steps[k - 1]))
-
-
-def gaussian_sigma(width_px: float) -> float:
-    """The σ (px) of the Gaussian blur that gives a sharp step this 10-90 % width."""
-    return width_px / _GAUSSIAN_WIDTH_PER_SIGMA
