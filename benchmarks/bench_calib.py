@@ -1,5 +1,11 @@
 """Calibration accuracy against the simulated bench's truth, and calibration time for N views.
 
+Corners: per image set (OpenCV's stereo sample as shipped, shrunk and blurred, darkened with
+noise and JPEG; 1080p endoscope renders with soft optics), vbfe's stereo calibration beside each
+plain OpenCV pipeline (tests/plain_opencv.py: cornerSubPix half 5, 8, 11 and the sector detector
+with ACCURACY): pairs kept, RMS left / right / stereo, |T|, seconds per view, and vbfe's RMS and
+|T| as ratios to the best plain pipeline's (on renders, f and B errors against the truth).
+
 Stereo: for each N, several seeds of N rendered views at random poses (640×360, rig with lens
 distortion); prints the worst relative error of fx, fy, cx, cy (both cameras) and of B, the
 stereo RMS, and the solve time (corner detection + calibrations), also as a ratio to the time of
@@ -10,8 +16,8 @@ baseline, dim and noisy; 9×6 and 7×7 boards): vbfe's `calibrate stereo FOLDER`
 it beside plain OpenCV (findChessboardCorners + cornerSubPix 11×11, calibrateCamera per eye,
 stereoCalibrate with the intrinsics as a guess) on the same images: worst error of f (fx, fy),
 of cx, cy (px) and of B, stereo RMS, views used.
-Run: ``python -m benchmarks.bench_calib [--views 10 20 30] [--seeds 3] [--poses 8]
-[--endoscope-views 20]``.
+Run: ``python -m benchmarks.bench_calib [--sets sharp dark] [--views 10 20 30] [--seeds 3]
+[--poses 8] [--endoscope-views 20]`` (``--sets`` alone: the corner table only).
 """
 
 from __future__ import annotations
@@ -19,18 +25,22 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from collections.abc import Callable
 
 import numpy as np
 
+from tests import calib_image_sets as image_sets
+from tests import plain_opencv
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.commands import projector_capture
+from vbfe.calib.gates import GateLimits
 from vbfe.calib.projector import calibrate_projector, load_captures
-from vbfe.calib.stereo import calibrate_stereo
+from vbfe.calib.stereo import StereoOptions, calibrate_stereo
 from vbfe.calib.views import ViewSet
 from vbfe.common.config import load_config
 from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
-from vbfe.drivers.sim.rig import default_rig
+from vbfe.drivers.sim.rig import StereoRig, default_rig
 from vbfe.truth import board_config, calibration_from_rig
 
 
@@ -162,8 +172,85 @@ def endoscope_rows(n_views: int, seeds: int) -> None:
                     )
 
 
+CornerSet = tuple[Callable[[], image_sets.Pairs], tuple[int, int], float, StereoRig | None]
+# name -> (the pairs, inner corners, square side in mm, the true rig of a render or None)
+CORNER_SETS: dict[str, CornerSet] = {
+    "sharp": (image_sets.sharp, image_sets.INNER, image_sets.SQUARE_MM, None),
+    "shrunk": (image_sets.shrunk, image_sets.INNER, image_sets.SQUARE_MM, None),
+    "dark": (image_sets.dark, image_sets.INNER, image_sets.SQUARE_MM, None),
+    "endoscope": (
+        image_sets.endoscope,
+        image_sets.ENDOSCOPE_INNER,
+        image_sets.ENDOSCOPE_SQUARE_MM,
+        image_sets.endoscope_rig(),
+    ),
+}
+
+
+def corner_table(name: str, corner_set: CornerSet) -> None:
+    """vbfe and every plain OpenCV pipeline on one set, one row each."""
+    make, inner, square_mm, rig = corner_set
+    pairs = make()
+    spec = BoardSpec(
+        squares_x=inner[0] + 1,
+        squares_y=inner[1] + 1,
+        square_m=square_mm * 1e-3,
+        target="chessboard",
+    )
+    views = ViewSet(list(pairs), [f"v{i:02d}" for i in range(len(pairs))], name)
+    start = time.perf_counter()
+    result = calibrate_stereo(views, spec, StereoOptions(gates=GateLimits(nominal_baseline_m=0)))
+    vbfe_s = (time.perf_counter() - start) / len(pairs)
+    cal = result.calibration
+    rows = [
+        (
+            "vbfe",
+            len(result.names),
+            cal.rms_left_px,
+            cal.rms_right_px,
+            cal.rms_stereo_px,
+            float(np.linalg.norm(cal.T)),
+            vbfe_s,
+        )
+    ]
+    results = {}
+    for pipeline in plain_opencv.PIPELINES:
+        start = time.perf_counter()
+        r = plain_opencv.stereo(pairs, inner, square_mm * 1e-3, pipeline)
+        results[pipeline] = r
+        seconds = (time.perf_counter() - start) / len(pairs)
+        rows.append((pipeline, r.n_pairs, r.rms_left, r.rms_right, r.rms, r.T_norm, seconds))
+    best_name, best = plain_opencv.best(results)
+    print(f"\n{name}: {len(pairs)} pairs, {inner[0]}x{inner[1]} corners")
+    print(
+        f"{'':>12} {'pairs':>5} {'RMS left':>8} {'right':>6} {'stereo':>6} {'|T| mm':>8} "
+        f"{'s/view':>7}"
+    )
+    for label, n, rl, rr, rs, t, seconds in rows:
+        print(
+            f"{label:>12} {n:>5} {rl:>8.3f} {rr:>6.3f} {rs:>6.3f} {t * 1e3:>8.4f} {seconds:>7.2f}"
+        )
+    print(
+        f"vbfe / best plain ({best_name}): RMS {cal.rms_stereo_px / best.rms:.3f}x, "
+        f"|T| {np.linalg.norm(cal.T) / best.T_norm - 1:+.3%}; "
+        + ", ".join(f"{k} {v}" for k, v in cal.info["views_per_detector"]["method"].items())
+    )
+    if rig is not None:
+        f_err = max(
+            abs(cal.K1[0, 0] / rig.left.K[0, 0] - 1), abs(cal.K2[0, 0] / rig.right.K[0, 0] - 1)
+        )
+        print(f"vs truth: max |df|/f {f_err:.4%}, |dB|/B {abs(cal.B / rig.baseline_m - 1):.4%}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--sets",
+        nargs="*",
+        choices=list(CORNER_SETS),
+        default=None,
+        help="corner sets (default all); given alone, only the corner table",
+    )
     parser.add_argument("--views", type=int, nargs="+", default=[10, 20, 30])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--poses", type=int, default=8, help="projector poses (0: skip)")
@@ -171,6 +258,11 @@ def main() -> None:
         "--endoscope-views", type=int, default=20, help="SD endoscope views per set (0: skip)"
     )
     args = parser.parse_args()
+    print("corners: vbfe beside plain OpenCV pipelines")
+    for name in args.sets or list(CORNER_SETS):
+        corner_table(name, CORNER_SETS[name])
+    if args.sets:
+        return
     rig = default_rig(640, 360, distortion=True)
     spec = BoardSpec()
 

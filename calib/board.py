@@ -10,7 +10,16 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe.calib.chessboard import detect_chessboard
+from vbfe.calib.chessboard import (
+    SECTOR,
+    canonical,
+    corner_spacing,
+    find_chessboard,
+    refine,
+    sector_corners,
+    subpix_windows,
+)
+from vbfe.calib.edge_width import edge_width_px, neighbour_pairs
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, calib_settings, from_table
 from vbfe.common.files import save_figure, write_bytes_atomic
@@ -149,23 +158,63 @@ class BoardSpec:
         return np.column_stack([col.ravel(), row.ravel(), np.zeros(nx * ny)]) * self.square_m
 
 
+SUBPIX = "cornerSubPix"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One refinement of a view's corners: the method (``cornerSubPix``, the sector detector's
+    ``ACCURACY`` pass or the ChArUco detector's own), its half-window (0: none) and the corners
+    (n×2, numbered as the detection's ids)."""
+
+    method: str
+    half_window: int
+    corners: np.ndarray
+
+    @property
+    def label(self) -> str:
+        """The method and its window in words, e.g. ``cornerSubPix half 8``."""
+        return f"{self.method} half {self.half_window}" if self.half_window else self.method
+
+
 @dataclass(frozen=True)
 class Detection:
-    """ChArUco corners found in one image: ids (n,) and pixel positions (n×2)."""
+    """Corners found in one image: ids (n,) and pixel positions (n×2). A detection made for
+    calibration also holds its refinement candidates (the first is ``corners``), which
+    detector found the board and the board's edge width (10-90 %, px)."""
 
     ids: np.ndarray
     corners: np.ndarray
+    candidates: tuple[Candidate, ...] = ()
+    finder: str = ""
+    edge_width_px: float = float("nan")
 
     def __len__(self) -> int:
         return len(self.ids)
 
+    def corners_of(self, candidate: Candidate | None) -> np.ndarray:
+        """The corners of ``candidate``; this detection's own when None."""
+        return self.corners if candidate is None else candidate.corners
+
+    def using(self, candidate: Candidate) -> Detection:
+        """This detection with the corners of ``candidate`` (its candidates dropped)."""
+        return Detection(self.ids, candidate.corners, (), self.finder, self.edge_width_px)
+
+
+def _empty() -> Detection:
+    return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
+
 
 class BoardDetector:
-    """Finds the target's corners in images (sub-pixel refined by OpenCV): ChArUco corners with
-    ``CharucoDetector``, chessboard corners with ``findChessboardCornersSB``."""
+    """Finds the target's corners in images: ChArUco corners with ``CharucoDetector``,
+    chessboard corners with ``findChessboardCorners`` (``findChessboardCornersSB`` where it
+    fails), sub-pixel refined in the adaptive window. With ``candidates`` each detection also
+    carries the other refinements worth comparing (see :class:`Detection`): cornerSubPix in
+    OpenCV's larger windows and, for chessboards, the sector detector's ``ACCURACY`` corners."""
 
-    def __init__(self, spec: BoardSpec) -> None:
+    def __init__(self, spec: BoardSpec, candidates: bool = False) -> None:
         self.spec = spec
+        self.with_candidates = candidates
         self._detector = (
             cv2.aruco.CharucoDetector(spec.board()) if spec.target == "charuco" else None
         )
@@ -177,16 +226,53 @@ class BoardDetector:
             return self._detect_chessboard(grey)
         corners, ids, _, _ = self._detector.detectBoard(grey)
         if ids is None or len(ids) == 0:
-            return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
+            return _empty()
         ids = ids.reshape(-1).astype(np.int32)
         order = np.argsort(ids)
-        return Detection(ids[order], corners.reshape(-1, 2).astype(np.float64)[order])
+        ids, corners = ids[order], corners.reshape(-1, 2).astype(np.float64)[order]
+        if not self.with_candidates:
+            return Detection(ids, corners)
+        own = Candidate("CharucoDetector", 0, corners)
+        row = self.spec.squares_x - 1
+        spacing = _charuco_spacing(ids, corners, row)
+        windows = subpix_windows(spacing) if np.isfinite(spacing) else []
+        refined = [Candidate(SUBPIX, h, refine(grey, corners, h)) for h in windows]
+        return Detection(
+            ids, corners, (own, *refined), "CharucoDetector", edge_width_px(grey, ids, corners, row)
+        )
 
     def _detect_chessboard(self, grey: np.ndarray) -> Detection:
-        corners = detect_chessboard(grey, self.spec.inner_corners)
-        if corners is None:
-            return Detection(np.zeros(0, np.int32), np.zeros((0, 2), np.float64))
-        return Detection(np.arange(len(corners), dtype=np.int32), corners)
+        inner = self.spec.inner_corners
+        first = find_chessboard(grey, inner)
+        if first is None:
+            return _empty()
+        start = canonical(first[0].reshape(-1, 2).astype(np.float64), inner)
+        spacing = corner_spacing(start, inner)
+        windows = subpix_windows(spacing)
+        ids = np.arange(len(start), dtype=np.int32)
+        corners = refine(grey, start, windows[0])
+        if not self.with_candidates:
+            return Detection(ids, corners)
+        found = [Candidate(SUBPIX, h, refine(grey, start, h)) for h in windows[1:]]
+        sector = sector_corners(grey, inner, start, spacing)
+        if sector is not None:
+            found.append(Candidate(f"{SECTOR} accuracy", 0, sector))
+        return Detection(
+            ids,
+            corners,
+            (Candidate(SUBPIX, windows[0], corners), *found),
+            first[1],
+            edge_width_px(grey, ids, corners, inner[0]),
+        )
+
+
+def _charuco_spacing(ids: np.ndarray, corners: np.ndarray, row_length: int) -> float:
+    """Smallest distance (px) between ChArUco corners next to each other on the board; NaN
+    when no two are neighbours."""
+    a, b = neighbour_pairs(ids, row_length)
+    if len(a) == 0:
+        return float("nan")
+    return float(np.linalg.norm(corners[a] - corners[b], axis=1).min())
 
 
 def board_image(spec: BoardSpec, px_per_mm: float = 20.0, margin_mm: float = 2.0) -> np.ndarray:

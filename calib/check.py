@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vbfe.acquire.image_size import size_mismatch
-from vbfe.calib.board import BoardDetector, BoardSpec
+from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import DEFAULTS
@@ -182,6 +183,11 @@ def check_calibration(
         epi, scales = [], []
         for name, (left, right) in zip(views.names, views.pairs, strict=False):
             dl, dr = detector.detect(left), detector.detect(right)
+            if spec.target == "chessboard" and len(dl) and len(dr):
+                corners, _, contrast = same_numbering(dl.corners, dr.corners, spec.inner_corners)
+                if not is_clear(contrast):
+                    continue  # which corner is which in the right eye is ambiguous
+                dr = Detection(dr.ids, corners)
             common, il, ir = np.intersect1d(dl.ids, dr.ids, return_indices=True)
             if len(common) < min_corners:
                 continue

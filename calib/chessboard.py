@@ -1,10 +1,12 @@
-"""Plain chessboards: corners as accurate as OpenCV's calibration samples at any resolution, and
-one corner numbering for both eyes of a stereo view.
+"""Plain chessboards: finding the board (:func:`find_chessboard`), the corner refinements worth
+comparing (cornerSubPix windows, the sector detector's ``ACCURACY`` corners), and one corner
+numbering for every eye and view.
 
-A chessboard reads the same turned by 180° (a square one also by 90°), so the detector may
-number a view's left and right corners from different ends. :func:`same_numbering` takes the
-right eye's numbering whose left→right displacements agree (nearly one shift for all corners,
-as a stereo pair sees them).
+A chessboard reads the same turned by 180° (a square one also by 90°), and OpenCV may number
+it from either end (a square one turned or mirrored): :func:`canonical` numbers every detection
+one way, and :func:`same_numbering` takes the right eye's numbering whose left→right
+displacements agree (nearly one shift for all corners, as a stereo pair sees them) where a
+board seen edge-on in x leaves the two eyes' canonical numberings apart.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-# cornerSubPix half-window: OpenCV's 11×11 window (half 5) at least, growing with the corner
+# The adaptive cornerSubPix half-window (the first candidate, and the refinement of detections
+# made outside calibration): OpenCV's 11×11 window (half 5) at least, growing with the corner
 # spacing for sharper fits on high-resolution images, and never beyond 0.35 × the spacing:
 # measured on OpenCV's stereo sample (spacing 21-37 px), half-windows above ~0.4 × spacing (e.g.
 # the 23×23 of stereo_calib.cpp) reach the neighbouring squares' edges and move single corners
@@ -22,6 +25,16 @@ _MIN_HALF_WINDOW = 5
 _HALF_WINDOW_PER_SPACING = 0.2
 _MAX_HALF_WINDOW_PER_SPACING = 0.35
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+# No single window suits every image (issue 40): soft, noisy corners want OpenCV's larger windows
+# (half 8-11), small sharp ones the adaptive window; each view keeps the candidate that fits the
+# board best (vbfe.calib.corner_choice). Windows beyond 0.75 × the spacing take in the next
+# row's edges wholesale and are not tried.
+_TRIED_HALF_WINDOWS = (5, 8, 11)
+_MAX_TRIED_HALF_WINDOW_PER_SPACING = 0.75
+_SECTOR_MARGIN_SPACINGS = 3.0  # crop around the board for the sector detector's accuracy pass
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+CLASSIC = "findChessboardCorners"
+SECTOR = "findChessboardCornersSB"
 # the other numbering must spread the displacements this many times more to be ruled out
 _MIN_NUMBERING_CONTRAST = 3.0
 
@@ -44,22 +57,107 @@ def half_window(spacing_px: float) -> int:
     return int(max(2, min(grown, int(_MAX_HALF_WINDOW_PER_SPACING * spacing_px))))
 
 
-def detect_chessboard(grey: np.ndarray, inner: tuple[int, int]) -> np.ndarray | None:
-    """All inner corners (n×2 px, row-major, numbered from either end as OpenCV finds them) of
-    a chessboard in a grey image, sub-pixel refined; ``None`` when the board is not seen whole."""
-    found, corners = cv2.findChessboardCorners(
-        grey, inner, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+def _found(corners: np.ndarray | None) -> np.ndarray:
+    return np.asarray(corners, np.float32).reshape(-1, 1, 2)
+
+
+def _stretched(grey: np.ndarray) -> np.ndarray:
+    """The image's grey levels between its 0.5th and 99.5th percentile spread over 0-255 (a
+    linear stretch: cornerSubPix finds the same corners in it)."""
+    low, high = np.percentile(grey, (0.5, 99.5))
+    scale = 255.0 / max(float(high - low), 1.0)
+    return cv2.convertScaleAbs(grey, alpha=scale, beta=-float(low) * scale)
+
+
+def find_chessboard(grey: np.ndarray, inner: tuple[int, int]) -> tuple[np.ndarray, str] | None:
+    """The board's inner corners as first found (n×1×2, float32) and which detector found
+    them (its OpenCV name, with the flags and stretch that took); ``None`` when no detector
+    sees the board whole.
+
+    The classic detector first; where it fails, the sector-based one with ``ACCURACY`` alone
+    (``NORMALIZE_IMAGE`` loses dark, low-contrast boards), then ``EXHAUSTIVE``; on a dim image
+    both again after a contrast stretch."""
+    for image, stretched in ((grey, False), (_stretched(grey), True)):
+        if stretched and float(np.percentile(grey, 99.5) - np.percentile(grey, 0.5)) > 200:
+            break  # the stretch would not change the image
+        suffix = " (contrast stretched)" if stretched else ""
+        found, corners = cv2.findChessboardCorners(image, inner, flags=_CLASSIC_FLAGS)
+        if found:
+            return _found(corners), f"{CLASSIC}{suffix}"
+        for flags, name in (
+            (cv2.CALIB_CB_ACCURACY, SECTOR),
+            (cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE, f"{SECTOR} exhaustive"),
+        ):
+            found, corners = cv2.findChessboardCornersSB(image, inner, flags=flags)
+            if found:
+                return _found(corners), f"{name}{suffix}"
+    return None
+
+
+def canonical(corners: np.ndarray, inner: tuple[int, int]) -> np.ndarray:
+    """The corners (n×2) numbered as the board is seen from its front (rows then columns of
+    object points map to image directions without a mirror) and with the rows running as
+    close to the image's +x as the board's symmetry allows: one numbering for both eyes and
+    all views of a board, including a square one (OpenCV may number it turned or mirrored)."""
+    nx, ny = inner
+    grid = corners.reshape(ny, nx, 2)
+    along_x = (grid[:, -1] - grid[:, 0]).mean(axis=0)
+    along_y = (grid[-1] - grid[0]).mean(axis=0)
+    if along_x[0] * along_y[1] - along_x[1] * along_y[0] < 0:  # mirrored numbering
+        grid = grid[::-1] if nx != ny else grid.transpose(1, 0, 2)
+    options = _numberings(grid.reshape(-1, 2), inner)
+    direction = [
+        (o.reshape(-1, nx, 2)[:, -1] - o.reshape(-1, nx, 2)[:, 0]).mean(axis=0) for o in options
+    ]
+    return options[int(np.argmax([d[0] / (np.linalg.norm(d) + 1e-12) for d in direction]))]
+
+
+def _as_numbered(reference: np.ndarray, corners: np.ndarray, inner: tuple[int, int]) -> np.ndarray:
+    """``corners`` (n×2) renumbered to match ``reference`` (the same board's corners found by
+    another detector, numbered any way, mirrored or not)."""
+    nx, ny = inner
+    grid = corners.reshape(ny, nx, 2)
+    options = [grid, grid[::-1]] if nx != ny else [grid, grid.transpose(1, 0, 2)]
+    every = [n for o in options for n in _numberings(o.reshape(-1, 2), inner)]
+    gaps = [float(np.abs(n - reference).max()) for n in every]
+    return every[int(np.argmin(gaps))]
+
+
+def subpix_windows(spacing_px: float) -> list[int]:
+    """cornerSubPix half-sizes to try for corners ``spacing_px`` apart: the adaptive
+    :func:`half_window` first, then OpenCV's 5, 8 and 11 where the window stays within
+    :data:`_MAX_TRIED_HALF_WINDOW_PER_SPACING` of the spacing."""
+    first = half_window(spacing_px)
+    limit = _MAX_TRIED_HALF_WINDOW_PER_SPACING * spacing_px
+    return [first] + [h for h in _TRIED_HALF_WINDOWS if h != first and h <= limit]
+
+
+def refine(grey: np.ndarray, corners: np.ndarray, half: int) -> np.ndarray:
+    """``cornerSubPix`` of the corners (n×2) in a window of half-size ``half``."""
+    start = np.asarray(corners, np.float32).reshape(-1, 1, 2).copy()
+    return (
+        cv2.cornerSubPix(grey, start, (half, half), (-1, -1), _SUBPIX_CRITERIA)
+        .reshape(-1, 2)
+        .astype(np.float64)
     )
-    if not found:  # the sector-based detector finds boards the classic one misses
-        found, corners = cv2.findChessboardCornersSB(
-            grey, inner, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE
-        )
+
+
+def sector_corners(
+    grey: np.ndarray, inner: tuple[int, int], near: np.ndarray, spacing_px: float
+) -> np.ndarray | None:
+    """``findChessboardCornersSB`` with ``ACCURACY`` around the corners ``near`` (n×2; the
+    image cropped to the board plus :data:`_SECTOR_MARGIN_SPACINGS` spacings, several times
+    faster than the whole image), numbered as ``near``; ``None`` when it misses the board."""
+    margin = _SECTOR_MARGIN_SPACINGS * spacing_px
+    height, width = grey.shape
+    x0, y0 = np.maximum(np.floor(near.min(axis=0) - margin), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(near.max(axis=0) + margin), (width, height)).astype(int)
+    crop = np.ascontiguousarray(grey[y0:y1, x0:x1])
+    found, corners = cv2.findChessboardCornersSB(crop, inner, flags=cv2.CALIB_CB_ACCURACY)
     if not found:
         return None
-    corners = corners.reshape(-1, 1, 2).astype(np.float32)
-    half = half_window(corner_spacing(corners, inner))
-    corners = cv2.cornerSubPix(grey, corners, (half, half), (-1, -1), _SUBPIX_CRITERIA)
-    return corners.reshape(-1, 2).astype(np.float64)
+    placed = corners.reshape(-1, 2).astype(np.float64) + (x0, y0)
+    return _as_numbered(near, placed, inner)
 
 
 def _displacement_spread(left: np.ndarray, right: np.ndarray) -> float:

@@ -16,6 +16,7 @@ from vbfe.calib.camera import (
     weak_note,
 )
 from vbfe.calib.camera_model import CameraModel
+from vbfe.calib.corner_choice import CornerChoice, choose_corners
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, camera_problems
 from vbfe.calib.views import ImageSet, image_size
@@ -23,13 +24,15 @@ from vbfe.calib.views import ImageSet, image_size
 
 @dataclass
 class MonoResult:
-    """The camera model, the final fit and the views left out (name → why)."""
+    """The camera model, the final fit, the views left out (name → why) and how each view's
+    corners were made."""
 
     model: CameraModel
     fit: CameraFit
     names: list[str]
     dropped: dict[str, str] = field(default_factory=dict)
     weak: str | None = None  # why the result is weakly determined, if it is
+    corners: list[CornerChoice] = field(default_factory=list)  # per kept view
 
 
 def calibrate_mono(
@@ -40,13 +43,14 @@ def calibrate_mono(
     step: Callable[[], None] | None = None,
     camera: str = "camera",
 ) -> MonoResult:
-    """Detect the board in every image, drop views with too few corners and outlier views,
-    calibrate with corner rejection; refuse an unusable result (``CalibrationError``).
-    ``camera`` names the camera (``left``/``right`` for one eye of stereo views) in the
-    rejected corners and the reasons views were dropped."""
+    """Detect the board in every image, drop views with too few corners, keep each view's
+    best-fitting corners (:func:`choose_corners`), drop outlier views, calibrate with corner
+    rejection; refuse an unusable result (``CalibrationError``). ``camera`` names the camera
+    (``left``/``right`` for one eye of stereo views) in the rejected corners and the reasons
+    views were dropped."""
     options, limits = options or CameraOptions(), limits or GateLimits()
     size = image_size(images)
-    detector = BoardDetector(spec)
+    detector = BoardDetector(spec, candidates=True)
     names, dets, dropped = [], [], {}
     for name, image in zip(images.names, images.images, strict=False):
         det = detector.detect(image)
@@ -64,6 +68,7 @@ def calibrate_mono(
             "match the printed board"
         )
     need_views(len(dets), options, images.source, dropped)
+    dets, corners = choose_corners(spec, dets, names, size, camera, solve_flags(options))
     outliers, fit = outlier_views(spec, dets, names, size, camera, options)
     if outliers:
         keep = [n not in outliers for n in names]
@@ -97,4 +102,5 @@ def calibrate_mono(
         dropped=[f"{n}: {why}" for n, why in dropped.items()],
         board=spec.describe(),
     )
-    return MonoResult(model, fit, names, dropped, weak_note(len(names), options))
+    kept = [c for c in corners if c.view in names]
+    return MonoResult(model, fit, names, dropped, weak_note(len(names), options), kept)

@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.corner_choice import from_rows
+from vbfe.calib.corner_choice import summary_rows as corner_rows
 from vbfe.calib.stereo import StereoResult
 from vbfe.calib.uncertainty import UncertaintyMap
 from vbfe.calib.views import ViewSet
@@ -83,6 +85,7 @@ def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
         ]
     if "uncertainty" in info:
         rows.append(("uncertainty", info["uncertainty"]["summary"]))
+    rows += corner_rows(from_rows(info.get("corners", [])))
     if "weakly_determined" in info:
         rows.append(("note", info["weakly_determined"]))
     if calibration.has_projector:
@@ -177,6 +180,19 @@ def write_report(result: StereoResult, views: ViewSet, out_stem: str | Path) -> 
             "depth σ over the left image; board views per image region",
             out_stem.parent,
         )
+    report.heading("Corners per view")
+    report.paragraph(
+        "Each view and eye keeps the refinement whose corners fit the board best (RMS of a "
+        "per-view pose fit with the camera's intrinsics); the edge width (10-90 % rise) says "
+        "how blurred the board is."
+    )
+    report.table(
+        ["view", "camera", "detector", "refinement kept", "edge width (px)", "residual (px)"],
+        [
+            (c.view, c.camera, c.finder, c.method, f"{c.edge_width_px:.2f}", f"{c.residual_px:.3f}")
+            for c in from_rows(cal.info.get("corners", []))
+        ],
+    )
     report.heading("Dropped views")
     report.table(["view", "why"], sorted(result.dropped.items()))
     report.heading("Desynchronised views (right image shifted against left)")

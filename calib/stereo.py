@@ -28,6 +28,7 @@ from vbfe.calib.camera import (
 )
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.chessboard import is_clear, same_numbering
+from vbfe.calib.corner_choice import CornerChoice, choose_corners, counts
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import FAIL, GateLimits, stereo_gates
 from vbfe.calib.options import calib_field, from_table
@@ -69,13 +70,15 @@ class StereoResult:
     weak: str | None = None  # why the result is weakly determined, if it is
     renumbered: list[str] = field(default_factory=list)  # chessboard views whose eyes disagreed
     uncertainty: UncertaintyMap | None = None  # depth σ over the image, board coverage
+    corners: list[CornerChoice] = field(default_factory=list)  # per kept view and eye
 
 
 def detect_views(
     views: ViewSet, spec: BoardSpec, step: Callable[[], None] | None = None
 ) -> list[tuple[Detection, Detection]]:
-    """Board corners in the left and right image of every view."""
-    detector = BoardDetector(spec)
+    """Board corners in the left and right image of every view, with their refinement
+    candidates."""
+    detector = BoardDetector(spec, candidates=True)
     out = []
     for left, right in views.pairs:
         out.append((detector.detect(left), detector.detect(right)))
@@ -148,9 +151,8 @@ def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndar
     T = np.median(rel_t, axis=0)
     obj_all = spec.object_points()
     out = np.zeros((len(left.rvecs), 2))
-    for v, (dr, rvec, tvec) in enumerate(
-        zip(right.detections, left.rvecs, left.tvecs, strict=False)
-    ):
+    views = zip(right.detections, left.rvecs, left.tvecs, strict=False)
+    for v, (dr, rvec, tvec) in enumerate(views):
         Rl, _ = cv2.Rodrigues(rvec)
         rr, _ = cv2.Rodrigues(R @ Rl)
         out[v] = -residuals(
@@ -201,7 +203,7 @@ def calibrate_stereo(
     options = options or StereoOptions()
     image_size = check_sizes(views)
     detections = detect_views(views, spec, step)
-    if all(len(left) == 0 and len(right) == 0 for left, right in detections):
+    if all(len(dl) == 0 and len(dr) == 0 for dl, dr in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
             f"board options ({spec.describe()}) match the printed board"
@@ -266,12 +268,15 @@ def calibrate_detections(
     source: str = "views",
     intrinsics: tuple[CameraModel, CameraModel] | None = None,
 ) -> StereoResult:
-    """Calibrate from corners already detected (one ``(left, right)`` pair per view); with
-    ``intrinsics`` (left, right) the cameras' intrinsics are fixed (``CALIB_FIX_INTRINSIC``)."""
+    """Calibrate from corners already detected (one ``(left, right)`` pair per view; each
+    eye's best-fitting candidate kept where detections hold several, see
+    :func:`choose_corners`); with ``intrinsics`` (left, right) the cameras' intrinsics are
+    fixed (``CALIB_FIX_INTRINSIC``)."""
     options = options or StereoOptions()
     fixed = (None, None) if intrinsics is None else intrinsics
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
+    detections, choices = _chosen_corners(detections, view_names, image_size, spec, options, fixed)
     names, pairs, dropped, renumbered = [], [], {}, []
     for name, (dl, dr) in zip(view_names, detections, strict=False):
         if spec.target == "chessboard" and len(dl) and len(dr):
@@ -402,6 +407,9 @@ def calibrate_detections(
     calibration.info["renumbered_views"] = renumbered
     calibration.info["zero_disparity"] = rect.zero_disparity
     calibration.info["gates"] = [g.row() for g in gates]
+    kept = [c for c in choices if c.view in names]
+    calibration.info["corners"] = [c.row() for c in kept]
+    calibration.info["views_per_detector"] = counts(kept)
     if weak:
         calibration.info["weakly_determined"] = weak
     solve = StereoSolve(
@@ -436,7 +444,37 @@ def calibrate_detections(
         weak,
         renumbered,
         uncertainty,
+        kept,
     )
+
+
+def _chosen_corners(
+    detections: list[tuple[Detection, Detection]],
+    names: list[str],
+    image_size: tuple[int, int],
+    spec: BoardSpec,
+    options: StereoOptions,
+    fixed: tuple[CameraModel | None, CameraModel | None],
+) -> tuple[list[tuple[Detection, Detection]], list[CornerChoice]]:
+    """Each eye's best-fitting corners (:func:`choose_corners` over the views where that eye
+    sees enough corners) and the record of what was kept."""
+    eyes = [[pair[k] for pair in detections] for k in (0, 1)]
+    choices: list[CornerChoice] = []
+    for k, eye in enumerate(("left", "right")):
+        usable = [v for v, d in enumerate(eyes[k]) if len(d) >= options.min_corners]
+        chosen, records = choose_corners(
+            spec,
+            [eyes[k][v] for v in usable],
+            [names[v] for v in usable],
+            image_size,
+            eye,
+            solve_flags(options),
+            fixed[k],
+        )
+        for v, det in zip(usable, chosen, strict=True):
+            eyes[k][v] = det
+        choices += records
+    return list(zip(eyes[0], eyes[1], strict=True)), choices
 
 
 def _info(

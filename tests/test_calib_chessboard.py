@@ -63,6 +63,8 @@ def error_lines(stderr: str) -> list[str]:
         if line.strip()
         and "view/s]" not in line
         and "image/s]" not in line
+        and "s/view]" not in line
+        and "s/image]" not in line
         and "?view" not in line
         and "?image" not in line
     ]

@@ -6,6 +6,7 @@ import pytest
 
 from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views, visible_fraction
+from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.rig import default_rig
 
 
@@ -41,7 +42,7 @@ def test_views_differ_between_eyes_by_the_baseline(board):
     rig = default_rig()
     pose = (np.zeros(3), np.array([-0.0135, -0.0105, 0.05]))
     ((left, right),) = render_board_views(
-        rig, board, [pose], noise_sigma=0.0, rng=np.random.default_rng(0)
+        rig, board, [pose], optics=Optics(noise_sigma=0.0), rng=np.random.default_rng(0)
     )
     detector = cv2.aruco.CharucoDetector(board)
     cl, il, _, _ = detector.detectBoard(left)

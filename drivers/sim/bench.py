@@ -25,6 +25,7 @@ from vbfe.drivers.sim.devices import SimCamera, SimProjector, SimTrocar
 from vbfe.drivers.sim.freehand import FreehandProtocol
 from vbfe.drivers.sim.mechanics import TapProtocol, TissueSample, TractionProtocol, Trial
 from vbfe.drivers.sim.nuisance import Nuisance
+from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig, default_rig, rig_from_dict, rig_to_dict
 from vbfe.drivers.sim.tissue import Plane, Surface, TissueSurface, UniformAlbedo, tissue_texture
@@ -57,13 +58,14 @@ class SimBench:
     working distance, e.g. for pattern checks) or ``"board"`` (a calibration board moved in front
     of the endoscope, see :mod:`vbfe.drivers.sim.board_scene`: ``board_*`` arguments; the
     ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
-    translation in m, board → left camera; empty: random). The trocar always follows the
-    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays
-    of each stream; the reader's clock fits map each stream to its median arrival, so
-    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find.
-    Time starts (true time 0, the trial's start) when the first device is opened.
-    ``pixel_aspect`` (fx / fy) and ``principal_offsets_px`` ([[left dx, dy], [right dx, dy]])
-    shape the endoscope's cameras (:func:`~vbfe.drivers.sim.rig.default_rig`).
+    translation in m, board → left camera; empty: random; ``board_optics`` the camera's optics
+    and sensor in room light, :class:`vbfe.drivers.sim.optics.Optics` fields).
+    The trocar always follows the protocol. Latencies are the mean (= median, the jitter being
+    symmetric) host arrival delays of each stream; the reader's clock fits map each stream to its
+    median arrival, so ``image_latency_ms − force_latency_ms`` is the offset a synchronisation
+    tool must find. Time starts (true time 0, the trial's start) when the first device is
+    opened. ``pixel_aspect`` (fx / fy) and ``principal_offsets_px`` ([[left dx, dy], [right dx,
+    dy]]) shape the endoscope's cameras (:func:`~vbfe.drivers.sim.rig.default_rig`).
 
     ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
     ``sync_duration_s``, peak about ``tap_force_n``); ``protocol = "freehand"`` by a
@@ -123,6 +125,7 @@ class SimBench:
         board_distance_mm: tuple[float, float] = (30.0, 70.0),
         board_max_tilt_deg: float = 35.0,
         board_in_projector: bool = False,
+        board_optics: dict[str, float] | None = None,
         albedo_bgr: tuple[float, float, float] | None = None,
         subsurface_blur_mm: float = 0.0,
         specular: float = 0.0,
@@ -291,6 +294,7 @@ class SimBench:
                 (board_distance_mm[0] * 1e-3, board_distance_mm[1] * 1e-3),
                 board_max_tilt_deg,
                 board_in_projector,
+                Optics.from_table(board_optics),
             )
         self.trial = Trial(
             protocol, TissueSample.random(rngs["sample"], working_distance_m), deformation_scale

@@ -8,8 +8,8 @@ and then jumps to the next. Poses are given, or drawn at random facing the endos
 inside the projector's field when ``in_projector``).
 
 In room light (nothing projected yet) the board is rendered by exact supersampled inverse
-mapping (:func:`render_board_views`); once the projector shows an image, the ray caster renders
-the board lit by it.
+mapping (:func:`render_board_views`) through the camera's :class:`Optics`; once the projector
+shows an image, the ray caster renders the board lit by it.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from vbfe.drivers.sim.charuco_scene import (
     random_board_poses,
     render_board_views,
 )
+from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.render import StereoRenderer
 from vbfe.drivers.sim.rig import StereoRig
 from vbfe.drivers.sim.tissue import ImageTexture, Plane
@@ -110,6 +111,7 @@ class BoardScene:
         distance_m: tuple[float, float] = DISTANCE_M,
         max_tilt_deg: float = 35.0,
         in_projector: bool = False,
+        optics: Optics | None = None,
     ) -> None:
         if hold_s < 0 or not (0 <= p_still <= 1 and 0 <= p_blur <= 1) or blur_px < 2:
             raise DeviceError(
@@ -122,6 +124,7 @@ class BoardScene:
         self.p_still, self.p_blur, self.blur_px = p_still, p_blur, int(blur_px)
         self.distance_m, self.max_tilt_deg = tuple(distance_m), max_tilt_deg
         self.in_projector = in_projector
+        self.optics = optics
         self._given = list(poses or [])
         self._views: list[BoardView] = []
         self._texture = ImageTexture(
@@ -176,7 +179,9 @@ class BoardScene:
         ``renderer`` holds."""
         view = self.view_at(true_ns)
         if renderer is None:
-            ((left, right),) = render_board_views(self.rig, self.target, [view.pose], rng=self.rng)
+            ((left, right),) = render_board_views(
+                self.rig, self.target, [view.pose], optics=self.optics, rng=self.rng
+            )
         else:
             left, right = renderer.render(self.surface_at(true_ns))
         if view.blur_angle_deg is not None:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from vbfe.drivers.errors import DeviceError
+from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.rays import camera_rays, intersect_plane
 from vbfe.drivers.sim.rig import PinholeCamera, StereoRig
 
@@ -164,8 +165,7 @@ def render_board_views(
     board: cv2.aruco.CharucoBoard | BoardTarget,
     poses: list[Pose],
     board_px_per_m: float = 40000.0,
-    noise_sigma: float = 1.5,
-    blur_sigma_px: float = 0.5,
+    optics: Optics | None = None,
     supersample: int = 3,
     rng: np.random.Generator | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -173,9 +173,9 @@ def render_board_views(
     even room light.
 
     A ChArUco board must be built with lengths in metres (it is textured at
-    ``board_px_per_m``); a :class:`BoardTarget` brings its own texture. ``noise_sigma`` is
-    Gaussian sensor noise in grey levels, ``blur_sigma_px`` a mild optical blur; distortion is
-    the rig's, applied exactly.
+    ``board_px_per_m``); a :class:`BoardTarget` brings its own texture. ``optics`` blur,
+    darken, add noise to and compress the images (default: a mild blur and a little sensor
+    noise); distortion is the rig's, applied exactly.
     """
     rng = np.random.default_rng() if rng is None else rng
     if not isinstance(board, BoardTarget):
@@ -192,8 +192,7 @@ def render_board_views(
                 board_px_per_m,
                 pose,
                 supersample,
-                noise_sigma,
-                blur_sigma_px,
+                optics or Optics(),
                 rng,
             )
             for camera, R, T in ((rig.left, None, None), (rig.right, rig.R, rig.T))
@@ -207,8 +206,7 @@ def render_mono_views(
     board: cv2.aruco.CharucoBoard,
     poses: list[Pose],
     board_px_per_m: float = 40000.0,
-    noise_sigma: float = 1.5,
-    blur_sigma_px: float = 0.5,
+    optics: Optics | None = None,
     supersample: int = 3,
     rng: np.random.Generator | None = None,
 ) -> list[np.ndarray]:
@@ -225,8 +223,7 @@ def render_mono_views(
             board_px_per_m,
             pose,
             supersample,
-            noise_sigma,
-            blur_sigma_px,
+            optics or Optics(),
             rng,
         )
         for pose in poses
@@ -241,16 +238,11 @@ def _render_eye(
     px_per_m: float,
     pose: Pose,
     supersample: int,
-    noise_sigma: float,
-    blur_sigma_px: float,
+    optics: Optics,
     rng: np.random.Generator,
 ) -> np.ndarray:
     grey = _render_view(camera, R, T, texture, px_per_m, pose, supersample)
-    if blur_sigma_px > 0:
-        grey = cv2.GaussianBlur(grey, (0, 0), blur_sigma_px)
-    grey = grey + rng.normal(0.0, noise_sigma, grey.shape).astype(np.float32)
-    grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
-    return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+    return cv2.cvtColor(optics.image(grey, rng), cv2.COLOR_GRAY2BGR)
 
 
 def _rotation(tilt_x_deg: float, tilt_y_deg: float, roll_deg: float) -> np.ndarray:

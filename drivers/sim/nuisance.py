@@ -86,7 +86,7 @@ class Nuisance:
         """Lens vignetting and motion blur of the image reaching the sensor (``uint8``)."""
         if self.vignetting > 0:
             image = cv2.multiply(
-                image, _vignette(image.shape[:2], self.vignetting), dtype=cv2.CV_8U
+                image, cv2.merge([vignette(image.shape[:2], self.vignetting)] * 3), dtype=cv2.CV_8U
             )
         if self.motion_blur_px > 0:
             image = cv2.filter2D(image, -1, _line_kernel(self.motion_blur_px, self.motion_blur_deg))
@@ -105,13 +105,15 @@ def specular_gain(
     return (nuisance.specular * cos**nuisance.specular_shininess).astype(np.float32)
 
 
-def _vignette(shape: tuple[int, int], strength: float) -> np.ndarray:
+def vignette(shape: tuple[int, int], strength: float) -> np.ndarray:
+    """The lens's relative illumination ``1 - strength (r / r_corner)²`` over an image of
+    ``shape`` (height, width; float32)."""
     height, width = shape
     v, u = np.mgrid[0:height, 0:width].astype(np.float32)
     r2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (
         (width / 2) ** 2 + (height / 2) ** 2
     )
-    return cv2.merge([1 - strength * r2] * 3)
+    return 1 - strength * r2
 
 
 def _line_kernel(length_px: float, angle_deg: float) -> np.ndarray:

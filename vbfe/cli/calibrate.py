@@ -14,6 +14,7 @@ from vbfe.calib import commands
 from vbfe.calib.board import TARGETS
 from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
+from vbfe.calib.corner_choice import summary_rows as corner_rows
 from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import FORMATS
 from vbfe.calib.rectify import ZERO_DISPARITY
@@ -578,6 +579,7 @@ def run_camera(args: argparse.Namespace) -> int:
                 f"{model.per_view_rms_px.min():.3f} to {model.per_view_rms_px.max():.3f})",
             ),
             ("uncertainty", uncertainty_text(K, model.std_intrinsics)),
+            *corner_rows(result.corners),
         ]
     )
     _print_solve_notes(
