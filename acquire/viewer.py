@@ -2,7 +2,8 @@
 
 ``ReplayViewer(reader)`` scrubs a recorded session with a time slider;
 ``LiveViewer(acquisition)`` listens to a running acquisition and scrolls the force plot.
-``view_session(path)`` / ``view_live(config)`` run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
+``view_session(path)`` / ``view_live(config)`` run them as applications. Works headless with
+``QT_QPA_PLATFORM=offscreen``.
 """
 
 from __future__ import annotations

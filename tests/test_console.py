@@ -119,9 +119,7 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     assert all("Traceback" not in e and "\n" not in e for e in window.errors)
 
 
-def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(
-    qtbot, open_console, tmp_path
-):
+def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open_console, tmp_path):
     config = bench_config()
     config["record"]["min_free_gb"] = 1e9  # no disk has that much room: refused as full
     window = open_console(config)
@@ -147,7 +145,6 @@ def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(
 @pytest.mark.slow
 def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_console, tmp_path):
     config = board_config(bench_config(width=480, height=270))
-    config["calib"].update(capture_views=40, capture_max_views=40)
     window = open_console(config)
     tab = window.calibrate_tab
     window.tabs.setCurrentWidget(tab)
@@ -155,7 +152,9 @@ def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_co
     click(qtbot, tab.capture_button)
     qtbot.waitUntil(lambda: "board not seen" in tab.capture_text.text(), timeout=WAIT_MS)
     qtbot.waitUntil(lambda: not tab.capture_button.isChecked(), timeout=120_000)
-    assert tab.capture.kept == 40 and len(list((tmp_path / "calib-views").glob("*_left.png"))) == 40
+    kept = config["calib"]["capture_views"]  # as `calibrate capture`: enough views, full bars
+    assert tab.capture.kept >= kept
+    assert len(list((tmp_path / "calib-views").glob("*_left.png"))) == tab.capture.kept
     assert tab.capture.collector.coverage_map((480, 270)).sum() > 0
     click(qtbot, tab.calibrate_button)  # the calibration file exists: refused
     qtbot.waitUntil(lambda: "already exists" in window.message_label.text(), timeout=WAIT_MS)
@@ -186,7 +185,7 @@ def test_a_board_that_is_not_found_is_a_message(qtbot, open_console, tmp_path):
 
 @pytest.mark.slow
 def test_the_sync_protocol_passes_after_the_correction_is_applied(qtbot, open_console, tmp_path):
-    config = bench_config()
+    config = bench_config(width=160, height=90)  # small: rendered in real time under load
     window = open_console(config)
     tab = window.sync_tab
     window.tabs.setCurrentWidget(tab)
@@ -201,7 +200,7 @@ def test_the_sync_protocol_passes_after_the_correction_is_applied(qtbot, open_co
     assert before.estimate.offset_s == pytest.approx(0.037, abs=0.001)
     click(qtbot, tab.apply_button)
     qtbot.waitUntil(lambda: tab.outcome.after is not None, timeout=WAIT_MS)
-    assert tab.outcome.after.verdict == "PASS"
+    assert tab.outcome.after.verdict == "PASS", tab.outcome.after.reasons
     assert "verdict PASS" in tab.report.text()
     assert config["record"]["frame_time_correction_s"] == pytest.approx(0.037, abs=0.001)
 
@@ -231,9 +230,15 @@ def shows_both_images_and_the_force(png: Path) -> bool:
     return both and traced
 
 
-def headless_console(tmp_path, env=None, duration=3):
+def headless_console(tmp_path, env=None, duration=2):
+    """The headless run of the issue on a small bench (the default rig's 640x360 is checked
+    by hand and in benchmarks/bench_console.py)."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[bench]\nwidth = 192\nheight = 108\n")
     return vbfe(
         "console",
+        "--config",
+        rig,
         "--record",
         tmp_path / "c.h5",
         "--duration",
@@ -265,19 +270,26 @@ def test_headless_console_records_a_complete_session_and_screenshots_every_tab(t
 
 def test_headless_console_with_a_missing_device_exits_2_with_the_reason(tmp_path):
     (tmp_path / "rig.toml").write_text('[camera]\nbackend = "opencv"\ndevice = "/dev/video99"\n')
-    result = vbfe(
-        "console", "--duration", 1, "--config", tmp_path / "rig.toml", "--out", tmp_path
-    )
+    result = vbfe("console", "--duration", 1, "--config", tmp_path / "rig.toml", "--out", tmp_path)
     assert result.returncode == 2
     assert "vbfe console: error: opening the rig: cannot open camera /dev/video99" in result.stderr
     assert "Traceback" not in result.stderr
 
 
-@pytest.mark.skipif(shutil.which("Xvfb") is None, reason="Xvfb is not installed (apt-get install -y xvfb)")
+@pytest.mark.skipif(
+    shutil.which("Xvfb") is None, reason="Xvfb is not installed (apt-get install -y xvfb)"
+)
 def test_a_real_window_under_xvfb(tmp_path):
-    display = ":%d" % (90 + os.getpid() % 50)
-    server = subprocess.Popen(["Xvfb", display, "-screen", "0", "1280x800x24"])
+    read_end, write_end = os.pipe()  # Xvfb picks a free display and writes its number here
+    server = subprocess.Popen(
+        ["Xvfb", "-displayfd", str(write_end), "-screen", "0", "1280x800x24"],
+        pass_fds=(write_end,),
+        stderr=subprocess.DEVNULL,
+    )
+    os.close(write_end)
     try:
+        with os.fdopen(read_end) as numbers:
+            display = f":{numbers.readline().strip()}"
         env = {**os.environ, "DISPLAY": display, "QT_QPA_PLATFORM": "xcb"}
         result = headless_console(tmp_path, env=env, duration=2)
         assert result.returncode == 0, result.stderr

@@ -50,10 +50,11 @@ class Latest(Listener):
         self._lock = threading.Lock()
 
     def on_start(self, acquisition: Acquisition) -> None:
-        """A new acquisition: forget the previous one's rates (its history stays on view)."""
+        """A new acquisition: forget the previous one's records (they stay until then)."""
         with self._lock:
-            self._times.clear()
-            self._counts.clear()
+            self.frame = None
+            for kept in (self._records, self._times, self._newest, self._counts):
+                kept.clear()
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
         with self._lock:

@@ -52,6 +52,7 @@ class CalibrateTab(Tab):
         self.capture: LiveCapture | None = None
         self.outcome: CalibrationOutcome | None = None
         self._shown = None
+        self._starting = False  # the live view is being reopened for the capture
 
     def toggle_capture(self, on: bool) -> None:
         """Start or stop offering the live frames as board views."""
@@ -66,14 +67,31 @@ class CalibrateTab(Tab):
             self.console.message(f"cannot capture: {exc}", True)
             self.capture_button.setChecked(False)
             return
-        if self.station.acquisition is None:
-            self.console.message("open the rig first (Rig tab): views come from its camera", True)
+        if self.station.recording is not None:
+            self.console.message("stop the recording first: views come from the live view", True)
             self.capture_button.setChecked(False)
             return
-        self.capture.start(self.station.latest)
+        # the board is seen in room light: the live view restarts with the projector dark
+        self._starting = True
+        self.console.rig_op(
+            self.station.go_live,
+            False,
+            on_done=self._start_capture,
+            what="opening the rig",
+            on_error=self._capture_failed,
+        )
+
+    def _start_capture(self, _: None) -> None:
+        self._starting = False
+        if self.capture is not None and self.capture_button.isChecked():
+            self.capture.start(self.station.latest)
+
+    def _capture_failed(self) -> None:
+        self._starting = False
+        self.capture_button.setChecked(False)
 
     def stop_capture(self) -> None:
-        """Stop offering frames."""
+        """Stop offering frames (the live view keeps the projector dark until reopened)."""
         if self.capture is not None:
             self.capture.stop()
         if self.capture_button.isChecked():
@@ -130,7 +148,7 @@ class CalibrateTab(Tab):
     def refresh(self) -> None:
         capture = self.capture
         running = capture is not None and capture.running()
-        if self.capture_button.isChecked() and not running:
+        if self.capture_button.isChecked() and not running and not self._starting:
             self.capture_button.setChecked(False)  # enough views
         if capture is None or not self.isVisible():
             if capture is None:

@@ -47,9 +47,11 @@ class LiveTab(Tab):
         self._decoded = None  # (frame, BGR overlay)
 
     def refresh(self) -> None:
+        if not self.isVisible():  # drawing costs the recorder CPU: only the tab in view
+            return
         latest = self.station.latest
         frame = latest.frame
-        if frame is not None and frame is not self._shown and self.isVisible():
+        if frame is not None and frame is not self._shown:
             left = frame.left
             if self.overlay.isChecked():
                 left = self._with_overlay(frame)
@@ -106,7 +108,11 @@ class LiveTab(Tab):
         if not self._decoding:
             self._decoding = True
             self.console.work_op(
-                decode_overlay, frame.left, on_done=self._overlay_done, what="De Bruijn decode"
+                decode_overlay,
+                frame.left,
+                on_done=self._overlay_done,
+                what="De Bruijn decode",
+                on_error=self._overlay_failed,
             )
         if self._decoded is None or self._decoded.shape != frame.left.shape:
             return frame.left
@@ -114,6 +120,10 @@ class LiveTab(Tab):
 
     def _overlay_done(self, overlay: np.ndarray) -> None:
         self._decoded, self._decoding = overlay, False
+
+    def _overlay_failed(self) -> None:
+        self._decoding = False
+        self.overlay.setChecked(False)
 
 
 def decode_overlay(left: np.ndarray) -> np.ndarray:

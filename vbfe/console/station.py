@@ -17,7 +17,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
@@ -36,9 +36,10 @@ from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
-from vbfe.live.estimator import FrameEstimator
-from vbfe.live.run import LiveRun, LiveStatus
-from vbfe.live.settings import live_settings
+
+if TYPE_CHECKING:  # the live estimate (torch) is imported only when a model is loaded
+    from vbfe.live.estimator import FrameEstimator
+    from vbfe.live.run import LiveRun, LiveStatus
 
 Config = dict[str, dict[str, Any]]
 
@@ -79,6 +80,8 @@ class Station:
     :param calibration: stored with every recording, and checked against the camera's mode.
     :param estimator: with one, every live view and recording runs the live estimate too.
     :param model_name: how the estimate stream names the model.
+    :param rig_factory: builds the rig of a config for each acquisition (default
+        :func:`~vbfe.drivers.registry.open_rig`; a benchmark may put its own devices in).
     """
 
     def __init__(
@@ -88,8 +91,10 @@ class Station:
         calibration_name: str = "the calibration",
         estimator: FrameEstimator | None = None,
         model_name: str = "",
+        rig_factory: Callable[[Config, RigOptions], Rig] = open_rig,
     ) -> None:
         self.config = config
+        self._rig_factory = rig_factory
         self.calibration, self.calibration_name = calibration, calibration_name
         self.estimator, self.model_name = estimator, model_name
         self.latest = Latest()
@@ -101,6 +106,7 @@ class Station:
         self.last_session: Path | None = None
         self.device_errors: dict[str, str | None] = {}  # of the last failed start
         self.marks = 0
+        self.pattern_on = False  # the live view shows the structured-light pattern
         self.finished: queue.SimpleQueue[Finished] = queue.SimpleQueue()  # for the view
         self._runner: threading.Thread | None = None
         self._run_error: BaseException | None = None
@@ -127,13 +133,16 @@ class Station:
         return None if live is None else live.status()
 
     # -- worker-thread operations (call through submit) ----------------------------------------
-    def go_live(self) -> None:
-        """Show the rig live (the structured-light pattern on, nothing recorded); a recording
-        started meanwhile (remote control) is left alone."""
+    def go_live(self, pattern: bool = True) -> None:
+        """Show the rig live, nothing recorded: the structured-light pattern on, or (``pattern``
+        false) the projector left dark, as calibration views need the board in room light. A
+        recording started meanwhile (remote control) is left alone."""
         if self.recording is not None:
             return
         self._end_current("live view restarted")
-        self._begin(Acquisition(self._open_rig(self._options()), pattern=make_pattern))
+        rig = self._open_rig(self._options())
+        self._begin(Acquisition(rig, pattern=make_pattern if pattern else None))
+        self.pattern_on = pattern
 
     def start_recording(self, request: SessionRequest) -> Path:
         """Record ``request.path`` (a new file; the event marks stream included) until
@@ -230,7 +239,7 @@ class Station:
         return RigOptions(realtime=True) if self.estimator is not None else RigOptions()
 
     def _open_rig(self, options: RigOptions) -> Rig:
-        self.rig = open_rig(self.config, options)
+        self.rig = self._rig_factory(self.config, options)
         return self.rig
 
     def _begin(
@@ -239,6 +248,9 @@ class Station:
         acquisition.add(self.latest)
         live = None
         if self.estimator is not None and estimate:
+            from vbfe.live.run import LiveRun
+            from vbfe.live.settings import live_settings
+
             live = LiveRun(
                 acquisition,
                 self.estimator,

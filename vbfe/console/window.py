@@ -31,6 +31,16 @@ def error_line(exc: BaseException) -> str:
 
 
 @dataclass(frozen=True)
+class _Pending:
+    """Work handed to a thread: what to call with its result, or on its failure."""
+
+    future: Future
+    on_done: Callable[[Any], None] | None
+    what: str
+    on_error: Callable[[], None] | None = None
+
+
+@dataclass(frozen=True)
 class ConsoleOptions:
     """Where the console writes and what it was given.
 
@@ -64,7 +74,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         self.setWindowTitle("vbfe console")
         self.resize(1100, 720)
         self.work = ThreadPoolExecutor(1, thread_name_prefix="vbfe-console-work")
-        self._pending: list[tuple[Future, Callable[[Any], None] | None, str]] = []
+        self._pending: list[_Pending] = []
         self._settling = False
         self.finished_hooks: list[Callable[[Finished], None]] = []
         self.tabs = QtWidgets.QTabWidget()
@@ -104,9 +114,11 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         *args: Any,
         on_done: Callable[[Any], None] | None = None,
         what: str = "",
+        on_error: Callable[[], None] | None = None,
     ) -> None:
-        """Run ``fn(*args)`` on the station's rig thread; ``on_done(result)`` back here."""
-        self._pending.append((self.station.submit(fn, *args), on_done, what))
+        """Run ``fn(*args)`` on the station's rig thread; ``on_done(result)`` back here (a
+        failure: its message, then ``on_error()``)."""
+        self._pending.append(_Pending(self.station.submit(fn, *args), on_done, what, on_error))
 
     def work_op(
         self,
@@ -114,9 +126,10 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         *args: Any,
         on_done: Callable[[Any], None] | None = None,
         what: str = "",
+        on_error: Callable[[], None] | None = None,
     ) -> None:
-        """Run long work (calibration, analysis, reports) off the UI thread."""
-        self._pending.append((self.work.submit(fn, *args), on_done, what))
+        """Run long work (calibration, analysis, reports) off the UI thread (as :meth:`rig_op`)."""
+        self._pending.append(_Pending(self.work.submit(fn, *args), on_done, what, on_error))
 
     def busy(self) -> bool:
         """Whether work handed to a thread has not come back yet."""
@@ -132,21 +145,26 @@ class ConsoleWindow(QtWidgets.QMainWindow):
     # -- polling ------------------------------------------------------------------------------
     def refresh(self) -> None:
         """Hand back finished work, finish an acquisition that ended, redraw the tabs."""
-        done = [p for p in self._pending if p[0].done()]
-        self._pending = [p for p in self._pending if not p[0].done()]
-        for future, on_done, what in done:
-            exc = future.exception()
+        done = [p for p in self._pending if p.future.done()]
+        self._pending = [p for p in self._pending if not p.future.done()]
+        for p in done:
+            exc = p.future.exception()
             if exc is not None:
-                self.message(f"{what}: {error_line(exc)}" if what else error_line(exc), True)
-            elif on_done is not None:
-                on_done(future.result())
+                self.message(f"{p.what}: {error_line(exc)}" if p.what else error_line(exc), True)
+                if p.on_error is not None:
+                    p.on_error()
+            elif p.on_done is not None:
+                p.on_done(p.future.result())
         while not self.station.finished.empty():
             self.recording_finished(self.station.finished.get())
         if self.station.ended() and not self._settling:
             self._settling = True
-            self._pending.append((self.station.submit(self.station.settle), self._settled, ""))
+            self.rig_op(self.station.settle, on_done=self._settled, on_error=self._unsettled)
         for tab in self.named_tabs().values():
             tab.refresh()  # type: ignore[attr-defined]
+
+    def _unsettled(self) -> None:
+        self._settling = False
 
     def _settled(self, result: Finished | str) -> None:
         self._settling = False
