@@ -79,8 +79,7 @@ class HeadlessRun:
             self._close()
             return
         stats = window.station.stats()
-        running = stats is not None and stats.frames > 0
-        if running and stats.elapsed_s >= _SHOT_AT * plan.duration_s:
+        if stats is not None and stats.frames > 0 and stats.elapsed_s >= _SHOT_AT * plan.duration_s:
             self._shoot(RUNNING_TABS)
         live_done = plan.record is None and self._t0.elapsed() / 1e3 >= plan.duration_s
         if (self.finished is not None or live_done) and not window.busy():

@@ -6,6 +6,7 @@ calibration; the YAML is written under the CLI's output policy."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyqtgraph as pg
@@ -16,11 +17,14 @@ from vbfe.common.errors import VbfeError
 from vbfe.console.desks import CalibrationOutcome, LiveCapture, calibrate
 from vbfe.console.widgets import ImagePane, Tab, form, value_label
 
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
+
 
 class CalibrateTab(Tab):
     """Capture controls over the annotated view and the coverage map; the result below."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         out = console.options.out_dir
         layout = QtWidgets.QVBoxLayout(self)
@@ -51,7 +55,7 @@ class CalibrateTab(Tab):
         layout.addWidget(self.result_text, 1)
         self.capture: LiveCapture | None = None
         self.outcome: CalibrationOutcome | None = None
-        self._shown = None
+        self._shown: object = None  # the verdict on view
         self._starting = False  # the live view is being reopened for the capture
 
     def toggle_capture(self, on: bool) -> None:

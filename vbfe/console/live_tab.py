@@ -3,12 +3,18 @@ trace and numeric streams on one time axis, and the live estimate with its laten
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.acquire.viewer import FORCE_PENS, STREAM_PENS
 from vbfe.console.widgets import ImagePane, Tab, value_label
+from vbfe.drivers.samples import StereoFrame
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
 
 WINDOW_S = 10.0
 _CORE_STREAMS = ("camera", "force", "projector", "marks")
@@ -17,7 +23,7 @@ _CORE_STREAMS = ("camera", "force", "projector", "marks")
 class LiveTab(Tab):
     """Images over the force plot (seconds before now), streams and estimate below."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
         self.images = ImagePane(2)
@@ -42,9 +48,9 @@ class LiveTab(Tab):
         layout.addWidget(self.stream_plot, 1)
         self.status = value_label()
         layout.addWidget(self.status)
-        self._shown = None
+        self._shown: StereoFrame | None = None
         self._decoding = False
-        self._decoded = None  # (frame, BGR overlay)
+        self._decoded: np.ndarray | None = None  # the newest decoded left image, overlaid
 
     def refresh(self) -> None:
         if not self.isVisible():  # drawing costs the recorder CPU: only the tab in view
@@ -102,7 +108,7 @@ class LiveTab(Tab):
                     self.stream_curves[key] = self.stream_plot.plot(pen=pen, name=key)
                 self.stream_curves[key].setData(t, values[:, k])
 
-    def _with_overlay(self, frame) -> np.ndarray:
+    def _with_overlay(self, frame: StereoFrame) -> np.ndarray:
         """The left image with the last decoded fringe indices coloured over it; the decode of
         the newest frame runs off the UI thread."""
         if not self._decoding:

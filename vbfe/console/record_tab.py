@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pyqtgraph.Qt import QtWidgets
 
@@ -20,6 +21,9 @@ from vbfe.cli.record import parse_conditions
 from vbfe.common.errors import VbfeError
 from vbfe.console.station import Finished, SessionRequest
 from vbfe.console.widgets import Tab, form, value_label
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
 
 DEFAULT_TEMPLATE = "%p_%b_run-%n.h5"
 
@@ -44,7 +48,7 @@ class RemoteRecording:
 class RecordTab(Tab):
     """The session form, the controls and the running recording's numbers."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
         self.root = QtWidgets.QLineEdit(str(console.options.out_dir))

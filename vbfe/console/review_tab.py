@@ -4,11 +4,15 @@ recording, as a link that opens in the browser."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.console.station import Finished
 from vbfe.console.widgets import Tab, value_label
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
 
 
 def write_report(session: Path) -> Path:
@@ -24,7 +28,7 @@ def write_report(session: Path) -> Path:
 class ReviewTab(Tab):
     """The last session and its report page."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
         self.session = value_label()

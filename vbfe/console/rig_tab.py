@@ -3,9 +3,14 @@ device that failed to open with the one-line reason."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.console.widgets import Tab, value_label
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
 
 COLUMNS = ("device", "kind", "state", "rate", "records", "dropped", "clock offset")
 
@@ -13,7 +18,7 @@ COLUMNS = ("device", "kind", "state", "rate", "records", "dropped", "clock offse
 class RigTab(Tab):
     """A table of the rig's devices and a button that (re)opens the rig live."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
         self.table = QtWidgets.QTableWidget(0, len(COLUMNS))
@@ -38,7 +43,7 @@ class RigTab(Tab):
         if rig is None:
             return []
         running = station.acquisition is not None
-        out = []
+        out: list[tuple[str, ...]] = []
         for name, device in rig.devices.items():
             error = station.device_errors.get(name)
             stream = device.stream or ("projector" if name == "projector" else None)

@@ -4,6 +4,7 @@ measured offset, its interval and the verdict; apply the correction and check ag
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pyqtgraph.Qt import QtWidgets
 
@@ -13,11 +14,14 @@ from vbfe.console.desks import SyncOutcome, apply_sync, check_sync
 from vbfe.console.station import Finished
 from vbfe.console.widgets import Tab, form, value_label
 
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
+
 
 class SyncTab(Tab):
     """The protocol's settings, Run and Apply, the report."""
 
-    def __init__(self, console) -> None:
+    def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
         self.path = QtWidgets.QLineEdit(str(console.options.out_dir / "sync_protocol.h5"))
