@@ -4,8 +4,10 @@ calibrate from captured board views, the sync protocol, screenshots."""
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -117,6 +119,50 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     assert (tmp_path / "fixed.h5").read_bytes() == b"an earlier session"
     assert window.station.recording is None
     assert all("Traceback" not in e and "\n" not in e for e in window.errors)
+
+
+def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
+    from vbfe.common.config import section
+    from vbfe.estimate.candidates import NetworkEstimator
+    from vbfe.estimate.model_file import ForceModel
+    from vbfe.estimate.pointnet import PointNetRegressor
+    from vbfe.estimate.train_config import TrainConfig
+    from vbfe.live.estimator import FrameEstimator
+    from vbfe.recon import SgbmParams
+    from vbfe.truth import calibration_from_rig
+
+    config = bench_config()
+    train = TrainConfig(conv_channels=[8, 16, 32], head_channels=[16], n_points=128)
+    network = PointNetRegressor(
+        conv_channels=train.conv_channels,
+        head_channels=train.head_channels,
+        rest_depth=train.rest_depth,
+    )
+    model = ForceModel(
+        config=train,
+        selected="pointnet",
+        estimators={"pointnet": NetworkEstimator(network.eval(), train.n_points)},
+    )
+    calibration = calibration_from_rig(true_rig(config))
+    estimator = FrameEstimator(
+        model, calibration, SgbmParams.from_config(section(config, "sgbm")), scale=0.5
+    )
+    station = Station(config, calibration, estimator=estimator, model_name="untrained")
+    window = ConsoleWindow(station, ConsoleOptions(tmp_path), interval_ms=50)
+    window.show()
+    window.tabs.setCurrentWidget(window.live_tab)
+    try:
+        window.rig_op(station.go_live)
+        qtbot.waitUntil(
+            lambda: station.live is not None and station.live.status().estimates >= 3,
+            timeout=WAIT_MS,
+        )
+        qtbot.waitUntil(lambda: "latency p50" in window.live_tab.status.text(), timeout=WAIT_MS)
+        t_est, estimates = window.live_tab.estimate_curve.getData()
+        assert len(estimates) >= 1 and np.all(t_est <= 0) and np.all(np.isfinite(estimates))
+    finally:
+        window.close()
+        dispose_widget(window)
 
 
 def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open_console, tmp_path):
@@ -274,6 +320,30 @@ def test_headless_console_with_a_missing_device_exits_2_with_the_reason(tmp_path
     assert result.returncode == 2
     assert "vbfe console: error: opening the rig: cannot open camera /dev/video99" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_ctrl_c_closes_the_console_and_finalizes_the_recording(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[bench]\nwidth = 192\nheight = 108\n")
+    session = tmp_path / "s.h5"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "vbfe.cli.main", "console", "--record", session]
+        + ["--config", rig, "--out", tmp_path],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (
+        session.exists() and session.stat().st_size > 200_000
+    ):
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=60)
+    assert process.returncode == 0, err
+    assert f"recorded {session}" in out
+    with SessionReader(session) as reader:
+        assert reader.complete and reader.n_frames > 0
 
 
 @pytest.mark.skipif(

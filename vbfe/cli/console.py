@@ -104,14 +104,14 @@ def run(args: argparse.Namespace) -> int:
         )
     station = Station(config, calibration, args.calib or "the calibration", estimator, args.model)
     headless = (
-        Headless(args.duration, args.record, args.screenshot, args.screenshot_dir)
+        Headless(args.duration, args.screenshot, args.screenshot_dir)
         if args.duration is not None
         else None
     )
     options = ConsoleOptions(
         args.out, Path(args.calib) if args.calib else None, args.overwrite, headless is None
     )
-    code, _ = run_console(station, options, headless, args.remote, args.remote_bind)
+    code, _ = run_console(station, options, headless, args.record, args.remote, args.remote_bind)
     finished = station.last_session
     if finished is not None and code == 0:
         print(f"recorded {finished}")

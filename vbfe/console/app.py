@@ -21,11 +21,11 @@ _SHOT_AT = 0.8  # of the duration
 
 @dataclass
 class Headless:
-    """What a headless run does: ``record`` for ``duration_s`` (or the live view only), then
-    ``screenshot`` (the Live tab) and ``screenshot_dir`` (one PNG per tab), then exit."""
+    """What a headless run does: record for ``duration_s`` (or, without a recording, show the
+    rig live that long), then ``screenshot`` (the Live tab) and ``screenshot_dir`` (one PNG
+    per tab), then exit."""
 
     duration_s: float
-    record: Path | None = None
     screenshot: Path | None = None
     screenshot_dir: Path | None = None
 
@@ -42,8 +42,8 @@ class HeadlessRun:
     """Drives a window through a headless run; ``code`` is the exit status (2: an error was
     shown in the window, printed to stderr too)."""
 
-    def __init__(self, window: ConsoleWindow, plan: Headless) -> None:
-        self.window, self.plan = window, plan
+    def __init__(self, window: ConsoleWindow, plan: Headless, record: Path | None) -> None:
+        self.window, self.plan, self.record = window, plan, record
         self.code = 0
         self.finished: Finished | None = None
         self.shot: set[str] = set()
@@ -81,7 +81,7 @@ class HeadlessRun:
         stats = window.station.stats()
         if stats is not None and stats.frames > 0 and stats.elapsed_s >= _SHOT_AT * plan.duration_s:
             self._shoot(RUNNING_TABS)
-        live_done = plan.record is None and self._t0.elapsed() / 1e3 >= plan.duration_s
+        live_done = self.record is None and self._t0.elapsed() / 1e3 >= plan.duration_s
         if (self.finished is not None or live_done) and not window.busy():
             self._shoot(tuple(window.named_tabs()))
             self._close()
@@ -95,21 +95,24 @@ def run_console(
     station: Station,
     options: ConsoleOptions,
     headless: Headless | None = None,
+    record: Path | None = None,
     remote_port: int | None = None,
     remote_bind: str = "127.0.0.1",
 ) -> tuple[int, ConsoleWindow]:
-    """Show the console over ``station`` until it closes; returns the exit status (0; 2
-    after an error in a headless run) and the (disposed) window's last state."""
+    """Show the console over ``station`` until it closes, recording ``record`` at once when
+    given; returns the exit status (0; 2 after an error in a headless run) and the (disposed)
+    window's last state."""
     app = qt_application()
     window = ConsoleWindow(station, options)
     window.show()
     if remote_port is not None:
         window.record_tab.listen(remote_port, remote_bind)
-    driver = HeadlessRun(window, headless) if headless is not None else None
-    if headless is not None and headless.record is not None:
+    driver = HeadlessRun(window, headless, record) if headless is not None else None
+    if record is not None:
+        duration_s = headless.duration_s if headless is not None else None
         window.rig_op(
             station.start_recording,
-            SessionRequest(headless.record, duration_s=headless.duration_s),
+            SessionRequest(record, duration_s=duration_s),
             what="cannot record",
         )
     else:
