@@ -3,7 +3,7 @@ trace and numeric streams on one time axis, and the live estimate with its laten
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyqtgraph as pg
@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 WINDOW_S = 10.0
+MAX_POINTS = 2000  # per curve: a plot of the last seconds at 1 kHz draws every fifth sample
 _CORE_STREAMS = ("camera", "force", "projector", "marks")
 
 
@@ -64,7 +65,7 @@ class LiveTab(Tab):
             self.images.show_bgr(0, left)
             self.images.show_bgr(1, frame.right)
             self._shown = frame
-        samples = latest.records("force")
+        samples = thinned(latest.records("force"))
         if samples:
             now = samples[-1].t_host_ns
             t = (np.array([s.t_host_ns for s in samples], np.float64) - now) / 1e9
@@ -96,7 +97,9 @@ class LiveTab(Tab):
         for name in latest.streams():
             if name in _CORE_STREAMS:
                 continue
-            records = [r for r in latest.records(name) if getattr(r, "values", None) is not None]
+            records = [
+                r for r in thinned(latest.records(name)) if getattr(r, "values", None) is not None
+            ]
             if not records:
                 continue
             t = (np.array([r.t_host_ns for r in records], np.float64) - now_ns) / 1e9
@@ -130,6 +133,12 @@ class LiveTab(Tab):
     def _overlay_failed(self) -> None:
         self._decoding = False
         self.overlay.setChecked(False)
+
+
+def thinned(records: list[Any]) -> list[Any]:
+    """At most about :data:`MAX_POINTS` of ``records``, evenly spaced, the newest kept."""
+    step = len(records) // MAX_POINTS + 1
+    return records[::-1][::step][::-1]
 
 
 def decode_overlay(left: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtCore, QtWidgets
@@ -11,6 +12,9 @@ from pyqtgraph.Qt import QtCore, QtWidgets
 if TYPE_CHECKING:
     from vbfe.console.station import Finished
     from vbfe.console.window import ConsoleWindow
+
+
+MAX_SHOWN_WIDTH = 480
 
 
 class ImagePane(pg.GraphicsLayoutWidget):
@@ -26,9 +30,14 @@ class ImagePane(pg.GraphicsLayoutWidget):
             self.items.append(item)
 
     def show_bgr(self, index: int, image: np.ndarray) -> None:
-        """Show a BGR (or grey) uint8 image in pane ``index``."""
-        rgb = image[..., ::-1] if image.ndim == 3 else image
-        self.items[index].setImage(np.ascontiguousarray(rgb), autoLevels=False, levels=(0, 255))
+        """Show a BGR (or grey) uint8 image in pane ``index``, reduced to at most
+        :data:`MAX_SHOWN_WIDTH` pixels wide (painting a large image costs the UI thread)."""
+        factor = -(-image.shape[1] // MAX_SHOWN_WIDTH)
+        if factor > 1:
+            size = (image.shape[1] // factor, image.shape[0] // factor)
+            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image
+        self.items[index].setImage(rgb, autoLevels=False, levels=(0, 255))
 
 
 def form(rows: list[tuple[str, QtWidgets.QWidget]]) -> QtWidgets.QFormLayout:
