@@ -35,6 +35,8 @@ class CalibrateTab(Tab):
         self.view = ImagePane(1)
         panes.addWidget(self.view, 3)
         self.map_widget = pg.GraphicsLayoutWidget()
+        self.map_widget.addLabel("coverage map: kept corners per region of the image")
+        self.map_widget.nextRow()
         self.map_view = self.map_widget.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
         self.map_image = pg.ImageItem(axisOrder="row-major")
         self.map_view.addItem(self.map_image)

@@ -126,9 +126,11 @@ def calibrate(
 
 @dataclass(frozen=True)
 class SyncOutcome:
-    """The sync protocol session's check, and after :func:`apply_sync` the check again."""
+    """The sync protocol session's check; after :func:`apply_sync` also the run that stored
+    the correction (``applied``) and the check with it (``after``)."""
 
     report: SyncReport
+    applied: SyncReport | None = None
     after: SyncReport | None = None
 
     @property
@@ -148,11 +150,12 @@ def check_sync(config: Config, session: Path) -> SyncOutcome:
     return SyncOutcome(report)
 
 
-def apply_sync(config: Config, session: Path) -> SyncOutcome:
-    """``verify-sync --apply``: store the measured offset as the session's frame-time
-    correction and put it in the config's ``[record]`` so that new recordings are corrected;
-    the session is checked again with it."""
+def apply_sync(config: Config, checked: SyncOutcome) -> SyncOutcome:
+    """``verify-sync --apply`` on the session ``checked``: store the measured offset as its
+    frame-time correction and put it in the config's ``[record]`` so that new recordings are
+    corrected; the session is checked again with it."""
     limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
+    session = checked.report.path
     applied = verify_sync(session, limits, apply_correction=True, settings=settings)
     config.setdefault("record", {})["frame_time_correction_s"] = applied.correction_s
-    return SyncOutcome(applied, verify_sync(session, limits, settings=settings))
+    return SyncOutcome(checked.report, applied, verify_sync(session, limits, settings=settings))

@@ -4,6 +4,7 @@ button (and the M key); elapsed time, MB/s, free disk, drops; remote control whi
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,7 +35,8 @@ class RemoteRecording:
 
     def __init__(self, tab: RecordTab, path: Path) -> None:
         self.station = tab.station
-        self.station.submit(self.station.start_recording, tab.request(path)).result()
+        request = dataclasses.replace(tab.remote_request, path=path, duration_s=None)
+        self.station.submit(self.station.start_recording, request).result()
 
     def mark(self, text: str, t_host_ns: int) -> None:
         """An event mark (at the host's now)."""
@@ -97,6 +99,9 @@ class RecordTab(Tab):
         layout.addStretch(1)
         self.remote: RemoteControl | None = None
         self.remote_sessions: RemoteSessions | None = None
+        # the form as remote control's recordings take it (read by its threads, which must
+        # not touch widgets; kept up to date by refresh)
+        self.remote_request = SessionRequest(Path())
 
     # -- the form -----------------------------------------------------------------------------
     def options(self) -> dict[str, str]:
@@ -177,6 +182,10 @@ class RecordTab(Tab):
 
     # -- view ---------------------------------------------------------------------------------
     def refresh(self) -> None:
+        try:
+            self.remote_request = self.request(Path())
+        except VbfeError:  # conditions being typed: the last good form stays
+            pass
         recording = self.station.recording
         self.start_button.setEnabled(recording is None)
         self.stop_button.setEnabled(recording is not None)

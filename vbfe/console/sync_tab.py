@@ -96,11 +96,11 @@ class SyncTab(Tab):
 
     def apply(self) -> None:
         """Store the measured offset as the correction (session and new recordings)."""
-        if self.session is None:
+        if self.outcome is None:
             return
         self.apply_button.setEnabled(False)
         self.console.work_op(
-            apply_sync, self.station.config, self.session, on_done=self.show, what="apply"
+            apply_sync, self.station.config, self.outcome, on_done=self.show, what="apply"
         )
 
     def show(self, outcome: SyncOutcome) -> None:
@@ -113,11 +113,11 @@ class SyncTab(Tab):
             f"[{e.ci95_s[0] * 1e3:+.2f}, {e.ci95_s[1] * 1e3:+.2f}] ms",
             f"verdict {r.verdict}" + (": " + "; ".join(r.reasons) if r.reasons else ""),
         ]
-        if outcome.after is not None:
-            a = outcome.after
+        if outcome.applied is not None and outcome.after is not None:
+            a, applied = outcome.after, outcome.applied
             lines += [
-                f"applied: frame-time correction {r.correction_s * 1e3:+.2f} ms (new recordings "
-                f"too; rig config [record] {r.config_suggestion()})",
+                f"applied: frame-time correction {applied.correction_s * 1e3:+.2f} ms (new "
+                f"recordings too; rig config [record] {applied.config_suggestion()})",
                 f"after the correction: residual {a.estimate.offset_s * 1e3:+.2f} ms, verdict "
                 f"{a.verdict}",
             ]

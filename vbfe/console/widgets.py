@@ -55,6 +55,7 @@ def value_label() -> QtWidgets.QLabel:
         label.textInteractionFlags() | QtCore.Qt.TextInteractionFlag.TextSelectableByMouse
     )
     label.setWordWrap(True)
+    label.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
     return label
 
 
