@@ -121,6 +121,16 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     assert all("Traceback" not in e and "\n" not in e for e in window.errors)
 
 
+def test_the_de_bruijn_overlay_colours_the_decoded_fringes(qtbot, open_console):
+    window = open_console(bench_config(width=320, height=180))
+    window.tabs.setCurrentWidget(window.live_tab)
+    window.live_tab.overlay.setChecked(True)
+    qtbot.waitUntil(lambda: window.live_tab.decoded is not None, timeout=WAIT_MS)
+    left, overlay = window.live_tab.decoded
+    assert overlay.shape == left.shape
+    assert (overlay != left).any(axis=2).mean() > 0.5  # most of the tissue decodes
+
+
 def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
     from vbfe.common.config import section
     from vbfe.estimate.candidates import NetworkEstimator

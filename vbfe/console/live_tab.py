@@ -51,7 +51,8 @@ class LiveTab(Tab):
         layout.addWidget(self.status)
         self._shown: StereoFrame | None = None
         self._decoding = False
-        self._decoded: np.ndarray | None = None  # the newest decoded left image, overlaid
+        # the newest decoded left image and its overlay (shown over the newer frames)
+        self.decoded: tuple[np.ndarray, np.ndarray] | None = None
 
     def refresh(self) -> None:
         if not self.isVisible():  # drawing costs the recorder CPU: only the tab in view
@@ -116,19 +117,20 @@ class LiveTab(Tab):
         the newest frame runs off the UI thread."""
         if not self._decoding:
             self._decoding = True
+            left = frame.left
             self.console.work_op(
                 decode_overlay,
-                frame.left,
-                on_done=self._overlay_done,
+                left,
+                on_done=lambda overlay: self._overlay_done(left, overlay),
                 what="De Bruijn decode",
                 on_error=self._overlay_failed,
             )
-        if self._decoded is None or self._decoded.shape != frame.left.shape:
+        if self.decoded is None or self.decoded[1].shape != frame.left.shape:
             return frame.left
-        return self._decoded
+        return self.decoded[1]
 
-    def _overlay_done(self, overlay: np.ndarray) -> None:
-        self._decoded, self._decoding = overlay, False
+    def _overlay_done(self, left: np.ndarray, overlay: np.ndarray) -> None:
+        self.decoded, self._decoding = (left, overlay), False
 
     def _overlay_failed(self) -> None:
         self._decoding = False
