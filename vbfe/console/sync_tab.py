@@ -119,7 +119,7 @@ class SyncTab(Tab):
                 f"applied: frame-time correction {applied.correction_s * 1e3:+.2f} ms (new "
                 f"recordings too; rig config [record] {applied.config_suggestion()})",
                 f"after the correction: residual {a.estimate.offset_s * 1e3:+.2f} ms, verdict "
-                f"{a.verdict}",
+                f"{a.verdict}" + (": " + "; ".join(a.reasons) if a.reasons else ""),
             ]
         else:
             self.apply_button.setEnabled(True)
