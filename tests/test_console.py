@@ -26,7 +26,7 @@ from vbfe.truth import true_rig
 from vbfe.truth.scenes import board_config
 
 CALIB_F_LIMIT, CALIB_B_LIMIT = 0.005, 0.01  # the demo's (vbfe/demo_report.py)
-WAIT_MS = 30_000
+WAIT_MS = 60_000  # generous: the machine may be shared; passing runs take seconds
 
 
 def bench_config(**bench) -> dict:
@@ -78,7 +78,8 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     first = tmp_path / "P001_traction_run-001.h5"
     assert tab.next_file.text() == "" or Path(tab.next_file.text()) == first
     click(qtbot, tab.start_button)
-    qtbot.waitUntil(lambda: recorded_frames(window) >= 10, timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: recorded_frames(window) >= 10 or bool(window.errors), timeout=WAIT_MS)
+    assert not window.errors
     qtbot.keyClick(window, QtCore.Qt.Key.Key_M)
     click(qtbot, tab.mark_button)
     qtbot.waitUntil(lambda: "MB/s" in tab.numbers.text() and "markers 2" in tab.numbers.text())
