@@ -1,16 +1,15 @@
 """pyqtgraph viewer: left/right images, force plot and drop counters — replay or live.
 
-``ReplayViewer(reader)`` scrubs a recorded session with a time slider; ``LiveViewer(acquisition)``
-listens to a running acquisition and scrolls the force plot. ``view_session(path)`` / ``view_live(config)``
-run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
+``ReplayViewer(reader)`` scrubs a recorded session with a time slider;
+``LiveViewer(acquisition)`` listens to a running acquisition and scrolls the force plot.
+``view_session(path)`` / ``view_live(config)`` run them as applications. Works headless with
+``QT_QPA_PLATFORM=offscreen``.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections import deque
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +18,10 @@ import pyqtgraph as pg
 from pyqtgraph.Qt import QtCore, QtWidgets
 
 from vbfe.acquire.recording.acquisition import Acquisition
-from vbfe.acquire.recording.listener import Listener
+from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.drivers.qt_app import dispose_widget, qt_application
-from vbfe.drivers.samples import ForceSample, StereoFrame
+from vbfe.drivers.samples import StereoFrame
 
 FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
 STREAM_PENS = ("#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45", "#469990", "#9a6324")
@@ -44,7 +43,7 @@ class ViewerWindow(QtWidgets.QWidget):
         layout = QtWidgets.QVBoxLayout(self)
         images = pg.GraphicsLayoutWidget()
         self.image_items = []
-        for name in ("left", "right"):
+        for _eye in ("left", "right"):
             view = images.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
             item = pg.ImageItem(axisOrder="row-major")
             view.addItem(item)
@@ -173,20 +172,6 @@ class ReplayViewer(ViewerWindow):
         )
 
 
-class _Newest(Listener):
-    """The newest frame and the last seconds of force, for the GUI thread to poll."""
-
-    def __init__(self, n_samples: int) -> None:
-        self.frame: StereoFrame | None = None
-        self.samples: deque[ForceSample] = deque(maxlen=n_samples)
-
-    def on_frames(self, frames: Sequence[StereoFrame]) -> None:
-        self.frame = frames[-1]
-
-    def on_samples(self, samples: Sequence[ForceSample]) -> None:
-        self.samples.extend(samples)
-
-
 class LiveViewer(ViewerWindow):
     """Show an acquisition live: newest frame pair, the last seconds of force, drop counters.
     Made before the acquisition starts (it adds its listener)."""
@@ -196,7 +181,7 @@ class LiveViewer(ViewerWindow):
         super().__init__("vbfe view — live", list(trocar.axes))
         self.acquisition = acquisition
         self.slider.hide()
-        self._newest = acquisition.add(_Newest(int(window_s * max(trocar.rate_hz, 1.0))))
+        self._newest = acquisition.add(Latest(window_s))
         self._shown: StereoFrame | None = None
         self.error: str | None = None
         self.timer = QtCore.QTimer(self)
@@ -214,7 +199,7 @@ class LiveViewer(ViewerWindow):
         if frame is not None and frame is not self._shown:
             self.show_images(frame.left, frame.right)
             self._shown = frame
-        samples = list(self._newest.samples)
+        samples = self._newest.records("force")
         if samples:
             t = np.array([s.t_host_ns for s in samples])
             self.show_force((t - t[-1]) / 1e9, np.array([s.force_n for s in samples]))
@@ -236,7 +221,7 @@ def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
     return Path(path)
 
 
-def _exec_until_closed(app: QtWidgets.QApplication, window: ViewerWindow) -> int:
+def exec_until_closed(app: QtWidgets.QApplication, window: QtWidgets.QWidget) -> int:
     """Run the event loop until the window closes, Ctrl-C or SIGTERM (which close it; a timer
     hands control back to Python regularly so that its signal handlers run)."""
     handlers = {}
@@ -262,7 +247,7 @@ def view_session(path: str | Path) -> int:
     with SessionReader(path) as reader:
         window = ReplayViewer(reader)
         window.show()
-        code = _exec_until_closed(app, window)
+        code = exec_until_closed(app, window)
         window.dispose()
         return code
 
@@ -278,7 +263,7 @@ def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
     try:
         window.show()
         window.timer.start(interval_ms)
-        code = _exec_until_closed(app, window)
+        code = exec_until_closed(app, window)
         window.timer.stop()
         window.dispose()
         return code

@@ -95,6 +95,7 @@ class ViewCollector:
     options: CaptureOptions = field(default_factory=CaptureOptions)
     pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     params: list[np.ndarray] = field(default_factory=list)
+    corners: list[np.ndarray] = field(default_factory=list)  # of each kept view's left eye
 
     def __post_init__(self) -> None:
         self._detector = BoardDetector(self.spec)
@@ -135,6 +136,7 @@ class ViewCollector:
                 )
         self.pairs.append((left, right))
         self.params.append(params)
+        self.corners.append(dl.corners)
         return Verdict(True, f"kept view {len(self.pairs)}", params, dl, dr)
 
     def keep(self, left: np.ndarray, right: np.ndarray) -> None:
@@ -143,6 +145,7 @@ class ViewCollector:
         if len(det) >= 4:
             self.pairs.append((left, right))
             self.params.append(pose_params(det, self.spec, (left.shape[1], left.shape[0])))
+            self.corners.append(det.corners)
 
     def coverage(self) -> dict[str, float]:
         """Progress (0..1) of the X, Y, size and skew bars."""
@@ -150,7 +153,23 @@ class ViewCollector:
             return dict.fromkeys(PARAM_RANGES, 0.0)
         p = np.array(self.params)
         spread = p.max(axis=0) - p.min(axis=0)
-        return {k: float(min(1.0, s / r)) for (k, r), s in zip(PARAM_RANGES.items(), spread, strict=False)}
+        return {
+            k: float(min(1.0, s / r))
+            for (k, r), s in zip(PARAM_RANGES.items(), spread, strict=False)
+        }
+
+    def coverage_map(
+        self, image_size: tuple[int, int], cells: tuple[int, int] = (8, 6)
+    ) -> np.ndarray:
+        """Where the kept views' left corners lie: counts per cell of a ``cells`` (columns,
+        rows) grid over an image of ``image_size`` (width, height), shape (rows, columns)."""
+        grid = np.zeros((cells[1], cells[0]), np.int64)
+        if self.corners:
+            xy = np.concatenate(self.corners).reshape(-1, 2)
+            col = np.clip((xy[:, 0] * cells[0] / image_size[0]).astype(int), 0, cells[0] - 1)
+            row = np.clip((xy[:, 1] * cells[1] / image_size[1]).astype(int), 0, cells[1] - 1)
+            np.add.at(grid, (row, col), 1)
+        return grid
 
     @property
     def enough(self) -> bool:
@@ -159,6 +178,11 @@ class ViewCollector:
         return (len(self.pairs) >= self.options.min_views and full) or len(
             self.pairs
         ) >= self.options.max_views
+
+
+def rejection_kind(reason: str) -> str:
+    """What a rejected view's reason counts as (its words before the numbers or remedy)."""
+    return reason.split(" (")[0].split(";")[0]
 
 
 def coverage_text(coverage: dict[str, float], n_views: int, width: int = 20) -> str:
@@ -230,7 +254,7 @@ def capture_views(
         if verdict.kept:
             save_views(folder, [(left, right)], [f"view_{len(collector.pairs) - 1:03d}"])
         else:
-            key = verdict.reason.split(" (")[0].split(";")[0]
+            key = rejection_kind(verdict.reason)
             rejections[key] = rejections.get(key, 0) + 1
         if on_view:
             on_view(verdict, collector, left)

@@ -143,6 +143,21 @@ class Rig:
                     device.close()
             raise
 
+    def probe(self) -> dict[str, str | None]:
+        """Open and close each device on its own: ``{name: None}`` when it opens, else the
+        one-line reason it does not (the rig's devices are left closed)."""
+        out: dict[str, str | None] = {}
+        for name, device in self.devices.items():
+            try:
+                device.open()
+            except DeviceError as exc:
+                out[name] = " ".join(str(exc).split())
+                continue
+            with contextlib.suppress(DeviceError):
+                device.close()
+            out[name] = None
+        return out
+
     def close(self) -> None:
         """Close every device (idempotent; a device already gone is not an error here)."""
         for device in reversed(list(self.devices.values())):

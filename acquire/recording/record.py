@@ -90,11 +90,16 @@ def record_session(
             raise
         recorder.metadata["tare"] = {"samples": n, "offset_n": offset.tolist()}
     stats = recorder.run(duration_s, on_progress)
-    if settings.frame_time_correction_s:
-        store_analysis(
-            path, {FRAME_CORRECTION_ATTR: int(round(settings.frame_time_correction_s * 1e9))}
-        )
+    store_frame_correction(config, path)
     return stats
+
+
+def store_frame_correction(config: dict[str, dict[str, Any]], path: str | Path) -> None:
+    """Store a non-zero ``[record] frame_time_correction_s`` as the finalized session's
+    frame-time correction."""
+    correction_s = record_settings(config).frame_time_correction_s
+    if correction_s:
+        store_analysis(path, {FRAME_CORRECTION_ATTR: int(round(correction_s * 1e9))})
 
 
 def check_camera_size(

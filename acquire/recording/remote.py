@@ -94,6 +94,24 @@ def session_path(options: dict[str, str]) -> Path:
     return out.with_suffix(".h5") if out.suffix.lower() in (".xdf", "") else out
 
 
+def first_free_run(options: dict[str, str], last_run: int = 999) -> dict[str, str]:
+    """``options`` with ``run`` set to the first number (from their ``run``, default 1) whose
+    file (:func:`session_path`) does not exist yet, as LabRecorder's running number; a template
+    without ``%n``/``%r`` names one file, refused when it exists. SessionError when every run
+    up to ``last_run`` is taken."""
+    template = options.get("template", DEFAULT_TEMPLATE)
+    first = int(options.get("run", "1"))
+    runs = range(first, last_run + 1) if "%n" in template or "%r" in template else (first,)
+    for run in runs:
+        candidate = {**options, "run": str(run)}
+        if not session_path(candidate).exists():
+            return candidate
+    raise SessionError(
+        f"{session_path({**options, 'run': str(runs[-1])})} already exists; choose a new file "
+        "name (a template with %n numbers the runs)"
+    )
+
+
 class Recording(Protocol):
     """A running recording as remote control needs it."""
 

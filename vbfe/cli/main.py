@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from vbfe import __version__
 from vbfe.cli import (
     calibrate,
+    console,
     dataset,
     demo,
     devices,
@@ -47,6 +48,7 @@ COMMANDS = (
     train,
     evaluate,
     live,
+    console,
     demo,
 )
 

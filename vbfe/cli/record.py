@@ -124,7 +124,8 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
-def _conditions(pairs: list[str]) -> dict[str, object]:
+def parse_conditions(pairs: list[str]) -> dict[str, object]:
+    """KEY=VALUE pairs as a conditions table (numbers where they parse)."""
     out: dict[str, object] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -189,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
             args.duration,
             operator=args.operator,
             notes=args.notes,
-            conditions=_conditions(args.condition),
+            conditions=parse_conditions(args.condition),
             compression=args.compression,
             calibration_yaml=calibration,
             on_progress=show,
@@ -253,7 +254,7 @@ def _run_remote(
         config_from(args),
         operator=args.operator,
         notes=args.notes,
-        conditions=_conditions(args.condition),
+        conditions=parse_conditions(args.condition),
         compression=args.compression,
         calibration_yaml=calibration,
         calibration_size=calibration_size,

@@ -1,0 +1,161 @@
+"""The console's calibration and sync work (no Qt): board views captured from the live frames
+and calibrated with the calibration commands, the sync protocol session checked and corrected
+with ``verify_sync``. Each method that takes long is meant for a worker thread."""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vbfe.acquire.recording.latest import Latest
+from vbfe.acquire.sync.check import SyncLimits, SyncReport, verify_sync
+from vbfe.acquire.sync.protocol import ProtocolSettings
+from vbfe.calib import commands
+from vbfe.calib.capture import CaptureOptions, Verdict, ViewCollector, rejection_kind
+from vbfe.calib.check import CheckResult
+from vbfe.calib.views import load_views, save_views
+from vbfe.cli.outputs import check_outputs
+from vbfe.common.config import section
+from vbfe.drivers.samples import StereoFrame
+
+Config = dict[str, dict[str, object]]
+_IDLE_WAIT_S = 0.02
+
+
+class LiveCapture:
+    """Offer the newest live frames to a :class:`ViewCollector` of the ``[calib]`` board and
+    keep the good views in ``folder`` (views already there count, as ``calibrate capture``
+    resumes), on a thread of its own between :meth:`start` and :meth:`stop`.
+
+    :param config: the rig config (board and thresholds of its ``[calib]`` table).
+    :param folder: where kept views are written as PNG pairs.
+    """
+
+    def __init__(self, config: Config, folder: Path) -> None:
+        self.folder = Path(folder)
+        self.collector = ViewCollector(
+            commands.board_spec(config), CaptureOptions.from_config(section(config, "calib"))
+        )
+        if self.folder.is_dir() and any(self.folder.glob("*_left.png")):
+            for left, right in load_views(self.folder).pairs:
+                self.collector.keep(left, right)
+        self.rejections: Counter[str] = Counter()
+        self.last: tuple[Verdict, np.ndarray] | None = None  # newest verdict and its left image
+        self.offered = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def kept(self) -> int:
+        """Views kept so far (those found in the folder included)."""
+        return len(self.collector.pairs)
+
+    def offer(self, frame: StereoFrame) -> Verdict:
+        """Check one frame; keep and write it when it is a good new view."""
+        verdict = self.collector.offer(frame.left, frame.right)
+        with self._lock:
+            self.offered += 1
+            if verdict.kept:
+                save_views(self.folder, [(frame.left, frame.right)], [f"view_{self.kept - 1:03d}"])
+            else:
+                self.rejections[rejection_kind(verdict.reason)] += 1
+            self.last = (verdict, frame.left)
+        return verdict
+
+    def start(self, latest: Latest) -> None:
+        """Offer each new frame of ``latest`` until :meth:`stop` or enough views are kept."""
+        self._stop.clear()
+        self._thread = threading.Thread(
+            target=self._run, args=(latest,), name="vbfe-console-capture", daemon=True
+        )
+        self._thread.start()
+
+    def running(self) -> bool:
+        """Whether frames are being offered."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def stop(self) -> None:
+        """Stop offering frames."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _run(self, latest: Latest) -> None:
+        seen: StereoFrame | None = None
+        while not self._stop.is_set() and not self.collector.enough:
+            frame = latest.frame
+            if frame is None or frame is seen:
+                self._stop.wait(_IDLE_WAIT_S)
+                continue
+            seen = frame
+            self.offer(frame)
+
+
+@dataclass(frozen=True)
+class CalibrationOutcome:
+    """A stereo calibration made in the console and, with a stored one, the go/no-go."""
+
+    outcome: commands.StereoOutcome
+    check: CheckResult | None
+
+    def per_view_rms_px(self) -> dict[str, float]:
+        """Left camera's reprojection RMS of each view used."""
+        fit = self.outcome.result.left
+        return dict(zip(self.outcome.result.names, map(float, fit.per_view_rms_px), strict=False))
+
+
+def calibrate(
+    config: Config,
+    folder: Path,
+    out_path: Path,
+    stored: Path | None = None,
+    overwrite: bool = False,
+) -> CalibrationOutcome:
+    """``calibrate stereo`` on the captured views into ``out_path`` (refused when it exists
+    unless ``overwrite``, as the CLI), then ``calibrate check`` of ``stored`` against it."""
+    check_outputs([out_path], [folder, stored], overwrite)
+    outcome = commands.stereo(config, folder, out_path)
+    check = commands.check(config, stored, new_path=out_path) if stored is not None else None
+    return CalibrationOutcome(outcome, check)
+
+
+@dataclass(frozen=True)
+class SyncOutcome:
+    """The sync protocol session's check; after :func:`apply_sync` also the run that stored
+    the correction (``applied``) and the check with it (``after``)."""
+
+    report: SyncReport
+    applied: SyncReport | None = None
+    after: SyncReport | None = None
+
+    @property
+    def verdict(self) -> str:
+        """The latest verdict (after the correction, once applied)."""
+        return (self.after or self.report).verdict
+
+
+def check_sync(config: Config, session: Path) -> SyncOutcome:
+    """``verify-sync`` of a sync protocol session (its plot beside it, as the CLI)."""
+    report = verify_sync(
+        session,
+        SyncLimits.from_config(config),
+        plot_path=session.with_suffix(".sync.png"),
+        settings=ProtocolSettings.from_config(config),
+    )
+    return SyncOutcome(report)
+
+
+def apply_sync(config: Config, checked: SyncOutcome) -> SyncOutcome:
+    """``verify-sync --apply`` on the session ``checked``: store the measured offset as its
+    frame-time correction and put it in the config's ``[record]`` so that new recordings are
+    corrected; the session is checked again with it."""
+    limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
+    session = checked.report.path
+    applied = verify_sync(session, limits, apply_correction=True, settings=settings)
+    config.setdefault("record", {})["frame_time_correction_s"] = applied.correction_s
+    return SyncOutcome(checked.report, applied, verify_sync(session, limits, settings=settings))

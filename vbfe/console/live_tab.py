@@ -1,0 +1,159 @@
+"""Live tab: left and right images (the De Bruijn decode as an optional overlay), the force
+trace and numeric streams on one time axis, and the live estimate with its latency."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyqtgraph as pg
+from pyqtgraph.Qt import QtWidgets
+
+from vbfe.acquire.viewer import FORCE_PENS, STREAM_PENS
+from vbfe.console.widgets import ImagePane, Tab, value_label
+from vbfe.drivers.samples import StereoFrame
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
+
+WINDOW_S = 10.0
+MAX_POINTS = 2000  # per curve: a plot of the last seconds at 1 kHz draws every fifth sample
+_CORE_STREAMS = ("camera", "force", "projector", "marks")
+
+
+class LiveTab(Tab):
+    """Images over the force plot (seconds before now), streams and estimate below."""
+
+    def __init__(self, console: ConsoleWindow) -> None:
+        super().__init__(console)
+        layout = QtWidgets.QVBoxLayout(self)
+        self.images = ImagePane(2)
+        layout.addWidget(self.images, 3)
+        self.overlay = QtWidgets.QCheckBox("De Bruijn decode overlay (left)")
+        layout.addWidget(self.overlay)
+        self.force_plot = pg.PlotWidget(background="w")
+        self.force_plot.setLabel("left", "force", units="N")
+        self.force_plot.setLabel("bottom", "time before now", units="s")
+        self.force_plot.addLegend(offset=(5, 5))
+        self.force_plot.setXRange(-WINDOW_S, 0.0)
+        self.force_curves: list[pg.PlotDataItem] = []
+        self.estimate_curve = self.force_plot.plot(
+            pen=None, symbol="o", symbolSize=5, symbolBrush="#000000", name="estimate"
+        )
+        layout.addWidget(self.force_plot, 2)
+        self.stream_plot = pg.PlotWidget(background="w")
+        self.stream_plot.setXLink(self.force_plot)
+        self.stream_plot.setLabel("left", "streams")
+        self.stream_plot.addLegend(offset=(5, 5))
+        self.stream_curves: dict[str, pg.PlotDataItem] = {}
+        layout.addWidget(self.stream_plot, 1)
+        self.status = value_label()
+        layout.addWidget(self.status)
+        self._shown: StereoFrame | None = None
+        self._decoding = False
+        # the newest decoded left image and its overlay (shown over the newer frames)
+        self.decoded: tuple[np.ndarray, np.ndarray] | None = None
+
+    def refresh(self) -> None:
+        if not self.isVisible():  # drawing costs the recorder CPU: only the tab in view
+            return
+        latest = self.station.latest
+        frame = latest.frame
+        if frame is not None and frame is not self._shown:
+            left = frame.left
+            if self.overlay.isChecked():
+                left = self._with_overlay(frame)
+            self.images.show_bgr(0, left)
+            self.images.show_bgr(1, frame.right)
+            self._shown = frame
+        samples = thinned(latest.records("force"))
+        if samples:
+            now = samples[-1].t_host_ns
+            t = (np.array([s.t_host_ns for s in samples], np.float64) - now) / 1e9
+            forces = np.array([s.force_n for s in samples])
+            while len(self.force_curves) < forces.shape[1]:
+                k = len(self.force_curves)
+                self.force_curves.append(
+                    self.force_plot.plot(
+                        pen=pg.mkPen(FORCE_PENS[k % 3], width=2), name=f"F{'xyz'[k]}"
+                    )
+                )
+            for k, curve in enumerate(self.force_curves):
+                curve.setData(t, forces[:, k])
+            self._show_streams(now)
+        live = self.station.live
+        if live is not None:
+            t_est, est, _, _ = live.curves(WINDOW_S)
+            self.estimate_curve.setData(t_est, est)
+            self.status.setText(live.status().line())
+        else:
+            stats = self.station.stats()
+            self.status.setText(
+                "no model loaded (vbfe console --model MODEL.pt --calib CALIB.yaml)"
+                + (f" | {stats.frames} frames, {stats.samples} force samples" if stats else "")
+            )
+
+    def _show_streams(self, now_ns: int) -> None:
+        latest = self.station.latest
+        for name in latest.streams():
+            if name in _CORE_STREAMS:
+                continue
+            records = [
+                r for r in thinned(latest.records(name)) if getattr(r, "values", None) is not None
+            ]
+            if not records:
+                continue
+            t = (np.array([r.t_host_ns for r in records], np.float64) - now_ns) / 1e9
+            values = np.array([r.values for r in records], np.float64)
+            for k in range(values.shape[1]):
+                key = f"{name}[{k}]"
+                if key not in self.stream_curves:
+                    pen = pg.mkPen(STREAM_PENS[len(self.stream_curves) % len(STREAM_PENS)])
+                    self.stream_curves[key] = self.stream_plot.plot(pen=pen, name=key)
+                self.stream_curves[key].setData(t, values[:, k])
+
+    def _with_overlay(self, frame: StereoFrame) -> np.ndarray:
+        """The left image with the last decoded fringe indices coloured over it; the decode of
+        the newest frame runs off the UI thread."""
+        if not self._decoding:
+            self._decoding = True
+            left = frame.left
+            self.console.work_op(
+                decode_overlay,
+                left,
+                on_done=lambda overlay: self._overlay_done(left, overlay),
+                what="De Bruijn decode",
+                on_error=self._overlay_failed,
+            )
+        if self.decoded is None or self.decoded[1].shape != frame.left.shape:
+            return frame.left
+        return self.decoded[1]
+
+    def _overlay_done(self, left: np.ndarray, overlay: np.ndarray) -> None:
+        self.decoded, self._decoding = (left, overlay), False
+
+    def _overlay_failed(self) -> None:
+        self._decoding = False
+        self.overlay.setChecked(False)
+
+
+def thinned(records: list[Any]) -> list[Any]:
+    """At most about :data:`MAX_POINTS` of ``records``, evenly spaced, the newest kept."""
+    step = len(records) // MAX_POINTS + 1
+    return records[::-1][::step][::-1]
+
+
+def decode_overlay(left: np.ndarray) -> np.ndarray:
+    """``left`` blended with a colour per decoded fringe index (undecoded pixels as they are)."""
+    import cv2
+
+    from vbfe.recon.decode import FringeDecoder
+
+    index = FringeDecoder().decode(left).index
+    valid = index >= 0
+    hue = ((index.astype(np.int32) * 37) % 180).astype(np.uint8)
+    hsv = np.dstack([hue, np.full_like(hue, 255), np.full_like(hue, 255)])
+    colour = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    out = left.copy()
+    out[valid] = (0.5 * left[valid] + 0.5 * colour[valid]).astype(np.uint8)
+    return out

@@ -1,0 +1,213 @@
+"""Record tab: the session's file name (a LabRecorder template with a running number; an
+existing file is refused, never overwritten), operator, notes, conditions; Start/Stop, a marker
+button (and the M key); elapsed time, MB/s, free disk, drops; remote control while it runs."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pyqtgraph.Qt import QtWidgets
+
+from vbfe.acquire.recording.remote import (
+    RemoteControl,
+    RemoteSessions,
+    first_free_run,
+    session_path,
+)
+from vbfe.acquire.recording.storage import free_bytes
+from vbfe.cli.record import parse_conditions
+from vbfe.common.errors import VbfeError
+from vbfe.console.station import Finished, SessionRequest
+from vbfe.console.widgets import Tab, form, value_label
+
+if TYPE_CHECKING:
+    from vbfe.console.window import ConsoleWindow
+
+DEFAULT_TEMPLATE = "%p_%b_run-%n.h5"
+
+
+class RemoteRecording:
+    """A recording remote control started in the console (``vbfe record --remote``'s
+    :class:`~vbfe.acquire.recording.remote.Recording`): the station records it."""
+
+    def __init__(self, tab: RecordTab, path: Path) -> None:
+        self.station = tab.station
+        request = dataclasses.replace(tab.remote_request, path=path, duration_s=None)
+        self.station.submit(self.station.start_recording, request).result()
+
+    def mark(self, text: str, t_host_ns: int) -> None:
+        """An event mark (at the host's now)."""
+        self.station.mark(text)
+
+    def stop(self, reason: str = "stopped by remote control") -> str:
+        """Stop and finalize; the one-line summary."""
+        return self.station.submit(self.station.stop_recording, reason).result().line()
+
+
+class RecordTab(Tab):
+    """The session form, the controls and the running recording's numbers."""
+
+    def __init__(self, console: ConsoleWindow) -> None:
+        super().__init__(console)
+        layout = QtWidgets.QVBoxLayout(self)
+        self.root = QtWidgets.QLineEdit(str(console.options.out_dir))
+        self.template = QtWidgets.QLineEdit(DEFAULT_TEMPLATE)
+        self.participant = QtWidgets.QLineEdit("P001")
+        self.task = QtWidgets.QLineEdit("traction")
+        self.operator = QtWidgets.QLineEdit()
+        self.notes = QtWidgets.QLineEdit()
+        self.conditions = QtWidgets.QLineEdit()
+        self.conditions.setPlaceholderText("KEY=VALUE, KEY=VALUE")
+        self.duration = QtWidgets.QDoubleSpinBox()
+        self.duration.setRange(0.0, 24 * 3600.0)
+        self.duration.setSuffix(" s (0: until Stop)")
+        self.next_file = value_label()
+        layout.addLayout(
+            form(
+                [
+                    ("folder", self.root),
+                    ("file template (%p %b %n)", self.template),
+                    ("participant (%p)", self.participant),
+                    ("task (%b)", self.task),
+                    ("operator", self.operator),
+                    ("notes", self.notes),
+                    ("conditions", self.conditions),
+                    ("duration", self.duration),
+                    ("next file", self.next_file),
+                ]
+            )
+        )
+        buttons = QtWidgets.QHBoxLayout()
+        self.start_button = QtWidgets.QPushButton("Start")
+        self.stop_button = QtWidgets.QPushButton("Stop")
+        self.mark_button = QtWidgets.QPushButton("Marker (M)")
+        self.start_button.clicked.connect(self.start)
+        self.stop_button.clicked.connect(self.stop)
+        self.mark_button.clicked.connect(self.add_marker)
+        for button in (self.start_button, self.stop_button, self.mark_button):
+            buttons.addWidget(button)
+        layout.addLayout(buttons)
+        self.numbers = value_label()
+        layout.addWidget(self.numbers)
+        self.remote_label = value_label()
+        layout.addWidget(self.remote_label)
+        self.last = value_label()
+        layout.addWidget(self.last)
+        layout.addStretch(1)
+        self.remote: RemoteControl | None = None
+        self.remote_sessions: RemoteSessions | None = None
+        # the form as remote control's recordings take it (read by its threads, which must
+        # not touch widgets; kept up to date by refresh)
+        self.remote_request = SessionRequest(Path())
+
+    # -- the form -----------------------------------------------------------------------------
+    def options(self) -> dict[str, str]:
+        """The form as remote control's ``filename`` options."""
+        return {
+            "root": self.root.text().strip() or ".",
+            "template": self.template.text().strip() or DEFAULT_TEMPLATE,
+            "participant": self.participant.text().strip(),
+            "task": self.task.text().strip(),
+        }
+
+    def next_path(self) -> Path:
+        """The next session file: the first run number whose file does not exist."""
+        return session_path(first_free_run(self.options()))
+
+    def request(self, path: Path) -> SessionRequest:
+        """A recording of ``path`` with the form's operator, notes, conditions, duration."""
+        pairs = [p.strip() for p in self.conditions.text().split(",") if p.strip()]
+        duration = self.duration.value()
+        return SessionRequest(
+            path,
+            self.operator.text(),
+            self.notes.text(),
+            parse_conditions(pairs),
+            duration if duration > 0 else None,
+        )
+
+    # -- controls -----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Record into the next file."""
+        try:
+            path = self.next_path()
+            request = self.request(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except (VbfeError, OSError) as exc:
+            from vbfe.console.window import error_line
+
+            self.console.message(f"cannot record: {error_line(exc)}", True)
+            return
+        self.console.rig_op(
+            self.station.start_recording,
+            request,
+            on_done=lambda p: self.console.message(f"recording {p}"),
+            what="cannot record",
+        )
+
+    def stop(self) -> None:
+        """Stop and finalize the recording."""
+        if self.station.recording is None:
+            self.console.message("nothing is being recorded", True)
+            return
+        self.console.rig_op(self.station.stop_recording, what="stop")
+
+    def add_marker(self) -> None:
+        """A marker at the host's now ("marker <n>")."""
+        try:
+            self.station.mark(f"marker {self.station.marks + 1}")
+        except VbfeError as exc:
+            self.console.message(str(exc), True)
+            return
+        self.console.message(f"marker {self.station.marks} added")
+
+    # -- remote control -----------------------------------------------------------------------
+    def listen(self, port: int, bind: str = "127.0.0.1") -> int:
+        """Serve ``vbfe record --remote``'s commands on ``port`` (0: any free one); returns it."""
+        self.remote_sessions = RemoteSessions(
+            lambda path: RemoteRecording(self, path), on_message=lambda m: None
+        )
+        self.remote = RemoteControl(self.remote_sessions, port, bind)
+        self.remote_label.setText(f"remote control: listening on {bind}:{self.remote.port}")
+        return self.remote.port
+
+    def close_remote(self) -> None:
+        """Stop listening (the window finalizes a running recording itself)."""
+        if self.remote is not None:
+            self.remote.close()
+            self.remote = None
+
+    # -- view ---------------------------------------------------------------------------------
+    def refresh(self) -> None:
+        try:
+            self.remote_request = self.request(Path())
+        except VbfeError:  # conditions being typed: the last good form stays
+            pass
+        recording = self.station.recording
+        self.start_button.setEnabled(recording is None)
+        self.stop_button.setEnabled(recording is not None)
+        self.mark_button.setEnabled(recording is not None)
+        if not self.isVisible() and recording is None:
+            return
+        try:
+            self.next_file.setText(str(self.next_path()))
+        except VbfeError as exc:
+            self.next_file.setText(str(exc))
+        stats = self.station.stats()
+        if recording is None or stats is None:
+            self.numbers.setText("not recording")
+            return
+        folder = recording.parent
+        free = free_bytes(folder) / 1e9 if os.path.isdir(folder) else float("nan")
+        self.numbers.setText(
+            f"recording {recording}\nelapsed {stats.elapsed_s:.1f} s | {stats.frames} frames, "
+            f"{stats.samples} force samples | {stats.write_rate_mb_s:.1f} MB/s | free disk "
+            f"{free:.1f} GB | dropped {sum(stats.dropped.values())} | "
+            f"markers {self.station.marks}"
+        )
+
+    def on_finished(self, finished: Finished) -> None:
+        self.last.setText(f"last session: {finished.line()}")

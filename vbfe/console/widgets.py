@@ -1,0 +1,74 @@
+"""Small Qt pieces the console's tabs share: image panes and a labelled form."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import pyqtgraph as pg
+from pyqtgraph.Qt import QtCore, QtWidgets
+
+if TYPE_CHECKING:
+    from vbfe.console.station import Finished
+    from vbfe.console.window import ConsoleWindow
+
+
+MAX_SHOWN_WIDTH = 480
+
+
+class ImagePane(pg.GraphicsLayoutWidget):
+    """BGR images side by side, aspect kept, no mouse interaction."""
+
+    def __init__(self, count: int = 1) -> None:
+        super().__init__()
+        self.items = []
+        for _ in range(count):
+            view = self.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
+            item = pg.ImageItem(axisOrder="row-major")
+            view.addItem(item)
+            self.items.append(item)
+
+    def show_bgr(self, index: int, image: np.ndarray) -> None:
+        """Show a BGR (or grey) uint8 image in pane ``index``, reduced to at most
+        :data:`MAX_SHOWN_WIDTH` pixels wide (painting a large image costs the UI thread)."""
+        factor = -(-image.shape[1] // MAX_SHOWN_WIDTH)
+        if factor > 1:
+            size = (image.shape[1] // factor, image.shape[0] // factor)
+            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image
+        self.items[index].setImage(rgb, autoLevels=False, levels=(0, 255))
+
+
+def form(rows: list[tuple[str, QtWidgets.QWidget]]) -> QtWidgets.QFormLayout:
+    """A form layout of ``(label, widget)`` rows."""
+    layout = QtWidgets.QFormLayout()
+    for label, widget in rows:
+        layout.addRow(label, widget)
+    return layout
+
+
+def value_label() -> QtWidgets.QLabel:
+    """A label whose text can be selected (numbers, paths, reasons)."""
+    label = QtWidgets.QLabel()
+    label.setTextInteractionFlags(
+        label.textInteractionFlags() | QtCore.Qt.TextInteractionFlag.TextSelectableByMouse
+    )
+    label.setWordWrap(True)
+    label.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
+    return label
+
+
+class Tab(QtWidgets.QWidget):
+    """A console tab: a view over the console's station, redrawn by the window's timer."""
+
+    def __init__(self, console: ConsoleWindow) -> None:
+        super().__init__()
+        self.console = console
+        self.station = console.station
+
+    def refresh(self) -> None:
+        """Redraw from the station (every timer tick; keep it cheap)."""
+
+    def on_finished(self, finished: Finished) -> None:
+        """A recording ended."""

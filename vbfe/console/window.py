@@ -1,0 +1,207 @@
+"""The console window: the tabs over one :class:`~vbfe.console.station.Station`, a timer that
+polls it, and the one place where work handed to threads comes back (results to the tab that
+asked, failures as a one-line message in the window)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
+
+from vbfe.common.errors import VbfeError
+from vbfe.common.files import os_error_text
+from vbfe.console import TAB_NAMES
+from vbfe.console.station import Finished, Station
+from vbfe.drivers.qt_app import qt_application
+
+
+def error_line(exc: BaseException) -> str:
+    """What went wrong, in one line, as the CLI prints it."""
+    if isinstance(exc, OSError):
+        text = os_error_text(exc)
+    elif isinstance(exc, VbfeError):
+        text = str(exc)
+    else:
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """Work handed to a thread: what to call with its result, or on its failure."""
+
+    future: Future
+    on_done: Callable[[Any], None] | None
+    what: str
+    on_error: Callable[[], None] | None = None
+
+
+@dataclass(frozen=True)
+class ConsoleOptions:
+    """Where the console writes and what it was given.
+
+    :param out_dir: default folder of sessions, views, calibrations and reports.
+    :param stored_calibration: the calibration the GO/NO-GO check compares against.
+    :param overwrite: replace existing calibration files (sessions are never replaced).
+    :param live_when_idle: show the rig live when nothing is recorded (off in headless runs).
+    """
+
+    out_dir: Path
+    stored_calibration: Path | None = None
+    overwrite: bool = False
+    live_when_idle: bool = True
+
+
+class ConsoleWindow(QtWidgets.QMainWindow):
+    """Rig, Live, Record, Calibrate, Sync and Review tabs over ``station``; M marks the
+    recording. Closing the window finalizes a running recording."""
+
+    def __init__(self, station: Station, options: ConsoleOptions, interval_ms: int = 100) -> None:
+        from vbfe.console.calibrate_tab import CalibrateTab
+        from vbfe.console.live_tab import LiveTab
+        from vbfe.console.record_tab import RecordTab
+        from vbfe.console.review_tab import ReviewTab
+        from vbfe.console.rig_tab import RigTab
+        from vbfe.console.sync_tab import SyncTab
+
+        qt_application()
+        super().__init__()
+        self.station, self.options = station, options
+        self.setWindowTitle("vbfe console")
+        self.resize(1100, 720)
+        self.work = ThreadPoolExecutor(1, thread_name_prefix="vbfe-console-work")
+        self._pending: list[_Pending] = []
+        self._settling = False
+        self.finished_hooks: list[Callable[[Finished], None]] = []
+        self.tabs = QtWidgets.QTabWidget()
+        self.rig_tab = RigTab(self)
+        self.live_tab = LiveTab(self)
+        self.record_tab = RecordTab(self)
+        self.calibrate_tab = CalibrateTab(self)
+        self.sync_tab = SyncTab(self)
+        self.review_tab = ReviewTab(self)
+        for name, tab in self.named_tabs().items():
+            self.tabs.addTab(tab, name)
+        self.setCentralWidget(self.tabs)
+        self.message_label = QtWidgets.QLabel()
+        self.message_label.setWordWrap(True)
+        self.statusBar().addWidget(self.message_label, 1)
+        self.errors: list[str] = []
+        self.timer = QtCore.QTimer(self)
+        self.timer.timeout.connect(self.refresh)
+        self.timer.start(interval_ms)
+
+    def named_tabs(self) -> dict[str, QtWidgets.QWidget]:
+        """The tabs by name, in order."""
+        tabs = (
+            self.rig_tab,
+            self.live_tab,
+            self.record_tab,
+            self.calibrate_tab,
+            self.sync_tab,
+            self.review_tab,
+        )
+        return dict(zip(TAB_NAMES, tabs, strict=True))
+
+    # -- work handed to threads ---------------------------------------------------------------
+    def rig_op(
+        self,
+        fn: Callable[..., Any],
+        *args: Any,
+        on_done: Callable[[Any], None] | None = None,
+        what: str = "",
+        on_error: Callable[[], None] | None = None,
+    ) -> None:
+        """Run ``fn(*args)`` on the station's rig thread; ``on_done(result)`` back here (a
+        failure: its message, then ``on_error()``)."""
+        self._pending.append(_Pending(self.station.submit(fn, *args), on_done, what, on_error))
+
+    def work_op(
+        self,
+        fn: Callable[..., Any],
+        *args: Any,
+        on_done: Callable[[Any], None] | None = None,
+        what: str = "",
+        on_error: Callable[[], None] | None = None,
+    ) -> None:
+        """Run long work (calibration, analysis, reports) off the UI thread (as :meth:`rig_op`)."""
+        self._pending.append(_Pending(self.work.submit(fn, *args), on_done, what, on_error))
+
+    def busy(self) -> bool:
+        """Whether work handed to a thread has not come back yet."""
+        return bool(self._pending) or self._settling
+
+    def message(self, text: str, error: bool = False) -> None:
+        """Show ``text`` in the status bar (red for an error)."""
+        self.message_label.setStyleSheet("color: #c00000" if error else "")
+        self.message_label.setText(text)
+        if error:
+            self.errors.append(text)
+
+    # -- polling ------------------------------------------------------------------------------
+    def refresh(self) -> None:
+        """Hand back finished work, finish an acquisition that ended, redraw the tabs."""
+        done = [p for p in self._pending if p.future.done()]
+        self._pending = [p for p in self._pending if not p.future.done()]
+        for p in done:
+            exc = p.future.exception()
+            if exc is not None:
+                self.message(f"{p.what}: {error_line(exc)}" if p.what else error_line(exc), True)
+                if p.on_error is not None:
+                    p.on_error()
+            elif p.on_done is not None:
+                p.on_done(p.future.result())
+        while not self.station.finished.empty():
+            self.recording_finished(self.station.finished.get())
+        if self.station.ended() and not self._settling:
+            self._settling = True
+            self.rig_op(self.station.settle, on_done=self._settled, on_error=self._unsettled)
+        for tab in self.named_tabs().values():
+            tab.refresh()  # type: ignore[attr-defined]
+
+    def _unsettled(self) -> None:
+        self._settling = False
+
+    def _settled(self, result: Finished | str) -> None:
+        self._settling = False
+        if not isinstance(result, Finished):  # a recording's summary comes in station.finished
+            self.message(f"the rig stopped: {result}; reopen it on the Rig tab", True)
+
+    def recording_finished(self, finished: Finished) -> None:
+        """A recording ended (stopped, its duration, a full disk): tell the tabs, go live."""
+        self.message(finished.line())
+        for tab in self.named_tabs().values():
+            tab.on_finished(finished)  # type: ignore[attr-defined]
+        for hook in self.finished_hooks:
+            hook(finished)
+        if self.options.live_when_idle:
+            self.rig_op(self.station.go_live, what="live view")
+
+    # -- Qt events ----------------------------------------------------------------------------
+    def keyPressEvent(self, event: QtGui.QKeyEvent) -> None:  # noqa: N802 - Qt's name
+        """M puts a marker into the recording (text fields keep their letters)."""
+        if event.key() == QtCore.Qt.Key.Key_M:
+            self.record_tab.add_marker()
+            return
+        super().keyPressEvent(event)
+
+    def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802 - Qt's name
+        """Finalize a running recording and close the rig before the window goes."""
+        self.timer.stop()
+        self.calibrate_tab.stop_capture()
+        self.record_tab.close_remote()
+        try:
+            self.station.shutdown()
+        except Exception as exc:  # noqa: BLE001 - shown; the window closes regardless
+            self.message(error_line(exc), True)
+        while not self.station.finished.empty():
+            finished = self.station.finished.get()
+            self.message(finished.line())
+            for hook in self.finished_hooks:
+                hook(finished)
+        self.work.shutdown(wait=True)
+        super().closeEvent(event)
