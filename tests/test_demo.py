@@ -43,7 +43,9 @@ def test_reconstruction_depth_error_is_within_one_percent_of_working_distance(nu
 
 def test_sync_offset_is_measured_against_the_true_offset(numbers):
     rows = numbers["sync"]["sessions"]
-    assert len(rows) == 6
+    assert len(rows) == 6 + 3  # the paper's sessions and the freehand trials
+    freehand = numbers["sync"]["by_protocol"]["freehand"]
+    assert freehand["sessions"] == 3 and freehand["max_abs_error_s"] <= 0.002
     for row in rows:
         assert row["true_offset_s"] == pytest.approx(0.037, abs=0.005)
         low, high = row["ci95_s"]

@@ -39,6 +39,7 @@ from vbfe.common.files import save_figure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass
+SYNC_ESTIMATOR = "viscoelastic-1"  # stored with each result: older results are measured again
 
 
 @dataclass(frozen=True)
@@ -146,6 +147,7 @@ class SyncReport:
             "sync_offset_ci95_high_s": e.ci95_s[1],
             "sync_residual_offset_s": self.residual_offset_s,
             "sync_method": e.method,
+            "sync_estimator": SYNC_ESTIMATOR,
             "sync_verdict": self.verdict.lower(),
             "sync_protocol": "sync" if self.protocol is not None else "traction",
             "sync_reasons": json.dumps(self.reasons),

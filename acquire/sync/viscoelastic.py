@@ -42,14 +42,15 @@ _CORNER_STEP_S = 0.001
 _BETAS = (0.25, 1.0)  # weight of the lagged force in the displacement: starting points
 _TAUS_S = (0.5, 2.0, 6.0)  # lag time constants: starting points
 _COARSE_S = 0.002  # the offset is first searched on this grid
+_LOCAL_S = 0.03  # then the tissue's lag is fitted with offsets this close to that first one
 _SHAPE_KNOTS = 8  # interior knots of the image components' spline in u
 _BLOCK_S = 1.5  # bootstrap block length
-_N_BOOT = 200
+_N_BOOT = 150
 _N_FORCE_BOOT = 20  # refits on resampled force noise (each cleans the force again)
 _FORCE_BLOCK_S = 0.05  # block length of the force's resampled noise
-_REFINE_S = 0.04  # bootstrap refits search this far around the best offset
-_BOOT_BETAS = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0)  # the tissue's lags the bootstrap refits
-_BOOT_TAUS_S = (0.3, 1.0, 3.0, 10.0, 30.0)
+_REFINE_S = 0.03  # bootstrap refits search this far around the best offset
+_BOOT_BETAS = (0.0, 0.5, 2.0)  # the tissue lags the image bootstrap refits besides the best
+_BOOT_TAUS_S = (0.5, 3.0, 20.0)
 _MIN_FRAMES = 20
 METHOD = "viscoelastic model"
 MIN_CORNERS = 6
@@ -110,13 +111,22 @@ def _lag(force: np.ndarray, tau_s: float) -> np.ndarray:
 
 
 def _shape_design(u: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Cubic B-spline basis (… × basis functions) in ``u`` over ``[lo, hi]``."""
-    from scipy.interpolate import BSpline
-
-    inner = np.linspace(lo, hi, _SHAPE_KNOTS + 2)[1:-1]
-    knots = np.concatenate([[lo] * 4, inner, [hi] * 4])
-    flat = np.clip(u.ravel(), lo, hi)
-    return BSpline.design_matrix(flat, knots, 3).toarray().reshape(*u.shape, -1)
+    """Uniform cubic B-spline basis (… × basis functions) in ``u`` over ``[lo, hi]``, with
+    ``_SHAPE_KNOTS`` interior knots."""
+    intervals = _SHAPE_KNOTS + 1
+    s = np.clip((u - lo) / ((hi - lo) or 1.0), 0.0, 1.0) * intervals
+    i = np.minimum(s.astype(int), intervals - 1)
+    f = s - i
+    weights = (
+        np.stack(
+            [(1 - f) ** 3, 3 * f**3 - 6 * f**2 + 4, -3 * f**3 + 3 * f**2 + 3 * f + 1, f**3], axis=-1
+        )
+        / 6.0
+    )
+    out = np.zeros((*u.shape, intervals + 3))
+    columns = i[..., None] + np.arange(4)
+    np.put_along_axis(out, columns, weights, axis=-1)
+    return out
 
 
 def _deviance(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -183,17 +193,23 @@ def model_offset(
         beta, log_tau = params
         return force + abs(beta) * _lag(force, float(np.exp(np.clip(log_tau, -3.0, 4.0))))
 
-    def worst(params: np.ndarray) -> float:
-        return float(_deviance(_design(displacement(params), t, coarse), y).min())
-
     from scipy.optimize import minimize
 
     starts = [np.array([b, np.log(tau)]) for b in _BETAS for tau in _TAUS_S]
-    start = min(starts, key=worst)
+    rough = {}
+    for p in starts:
+        profile = _deviance(_design(displacement(p), t, coarse), y)
+        rough[profile.min()] = (p, float(coarse[int(np.argmin(profile))]))
+    start, centre = rough[min(rough)]
+    local = coarse[np.abs(coarse - centre) <= _LOCAL_S]
+
+    def worst(params: np.ndarray) -> float:
+        return float(_deviance(_design(displacement(params), t, local), y).min())
+
     fit = minimize(worst, start, method="Nelder-Mead", options={"xatol": 0.01, "fatol": 0.1})
     u = displacement(fit.x)
-    rough = float(coarse[int(np.argmin(_deviance(_design(u, t, coarse), y)))])
-    lags = lags[np.abs(lags - rough) <= 5 * _COARSE_S]
+    rough_s = float(local[int(np.argmin(_deviance(_design(u, t, local), y)))])
+    lags = lags[np.abs(lags - rough_s) <= 5 * _COARSE_S]
     profile = _deviance(_design(u, t, lags), y)
     offset = _best(profile, lags)
     x = _design(u, t, np.array([offset]))[0]
