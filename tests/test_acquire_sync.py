@@ -74,7 +74,10 @@ def test_dropped_and_duplicated_frames_are_audited_against_limits(tmp_path):
     assert audit.dropped == 20 and audit.gaps == [(19, 40)]
     assert not report.passed
     assert any("camera dropped" in r for r in report.reasons)
-    lenient = verify_sync(path, limits=SyncLimits(max_frame_drop=0.2), store=False)
+    # lenient on drops, and on the offset so that its whole 95% interval (±4 ms) is within
+    lenient = verify_sync(
+        path, limits=SyncLimits(max_offset_s=0.006, max_frame_drop=0.2), store=False
+    )
     assert lenient.passed, lenient.reasons
 
 

@@ -87,7 +87,7 @@ def _freehand_session(folder, seed):
         height=180,
         fps=10.0,
         protocol="freehand",
-        freehand_duration_s=10.0,
+        freehand_duration_s=15.0,
         textured=True,
         seed=seed,
     )

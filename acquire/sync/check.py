@@ -3,12 +3,13 @@ judge against limits.
 
 A sync protocol session (``vbfe record --protocol sync``) is measured from its taps and
 projector flashes (:mod:`~vbfe.acquire.sync.protocol`) and judged PASS/FAIL. An ordinary traction
-session is measured passively, with two measurements of the same offset (:func:`measure_offset`
-picks one):
-:mod:`~vbfe.acquire.sync.corners` aligns the kinks the image and the force share where a pull
-starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync.changes`
-cross-correlates change signals (any profile with distinct force-change events). Its verdict is
-INCONCLUSIVE rather than FAIL when the offset is too uncertain to judge.
+session is measured passively (:func:`measure_offset` picks how): a session whose force turns
+often (freehand trials: pulls, holds, releases) by one viscoelastic model of the whole session
+(:mod:`~vbfe.acquire.sync.viscoelastic`); a single pull and hold, which cannot tell the tissue's
+creep from the offset, at the kinks the image and the force share where the pull starts or
+stops (:mod:`~vbfe.acquire.sync.corners`) or by cross-correlating change signals
+(:mod:`~vbfe.acquire.sync.changes`). A passive verdict is PASS only when the whole 95% interval
+lies within the limit, FAIL only when it lies beyond, INCONCLUSIVE otherwise.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from vbfe.acquire.sync.protocol import (
     analyse_protocol,
 )
 from vbfe.acquire.sync.streams import stream_offset
+from vbfe.acquire.sync.viscoelastic import METHOD as MODEL_METHOD
 from vbfe.acquire.sync.viscoelastic import model_applies, model_offset
 from vbfe.common.files import save_figure
 
@@ -242,11 +244,17 @@ def _plot(path: Path, report: SyncReport) -> None:
         ax.set_xlabel("time in the session (s)")
         ax.set_ylabel("image time - force time (ms)")
     else:
-        ax.plot(e.lags_s * 1e3, e.correlation, color="tab:blue", label="correlation")
+        model = e.method == MODEL_METHOD
+        ax.plot(
+            e.lags_s * 1e3,
+            e.correlation,
+            color="tab:blue",
+            label="model fit" if model else "correlation",
+        )
         ax.axvline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
         ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2, label="95% CI")
         ax.set_xlabel("image time - force time (ms)")
-        ax.set_ylabel("normalized cross-correlation")
+        ax.set_ylabel("fit: minus deviance per frame" if model else "normalized cross-correlation")
     ax.set_title(f"{report.path.name}: {report.verdict}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()

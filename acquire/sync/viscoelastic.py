@@ -53,7 +53,7 @@ _BOOT_BETAS = (0.0, 0.5, 2.0)  # the tissue lags the image bootstrap refits besi
 _BOOT_TAUS_S = (0.5, 3.0, 20.0)
 _MIN_FRAMES = 20
 METHOD = "viscoelastic model"
-MIN_CORNERS = 6
+MIN_CORNERS = 12  # a 6 s freehand trial (7-8 corners) still fits the tissue lag wrongly
 
 
 def clean_force(t_s: np.ndarray, force: np.ndarray, grid_s: np.ndarray) -> np.ndarray:
