@@ -274,7 +274,7 @@ def measure_offset(
     t_force, forces = reader.force_times_ns(), reader.forces_n()
     t_frames = reader.frame_times_ns()
     components = frame_components(reader)
-    if model_applies(t_force, forces):
+    if model_applies(t_force, forces, len(t_frames)):
         exposure_s = (settings or ProtocolSettings()).exposure_s
         return model_offset(t_frames, components, t_force, forces, exposure_s, max_lag_s=max_lag_s)
     found, errors = [], []

@@ -42,7 +42,6 @@ _CORNER_STEP_S = 0.001
 _BETAS = (0.25, 1.0)  # weight of the lagged force in the displacement: starting points
 _TAUS_S = (0.5, 2.0, 6.0)  # lag time constants: starting points
 _COARSE_S = 0.002  # the offset is first searched on this grid
-_LOCAL_S = 0.03  # then the tissue's lag is fitted with offsets this close to that first one
 _SHAPE_KNOTS = 8  # interior knots of the image components' spline in u
 _BLOCK_S = 1.5  # bootstrap block length
 _N_BOOT = 150
@@ -53,7 +52,9 @@ _BOOT_BETAS = (0.0, 0.5, 2.0)  # the tissue lags the image bootstrap refits besi
 _BOOT_TAUS_S = (0.5, 3.0, 20.0)
 _MIN_FRAMES = 20
 METHOD = "viscoelastic model"
-MIN_CORNERS = 12  # a 6 s freehand trial (7-8 corners) still fits the tissue lag wrongly
+MIN_CORNERS = 6
+FRAMES_PER_COEFFICIENT = 10  # fewer frames than this per shape coefficient: the shape absorbs
+# the offset (6 s freehand trials at 10 fps, 70 frames: errors of -156 … +28 ms)
 
 
 def clean_force(t_s: np.ndarray, force: np.ndarray, grid_s: np.ndarray) -> np.ndarray:
@@ -93,12 +94,15 @@ def _corner_times(t_s: np.ndarray, force: np.ndarray) -> list[float]:
     return [_place_corner(t_s, force, c) for c in force_corners(t_s, smooth)]
 
 
-def model_applies(t_force_ns: np.ndarray, forces: np.ndarray) -> bool:
+def model_applies(t_force_ns: np.ndarray, forces: np.ndarray, n_frames: int) -> bool:
     """Whether the force turns often enough (at least ``MIN_CORNERS`` corners: pulls, holds,
-    releases) for the model to tell the tissue's lag from the offset. A single pull and hold
-    does not: its creep fits many lags, each with its own offset."""
+    releases) for the model to tell the tissue's lag from the offset — a single pull and hold
+    does not: its creep fits many lags, each with its own offset — and there are enough frames
+    for the shape's coefficients."""
+    if n_frames < FRAMES_PER_COEFFICIENT * (_SHAPE_KNOTS + 4) or len(t_force_ns) <= 10:
+        return False
     t_s = (t_force_ns - t_force_ns[0]) / 1e9
-    return len(t_s) > 10 and len(_corner_times(t_s, force_axis(forces))) >= MIN_CORNERS
+    return len(_corner_times(t_s, force_axis(forces))) >= MIN_CORNERS
 
 
 def _lag(force: np.ndarray, tau_s: float) -> np.ndarray:
@@ -195,21 +199,15 @@ def model_offset(
 
     from scipy.optimize import minimize
 
-    starts = [np.array([b, np.log(tau)]) for b in _BETAS for tau in _TAUS_S]
-    rough = {}
-    for p in starts:
-        profile = _deviance(_design(displacement(p), t, coarse), y)
-        rough[profile.min()] = (p, float(coarse[int(np.argmin(profile))]))
-    start, centre = rough[min(rough)]
-    local = coarse[np.abs(coarse - centre) <= _LOCAL_S]
-
     def worst(params: np.ndarray) -> float:
-        return float(_deviance(_design(displacement(params), t, local), y).min())
+        return float(_deviance(_design(displacement(params), t, coarse), y).min())
 
+    starts = [np.array([b, np.log(tau)]) for b in _BETAS for tau in _TAUS_S]
+    start = min(starts, key=worst)
     fit = minimize(worst, start, method="Nelder-Mead", options={"xatol": 0.01, "fatol": 0.1})
     u = displacement(fit.x)
-    rough_s = float(local[int(np.argmin(_deviance(_design(u, t, local), y)))])
-    lags = lags[np.abs(lags - rough_s) <= 5 * _COARSE_S]
+    rough = float(coarse[int(np.argmin(_deviance(_design(u, t, coarse), y)))])
+    lags = lags[np.abs(lags - rough) <= 5 * _COARSE_S]
     profile = _deviance(_design(u, t, lags), y)
     offset = _best(profile, lags)
     x = _design(u, t, np.array([offset]))[0]
