@@ -46,11 +46,11 @@ def test_sync_offset_is_measured_against_the_true_offset(numbers):
     assert len(rows) == 6 + 3  # the paper's sessions and the freehand trials, all checked
     by_protocol = numbers["sync"]["by_protocol"]
     assert by_protocol["pull-hold"]["sessions"] == 6 and by_protocol["freehand"]["sessions"] == 3
-    # the quick demo's 6 s freehand trials turn too few times for the viscoelastic model (the
-    # full demo's 15 s trials do not): they are reported, not scored here
+    # freehand trials: one viscoelastic model of the whole trial (measured -0.80, -1.15 and
+    # -0.99 ms on these three, 95% half-widths 1.7-2.9 ms)
+    assert by_protocol["freehand"]["max_abs_error_s"] <= 0.002
+    assert by_protocol["freehand"]["max_half_width_s"] <= 0.003
     for row in rows:
-        assert row["verdict"] in ("PASS", "FAIL", "INCONCLUSIVE")
-    for row in (r for r in rows if not r["session"].startswith("freehand")):
         assert row["true_offset_s"] == pytest.approx(0.037, abs=0.005)
         low, high = row["ci95_s"]
         assert low <= row["true_offset_s"] <= high, row["session"]

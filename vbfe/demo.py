@@ -272,17 +272,21 @@ def is_freehand(session: Path) -> bool:
     return session.stem.startswith(FREEHAND)
 
 
-def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any]:
+def sync_stage(
+    sessions: list[Path], out: Path, stage: StageFn, config: dict | None = None
+) -> dict[str, Any]:
     """verify-sync on every session (the paper's pull-hold sessions and the freehand trials);
     measured offset against the bench's true offset, overall and per protocol."""
     from vbfe.acquire import SessionReader
     from vbfe.acquire.sync.check import verify_sync
+    from vbfe.acquire.sync.protocol import ProtocolSettings
 
+    settings = ProtocolSettings.from_config(config or {})  # the camera's exposure
     rows = []
     (out / "sync").mkdir(exist_ok=True)
     step = stage("verify sync", len(sessions))
     for path in sessions:
-        report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png")
+        report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png", settings=settings)
         with SessionReader(path) as reader:
             truth = reader.truth("image_minus_force_host_offset_ns")
         true_s = float(np.median(truth)) / 1e9
@@ -568,7 +572,7 @@ def run_demo(
         result.numbers["calibration"]["files"]["calibration"]
     ).to_yaml_text()
     sessions = record_stage(config, out, plan, yaml_text, stage)
-    result.numbers["sync"] = sync_stage(sessions, out, stage)
+    result.numbers["sync"] = sync_stage(sessions, out, stage, config)
     result.numbers["sync_protocol"] = protocol_stage(config, out, plan, stage)
     result.numbers["reconstruction"] = reconstruct_stage(sessions, plan, config, stage)
     result.numbers["force"] = estimate_stage(sessions, out, plan, config, stage)

@@ -53,8 +53,8 @@ _BOOT_TAUS_S = (0.5, 3.0, 20.0)
 _MIN_FRAMES = 20
 METHOD = "viscoelastic model"
 MIN_CORNERS = 6
-FRAMES_PER_COEFFICIENT = 10  # fewer frames than this per shape coefficient: the shape absorbs
-# the offset (6 s freehand trials at 10 fps, 70 frames: errors of -156 … +28 ms)
+FRAMES_PER_COEFFICIENT = 5  # fewer frames than this per shape coefficient: too few to fit
+# the shape and the offset apart (6 s freehand trials at 10 fps, 70 frames, still fit)
 
 
 def clean_force(t_s: np.ndarray, force: np.ndarray, grid_s: np.ndarray) -> np.ndarray:
