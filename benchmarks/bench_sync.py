@@ -7,12 +7,19 @@ many taps are enough. Analysis time is a ratio: verify-sync over reading the fra
 
     python benchmarks/bench_sync.py [--events 5 10 20 40 --seeds 3]
 
-With ``--passive``: records one traction session per (paper condition, seed) through ``record_session`` with the default
-``[bench]`` table (size, rate and hold overridable), runs :func:`verify_sync` and prints, per
-session, the measured image−force offset against the true one (difference of the median
-latencies, 37 ms by default), whether the 95% interval holds the truth, and the camera/trocar
-drift estimates (± standard error) against the bench's; then the spread of the errors. Time is
-reported as a ratio: verify-sync time over the time to read the session's frames once.
+With ``--protocols``: per protocol, the passive offset's error, 95% half-width and coverage:
+``--freehand`` textured freehand trials (20) and ``--seeds`` pull-hold sessions per paper
+condition (6: the demo's 18), recorded as the demo records them (seeds, texture).
+
+    python benchmarks/bench_sync.py --protocols [--width 640 --height 360 --fps 10]
+
+With ``--passive``: records one traction session per (paper condition, seed) through
+``record_session`` with the default ``[bench]`` table (size, rate and hold overridable), runs
+:func:`verify_sync` and prints, per session, the measured image−force offset against the true
+one (difference of the median latencies, 37 ms by default), whether the 95% interval holds the
+truth, and the camera/trocar drift estimates (± standard error) against the bench's; then the
+spread of the errors. Time is reported as a ratio: verify-sync time over the time to read the
+session's frames once.
 
     python benchmarks/bench_sync.py --passive [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
 """
@@ -34,6 +41,7 @@ from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.common.config import load_config
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
+from vbfe.truth import trial_duration_s
 
 
 def _read_time(path: Path) -> float:
@@ -151,6 +159,75 @@ def passive(args: argparse.Namespace) -> None:
     )
 
 
+def _passive_row(path: Path) -> tuple[float, float, bool, str]:
+    """verify-sync on one session: error against the bench's true offset, 95% half-width,
+    whether the interval holds the truth, and the method."""
+    with SessionReader(path) as reader:
+        true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+    e = verify_sync(path, store=False).estimate
+    return (
+        e.offset_s - true_s,
+        (e.ci95_s[1] - e.ci95_s[0]) / 2,
+        e.ci95_s[0] <= true_s <= e.ci95_s[1],
+        e.method,
+    )
+
+
+def protocols(args: argparse.Namespace) -> None:
+    """Per protocol (freehand trials, the paper's pull-hold sessions), the passive offset's
+    error, 95% half-width and coverage, as the demo records them (textured freehand trials)."""
+    config = load_config(None)
+    config["bench"].update(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold)
+    config["record"]["min_free_gb"] = 0.0
+    runs = {
+        "freehand": [
+            {
+                "protocol": "freehand",
+                "freehand_duration_s": args.freehand_s,
+                "textured": True,
+                "seed": 101 + i,
+            }
+            for i in range(args.freehand)
+        ],
+        "pull-hold": [
+            {"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": 1 + i}
+            for i, (k, v) in enumerate([(k, v) for k, v in PAPER_CONDITIONS.items()] * args.seeds)
+        ],
+    }
+    print(
+        f"{'protocol':>9} {'sessions':>8} {'|error| median/max (ms)':>24} "
+        f"{'half-width median/max (ms)':>27} {'covers':>7} {'verify (s)':>10}"
+    )
+    with tempfile.TemporaryDirectory() as folder:
+        for name, benches in runs.items():
+            rows, times = [], []
+            for i, bench in enumerate(benches):
+                run = copy.deepcopy(config)
+                run["bench"].update(bench)
+                path = Path(folder) / f"{name}{i}.h5"
+                record_session(run, path, duration_s=trial_duration_s(run))
+                start = time.perf_counter()
+                rows.append(_passive_row(path))
+                times.append(time.perf_counter() - start)
+                err, half, covers, method = rows[-1]
+                print(
+                    f"  {name} {i}: error {1e3 * err:+.2f} ms, 95% half-width "
+                    f"{1e3 * half:.2f} ms, {'holds' if covers else 'MISSES'} the truth ({method})",
+                    flush=True,
+                )
+                path.unlink()
+            if not rows:
+                continue
+            err, half, covers, _ = (np.array(c) for c in zip(*rows, strict=True))
+            err, half = 1e3 * np.abs(err), 1e3 * half
+            print(
+                f"{name:>9} {len(rows):>8} {np.median(err):>11.2f} / {err.max():<10.2f}"
+                f"{np.median(half):>13.2f} / {half.max():<11.2f}"
+                f"{int(covers.sum()):>3}/{len(rows):<3} {np.mean(times):>10.1f}",
+                flush=True,
+            )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -163,6 +240,13 @@ def main() -> None:
     parser.add_argument(
         "--passive", action="store_true", help="measure traction sessions passively instead"
     )
+    parser.add_argument(
+        "--protocols",
+        action="store_true",
+        help="passive error, interval and coverage per protocol (freehand, pull-hold)",
+    )
+    parser.add_argument("--freehand", type=int, default=20, help="freehand trials (--protocols)")
+    parser.add_argument("--freehand-s", type=float, default=15.0, help="freehand trial length")
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=360)
     parser.add_argument("--fps", type=float, default=30.0)
@@ -174,7 +258,10 @@ def main() -> None:
         help="sessions per event count (3) or per paper condition (2)",
     )
     args = parser.parse_args()
-    if args.passive:
+    if args.protocols:
+        args.seeds = 6 if args.seeds is None else args.seeds
+        protocols(args)
+    elif args.passive:
         args.seeds = args.seeds or 2
         passive(args)
     else:

@@ -3,7 +3,8 @@
 Print a board → capture calibration views → calibrate the endoscope and the projector →
 record traction sessions over the paper's conditions and freehand trials (varying speed,
 releases, holds at random forces, stiffness and grasp drawn per trial) → verify sync (passively
-on the paper's sessions, and on one sync protocol session of taps and flashes) → reconstruct →
+on every session, freehand trials included, and on one sync protocol session of taps and
+flashes) → reconstruct →
 train on both → evaluate held-out paper sessions and held-out freehand trials apart → one
 ``index.html`` with every number next to its truth and the paper's figures.
 """
@@ -271,16 +272,21 @@ def is_freehand(session: Path) -> bool:
     return session.stem.startswith(FREEHAND)
 
 
-def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any]:
-    """verify-sync on every session; measured offset against the bench's true offset."""
+def sync_stage(
+    sessions: list[Path], out: Path, stage: StageFn, config: dict | None = None
+) -> dict[str, Any]:
+    """verify-sync on every session (the paper's pull-hold sessions and the freehand trials);
+    measured offset against the bench's true offset, overall and per protocol."""
     from vbfe.acquire import SessionReader
     from vbfe.acquire.sync.check import verify_sync
+    from vbfe.acquire.sync.protocol import ProtocolSettings
 
+    settings = ProtocolSettings.from_config(config or {})  # the camera's exposure
     rows = []
     (out / "sync").mkdir(exist_ok=True)
     step = stage("verify sync", len(sessions))
     for path in sessions:
-        report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png")
+        report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png", settings=settings)
         with SessionReader(path) as reader:
             truth = reader.truth("image_minus_force_host_offset_ns")
         true_s = float(np.median(truth)) / 1e9
@@ -299,10 +305,29 @@ def sync_stage(sessions: list[Path], out: Path, stage: StageFn) -> dict[str, Any
         )
         step(1)
     errors = np.abs([r["error_s"] for r in rows])
+    kinds = {
+        kind: [r for r in rows if is_freehand(Path(r["session"])) == (kind == FREEHAND)]
+        for kind in ("pull-hold", FREEHAND)
+    }
     return {
         "sessions": rows,
         "max_abs_error_s": float(errors.max()),
         "median_abs_error_s": float(np.median(errors)),
+        "by_protocol": {
+            kind: {
+                "sessions": len(chosen),
+                "max_abs_error_s": float(max(abs(r["error_s"]) for r in chosen)),
+                "median_abs_error_s": float(np.median([abs(r["error_s"]) for r in chosen])),
+                "max_half_width_s": float(
+                    max((r["ci95_s"][1] - r["ci95_s"][0]) / 2 for r in chosen)
+                ),
+                "covered": sum(
+                    r["ci95_s"][0] <= r["true_offset_s"] <= r["ci95_s"][1] for r in chosen
+                ),
+            }
+            for kind, chosen in kinds.items()
+            if chosen
+        },
     }
 
 
@@ -509,7 +534,9 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
     for path in sessions:
         frames = report.frames[str(path)]
         with SessionReader(path) as reader:
-            phase_at = dict(zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False))
+            phase_at = dict(
+                zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False)
+            )
         phases.append(np.array([phase_at[t] for t in frames["times_ns"].tolist()]))
         rows.append(frames)
     phase = np.concatenate(phases)
@@ -545,7 +572,7 @@ def run_demo(
         result.numbers["calibration"]["files"]["calibration"]
     ).to_yaml_text()
     sessions = record_stage(config, out, plan, yaml_text, stage)
-    result.numbers["sync"] = sync_stage([s for s in sessions if not is_freehand(s)], out, stage)
+    result.numbers["sync"] = sync_stage(sessions, out, stage, config)
     result.numbers["sync_protocol"] = protocol_stage(config, out, plan, stage)
     result.numbers["reconstruction"] = reconstruct_stage(sessions, plan, config, stage)
     result.numbers["force"] = estimate_stage(sessions, out, plan, config, stage)

@@ -3,12 +3,13 @@ judge against limits.
 
 A sync protocol session (``vbfe record --protocol sync``) is measured from its taps and
 projector flashes (:mod:`~vbfe.acquire.sync.protocol`) and judged PASS/FAIL. An ordinary traction
-session is measured passively, with two measurements of the same offset (:func:`measure_offset`
-picks one):
-:mod:`~vbfe.acquire.sync.corners` aligns the kinks the image and the force share where a pull
-starts or stops (sharp, sub-frame, the traction protocol's case); :mod:`~vbfe.acquire.sync.changes`
-cross-correlates change signals (any profile with distinct force-change events). Its verdict is
-INCONCLUSIVE rather than FAIL when the offset is too uncertain to judge.
+session is measured passively (:func:`measure_offset` picks how): a session whose force turns
+often (freehand trials: pulls, holds, releases) by one viscoelastic model of the whole session
+(:mod:`~vbfe.acquire.sync.viscoelastic`); a single pull and hold, which cannot tell the tissue's
+creep from the offset, at the kinks the image and the force share where the pull starts or
+stops (:mod:`~vbfe.acquire.sync.corners`) or by cross-correlating change signals
+(:mod:`~vbfe.acquire.sync.changes`). A passive verdict is PASS only when the whole 95% interval
+lies within the limit, FAIL only when it lies beyond, INCONCLUSIVE otherwise.
 """
 
 from __future__ import annotations
@@ -34,10 +35,13 @@ from vbfe.acquire.sync.protocol import (
     analyse_protocol,
 )
 from vbfe.acquire.sync.streams import stream_offset
+from vbfe.acquire.sync.viscoelastic import METHOD as MODEL_METHOD
+from vbfe.acquire.sync.viscoelastic import model_applies, model_offset
 from vbfe.common.files import save_figure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass
+SYNC_ESTIMATOR = "viscoelastic-1"  # stored with each result: older results are measured again
 
 
 @dataclass(frozen=True)
@@ -145,6 +149,7 @@ class SyncReport:
             "sync_offset_ci95_high_s": e.ci95_s[1],
             "sync_residual_offset_s": self.residual_offset_s,
             "sync_method": e.method,
+            "sync_estimator": SYNC_ESTIMATOR,
             "sync_verdict": self.verdict.lower(),
             "sync_protocol": "sync" if self.protocol is not None else "traction",
             "sync_reasons": json.dumps(self.reasons),
@@ -239,11 +244,17 @@ def _plot(path: Path, report: SyncReport) -> None:
         ax.set_xlabel("time in the session (s)")
         ax.set_ylabel("image time - force time (ms)")
     else:
-        ax.plot(e.lags_s * 1e3, e.correlation, color="tab:blue", label="correlation")
+        model = e.method == MODEL_METHOD
+        ax.plot(
+            e.lags_s * 1e3,
+            e.correlation,
+            color="tab:blue",
+            label="model fit" if model else "correlation",
+        )
         ax.axvline(e.offset_s * 1e3, color="tab:red", label=f"offset {e.offset_s * 1e3:+.2f} ms")
         ax.axvspan(e.ci95_s[0] * 1e3, e.ci95_s[1] * 1e3, color="tab:red", alpha=0.2, label="95% CI")
         ax.set_xlabel("image time - force time (ms)")
-        ax.set_ylabel("normalized cross-correlation")
+        ax.set_ylabel("fit: minus deviance per frame" if model else "normalized cross-correlation")
     ax.set_title(f"{report.path.name}: {report.verdict}")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
@@ -253,16 +264,22 @@ def _plot(path: Path, report: SyncReport) -> None:
         plt.close(fig)
 
 
-def measure_offset(reader: SessionReader, max_lag_s: float = 0.25) -> OffsetEstimate:
-    """The offset from the force corners when they pin it to within a frame period (95%
-    interval), else the better determined of the corner and the change-correlation measurement."""
+def measure_offset(
+    reader: SessionReader, max_lag_s: float = 0.25, settings: ProtocolSettings | None = None
+) -> OffsetEstimate:
+    """The offset from the viscoelastic model of the whole session when the force has enough
+    pulls, holds and releases to pin the tissue's lag (:func:`model_applies`); else from the
+    force corners when they pin it to within a frame period (95% interval), else the better
+    determined of the corner and the change-correlation measurement."""
     t_force, forces = reader.force_times_ns(), reader.forces_n()
     t_frames = reader.frame_times_ns()
+    components = frame_components(reader)
+    if model_applies(t_force, forces, len(t_frames)):
+        exposure_s = (settings or ProtocolSettings()).exposure_s
+        return model_offset(t_frames, components, t_force, forces, exposure_s, max_lag_s=max_lag_s)
     found, errors = [], []
     try:
-        found.append(
-            corner_offset(t_frames, frame_components(reader), t_force, forces, max_lag_s=max_lag_s)
-        )
+        found.append(corner_offset(t_frames, components, t_force, forces, max_lag_s=max_lag_s))
     except SessionError as err:
         errors.append(str(err))
     period_s = float(np.median(np.diff(t_frames))) / 1e9
@@ -311,7 +328,8 @@ def _verdict(
     limits: SyncLimits,
 ) -> tuple[str, list[str]]:
     """PASS/FAIL (protocol sessions, or any definite failure) or INCONCLUSIVE (a passive
-    estimate too uncertain to judge), with the reasons."""
+    estimate too uncertain to judge), with the reasons. A passive estimate passes only when
+    its whole 95% interval lies within the limit and fails only when it lies beyond it."""
     half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
     low, high = (c - (estimate.offset_s - residual) for c in estimate.ci95_s)
     failures, doubts = [], []
@@ -319,6 +337,11 @@ def _verdict(
         text = f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms"
         definite = low > limits.max_offset_s or high < -limits.max_offset_s
         (failures if definite or protocol is not None else doubts).append(text)
+    elif protocol is None and (low < -limits.max_offset_s or high > limits.max_offset_s):
+        doubts.append(
+            f"offset {1e3 * residual:+.2f} ms but its 95% CI {1e3 * low:+.2f} … "
+            f"{1e3 * high:+.2f} ms reaches beyond ±{1e3 * limits.max_offset_s:g} ms"
+        )
     if half_ci > limits.max_ci_halfwidth_s:
         text = (
             f"offset uncertain: 95% CI half-width {1e3 * half_ci:.2f} ms exceeds "
@@ -390,7 +413,7 @@ def verify_sync(
             protocol = analyse_protocol(reader, settings or ProtocolSettings(), max(max_lag_s, 0.3))
             estimate = _tap_estimate(protocol, Path(path))
         else:
-            estimate = measure_offset(reader, max_lag_s)
+            estimate = measure_offset(reader, max_lag_s, settings)
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}

@@ -10,7 +10,7 @@ from typing import Any
 import cv2
 
 from vbfe.acquire.session.reader import SessionReader
-from vbfe.acquire.sync.check import SyncLimits, verify_sync
+from vbfe.acquire.sync.check import SYNC_ESTIMATOR, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.batch.errors import BatchError
 from vbfe.common.files import check_outputs
@@ -75,7 +75,9 @@ class VerifySyncTask:
         with SessionReader(session) as reader:
             stored = reader.analysis()
         same_limits = (
-            stored.get("sync_limits") and json.loads(stored["sync_limits"]) == limits.__dict__
+            stored.get("sync_limits")
+            and json.loads(stored["sync_limits"]) == limits.__dict__
+            and stored.get("sync_estimator") == SYNC_ESTIMATOR
         )
         if same_limits and plot.exists() and not (self.apply or self.overwrite):
             return {

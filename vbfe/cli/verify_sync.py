@@ -27,7 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--plot",
         metavar="PNG",
         default=None,
-        help="plot of the offset measurement (default: SESSION.sync.png)",
+        help="plot of the offset measurement (default: SESSION.sync.png); with several "
+        "sessions, the dataset plot: each session's offset in recording order (default for "
+        "a manifest: MANIFEST.sync.png)",
     )
     parser.add_argument(
         "--apply",
@@ -53,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the report(s); exit code 0 PASS, 1 FAIL, 3 INCONCLUSIVE (the worst of many)."""
+    """Print the report(s); exit code 0 PASS, 1 FAIL (or, over several sessions, a step in
+    the offset between two of them), 3 INCONCLUSIVE (the worst of many)."""
     from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import expand_sessions
 
@@ -78,13 +81,18 @@ def run(args: argparse.Namespace) -> int:
                 f"{report.config_suggestion()}"
             )
         return EXIT_CODES.get(report.verdict, 3)
-    if args.plot or args.no_store:
+    if args.no_store:
         raise BatchError(
-            "--plot and --no-store take a single session; with several, each "
-            "result is stored in its session and plotted next to it"
+            "--no-store takes a single session; with several, each result is stored in its "
+            "session (the dataset view reads them back)"
         )
     from vbfe.batch.tasks import VerifySyncTask
 
+    plot = args.plot or next(
+        (str(Path(s).with_suffix(".sync.png")) for s in args.sessions if s.endswith(".csv")), None
+    )
+    if plot:
+        check_outputs([plot], sessions, args.overwrite)
     executor, address = batch_settings(args, config.get("batch", {}))
     task = VerifySyncTask(
         limits=dict(limits.__dict__),
@@ -101,4 +109,28 @@ def run(args: argparse.Namespace) -> int:
         "verify-sync",
         lambda v: f"{v['verdict']} offset {v['offset_ms']:+.2f} ms ({v['action']})",
     )
-    return max(EXIT_CODES.get(o.value["verdict"], 3) for o in outcomes)
+    code = max(EXIT_CODES.get(o.value["verdict"], 3) for o in outcomes)
+    return max(code, _dataset_view(sessions, limits, plot))
+
+
+def _dataset_view(sessions: list[Path], limits: SyncLimits, plot: str | None) -> int:
+    """Print the offsets in recording order and the steps between sessions, plot them; 1 when
+    a step is flagged."""
+    from vbfe.acquire.sync.dataset import find_steps, in_recording_order, plot_offsets
+
+    offsets = in_recording_order(sessions)
+    steps = find_steps(offsets, limits.max_offset_s)
+    print("recording order (offset, 95% CI, verdict):")
+    for s in offsets:
+        print(
+            f"  {s.path.name}: {1e3 * s.offset_s:+.2f} ms ({1e3 * s.ci95_s[0]:+.2f} … "
+            f"{1e3 * s.ci95_s[1]:+.2f}) {s.verdict}"
+        )
+    for step in steps:
+        print(step.text())
+    if not steps:
+        print(f"no step between sessions (none beyond ±{1e3 * limits.max_offset_s:g} ms)")
+    if plot:
+        plot_offsets(plot, offsets, steps)
+        print(f"plot: {plot}")
+    return 1 if steps else 0
