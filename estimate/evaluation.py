@@ -92,6 +92,8 @@ class EvaluationReport:
     split_description: str = ""  # how the model's training data was split
     # session → {"times_ns", "frame_index", "measured_n", method: predicted force}
     frames: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    # frames flagged outside the training data: {"overall": ..., "per_condition": ...}
+    out_of_distribution: dict[str, Any] = field(default_factory=dict)
 
     def mae_n(self, method: str = "pointnet") -> float:
         """Overall MAE of one method (a candidate, a baseline, or ``selected``)."""
@@ -384,4 +386,5 @@ def evaluate(
         files=[metrics_path, csv_path, md_path, html_path, *plots],
         split_description=split_note,
         frames=frames,
+        out_of_distribution=flags,
     )

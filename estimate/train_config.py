@@ -79,7 +79,8 @@ class TrainConfig:
     interval_coverage: float = setting(0.9, gt=0, lt=1)  # prediction intervals' coverage
     interval_scale: Literal[INTERVAL_SCALES] = "none"  # their width: constant, or with |F|
     # selection (and the intervals' calibration) on the validation part needs this many frames
-    # from at least two sessions; else on blocked folds of the training part
+    # from at least two sessions; else on blocked folds of the training part (0: always on
+    # the validation part)
     select_min_val_frames: int = setting(300, ge=0)
     select_folds: int = setting(5, ge=3)  # those blocked folds (sessions, or blocks in time)
 

@@ -96,6 +96,7 @@ class TrainResult:
     fit_seconds: dict[str, float] = field(default_factory=dict)  # wall time per fit
     notes: list[str] = field(default_factory=list)
     cross_validation: dict[str, Any] | None = None
+    intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
 
 
 def use_threads(threads: int) -> None:
@@ -347,7 +348,9 @@ def fit_split(
     }
     held: dict[str, np.ndarray] = {}
     measured, where = np.zeros((0, config.n_outputs)), "validation"
-    if n_val < config.select_min_val_frames or len(val_parts) < 2:
+    if config.select_min_val_frames and (
+        n_val < config.select_min_val_frames or len(val_parts) < 2
+    ):
         held, measured, where = _out_of_fold(names, train_parts, config)
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
@@ -514,4 +517,5 @@ def train(
         fit_seconds=fit.fit_seconds,
         notes=fit.notes,
         cross_validation=cv,
+        intervals=fit.intervals,
     )
