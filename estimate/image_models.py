@@ -82,15 +82,17 @@ class RidgeThumbnail:
 
 
 def _thin_svd(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.linalg.svd(x, full_matrices=False)`` without the zero singular values; with fewer
-    rows than columns from the rows' Gram matrix (frames × frames, many times faster)."""
-    if x.shape[0] >= x.shape[1]:
-        return np.linalg.svd(x, full_matrices=False)
-    eigenvalues, u = np.linalg.eigh(x @ x.T)
+    """``np.linalg.svd(x, full_matrices=False)`` without the (near) zero singular values, from
+    the eigenvectors of the smaller Gram matrix (frames × frames or columns × columns): many
+    times faster than LAPACK's SVD of the tall or wide matrix."""
+    wide = x.shape[0] < x.shape[1]
+    eigenvalues, vectors = np.linalg.eigh(x @ x.T if wide else x.T @ x)
     keep = eigenvalues > max(float(eigenvalues[-1]), 0.0) * 1e-12
     sv = np.sqrt(eigenvalues[keep])
-    u = u[:, keep]
-    return u, sv, (x.T @ u / sv).T
+    vectors = vectors[:, keep]
+    if wide:
+        return vectors, sv, (x.T @ vectors / sv).T
+    return x @ vectors / sv, sv, vectors.T
 
 
 def _ridge_solve(
