@@ -387,7 +387,7 @@ def select(names: list[str], scores: dict[str, float], where: str, auto: bool) -
     model ships with a warning)."""
     best = min(names, key=lambda name: scores[name])
     baselines = {n: v for n, v in scores.items() if n not in CANDIDATES.values()}
-    best_baseline = min(baselines, key=baselines.get)
+    best_baseline = min(baselines, key=lambda n: baselines[n])
     how = "forced by --model" if not auto else f"best of {len(names)} candidates"
     line = f"selected model: {best} ({how}), {where} MAE {scores[best]:.3f} N"
     if scores[best] <= baselines[best_baseline]:

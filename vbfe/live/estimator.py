@@ -28,6 +28,7 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
 STAGES = ("scale", "reconstruct", "prepare", "model")
+_NO_BOUNDS = np.full(0, np.nan)  # LiveEstimate without an interval
 
 
 @dataclass(frozen=True)
@@ -41,14 +42,14 @@ class LiveEstimate:
     t_ready_host_ns: int  # time.monotonic_ns() when the estimate was ready
     stage_s: tuple[float, ...]  # durations of STAGES
     n_points: int
-    lo_n: np.ndarray | None = None  # (outputs,) interval; None: NaN (the model has none)
-    hi_n: np.ndarray | None = None
+    lo_n: np.ndarray = _NO_BOUNDS  # (outputs,) interval; not given: NaN (the model has none)
+    hi_n: np.ndarray = _NO_BOUNDS
     ood: bool = False  # the frame is outside the training data
     novelty_m: float = float("nan")  # its distance from the training frames
 
     def __post_init__(self) -> None:
         for name in ("lo_n", "hi_n"):
-            if getattr(self, name) is None:
+            if getattr(self, name) is _NO_BOUNDS:
                 object.__setattr__(self, name, np.full_like(self.force_n, np.nan, np.float64))
 
     @property
