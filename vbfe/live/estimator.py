@@ -42,8 +42,9 @@ class LiveEstimate:
     t_ready_host_ns: int  # time.monotonic_ns() when the estimate was ready
     stage_s: tuple[float, ...]  # durations of STAGES
     n_points: int
-    lo_n: np.ndarray = _NO_BOUNDS  # (outputs,) interval; not given: NaN (the model has none)
-    hi_n: np.ndarray = _NO_BOUNDS
+    # (outputs,) prediction interval; not given: NaN (the model has none)
+    lo_n: np.ndarray = field(default_factory=lambda: _NO_BOUNDS)
+    hi_n: np.ndarray = field(default_factory=lambda: _NO_BOUNDS)
     ood: bool = False  # the frame is outside the training data
     novelty_m: float = float("nan")  # its distance from the training frames
 
