@@ -1,7 +1,9 @@
 """A flag on frames unlike anything a model was trained on.
 
 A frame is described by what every estimator reads of the surface (metres): the depth-change
-image pooled to ``THUMB_CELLS`` × ``THUMB_CELLS`` cells (mean change per cell), the peak surface
+image pooled to ``THUMB_CELLS`` × ``THUMB_CELLS`` cells (mean change per cell), its cells sorted
+from the largest change down (how much of the surface moved how far, wherever the grasp sits:
+trials differ in where the tissue is taken, not only in how it deforms), the peak surface
 displacement and, when the training frames had one, the peak displacement tracked in the
 texture. Its novelty is the distance to its ``K``-th nearest training frame. The threshold is
 the ``QUANTILE`` of the same distance for the training frames themselves, each measured against
@@ -48,7 +50,10 @@ def _vectors(
     total = total.reshape(shape).sum(axis=(2, 4))
     count = count.reshape(shape).sum(axis=(2, 4))
     thumb = np.where(count > 0, total / np.maximum(count, 1), 0.0).reshape(len(total), -1)
-    columns = [thumb, np.nan_to_num(np.asarray(displacement_m, np.float64))[:, None]]
+    columns = [
+        -np.sort(-thumb, axis=1),
+        np.nan_to_num(np.asarray(displacement_m, np.float64))[:, None],
+    ]
     if texture_m is not None:
         columns.append(np.asarray(texture_m, np.float64)[:, None])  # NaN kept: lost texture
     return np.concatenate(columns, axis=1)

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
+from vbfe.common.config import default_config
 from vbfe.estimate.dataset import prepare_sessions
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
@@ -17,7 +19,10 @@ from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import select, train
+from vbfe.live.estimator import FrameEstimator
 from vbfe.live.predictor import LivePredictor
+from vbfe.recon import reconstruct_session
+from vbfe.truth import calibration_from_rig, true_rig
 
 FAST = dict(
     val_fraction=0.0,
@@ -230,3 +235,57 @@ def test_ninety_percent_intervals_cover_ninety_percent_of_new_trials(tmp_path):
     assert 0.86 <= np.mean(coverage) <= 0.94, coverage
     mae = np.abs(predicted - measured).mean()
     assert np.mean(widths) < 10 * mae  # an interval, not the whole force range
+
+
+def _record_trial(folder, name, seed, stiffness, speed, hold_s):
+    """A traction trial on the simulated bench at 320×180, 4 fps, reconstructed; and its
+    calibration."""
+    config = default_config()
+    config["bench"].update(
+        width=320,
+        height=180,
+        fps=4.0,
+        seed=seed,
+        stiffness_n_per_m=stiffness,
+        pull_speed_m_per_s=speed,
+        rest_s=0.1,
+        hold_s=hold_s,
+    )
+    calibration = calibration_from_rig(true_rig(config))
+    path = folder / f"{name}.h5"
+    duration = 0.1 + 3.0 / (stiffness * speed) + hold_s  # rest, pull to 3 N, hold
+    record_session(config, path, duration_s=duration, calibration_yaml=calibration.to_yaml_text())
+    reconstruct_session(path, workers=1)
+    return path, calibration
+
+
+@pytest.mark.slow
+def test_bench_trial_on_a_far_softer_tissue_is_flagged_live_and_in_evaluate(tmp_path):
+    """Ridge trained on eight bench trials of 120–250 N/m tissue; held out: two more of the
+    same and one of 40 N/m (the same 3 N pull moves it three to six times further)."""
+    rng = np.random.default_rng(0)
+    in_range = []
+    for i in range(10):
+        stiffness, speed = rng.uniform(120, 250), rng.uniform(0.01, 0.02)
+        in_range.append(_record_trial(tmp_path, f"in{i}", i, stiffness, speed, 0.8)[0])
+    soft, calibration = _record_trial(tmp_path, "soft", 99, 40.0, 0.02, 1.5)
+    model_path = tmp_path / "m.pt"
+    train(in_range[:8], model_path, TrainConfig(model="ridge", **FAST))
+    report = evaluate(model_path, [*in_range[8:], soft], tmp_path / "eval")
+    flags = report.out_of_distribution["per_condition"]
+    soft_flags = flags.pop("40 N/m @ 0.02 m/s")
+    assert soft_flags["share"] > 0.5
+    assert sum(v["flagged"] for v in flags.values()) < 0.1 * sum(
+        v["n_frames"] for v in flags.values()
+    )
+    # vbfe live on the soft trial's frames: the same flags, each estimate with its interval
+    model = load_model(model_path)
+    live = FrameEstimator(model, calibration)
+    with SessionReader(soft) as reader:
+        estimates = [live.estimate(frame) for frame in reader.iter_frames()]
+    usable = [e for e in estimates if np.isfinite(e.force_n).all()]
+    half = model.interval().quantile
+    for e in usable:
+        np.testing.assert_allclose([e.lo_n, e.hi_n], [e.force_n - half, e.force_n + half])
+    shown = report.frames[str(soft)]["ood"]
+    assert sum(e.ood for e in usable) == pytest.approx(shown.sum(), abs=2)
