@@ -261,16 +261,18 @@ def _measured(parts: Parts) -> np.ndarray:
 
 def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Parts, Parts]]:
     """(training, held-out) parts of blocked folds of ``parts``: whole sessions dealt to
-    ``folds`` folds when there are that many sessions, else every session cut into ``folds``
-    contiguous blocks in time (``gap_frames`` each side of a held-out block left out)."""
-    if len(parts) >= folds:
-        fold_of = np.arange(len(parts)) % folds
+    ``folds`` folds (as many as there are sessions, if fewer), or, with one session, the
+    session cut into ``folds`` contiguous blocks in time (``gap_frames`` each side of a
+    held-out block left out)."""
+    if len(parts) >= 2:
+        n = min(folds, len(parts))
+        fold_of = np.arange(len(parts)) % n
         return [
             (
                 [p for p, f in zip(parts, fold_of, strict=True) if f != k],
                 [p for p, f in zip(parts, fold_of, strict=True) if f == k],
             )
-            for k in range(folds)
+            for k in range(n)
         ]
     out = []
     for k in range(folds):
@@ -307,7 +309,7 @@ def _out_of_fold(
         measured.append(_measured(held))
     n = len(folds)
     complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
-    kind = "sessions" if len(train_parts) >= config.select_folds else "blocks in time"
+    kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
     where = f"{n} blocked folds of the training part ({kind})"
     return complete, np.concatenate(measured) if n else np.zeros((0, 1)), where
 

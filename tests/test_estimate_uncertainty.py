@@ -18,7 +18,7 @@ from vbfe.estimate.intervals import calibrate
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.estimate.training import select, train
+from vbfe.estimate.training import select, train, training_folds
 from vbfe.live.estimator import FrameEstimator
 from vbfe.live.predictor import LivePredictor
 from vbfe.recon import reconstruct_session
@@ -289,3 +289,24 @@ def test_bench_trial_on_a_far_softer_tissue_is_flagged_live_and_in_evaluate(tmp_
         np.testing.assert_allclose([e.lo_n, e.hi_n], [e.force_n - half, e.force_n + half])
     shown = report.frames[str(soft)]["ood"]
     assert sum(e.ood for e in usable) == pytest.approx(shown.sum(), abs=2)
+
+
+def test_training_folds_hold_out_whole_sessions_or_blocks_in_time_with_a_gap():
+    rng = np.random.default_rng(10)
+    config = TrainConfig(n_points=32)
+    prepared = prepare_sessions(trials(rng, 3, "fold", fps=4), config, texture=False)
+    parts = [(s, np.arange(s.n_used)) for s in prepared]
+    by_session = training_folds(parts, 5, gap_frames=3)
+    assert len(by_session) == 3  # one fold per session when there are fewer than 5
+    for fit, held in by_session:
+        assert len(held) == 1 and held[0][0] not in [s for s, _ in fit]
+    ((session, positions),) = parts[:1]
+    in_time = training_folds([(session, positions)], 5, gap_frames=3)
+    assert len(in_time) == 5
+    seen = np.concatenate([held[0][1] for _, held in in_time])
+    np.testing.assert_array_equal(np.sort(seen), positions)  # every frame held out once
+    for fit, held in in_time:
+        test = session.frame_index[held[0][1]]
+        fitted = session.frame_index[fit[0][1]] if fit else np.zeros(0, int)
+        assert np.all(np.diff(test) == 1)  # a contiguous block
+        assert np.all((fitted < test.min() - 3) | (fitted > test.max() + 3))  # and its gap
