@@ -2,12 +2,17 @@
 
 ``train`` prepares the sessions, splits them (``splits.py``: by session, by time, by stated
 frame ranges), fits the baselines and every candidate (``candidates.py``) on the training
-frames, scores all of them on the validation frames (MAE of the force error vector), selects
-the candidate with the lowest validation MAE (``[train] model = "auto"``) or the one forced,
-says so when the selected model loses to a baseline, and writes everything to a model file
-(``model_file.py``). With ``folds`` ≥ 3 it first runs blocked cross-validation in time
-(``splits.split_folds``): the whole procedure, selection included, per fold, every method
-scored on the fold's test block; the mean ± sd per method is printed and stored.
+frames, scores all of them on the validation frames (MAE of the force error vector) or, when
+the validation part is small (``[train] select_min_val_frames``, or one session), on blocked
+folds of the training part (``training_folds``: whole sessions, or blocks in time of a single
+session), selects the candidate with the lowest score (``[train] model = "auto"``; a baseline
+that beats every candidate ships instead, and says so) or the one forced (with a warning when
+it loses to a baseline), calibrates every method's prediction interval on the same held-out
+residuals (``intervals.py``), fits the flag of frames outside the training data
+(``novelty.py``) and writes everything to a model file (``model_file.py``). With ``folds``
+≥ 3 it first runs blocked cross-validation in time (``splits.split_folds``): the whole
+procedure, selection included, per fold, every method scored (MAE, interval coverage and
+width) on the fold's test block; the mean ± sd per method is printed and stored.
 
 Reproducible: epochs and seeds are fixed by the config and torch runs on ``threads`` CPU
 threads while training (its reductions are then the same on a loaded or a quiet machine), so
@@ -60,7 +65,7 @@ from vbfe.estimate.splits import (
 )
 from vbfe.estimate.train_config import TrainConfig
 
-MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping, no selection
+MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 
 Parts = list[tuple[PreparedSession, np.ndarray]]
 
