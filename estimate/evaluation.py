@@ -5,7 +5,10 @@ the model regresses one number): MAE, RMSE and σ (standard deviation of the abs
 overall and per condition (stiffness × pull speed), with 95 % intervals of the overall MAE and
 RMSE from a block bootstrap over time (``bootstrap_intervals``: neighbouring frames are nearly
 copies of each other, so frames are resampled in contiguous blocks, the same blocks for every
-method). Every method's prediction of every scored frame is written to ``predictions.csv``.
+method). Every method's prediction of every scored frame is written to ``predictions.csv``
+with its prediction interval (``intervals.py``: empirical coverage and mean width per method
+and condition) and whether the frame lies outside the training data (``novelty.py``: flagged
+frames counted per condition).
 """
 
 from __future__ import annotations
@@ -22,7 +25,9 @@ import numpy as np
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.intervals import coverage_width
 from vbfe.estimate.model_file import ForceModel, load_model
+from vbfe.estimate.novelty import QUANTILE as NOVELTY_QUANTILE
 from vbfe.estimate.preparation import target_label
 from vbfe.estimate.report import plot_scatter, plot_session, safe_stem, write_json, write_tables
 from vbfe.estimate.sources import SessionLike
@@ -87,6 +92,8 @@ class EvaluationReport:
     split_description: str = ""  # how the model's training data was split
     # session → {"times_ns", "frame_index", "measured_n", method: predicted force}
     frames: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    # frames flagged outside the training data: {"overall": ..., "per_condition": ...}
+    out_of_distribution: dict[str, Any] = field(default_factory=dict)
 
     def mae_n(self, method: str = "pointnet") -> float:
         """Overall MAE of one method (a candidate, a baseline, or ``selected``)."""
@@ -114,8 +121,14 @@ def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np
 def write_predictions_csv(
     path: Path, frames: dict[str, dict[str, np.ndarray]], methods: Sequence[str], n_outputs: int
 ) -> Path:
-    """One row per scored frame: session, frame, time, measured and every method's force."""
+    """One row per scored frame: session, frame, time, whether it is outside the training data
+    (``ood`` 1/0, its ``novelty_m``), measured and every method's force with, when the model
+    has one, its interval (``<method>_lo_n``, ``<method>_hi_n``)."""
     columns = [f"_{k}" for k in range(n_outputs)] if n_outputs > 1 else [""]
+    first = next(iter(frames.values()), {})
+    keys = ["measured"]
+    for name in methods:
+        keys += [name] + [f"{name}_{b}" for b in ("lo", "hi") if f"{name}_{b}" in first]
     with open(path, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(
@@ -123,22 +136,70 @@ def write_predictions_csv(
                 "session",
                 "frame",
                 "time_s",
-                *(f"{name}{c}_n" for name in ("measured", *methods) for c in columns),
+                "ood",
+                "novelty_m",
+                *(f"{key}{c}_n" for key in keys for c in columns),
             ]
         )
         for session, data in frames.items():
             t0 = data["times_ns"][0] if len(data["times_ns"]) else 0
             for i in range(len(data["times_ns"])):
-                values = [v for name in ("measured_n", *methods) for v in data[name][i]]
+                values = [v for key in ("measured_n", *keys[1:]) for v in data[key][i]]
                 writer.writerow(
                     [
                         session,
                         int(data["frame_index"][i]),
                         f"{(data['times_ns'][i] - t0) / 1e9:.6f}",
+                        int(data["ood"][i]),
+                        f"{data['novelty_m'][i]:.6g}",
                         *(f"{v:.6g}" for v in values),
                     ]
                 )
     return path
+
+
+def _with_intervals(model: ForceModel, per_method: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Every method's force and, for methods with an interval, ``<method>_lo``/``_hi``."""
+    out = dict(per_method)
+    for method, force in per_method.items():
+        interval = model.interval(method)
+        if interval is not None:
+            out[f"{method}_lo"], out[f"{method}_hi"] = interval.bounds(force)
+    return out
+
+
+def _novelty(model: ForceModel, session: PreparedSession, positions: np.ndarray) -> np.ndarray:
+    """Each scored frame's distance from the training data (NaN: the model has no flag)."""
+    if model.novelty is None:
+        return np.full(len(positions), np.nan)
+    return model.novelty.distances(session, positions)
+
+
+def _stats(
+    force: np.ndarray, truth: np.ndarray, bounds: list[np.ndarray] | None, mask: np.ndarray
+) -> dict[str, Any]:
+    """Error statistics of the ``mask``ed frames, with the interval's coverage and width."""
+    stats: dict[str, Any] = error_stats(force[mask], truth[mask])
+    if bounds is not None:
+        stats.update(coverage_width(bounds[0][mask], bounds[1][mask], truth[mask]))
+    return stats
+
+
+def _flag_counts(flagged: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
+    """Frames flagged outside the training data, overall and per condition."""
+
+    def count(mask: np.ndarray) -> dict[str, Any]:
+        n = int(mask.sum())
+        return {
+            "n_frames": n,
+            "flagged": int(flagged[mask].sum()),
+            "share": float(flagged[mask].mean()) if n else 0.0,
+        }
+
+    return {
+        "overall": count(np.ones(len(flagged), bool)),
+        "per_condition": {c: count(labels == c) for c in sorted(set(labels.tolist()))},
+    }
 
 
 def evaluate(
@@ -176,14 +237,20 @@ def evaluate(
         positions, seen = _held_out_positions(model, session)
         if seen:
             seen_in_training.append(session.name)
-        per_method = {m: model.predict_session(session, m, positions) for m in methods}
+        per_method = _with_intervals(
+            model, {m: model.predict_session(session, m, positions) for m in methods}
+        )
         for method, force in per_method.items():
             predictions[method].append(force)
         measured.append(session.targets_n[positions])
+        novelty = _novelty(model, session, positions)
+        flagged = novelty > (model.novelty.threshold if model.novelty else np.inf)
         frames[session.name] = {
             "times_ns": session.times_ns[positions],
             "frame_index": session.frame_index[positions],
             "measured_n": session.targets_n[positions],
+            "novelty_m": novelty,
+            "ood": flagged,
             **per_method,
         }
         labels += [session.condition] * len(positions)
@@ -196,6 +263,7 @@ def evaluate(
                 per_method,
                 label,
                 model.selected,
+                flagged,
             )
         )
         if progress is not None:
@@ -203,18 +271,24 @@ def evaluate(
 
     truth = np.concatenate(measured)
     label_array = np.asarray(labels)
-    errors = {m: np.linalg.norm(np.concatenate(p) - truth, axis=1) for m, p in predictions.items()}
+    errors = {m: np.linalg.norm(np.concatenate(predictions[m]) - truth, axis=1) for m in methods}
     intervals = bootstrap_intervals(errors, time_blocks([len(m) for m in measured]))
     metrics: dict[str, dict[str, Any]] = {}
-    for method, parts in predictions.items():
-        force = np.concatenate(parts)
+    for method in methods:
+        force = np.concatenate(predictions[method])
+        bounds = (
+            [np.concatenate(predictions[f"{method}_{b}"]) for b in ("lo", "hi")]
+            if f"{method}_lo" in predictions
+            else None
+        )
+        everything = np.ones(len(truth), bool)
         metrics[method] = {
-            "overall": {**error_stats(force, truth), **intervals[method]},
+            "overall": {**_stats(force, truth, bounds, everything), **intervals[method]},
             "per_condition": {
-                c: error_stats(force[label_array == c], truth[label_array == c])
-                for c in sorted(set(labels))
+                c: _stats(force, truth, bounds, label_array == c) for c in sorted(set(labels))
             },
         }
+    flags = _flag_counts(np.concatenate([f["ood"] for f in frames.values()]), label_array)
     plots.append(
         plot_scatter(
             out_dir / "scatter_selected.png",
@@ -251,6 +325,28 @@ def evaluate(
             "baselines fitted on the training frames only; Hooke uses one fitted "
             f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m"
         )
+    if model.novelty is not None:
+        overall = flags["overall"]
+        notes.append(
+            f"outside the training data: {overall['flagged']} of {overall['n_frames']} frames "
+            f"flagged ({100 * overall['share']:.1f} %; "
+            + ", ".join(
+                f"{c} {v['flagged']}/{v['n_frames']}" for c, v in flags["per_condition"].items()
+            )
+            + f"); a frame is flagged when its distance from the training frames exceeds "
+            f"{model.novelty.threshold * 1e3:.3f} mm (the {NOVELTY_QUANTILE:g} quantile of "
+            "the training frames' own)"
+        )
+    else:
+        notes.append("no flag of frames outside the training data (model file without one)")
+    interval = model.interval()
+    notes.append(
+        f"prediction intervals: {100 * interval.coverage:g} % nominal, calibrated on "
+        f"{interval.n_calibration} held-out frames ({interval.source}), width "
+        + ("constant" if interval.scale == "none" else "growing with |F|")
+        if interval is not None
+        else "no prediction intervals (model file without them)"
+    )
     if seen_in_training:
         notes.append(
             f"WARNING: {len(seen_in_training)} evaluated session(s) were used in "
@@ -276,6 +372,7 @@ def evaluate(
             "skipped": skipped,
             "units": "N",
             "metrics": metrics,
+            "out_of_distribution": flags,
         },
     )
     md_path, html_path = write_tables(out_dir, metrics, notes, plots)
@@ -289,4 +386,5 @@ def evaluate(
         files=[metrics_path, csv_path, md_path, html_path, *plots],
         split_description=split_note,
         frames=frames,
+        out_of_distribution=flags,
     )

@@ -3,8 +3,10 @@
 A model file is ``torch.save`` of a plain dict (loadable with ``weights_only=True``): format
 name and version, the vbfe version, the training config, every fitted estimator (candidates and
 baselines, each as its ``to_dict``: networks as hyper-parameters and weights), the name of the
-selected one and a training record (split as frame ranges, every method's validation MAE, the
-selection and its warnings, histories, skipped-frame counts, cross-validation when run).
+selected one, a training record (split as frame ranges, every method's validation MAE, the
+selection and its warnings, every method's prediction interval, histories, skipped-frame
+counts, cross-validation when run) and the flag of frames outside the training data. Files
+written before the intervals and the flag load without them.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from vbfe.common.settings import parse_table
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.intervals import ConformalInterval
+from vbfe.estimate.novelty import NoveltyFlag
 from vbfe.estimate.splits import SessionSplit
 from vbfe.estimate.train_config import TrainConfig
 
@@ -39,6 +43,12 @@ class ForceModel:
     estimators: dict[str, AnyEstimator]  # method name → estimator (candidates and baselines)
     selected: str  # the method name shipped (used by evaluate's summary and vbfe live)
     record: dict[str, Any] = field(default_factory=dict)
+    novelty: NoveltyFlag | None = None  # flags frames outside the training data
+
+    def interval(self, method: str | None = None) -> ConformalInterval | None:
+        """The prediction interval of the selected (or the named) method, if calibrated."""
+        stored = self.record.get("intervals", {}).get(method or self.selected)
+        return ConformalInterval.from_dict(stored) if stored else None
 
     @property
     def split(self) -> SessionSplit:
@@ -78,6 +88,8 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
         "selected": model.selected,
         "record": model.record,
     }
+    if model.novelty is not None:
+        payload["novelty"] = model.novelty.to_dict()
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
@@ -147,6 +159,12 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
         )
     record = dict(payload["record"])
     record["vbfe_version"] = payload.get("vbfe_version")
-    return ForceModel(
-        config=config, estimators=estimators, selected=payload["selected"], record=record
-    )
+    try:
+        novelty = NoveltyFlag.from_dict(payload["novelty"]) if "novelty" in payload else None
+        model = ForceModel(config, estimators, payload["selected"], record, novelty)
+        model.interval()
+    except (EstimateError, KeyError, TypeError, ValueError) as exc:
+        raise EstimateError(
+            f"{path}: the intervals or the novelty flag are damaged ({exc}); {retrain}"
+        ) from None
+    return model

@@ -38,8 +38,9 @@ def write_json(path: Path, data: dict[str, Any]) -> Path:
 
 
 def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str], list[list[str]]]:
-    """Header and rows (overall with its 95 % interval, then each condition) of ``MAE (σ)`` or
-    ``RMSE`` per method."""
+    """Header and rows (overall with its 95 % interval, then each condition) of ``MAE (σ)``,
+    ``RMSE`` or (``key="interval"``) the prediction interval's coverage and mean width per
+    method (``–``: the method has no interval)."""
     methods = list(metrics)
     header = ["Condition", "Frames", *(METHOD_LABELS.get(m, m) for m in methods)]
     first = metrics[methods[0]]
@@ -49,6 +50,13 @@ def metric_rows(metrics: dict[str, dict[str, Any]], key: str) -> tuple[list[str]
         cells = []
         for m in methods:
             s = metrics[m]["overall"] if label == "all" else metrics[m]["per_condition"][label]
+            if key == "interval":
+                cells.append(
+                    f"{100 * s['interval_coverage']:.1f} % / {s['interval_width_n']:.3f}"
+                    if "interval_coverage" in s
+                    else "–"
+                )
+                continue
             cell = (
                 f"{s['mae_n']:.3f} ({s['sd_abs_error_n']:.3f})"
                 if key == "mae"
@@ -73,6 +81,10 @@ def write_tables(
     sections = [
         ("MAE (σ of absolute error) [95 % interval], N", metric_rows(metrics, "mae")),
         ("RMSE [95 % interval], N", metric_rows(metrics, "rmse")),
+        (
+            "Prediction intervals: coverage of the measured force / mean width, N",
+            metric_rows(metrics, "interval"),
+        ),
     ]
     md = ["# Force estimation report", ""]
     page = HtmlReport("Force estimation report")
@@ -106,17 +118,44 @@ def plot_session(
     predictions: dict[str, np.ndarray],
     ylabel: str = "|F| (N)",
     highlight: str = "pointnet",
+    flagged: np.ndarray | None = None,
 ) -> Path:
     """Force versus time (``ylabel``: what one number per frame is): measured and every
-    method's prediction, ``highlight`` drawn solid, as a PNG."""
+    method's prediction (``predictions``; ``<method>_lo``/``_hi`` its interval), ``highlight``
+    drawn solid with its interval as a band, frames ``flagged`` outside the training data
+    marked, as a PNG."""
     fig = Figure(figsize=(8, 4), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     t_s = (np.asarray(times_ns) - times_ns[0]) / 1e9 if len(times_ns) else np.zeros(0)
     ax.plot(t_s, _plotted(measured_n), color="black", lw=2, label="measured (trocar)")
-    for method, force in predictions.items():
+    methods = [m for m in predictions if not m.endswith(("_lo", "_hi"))]
+    for method in methods:
         style = {"lw": 1.5} if method == highlight else {"lw": 1, "ls": "--"}
-        ax.plot(t_s, _plotted(force), label=METHOD_LABELS.get(method, method), **style)
+        line = ax.plot(
+            t_s, _plotted(predictions[method]), label=METHOD_LABELS.get(method, method), **style
+        )
+        if method == highlight and f"{method}_lo" in predictions:
+            lo, hi = predictions[f"{method}_lo"], predictions[f"{method}_hi"]
+            if lo.shape[-1] == 1:  # one output: its band (three: the vector has no band)
+                ax.fill_between(
+                    t_s,
+                    lo[:, 0],
+                    hi[:, 0],
+                    color=line[0].get_color(),
+                    alpha=0.2,
+                    lw=0,
+                    label="prediction interval",
+                )
+    if flagged is not None and np.any(flagged):
+        ax.plot(
+            t_s[flagged],
+            _plotted(predictions[highlight])[flagged],
+            "x",
+            color="red",
+            ms=4,
+            label="outside the training data",
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=9)

@@ -18,6 +18,7 @@ SPLITS = ("session", "time")
 # model choices: "auto" (best on validation) or one candidate (see ``candidates.py``)
 MODELS = ("auto", "pointnet", "temporal", "ridge", "cnn", "ensemble", "hooke_texture")
 DEVICES = ("auto", "cpu", "cuda")
+INTERVAL_SCALES = ("none", "force")  # see ``intervals.py``
 
 
 def _window(span_frames: int, n_frames: int) -> list[int]:
@@ -75,6 +76,13 @@ class TrainConfig:
     cnn_epochs: int = setting(40, ge=1)
     history_frames: int = setting(6, ge=0)  # displacement-history baseline: frames (0: off)
     history_span_frames: int = setting(20, ge=1)  # oldest to newest frame of its window
+    interval_coverage: float = setting(0.9, gt=0, lt=1)  # prediction intervals' coverage
+    interval_scale: Literal[INTERVAL_SCALES] = "none"  # their width: constant, or with |F|
+    # selection (and the intervals' calibration) on the validation part needs this many frames
+    # from at least two sessions; else on blocked folds of the training part (0: always on
+    # the validation part)
+    select_min_val_frames: int = setting(300, ge=0)
+    select_folds: int = setting(5, ge=3)  # those blocked folds (sessions, or blocks in time)
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -87,7 +95,11 @@ class TrainConfig:
             raise EstimateError("[train] needs n_points >= 2, batch_size >= 2 and epochs >= 1")
         if not 0 <= self.val_fraction < 1 or not 0 <= self.test_fraction < 1:
             raise EstimateError("[train] val_fraction and test_fraction must be in [0, 1)")
-        for key, allowed in (("split", SPLITS), ("device", DEVICES)):
+        for key, allowed in (
+            ("split", SPLITS),
+            ("device", DEVICES),
+            ("interval_scale", INTERVAL_SCALES),
+        ):
             if getattr(self, key) not in allowed:
                 raise EstimateError(
                     f"[train] {key} must be one of {allowed}, not {getattr(self, key)!r}"

@@ -2,12 +2,17 @@
 
 ``train`` prepares the sessions, splits them (``splits.py``: by session, by time, by stated
 frame ranges), fits the baselines and every candidate (``candidates.py``) on the training
-frames, scores all of them on the validation frames (MAE of the force error vector), selects
-the candidate with the lowest validation MAE (``[train] model = "auto"``) or the one forced,
-says so when the selected model loses to a baseline, and writes everything to a model file
-(``model_file.py``). With ``folds`` ≥ 3 it first runs blocked cross-validation in time
-(``splits.split_folds``): the whole procedure, selection included, per fold, every method
-scored on the fold's test block; the mean ± sd per method is printed and stored.
+frames, scores all of them on the validation frames (MAE of the force error vector) or, when
+the validation part is small (``[train] select_min_val_frames``, or one session), on blocked
+folds of the training part (``training_folds``: whole sessions, or blocks in time of a single
+session), selects the candidate with the lowest score (``[train] model = "auto"``; a baseline
+that beats every candidate ships instead, and says so) or the one forced (with a warning when
+it loses to a baseline), calibrates every method's prediction interval on the same held-out
+residuals (``intervals.py``), fits the flag of frames outside the training data
+(``novelty.py``) and writes everything to a model file (``model_file.py``). With ``folds``
+≥ 3 it first runs blocked cross-validation in time (``splits.split_folds``): the whole
+procedure, selection included, per fold, every method scored (MAE, interval coverage and
+width) on the fold's test block; the mean ± sd per method is printed and stored.
 
 Reproducible: epochs and seeds are fixed by the config and torch runs on ``threads`` CPU
 threads while training (its reductions are then the same on a loaded or a quiet machine), so
@@ -46,8 +51,10 @@ from vbfe.estimate.dataset import (
 )
 from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
+from vbfe.estimate.intervals import ConformalInterval, calibrate, coverage_width
 from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.network_training import build_network, fit_network, resolve_device
+from vbfe.estimate.novelty import fit_novelty
 from vbfe.estimate.sources import SessionLike
 from vbfe.estimate.splits import (
     SessionSplit,
@@ -58,7 +65,7 @@ from vbfe.estimate.splits import (
 )
 from vbfe.estimate.train_config import TrainConfig
 
-MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping, no selection
+MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 
 Parts = list[tuple[PreparedSession, np.ndarray]]
 
@@ -74,6 +81,8 @@ class SplitFit:
     notes: list[str]
     histories: dict[str, Any]
     fit_seconds: dict[str, float]  # wall time of each fit (baselines: all together)
+    selection_mae_n: dict[str, float] = field(default_factory=dict)  # what selection read
+    intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
 
 
 @dataclass
@@ -92,6 +101,7 @@ class TrainResult:
     fit_seconds: dict[str, float] = field(default_factory=dict)  # wall time per fit
     notes: list[str] = field(default_factory=list)
     cross_validation: dict[str, Any] | None = None
+    intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
 
 
 def use_threads(threads: int) -> None:
@@ -109,12 +119,6 @@ def _training_threads(threads: int) -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
-
-
-def frames_mae(predict: Any, parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> float:
-    """MAE (newtons) of ``predict(session, positions)`` over (session, positions) parts."""
-    errors = [np.linalg.norm(predict(s, p) - s.targets_n[p], axis=1) for s, p in parts]
-    return float(np.concatenate(errors).mean())
 
 
 def make_split(prepared: Sequence[PreparedSession], config: TrainConfig) -> SessionSplit:
@@ -190,32 +194,16 @@ def _fit_networks(
     return fitted, histories
 
 
-def fit_split(
-    prepared: Sequence[PreparedSession],
-    split: SessionSplit,
+def _fit_estimators(
+    names: list[str],
+    train_parts: Parts,
+    val_parts: Parts,
     config: TrainConfig,
-    progress: ProgressFn | None = None,
-) -> SplitFit:
-    """Fit baselines and candidates on ``split``'s training part, score all on validation and
-    select the shipped model."""
-    train_parts = split.frames("train", prepared)
-    if not train_parts:
-        raise EstimateError(
-            "the split leaves no training frame; widen --train or lower "
-            "--val-fraction/--test-fraction"
-        )
-    val_parts = split.frames("val", prepared)
-    n_val = sum(len(p) for _, p in val_parts)
-    notes = [split.describe()]
-    if n_val < MIN_VAL_FRAMES:
-        notes.append(
-            f"warning: too little data for a validation set ({n_val} frames; one "
-            f"session, or too few for --val-fraction/--val): no early stopping, no "
-            f"selection on held-out frames (fixed {config.epochs} epochs, last kept); "
-            "the MAEs below are training MAEs"
-        )
-        val_parts = []
-    names = candidate_names(config.model, config.temporal_frames > 0)
+    progress: ProgressFn | None,
+    notes: list[str],
+) -> tuple[dict[str, AnyEstimator], dict[str, Any], dict[str, float]]:
+    """Baselines and the candidates ``names`` fitted on ``train_parts`` (``val_parts``: early
+    stopping); a candidate that cannot be fitted is taken out of ``names`` with a note."""
     clock = time.perf_counter()
     estimators: dict[str, AnyEstimator] = dict(
         fit_baselines(train_parts, config.history_window, config.seed)
@@ -264,28 +252,163 @@ def fit_split(
                 )
         else:
             estimators[texture_hooke.name] = texture_hooke
-    check = val_parts or train_parts
-    val_mae = {name: frames_mae(e.predict_session, check) for name, e in estimators.items()}
-    selected = min(names, key=lambda name: val_mae[name])
-    notes.append(_selection_note(selected, names, val_mae, bool(val_parts)))
-    return SplitFit(split, estimators, val_mae, selected, notes, histories, seconds)
+    return estimators, histories, seconds
 
 
-def _selection_note(
-    selected: str, names: list[str], val_mae: dict[str, float], validated: bool
-) -> str:
-    """Which model ships and why; a warning when a baseline beats it on validation."""
-    where = "validation" if validated else "training"
-    baselines = {n: v for n, v in val_mae.items() if n not in CANDIDATES.values()}
-    best_baseline = min(baselines, key=baselines.get)
-    how = "forced by --model" if len(names) == 1 else f"best of {len(names)} candidates"
-    line = f"selected model: {selected} ({how}), {where} MAE {val_mae[selected]:.3f} N"
-    if val_mae[selected] > baselines[best_baseline]:
-        return (
-            f"warning: {line} LOSES to the baseline {best_baseline} "
-            f"({baselines[best_baseline]:.3f} N on {where})"
+def _predictions(estimator: AnyEstimator, parts: Parts) -> np.ndarray:
+    """Force (frames × outputs) of the frames of every (session, positions) part."""
+    return np.concatenate([estimator.predict_session(s, p) for s, p in parts])
+
+
+def _measured(parts: Parts) -> np.ndarray:
+    return np.concatenate([s.targets_n[p] for s, p in parts])
+
+
+def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Parts, Parts]]:
+    """(training, held-out) parts of blocked folds of ``parts``: whole sessions dealt to
+    ``folds`` folds (as many as there are sessions, if fewer), or, with one session, the
+    session cut into ``folds`` contiguous blocks in time (``gap_frames`` each side of a
+    held-out block left out)."""
+    if len(parts) >= 2:
+        n = min(folds, len(parts))
+        fold_of = np.arange(len(parts)) % n
+        return [
+            (
+                [p for p, f in zip(parts, fold_of, strict=True) if f != k],
+                [p for p, f in zip(parts, fold_of, strict=True) if f == k],
+            )
+            for k in range(n)
+        ]
+    out = []
+    for k in range(folds):
+        train: Parts = []
+        held: Parts = []
+        for session, positions in parts:
+            block = np.arange(len(positions)) * folds // max(len(positions), 1)
+            frames = session.frame_index[positions]
+            test = frames[block == k]
+            if len(test):
+                near = (frames >= test.min() - gap_frames) & (frames <= test.max() + gap_frames)
+                held.append((session, positions[block == k]))
+                if (~near).any():
+                    train.append((session, positions[~near]))
+            else:
+                train.append((session, positions))
+        if train and held:
+            out.append((train, held))
+    return out
+
+
+def _out_of_fold(
+    names: list[str], train_parts: Parts, config: TrainConfig
+) -> tuple[dict[str, np.ndarray], np.ndarray, str]:
+    """Every method's out-of-fold predictions over blocked folds of the training part, the
+    measured force of the same frames (in the same order) and a line saying what was done."""
+    folds = training_folds(train_parts, config.select_folds, config.gap_frames)
+    predicted: dict[str, list[np.ndarray]] = {}
+    measured = []
+    for fold_train, held in folds:
+        estimators, _, _ = _fit_estimators(list(names), fold_train, [], config, None, [])
+        for name, estimator in estimators.items():
+            predicted.setdefault(name, []).append(_predictions(estimator, held))
+        measured.append(_measured(held))
+    n = len(folds)
+    complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
+    kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
+    where = f"{n} blocked folds of the training part ({kind})"
+    return complete, np.concatenate(measured) if n else np.zeros((0, 1)), where
+
+
+def fit_split(
+    prepared: Sequence[PreparedSession],
+    split: SessionSplit,
+    config: TrainConfig,
+    progress: ProgressFn | None = None,
+) -> SplitFit:
+    """Fit baselines and candidates on ``split``'s training part, score all on validation (or,
+    when it is small, on blocked folds of the training part), select the shipped model and
+    calibrate every method's prediction interval on the same held-out residuals."""
+    train_parts = split.frames("train", prepared)
+    if not train_parts:
+        raise EstimateError(
+            "the split leaves no training frame; widen --train or lower "
+            "--val-fraction/--test-fraction"
         )
-    return f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
+    val_parts = split.frames("val", prepared)
+    n_val = sum(len(p) for _, p in val_parts)
+    notes = [split.describe()]
+    if n_val < MIN_VAL_FRAMES:
+        notes.append(
+            f"warning: too little data for a validation set ({n_val} frames; one "
+            f"session, or too few for --val-fraction/--val): no early stopping (fixed "
+            f"{config.epochs} epochs, last kept); the MAEs below are training MAEs"
+        )
+        val_parts = []
+    names = candidate_names(config.model, config.temporal_frames > 0)
+    estimators, histories, seconds = _fit_estimators(
+        names, train_parts, val_parts, config, progress, notes
+    )
+    check = val_parts or train_parts
+    val_mae = {
+        name: float(np.linalg.norm(_predictions(e, check) - _measured(check), axis=1).mean())
+        for name, e in estimators.items()
+    }
+    held: dict[str, np.ndarray] = {}
+    measured, where = np.zeros((0, config.n_outputs)), "validation"
+    if config.select_min_val_frames and (
+        n_val < config.select_min_val_frames or len(val_parts) < 2
+    ):
+        held, measured, where = _out_of_fold(names, train_parts, config)
+        notes.append(
+            f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
+            f"{config.select_min_val_frames} frames or 2 sessions): selection and intervals "
+            f"on {where}"
+        )
+    elif val_parts:
+        held = {name: _predictions(e, val_parts) for name, e in estimators.items()}
+        measured, where = _measured(val_parts), "validation"
+    scores = {n: float(np.linalg.norm(p - measured, axis=1).mean()) for n, p in held.items()}
+    if not any(n in scores for n in names):
+        scores, where = val_mae, "validation" if val_parts else "training"
+        notes.append(
+            "warning: no held-out frames to select on or to calibrate intervals with: "
+            f"selected on {where}, no intervals"
+        )
+    scored = [n for n in names if n in scores]
+    selected, note = select(scored, scores, where, config.model == "auto")
+    notes.append(note)
+    intervals = {
+        name: calibrate(
+            p, measured, config.interval_coverage, config.interval_scale, where
+        ).to_dict()
+        for name, p in held.items()
+    }
+    return SplitFit(
+        split, estimators, val_mae, selected, notes, histories, seconds, scores, intervals
+    )
+
+
+def select(names: list[str], scores: dict[str, float], where: str, auto: bool) -> tuple[str, str]:
+    """The method shipped and a line saying which and why: the candidate with the lowest
+    score, unless a baseline scores lower (then, with ``auto``, that baseline ships; a forced
+    model ships with a warning)."""
+    best = min(names, key=lambda name: scores[name])
+    baselines = {n: v for n, v in scores.items() if n not in CANDIDATES.values()}
+    best_baseline = min(baselines, key=lambda n: baselines[n])
+    how = "forced by --model" if not auto else f"best of {len(names)} candidates"
+    line = f"selected model: {best} ({how}), {where} MAE {scores[best]:.3f} N"
+    if scores[best] <= baselines[best_baseline]:
+        return best, f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
+    if auto:
+        return best_baseline, (
+            f"warning: the best candidate {best} ({scores[best]:.3f} N on {where}) LOSES to "
+            f"the baseline {best_baseline} ({baselines[best_baseline]:.3f} N): shipping "
+            f"{best_baseline}; force a candidate with --model to ship it anyway"
+        )
+    return best, (
+        f"warning: {line} LOSES to the baseline {best_baseline} "
+        f"({baselines[best_baseline]:.3f} N on {where})"
+    )
 
 
 def cross_validate(
@@ -298,27 +421,43 @@ def cross_validate(
     for k, split in enumerate(splits):
         fit = fit_split(prepared, split, config)
         test = split.frames("test", prepared)
-        mae = {name: frames_mae(e.predict_session, test) for name, e in fit.estimators.items()}
+        measured = _measured(test)
+        mae, covered = {}, {}
+        for name, estimator in fit.estimators.items():
+            predicted = _predictions(estimator, test)
+            mae[name] = float(np.linalg.norm(predicted - measured, axis=1).mean())
+            if name in fit.intervals:
+                interval = ConformalInterval.from_dict(fit.intervals[name])
+                covered[name] = coverage_width(*interval.bounds(predicted), measured)
         mae["selected"] = mae[fit.selected]
+        if fit.selected in covered:
+            covered["selected"] = covered[fit.selected]
         folds.append(
             {
                 "split": split.to_dict(),
                 "description": split.describe(),
                 "selected": fit.selected,
                 "test_mae_n": mae,
-                "n_test_frames": int(sum(len(p) for _, p in test)),
+                "test_interval": covered,
+                "n_test_frames": int(len(measured)),
             }
         )
         if progress is not None:
             progress("folds", k + 1, len(splits))
     methods = list(folds[0]["test_mae_n"])
-    summary = {
+    summary: dict[str, dict[str, float]] = {
         m: {
             "mean_mae_n": float(np.mean([f["test_mae_n"][m] for f in folds])),
             "sd_mae_n": float(np.std([f["test_mae_n"][m] for f in folds], ddof=1)),
         }
         for m in methods
     }
+    for m in methods:  # interval coverage pooled over the folds' test frames
+        weights = [f["n_test_frames"] for f in folds if m in f["test_interval"]]
+        if len(weights) == len(folds):
+            for key in ("interval_coverage", "interval_width_n"):
+                values = [f["test_interval"][m][key] for f in folds]
+                summary[m][key] = float(np.average(values, weights=weights))
     return {"folds": folds, "summary": summary, "gap_frames": config.gap_frames}
 
 
@@ -354,6 +493,8 @@ def train(
         "split_description": fit.split.describe(),
         "selected": fit.selected,
         "validation_mae_n": fit.val_mae_n,
+        "selection_mae_n": fit.selection_mae_n,
+        "intervals": fit.intervals,
         "notes": fit.notes,
         "histories": fit.histories,
         "fit_seconds": fit.fit_seconds,
@@ -363,7 +504,11 @@ def train(
         "cross_validation": cv,
     }
     model = ForceModel(
-        config=config, estimators=fit.estimators, selected=fit.selected, record=record
+        config=config,
+        estimators=fit.estimators,
+        selected=fit.selected,
+        record=record,
+        novelty=fit_novelty(fit.split.frames("train", prepared)),
     )
     path = save_model(out, model)
     return TrainResult(
@@ -379,4 +524,5 @@ def train(
         fit_seconds=fit.fit_seconds,
         notes=fit.notes,
         cross_validation=cv,
+        intervals=fit.intervals,
     )

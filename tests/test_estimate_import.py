@@ -1,4 +1,4 @@
-"""`vbfe import`: depth images / point clouds + a force CSV → train and evaluate with a time split."""
+"""`vbfe import`: depth images / point clouds + a force CSV, trained and evaluated by time split."""
 
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ patience = 12
 n_points = 96
 threads = 1
 temporal_span_frames = 6
+select_min_val_frames = 0  # select on the validation range (here the import is under test)
 """
 
 

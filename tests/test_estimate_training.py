@@ -38,6 +38,7 @@ def tiny_config(**kw):
         cnn_epochs=15,
         cnn_channels=[4, 8],
         history_frames=0,
+        select_min_val_frames=0,  # select on the validation part, however small
     )
     values.update(kw)
     return TrainConfig(**values)

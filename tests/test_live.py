@@ -140,6 +140,10 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     assert stream.stages == list(STAGES) and stream.stage_s.shape == (n, len(STAGES))
     assert np.all(stream.stage_s >= 0)
     assert np.isfinite(stream.force_n).all()
+    # each estimate with its prediction interval and whether its frame is outside the model's
+    # training data (synthetic clouds, unlike the bench's: the flag may be up)
+    assert np.all((stream.lo_n < stream.force_n) & (stream.force_n < stream.hi_n))
+    assert stream.ood.dtype == bool and stream.ood.shape == (n,)
     inspect = vbfe("inspect", session)
     assert f"estimate  {n} live estimates" in inspect.stdout
     scored = vbfe("evaluate", "--live", session, "--out", folder / "eval")

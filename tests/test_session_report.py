@@ -69,6 +69,9 @@ def dataset(tmp_path_factory):
             stage_s=np.full((len(seq), 1), 0.03),
             stages=["model"],
             attrs={"target": "magnitude", "outputs": 1},
+            lo_n=(force - 0.2)[:, None],
+            hi_n=(force + 0.3)[:, None],
+            ood=np.arange(len(seq)) % 10 == 0,
         ),
     )
     assert main(["reconstruct", str(bench), "--workers", "1", "--no-verify"]) == 0
@@ -116,7 +119,16 @@ def test_session_page_has_every_section_and_is_self_contained(bench_page):
     assert "Not verified" not in page and '<span class="pass">PASS</span>' in page
     assert "No clouds file" not in page and "median density" in page
     assert re.search(r"30 estimates \(magnitude\); MAE 0\.0[45]\d N", page)
+    assert "; 3 estimates from frames outside the training data" in page
     assert "B</td><td>4.0000 mm" in page
+
+
+def test_stored_estimates_keep_their_interval_and_flag(dataset):
+    with SessionReader(dataset[1]) as reader:
+        stored = reader.estimates()
+    np.testing.assert_allclose(stored.hi_n - stored.lo_n, 0.5)
+    np.testing.assert_allclose(stored.force_n - stored.lo_n, 0.25)
+    assert stored.ood.dtype == bool and stored.ood.sum() == 3
 
 
 def test_drops_and_gaps_are_marked(dataset, tmp_path):

@@ -27,8 +27,15 @@ from vbfe.live.estimator import LiveEstimate
 from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
 
 
-def _estimate(seq: int, force: list[float], latency_s: float = 0.04) -> LiveEstimate:
+def _estimate(
+    seq: int, force: list[float], latency_s: float = 0.04, half_width: float | None = 0.25
+) -> LiveEstimate:
     t_frame = time.monotonic_ns() - int(latency_s * 1e9)
+    bounds = (
+        {"lo_n": np.array(force) - half_width, "hi_n": np.array(force) + half_width}
+        if half_width is not None
+        else {}
+    )
     return LiveEstimate(
         force_n=np.array(force),
         frame_seq=seq,
@@ -36,6 +43,8 @@ def _estimate(seq: int, force: list[float], latency_s: float = 0.04) -> LiveEsti
         t_ready_host_ns=t_frame + int(latency_s * 1e9),
         stage_s=(0.0, 0.03, 0.01),
         n_points=1000,
+        ood=seq % 2 == 1,
+        **bounds,
     )
 
 
@@ -59,6 +68,13 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
         ("force_x", "N"),
         ("force_y", "N"),
         ("force_z", "N"),
+        ("force_x_lo", "N"),
+        ("force_y_lo", "N"),
+        ("force_z_lo", "N"),
+        ("force_x_hi", "N"),
+        ("force_y_hi", "N"),
+        ("force_z_hi", "N"),
+        ("ood", ""),
         ("t_frame_s", "s"),
         ("latency_s", "s"),
     ]
@@ -69,8 +85,10 @@ def test_lsl_output_publishes_estimates_and_trocar() -> None:
         [ForceSample(np.array([0.1, 0.2, 0.3]), k, 0, now + k * 1_000_000) for k in range(5)]
     )
     sample, stamp = inlets["vbfe-estimate"].pull_sample(timeout=5.0)
-    assert sample[:3] == [0.5, -1.0, 2.0] and sample[4] == pytest.approx(0.04)
-    assert stamp == pytest.approx(estimate.t_frame_host_ns / 1e9, abs=1e-6) == sample[3]
+    assert sample[:3] == [0.5, -1.0, 2.0] and sample[11] == pytest.approx(0.04)
+    assert sample[3:9] == [0.25, -1.25, 1.75, 0.75, -0.75, 2.25]  # the interval
+    assert sample[9] == 1.0  # frame 7 is flagged outside the training data
+    assert stamp == pytest.approx(estimate.t_frame_host_ns / 1e9, abs=1e-6) == sample[10]
     values, stamps = inlets["vbfe-trocar"].pull_chunk(timeout=5.0, max_samples=5, min_samples=5)
     assert len(values) == 5 and values[0] == pytest.approx([0.1, 0.2, 0.3])
     assert stamps[4] - stamps[0] == pytest.approx(0.004, abs=1e-6)
@@ -84,11 +102,14 @@ def test_udp_output_sends_one_json_datagram_per_estimate() -> None:
     receiver.settimeout(5.0)
     output = UdpOutput(udp_address(f"127.0.0.1:{receiver.getsockname()[1]}"), "magnitude")
     output.on_estimate(_estimate(3, [1.25]))
-    output.on_estimate(_estimate(4, [float("nan")]))
+    output.on_estimate(_estimate(4, [float("nan")], half_width=None))
     first, second = (json.loads(receiver.recv(65536)) for _ in range(2))
     assert first["frame_seq"] == 3 and first["force_n"] == [1.25]
+    assert first["lo_n"] == [1.0] and first["hi_n"] == [1.5] and first["ood"] is True
     assert first["t_ready_host_ns"] - first["t_frame_host_ns"] == pytest.approx(4e7, abs=2)
     assert second["force_n"] == [None] and second["target"] == "magnitude"
+    # a model without an interval: null bounds; frame 4 is inside the training data
+    assert second["lo_n"] == second["hi_n"] == [None] and second["ood"] is False
     output.on_stop(None)
     receiver.close()
     for bad in ("localhost", "host:0", ":9870", "h:70000", "h:x"):

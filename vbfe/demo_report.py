@@ -147,13 +147,15 @@ def _force_tables(report: HtmlReport, force: dict[str, Any], phases_note: str) -
     """Overall and per-phase tables of every method evaluated."""
     metrics, methods = force["metrics"], _methods(force["metrics"])
     report.table(
-        ["method", "MAE (N)", "RMSE (N)", "σ (N)"],
+        ["method", "MAE (N)", "RMSE (N)", "σ (N)", "interval coverage", "interval width (N)"],
         [
             (
                 label,
                 metrics[m]["overall"]["mae_n"],
                 metrics[m]["overall"]["rmse_n"],
                 metrics[m]["overall"]["sd_abs_error_n"],
+                metrics[m]["overall"].get("interval_coverage", ""),
+                metrics[m]["overall"].get("interval_width_n", ""),
             )
             for m, label in methods
         ],

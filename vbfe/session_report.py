@@ -404,7 +404,27 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
     t = (r.frame_times_ns()[np.clip(at, 0, None)] - t0) / 1e9
     fig, ax = _figure(10, 2.8)
     ax.plot(t[known], measured[known], color="black", label="trocar")
+    if e.lo_n is not None and e.hi_n is not None and e.force_n.shape[1] == 1:
+        order = np.argsort(t[known])
+        ax.fill_between(
+            t[known][order],
+            e.lo_n[known, 0][order],
+            e.hi_n[known, 0][order],
+            alpha=0.25,
+            lw=0,
+            label="prediction interval",
+        )
     ax.plot(t[known], estimated[known], ".", ms=3, label="live estimate")
+    if e.ood is not None and (e.ood & known).any():
+        flagged = e.ood & known
+        ax.plot(
+            t[flagged],
+            estimated[flagged],
+            "x",
+            color="red",
+            ms=5,
+            label="outside the training data",
+        )
     ax.set_xlabel("time since the first frame (s)")
     ax.set_ylabel(f"{'|F|' if target in ('magnitude', 'xyz') else 'F' + target} (N)")
     ax.grid(alpha=0.3)
@@ -418,7 +438,12 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
         f"{len(e)} estimates ({e.attrs.get('target', '')}); MAE "
         f"{mae:.3f} N against the trocar on {int(both.sum())} frames; latency "
         f"p50 {np.percentile(latency, 50):.1f} ms, p95 "
-        f"{np.percentile(latency, 95):.1f} ms",
+        f"{np.percentile(latency, 95):.1f} ms"
+        + (
+            f"; {int(e.ood.sum())} estimates from frames outside the training data"
+            if e.ood is not None
+            else ""
+        ),
     )
 
 

@@ -1,8 +1,10 @@
 """The ``/estimate`` stream of a session (schema 2): force estimated live from the frames.
 
 ``vbfe live --record`` stores one row per estimate: the force, the sequence number of the
-frame it came from, that frame's host arrival time, the host time the estimate was ready and
-the duration of each stage. Older sessions have no such group.
+frame it came from, that frame's host arrival time, the host time the estimate was ready, the
+duration of each stage and, when the model has them, the estimate's prediction interval
+(``lo_n``, ``hi_n``) and whether its frame was outside the training data (``ood``). Older
+sessions have no such group, or no interval and flag.
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ class EstimateStream:
     stage_s: np.ndarray  # (n, stages) float64
     stages: list[str]
     attrs: dict[str, Any]  # target, outputs, model, skipped_frames, …
+    lo_n: np.ndarray | None = None  # (n, outputs) prediction interval (None: not stored)
+    hi_n: np.ndarray | None = None
+    ood: np.ndarray | None = None  # (n,) bool: the frame is outside the model's training data
 
     @property
     def latency_s(self) -> np.ndarray:
@@ -51,6 +56,9 @@ def write_estimates(f: h5py.File, stream: EstimateStream) -> None:
         "t_ready_host_ns": (stream.t_ready_host_ns, "ns"),
         "stage_s": (stream.stage_s, "s"),
     }
+    for name, units in (("lo_n", "N"), ("hi_n", "N"), ("ood", "")):
+        if getattr(stream, name) is not None:
+            columns[name] = (getattr(stream, name), units)
     for name, (values, _) in columns.items():
         if len(values) != n:
             raise SessionError(f"estimate column {name} has {len(values)} rows, expected {n}")
@@ -79,6 +87,7 @@ def read_estimates(f: h5py.File, path: Path) -> EstimateStream | None:
             stage_s=group["stage_s"][()],
             stages=json.loads(group.attrs["stages"]),
             attrs=json.loads(group.attrs.get("attrs_json", "{}")),
+            **{k: group[k][()] for k in ("lo_n", "hi_n", "ood") if k in group},
         )
     except (KeyError, OSError, ValueError) as exc:
         raise SessionError(

@@ -95,7 +95,15 @@ def run(args: argparse.Namespace) -> int:
             f"{method + shipped:>35}: MAE {o['mae_n']:.3f} N [95 % {o['mae_ci95_n'][0]:.3f}, "
             f"{o['mae_ci95_n'][1]:.3f}], RMSE {o['rmse_n']:.3f} N [{o['rmse_ci95_n'][0]:.3f}, "
             f"{o['rmse_ci95_n'][1]:.3f}] over {o['n_frames']} frames"
+            + (
+                f"; interval coverage {100 * o['interval_coverage']:.1f} %, mean width "
+                f"{o['interval_width_n']:.3f} N"
+                if "interval_coverage" in o
+                else ""
+            )
         )
+    flags = report.out_of_distribution["overall"]
+    print(f"outside the training data: {flags['flagged']} of {flags['n_frames']} frames flagged")
     print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")

@@ -22,9 +22,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="train the force estimators on reconstructed sessions",
         description="Fit every candidate (PointNet, the temporal model, "
         "ridge on depth-change thumbnails, a small CNN on the depth-change "
-        "image, the mean of that CNN and Hooke's law) and the baselines on the training part, and ship the "
-        "candidate with the lowest validation MAE (or the one --model "
-        "forces). Each session needs its <session>.clouds.h5 sidecar (run "
+        "image, the mean of that CNN and Hooke's law) and the baselines on the "
+        "training part, and ship the candidate with the lowest validation MAE (on "
+        "blocked folds of the training part when validation is small; a baseline "
+        "when it beats every candidate), or the one --model forces. Every method "
+        "gets a prediction interval calibrated on the same held-out residuals. "
+        "Each session needs its <session>.clouds.h5 sidecar (run "
         "`vbfe reconstruct` first) or is a clouds file from `vbfe import`. "
         "Defaults come from the [train] table of the rig config.",
     )
@@ -89,6 +92,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--time-limit", type=positive(float), dest="time_limit_s", metavar="SECONDS"
     )
     parser.add_argument("--seed", type=int)
+    parser.add_argument(
+        "--coverage",
+        type=float,
+        dest="interval_coverage",
+        metavar="FRACTION",
+        help="coverage of the prediction intervals (default 0.9)",
+    )
     add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)
@@ -120,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
             "seed",
             "model",
             "folds",
+            "interval_coverage",
         )
     }
     for part in ("train", "val", "test"):
@@ -141,6 +152,14 @@ def run(args: argparse.Namespace) -> int:
         "validation MAE (N): "
         + ", ".join(f"{name} {mae:.3f}" for name, mae in result.val_mae_n.items())
     )
+    interval = result.intervals.get(result.selected)
+    if interval:
+        print(
+            f"{100 * interval['coverage']:g} % prediction interval of {result.selected}: ± "
+            + ", ".join(f"{q:.3f}" for q in interval["quantile"])
+            + (" N" if interval["scale"] == "none" else f" × ({interval['floor_n']:.3f} N + |F|)")
+            + f", calibrated on {interval['n_calibration']} held-out frames ({interval['source']})"
+        )
     if result.cross_validation:
         print_cross_validation(result.cross_validation)
     print(
@@ -167,4 +186,12 @@ def print_cross_validation(cv: dict) -> None:
         )
     print(f"{len(cv['folds'])}-fold blocked cross-validation, test MAE mean ± sd (N):")
     for method, s in sorted(cv["summary"].items(), key=lambda kv: kv[1]["mean_mae_n"]):
-        print(f"  {method:>24}: {s['mean_mae_n']:.3f} ± {s['sd_mae_n']:.3f}")
+        print(
+            f"  {method:>24}: {s['mean_mae_n']:.3f} ± {s['sd_mae_n']:.3f}"
+            + (
+                f"; interval coverage {100 * s['interval_coverage']:.1f} %, mean width "
+                f"{s['interval_width_n']:.3f}"
+                if "interval_coverage" in s
+                else ""
+            )
+        )

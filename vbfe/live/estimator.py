@@ -28,11 +28,13 @@ from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
 STAGES = ("scale", "reconstruct", "prepare", "model")
+_NO_BOUNDS = np.full(0, np.nan)  # LiveEstimate without an interval
 
 
 @dataclass(frozen=True)
 class LiveEstimate:
-    """The force estimated from one frame, when it was captured and when it was ready."""
+    """The force estimated from one frame, its prediction interval, whether the frame lies
+    outside the model's training data, when it was captured and when it was ready."""
 
     force_n: np.ndarray  # (outputs,), NaN when the frame gave no usable cloud
     frame_seq: int
@@ -40,6 +42,16 @@ class LiveEstimate:
     t_ready_host_ns: int  # time.monotonic_ns() when the estimate was ready
     stage_s: tuple[float, ...]  # durations of STAGES
     n_points: int
+    # (outputs,) prediction interval; not given: NaN (the model has none)
+    lo_n: np.ndarray = field(default_factory=lambda: _NO_BOUNDS)
+    hi_n: np.ndarray = field(default_factory=lambda: _NO_BOUNDS)
+    ood: bool = False  # the frame is outside the training data
+    novelty_m: float = float("nan")  # its distance from the training frames
+
+    def __post_init__(self) -> None:
+        for name in ("lo_n", "hi_n"):
+            if getattr(self, name) is _NO_BOUNDS:
+                object.__setattr__(self, name, np.full_like(self.force_n, np.nan, np.float64))
 
     @property
     def latency_s(self) -> float:
@@ -66,9 +78,10 @@ class FrameEstimator:
     the model's selected estimator reads every cloud against the run's first usable cloud
     (:class:`vbfe.live.predictor.LivePredictor`), so start with the tissue at rest; a network
     runs on ``device`` (``"cpu"`` or ``"cuda"``). On a machine with several cores the
-    fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1 matches fewer rows (rows
-    averaged together) at the full width: the depth resolution, set by the disparity along
-    the rows, stays; the cloud has fewer points, and the model samples its own few from it.
+    fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1
+    matches fewer rows (rows averaged together) at the full width: the depth resolution, set
+    by the disparity along the rows, stays; the cloud has fewer points, and the model samples
+    its own few from it.
     """
 
     def __init__(
@@ -159,14 +172,25 @@ class FrameEstimator:
     def estimate_force(self, work: FrameWork) -> LiveEstimate:
         """The model's force from the prepared features (NaN without features)."""
         t0 = time.perf_counter()
-        force = (
+        force = np.asarray(
             self._predictor.model_force(work.features)
             if work.features is not None
-            else np.full(self.model.config.n_outputs, np.nan)
+            else np.full(self.model.config.n_outputs, np.nan),
+            np.float64,
+        )
+        lo, hi = self._predictor.bounds(force)
+        novelty, ood = (
+            self._predictor.novelty(work.features)
+            if work.features is not None
+            else (float("nan"), False)
         )
         t1 = time.perf_counter()
         return LiveEstimate(
-            force_n=np.asarray(force, np.float64),
+            lo_n=lo,
+            hi_n=hi,
+            ood=ood,
+            novelty_m=novelty,
+            force_n=force,
             frame_seq=work.frame.seq,
             t_frame_host_ns=work.frame.t_host_ns,
             t_ready_host_ns=time.monotonic_ns(),

@@ -64,7 +64,9 @@ def _outlet(
 
 class LslOutput(EstimateOutput):
     """Two LSL outlets while the rig runs: ``vbfe-estimate`` (type ``Force``, irregular: the
-    force values, the source frame's capture time ``t_frame_s`` and ``latency_s``, stamped
+    force values, their prediction interval (``<channel>_lo``, ``<channel>_hi``; NaN when the
+    model has none), ``ood`` (1 when the frame is outside the training data, else 0), the
+    source frame's capture time ``t_frame_s`` and ``latency_s``, stamped
     with the frame's capture time on the host clock) and ``vbfe-trocar`` (type ``Force``, the
     trocar's x, y, z in newtons at its rate, each sample stamped with its host time); their
     source ids are ``<source_id>-estimate`` and ``<source_id>-trocar``."""
@@ -79,7 +81,9 @@ class LslOutput(EstimateOutput):
         self.estimate = _outlet(
             ESTIMATE_STREAM,
             "Force",
-            [(n, "N") for n in names] + [("t_frame_s", "s"), ("latency_s", "s")],
+            [(n, "N") for n in names]
+            + [(f"{n}_{b}", "N") for b in ("lo", "hi") for n in names]
+            + [("ood", ""), ("t_frame_s", "s"), ("latency_s", "s")],
             pylsl().IRREGULAR_RATE,
             f"{self.source_id}-estimate",
         )
@@ -95,7 +99,15 @@ class LslOutput(EstimateOutput):
         """Publish one estimate (time stamp: its frame's capture time)."""
         t_frame_s = estimate.t_frame_host_ns / 1e9
         self.estimate.push_sample(
-            [*estimate.force_n.tolist(), t_frame_s, estimate.latency_s], t_frame_s
+            [
+                *estimate.force_n.tolist(),
+                *estimate.lo_n.tolist(),
+                *estimate.hi_n.tolist(),
+                float(estimate.ood),
+                t_frame_s,
+                estimate.latency_s,
+            ],
+            t_frame_s,
         )
 
     def on_samples(self, samples: Sequence[ForceSample]) -> None:
@@ -120,14 +132,22 @@ def udp_address(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
+def _json_values(values: np.ndarray) -> list[float | None]:
+    """Numbers for JSON, ``None`` for NaN."""
+    return [None if math.isnan(v) else v for v in values.tolist()]
+
+
 class UdpOutput(EstimateOutput):
     """One JSON datagram per estimate to ``host:port``::
 
         {"frame_seq": 12, "t_frame_host_ns": ..., "t_ready_host_ns": ..., "latency_s": 0.041,
-         "target": "magnitude", "force_n": [1.52]}
+         "target": "magnitude", "force_n": [1.52], "lo_n": [1.31], "hi_n": [1.73],
+         "ood": false}
 
-    (``force_n`` entries are ``null`` when the frame gave no estimate). Host times are this
-    machine's monotonic clock (LSL's ``local_clock()``)."""
+    (``force_n`` entries are ``null`` when the frame gave no estimate, ``lo_n``/``hi_n`` (the
+    prediction interval) when it gave none or the model has no interval; ``ood``: the frame
+    is outside the model's training data). Host times are this machine's monotonic clock
+    (LSL's ``local_clock()``)."""
 
     def __init__(self, address: tuple[str, int], target: str) -> None:
         self.target = target
@@ -150,7 +170,10 @@ class UdpOutput(EstimateOutput):
             "t_ready_host_ns": estimate.t_ready_host_ns,
             "latency_s": estimate.latency_s,
             "target": self.target,
-            "force_n": [None if math.isnan(v) else v for v in estimate.force_n.tolist()],
+            "force_n": _json_values(estimate.force_n),
+            "lo_n": _json_values(estimate.lo_n),
+            "hi_n": _json_values(estimate.hi_n),
+            "ood": estimate.ood,
         }
         try:
             self._sock.sendto(json.dumps(message).encode(), self._to)

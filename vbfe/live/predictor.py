@@ -5,7 +5,9 @@ The estimates are ``estimate.inference.FramePredictor``'s (same rest cloud, same
 same causal window): a network (PointNet or the temporal model) reads only each frame's point
 pool, so the live path skips the peak displacement and the depth-change image the other
 estimators read, and draws the pool by index straight from a cloud whose points are all
-finite (``roi = "all"``) instead of copying the cloud first.
+finite (``roi = "all"``) instead of copying the cloud first. When the model carries a flag of
+frames outside the training data (``estimate.novelty``) every frame's full features are
+computed, since the flag reads the depth-change image and the displacement.
 """
 
 from __future__ import annotations
@@ -27,12 +29,12 @@ class LivePredictor:
         self.model = model
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window
         estimator = model.estimators[model.selected]
-        self._pool_only = isinstance(estimator, NetworkEstimator)
+        network = isinstance(estimator, NetworkEstimator)
+        self._pool_only = network and model.novelty is None
         # a single-frame network reads the newest pool alone: called directly
-        self._network = (
-            estimator.network.eval() if self._pool_only and not estimator.window else None
-        )
-        self._device = next(estimator.network.parameters()).device if self._pool_only else None
+        self._network = estimator.network.eval() if network and not estimator.window else None
+        self._device = next(estimator.network.parameters()).device if network else None
+        self._interval = model.interval()
 
     def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
         """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or
@@ -60,3 +62,17 @@ class LivePredictor:
         points = torch.from_numpy(features.pool[None, : self.model.config.n_points])
         with torch.no_grad():
             return self._network(points.to(self._device))[0].cpu().double().numpy()
+
+    def bounds(self, force_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The prediction interval (lo, hi) of an estimate (NaN: the model has none)."""
+        if self._interval is None:
+            return np.full_like(force_n, np.nan), np.full_like(force_n, np.nan)
+        return self._interval.bounds(force_n)
+
+    def novelty(self, features: FrameFeatures) -> tuple[float, bool]:
+        """A frame's distance from the training data (m; NaN: the model has no flag) and
+        whether it is outside it."""
+        if self.model.novelty is None:
+            return float("nan"), False
+        distance = self.model.novelty.frame_distance(features)
+        return distance, bool(distance > self.model.novelty.threshold)

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,6 +41,18 @@ from vbfe.live.settings import LiveSettings, live_settings
 from vbfe.recon.matching import SgbmParams
 
 FORCE_HISTORY_S = 30.0
+
+
+class LiveCurves(NamedTuple):
+    """What the viewer draws: times in seconds before now, forces in newtons."""
+
+    t_estimate_s: np.ndarray
+    estimate_n: np.ndarray
+    t_trocar_s: np.ndarray
+    trocar_n: np.ndarray
+    lo_n: np.ndarray  # the estimate's interval (NaN: none, or three axes)
+    hi_n: np.ndarray
+    ood: np.ndarray  # the estimate's frame is outside the training data
 
 
 @dataclass
@@ -327,12 +339,10 @@ class LiveRun(Listener):
             last_trocar_n=trocar[0] if trocar else float("nan"),
         )
 
-    def curves(
-        self, window_s: float, max_points: int = 2000
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Estimate and trocar (model target as one number) against host time in seconds,
-        over the last ``window_s``: ``(t_est, est, t_trocar, trocar)``; each curve thinned
-        to at most ``max_points`` points."""
+    def curves(self, window_s: float, max_points: int = 2000) -> LiveCurves:
+        """Estimate (with its interval and flag) and trocar, the model target as one number,
+        against host time in seconds over the last ``window_s``; each curve thinned to at
+        most ``max_points`` points."""
         now = time.monotonic_ns()
         since = now - window_s * 1e9
         with self._lock:
@@ -342,20 +352,29 @@ class LiveRun(Listener):
         samples = self._forces_since(since)
         samples = samples[:: len(samples) // max_points + 1]
         t_est = np.array([e.t_frame_host_ns for e in estimates], np.float64)
-        est = (
-            self._scalars(
-                np.array([e.force_n for e in estimates], np.float64).reshape(len(estimates), -1)
-            )
-            if estimates
-            else np.zeros(0)
-        )
+
+        def scalars(key: str) -> np.ndarray:
+            values = [getattr(e, key) for e in estimates]
+            if not estimates:
+                return np.zeros(0)
+            return self._scalars(np.array(values, np.float64).reshape(len(estimates), -1))
+
+        one = self.estimator.model.config.n_outputs == 1  # three axes: no band of |F|
         t_trc = np.array([s.t_host_ns for s in samples], np.float64)
         trc = (
             self._scalars(force_target(np.array([s.force_n for s in samples]), self.target))
             if samples
             else np.zeros(0)
         )
-        return (t_est - now) / 1e9, est, (t_trc - now) / 1e9, trc
+        return LiveCurves(
+            (t_est - now) / 1e9,
+            scalars("force_n"),
+            (t_trc - now) / 1e9,
+            trc,
+            scalars("lo_n") if one else np.full(len(t_est), np.nan),
+            scalars("hi_n") if one else np.full(len(t_est), np.nan),
+            np.array([e.ood for e in estimates], bool),
+        )
 
     def stream(self, status: LiveStatus, recorded_seqs: np.ndarray) -> EstimateStream:
         """The estimates of the recorded frames as the session's ``/estimate`` stream (a
@@ -370,6 +389,9 @@ class LiveRun(Listener):
             t_frame_host_ns=np.array([e.t_frame_host_ns for e in estimates], np.int64),
             t_ready_host_ns=np.array([e.t_ready_host_ns for e in estimates], np.int64),
             stage_s=np.array([e.stage_s for e in estimates], np.float64).reshape(-1, len(STAGES)),
+            lo_n=np.array([e.lo_n for e in estimates], np.float64).reshape(-1, outputs),
+            hi_n=np.array([e.hi_n for e in estimates], np.float64).reshape(-1, outputs),
+            ood=np.array([e.ood for e in estimates], bool),
             stages=list(STAGES),
             attrs={
                 "target": self.target,

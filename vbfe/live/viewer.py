@@ -1,9 +1,11 @@
-"""The live estimation window: the estimate over the trocar's force on one time axis, with
-rate, latency and skipped frames in view. Everything Qt runs on the GUI thread (a timer polls
+"""The live estimation window: the estimate (with its prediction interval as a band, frames
+outside the training data marked) over the trocar's force on one time axis, with rate,
+latency and skipped frames in view. Everything Qt runs on the GUI thread (a timer polls
 the run), so the estimator threads never touch a widget."""
 
 from __future__ import annotations
 
+import numpy as np
 import pyqtgraph as pg
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
@@ -30,8 +32,19 @@ class LiveEstimateWindow(QtWidgets.QWidget):
         self.plot.setLabel("bottom", "time before now", units="s")
         self.plot.addLegend(offset=(5, 5))
         self.trocar = self.plot.plot(pen=pg.mkPen("#4363d8", width=2), name="trocar")
+        self.lo = self.plot.plot(pen=pg.mkPen("#e6194b", width=1, style=QtCore.Qt.PenStyle.DotLine))
+        self.hi = self.plot.plot(pen=pg.mkPen("#e6194b", width=1, style=QtCore.Qt.PenStyle.DotLine))
+        self.band = pg.FillBetweenItem(self.lo, self.hi, brush=pg.mkBrush(230, 25, 75, 50))
+        self.plot.addItem(self.band)
         self.estimate = self.plot.plot(
             pen=None, symbol="o", symbolSize=5, symbolBrush="#e6194b", name="estimate"
+        )
+        self.flagged = self.plot.plot(
+            pen=None,
+            symbol="x",
+            symbolSize=9,
+            symbolPen=pg.mkPen("k"),
+            name="outside the training data",
         )
         self.plot.setXRange(-WINDOW_S, 0.0)
         layout.addWidget(self.plot)
@@ -46,9 +59,14 @@ class LiveEstimateWindow(QtWidgets.QWidget):
 
     def refresh(self) -> None:
         """Redraw from the run's current state; close when the run has ended."""
-        t_est, est, t_trc, trc = self.run.curves(WINDOW_S)
-        self.trocar.setData(t_trc, trc)
-        self.estimate.setData(t_est, est)
+        curves = self.run.curves(WINDOW_S)
+        self.trocar.setData(curves.t_trocar_s, curves.trocar_n)
+        self.estimate.setData(curves.t_estimate_s, curves.estimate_n)
+        banded = np.isfinite(curves.lo_n) & np.isfinite(curves.hi_n)
+        self.lo.setData(curves.t_estimate_s[banded], curves.lo_n[banded])
+        self.hi.setData(curves.t_estimate_s[banded], curves.hi_n[banded])
+        flagged = curves.ood
+        self.flagged.setData(curves.t_estimate_s[flagged], curves.estimate_n[flagged])
         self.last_status = self.run.status()
         self.status_label.setText(self.last_status.line() + self.note)
         done = self.duration_s is not None and self.last_status.wall_s >= self.duration_s

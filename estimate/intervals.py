@@ -1,0 +1,111 @@
+"""Prediction intervals calibrated on held-out residuals (split conformal).
+
+Every method's interval comes from its errors on frames it was not fitted on: the validation
+part, or (when that is small) the out-of-fold predictions of blocked folds of the training
+part (``training.py``); folds and parts hold out whole sessions or contiguous blocks in time,
+never single frames, so the residuals are as far from the fit as a new trial is. The score of
+a frame is ``|measured − predicted| / difficulty`` per output; the interval of a new frame is
+``predicted ± q · difficulty`` with ``q`` the ``⌈(n + 1)·coverage⌉``-th smallest of the ``n``
+calibration scores (infinite when ``n`` is too small for the coverage). Difficulty ``"none"``
+is 1 (a constant width); ``"force"`` is ``floor + |predicted|`` (errors grow with the force;
+``floor`` the median ``|predicted|`` of the calibration frames), so the band widens under load.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vbfe.estimate.errors import EstimateError
+from vbfe.estimate.train_config import INTERVAL_SCALES as SCALES
+
+
+@dataclass(frozen=True)
+class ConformalInterval:
+    """Calibrated interval of one method.
+
+    ``quantile``: per output, in units of the difficulty; ``source``: where the calibration
+    residuals came from (``"validation"`` or ``"training folds"``).
+    """
+
+    coverage: float
+    quantile: np.ndarray
+    scale: str = "none"
+    floor_n: float = 1.0
+    n_calibration: int = 0
+    source: str = "validation"
+
+    def difficulty(self, predicted_n: np.ndarray) -> np.ndarray:
+        """Per frame and output, the factor the quantile is multiplied by."""
+        predicted = np.asarray(predicted_n, np.float64)
+        if self.scale == "force":
+            return self.floor_n + np.abs(predicted)
+        return np.ones_like(predicted)
+
+    def bounds(self, predicted_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), each shaped like ``predicted_n`` (frames × outputs, or outputs)."""
+        predicted = np.asarray(predicted_n, np.float64)
+        half = self.quantile * self.difficulty(predicted)
+        return predicted - half, predicted + half
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "coverage": self.coverage,
+            "quantile": [float(q) for q in self.quantile],
+            "scale": self.scale,
+            "floor_n": self.floor_n,
+            "n_calibration": self.n_calibration,
+            "source": self.source,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ConformalInterval:
+        if d.get("scale", "none") not in SCALES or not 0 < float(d["coverage"]) < 1:
+            raise EstimateError(f"interval {d!r} has an unknown scale or a coverage not in (0, 1)")
+        return cls(
+            float(d["coverage"]),
+            np.asarray(d["quantile"], np.float64),
+            d.get("scale", "none"),
+            float(d.get("floor_n", 1.0)),
+            int(d.get("n_calibration", 0)),
+            str(d.get("source", "validation")),
+        )
+
+
+def calibrate(
+    predicted_n: np.ndarray,
+    measured_n: np.ndarray,
+    coverage: float,
+    scale: str = "none",
+    source: str = "validation",
+) -> ConformalInterval:
+    """The interval whose ``coverage`` holds on frames exchangeable with these held-out ones
+    (frames × outputs each). ``EstimateError`` for a coverage outside (0, 1) or an unknown
+    ``scale``."""
+    if not 0 < coverage < 1:
+        raise EstimateError(f"interval coverage {coverage} must be in (0, 1), e.g. 0.9")
+    if scale not in SCALES:
+        raise EstimateError(f"interval scale {scale!r} must be one of {SCALES}")
+    predicted = np.asarray(predicted_n, np.float64)
+    measured = np.asarray(measured_n, np.float64)
+    n = len(predicted)
+    floor = float(np.median(np.abs(predicted))) if n else 1.0
+    interval = ConformalInterval(
+        coverage, np.zeros(predicted.shape[1]), scale, max(floor, 1e-3), n, source
+    )
+    scores = np.sort(np.abs(measured - predicted) / interval.difficulty(predicted), axis=0)
+    rank = math.ceil((n + 1) * coverage)
+    quantile = scores[rank - 1] if rank <= n else np.full(predicted.shape[1], np.inf)
+    return ConformalInterval(coverage, quantile, scale, interval.floor_n, n, source)
+
+
+def coverage_width(lo_n: np.ndarray, hi_n: np.ndarray, measured_n: np.ndarray) -> dict[str, float]:
+    """Share of (frame, output) values inside their interval and the interval's mean width."""
+    inside = (measured_n >= lo_n) & (measured_n <= hi_n)
+    return {
+        "interval_coverage": float(inside.mean()) if inside.size else float("nan"),
+        "interval_width_n": float(np.mean(hi_n - lo_n)) if inside.size else float("nan"),
+    }

@@ -1,0 +1,312 @@
+"""Prediction intervals, the flag of frames outside the training data and selection on small
+validation sets: on synthetic trials (fast) and on bench trials recorded and reconstructed
+(slow)."""
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+
+from vbfe.acquire import SessionReader, record_session
+from vbfe.cli.main import main
+from vbfe.common.config import default_config
+from vbfe.estimate.dataset import prepare_sessions
+from vbfe.estimate.evaluation import evaluate
+from vbfe.estimate.inference import FramePredictor
+from vbfe.estimate.intervals import calibrate
+from vbfe.estimate.model_file import load_model
+from vbfe.estimate.synthetic import synthetic_session
+from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate.training import select, train, training_folds
+from vbfe.live.estimator import FrameEstimator
+from vbfe.live.predictor import LivePredictor
+from vbfe.recon import reconstruct_session
+from vbfe.truth import calibration_from_rig, true_rig
+
+FAST = dict(
+    val_fraction=0.0,
+    history_frames=0,
+    threads=1,
+    ridge_sizes=[4, 8],
+    n_points=32,
+    epochs=2,
+    batch_size=8,
+    conv_channels=[8, 16],
+    head_channels=[8],
+    cnn_epochs=2,
+    cnn_channels=[4],
+)
+
+
+def trials(rng, n, prefix, stiffness=(60.0, 200.0), **options):
+    """``n`` synthetic pull-and-hold trials, each of its own stiffness (log-uniform in
+    ``stiffness``) and pull speed: exchangeable trials, as repeated sessions of a study."""
+    out = []
+    for i in range(n):
+        k = float(np.exp(rng.uniform(*np.log(stiffness))))
+        speed = float(rng.uniform(0.01, 0.03))
+        out.append(
+            synthetic_session(
+                f"{prefix}{i:02d}",
+                round(k),
+                round(speed, 3),
+                rng,
+                fps=options.get("fps", 2),
+                hold_s=1.0,
+                points_per_side=12,
+            )
+        )
+    return out
+
+
+def test_the_interval_is_the_finite_sample_conformal_quantile():
+    predicted = np.zeros((19, 1))
+    measured = np.arange(1.0, 20.0)[:, None] * np.where(np.arange(19) % 2, 1, -1)[:, None]
+    interval = calibrate(predicted, measured, 0.9, "none", "validation")
+    assert interval.quantile[0] == 18.0  # the ⌈(19 + 1)·0.9⌉ = 18th smallest |residual|
+    lo, hi = interval.bounds(np.array([[2.0]]))
+    assert (lo[0, 0], hi[0, 0]) == (-16.0, 20.0)
+    # too few residuals for the coverage asked: an honest infinite interval
+    assert np.isinf(calibrate(predicted[:5], measured[:5], 0.9, "none").quantile[0])
+    # scaled by the force: wider under load
+    scaled = calibrate(measured + 0.1 * measured, measured, 0.9, "force")
+    lo, hi = scaled.bounds(np.array([[0.0], [10.0]]))
+    ratio = (hi[1, 0] - lo[1, 0]) / (hi[0, 0] - lo[0, 0])
+    assert ratio == pytest.approx((scaled.floor_n + 10) / scaled.floor_n) and ratio > 1.5
+
+
+def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
+    rng = np.random.default_rng(5)
+    sessions = trials(rng, 8, "fit")
+    result = train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST))
+    where = "5 blocked folds of the training part (sessions)"
+    assert any(n.startswith("validation part small (0 frames") and where in n for n in result.notes)
+    model = load_model(result.model_path)
+    record = model.record
+    # every method scored out of fold, each frame once: its interval calibrated on the same
+    assert set(record["selection_mae_n"]) == set(model.estimators)
+    n_frames = sum(len(s.clouds) for s in sessions)
+    for method in model.estimators:
+        interval = model.interval(method)
+        assert interval.source == where and interval.n_calibration == n_frames
+        assert interval.coverage == 0.9 and 0 < interval.quantile[0] < np.inf
+    # out of fold the ridge errs more than on the frames it was fitted on
+    assert (
+        record["selection_mae_n"]["ridge_height_map"]
+        > record["validation_mae_n"]["ridge_height_map"]
+    )
+    # frame by frame (vbfe live) the estimate comes with the same interval
+    predictor = LivePredictor(model)
+    features = predictor.prepare(sessions[0].clouds[-1])
+    force = predictor.model_force(features)
+    lo, hi = predictor.bounds(force)
+    half = model.interval().quantile
+    np.testing.assert_allclose([lo, hi], [force - half, force + half])
+    distance, flagged = predictor.novelty(features)
+    assert distance < model.novelty.threshold and not flagged  # a training frame
+
+
+def test_auto_ships_the_baseline_when_every_candidate_loses_to_it():
+    scores = {"mean": 0.9, "linear_displacement": 0.31, "hooke": 0.35}
+    scores.update(pointnet=0.5, ridge_height_map=0.33, cnn_depth_change=0.6)
+    candidates = ["pointnet", "ridge_height_map", "cnn_depth_change"]
+    where = "5 blocked folds of the training part (sessions)"
+    shipped, note = select(candidates, scores, where, auto=True)
+    assert shipped == "linear_displacement"
+    assert note.startswith("warning: the best candidate ridge_height_map (0.330 N on 5 blocked")
+    assert "LOSES to the baseline linear_displacement (0.310 N): shipping linear_displacement" in (
+        note
+    )
+    # forced, the losing candidate ships, with the warning
+    shipped, note = select(["ridge_height_map"], scores, where, auto=False)
+    assert shipped == "ridge_height_map" and "forced by --model" in note and "LOSES" in note
+    # a candidate as good as the best baseline ships
+    shipped, note = select(candidates, {**scores, "pointnet": 0.31}, where, auto=True)
+    assert shipped == "pointnet" and not note.startswith("warning")
+
+
+def test_a_model_shipping_a_baseline_runs_frame_by_frame(tmp_path):
+    rng = np.random.default_rng(6)
+    sessions = trials(rng, 5, "base")
+    result = train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST))
+    payload = torch.load(result.model_path, weights_only=True)
+    payload["selected"] = "linear_displacement"  # as `--model auto` ships a winning baseline
+    torch.save(payload, tmp_path / "baseline.pt")
+    model = load_model(tmp_path / "baseline.pt")
+    predictor = LivePredictor(model)
+    force = predictor.model_force(predictor.prepare(sessions[0].clouds[-1]))
+    lo, hi = predictor.bounds(force)
+    assert lo < force < hi and hi - lo == pytest.approx(2 * model.interval().quantile)
+
+
+def test_a_large_validation_part_selects_and_calibrates_there(tmp_path):
+    rng = np.random.default_rng(7)
+    sessions = trials(rng, 9, "val")
+    config = TrainConfig(model="ridge", **{**FAST, "val_fraction": 1 / 3}, select_min_val_frames=5)
+    result = train(sessions, tmp_path / "m.pt", config)
+    model = load_model(result.model_path)
+    n_val = sum(len(s.clouds) for s in sessions if s.name in model.record["split"]["val"])
+    assert model.interval().source == "validation" and model.interval().n_calibration == n_val
+    assert model.record["selection_mae_n"] == model.record["validation_mae_n"]
+
+
+def test_evaluate_reports_coverage_and_flags_a_tissue_outside_the_training_range(tmp_path):
+    rng = np.random.default_rng(8)
+    model_path = tmp_path / "m.pt"
+    train(trials(rng, 10, "fit"), model_path, TrainConfig(model="ridge", **FAST))
+    held_out = trials(rng, 6, "new")
+    soft = trials(rng, 1, "soft", stiffness=(15.0, 15.0), fps=4)  # far softer than any trained
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(model_path), *[], "--out", str(out)]) == 2  # no test sessions
+    report = evaluate(model_path, held_out + soft, out)
+    flags = report.out_of_distribution["per_condition"]
+    soft_flags = flags.pop(next(c for c in flags if c.startswith("15 N/m")))
+    assert soft_flags["share"] > 0.5  # most of the soft trial's frames: outside
+    in_range = sum(v["flagged"] for v in flags.values()) / sum(
+        v["n_frames"] for v in flags.values()
+    )
+    assert in_range < 0.1
+    rows = list(csv.DictReader(open(out / "predictions.csv")))
+    assert {"ood", "novelty_m", "ridge_height_map_lo_n", "ridge_height_map_hi_n"} <= set(rows[0])
+    flagged = [int(r["ood"]) for r in rows if r["session"] == "soft00"]
+    assert sum(flagged) == soft_flags["flagged"]
+    for r in rows:
+        assert float(r["hooke_lo_n"]) <= float(r["hooke_n"]) <= float(r["hooke_hi_n"])
+    overall = report.metrics["ridge_height_map"]["overall"]
+    inside = [
+        float(r["ridge_height_map_lo_n"])
+        <= float(r["measured_n"])
+        <= float(r["ridge_height_map_hi_n"])
+        for r in rows
+    ]
+    assert overall["interval_coverage"] == pytest.approx(np.mean(inside))
+    assert all("interval_coverage" in c for c in report.metrics["mean"]["per_condition"].values())
+    text = (out / "report.md").read_text()
+    assert "Prediction intervals: coverage" in text
+    assert (
+        f"outside the training data: {report.out_of_distribution['overall']['flagged']} of" in text
+    )
+
+
+def test_model_files_without_intervals_or_flag_still_load(tmp_path):
+    rng = np.random.default_rng(9)
+    sessions = trials(rng, 6, "old")
+    path = train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST)).model_path
+    payload = torch.load(path, weights_only=True)
+    del payload["novelty"], payload["record"]["intervals"]
+    for key in ("interval_coverage", "interval_scale", "select_min_val_frames", "select_folds"):
+        del payload["config"][key]  # written before these settings existed
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    model = load_model(old)
+    assert model.interval() is None and model.novelty is None
+    predictor = LivePredictor(model)
+    force = predictor.model_force(predictor.prepare(sessions[0].clouds[3]))
+    assert np.isnan(predictor.bounds(force)[0]).all()
+    assert np.isfinite(FramePredictor(model).predict(sessions[0].clouds[3])).all()
+    report = evaluate(old, sessions[:1], tmp_path / "eval")
+    assert "interval_coverage" not in report.metrics["ridge_height_map"]["overall"]
+    assert (
+        "no prediction intervals (model file without them)"
+        in (tmp_path / "eval" / "report.md").read_text()
+    )
+
+
+@pytest.mark.slow
+def test_ninety_percent_intervals_cover_ninety_percent_of_new_trials(tmp_path):
+    """Split-conformal coverage is a promise over calibration sets: trained and calibrated on
+    16 trials, scored on 60 new ones, four times over; the mean coverage of the shipped
+    model's 90 % interval is 86–94 % (each draw alone varies by a few percent: its 16
+    calibration trials)."""
+    coverage, widths = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(100 + seed)
+        result = train(
+            trials(rng, 16, "fit"), tmp_path / f"m{seed}.pt", TrainConfig(model="ridge", **FAST)
+        )
+        model = load_model(result.model_path)
+        prepared = prepare_sessions(trials(rng, 60, "new"), model.config, texture=False)
+        measured = np.concatenate([s.targets_n for s in prepared])
+        predicted = np.concatenate([model.predict_session(s) for s in prepared])
+        lo, hi = model.interval().bounds(predicted)
+        coverage.append(np.mean((measured >= lo) & (measured <= hi)))
+        widths.append(np.mean(hi - lo))
+    assert 0.86 <= np.mean(coverage) <= 0.94, coverage
+    mae = np.abs(predicted - measured).mean()
+    assert np.mean(widths) < 10 * mae  # an interval, not the whole force range
+
+
+def _record_trial(folder, name, seed, stiffness, speed, hold_s):
+    """A traction trial on the simulated bench at 320×180, 4 fps, reconstructed; and its
+    calibration."""
+    config = default_config()
+    config["bench"].update(
+        width=320,
+        height=180,
+        fps=4.0,
+        seed=seed,
+        stiffness_n_per_m=stiffness,
+        pull_speed_m_per_s=speed,
+        rest_s=0.1,
+        hold_s=hold_s,
+    )
+    calibration = calibration_from_rig(true_rig(config))
+    path = folder / f"{name}.h5"
+    duration = 0.1 + 3.0 / (stiffness * speed) + hold_s  # rest, pull to 3 N, hold
+    record_session(config, path, duration_s=duration, calibration_yaml=calibration.to_yaml_text())
+    reconstruct_session(path, workers=1)
+    return path, calibration
+
+
+@pytest.mark.slow
+def test_bench_trial_on_a_far_softer_tissue_is_flagged_live_and_in_evaluate(tmp_path):
+    """Ridge trained on eight bench trials of 120–250 N/m tissue; held out: two more of the
+    same and one of 40 N/m (the same 3 N pull moves it three to six times further)."""
+    rng = np.random.default_rng(0)
+    in_range = []
+    for i in range(10):
+        stiffness, speed = rng.uniform(120, 250), rng.uniform(0.01, 0.02)
+        in_range.append(_record_trial(tmp_path, f"in{i}", i, stiffness, speed, 0.8)[0])
+    soft, calibration = _record_trial(tmp_path, "soft", 99, 40.0, 0.02, 1.5)
+    model_path = tmp_path / "m.pt"
+    train(in_range[:8], model_path, TrainConfig(model="ridge", **FAST))
+    report = evaluate(model_path, [*in_range[8:], soft], tmp_path / "eval")
+    flags = report.out_of_distribution["per_condition"]
+    soft_flags = flags.pop("40 N/m @ 0.02 m/s")
+    assert soft_flags["share"] > 0.5
+    assert sum(v["flagged"] for v in flags.values()) < 0.1 * sum(
+        v["n_frames"] for v in flags.values()
+    )
+    # vbfe live on the soft trial's frames: the same flags, each estimate with its interval
+    model = load_model(model_path)
+    live = FrameEstimator(model, calibration)
+    with SessionReader(soft) as reader:
+        estimates = [live.estimate(frame) for frame in reader.iter_frames()]
+    usable = [e for e in estimates if np.isfinite(e.force_n).all()]
+    half = model.interval().quantile
+    for e in usable:
+        np.testing.assert_allclose([e.lo_n, e.hi_n], [e.force_n - half, e.force_n + half])
+    shown = report.frames[str(soft)]["ood"]
+    assert sum(e.ood for e in usable) == pytest.approx(shown.sum(), abs=2)
+
+
+def test_training_folds_hold_out_whole_sessions_or_blocks_in_time_with_a_gap():
+    rng = np.random.default_rng(10)
+    config = TrainConfig(n_points=32)
+    prepared = prepare_sessions(trials(rng, 3, "fold", fps=4), config, texture=False)
+    parts = [(s, np.arange(s.n_used)) for s in prepared]
+    by_session = training_folds(parts, 5, gap_frames=3)
+    assert len(by_session) == 3  # one fold per session when there are fewer than 5
+    for fit, held in by_session:
+        assert len(held) == 1 and held[0][0] not in [s for s, _ in fit]
+    ((session, positions),) = parts[:1]
+    in_time = training_folds([(session, positions)], 5, gap_frames=3)
+    assert len(in_time) == 5
+    seen = np.concatenate([held[0][1] for _, held in in_time])
+    np.testing.assert_array_equal(np.sort(seen), positions)  # every frame held out once
+    for fit, held in in_time:
+        test = session.frame_index[held[0][1]]
+        fitted = session.frame_index[fit[0][1]] if fit else np.zeros(0, int)
+        assert np.all(np.diff(test) == 1)  # a contiguous block
+        assert np.all((fitted < test.min() - 3) | (fitted > test.max() + 3))  # and its gap
