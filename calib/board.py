@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from vbfe.calib.chessboard import detect_chessboard
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, calib_settings, from_table
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import save_figure, write_bytes_atomic
 
 TARGETS = ("charuco", "chessboard")

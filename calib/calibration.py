@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
 FORMAT_VERSION = 1
@@ -544,7 +544,9 @@ def _read_old_info(
 
 
 def _shape_ok(shape: tuple[int, ...], expected: tuple[int, ...]) -> bool:
-    return len(shape) == len(expected) and all(e in (-1, s) for s, e in zip(shape, expected, strict=False))
+    return len(shape) == len(expected) and all(
+        e in (-1, s) for s, e in zip(shape, expected, strict=False)
+    )
 
 
 def load_calibration(path: str | Path) -> Calibration:

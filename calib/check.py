@@ -10,11 +10,11 @@ import numpy as np
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import DEFAULTS
 from vbfe.calib.stereo import StereoOptions
 from vbfe.calib.views import ViewSet, check_sizes
+from vbfe.common.errors import CalibrationError
 
 
 @dataclass

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
 FORMATS = ("ros", "kalibr", "opencv", "middlebury")

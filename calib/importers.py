@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 
 IMPORT_FORMATS = ("opencv", "kalibr", "ros", "middlebury")
 

@@ -19,8 +19,8 @@ import numpy as np
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, from_table
+from vbfe.common.errors import CalibrationError
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 # Radial distortion k1, k2 only: a projector lens has little tangential distortion, and the few

@@ -21,9 +21,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.projector import GrayCodeCapture, projector_images, save_captures
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import StereoFrame

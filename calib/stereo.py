@@ -28,11 +28,11 @@ from vbfe.calib.camera import (
 )
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.chessboard import is_clear, same_numbering
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
+from vbfe.common.errors import CalibrationError
 
 
 @dataclass
@@ -146,7 +146,9 @@ def desync_shifts(spec: BoardSpec, left: CameraFit, right: CameraFit) -> np.ndar
     T = np.median(rel_t, axis=0)
     obj_all = spec.object_points()
     out = np.zeros((len(left.rvecs), 2))
-    for v, (dr, rvec, tvec) in enumerate(zip(right.detections, left.rvecs, left.tvecs, strict=False)):
+    for v, (dr, rvec, tvec) in enumerate(
+        zip(right.detections, left.rvecs, left.tvecs, strict=False)
+    ):
         Rl, _ = cv2.Rodrigues(rvec)
         rr, _ = cv2.Rodrigues(R @ Rl)
         out[v] = -residuals(

@@ -11,8 +11,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.pairs import IMAGE_SUFFIXES, PAIR_NAMING, images_in, pair_files
+from vbfe.common.errors import CalibrationError
 
 NAMING_RULES = PAIR_NAMING + ", or one side-by-side image per view (left half = left eye)"
 

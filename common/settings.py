@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError
 
 T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)

@@ -14,7 +14,7 @@ import time
 from types import TracebackType
 from typing import Generic, TypeVar
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import StreamStats
 
 _D = TypeVar("_D", bound="Device")

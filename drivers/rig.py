@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.trocar.base import ForceSensor
 

@@ -28,8 +28,8 @@ from typing import Any, Union
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.history_baseline import HistoryBaseline, fit_history
 
 FEATURES = ("displacement_m", "texture_displacement_m")  # PreparedSession's displacements

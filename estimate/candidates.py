@@ -22,9 +22,9 @@ from typing import Any, Union
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import FITTERS, AffineBaseline, Baseline, baseline_from_dict
 from vbfe.estimate.dataset import FrameBatches, PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 

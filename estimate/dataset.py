@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer, force_target
 from vbfe.estimate.sources import SessionLike, condition_label, open_source
 from vbfe.estimate.train_config import TrainConfig

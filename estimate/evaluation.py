@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.preparation import target_label
 from vbfe.estimate.report import plot_scatter, plot_session, safe_stem, write_json, write_tables

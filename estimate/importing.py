@@ -28,8 +28,8 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire.resample import resample_at
+from vbfe.common.errors import EstimateError
 from vbfe.common.files import commit, partial_path
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.estimate.tables import read_table
 from vbfe.recon.clouds import CloudWriter

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer
 

@@ -18,12 +18,11 @@ import numpy as np
 import torch
 
 from vbfe import __version__
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError, EstimateError
 from vbfe.common.files import atomic_path
 from vbfe.common.settings import parse_table
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.splits import SessionSplit
 from vbfe.estimate.train_config import TrainConfig
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import FrameBatches
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 from vbfe.estimate.train_config import TrainConfig
 

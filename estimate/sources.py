@@ -17,8 +17,7 @@ import h5py
 import numpy as np
 
 from vbfe.acquire import SessionReader
-from vbfe.common.errors import VbfeError
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError, VbfeError
 from vbfe.recon import CloudReader, sidecar_path
 
 CLOUDS_SUFFIX = ".clouds.h5"

@@ -8,8 +8,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.common.settings import parse_table, setting
-from vbfe.estimate.errors import EstimateError
 
 AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))

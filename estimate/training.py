@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import fit_baselines
 from vbfe.estimate.candidates import (
     CANDIDATES,
@@ -44,7 +45,6 @@ from vbfe.estimate.dataset import (
     prepare_sessions,
     skipped_counts,
 )
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.network_training import build_network, fit_network, resolve_device

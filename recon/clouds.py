@@ -37,8 +37,8 @@ import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.common.errors import ReconError
 from vbfe.common.files import require_free_space
-from vbfe.recon.errors import ReconError
 
 FORMAT_NAME = "vbfe-clouds"
 FORMAT_VERSION = 3

@@ -19,10 +19,10 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
 from vbfe.recon import kernels
-from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
 FLAT_BGR = {

@@ -14,10 +14,9 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.pairs import PAIR_NAMING, pair_files
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import CalibrationError, ReconError
 
 
 class StereoImages(NamedTuple):

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 
 DISPARITY_PNG_SCALE = 256.0  # PNG value per pixel of disparity
 DEPTH_PNG_SCALE = 10.0  # PNG value per millimetre of depth

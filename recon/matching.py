@@ -8,9 +8,9 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from vbfe.common.errors import ReconError
 from vbfe.common.settings import parse_table, setting
 from vbfe.recon import kernels
-from vbfe.recon.errors import ReconError
 
 MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,

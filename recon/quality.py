@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.common.settings import parse_table, setting
 from vbfe.recon.clouds import CloudReader
-from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16

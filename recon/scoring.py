@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 
 BAD_THRESHOLDS_PX = (1.0, 2.0, 3.0)
 TRUTH_KINDS = ("disparity", "depth")

@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeCode, FringeDecoder
-from vbfe.recon.errors import ReconError
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
 from vbfe.recon.matching import SgbmParams, disparity_px
 from vbfe.recon.quality import ReconSettings, check_disparity_range, decoded_fraction, params_for
@@ -221,7 +221,8 @@ class Reconstructor:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         self._check_size(left, right)
         rect_left, rect_right = (
-            self._rectify(image, maps) for image, maps in zip((left, right), self._maps, strict=False)
+            self._rectify(image, maps)
+            for image, maps in zip((left, right), self._maps, strict=False)
         )
         if not self.verify:
             disparity, edge = disparity_px(

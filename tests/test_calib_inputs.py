@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.views import NAMING_RULES, load_images, load_views
+from vbfe.common.errors import CalibrationError
 from vbfe.recon.inputs import find_pairs
 
 

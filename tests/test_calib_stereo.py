@@ -14,10 +14,10 @@ from vbfe.acquire import SessionWriter, finalize_session
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.check import check_calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.stereo import StereoOptions, calibrate_detections, calibrate_stereo, detect_views
 from vbfe.calib.views import ViewSet, load_views, save_views
 from vbfe.cli.main import main
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionWriter, finalize_session
-from vbfe.calib.errors import CalibrationError
 from vbfe.cli.main import main
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig

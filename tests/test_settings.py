@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vbfe.calib.calibration import Calibration
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError
 from vbfe.common.settings import parse_kwargs, parse_table, setting
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig

@@ -27,9 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame

@@ -11,8 +11,8 @@ from collections.abc import Iterator, Sequence
 
 from vbfe.acquire.recording.acquisition import Acquisition
 from vbfe.acquire.recording.listener import Listener
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import first_frame_after
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import StereoFrame
 

@@ -29,10 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.record import check_camera_size, session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import SessionError, VbfeError
 from vbfe.drivers.registry import open_rig
 
 DEFAULT_PORT = 22345  # LabRecorder's RCSPort

@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
 from vbfe.acquire.session.layout import STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
+from vbfe.common.errors import SessionError
 from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:

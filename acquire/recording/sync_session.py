@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.listener import Listener
+from vbfe.common.errors import SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import RigOptions, TapScript
 from vbfe.drivers.samples import ForceSample

@@ -21,7 +21,6 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
@@ -37,6 +36,7 @@ from vbfe.acquire.session.layout import (
     StreamSpec,
     session_streams,
 )
+from vbfe.common.errors import SessionError
 from vbfe.common.files import is_hdf5
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 

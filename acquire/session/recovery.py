@@ -8,10 +8,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.layout import FORMAT_NAME, session_streams
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
 from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
+from vbfe.common.errors import SessionError
 from vbfe.common.files import commit, partial_path, require_free_space
 
 

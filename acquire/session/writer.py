@@ -27,7 +27,6 @@ import h5py
 import numpy as np
 
 import vbfe
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
     COMPRESSIONS,
@@ -44,6 +43,7 @@ from vbfe.acquire.session.layout import (
     session_streams,
 )
 from vbfe.acquire.session.reader import consistent_rows
+from vbfe.common.errors import SessionError
 from vbfe.common.files import WriterLock
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 

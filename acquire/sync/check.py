@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
@@ -34,6 +33,7 @@ from vbfe.acquire.sync.protocol import (
     analyse_protocol,
 )
 from vbfe.acquire.sync.streams import stream_offset
+from vbfe.common.errors import SessionError
 from vbfe.common.files import save_figure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"

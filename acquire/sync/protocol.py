@@ -30,7 +30,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.sync_session import DIM_NAME, PATTERN_NAME
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.corners import (
@@ -41,6 +40,7 @@ from vbfe.acquire.sync.corners import (
     _vertex,
     force_axis,
 )
+from vbfe.common.errors import SessionError
 
 _WIDTH = 96  # frames are downscaled to this width
 _COMPONENTS = 3

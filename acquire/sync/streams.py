@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset
+from vbfe.common.errors import SessionError
 
 _MAX_RATE_HZ = 250.0  # faster streams are averaged in blocks down to this (the fit's cost)
 

@@ -24,7 +24,7 @@ class StereoCamera(SampleStream[StereoFrame]):
 
     ``read`` (written once in :class:`~vbfe.drivers.device.SampleStream`) blocks for at most
     ``timeout_s`` and returns ``None`` when no frame arrived in time; it raises
-    :class:`~vbfe.drivers.errors.DeviceError` when the device is gone. Backends implement
+    :class:`~vbfe.common.errors.DeviceError` when the device is gone. Backends implement
     ``_open``, ``_close`` and ``_read_sample(timeout_s)`` returning a frame with the device's
     own sequence number; sequence jumps are counted as dropped frames here.
     """

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.projector.frame_id import N_BITS, stamp_frame_id
 from vbfe.drivers.qt_app import qt_application

@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_kwargs
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.board_scene import BoardScene, board_target
@@ -218,7 +218,8 @@ class SimBench:
                 (
                     np.random.default_rng(s)
                     for s in np.random.SeedSequence(seed).spawn(len(_STREAMS))
-                ), strict=False,
+                ),
+                strict=False,
             )
         )
         self._force_rng = rngs["force_noise"]

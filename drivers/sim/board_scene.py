@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.charuco_scene import (
     BoardTarget,
     ChessboardPattern,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.rays import camera_rays, intersect_plane
 from vbfe.drivers.sim.rig import PinholeCamera, StereoRig
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.tissue import MembraneLoad
 
 PAPER_CONDITIONS = {40.0: 0.01, 80.0: 0.005, 200.0: 0.002}  # stiffness N/m → pull speed m/s

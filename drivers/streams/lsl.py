@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.device import SampleStream
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.streams.records import StreamInfo, StreamSample
 from vbfe.drivers.streams.settings import StreamSource
 

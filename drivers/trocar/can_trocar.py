@@ -10,7 +10,7 @@ from typing import Any
 
 import can
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.trocar.base import ForceSensor
 from vbfe.drivers.trocar.can_clock import (

@@ -15,7 +15,7 @@ import cantools
 import numpy as np
 from cantools.database.can import Message
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 
 DEFAULT_MESSAGE = "TRF85D_Force"
 DEFAULT_FORCE_SIGNALS = ("Fx", "Fy", "Fz")

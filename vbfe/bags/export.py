@@ -32,8 +32,8 @@ from mcap.writer import CompressionType, Writer
 
 import vbfe
 from vbfe.acquire import SessionReader
-from vbfe.bags.errors import BagError
 from vbfe.bags.messages import FRAME_IDS, MIN_UNIX_NS, TOPICS, host_to_unix, schema_text, typestore
+from vbfe.common.errors import BagError
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 _CHUNK_BYTES = 4 << 20

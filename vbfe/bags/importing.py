@@ -30,8 +30,8 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from vbfe.acquire import SessionWriter, finalize_session
-from vbfe.bags.errors import BagError
 from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
+from vbfe.common.errors import BagError
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, ProjectorEvent, StereoFrame
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")

@@ -16,8 +16,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from vbfe.batch.errors import BatchError
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import EXIT_TERMINATED, BatchError, VbfeError
 from vbfe.common.signals import die_with_parent, raise_for
 
 EXECUTORS = ("local", "ray")
@@ -52,7 +51,7 @@ def _child(
     try:
         conn.send(_call(fn, item))
     except KeyboardInterrupt:  # the parent's SIGTERM (Terminated): cleanups ran, no traceback
-        raise SystemExit(128 + signal.SIGTERM) from None
+        raise SystemExit(EXIT_TERMINATED) from None
     conn.close()
 
 

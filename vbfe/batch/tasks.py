@@ -12,7 +12,7 @@ import cv2
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.check import SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
-from vbfe.batch.errors import BatchError
+from vbfe.common.errors import BatchError
 from vbfe.common.files import check_outputs
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status

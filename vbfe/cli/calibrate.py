@@ -13,13 +13,13 @@ from vbfe.calib import commands
 from vbfe.calib.board import TARGETS
 from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import FORMATS
 from vbfe.calib.report import summary_rows
 from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import section
+from vbfe.common.errors import CalibrationError
 
 _BOARD_KEYS = (
     "target",

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import EstimateError
 from vbfe.drivers.samples import StereoFrame
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import FrameFeatures
 from vbfe.live.predictor import LivePredictor

@@ -27,13 +27,13 @@ from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
+from vbfe.common.errors import LiveError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import force_target
-from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
 from vbfe.live.outputs import EstimateOutput
 from vbfe.live.pipeline import Pipeline

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 from vbfe.recon.triangulate import FrameCloud
 
 BAD_PIXEL_PX = 1.0
