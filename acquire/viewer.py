@@ -269,10 +269,12 @@ def view_session(path: str | Path) -> int:
 
 def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
     """Open the camera and trocar of a rig and show them live until the window closes."""
-    from vbfe.drivers.registry import open_rig
+    from vbfe.drivers.registry import FAMILIES, open_rig
 
     app = qt_application()
-    acquisition = Acquisition(open_rig(config, families=("camera", "trocar")))
+    acquisition = Acquisition(
+        open_rig(config, families=tuple(f for f in FAMILIES if f != "projector"))
+    )
     window = LiveViewer(acquisition)
     acquisition.start()
     try:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.acquire.recording.listener import Gap, Listener
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
@@ -60,17 +61,17 @@ class AcquisitionStats:
     @property
     def frames(self) -> int:
         """Frames dispatched."""
-        return self.counts.get("camera", 0)
+        return self.counts.get(CAMERA, 0)
 
     @property
     def samples(self) -> int:
         """Force samples dispatched."""
-        return self.counts.get("force", 0)
+        return self.counts.get(FORCE, 0)
 
     @property
     def events(self) -> int:
         """Projector events dispatched."""
-        return self.counts.get("projector", 0)
+        return self.counts.get(PROJECTOR, 0)
 
     @property
     def write_rate_mb_s(self) -> float:
@@ -252,10 +253,10 @@ class Acquisition:
             raise
         streams = dict(self.rig.streams())
         self.paced = any(
-            d.describe().get("realtime") is False for s, d in streams.items() if s == "camera"
+            d.describe().get("realtime") is False for s, d in streams.items() if s == CAMERA
         )
         for stream, device in streams.items():
-            size = self._queue_size * (1 if stream == "camera" else _SAMPLE_QUEUE_FACTOR)
+            size = self._queue_size * (1 if stream == CAMERA else _SAMPLE_QUEUE_FACTOR)
             self._queues[stream] = queue.Queue(maxsize=size)
             self._pumps.append(
                 _Pump(
@@ -265,8 +266,8 @@ class Acquisition:
                     self._control,
                     self._halt,
                     self.paced,
-                    (lambda: None) if stream == "camera" else self._reached_end_ns,
-                    self._demand if stream == "camera" else None,
+                    (lambda: None) if stream == CAMERA else self._reached_end_ns,
+                    self._demand if stream == CAMERA else None,
                 )
             )
         self._dispatcher = threading.Thread(
@@ -454,7 +455,7 @@ class Acquisition:
         s.elapsed_s = (self._frame_t_host[1] - self._frame_t_host[0]) / 1e9
         s.first_frame_host_ns = self._frame_t_host[0]
         s.newest_read_host_ns = max(
-            (p.last_t_host_ns for p in self._pumps if p.stream == "camera"), default=0
+            (p.last_t_host_ns for p in self._pumps if p.stream == CAMERA), default=0
         )
         devices = dict(self.rig.streams())
         s.queue_dropped = {p.stream: p.dropped for p in self._pumps}
@@ -462,17 +463,17 @@ class Acquisition:
         return s
 
     def _dispatch_loop(self) -> None:
-        others = [s for s in self._queues if s != "camera"]
+        others = [s for s in self._queues if s != CAMERA]
         counts = self.stats.counts
-        for stream in [*self._queues, "projector"]:
+        for stream in [*self._queues, PROJECTOR]:
             counts.setdefault(stream, 0)
         try:
             while True:
                 pumps_done = self._halt.is_set() and not any(p.is_alive() for p in self._pumps)
                 batches = {}
-                if "camera" in self._queues:
-                    batches["camera"] = self._within_duration(
-                        _drain(self._queues["camera"], _FRAME_BATCH, 0.0 if pumps_done else 0.02)
+                if CAMERA in self._queues:
+                    batches[CAMERA] = self._within_duration(
+                        _drain(self._queues[CAMERA], _FRAME_BATCH, 0.0 if pumps_done else 0.02)
                     )
                 elif not pumps_done:
                     time.sleep(0.02)
@@ -492,9 +493,9 @@ class Acquisition:
                         if isinstance(message, Gap):
                             listener.on_gap(message)
                         else:
-                            listener.on_records("projector", [message])
+                            listener.on_records(PROJECTOR, [message])
                     if not isinstance(message, Gap):
-                        counts["projector"] += 1
+                        counts[PROJECTOR] += 1
                 for listener in self.listeners:
                     listener.on_round()
                 if pumps_done and not (control or any(batches.values())):

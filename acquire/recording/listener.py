@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 if TYPE_CHECKING:
@@ -41,11 +42,11 @@ class Listener:
         """A batch of one stream, in arrival order. Here: ``camera`` → :meth:`on_frames`,
         ``force`` → :meth:`on_samples`, ``projector`` → :meth:`on_events`; override (and call
         ``super()``) for the streams of further device kinds."""
-        if stream == "camera":
+        if stream == CAMERA:
             self.on_frames(records)
-        elif stream == "force":
+        elif stream == FORCE:
             self.on_samples(records)
-        elif stream == "projector":
+        elif stream == PROJECTOR:
             self.on_events(records)
 
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:

@@ -27,7 +27,7 @@ import numpy as np
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
-from vbfe.acquire.session.layout import STREAMS, StreamSpec
+from vbfe.acquire.session.layout import CAMERA, STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 from vbfe.common.errors import SessionError
 from vbfe.drivers.streams.records import StreamInfo
@@ -163,7 +163,7 @@ class SessionSink(Listener):
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
         with self._writing():
-            if stream == "camera":
+            if stream == CAMERA:
                 self._frame_t_device.extend(fr.t_device_ns for fr in records)
             self._writer.append(stream, records)
 

@@ -27,9 +27,12 @@ from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.acquire.session.layout import (
+    CAMERA,
+    FORCE,
     FORMAT_NAME,
     GAP_COLUMNS,
     GAP_REASONS,
+    PROJECTOR,
     SCHEMA_VERSION,
     STREAMS,
     TIME_COLUMNS,
@@ -178,7 +181,7 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
     """Check the datasets and attributes a reader needs, as the layout table says; returns the
     image encoding and the file's streams."""
     damaged = "the session file is damaged; record it again or restore a copy"
-    camera = f.get("camera")
+    camera = f.get(CAMERA)
     if not isinstance(camera, h5py.Group):
         raise SessionError(f"{path} has no 'camera' group: {damaged}")
     for attr in ("width", "height"):
@@ -249,7 +252,7 @@ class SessionReader:
         self.encoding, streams = _check_layout(f, self.path)
         self.streams = {spec.name: spec for spec in streams}
         self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
-        cam = f["camera"]
+        cam = f[CAMERA]
         self._lengths = {
             spec.name: min(
                 [consistent_rows(f[spec.name])]
@@ -313,12 +316,12 @@ class SessionReader:
     @property
     def n_frames(self) -> int:
         """Number of complete stereo frames."""
-        return self._lengths["camera"]
+        return self._lengths[CAMERA]
 
     @property
     def frame_size(self) -> tuple[int, int]:
         """``(width, height)`` of one eye."""
-        cam = self._file["camera"]
+        cam = self._file[CAMERA]
         return int(cam.attrs["width"]), int(cam.attrs["height"])
 
     def _image(self, eye: str, i: int) -> np.ndarray:
@@ -358,7 +361,7 @@ class SessionReader:
         if not -self.n_frames <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
-        t_dev, t_host, seq = self.stream_times("camera")
+        t_dev, t_host, seq = self.stream_times(CAMERA)
         return StereoFrame(
             left=self._image("left", i),
             right=self._image("right", i),
@@ -414,17 +417,17 @@ class SessionReader:
     # -- synchronized times and force -----------------------------------------------------
     def frame_times_ns(self) -> np.ndarray:
         """Per-frame capture time on the host clock (clock fit, minus any stored correction)."""
-        t_dev = self.stream_times("camera")[0]
+        t_dev = self.stream_times(CAMERA)[0]
         correction = int(self.analysis().get(FRAME_CORRECTION_ATTR, 0))
-        return self.clock_fit("camera").to_host(t_dev) - correction
+        return self.clock_fit(CAMERA).to_host(t_dev) - correction
 
     def force_times_ns(self) -> np.ndarray:
         """Per-sample force time on the host clock (after the clock fit)."""
-        return self.clock_fit("force").to_host(self.stream_times("force")[0])
+        return self.clock_fit(FORCE).to_host(self.stream_times(FORCE)[0])
 
     def forces_n(self) -> np.ndarray:
         """All force samples, ``(n, 3)`` newtons."""
-        return self._read("force/force_n", self._lengths["force"])
+        return self._read("force/force_n", self._lengths[FORCE])
 
     @property
     def force_axes(self) -> list[str]:
@@ -515,8 +518,8 @@ class SessionReader:
     # -- events, gaps, metadata ---------------------------------------------------------
     def projector_events(self) -> list[ProjectorEvent]:
         """Projector events in recording order."""
-        n = self._lengths["projector"]
-        t_dev, t_host, seq = self.stream_times("projector")
+        n = self._lengths[PROJECTOR]
+        t_dev, t_host, seq = self.stream_times(PROJECTOR)
         names = self._read("projector/pattern", n)
         ids = self._read("projector/frame_id", n)
         return [

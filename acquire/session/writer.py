@@ -29,12 +29,15 @@ import numpy as np
 import vbfe
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
+    CAMERA,
     COMPRESSIONS,
     EXTRA_STREAMS_ATTR,
+    FORCE,
     FORMAT_NAME,
     GAP_COLUMNS,
     GAP_REASONS,
     JPEG_QUALITY,
+    PROJECTOR,
     SCHEMA_VERSION,
     TIME_COLUMNS,
     StreamSpec,
@@ -168,7 +171,7 @@ class SessionWriter:
         self._data: dict[str, dict[str, h5py.Dataset]] = {}
         for spec in specs:
             self._data[spec.name] = self._create(f.create_group(spec.name), spec)
-        f["camera"].attrs.update(
+        f[CAMERA].attrs.update(
             {"width": frame_size[0], "height": frame_size[1], "encoding": encoding, "color": "BGR"}
         )
         self._gaps = _series(f, "gaps", np.int64, (len(GAP_COLUMNS),), 64)
@@ -217,7 +220,7 @@ class SessionWriter:
                 f"{self.path} has no stream {stream!r} (streams: "
                 f"{list(self.streams)}); give its spec to the writer"
             )
-        if stream == "camera":
+        if stream == CAMERA:
             self._append_images(records)
         else:
             data = self._data[stream]
@@ -233,7 +236,7 @@ class SessionWriter:
         self.counts[stream] += len(records)
 
     def _append_images(self, frames: Sequence[StereoFrame]) -> None:
-        data = self._data["camera"]
+        data = self._data[CAMERA]
         if self.compression == "mjpeg":
             for i, eye in enumerate(("left", "right")):
                 blobs = [
@@ -264,15 +267,15 @@ class SessionWriter:
 
     def append_frames(self, frames: Sequence[StereoFrame]) -> None:
         """Append stereo frames."""
-        self.append("camera", frames)
+        self.append(CAMERA, frames)
 
     def append_forces(self, samples: Sequence[ForceSample]) -> None:
         """Append force samples."""
-        self.append("force", samples)
+        self.append(FORCE, samples)
 
     def append_events(self, events: Sequence[ProjectorEvent]) -> None:
         """Append projector events (pattern shown, frame ID)."""
-        self.append("projector", events)
+        self.append(PROJECTOR, events)
 
     def add_gap(
         self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int, count: int

@@ -23,6 +23,7 @@ import numpy as np
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
+from vbfe.acquire.session.layout import CAMERA, FORCE
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
@@ -149,8 +150,8 @@ class SyncReport:
             "sync_protocol": "sync" if self.protocol is not None else "traction",
             "sync_reasons": json.dumps(self.reasons),
             "sync_drift_ppm": json.dumps(self.drift_ppm),
-            "sync_frame_drop_fraction": self.audits["camera"].drop_fraction,
-            "sync_force_drop_fraction": self.audits["force"].drop_fraction,
+            "sync_frame_drop_fraction": self.audits[CAMERA].drop_fraction,
+            "sync_force_drop_fraction": self.audits[FORCE].drop_fraction,
             "sync_limits": json.dumps(self.limits.__dict__),
             FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
             "sync_stream_offsets_s": json.dumps(
@@ -325,7 +326,7 @@ def _verdict(
             f"{1e3 * limits.max_ci_halfwidth_s:g} ms"
         )
         (failures if protocol is not None else doubts).append(text)
-    for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
+    for stream, limit in ((CAMERA, limits.max_frame_drop), (FORCE, limits.max_force_drop)):
         if audits[stream].drop_fraction > limit:
             failures.append(
                 f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
@@ -392,8 +393,8 @@ def verify_sync(
         else:
             estimate = measure_offset(reader, max_lag_s)
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
-        fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
-        audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}
+        fits = {s: reader.clock_fit(s) for s in (CAMERA, FORCE)}
+        audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in (CAMERA, FORCE)}
         streams = {
             name: _stream_check(reader, name, max_lag_s)
             for name in reader.stream_names()
