@@ -1,8 +1,8 @@
 """pyqtgraph viewer: left/right images, force plot and drop counters — replay or live.
 
 ``ReplayViewer(reader)`` scrubs a recorded session with a time slider; ``LiveViewer(acquisition)``
-listens to a running acquisition and scrolls the force plot. ``view_session(path)`` / ``view_live(config)``
-run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
+listens to a running acquisition and scrolls the force plot. ``view_session(path)`` /
+``view_live(config)`` run them as applications. Works headless with ``QT_QPA_PLATFORM=offscreen``.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class ViewerWindow(QtWidgets.QWidget):
         layout = QtWidgets.QVBoxLayout(self)
         images = pg.GraphicsLayoutWidget()
         self.image_items = []
-        for name in ("left", "right"):
+        for _eye in ("left", "right"):
             view = images.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
             item = pg.ImageItem(axisOrder="row-major")
             view.addItem(item)

@@ -13,6 +13,7 @@ import argparse
 import os
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 from vbfe.acquire import SessionReader, record_session
@@ -74,7 +75,7 @@ def main() -> None:
         for compression in ("zstd", "lz4"):
             out = Path(tmp) / f"session.{compression}.mcap"
             export_s, export_cpu = best_of(
-                args.repeats, lambda: export_mcap(session, out, None, compression)
+                args.repeats, partial(export_mcap, session, out, None, compression)
             )
             print(
                 f"export {compression:<4} wall {export_s:6.2f} s  cpu {export_cpu:6.2f} s  "

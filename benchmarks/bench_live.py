@@ -11,8 +11,8 @@ thread counts.
 ``--background-load N`` runs every configuration twice, without and then beside N busy
 processes (a lab PC also runs the recorder and the viewer); ``--record`` adds runs that also
 record the session (HDF5, as ``vbfe live --record``). ``--scale``, ``--row-scale`` and the
-thread counts default to the ``[live]`` table, as in ``vbfe live``. The endoscope is the real OpenCV camera
-driver reading a capture that replays frames the bench rendered beforehand, paced on the host
+thread counts default to the ``[live]`` table, as in ``vbfe live``. The endoscope is the real OpenCV
+camera driver reading a capture that replays frames the bench rendered beforehand, paced on the host
 clock: a real endoscope's frames cost the host nothing to make, while the bench's live
 rendering would take a large share of the two cores (``--render-live`` measures that instead).
 Run: ``python benchmarks/bench_live.py [--seconds S] [--scale 1.0] [--row-scale 1.0]
@@ -254,7 +254,8 @@ def main() -> None:
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
         f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
-        f"{args.row_scale}, {'bench rendering live' if args.render_live else 'replayed bench frames'}"
+        f"{args.row_scale}, "
+        f"{'bench rendering live' if args.render_live else 'replayed bench frames'}"
         f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
         f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
         f"threads; recording compression {compression}"

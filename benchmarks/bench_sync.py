@@ -7,12 +7,13 @@ many taps are enough. Analysis time is a ratio: verify-sync over reading the fra
 
     python benchmarks/bench_sync.py [--events 5 10 20 40 --seeds 3]
 
-With ``--passive``: records one traction session per (paper condition, seed) through ``record_session`` with the default
-``[bench]`` table (size, rate and hold overridable), runs :func:`verify_sync` and prints, per
-session, the measured image−force offset against the true one (difference of the median
-latencies, 37 ms by default), whether the 95% interval holds the truth, and the camera/trocar
-drift estimates (± standard error) against the bench's; then the spread of the errors. Time is
-reported as a ratio: verify-sync time over the time to read the session's frames once.
+With ``--passive``: records one traction session per (paper condition, seed) through
+``record_session`` with the default ``[bench]`` table (size, rate and hold overridable), runs
+:func:`verify_sync` and prints, per session, the measured image−force offset against the true one
+(difference of the median latencies, 37 ms by default), whether the 95% interval holds the truth,
+and the camera/trocar drift estimates (± standard error) against the bench's; then the spread of the
+errors. Time is reported as a ratio: verify-sync time over the time to read the session's frames
+once.
 
     python benchmarks/bench_sync.py --passive [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
 """

@@ -150,7 +150,10 @@ class ViewCollector:
             return dict.fromkeys(PARAM_RANGES, 0.0)
         p = np.array(self.params)
         spread = p.max(axis=0) - p.min(axis=0)
-        return {k: float(min(1.0, s / r)) for (k, r), s in zip(PARAM_RANGES.items(), spread, strict=False)}
+        return {
+            k: float(min(1.0, s / r))
+            for (k, r), s in zip(PARAM_RANGES.items(), spread, strict=False)
+        }
 
     @property
     def enough(self) -> bool:

@@ -1,7 +1,7 @@
 """The ``vbfe calibrate`` commands as Python functions (the CLI only parses and shows progress).
 
-Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and thresholds of
-its ``[calib]`` table.
+Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and thresholds
+of its ``[calib]`` table.
 """
 
 from __future__ import annotations

@@ -57,6 +57,7 @@ def _subfolders(folder: Path) -> Pairs | None:
 
 def pair_files(folder: str | Path) -> Pairs | None:
     """Left and right image files of a folder by pair name, under the first naming rule of
-    :data:`PAIR_NAMING` that labels both eyes; ``None`` when no rule applies. Names present for one eye only are for the caller to refuse."""
+    :data:`PAIR_NAMING` that labels both eyes; ``None`` when no rule applies. Names present for one
+    eye only are for the caller to refuse."""
     folder = Path(folder)
     return _named(images_in(folder)) or _subfolders(folder)

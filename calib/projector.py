@@ -239,6 +239,13 @@ def save_captures(folder: str | Path, captures: list[GrayCodeCapture], start: in
                 raise CalibrationError(f"cannot write {pose / name}.png")
 
 
+def _read_gray(pose: Path, name: str) -> np.ndarray:
+    image = cv2.imread(str(pose / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise CalibrationError(f"missing or unreadable {pose / name}.png")
+    return image
+
+
 def load_captures(folder: str | Path) -> list[GrayCodeCapture]:
     """Read what :func:`save_captures` wrote."""
     folder = Path(folder)
@@ -247,13 +254,7 @@ def load_captures(folder: str | Path) -> list[GrayCodeCapture]:
         raise CalibrationError(f"{folder} holds no pose_NNN folders of Gray-code images")
     out = []
     for pose in poses:
-
-        def read(name: str) -> np.ndarray:
-            image = cv2.imread(str(pose / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise CalibrationError(f"missing or unreadable {pose / name}.png")
-            return image
-
         grays = sorted(p.stem for p in pose.glob("gray_*.png"))
-        out.append(GrayCodeCapture(read("white"), read("black"), [read(g) for g in grays]))
+        white, black = _read_gray(pose, "white"), _read_gray(pose, "black")
+        out.append(GrayCodeCapture(white, black, [_read_gray(pose, g) for g in grays]))
     return out

@@ -199,7 +199,7 @@ def calibrate_stereo(
     options = options or StereoOptions()
     image_size = check_sizes(views)
     detections = detect_views(views, spec, step)
-    if all(len(l) == 0 and len(r) == 0 for l, r in detections):
+    if all(len(left) == 0 and len(right) == 0 for left, right in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
             f"board options ({spec.describe()}) match the printed board"

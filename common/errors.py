@@ -11,7 +11,8 @@ EXIT_TERMINATED = 143  # SIGTERM (128 + SIGTERM)
 
 
 class VbfeError(Exception):
-    """An expected failure (device gone, bad file, bad calibration) with a message for the operator."""
+    """An expected failure (device gone, bad file, bad calibration) with a message for the
+    operator."""
 
 
 class ConfigError(VbfeError):

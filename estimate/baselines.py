@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -78,7 +78,7 @@ class AffineBaseline:
         )
 
 
-Baseline = Union[AffineBaseline, HistoryBaseline]
+Baseline = AffineBaseline | HistoryBaseline
 
 
 def baseline_from_dict(d: dict[str, Any]) -> Baseline:

@@ -17,7 +17,7 @@ and ``to_dict()``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import torch
@@ -122,7 +122,7 @@ class MeanEnsemble:
         return cls(tuple(estimator_from_dict(m) for m in d["members"]), d["name"])
 
 
-AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, MeanEnsemble, Baseline]
+AnyEstimator = NetworkEstimator | RidgeThumbnail | CnnEstimator | MeanEnsemble | Baseline
 _KINDS = {
     "network": NetworkEstimator.from_dict,
     "ridge": RidgeThumbnail.from_dict,

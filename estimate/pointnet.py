@@ -159,9 +159,9 @@ class TemporalPointNet(PointNetRegressor):
     Input ``B × (1 + k) × N × C`` (C = 3, or 4 with ``rest_depth``): the session's rest frame
     first, then the window oldest to newest. Every cloud is embedded by the shared encoder.
     The force is the single-frame head on the newest cloud (as in ``PointNetRegressor``, whose
-    trained weights it can start from) plus a motion correction: a second head on each window cloud's embedding minus the rest
-    cloud's, so it can read how the surface has moved and how it is moving (a relaxing tissue
-    at constant shape). The correction's output layer starts at zero.
+    trained weights it can start from) plus a motion correction: a second head on each window
+    cloud's embedding minus the rest cloud's, so it can read how the surface has moved and how it is
+    moving (a relaxing tissue at constant shape). The correction's output layer starts at zero.
     """
 
     def __init__(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, Union
+from typing import Any, Protocol
 
 import h5py
 import numpy as np
@@ -185,7 +185,7 @@ class ImportedClouds:
         self._clouds.close()
 
 
-SessionLike = Union[str, Path, SessionClouds]
+SessionLike = str | Path | SessionClouds
 
 
 def open_source(item: SessionLike) -> CloudSource:

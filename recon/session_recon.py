@@ -265,10 +265,10 @@ def reconstruct_session(
     ``calibration`` is a :class:`Calibration`, a YAML path, or ``None`` for the one stored in
     the session. ``workers`` processes (default: one per CPU core, at most the number of
     frames) share the frames; ``started(n_frames, partial)`` is called once the session is
-    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the ``[recon]``
-    table) give the depth range a zero ``num_disparities`` is derived from; ``maps`` asks for
-    disparity/depth/quality maps too. The sidecar is written to a temporary name and renamed
-    when complete, so an interrupted run leaves no partial file. A session still being
+    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the
+    ``[recon]`` table) give the depth range a zero ``num_disparities`` is derived from; ``maps``
+    asks for disparity/depth/quality maps too. The sidecar is written to a temporary name and
+    renamed when complete, so an interrupted run leaves no partial file. A session still being
     recorded is reconstructed up to its frames flushed at the start (``partial``); the sidecar
     then has ``session_partial = True``.
     """

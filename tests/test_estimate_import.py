@@ -1,4 +1,5 @@
-"""`vbfe import`: depth images / point clouds + a force CSV → train and evaluate with a time split."""
+"""`vbfe import`: depth images / point clouds + a force CSV → train and evaluate with a time
+split."""
 
 from __future__ import annotations
 

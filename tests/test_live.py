@@ -122,7 +122,7 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
         toml,
     )
     assert result.returncode == 0, result.stderr
-    status_lines = [l for l in result.stdout.splitlines() if l.startswith("live ")]
+    status_lines = [line for line in result.stdout.splitlines() if line.startswith("live ")]
     assert len(status_lines) >= 2 and "est/s" in status_lines[-1]
     with SessionReader(session) as reader:
         stream = reader.estimates()

@@ -141,8 +141,8 @@ def test_folder_naming_rules(tmp_path):
         pairs = find_pairs(folder)
         assert pairs.n_frames == 2
         assert all(
-            "left" in str(l) and "right" in str(r)
-            for l, r in zip(pairs.lefts, pairs.rights, strict=False)
+            "left" in str(left) and "right" in str(right)
+            for left, right in zip(pairs.lefts, pairs.rights, strict=False)
         )
     (tmp_path / "suffix" / "c_left.png").write_bytes(
         (tmp_path / "suffix" / "a_left.png").read_bytes()

@@ -31,13 +31,13 @@ def _write_session(path, pairs, calibration_yaml=None):
     writer.append_frames(
         [
             StereoFrame(
-                left=l,
-                right=r,
+                left=left,
+                right=right,
                 seq=i,
                 t_device_ns=i * 33_333_333,
                 t_host_ns=1_000_000 + i * 33_333_333,
             )
-            for i, (l, r) in enumerate(pairs)
+            for i, (left, right) in enumerate(pairs)
         ]
     )
     writer.close()

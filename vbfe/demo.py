@@ -509,7 +509,9 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
     for path in sessions:
         frames = report.frames[str(path)]
         with SessionReader(path) as reader:
-            phase_at = dict(zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False))
+            phase_at = dict(
+                zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False)
+            )
         phases.append(np.array([phase_at[t] for t in frames["times_ns"].tolist()]))
         rows.append(frames)
     phase = np.concatenate(phases)

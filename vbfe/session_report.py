@@ -47,7 +47,8 @@ def _figure(width: float = 10, height: float = 3.2) -> tuple[Figure, Any]:
 
 
 def _utc(t_ns: int) -> str:
-    return f"{datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc):%Y-%m-%d %H:%M:%S} UTC"
+    moment = datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc)
+    return f"{moment:%Y-%m-%d %H:%M:%S} UTC"
 
 
 def _intervals(t_ns: np.ndarray) -> tuple[float, float, float]:

@@ -1,5 +1,6 @@
 """Sync protocol analysis: camera latency from projector flashes, image-force offset from taps,
-drift from early against late events (see :mod:`~vbfe.acquire.recording.sync_session` for the recording).
+drift from early against late events (see :mod:`~vbfe.acquire.recording.sync_session` for the
+recording).
 
 *Flashes.* Each frame's rows are averaged into a brightness profile. Around a projector switch
 (host time ``h``) the profile goes from its level before the command to its level after the

@@ -58,10 +58,10 @@ class SimBench:
     of the endoscope, see :mod:`vbfe.drivers.sim.board_scene`: ``board_*`` arguments; the
     ``board_poses`` are ``[rx, ry, rz, tx, ty, tz]`` rows, a Rodrigues vector in rad and a
     translation in m, board → left camera; empty: random). The trocar always follows the
-    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays of each stream; the
-    reader's clock fits map each stream to its median arrival, so
-    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time starts (true time 0, the trial's start)
-    when the first device is opened.
+    protocol. Latencies are the mean (= median, the jitter being symmetric) host arrival delays of
+    each stream; the reader's clock fits map each stream to its median arrival, so
+    ``image_latency_ms − force_latency_ms`` is the offset a synchronisation tool must find. Time
+    starts (true time 0, the trial's start) when the first device is opened.
 
     ``protocol = "sync"`` replaces the pull by the sync protocol's taps (``sync_taps`` in
     ``sync_duration_s``, peak about ``tap_force_n``); ``protocol = "freehand"`` by a

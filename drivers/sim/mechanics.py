@@ -163,7 +163,8 @@ class Trial:
         return MembraneLoad(self.sample.contact_m, vector, self.radius_m())
 
     def at(self, t_s: float) -> tuple[MembraneLoad, np.ndarray, int]:
-        """Load, force vector (N, left-camera axes, along the pull) and phase at trial time ``t_s``."""
+        """Load, force vector (N, left-camera axes, along the pull) and phase at trial time
+        ``t_s``."""
         u, force, phase = self.protocol.state(np.array([t_s]))
         return (
             self.load(float(u[0])),

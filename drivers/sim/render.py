@@ -67,7 +67,8 @@ def project_points(
 
 
 def pattern_blur_px(rig: StereoRig, distance_m: float) -> float:
-    """Gaussian σ (projector pixels) matching one left-camera pixel's footprint at ``distance_m``."""
+    """Gaussian σ (projector pixels) matching one left-camera pixel's footprint at
+    ``distance_m``."""
     camera_px_m = distance_m / rig.left.f
     projector_px_m = (distance_m + float(np.linalg.norm(rig.T_proj))) / rig.projector.f
     return max(0.0, 0.5 * (camera_px_m / projector_px_m) - 0.3)

@@ -74,7 +74,8 @@ def pinhole(
 
 
 def look_at(position: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``R, T`` (left-camera frame → device frame) of a device at ``position`` looking at ``target``."""
+    """``R, T`` (left-camera frame → device frame) of a device at ``position`` looking at
+    ``target``."""
     z = np.asarray(target, float) - np.asarray(position, float)
     z /= np.linalg.norm(z)
     x = np.cross([0.0, 1.0, 0.0], z)

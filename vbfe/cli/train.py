@@ -22,8 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="train the force estimators on reconstructed sessions",
         description="Fit every candidate (PointNet, the temporal model, "
         "ridge on depth-change thumbnails, a small CNN on the depth-change "
-        "image, the mean of that CNN and Hooke's law) and the baselines on the training part, and ship the "
-        "candidate with the lowest validation MAE (or the one --model "
+        "image, the mean of that CNN and Hooke's law) and the baselines on the training part, "
+        "and ship the candidate with the lowest validation MAE (or the one --model "
         "forces). Each session needs its <session>.clouds.h5 sidecar (run "
         "`vbfe reconstruct` first) or is a clouds file from `vbfe import`. "
         "Defaults come from the [train] table of the rig config.",

@@ -66,9 +66,9 @@ class FrameEstimator:
     the model's selected estimator reads every cloud against the run's first usable cloud
     (:class:`vbfe.live.predictor.LivePredictor`), so start with the tissue at rest; a network
     runs on ``device`` (``"cpu"`` or ``"cuda"``). On a machine with several cores the
-    fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1 matches fewer rows (rows
-    averaged together) at the full width: the depth resolution, set by the disparity along
-    the rows, stays; the cloud has fewer points, and the model samples its own few from it.
+    fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1 matches fewer
+    rows (rows averaged together) at the full width: the depth resolution, set by the disparity
+    along the rows, stays; the cloud has fewer points, and the model samples its own few from it.
     """
 
     def __init__(
