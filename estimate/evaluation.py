@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.common.errors import EstimateError
+from vbfe.common.files import atomic_path
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.model_file import ForceModel, load_model
@@ -116,7 +117,7 @@ def write_predictions_csv(
 ) -> Path:
     """One row per scored frame: session, frame, time, measured and every method's force."""
     columns = [f"_{k}" for k in range(n_outputs)] if n_outputs > 1 else [""]
-    with open(path, "w", newline="", encoding="utf-8") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(
             [

@@ -38,7 +38,7 @@ import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.common.errors import ReconError
-from vbfe.common.files import require_free_space
+from vbfe.common.files import atomic_path, require_free_space
 
 FORMAT_NAME = "vbfe-clouds"
 FORMAT_VERSION = 3
@@ -309,7 +309,7 @@ def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None =
         "end_header",
     ]
     try:
-        with open(path, "wb") as fh:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             fh.write(("\n".join(header) + "\n").encode("ascii"))
             fh.write(vertices.tobytes())
     except OSError as exc:

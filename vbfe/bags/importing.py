@@ -32,6 +32,7 @@ from rosbags.typesys import Stores, get_typestore
 from vbfe.acquire import SessionWriter, finalize_session
 from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
 from vbfe.common.errors import BagError
+from vbfe.common.files import atomic_path
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, ProjectorEvent, StereoFrame
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -371,11 +372,10 @@ def import_bag(
     """Write the chosen topics of a bag as a session ``out_path`` (under a temporary name
     renamed when complete); ``on_progress(frames)`` as frames are written."""
     out_path = Path(out_path)
-    tmp = out_path.with_name(f".{out_path.name}.partial")
     try:
-        return _import(bag_path, out_path, tmp, given, on_progress)
+        with atomic_path(out_path) as tmp:
+            return _import(bag_path, out_path, tmp, given, on_progress)
     except _DAMAGED as exc:
-        tmp.unlink(missing_ok=True)
         raise BagError(
             f"{bag_path} is damaged and cannot be read to the end ({type(exc).__name__}: {exc})"
         ) from None
@@ -424,9 +424,7 @@ def _import(
         except BaseException:
             if sink.writer is not None:
                 sink.writer.abort()
-            tmp.unlink(missing_ok=True)
             raise
-    tmp.replace(out_path)
     return ImportSummary(
         out_path,
         sink.frames,
