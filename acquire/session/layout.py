@@ -22,7 +22,6 @@ import h5py
 import hdf5plugin
 import numpy as np
 
-FORMAT_NAME = "vbfe-session"
 SCHEMA_VERSION = 2  # 2: optional /estimate stream (vbfe live --record)
 
 COMPRESSIONS = ("none", "lzf", "blosc-lz4", "mjpeg")

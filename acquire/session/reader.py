@@ -29,7 +29,6 @@ from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.acquire.session.layout import (
     CAMERA,
     FORCE,
-    FORMAT_NAME,
     GAP_COLUMNS,
     GAP_REASONS,
     PROJECTOR,
@@ -40,7 +39,7 @@ from vbfe.acquire.session.layout import (
     session_streams,
 )
 from vbfe.common.errors import SessionError
-from vbfe.common.files import is_hdf5
+from vbfe.common.files import SESSION_FORMAT, is_hdf5
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
@@ -160,10 +159,11 @@ def read_failure_reason(exc: BaseException) -> str:
 
 def check_session(f: h5py.File, path: Path) -> None:
     """Refuse a file that is not a vbfe session or is of a newer schema (closing it)."""
-    if f.attrs.get("format") != FORMAT_NAME:
+    if f.attrs.get("format") != SESSION_FORMAT:
         f.close()
         raise SessionError(
-            f"{path} is an HDF5 file but not a vbfe session (no format={FORMAT_NAME!r} attribute)"
+            f"{path} is an HDF5 file but not a vbfe session "
+            f"(no format={SESSION_FORMAT!r} attribute)"
         )
     version = int(f.attrs.get("schema_version", -1))
     if version > SCHEMA_VERSION:

@@ -33,7 +33,6 @@ from vbfe.acquire.session.layout import (
     COMPRESSIONS,
     EXTRA_STREAMS_ATTR,
     FORCE,
-    FORMAT_NAME,
     GAP_COLUMNS,
     GAP_REASONS,
     JPEG_QUALITY,
@@ -47,7 +46,7 @@ from vbfe.acquire.session.layout import (
 )
 from vbfe.acquire.session.reader import consistent_rows
 from vbfe.common.errors import SessionError
-from vbfe.common.files import WriterLock
+from vbfe.common.files import SESSION_FORMAT, WriterLock
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _JPEG_CHUNK = 1 << 20
@@ -151,7 +150,7 @@ class SessionWriter:
         f = self._file
         f.attrs.update(
             {
-                "format": FORMAT_NAME,
+                "format": SESSION_FORMAT,
                 "schema_version": SCHEMA_VERSION,
                 "software_version": vbfe.__version__,
                 "compression": compression,
