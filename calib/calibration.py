@@ -58,6 +58,22 @@ _KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_\- ]*")  # what FileStorage takes as a m
 _PLAIN_WORDS = {"null", "~", ".nan", ".inf", "-.inf", "true", "false", "yes", "no"}
 
 
+def reprojection_matrix(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
+    """The disparity-to-depth matrix ``Q`` of a rectified pair with projection matrices ``P1,
+    P2``: OpenCV's (``stereoRectify``), its y row scaled by ``fx/fy`` so that
+    ``Y = (v - cy)·z/fy`` also for unequal focal lengths (1 for OpenCV's own rectification)."""
+    f, aspect = P1[0, 0], P1[0, 0] / P1[1, 1]
+    tx = P2[0, 3] / P2[0, 0]  # −B, in metres
+    return np.array(
+        [
+            [1.0, 0.0, 0.0, -P1[0, 2]],
+            [0.0, aspect, 0.0, -P1[1, 2] * aspect],
+            [0.0, 0.0, 0.0, f],
+            [0.0, 0.0, -1.0 / tx, (P1[0, 2] - P2[0, 2]) / tx],
+        ]
+    )
+
+
 @dataclass
 class Calibration:
     """Stereo endoscope calibration (plus optional projector and colour correction).
@@ -168,6 +184,12 @@ class Calibration:
         rectification."""
         return float(self.P2[0, 2] - self.P1[0, 2])
 
+    @property
+    def disparity_offset(self) -> float:
+        """Disparity of a point at infinity (px; left minus right rectified principal point x,
+        ``-doffs``): a point at depth ``z`` has disparity ``d = f·B/z + disparity_offset``."""
+        return -self.doffs
+
     @classmethod
     def rectified(
         cls,
@@ -207,15 +229,6 @@ class Calibration:
         K2[0, 2] = cx + doffs
         P1, P2 = np.hstack([K, np.zeros((3, 1))]), np.hstack([K2, np.zeros((3, 1))])
         P2[0, 3] = -fx * baseline_m
-        # OpenCV's Q, its y row scaled by fx/fy so that Y = (v - cy)·z/fy
-        Q = np.array(
-            [
-                [1.0, 0.0, 0.0, -cx],
-                [0.0, fx / fy, 0.0, -cy * fx / fy],
-                [0.0, 0.0, 0.0, fx],
-                [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m],
-            ]
-        )
         return cls(
             K1=K,
             D1=np.zeros(5),
@@ -227,7 +240,7 @@ class Calibration:
             R2=np.eye(3),
             P1=P1,
             P2=P2,
-            Q=Q,
+            Q=reprojection_matrix(P1, P2),
             image_size=(width, height),
             info={"source": source},
         )
@@ -267,18 +280,14 @@ class Calibration:
         size = (round(self.image_size[0] * scale), round(self.image_size[1] * sy))
         S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, sy, (sy - 1) / 2], [0, 0, 1]])
         P1, P2 = S @ self.P1, S @ self.P2
-        tx = P2[0, 3] / P2[0, 0]  # −B, in metres
-        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs or unequal scales
-        Q = np.array(
-            [
-                [1.0, 0, 0, -P1[0, 2]],
-                [0, aspect, 0, -P1[1, 2] * aspect],
-                [0, 0, 0, P1[0, 0]],
-                [0, 0, -1 / tx, -self.doffs * scale / tx],
-            ]
-        )
         return self.replace(
-            K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size, per_view_rms_px=None
+            K1=S @ self.K1,
+            K2=S @ self.K2,
+            P1=P1,
+            P2=P2,
+            Q=reprojection_matrix(P1, P2),
+            image_size=size,
+            per_view_rms_px=None,
         )
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

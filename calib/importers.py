@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.calibration import Calibration
+from vbfe.calib.calibration import Calibration, reprojection_matrix
 from vbfe.common.errors import CalibrationError
 
 IMPORT_FORMATS = ("opencv", "kalibr", "ros", "middlebury")
@@ -111,18 +111,6 @@ def _rectify(K1, D1, K2, D2, R, T, size: tuple[int, int]) -> dict[str, np.ndarra
         K1, D1, K2, D2, size, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
     )
     return dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q)
-
-
-def _q_from(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
-    tx = P2[0, 3] / P2[0, 0]
-    return np.array(
-        [
-            [1.0, 0, 0, -P1[0, 2]],
-            [0, 1.0, 0, -P1[1, 2]],
-            [0, 0, 0, P1[0, 0]],
-            [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx],
-        ]
-    )
 
 
 def _opencv(
@@ -250,7 +238,7 @@ def _ros(stores: list[_Storage], sources: list[str]) -> Calibration:
         R2=right["R"],
         P1=left["P"],
         P2=right["P"],
-        Q=_q_from(left["P"], right["P"]),
+        Q=reprojection_matrix(left["P"], right["P"]),
         image_size=left["size"],
         info={"source": f"ROS camera_info pair ({', '.join(sources)})"},
     )

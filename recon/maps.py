@@ -41,10 +41,9 @@ class MapOutput:
 
 
 def depth_map_m(disparity: np.ndarray, calibration: Calibration) -> np.ndarray:
-    """Depth ``z = f·B/(d - doffs)`` (m, float32, NaN where the disparity is missing or at or
-    beyond infinity)."""
-    doffs = -calibration.doffs  # here: left minus right
-    shifted = disparity.astype(np.float32) - np.float32(doffs)
+    """Depth ``z = f·B/(d - disparity_offset)`` (m, float32, NaN where the disparity is missing
+    or at or beyond infinity)."""
+    shifted = disparity.astype(np.float32) - np.float32(calibration.disparity_offset)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(
             shifted > 0, np.float32(calibration.f * calibration.B) / shifted, np.float32(np.nan)

@@ -1,4 +1,4 @@
-"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, z = fB/(d - doffs) cloud."""
+"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, the z = fB/(d - d_inf) cloud."""
 
 from __future__ import annotations
 
@@ -89,13 +89,13 @@ class Reconstructor:
         )
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
-        self._doffs = -calibration.doffs  # left minus right principal point x
+        self._disparity_offset = calibration.disparity_offset
         self._camera = (
             calibration.f,
             calibration.B,
             calibration.cx,
             calibration.cy,
-            self._doffs,
+            self._disparity_offset,
             calibration.fy,
         )
         # computed once, in OpenCV's fast fixed-point form, reused for every frame; None
@@ -162,7 +162,7 @@ class Reconstructor:
             coded,
             out=out,
             status=status,
-            doffs_px=self._doffs,
+            doffs_px=self._disparity_offset,
         )
         pool, height = self._second_thread(), disparity.shape[0]
         split = height // 2 if pool is not None else height
@@ -182,8 +182,10 @@ class Reconstructor:
             return kernels.triangulate(disparity, status, rect_left, *self._camera)
         height = disparity.shape[0]
         split = height // 2
-        lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
-        n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
+        lower = pool.submit(
+            kernels.count_points, disparity, status, self._disparity_offset, split, height
+        )
+        n_upper = kernels.count_points(disparity, status, self._disparity_offset, 0, split)
         return self._fill(
             rect_left, disparity, status, split, n_upper, n_upper + lower.result(), pool
         )

@@ -206,7 +206,7 @@ def _field(msg: Any, name: str) -> Any:
 def calibration_from_camera_info(left: Any, right: Any) -> str:
     """vbfe calibration YAML from the two eyes' rectified ``camera_info`` (K, D, R, P): the
     stereo rotation ``R = R2ᵀ R1`` and translation ``T = R2ᵀ (P2[0,3] / P2[0,0], 0, 0)``."""
-    from vbfe.calib.calibration import Calibration
+    from vbfe.calib.calibration import Calibration, reprojection_matrix
 
     K1, K2 = (np.asarray(_field(m, "k"), float).reshape(3, 3) for m in (left, right))
     R1, R2 = (np.asarray(_field(m, "r"), float).reshape(3, 3) for m in (left, right))
@@ -218,8 +218,6 @@ def calibration_from_camera_info(left: Any, right: Any) -> str:
             "a rectified stereo calibration"
         )
     tx = P2[0, 3] / P2[0, 0]
-    f, cx1, cy, cx2 = P1[0, 0], P1[0, 2], P1[1, 2], P2[0, 2]
-    Q = np.array([[1, 0, 0, -cx1], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, -1 / tx, (cx1 - cx2) / tx]])
     calibration = Calibration(
         K1=K1,
         D1=D1,
@@ -231,7 +229,7 @@ def calibration_from_camera_info(left: Any, right: Any) -> str:
         R2=R2,
         P1=P1,
         P2=P2,
-        Q=Q,
+        Q=reprojection_matrix(P1, P2),
         image_size=(int(left.width), int(left.height)),
         info={"source": "ROS camera_info"},
     )
