@@ -13,6 +13,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.pairs import PAIR_NAMING, pair_files
@@ -134,11 +135,9 @@ def middlebury_calibration(path: str | Path, image_size: tuple[int, int]) -> Cal
             f"{path} is not a Middlebury calib.txt (cam0=[f 0 cx; 0 f cy; 0 0 1], "
             "cam1, doffs, baseline, width, height)"
         )
-    if tuple(calibration.image_size) != tuple(image_size):
-        raise ReconError(
-            f"{path} is for {calibration.image_size[0]}x{calibration.image_size[1]} "
-            f"images but the pair is {image_size[0]}x{image_size[1]}"
-        )
+    mismatch = size_mismatch("the pair has", image_size, str(path), calibration.image_size)
+    if mismatch:
+        raise ReconError(mismatch)
     return calibration
 
 

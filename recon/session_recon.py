@@ -17,6 +17,7 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.common.errors import ReconError
 from vbfe.common.files import commit, partial_path
@@ -201,12 +202,9 @@ def _reconstruct(
 
 
 def _check_size(what: str, size: tuple[int, int], calibration: Calibration) -> None:
-    if tuple(size) != tuple(calibration.image_size):
-        raise ReconError(
-            f"{what} has {size[0]}x{size[1]} images but the calibration is for "
-            f"{calibration.image_size[0]}x{calibration.image_size[1]}; use the "
-            f"calibration of this camera mode"
-        )
+    mismatch = size_mismatch(f"{what} has", size, "the calibration", calibration.image_size)
+    if mismatch:
+        raise ReconError(mismatch)
 
 
 def reconstruct_images(
