@@ -78,10 +78,27 @@ def reprojection_matrix(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
 class Calibration:
     """Stereo endoscope calibration (plus optional projector and colour correction).
 
-    ``R, T`` map left-camera coordinates to right-camera coordinates (OpenCV ``stereoCalibrate``
-    convention); ``R_proj, T_proj`` map left-camera coordinates to projector coordinates.
-    ``info`` holds JSON-able extras (board, per-view RMS, standard deviations, depth uncertainty,
-    rejected corners, desynchronised views, ...).
+    Made by ``vbfe calibrate stereo`` (:func:`vbfe.calib.stereo.calibrate_stereo`), read with
+    :meth:`load` (or :func:`load_calibration`, which also takes a session) and written with
+    :meth:`save`. The rectified pair's geometry is :attr:`f`, :attr:`B`, :attr:`cx`,
+    :attr:`cy`, :attr:`disparity_offset` and ``Q``.
+
+    :param K1: left camera matrix (3×3, px). ``D1``: its distortion coefficients.
+    :param K2: right camera matrix. ``D2``: its distortion coefficients.
+    :param R: rotation from left-camera to right-camera coordinates; ``T`` the translation
+        (m; OpenCV ``stereoCalibrate`` convention).
+    :param R1: rectifying rotation of the left camera; ``R2`` of the right one.
+    :param P1: rectified left projection matrix (3×4); ``P2`` the right one.
+    :param Q: disparity-to-depth matrix (4×4, see :func:`reprojection_matrix`).
+    :param image_size: ``(width, height)`` of one eye's images.
+    :param info: JSON-able extras (board, per-view RMS, standard deviations, depth
+        uncertainty, rejected corners, desynchronised views, ...).
+
+    The optional fields hold RMS errors and the projector's intrinsics and pose (``R_proj,
+    T_proj`` map left-camera coordinates to projector coordinates).
+
+    :raises CalibrationError: a matrix of the wrong shape, NaN or infinite values, a
+        non-positive image size, or a rectified right focal length that is not positive.
     """
 
     K1: np.ndarray
@@ -291,7 +308,13 @@ class Calibration:
         )
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The rectified pair (rows of the two images are epipolar lines)."""
+        """Rectify a pair: rows of the two images become epipolar lines.
+
+        :param left: the left image as captured (``image_size``).
+        :param right: the right image as captured.
+        :returns: the rectified left and right images.
+        :raises CalibrationError: an image is not of the calibration's size.
+        """
         for name, img in (("left", left), ("right", right)):
             if (img.shape[1], img.shape[0]) != self.image_size:
                 raise CalibrationError(
@@ -348,7 +371,13 @@ class Calibration:
 
     @classmethod
     def from_yaml_text(cls, text: str, source: str = "<text>") -> Calibration:
-        """Parse calibration YAML text; ``source`` names it in error messages."""
+        """Parse calibration YAML text.
+
+        :param text: OpenCV FileStorage YAML, as :meth:`to_yaml_text` writes it.
+        :param source: names the text in error messages (e.g. its file).
+        :raises CalibrationError: the text is not such YAML, lacks a matrix, or holds one of the
+            wrong shape or an impossible value.
+        """
         try:
             fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser error, wrapped
@@ -433,7 +462,13 @@ class Calibration:
 
     def save(self, path: str | Path) -> Path:
         """Write the YAML file atomically (a crash leaves the old file intact), after reading
-        the text back: a calibration that would not load again is never written."""
+        the text back: a calibration that would not load again is never written.
+
+        :param path: the file to write (replaced if it exists: callers check outputs first).
+        :returns: ``path``.
+        :raises CalibrationError: the text does not read back as written.
+        :raises OSError: the file cannot be written.
+        """
         path = Path(path)
         text = self.to_yaml_text()
         back = Calibration.from_yaml_text(text, source=f"calibration written to {path}")
@@ -449,7 +484,11 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        """Read a calibration YAML file."""
+        """Read a calibration YAML file.
+
+        :param path: the file, as :meth:`save` wrote it.
+        :raises CalibrationError: the file is missing, not text, or not a valid calibration.
+        """
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")

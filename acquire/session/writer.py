@@ -106,7 +106,24 @@ def _encode_jpeg(image: np.ndarray) -> bytes:
 
 class SessionWriter:
     """Writes one session file: the core streams and ``extra_streams``; call the ``append*``
-    methods from a single thread."""
+    methods from a single thread, :meth:`flush` now and then, and :meth:`close` at the end
+    (then :func:`finalize_session` marks the file complete). The file is in SWMR mode once
+    created, so readers may open it while it is written.
+
+    :param path: the session file to create (an existing one is replaced: callers check
+        :func:`vbfe.common.files.check_outputs` first).
+    :param frame_size: ``(width, height)`` of one eye's images.
+    :param compression: how images are stored: one of ``COMPRESSIONS`` of the session layout
+        (``"mjpeg"`` keeps JPEG bytes, the others compress raw pixels).
+    :param metadata: JSON-able facts about the recording (operator, notes, protocol, ...).
+    :param calibration_yaml: the stereo calibration to store with the session (OpenCV YAML).
+    :param force_axes: names of the force columns.
+    :param flush_interval_s: the recorder's flush interval, stored for readers.
+    :param extra_streams: specs of further streams (e.g. LSL streams, event marks).
+    :raises SessionError: an unknown compression, stream names that clash, or a file that
+        cannot be created.
+    :raises OutputError: another process is writing the same file.
+    """
 
     def __init__(
         self,
@@ -209,8 +226,15 @@ class SessionWriter:
         return data
 
     def append(self, stream: str, records: Sequence[Any]) -> None:
-        """Append records of ``stream`` (data first, timestamps last, so a reader never sees a
-        timestamp whose data is missing)."""
+        """Append records of a stream (data first, timestamps last, so a reader never sees a
+        timestamp whose data is missing).
+
+        :param stream: the stream's name.
+        :param records: its records (with ``t_device_ns``, ``t_host_ns``, ``seq`` and the
+            stream's columns as attributes).
+        :raises SessionError: the writer has no such stream.
+        :raises OSError: the file cannot be written (e.g. the disk is full).
+        """
         if not records:
             return
         spec = self.streams.get(stream)
@@ -298,9 +322,13 @@ class SessionWriter:
         )
 
     def flush(self, clock_pair: tuple[int, int] | None = None) -> dict[str, int]:
-        """Make everything appended so far durable and visible to readers; returns the counts.
-        The (UTC, host) clock pair stored is now's, or ``clock_pair`` for data whose host
-        clock is not this machine's (an imported recording)."""
+        """Make everything appended so far durable and visible to readers.
+
+        :param clock_pair: the (UTC, host) clock pair to store; ``None``: now's (give one for
+            data whose host clock is not this machine's, e.g. an imported recording).
+        :returns: the records written per stream.
+        :raises OSError: the file cannot be written.
+        """
         pair = clock_pair if clock_pair is not None else (time.time_ns(), time.monotonic_ns())
         _append(self._wall, np.array([pair], dtype=np.int64))
         self._file.flush()
