@@ -20,6 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
@@ -316,11 +317,12 @@ class Calibration:
         :raises CalibrationError: an image is not of the calibration's size.
         """
         for name, img in (("left", left), ("right", right)):
-            if (img.shape[1], img.shape[0]) != self.image_size:
-                raise CalibrationError(
-                    f"{name} image is {img.shape[1]}x{img.shape[0]} but the calibration is for "
-                    f"{self.image_size[0]}x{self.image_size[1]}; recalibrate at this resolution"
-                )
+            size = (img.shape[1], img.shape[0])
+            mismatch = size_mismatch(
+                f"the {name} image has", size, "the calibration", self.image_size
+            )
+            if mismatch:
+                raise CalibrationError(mismatch)
         (l1, l2), (r1, r2) = self.rectification_maps()
         return (
             cv2.remap(left, l1, l2, cv2.INTER_LINEAR),
