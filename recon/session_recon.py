@@ -11,6 +11,7 @@ import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -34,12 +35,12 @@ FrameResult = tuple[int, FrameCloud, dict[str, object]]
 FrameHook = Callable[[str, FrameCloud], object]
 StartHook = Callable[[int, bool], object]
 
-_worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
+_worker: dict[str, Any] = {}  # per-process state: the frame source and reconstructor
 
 
 def _init_worker(
     source: str | ImagePairs,
-    calibration_yaml: str,
+    calibration: Calibration,
     params: dict,
     verify: bool,
     settings: ReconSettings,
@@ -56,7 +57,7 @@ def _init_worker(
     _worker["reader"] = SessionReader(source) if isinstance(source, str) else source
     _worker["keep_maps"] = keep_maps
     _worker["reconstructor"] = Reconstructor(
-        Calibration.from_yaml_text(calibration_yaml),
+        calibration,
         SgbmParams(**params),
         verify=verify,
         settings=settings,
@@ -106,7 +107,7 @@ def _results(
     """Frame results in frame order, computed in ``workers`` processes (1: in this process)."""
     init_args = (
         source,
-        calibration.to_yaml_text(),
+        calibration,  # pickled to worker processes as it is (no YAML round trip)
         dataclasses.asdict(params),
         verify,
         settings,
