@@ -133,7 +133,7 @@ class ReplayViewer(ViewerWindow):
             self.show_force((reader.force_times_ns() - self._t0()) / 1e9, forces)
         for name in reader.stream_names():
             stream = reader.stream(name)
-            if not stream.markers and len(stream):
+            if stream.values is not None and len(stream):  # a numeric stream
                 self.add_stream_plot(
                     name,
                     (stream.t_host_ns - self._t0()) / 1e9,

@@ -436,10 +436,10 @@ class Calibration:
             if mat is None:
                 raise CalibrationError(f"{source}: {name} is not a matrix (!!opencv-matrix)")
             kwargs[name] = mat
-        size = [number(name) for name in ("image_width", "image_height")]
-        if None in size:
+        width, height = (number(name) for name in ("image_width", "image_height"))
+        if width is None or height is None:
             raise CalibrationError(f"{source} has no image_width and image_height")
-        kwargs["image_size"] = (int(size[0]), int(size[1]))
+        kwargs["image_size"] = (int(width), int(height))
         for name in ("rms_left_px", "rms_right_px", "rms_stereo_px", "rms_projector_px"):
             if node(name) is not None:
                 kwargs[name] = number(name)

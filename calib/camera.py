@@ -117,7 +117,8 @@ def _solve(
         rms = float(np.sqrt(np.mean(np.concatenate(sq))))
         return rms, fixed.K, fixed.D, rvecs, tvecs, fixed.std_intrinsics, np.asarray(per_view)
     try:
-        (rms, K, D, rvecs, tvecs, std, _, per_view) = cv2.calibrateCameraExtended(
+        # OpenCV takes None for K and D (no initial guess); its stubs do not say so
+        (rms, K, D, rvecs, tvecs, std, _, per_view) = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             obj, img, image_size, None, None, flags=flags, criteria=CRITERIA
         )
     except cv2.error as exc:

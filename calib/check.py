@@ -17,6 +17,10 @@ from vbfe.calib.views import ViewSet, check_sizes
 from vbfe.common.errors import CalibrationError
 
 
+def _mm(length_m: float | None) -> str:
+    return "-" if length_m is None else f"{length_m * 1e3:.3f} mm"
+
+
 @dataclass
 class CheckResult:
     """Outcome of :func:`check_calibration`; ``passed`` is the go/no-go."""
@@ -74,7 +78,7 @@ class CheckResult:
                 ("Δf", f"{self.deltas['f_px']:+.3f} px"),
                 ("ΔB", f"{self.deltas['B_m'] * 1e3:+.4f} mm"),
                 ("Δcx, Δcy", f"{self.deltas['cx_px']:+.3f}, {self.deltas['cy_px']:+.3f} px"),
-                ("depth error (parameters)", f"{self.depth_error_params_m * 1e3:.3f} mm"),
+                ("depth error (parameters)", _mm(self.depth_error_params_m)),
             ]
         if self.epipolar_rms_px is not None:
             out += [
@@ -84,7 +88,7 @@ class CheckResult:
                     f"{self.epipolar_rms_px:.3f} px (limit {self.max_epipolar_px:.2f})",
                 ),
                 ("board scale", f"{self.board_scale:.5f}"),
-                ("depth error (views)", f"{self.depth_error_views_m * 1e3:.3f} mm"),
+                ("depth error (views)", _mm(self.depth_error_views_m)),
             ]
         failures = self.failures()
         out.append(

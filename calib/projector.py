@@ -111,11 +111,11 @@ def corner_projector_points(
         if len(cam) < (r + 1) ** 2:  # need a good part of the window
             continue
         H, inliers = cv2.findHomography(
-            np.float64(cam), np.float64(proj), cv2.RANSAC, options.ransac_px
+            np.asarray(cam, np.float64), np.asarray(proj, np.float64), cv2.RANSAC, options.ransac_px
         )
         if H is None or inliers.sum() < 0.5 * len(cam):
             continue
-        out[k] = cv2.perspectiveTransform(np.float64([[[cx, cy]]]), H).reshape(2)
+        out[k] = cv2.perspectiveTransform(np.array([[[cx, cy]]], np.float64), H).reshape(2)
         ok[k] = True
     return out, ok
 
@@ -170,7 +170,8 @@ def calibrate_projector(
             f"{options.min_poses}. Keep the board inside the projected area"
         )
     try:
-        rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(
+        # OpenCV takes None for K and D (no initial guess); its stubs do not say so
+        rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             obj, proj_pts, projector_size, None, None, flags=_PROJECTOR_FLAGS, criteria=_CRITERIA
         )
         rms_st, *_, R, T, _, _ = cv2.stereoCalibrate(

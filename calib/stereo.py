@@ -100,7 +100,8 @@ def _stereo_solve(
     _, img_r = points(spec.object_points(), [p[1] for p in pairs])
     flags |= cv2.CALIB_FIX_INTRINSIC if fixed else cv2.CALIB_USE_INTRINSIC_GUESS
     try:
-        (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(
+        # OpenCV takes None for R, T (no initial guess); its stubs do not say so
+        (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
             obj,
             img_l,
             img_r,
@@ -269,9 +270,9 @@ def calibrate_detections(
         fits.append(fit)
     left, right = fits
     if outliers:
-        keep = [n not in outliers for n in names]
-        pairs = [p for p, k in zip(pairs, keep, strict=False) if k]
-        names = [n for n, k in zip(names, keep, strict=False) if k]
+        inlier = [n not in outliers for n in names]
+        pairs = [p for p, k in zip(pairs, inlier, strict=False) if k]
+        names = [n for n, k in zip(names, inlier, strict=False) if k]
         dropped.update(outliers)
         need_views(len(pairs), options, source, dropped)
         left, right = (

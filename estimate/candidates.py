@@ -16,6 +16,7 @@ and ``to_dict()``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -123,7 +124,7 @@ class MeanEnsemble:
 
 
 AnyEstimator = NetworkEstimator | RidgeThumbnail | CnnEstimator | MeanEnsemble | Baseline
-_KINDS = {
+_KINDS: dict[str, Callable[[dict[str, Any]], AnyEstimator]] = {
     "network": NetworkEstimator.from_dict,
     "ridge": RidgeThumbnail.from_dict,
     "cnn": CnnEstimator.from_dict,
@@ -133,7 +134,7 @@ _KINDS = {
 
 def estimator_from_dict(d: dict[str, Any]) -> AnyEstimator:
     """Rebuild an estimator stored by its ``to_dict``."""
-    return _KINDS.get(d.get("kind"), baseline_from_dict)(d)
+    return _KINDS.get(str(d.get("kind")), baseline_from_dict)(d)
 
 
 def candidate_names(model: str, temporal: bool) -> list[str]:

@@ -134,6 +134,7 @@ def prepare_session(
             elif not np.isfinite(targets[i]).all():
                 no_force += 1
             else:
+                assert preparer is not None  # it cropped the cloud
                 kept.append(i)
                 features.append(preparer.features(cropped, pool_size, rng, points, colors))
         return PreparedSession.from_features(

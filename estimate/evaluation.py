@@ -21,6 +21,7 @@ import numpy as np
 
 from vbfe.common.errors import EstimateError
 from vbfe.common.files import atomic_path
+from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
 from vbfe.estimate.model_file import ForceModel, load_model
@@ -247,10 +248,11 @@ def evaluate(
         f"force, {sum(v['no_cloud'] for v in skipped.values())} with too few points in "
         "the region of interest",
     ]
-    if "hooke" in model.estimators:
+    hooke = model.estimators.get("hooke")
+    if isinstance(hooke, AffineBaseline):
         notes.append(
             "baselines fitted on the training frames only; Hooke uses one fitted "
-            f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m"
+            f"stiffness k̂ = {hooke.slope.round(2).tolist()} N/m"
         )
     if seen_in_training:
         notes.append(

@@ -87,6 +87,13 @@ class PointNetRegressor(nn.Module):
     """Point clouds (B×N×3, or B×N×4 with the rest depth change; metres, any point order) →
     force (B×n_outputs, newtons)."""
 
+    # buffers (register_buffer), saved with the weights
+    target_mean: torch.Tensor
+    target_std: torch.Tensor
+    feature_mean: torch.Tensor
+    feature_std: torch.Tensor
+    depth_scale: torch.Tensor
+
     def __init__(
         self,
         n_outputs: int = 1,
@@ -181,6 +188,7 @@ class TemporalPointNet(PointNetRegressor):
         self.n_frames = n_frames
         self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout, n_outputs)
         last = self.motion_head[-1]
+        assert isinstance(last, nn.Linear)
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)
 

@@ -29,7 +29,9 @@ class CloudSource(Protocol):
 
     name: str
     conditions: dict[str, Any]
-    n_frames: int
+
+    @property
+    def n_frames(self) -> int: ...
 
     def frame_times_ns(self) -> np.ndarray: ...
     def force_at_frames(self) -> np.ndarray: ...

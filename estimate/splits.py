@@ -251,8 +251,8 @@ def split_by_ranges(
         label = np.full(len(frames), -1)
         for k, part in enumerate(PARTS):
             if ranges.get(part):
-                a, b = ranges[part]
-                label[(frames >= a) & (frames < b)] = k
+                first, end = ranges[part]
+                label[(frames >= first) & (frames < end)] = k
         if not (label == 0).any():
             raise EstimateError(
                 f"session {s.name} has no usable frame in the training range "

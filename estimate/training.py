@@ -21,6 +21,7 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -141,7 +142,7 @@ def _fit_networks(
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
-    windows = {"pointnet": ()}
+    windows: dict[str, tuple[int, ...]] = {"pointnet": ()}
     if "temporal" in names:
         windows["temporal"] = tuple(config.temporal_window)
     budget = config.time_limit_s / len(windows)
@@ -170,7 +171,7 @@ def _fit_networks(
             device,
             rng,
             deadline,
-            (lambda done, total, stage=stage: progress(stage, done, total)) if progress else None,
+            partial(progress, stage) if progress else None,
             warm_start=bool(window),
         )
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
@@ -277,7 +278,7 @@ def _selection_note(
     """Which model ships and why; a warning when a baseline beats it on validation."""
     where = "validation" if validated else "training"
     baselines = {n: v for n, v in val_mae.items() if n not in CANDIDATES.values()}
-    best_baseline = min(baselines, key=baselines.get)
+    best_baseline = min(baselines, key=lambda n: baselines[n])
     how = "forced by --model" if len(names) == 1 else f"best of {len(names)} candidates"
     line = f"selected model: {selected} ({how}), {where} MAE {val_mae[selected]:.3f} N"
     if val_mae[selected] > baselines[best_baseline]:
@@ -293,7 +294,7 @@ def cross_validate(
 ) -> dict[str, Any]:
     """Blocked K-fold cross-validation in time: per fold the whole fit and selection, every
     method's test MAE; summary mean ± sd per method (``selected``: whatever each fold chose)."""
-    folds = []
+    folds: list[dict[str, Any]] = []
     splits = split_folds(prepared, config.folds, config.gap_frames)
     for k, split in enumerate(splits):
         fit = fit_split(prepared, split, config)

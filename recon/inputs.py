@@ -86,14 +86,14 @@ def find_pairs(folder: str | Path) -> ImagePairs:
 
 def image_pairs(paths: list[str | Path]) -> ImagePairs:
     """Pairs from two image files (left, right) or one folder of pairs."""
-    paths = [Path(p) for p in paths]
-    missing = [str(p) for p in paths if not p.exists()]
+    files = [Path(p) for p in paths]
+    missing = [str(p) for p in files if not p.exists()]
     if missing:
         raise ReconError(f"{', '.join(missing)} does not exist")
-    if len(paths) == 1 and paths[0].is_dir():
-        return find_pairs(paths[0])
-    if len(paths) == 2 and all(p.is_file() for p in paths):
-        return ImagePairs((paths[0],), (paths[1],), (paths[0].stem,))
+    if len(files) == 1 and files[0].is_dir():
+        return find_pairs(files[0])
+    if len(files) == 2 and all(p.is_file() for p in files):
+        return ImagePairs((files[0],), (files[1],), (files[0].stem,))
     raise ReconError("give a session (.h5), two image files (LEFT RIGHT) or one folder of pairs")
 
 

@@ -164,7 +164,7 @@ def summary_line(reader: CloudReader) -> str:
 def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     """Per-frame quality rows (at most ``limit``, spread over the file) for ``vbfe inspect``."""
     n = reader.n_frames
-    picks = np.unique(np.linspace(0, n - 1, min(n, limit)).astype(int)) if n else []
+    picks = np.unique(np.linspace(0, n - 1, min(n, limit)).astype(int)) if n else np.zeros(0, int)
     index = reader.frame_table("frame_index")
     density = reader.frame_table("valid_fraction")
     decoded = reader.frame_table("decoded_fraction")

@@ -137,7 +137,9 @@ class Reconstructor:
         pool = self._second_thread()
         right_code = pool.submit(self.decoder.decode, right, period) if pool else None
         left_code = self.decoder.decode(left, period)
-        return left_code, right_code.result() if pool else self.decoder.decode(right, period)
+        if right_code is not None:
+            return left_code, right_code.result()
+        return left_code, self.decoder.decode(right, period)
 
     def _verify_and_triangulate(
         self,

@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -40,6 +40,7 @@ _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the 
 _END_GRACE_S = 2.0  # how long a reader may go on after the stop to reach the acquisition's end
 _SAMPLE_QUEUE_FACTOR = 64  # streams other than the camera queue this many more (small) records
 
+L = TypeVar("L", bound=Listener)
 PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
 
 
@@ -183,10 +184,17 @@ class Acquisition:
 
     ``with Acquisition(rig) as acq: acq.add(listener); acq.run(duration_s)`` or call
     :meth:`start` / :meth:`stop` yourself. :meth:`start` opens the rig and :meth:`stop` closes
-    it. When the rig has a projector, ``pattern`` (an image, or a function of the opened
-    projector's ``(width, height)`` that makes one) is shown at the start as ``pattern_name``.
-    ``on_demand``: the camera is read only when asked (:meth:`demand`, one frame each), for
-    consumers in lock-step with the projector (show, then the frames after it).
+    it.
+
+    :param rig: the devices to read (not opened yet).
+    :param pattern: shown on the projector at the start when the rig has one: an image, or a
+        function of the opened projector's ``(width, height)`` that makes one.
+    :param pattern_name: the name the pattern's projector event is recorded under.
+    :param queue_size: frames buffered per camera between its reader and the dispatch (other
+        streams get proportionally more); a full queue drops records, marked as gaps.
+    :param listeners: consumers of the records, in dispatch order (more with :meth:`add`).
+    :param on_demand: read the camera only when asked (:meth:`demand`, one frame each), for
+        consumers in lock-step with the projector (show, then the frames after it).
     """
 
     def __init__(
@@ -221,8 +229,13 @@ class Acquisition:
         self._end_host_ns: int | None = None  # first frame's host time + duration
         self._t_start = 0.0
 
-    def add(self, listener: Listener) -> Listener:
-        """Register ``listener`` (before :meth:`start`); returns it."""
+    def add(self, listener: L) -> L:
+        """Register a listener before :meth:`start`.
+
+        :param listener: the consumer to add after those already registered.
+        :returns: ``listener`` itself.
+        :raises SessionError: the acquisition has already started.
+        """
         if self._started:
             raise SessionError("add listeners before the acquisition starts")
         self.listeners.append(listener)
@@ -231,7 +244,12 @@ class Acquisition:
     # -- lifecycle ------------------------------------------------------------------------
     def start(self, duration_s: float | None = None) -> None:
         """Open the rig, show the pattern, start the listeners, the readers and the dispatch.
-        With ``duration_s``, keep that many seconds of frames (host clock), then end."""
+
+        :param duration_s: keep that many seconds of frames (host clock), then end; ``None``:
+            until :meth:`stop`.
+        :raises SessionError: ``duration_s`` is not positive.
+        :raises DeviceError: a device cannot be opened (those opened are closed again).
+        """
         if duration_s is not None:
             self._set_duration(duration_s)
         self.rig.open()
@@ -304,9 +322,20 @@ class Acquisition:
         progress_interval_s: float = 0.5,
         on_tick: Callable[[Acquisition, AcquisitionStats], None] | None = None,
     ) -> AcquisitionStats:
-        """Run until ``duration_s`` of frames (host clock) are in, a device is gone, a listener
-        halts it, Ctrl-C or SIGTERM; then stop cleanly. Listeners' ``on_tick`` (and
-        ``on_tick``) are called every 50 ms. Returns the final statistics."""
+        """Run (starting first if needed) until ``duration_s`` of frames (host clock) are in, a
+        device is gone, a listener halts it, Ctrl-C or SIGTERM; then stop cleanly.
+
+        :param duration_s: seconds of frames to keep; ``None``: the duration given to
+            :meth:`start`, else until stopped.
+        :param on_progress: called with the statistics every ``progress_interval_s``.
+        :param progress_interval_s: seconds between ``on_progress`` calls.
+        :param on_tick: called every 50 ms with the acquisition and its statistics, after the
+            listeners' ``on_tick``.
+        :returns: the final statistics (its ``end_reason`` says why it ended).
+        :raises SessionError: ``duration_s`` is not positive, or a listener failed (see
+            :meth:`stop`).
+        :raises DeviceError: a device cannot be opened.
+        """
         if not self._started:
             self.start()
         last_progress = 0.0
@@ -375,8 +404,14 @@ class Acquisition:
         self._halt.set()
 
     def stop(self, reason: str | None = None) -> AcquisitionStats:
-        """Stop reading, dispatch what is queued, close the rig, then every listener's
-        ``on_stop``; raise the first failure (of an ``on_stop``, else of a record hook)."""
+        """Stop reading, dispatch what is queued, close the rig, then call every listener's
+        ``on_stop`` (idempotent).
+
+        :param reason: the end reason recorded when no end condition gave one.
+        :returns: the final statistics.
+        :raises Exception: the first failure of a listener (of an ``on_stop``, else of a record
+            hook), once every listener has been stopped.
+        """
         if self._stopped:
             return self.stats
         self._stopped = True

@@ -26,7 +26,7 @@ class FrameFeed(Listener):
 
     def __init__(self, size: int = 1) -> None:
         self._frames: queue.Queue[StereoFrame] = queue.Queue(maxsize=size)
-        self._acquisition: Acquisition | None = None
+        self._acquisition: Acquisition  # from on_start, before any frame
 
     def on_start(self, acquisition: Acquisition) -> None:
         self._acquisition = acquisition

@@ -157,15 +157,14 @@ class RemoteSessions:
     ) -> None:
         self._begin, self._overwrite, self._say = begin, overwrite, on_message
         self._options: dict[str, str] = {}
-        self._recording: Recording | None = None
+        self._active: tuple[Recording, Path] | None = None  # the recording and its file
         self._lock = threading.Lock()
         self.finished: list[Path] = []
-        self._path: Path | None = None
 
     @property
     def recording(self) -> bool:
         """Whether a recording is running."""
-        return self._recording is not None
+        return self._active is not None
 
     def handle(self, command: Command, t_host_ns: int) -> None:
         """Carry out one command; SessionError says why it cannot be."""
@@ -176,21 +175,21 @@ class RemoteSessions:
             elif command.verb == "start":
                 self._start()
             elif command.verb == "stop":
-                if self._recording is None:
+                if self._active is None:
                     raise SessionError("stop: nothing is being recorded")
-                recording, self._recording = self._recording, None
+                (recording, path), self._active = self._active, None
                 self._say(f"remote: {recording.stop()}")
-                self.finished.append(self._path)
+                self.finished.append(path)
             elif command.verb == "mark":
-                if self._recording is None:
+                if self._active is None:
                     raise SessionError("mark: nothing is being recorded")
-                self._recording.mark(command.argument, t_host_ns)
+                self._active[0].mark(command.argument, t_host_ns)
             elif command.verb == "select" and command.argument == "none":
                 raise SessionError("select none: vbfe records the rig and every [streams] entry")
 
     def _start(self) -> None:
-        if self._recording is not None:
-            raise SessionError(f"start: already recording {self._path}; send stop first")
+        if self._active is not None:
+            raise SessionError(f"start: already recording {self._active[1]}; send stop first")
         if not self._options:
             raise SessionError("start: send filename {root:…} {template:…} first")
         path = session_path(self._options)
@@ -199,16 +198,16 @@ class RemoteSessions:
                 f"start: {path} already exists; send a new filename (e.g. the next {{run:N}})"
             )
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._recording, self._path = self._begin(path), path
+        self._active = self._begin(path), path
         self._say(f"remote: recording {path}")
 
     def close(self, reason: str = "stopped by operator") -> None:
         """Stop a recording still running (the server is going away)."""
         with self._lock:
-            if self._recording is not None:
-                recording, self._recording = self._recording, None
+            if self._active is not None:
+                (recording, path), self._active = self._active, None
                 self._say(f"remote: {recording.stop(reason)}")
-                self.finished.append(self._path)
+                self.finished.append(path)
 
 
 class RemoteControl:

@@ -112,8 +112,8 @@ class SessionSink(Listener):
         self.min_free_bytes = min_free_bytes
         self.on_flush = on_flush
         self.streams = tuple(streams)
-        self._acquisition: Acquisition | None = None
-        self._writer: SessionWriter | None = None
+        self._acquisition: Acquisition  # from on_start, before any record
+        self._writer: SessionWriter  # from on_start
         self._error: BaseException | None = None
         self._fault: str | None = None  # a reason to stop, reported after finalizing
         self._flush_cost_s = 0.0  # longest recent flush

@@ -149,7 +149,7 @@ def core_streams(
             )
             for eye in ("left", "right")
         )
-        blobs = ("left_jpeg", "right_jpeg")
+        blobs: tuple[str, ...] = ("left_jpeg", "right_jpeg")
     else:
         images = tuple(
             Column(eye, np.uint8, (height, width, 3), chunk=1, image=True)

@@ -228,7 +228,16 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
 
 
 class SessionReader:
-    """Read-only access to a recorded session (frames, forces, events, clock fits, metadata)."""
+    """Read-only access to a recorded session (frames, forces, events, clock fits, metadata).
+
+    Use it as a context manager (``with SessionReader(path) as reader:``) or call
+    :meth:`close`. A session still being written (SWMR) or cut short by a crash is read up to
+    its last complete records (``complete`` and ``closed_cleanly`` say which).
+
+    :param path: the session file (HDF5, written by :class:`SessionWriter`).
+    :raises SessionError: the file is missing, not a vbfe session, of an unknown schema
+        version, or too damaged to read (the message names the file).
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -357,7 +366,12 @@ class SessionReader:
         return blobs[0], blobs[1]
 
     def frame(self, i: int) -> StereoFrame:
-        """Frame ``i`` with its recorded device and host timestamps (not clock-corrected)."""
+        """One stereo frame with its recorded device and host timestamps (not clock-corrected).
+
+        :param i: the frame's index (negative counts from the end).
+        :returns: the frame, its images decoded (BGR).
+        :raises IndexError: ``i`` is out of range.
+        """
         if not -self.n_frames <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
@@ -382,7 +396,8 @@ class SessionReader:
         or an extra stream)."""
         if stream not in self._times:
             n = self.stream_length(stream)
-            self._times[stream] = tuple(self._read(f"{stream}/{k}", n) for k in TIME_COLUMNS)
+            t_device, t_host, seq = (self._read(f"{stream}/{k}", n) for k in TIME_COLUMNS)
+            self._times[stream] = (t_device, t_host, seq)
         return self._times[stream]
 
     def stream_length(self, stream: str) -> int:
@@ -435,10 +450,11 @@ class SessionReader:
         return [str(a) for a in self._file["force/force_n"].attrs.get("axes", ["x", "y", "z"])]
 
     def force_at_frames(self, max_gap_s: float = 0.05) -> np.ndarray:
-        """Force (``(n_frames, 3)`` N) interpolated at each frame's synchronized time.
+        """The force interpolated at each frame's synchronized time.
 
-        Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
-        get NaN rather than an invented value.
+        :param max_gap_s: frames inside a force gap longer than this get NaN rather than an
+            invented value (as do frames outside the force record).
+        :returns: ``(n_frames, 3)`` newtons.
         """
         return resample_at(
             self.frame_times_ns(), self.force_times_ns(), self.forces_n(), max_gap_s * 1e9
@@ -450,8 +466,12 @@ class SessionReader:
         return [name for name in self.streams if name not in STREAMS and name != MARKS]
 
     def stream(self, name: str) -> RecordedStream:
-        """An extra stream (e.g. ``"robot"``): values or marker text, host and publisher times,
-        channel names and units, the time corrections measured while recording."""
+        """An extra stream: values or marker text, host and publisher times, channel names and
+        units, the time corrections measured while recording.
+
+        :param name: the stream's name (e.g. ``"robot"``, a ``[streams]`` key).
+        :raises SessionError: the session has no such stream.
+        """
         if name not in self.stream_names():
             raise SessionError(
                 f"{self.path} has no stream {name!r}; it has "
@@ -484,7 +504,7 @@ class SessionReader:
         interpolated; NaN outside the stream or inside a gap longer than ``max_gap_s`` (default:
         five sample periods of its nominal rate, else 50 ms)."""
         stream = self.stream(name)
-        if stream.markers:
+        if stream.values is None:
             raise SessionError(
                 f"stream {name} of {self.path} holds event markers, not values; "
                 "read them with events()"
@@ -539,7 +559,7 @@ class SessionReader:
         streams = [text(v) for v in self._file["gaps"].attrs.get("streams", STREAMS)]
         out = []
         for row in rows:
-            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row), strict=False))
+            gap: dict[str, Any] = dict(zip(GAP_COLUMNS, (int(v) for v in row), strict=False))
             gap["stream"] = streams[gap["stream"]]
             gap["reason"] = GAP_REASONS[gap["reason"]]
             out.append(gap)

@@ -177,7 +177,7 @@ def _protocol_lines(p: ProtocolResult) -> list[str]:
         f"taps       {p.taps_found} found"
         + (f", offset {_interval(p.offset)})" if p.offset else ", none measurable")
     ]
-    if p.flash_latency is not None:
+    if p.flash_latency is not None and p.camera_latency_s is not None:
         lines.append(
             f"flashes    {p.flashes_seen} of {p.flashes_shown} seen, flash latency "
             f"{_interval(p.flash_latency)}); camera latency "
@@ -315,7 +315,8 @@ def _verdict(
     estimate too uncertain to judge), with the reasons."""
     half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
     low, high = (c - (estimate.offset_s - residual) for c in estimate.ci95_s)
-    failures, doubts = [], []
+    failures: list[str] = []
+    doubts: list[str] = []
     if abs(residual) > limits.max_offset_s:
         text = f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms"
         definite = low > limits.max_offset_s or high < -limits.max_offset_s

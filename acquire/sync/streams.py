@@ -36,7 +36,7 @@ def stream_offset(reader: SessionReader, name: str, max_lag_s: float = 0.25) -> 
     stream is stamped later than the force of the same instant). SessionError when the stream
     holds markers, does not move, or the force has no corner inside it."""
     stream = reader.stream(name)
-    if stream.markers or len(stream) < 3:
+    if stream.values is None or len(stream) < 3:  # markers
         raise SessionError(f"stream {name} has no motion to check the clocks with")
     values = stream.values[:, np.ptp(stream.values, axis=0) > 0]
     if values.shape[1] == 0:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol
 
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.samples import StereoFrame
@@ -17,6 +18,15 @@ def first_frame_after(
         frame = read(timeout_s)
         if frame is None or frame.t_host_ns >= t_host_ns:
             return frame
+
+
+class FrameSource(Protocol):
+    """Frames read as from a camera: a :class:`StereoCamera`, or the frames an acquisition
+    hands on (:class:`vbfe.acquire.recording.frame_feed.FrameFeed`)."""
+
+    def read_after(self, t_host_ns: int, timeout_s: float = 1.0) -> StereoFrame | None:
+        """The first frame that arrived at or after host time ``t_host_ns``; ``None`` on a
+        timeout."""
 
 
 class StereoCamera(SampleStream[StereoFrame]):

@@ -159,8 +159,8 @@ class Trial:
     def load(self, grasper_displacement_m: float) -> MembraneLoad:
         """The surface load for a grasper displacement."""
         amplitude = self.deformation_scale * grasper_displacement_m
-        vector = tuple(amplitude * c for c in self.sample.pull_direction)
-        return MembraneLoad(self.sample.contact_m, vector, self.radius_m())
+        x, y, z = (amplitude * c for c in self.sample.pull_direction)
+        return MembraneLoad(self.sample.contact_m, (x, y, z), self.radius_m())
 
     def at(self, t_s: float) -> tuple[MembraneLoad, np.ndarray, int]:
         """Load, force vector (N, left-camera axes, along the pull) and phase at trial time

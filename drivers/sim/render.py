@@ -279,7 +279,7 @@ class _Retextured:
     """A surface seen with another albedo."""
 
     base: Surface
-    texture: Texture
+    texture: Texture | None
 
     def hit(self, origin: np.ndarray, dirs: np.ndarray, s0: np.ndarray | None = None) -> Hit:
         return self.base.hit(origin, dirs, s0)

@@ -38,7 +38,7 @@ class ForceSensor(SampleStream[ForceSample]):
         """Make the mean of the next ``n_samples`` (unloaded) the zero; return the offset."""
         if n_samples < 1:
             raise DeviceError(f"taring {self.label} needs at least 1 sample, got {n_samples}")
-        raw = []
+        raw: list[np.ndarray] = []
         while len(raw) < n_samples:
             sample = self.read(timeout_s)
             if sample is None:

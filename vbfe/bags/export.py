@@ -131,7 +131,8 @@ class _Mcap:
         self.writer.add_message(
             self._channels[topic],
             log_time=t_ns,
-            data=typestore().serialize_cdr(message, msgtype),
+            # the writer takes any buffer (a memoryview here, no copy); it is annotated bytes
+            data=typestore().serialize_cdr(message, msgtype),  # type: ignore[arg-type]
             publish_time=publish_ns if publish_ns is not None else t_ns,
             sequence=self.counts.get(topic, 0),
         )

@@ -170,7 +170,7 @@ def choose_topics(topics: dict[str, str], given: TopicChoice) -> TopicChoice:
     for topic in (choice.left, choice.right, choice.image):
         if topic is not None and topics[topic] not in IMAGE_TYPES:
             raise BagError(f"{topic} is {topics[topic]}, not an image topic")
-    if choice.image is None:
+    if choice.image is None and choice.left is not None and choice.right is not None:
         choice.left_info = choice.left_info or _info_topic(choice.left, topics)
         choice.right_info = choice.right_info or _info_topic(choice.right, topics)
     return choice
@@ -280,12 +280,13 @@ class _SessionSink:
         self.last_ns = 0
 
     def host(self, t_ns: int) -> int:
+        assert self.base_ns is not None  # set by the first message
         return t_ns - self.base_ns + _HOST_START_NS
 
     def clock_pair(self) -> tuple[int, int]:
         return self.last_ns, self.host(self.last_ns)
 
-    def frame(self, t_ns: int, left: Any, right: Any, topics: tuple[str, str]) -> None:
+    def frame(self, t_ns: int, left: Any, right: Any, topics: tuple[Any, Any]) -> None:
         host = self.host(t_ns)
         if _is_jpeg(left) and _is_jpeg(right):
             frame: StereoFrame = JpegStereoFrame(
@@ -440,7 +441,8 @@ def _first_string(reader: AnyReader, topic: str) -> str | None:
     if not connections:  # rosbags reads every topic when given none
         return None
     for connection, _, raw in reader.messages(connections=connections):
-        return reader.deserialize(raw, connection.msgtype).data
+        message: Any = reader.deserialize(raw, connection.msgtype)  # a std_msgs/String
+        return message.data
     return None
 
 

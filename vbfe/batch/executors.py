@@ -78,7 +78,8 @@ def run_local(
                 process.start()
                 send.close()
                 running[receive] = (process, item)
-            for conn in multiprocessing.connection.wait(list(running)):
+            ready = multiprocessing.connection.wait(list(running))
+            for conn in [c for c in list(running) if c in ready]:
                 process, item = running.pop(conn)
                 try:
                     ok, payload = conn.recv()

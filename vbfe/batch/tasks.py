@@ -83,7 +83,8 @@ class VerifySyncTask:
                 "verdict": str(stored["sync_verdict"]).upper(),
                 "offset_ms": 1e3 * float(stored["sync_offset_s"]),
             }
-        check_outputs([plot], [session], self.overwrite or same_limits)  # ours when same limits
+        # the plot is ours to replace when the limits are the same
+        check_outputs([plot], [session], bool(self.overwrite or same_limits))
         report = verify_sync(
             session,
             limits,

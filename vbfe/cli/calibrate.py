@@ -587,11 +587,12 @@ def run_projector(args: argparse.Namespace) -> int:
             config, args.captures, args.calibration, args.out, args.simulate, args.seed, **board
         )
         bar.update(1)
-    K = calibration.K_proj
+    K, T = calibration.K_proj, calibration.T_proj
+    assert K is not None and T is not None  # set by the projector calibration
     print(
         f"projector fx={K[0, 0]:.2f} fy={K[1, 1]:.2f} cx={K[0, 2]:.2f} cy={K[1, 2]:.2f} px, "
         f"RMS {calibration.rms_projector_px:.3f} px; T (left->projector) = "
-        f"{', '.join(f'{v * 1e3:.2f}' for v in calibration.T_proj)} mm; "
+        f"{', '.join(f'{v * 1e3:.2f}' for v in T)} mm; "
         f"wrote {args.out or args.calibration}"
     )
     return 0

@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.calib.calibration import load_calibration
     from vbfe.common.errors import LiveError
     from vbfe.estimate.model_file import load_model
-    from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
+    from vbfe.live.outputs import EstimateOutput, LslOutput, UdpOutput, udp_address
     from vbfe.live.run import live_estimator, live_run, run_headless
     from vbfe.live.settings import live_settings
 
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         args.row_scale,
     )
     print(estimator.describe())
-    outputs = []
+    outputs: list[EstimateOutput] = []
     if args.lsl is not None:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))
     if udp is not None:

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -13,6 +14,10 @@ from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import LazyProgress, add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import section
+
+if TYPE_CHECKING:
+    from vbfe.recon.matching import SgbmParams
+    from vbfe.recon.quality import ReconSettings
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 
@@ -210,7 +215,9 @@ def _is_batch(args: argparse.Namespace) -> bool:
     )
 
 
-def _run_batch(args: argparse.Namespace, config: dict, params: object, settings: object) -> int:
+def _run_batch(
+    args: argparse.Namespace, config: dict, params: SgbmParams, settings: ReconSettings
+) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.batch.tasks import ReconstructTask
     from vbfe.common.errors import BatchError

@@ -29,10 +29,12 @@ class LivePredictor:
         estimator = model.estimators[model.selected]
         self._pool_only = isinstance(estimator, NetworkEstimator)
         # a single-frame network reads the newest pool alone: called directly
-        self._network = (
-            estimator.network.eval() if self._pool_only and not estimator.window else None
-        )
-        self._device = next(estimator.network.parameters()).device if self._pool_only else None
+        self._network: torch.nn.Module | None = None
+        self._device: torch.device | None = None
+        if isinstance(estimator, NetworkEstimator):
+            if not estimator.window:
+                self._network = estimator.network.eval()
+            self._device = next(estimator.network.parameters()).device
 
     def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
         """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or

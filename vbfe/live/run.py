@@ -25,6 +25,7 @@ from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.extra_streams import marks_stream
+from vbfe.acquire.session.layout import CAMERA
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
 from vbfe.common.errors import LiveError
@@ -214,16 +215,16 @@ class LiveRun(Listener):
             self.acquisition.stop(reason)
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = str(exc)
-        recording = isinstance(self.acquisition, Recorder)
-        if lost and not recording and self.error is None:
+        recorder = self.acquisition if isinstance(self.acquisition, Recorder) else None
+        if lost and recorder is None and self.error is None:
             self.error = lost
         if self._pipeline.error is not None and self.error is None:
             self.error = self._pipeline.error
         status = self.status()
-        if recording and self.error is None:
-            with SessionReader(self.acquisition.path) as reader:
-                recorded = reader.stream_times("camera")[2][: reader.n_frames]
-            store_estimates(self.acquisition.path, self.stream(status, recorded))
+        if recorder is not None and self.error is None:
+            with SessionReader(recorder.path) as reader:
+                recorded = reader.stream_times(CAMERA)[2][: reader.n_frames]
+            store_estimates(recorder.path, self.stream(status, recorded))
         return status
 
     def mark(self, text: str) -> bool:
