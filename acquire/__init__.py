@@ -1,6 +1,5 @@
 """Acquisition: the HDF5 session format, the acquisition and its listeners, the reader and tools."""
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.frame_feed import FrameFeed, frame_feed
 from vbfe.acquire.recording.listener import Gap, Listener
@@ -14,6 +13,7 @@ from vbfe.acquire.session.layout import Column, StreamSpec
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.session.recovery import recover_session
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
+from vbfe.common.errors import SessionError
 
 __all__ = [
     "Acquisition",

@@ -132,7 +132,7 @@ class ReplayViewer(ViewerWindow):
             self.show_force((reader.force_times_ns() - self._t0()) / 1e9, forces)
         for name in reader.stream_names():
             stream = reader.stream(name)
-            if not stream.markers and len(stream):
+            if stream.values is not None and len(stream):  # a numeric stream
                 self.add_stream_plot(
                     name,
                     (stream.t_host_ns - self._t0()) / 1e9,
@@ -254,10 +254,12 @@ def view_session(path: str | Path) -> int:
 
 def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
     """Open the camera and trocar of a rig and show them live until the window closes."""
-    from vbfe.drivers.registry import open_rig
+    from vbfe.drivers.registry import FAMILIES, open_rig
 
     app = qt_application()
-    acquisition = Acquisition(open_rig(config, families=("camera", "trocar")))
+    acquisition = Acquisition(
+        open_rig(config, families=tuple(f for f in FAMILIES if f != "projector"))
+    )
     window = LiveViewer(acquisition)
     acquisition.start()
     try:

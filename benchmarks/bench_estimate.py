@@ -22,6 +22,7 @@ import argparse
 import os
 import tempfile
 import timeit
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +80,7 @@ def inference_timing(reference: float, k: int, n_points: int = 2048) -> None:
         net.eval()
         x = window if isinstance(net, TemporalPointNet) else cloud
         with torch.no_grad():
-            t = best_time_s(lambda: net(x))
+            t = best_time_s(partial(net, x))
         print(
             f"inference, one {n_points}-point cloud, batch 1, CPU, paper size 64-128-1024, "
             f"{name}: {t * 1e3:.2f} ms = {t / reference:.1f}x reference"
@@ -124,6 +125,21 @@ def method_table(
     )
 
 
+def _train_step(
+    net: torch.nn.Module,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    optimizer: torch.optim.Optimizer,
+    device: str,
+) -> None:
+    loss = ((net(x) - y) ** 2).mean()
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
 def training_throughput(
     reference: float,
     conv: list[int],
@@ -147,15 +163,7 @@ def training_throughput(
             ).to(device)
             y = torch.ones(batch, 1, device=device)
             optimizer = torch.optim.NAdam(net.parameters(), lr=1e-3)
-
-            def step() -> None:
-                loss = ((net(x) - y) ** 2).mean()
-                optimizer.zero_grad()
-                loss.backward()
-                optimizer.step()
-                if device == "cuda":
-                    torch.cuda.synchronize()
-
+            step = partial(_train_step, net, x, y, optimizer, device)
             t = best_time_s(step, repeats=steps)
             per_cloud = t / (batch * (k + 1 if isinstance(net, TemporalPointNet) else 1))
             print(

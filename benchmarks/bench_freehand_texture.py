@@ -162,7 +162,9 @@ def main() -> None:
     record(args.sessions, numbers)
     paths = [args.sessions / f"{FREEHAND}_r{r}.h5" for r in numbers]
     with ProcessPoolExecutor(args.workers) as pool:
-        trials = dict(zip(numbers, pool.map(measure, paths, [args.remeasure] * len(paths)), strict=False))
+        trials = dict(
+            zip(numbers, pool.map(measure, paths, [args.remeasure] * len(paths)), strict=False)
+        )
     print(f"load average {os.getloadavg()[0]:.2f}")
     print(
         "trial | texture gain vs 3D truth, residual sd (mm) | depth-only gain vs depth truth, "

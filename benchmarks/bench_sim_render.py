@@ -11,6 +11,8 @@ image measured in the same run. Recording a 30 fps session needs ≥ 10 camera r
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from functools import partial
 
 import cv2
 import numpy as np
@@ -45,6 +47,12 @@ def reference_remap(width: int, height: int) -> float:
     return seconds_per_call(lambda: cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR), 20)
 
 
+def _render_next(
+    renderer: StereoRenderer, tissue: TissueSurface, trial: Trial, times: Iterator[float]
+) -> None:
+    renderer.render(tissue.with_load(trial.at(next(times))[0]))
+
+
 def main() -> None:
     for width, height in ((1280, 720), (640, 360)):
         unit = reference_remap(width, height)
@@ -54,9 +62,7 @@ def main() -> None:
         trial = Trial(TractionProtocol(), TissueSample.random(np.random.default_rng(1)))
         tissue = TissueSurface(texture=UniformAlbedo())
         times = iter(np.linspace(1.0, 8.0, 1000))
-        render = seconds_per_call(
-            lambda: renderer.render(tissue.with_load(trial.at(next(times))[0])), 10
-        )
+        render = seconds_per_call(partial(_render_next, renderer, tissue, trial, times), 10)
         bench = SimBench(width=width, height=height)
         with bench.camera() as camera:
             read = seconds_per_call(camera.read, 10)

@@ -7,12 +7,12 @@ from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.check import CheckResult, check_calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import export_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
 from vbfe.calib.projector import GrayCodeCapture, calibrate_projector, with_projector
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_detections, calibrate_stereo
 from vbfe.calib.views import ViewSet, load_views, save_views
+from vbfe.common.errors import CalibrationError
 
 __all__ = [
     "BoardDetector",

@@ -20,8 +20,8 @@ from vbfe.calib.chessboard import (
     subpix_windows,
 )
 from vbfe.calib.edge_width import edge_width_px, neighbour_pairs
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, calib_settings, from_table
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import save_figure, write_bytes_atomic
 
 TARGETS = ("charuco", "chessboard")

@@ -20,7 +20,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
+from vbfe.acquire.image_size import size_mismatch
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
 FORMAT_VERSION = 1
@@ -58,14 +59,47 @@ _KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_\- ]*")  # what FileStorage takes as a m
 _PLAIN_WORDS = {"null", "~", ".nan", ".inf", "-.inf", "true", "false", "yes", "no"}
 
 
+def reprojection_matrix(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
+    """The disparity-to-depth matrix ``Q`` of a rectified pair with projection matrices ``P1,
+    P2``: OpenCV's (``stereoRectify``), its y row scaled by ``fx/fy`` so that
+    ``Y = (v - cy)·z/fy`` also for unequal focal lengths (1 for OpenCV's own rectification)."""
+    f, aspect = P1[0, 0], P1[0, 0] / P1[1, 1]
+    tx = P2[0, 3] / P2[0, 0]  # −B, in metres
+    return np.array(
+        [
+            [1.0, 0.0, 0.0, -P1[0, 2]],
+            [0.0, aspect, 0.0, -P1[1, 2] * aspect],
+            [0.0, 0.0, 0.0, f],
+            [0.0, 0.0, -1.0 / tx, (P1[0, 2] - P2[0, 2]) / tx],
+        ]
+    )
+
+
 @dataclass
 class Calibration:
     """Stereo endoscope calibration (plus optional projector and colour correction).
 
-    ``R, T`` map left-camera coordinates to right-camera coordinates (OpenCV ``stereoCalibrate``
-    convention); ``R_proj, T_proj`` map left-camera coordinates to projector coordinates.
-    ``info`` holds JSON-able extras (board, per-view RMS, standard deviations, depth uncertainty,
-    rejected corners, desynchronised views, ...).
+    Made by ``vbfe calibrate stereo`` (:func:`vbfe.calib.stereo.calibrate_stereo`), read with
+    :meth:`load` (or :func:`load_calibration`, which also takes a session) and written with
+    :meth:`save`. The rectified pair's geometry is :attr:`f`, :attr:`B`, :attr:`cx`,
+    :attr:`cy`, :attr:`disparity_offset` and ``Q``.
+
+    :param K1: left camera matrix (3×3, px). ``D1``: its distortion coefficients.
+    :param K2: right camera matrix. ``D2``: its distortion coefficients.
+    :param R: rotation from left-camera to right-camera coordinates; ``T`` the translation
+        (m; OpenCV ``stereoCalibrate`` convention).
+    :param R1: rectifying rotation of the left camera; ``R2`` of the right one.
+    :param P1: rectified left projection matrix (3×4); ``P2`` the right one.
+    :param Q: disparity-to-depth matrix (4×4, see :func:`reprojection_matrix`).
+    :param image_size: ``(width, height)`` of one eye's images.
+    :param info: JSON-able extras (board, per-view RMS, standard deviations, depth
+        uncertainty, rejected corners, desynchronised views, ...).
+
+    The optional fields hold RMS errors and the projector's intrinsics and pose (``R_proj,
+    T_proj`` map left-camera coordinates to projector coordinates).
+
+    :raises CalibrationError: a matrix of the wrong shape, NaN or infinite values, a
+        non-positive image size, or a rectified right focal length that is not positive.
     """
 
     K1: np.ndarray
@@ -168,6 +202,12 @@ class Calibration:
         rectification."""
         return float(self.P2[0, 2] - self.P1[0, 2])
 
+    @property
+    def disparity_offset(self) -> float:
+        """Disparity of a point at infinity (px; left minus right rectified principal point x,
+        ``-doffs``): a point at depth ``z`` has disparity ``d = f·B/z + disparity_offset``."""
+        return -self.doffs
+
     @classmethod
     def rectified(
         cls,
@@ -207,15 +247,6 @@ class Calibration:
         K2[0, 2] = cx + doffs
         P1, P2 = np.hstack([K, np.zeros((3, 1))]), np.hstack([K2, np.zeros((3, 1))])
         P2[0, 3] = -fx * baseline_m
-        # OpenCV's Q, its y row scaled by fx/fy so that Y = (v - cy)·z/fy
-        Q = np.array(
-            [
-                [1.0, 0.0, 0.0, -cx],
-                [0.0, fx / fy, 0.0, -cy * fx / fy],
-                [0.0, 0.0, 0.0, fx],
-                [0.0, 0.0, 1.0 / baseline_m, doffs / baseline_m],
-            ]
-        )
         return cls(
             K1=K,
             D1=np.zeros(5),
@@ -227,7 +258,7 @@ class Calibration:
             R2=np.eye(3),
             P1=P1,
             P2=P2,
-            Q=Q,
+            Q=reprojection_matrix(P1, P2),
             image_size=(width, height),
             info={"source": source},
         )
@@ -267,28 +298,31 @@ class Calibration:
         size = (round(self.image_size[0] * scale), round(self.image_size[1] * sy))
         S = np.array([[scale, 0.0, (scale - 1) / 2], [0.0, sy, (sy - 1) / 2], [0, 0, 1]])
         P1, P2 = S @ self.P1, S @ self.P2
-        tx = P2[0, 3] / P2[0, 0]  # −B, in metres
-        aspect = P1[0, 0] / P1[1, 1]  # fx / fy: 1 but for rectified pairs or unequal scales
-        Q = np.array(
-            [
-                [1.0, 0, 0, -P1[0, 2]],
-                [0, aspect, 0, -P1[1, 2] * aspect],
-                [0, 0, 0, P1[0, 0]],
-                [0, 0, -1 / tx, -self.doffs * scale / tx],
-            ]
-        )
         return self.replace(
-            K1=S @ self.K1, K2=S @ self.K2, P1=P1, P2=P2, Q=Q, image_size=size, per_view_rms_px=None
+            K1=S @ self.K1,
+            K2=S @ self.K2,
+            P1=P1,
+            P2=P2,
+            Q=reprojection_matrix(P1, P2),
+            image_size=size,
+            per_view_rms_px=None,
         )
 
     def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The rectified pair (rows of the two images are epipolar lines)."""
+        """Rectify a pair: rows of the two images become epipolar lines.
+
+        :param left: the left image as captured (``image_size``).
+        :param right: the right image as captured.
+        :returns: the rectified left and right images.
+        :raises CalibrationError: an image is not of the calibration's size.
+        """
         for name, img in (("left", left), ("right", right)):
-            if (img.shape[1], img.shape[0]) != self.image_size:
-                raise CalibrationError(
-                    f"{name} image is {img.shape[1]}x{img.shape[0]} but the calibration is for "
-                    f"{self.image_size[0]}x{self.image_size[1]}; recalibrate at this resolution"
-                )
+            size = (img.shape[1], img.shape[0])
+            mismatch = size_mismatch(
+                f"the {name} image has", size, "the calibration", self.image_size
+            )
+            if mismatch:
+                raise CalibrationError(mismatch)
         (l1, l2), (r1, r2) = self.rectification_maps()
         return (
             cv2.remap(left, l1, l2, cv2.INTER_LINEAR),
@@ -339,7 +373,13 @@ class Calibration:
 
     @classmethod
     def from_yaml_text(cls, text: str, source: str = "<text>") -> Calibration:
-        """Parse calibration YAML text; ``source`` names it in error messages."""
+        """Parse calibration YAML text.
+
+        :param text: OpenCV FileStorage YAML, as :meth:`to_yaml_text` writes it.
+        :param source: names the text in error messages (e.g. its file).
+        :raises CalibrationError: the text is not such YAML, lacks a matrix, or holds one of the
+            wrong shape or an impossible value.
+        """
         try:
             fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         except (cv2.error, SystemError) as exc:  # SystemError: OpenCV's parser error, wrapped
@@ -396,10 +436,10 @@ class Calibration:
             if mat is None:
                 raise CalibrationError(f"{source}: {name} is not a matrix (!!opencv-matrix)")
             kwargs[name] = mat
-        size = [number(name) for name in ("image_width", "image_height")]
-        if None in size:
+        width, height = (number(name) for name in ("image_width", "image_height"))
+        if width is None or height is None:
             raise CalibrationError(f"{source} has no image_width and image_height")
-        kwargs["image_size"] = (int(size[0]), int(size[1]))
+        kwargs["image_size"] = (int(width), int(height))
         for name in ("rms_left_px", "rms_right_px", "rms_stereo_px", "rms_projector_px"):
             if node(name) is not None:
                 kwargs[name] = number(name)
@@ -424,7 +464,13 @@ class Calibration:
 
     def save(self, path: str | Path) -> Path:
         """Write the YAML file atomically (a crash leaves the old file intact), after reading
-        the text back: a calibration that would not load again is never written."""
+        the text back: a calibration that would not load again is never written.
+
+        :param path: the file to write (replaced if it exists: callers check outputs first).
+        :returns: ``path``.
+        :raises CalibrationError: the text does not read back as written.
+        :raises OSError: the file cannot be written.
+        """
         path = Path(path)
         text = self.to_yaml_text()
         back = Calibration.from_yaml_text(text, source=f"calibration written to {path}")
@@ -440,7 +486,11 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        """Read a calibration YAML file."""
+        """Read a calibration YAML file.
+
+        :param path: the file, as :meth:`save` wrote it.
+        :raises CalibrationError: the file is missing, not text, or not a valid calibration.
+        """
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
@@ -544,7 +594,9 @@ def _read_old_info(
 
 
 def _shape_ok(shape: tuple[int, ...], expected: tuple[int, ...]) -> bool:
-    return len(shape) == len(expected) and all(e in (-1, s) for s, e in zip(shape, expected, strict=False))
+    return len(shape) == len(expected) and all(
+        e in (-1, s) for s, e in zip(shape, expected, strict=False)
+    )
 
 
 def load_calibration(path: str | Path) -> Calibration:

@@ -11,8 +11,8 @@ import numpy as np
 
 from vbfe.calib.board import BoardSpec, Detection
 from vbfe.calib.camera_model import CameraModel
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, from_table
+from vbfe.common.errors import CalibrationError
 
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 _MIN_SIGMA_PX = 0.1  # floor of the robust residual spread: sub-pixel corner noise of real boards
@@ -117,7 +117,8 @@ def _solve(
         rms = float(np.sqrt(np.mean(np.concatenate(sq))))
         return rms, fixed.K, fixed.D, rvecs, tvecs, fixed.std_intrinsics, np.asarray(per_view)
     try:
-        (rms, K, D, rvecs, tvecs, std, _, per_view) = cv2.calibrateCameraExtended(
+        # OpenCV takes None for K and D (no initial guess); its stubs do not say so
+        (rms, K, D, rvecs, tvecs, std, _, per_view) = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             obj, img, image_size, None, None, flags=flags, criteria=CRITERIA
         )
     except cv2.error as exc:
@@ -197,7 +198,9 @@ def calibrate_camera(
     for _ in range(max_rounds):
         obj, img = points(object_points, dets)
         rms, K, D, rvecs, tvecs, std, per_view = _solve(obj, img, image_size, camera, fixed, flags)
-        res = [residuals(o, i, r, t, K, D) for o, i, r, t in zip(obj, img, rvecs, tvecs, strict=False)]
+        res = [
+            residuals(o, i, r, t, K, D) for o, i, r, t in zip(obj, img, rvecs, tvecs, strict=False)
+        ]
         if limit is None:
             limit = max(outlier_sigma * robust_sigma(np.concatenate(res)), outlier_min_px)
         changed = False

@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
 CAMERA_FORMAT = "vbfe-camera"

@@ -11,11 +11,15 @@ from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.chessboard import is_clear, same_numbering
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.options import DEFAULTS
 from vbfe.calib.stereo import StereoOptions
 from vbfe.calib.views import ViewSet, check_sizes
+from vbfe.common.errors import CalibrationError
+
+
+def _mm(length_m: float | None) -> str:
+    return "-" if length_m is None else f"{length_m * 1e3:.3f} mm"
 
 
 @dataclass
@@ -75,7 +79,7 @@ class CheckResult:
                 ("Δf", f"{self.deltas['f_px']:+.3f} px"),
                 ("ΔB", f"{self.deltas['B_m'] * 1e3:+.4f} mm"),
                 ("Δcx, Δcy", f"{self.deltas['cx_px']:+.3f}, {self.deltas['cy_px']:+.3f} px"),
-                ("depth error (parameters)", f"{self.depth_error_params_m * 1e3:.3f} mm"),
+                ("depth error (parameters)", _mm(self.depth_error_params_m)),
             ]
         if self.epipolar_rms_px is not None:
             out += [
@@ -85,7 +89,7 @@ class CheckResult:
                     f"{self.epipolar_rms_px:.3f} px (limit {self.max_epipolar_px:.2f})",
                 ),
                 ("board scale", f"{self.board_scale:.5f}"),
-                ("depth error (views)", f"{self.depth_error_views_m * 1e3:.3f} mm"),
+                ("depth error (views)", _mm(self.depth_error_views_m)),
             ]
         failures = self.failures()
         out.append(

@@ -27,7 +27,6 @@ from vbfe.calib.capture import (
     capture_views,
 )
 from vbfe.calib.check import CheckResult, check_calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import export_calibration, export_paths
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.importers import import_calibration
@@ -49,6 +48,7 @@ from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_images, load_views
 from vbfe.common.config import section
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 from vbfe.common.files import write_bytes_atomic
 
 FORMATS = ("ros", "kalibr", "opencv", "middlebury")
@@ -84,7 +84,7 @@ def kalibr_camchain(
             )
         out.append(
             f"{cam}:\n  camera_model: pinhole\n"
-            f"  intrinsics: {_numbers([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])}\n"
+            f"  intrinsics: {_numbers(K[[0, 1, 0, 1], [0, 1, 2, 2]])}\n"
             f"  distortion_model: radtan\n  distortion_coeffs: {_numbers(D[:4])}\n"
             f"  resolution: [{cal.image_size[0]}, {cal.image_size[1]}]\n"
             f"  rostopic: {topic}\n"

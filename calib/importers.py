@@ -7,14 +7,17 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
 
-from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
+from vbfe.calib.calibration import Calibration, reprojection_matrix
+from vbfe.common.errors import CalibrationError
 
 IMPORT_FORMATS = ("opencv", "kalibr", "ros", "middlebury")
+
+V = TypeVar("V")
 
 
 def _read(path: Path) -> str:
@@ -100,29 +103,17 @@ def _numbers(node: cv2.FileNode) -> list:
     return [_numbers(item) if item.isSeq() else item.real() for item in items]
 
 
-def _need(value: np.ndarray | float | None, what: str, source: str) -> np.ndarray | float:
+def _need(value: V | None, what: str, source: str) -> V:
     if value is None:
         raise CalibrationError(f"{source} has no {what}")
     return value
 
 
-def _rectify(K1, D1, K2, D2, R, T, size: tuple[int, int]) -> dict[str, np.ndarray]:
+def _rectify(K1, D1, K2, D2, R, T, size: tuple[int, int]) -> dict[str, Any]:
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
         K1, D1, K2, D2, size, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
     )
     return dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q)
-
-
-def _q_from(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
-    tx = P2[0, 3] / P2[0, 0]
-    return np.array(
-        [
-            [1.0, 0, 0, -P1[0, 2]],
-            [0, 1.0, 0, -P1[1, 2]],
-            [0, 0, 0, P1[0, 0]],
-            [0, 0, -1 / tx, (P1[0, 2] - P2[0, 2]) / tx],
-        ]
-    )
 
 
 def _opencv(
@@ -143,7 +134,7 @@ def _opencv(
             "files do not); give it with --image-size WIDTHxHEIGHT"
         )
     names = ("R1", "R2", "P1", "P2", "Q")
-    given = {name: store.matrix(name) for name in names}
+    given: dict[str, Any] = {name: store.matrix(name) for name in names}
     if any(v is None for v in given.values()) or unit_m != 1.0:
         given = _rectify(K1, D1, K2, D2, R, T, size)
     return Calibration(
@@ -174,9 +165,9 @@ def _kalibr(store: _Storage, source: str) -> Calibration:
         D = np.zeros(5)
         if coeffs is not None and dist == "radtan":
             D[:4] = coeffs.reshape(-1)[:4]
-        size = _need(store.matrix(f"{cam}/resolution"), f"{cam} resolution", source)
+        width, height = _need(store.matrix(f"{cam}/resolution"), f"{cam} resolution", source)
         cams.append(
-            (np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1.0]]), D, (int(size[0]), int(size[1])))
+            (np.array([[fu, 0, pu], [0, fv, pv], [0, 0, 1.0]]), D, (int(width), int(height)))
         )
     if cams[0][2] != cams[1][2]:
         raise CalibrationError(
@@ -201,7 +192,7 @@ def _kalibr(store: _Storage, source: str) -> Calibration:
 
 
 def _ros(stores: list[_Storage], sources: list[str]) -> Calibration:
-    eyes = []
+    eyes: list[dict[str, Any]] = []
     for store, source in zip(stores, sources, strict=False):
         width, height = store.number("image_width"), store.number("image_height")
         eyes.append(
@@ -250,7 +241,7 @@ def _ros(stores: list[_Storage], sources: list[str]) -> Calibration:
         R2=right["R"],
         P1=left["P"],
         P2=right["P"],
-        Q=_q_from(left["P"], right["P"]),
+        Q=reprojection_matrix(left["P"], right["P"]),
         image_size=left["size"],
         info={"source": f"ROS camera_info pair ({', '.join(sources)})"},
     )
@@ -320,8 +311,7 @@ def import_calibration(
     """The calibration in another tool's files, and their format. ``image_size`` is needed for
     OpenCV's stereo sample files, which do not hold it; ``unit_m`` is the length of their T's
     unit (1: metres; OpenCV's sample measures in board squares)."""
-    paths = [Path(p) for p in paths]
-    texts = [_read(p) for p in paths]
+    texts = [_read(Path(p)) for p in paths]
     fmt = detect_format(texts)
     wanted = {"ros": 2, "middlebury": 1, "kalibr": 1}.get(fmt)
     if wanted is not None and len(paths) != wanted:

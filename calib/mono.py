@@ -17,9 +17,9 @@ from vbfe.calib.camera import (
 )
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.corner_choice import CornerChoice, choose_corners
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits, camera_problems
 from vbfe.calib.views import ImageSet, image_size
+from vbfe.common.errors import CalibrationError
 
 
 @dataclass

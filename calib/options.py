@@ -16,9 +16,9 @@ from vbfe.common.settings import parse_table
 T = TypeVar("T")
 
 
-def _ranged(**limits: float) -> Any:
-    """A required settings field with a range (``gt``/``ge``/``lt``/``le``)."""
-    return dataclasses.field(metadata={"limits": limits})
+def _limits(**limits: float) -> dict[str, Any]:
+    """The metadata of a required settings field with a range (``gt``/``ge``/``lt``/``le``)."""
+    return {"limits": limits}
 
 
 @dataclass(frozen=True)
@@ -27,46 +27,49 @@ class CalibSettings:
     defaults included, are those of vbfe/default_rig.toml (the one place they are written)."""
 
     target: Literal["charuco", "chessboard"]
-    inner_corners: list[int] = _ranged()  # a chessboard's (nx, ny), instead of its squares
+    # a chessboard's (nx, ny), instead of its squares
+    inner_corners: list[int] = dataclasses.field(metadata=_limits())
     squares_x: int  # board values are checked by BoardSpec, with board-specific messages
     squares_y: int
     square_mm: float
     marker_mm: float
     dictionary: str
     legacy: bool
-    min_corners: int = _ranged(ge=4)
-    min_views: int = _ranged(ge=1)
-    outlier_sigma: float = _ranged(gt=0)
-    outlier_min_px: float = _ranged(ge=0)
-    view_outlier_z: float = _ranged(gt=0)
-    view_outlier_min_px: float = _ranged(ge=0)
-    well_determined_views: int = _ranged(ge=1)
+    min_corners: int = dataclasses.field(metadata=_limits(ge=4))
+    min_views: int = dataclasses.field(metadata=_limits(ge=1))
+    outlier_sigma: float = dataclasses.field(metadata=_limits(gt=0))
+    outlier_min_px: float = dataclasses.field(metadata=_limits(ge=0))
+    view_outlier_z: float = dataclasses.field(metadata=_limits(gt=0))
+    view_outlier_min_px: float = dataclasses.field(metadata=_limits(ge=0))
+    well_determined_views: int = dataclasses.field(metadata=_limits(ge=1))
     fix_k3: bool
-    min_baseline_mm: float = _ranged(ge=0)
-    nominal_baseline_mm: float = _ranged(ge=0)
-    baseline_tolerance: float = _ranged(gt=0)
-    max_rms_px: float = _ranged(gt=0)
-    min_rectified_fraction: float = _ranged(ge=0, le=1)
-    desync_min_px: float = _ranged(ge=0)
+    min_baseline_mm: float = dataclasses.field(metadata=_limits(ge=0))
+    nominal_baseline_mm: float = dataclasses.field(metadata=_limits(ge=0))
+    baseline_tolerance: float = dataclasses.field(metadata=_limits(gt=0))
+    max_rms_px: float = dataclasses.field(metadata=_limits(gt=0))
+    min_rectified_fraction: float = dataclasses.field(metadata=_limits(ge=0, le=1))
+    desync_min_px: float = dataclasses.field(metadata=_limits(ge=0))
     reject_desync: bool
-    rectify_alpha: float = _ranged(ge=0, le=1)
+    rectify_alpha: float = dataclasses.field(metadata=_limits(ge=0, le=1))
     zero_disparity: Literal["auto", "on", "off"]
-    working_distance_mm: float = _ranged(gt=0)
-    capture_views: int = _ranged(ge=1)
-    capture_max_views: int = _ranged(ge=1)
-    min_sharpness: float = _ranged(ge=0)
-    min_pose_distance: float = _ranged(ge=0)
-    check_max_depth_error_mm: float = _ranged(gt=0)
-    check_max_epipolar_px: float = _ranged(gt=0)
-    projector_window_px: int = _ranged(ge=1)
-    projector_min_contrast: float = _ranged(ge=0)
-    projector_width: int = _ranged(ge=0)  # 0: the projector size of the simulated rig
-    projector_height: int = _ranged(ge=0)
-    projector_settle_s: float = _ranged(ge=0)
-    projector_still_level: float = _ranged(ge=0)
-    projector_change_level: float = _ranged(ge=0)
-    projector_still_frames: int = _ranged(ge=1)
-    projector_pose_timeout_s: float = _ranged(gt=0)
+    working_distance_mm: float = dataclasses.field(metadata=_limits(gt=0))
+    capture_views: int = dataclasses.field(metadata=_limits(ge=1))
+    capture_max_views: int = dataclasses.field(metadata=_limits(ge=1))
+    min_sharpness: float = dataclasses.field(metadata=_limits(ge=0))
+    min_pose_distance: float = dataclasses.field(metadata=_limits(ge=0))
+    check_max_depth_error_mm: float = dataclasses.field(metadata=_limits(gt=0))
+    check_max_epipolar_px: float = dataclasses.field(metadata=_limits(gt=0))
+    projector_window_px: int = dataclasses.field(metadata=_limits(ge=1))
+    projector_min_contrast: float = dataclasses.field(metadata=_limits(ge=0))
+    projector_width: int = dataclasses.field(
+        metadata=_limits(ge=0)
+    )  # 0: the projector size of the simulated rig
+    projector_height: int = dataclasses.field(metadata=_limits(ge=0))
+    projector_settle_s: float = dataclasses.field(metadata=_limits(ge=0))
+    projector_still_level: float = dataclasses.field(metadata=_limits(ge=0))
+    projector_change_level: float = dataclasses.field(metadata=_limits(ge=0))
+    projector_still_frames: int = dataclasses.field(metadata=_limits(ge=1))
+    projector_pose_timeout_s: float = dataclasses.field(metadata=_limits(gt=0))
 
 
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:

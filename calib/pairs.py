@@ -12,7 +12,7 @@ from pathlib import Path
 
 import cv2
 
-from vbfe.calib.errors import CalibrationError
+from vbfe.common.errors import CalibrationError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 LIST_SUFFIXES = (".xml", ".yaml", ".yml")  # OpenCV FileStorage image lists (stereo_calib)

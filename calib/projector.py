@@ -19,8 +19,8 @@ import numpy as np
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, from_table
+from vbfe.common.errors import CalibrationError
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 # Radial distortion k1, k2 only: a projector lens has little tangential distortion, and the few
@@ -111,11 +111,11 @@ def corner_projector_points(
         if len(cam) < (r + 1) ** 2:  # need a good part of the window
             continue
         H, inliers = cv2.findHomography(
-            np.float64(cam), np.float64(proj), cv2.RANSAC, options.ransac_px
+            np.asarray(cam, np.float64), np.asarray(proj, np.float64), cv2.RANSAC, options.ransac_px
         )
         if H is None or inliers.sum() < 0.5 * len(cam):
             continue
-        out[k] = cv2.perspectiveTransform(np.float64([[[cx, cy]]]), H).reshape(2)
+        out[k] = cv2.perspectiveTransform(np.array([[[cx, cy]]], np.float64), H).reshape(2)
         ok[k] = True
     return out, ok
 
@@ -170,7 +170,8 @@ def calibrate_projector(
             f"{options.min_poses}. Keep the board inside the projected area"
         )
     try:
-        rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(
+        # OpenCV takes None for K and D (no initial guess); its stubs do not say so
+        rms, K, D, _, _, _, _, per_pose = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             obj, proj_pts, projector_size, None, None, flags=_PROJECTOR_FLAGS, criteria=_CRITERIA
         )
         rms_st, *_, R, T, _, _ = cv2.stereoCalibrate(
@@ -239,6 +240,13 @@ def save_captures(folder: str | Path, captures: list[GrayCodeCapture], start: in
                 raise CalibrationError(f"cannot write {pose / name}.png")
 
 
+def _read_gray(pose: Path, name: str) -> np.ndarray:
+    image = cv2.imread(str(pose / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise CalibrationError(f"missing or unreadable {pose / name}.png")
+    return image
+
+
 def load_captures(folder: str | Path) -> list[GrayCodeCapture]:
     """Read what :func:`save_captures` wrote."""
     folder = Path(folder)
@@ -247,13 +255,7 @@ def load_captures(folder: str | Path) -> list[GrayCodeCapture]:
         raise CalibrationError(f"{folder} holds no pose_NNN folders of Gray-code images")
     out = []
     for pose in poses:
-
-        def read(name: str) -> np.ndarray:
-            image = cv2.imread(str(pose / f"{name}.png"), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise CalibrationError(f"missing or unreadable {pose / name}.png")
-            return image
-
         grays = sorted(p.stem for p in pose.glob("gray_*.png"))
-        out.append(GrayCodeCapture(read("white"), read("black"), [read(g) for g in grays]))
+        white, black = _read_gray(pose, "white"), _read_gray(pose, "black")
+        out.append(GrayCodeCapture(white, black, [_read_gray(pose, g) for g in grays]))
     return out

@@ -21,10 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.projector import GrayCodeCapture, projector_images, save_captures
-from vbfe.drivers.camera.base import StereoCamera
+from vbfe.common.errors import CalibrationError
+from vbfe.drivers.camera.base import FrameSource
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import StereoFrame
 
@@ -70,7 +70,7 @@ class GrayCodeCapturer:
     """Shows patterns on ``projector`` and keeps what ``camera`` sees (both open)."""
 
     def __init__(
-        self, camera: StereoCamera, projector: Projector, options: GrayCaptureOptions | None = None
+        self, camera: FrameSource, projector: Projector, options: GrayCaptureOptions | None = None
     ) -> None:
         self.camera, self.projector = camera, projector
         self.options = options or GrayCaptureOptions()
@@ -116,7 +116,7 @@ class GrayCodeCapturer:
             frame = self._read()
             start_ns = frame.t_host_ns if start_ns is None else start_ns
             grey = _grey(frame)
-            moved = moved or _change(grey, previous) >= o.change_level
+            moved = moved or (previous is not None and _change(grey, previous) >= o.change_level)
             still = still + 1 if _change(grey, last) < o.still_level else 0
             last = grey
             if moved and still >= o.still_frames:
@@ -146,7 +146,7 @@ def existing_poses(folder: Path) -> int:
 
 
 def capture_gray_code(
-    camera: StereoCamera,
+    camera: FrameSource,
     projector: Projector,
     folder: str | Path,
     n_poses: int,

@@ -88,7 +88,7 @@ def summary_rows(calibration: Calibration) -> list[tuple[str, str]]:
     rows += corner_rows(from_rows(info.get("corners", [])))
     if "weakly_determined" in info:
         rows.append(("note", info["weakly_determined"]))
-    if calibration.has_projector:
+    if calibration.K_proj is not None:  # has_projector
         rows += [
             ("projector f", f"{calibration.K_proj[0, 0]:.2f} px"),
             ("projector RMS", f"{calibration.rms_projector_px:.3f} px"),
@@ -138,11 +138,13 @@ def write_report(result: StereoResult, views: ViewSet, out_stem: str | Path) -> 
     out_stem = Path(out_stem)
     out_stem.parent.mkdir(parents=True, exist_ok=True)
     cal = result.calibration
+    per_view = cal.per_view_rms_px
+    assert per_view is not None  # a fresh calibration has it
     fig, axes = plt.subplots(2, 2, figsize=(12, 8))
     ax = axes[0, 0]
     x = np.arange(len(result.names))
     for k, label in enumerate(("left", "right", "stereo")):
-        ax.bar(x + (k - 1) * 0.27, cal.per_view_rms_px[:, k], width=0.27, label=label)
+        ax.bar(x + (k - 1) * 0.27, per_view[:, k], width=0.27, label=label)
     ax.set_xticks(x, result.names, rotation=90, fontsize=7)
     ax.set_ylabel("RMS reprojection error (px)")
     ax.set_title("per-view error")

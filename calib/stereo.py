@@ -29,12 +29,12 @@ from vbfe.calib.camera import (
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.corner_choice import CornerChoice, choose_corners, counts
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import FAIL, GateLimits, stereo_gates
 from vbfe.calib.options import calib_field, from_table
 from vbfe.calib.rectify import rectify
 from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
+from vbfe.common.errors import CalibrationError
 
 
 @dataclass
@@ -105,7 +105,8 @@ def _stereo_solve(
     _, img_r = points(spec.object_points(), [p[1] for p in pairs])
     flags |= cv2.CALIB_FIX_INTRINSIC if fixed else cv2.CALIB_USE_INTRINSIC_GUESS
     try:
-        (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(
+        # OpenCV takes None for R, T (no initial guess); its stubs do not say so
+        (rms, K1, D1, K2, D2, R, T, _, _, rvecs, tvecs, per_view) = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
             obj,
             img_l,
             img_r,
@@ -312,9 +313,9 @@ def calibrate_detections(
         fits.append(fit)
     left, right = fits
     if outliers:
-        keep = [n not in outliers for n in names]
-        pairs = [p for p, k in zip(pairs, keep, strict=False) if k]
-        names = [n for n, k in zip(names, keep, strict=False) if k]
+        inlier = [n not in outliers for n in names]
+        pairs = [p for p, k in zip(pairs, inlier, strict=False) if k]
+        names = [n for n, k in zip(names, inlier, strict=False) if k]
         dropped.update(outliers)
         need_views(len(pairs), options, source, dropped)
         left, right = (
@@ -395,7 +396,7 @@ def calibrate_detections(
         info={"rectify_alpha": options.rectify_alpha},
     )
     gates = stereo_gates(calibration, options.gates, names)
-    problems = [g.problem for g in gates if g.verdict == FAIL]
+    problems = [g.problem for g in gates if g.verdict == FAIL and g.problem]
     if problems:
         raise CalibrationError(
             f"{source}: stereo calibration refused, nothing written: " + "; ".join(problems)

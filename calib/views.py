@@ -11,7 +11,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.pairs import (
     IMAGE_SUFFIXES,
     LIST_SUFFIXES,
@@ -22,6 +21,7 @@ from vbfe.calib.pairs import (
     list_pairs,
     pair_files,
 )
+from vbfe.common.errors import CalibrationError
 
 NAMING_RULES = (
     PAIR_NAMING + ", --pairs FILE.csv (one left,right line per pair), or one side-by-side image "

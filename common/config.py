@@ -13,16 +13,12 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import ConfigError, VbfeError
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - exercised only on 3.10
     import tomli as tomllib
-
-
-class ConfigError(VbfeError):
-    """The rig configuration file is missing, unreadable or has a wrong value."""
 
 
 def default_config() -> dict[str, dict[str, Any]]:

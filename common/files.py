@@ -18,7 +18,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, Literal
 
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import OutputError
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 PARTIAL_SUFFIX = ".partial"
@@ -26,10 +26,6 @@ LOCK_SUFFIX = ".lock"
 SESSION_FORMAT = "vbfe-session"  # the format attribute of a session file (acquire's layout)
 
 Writes = Literal["file", "hdf5", "session"]
-
-
-class OutputError(VbfeError):
-    """An output path would overwrite data, or cannot be written."""
 
 
 def is_hdf5(path: str | Path) -> bool:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import operator
 import os
 import types
 import typing
@@ -19,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError
 
 T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)
@@ -134,13 +135,8 @@ def _check(table: str, key: str, value: Any, hint: Any, limits: Mapping[str, flo
     if isinstance(value, float) and not math.isfinite(value):
         raise ConfigError(f"[{table}] {key} = {value!r} is not a finite number")
     for name, bound in limits.items():
-        ok = {
-            "gt": lambda v: v > bound,
-            "ge": lambda v: v >= bound,
-            "lt": lambda v: v < bound,
-            "le": lambda v: v <= bound,
-        }[name]
-        if not ok(value):
+        ok = {"gt": operator.gt, "ge": operator.ge, "lt": operator.lt, "le": operator.le}[name]
+        if not ok(value, bound):
             sign = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[name]
             raise ConfigError(
                 f"[{table}] {key} = {value!r} is out of range: it must be {sign} {bound:g}"

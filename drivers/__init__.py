@@ -1,6 +1,7 @@
-"""Device drivers: stereo endoscope (V4L2), force trocar (CAN), projector (HDMI, serial), sim bench."""
+"""Device drivers: stereo endoscope (V4L2), force trocar (CAN), projector (HDMI, serial), sim
+bench."""
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame, StreamStats
 
 __all__ = ["DeviceError", "ForceSample", "ProjectorEvent", "StereoFrame", "StreamStats"]

@@ -12,13 +12,20 @@ from __future__ import annotations
 import abc
 import time
 from types import TracebackType
-from typing import Generic, TypeVar
+from typing import Generic, Protocol, TypeVar
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import StreamStats
 
 _D = TypeVar("_D", bound="Device")
-S = TypeVar("S")  # a sample type with a ``seq`` attribute
+
+
+class _Sequenced(Protocol):
+    @property
+    def seq(self) -> int: ...
+
+
+S = TypeVar("S", bound=_Sequenced)  # a sample type with a ``seq`` attribute
 
 
 class Device(abc.ABC):

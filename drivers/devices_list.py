@@ -67,6 +67,7 @@ def _read(path: Path) -> str:
 
 def _natural_key(path: Path) -> tuple[str, int]:
     match = re.match(r"(\D*)(\d*)", path.name)
+    assert match is not None  # the pattern matches any name
     return match[1], int(match[2] or -1)
 
 

@@ -15,8 +15,8 @@ import dataclasses
 import importlib
 from typing import Any
 
+from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_kwargs
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
 from vbfe.drivers.streams.opening import streams_from_config
 

@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.trocar.base import ForceSensor
 
@@ -61,10 +61,18 @@ class SharedBackend(Protocol):
 class Rig:
     """Named devices opened and closed together (``with rig:`` or :meth:`open`/:meth:`close`).
 
-    ``camera``, ``trocar`` and ``projector`` are the well-known ones (``None`` when absent);
-    ``others`` adds devices of further kinds under their own names. Every device with a
-    ``stream`` name (a :class:`~vbfe.drivers.device.SampleStream`) is read by an acquisition
-    (see :class:`vbfe.acquire.Acquisition`).
+    ``camera``, ``trocar`` and ``projector`` are the well-known ones; further kinds go in
+    ``others``. Every device with a ``stream`` name (a
+    :class:`~vbfe.drivers.device.SampleStream`) is read by an acquisition (see
+    :class:`vbfe.acquire.Acquisition`). Usually built by
+    :func:`vbfe.drivers.registry.open_rig` from a rig configuration.
+
+    :param camera: the stereo endoscope, or ``None`` when the rig has none.
+    :param trocar: the force sensor, or ``None``.
+    :param projector: the structured-light projector, or ``None``.
+    :param others: further devices by name (e.g. LSL streams).
+    :param shared: state the devices of one backend share (the simulator's bench), whose
+        facts :meth:`describe` adds and whose ground truth :attr:`truth` gives.
     """
 
     def __init__(
@@ -82,17 +90,26 @@ class Rig:
 
     @property
     def camera(self) -> StereoCamera:
-        """The stereo camera (DeviceError when the rig has none)."""
+        """The stereo camera.
+
+        :raises DeviceError: the rig has none.
+        """
         return self._get("camera")
 
     @property
     def trocar(self) -> ForceSensor:
-        """The force sensor (DeviceError when the rig has none)."""
+        """The force sensor.
+
+        :raises DeviceError: the rig has none.
+        """
         return self._get("trocar")
 
     @property
     def projector(self) -> Projector:
-        """The projector (DeviceError when the rig has none)."""
+        """The projector.
+
+        :raises DeviceError: the rig has none.
+        """
         return self._get("projector")
 
     def _get(self, name: str) -> Any:
@@ -131,7 +148,11 @@ class Rig:
         return out
 
     def open(self) -> None:
-        """Open every device (idempotent); if one fails, close those opened and re-raise."""
+        """Open every device (idempotent); if one fails, close those opened and re-raise.
+
+        :raises DeviceError: a device is missing, busy or answers nonsense (the message names
+            it).
+        """
         opened = []
         try:
             for device in self.devices.values():

@@ -31,6 +31,10 @@ class JpegStereoFrame(StereoFrame):
     """A frame pair as the camera's own JPEG bytes (``encoded``), decoded on first access to
     ``left``/``right`` only: recording it in ``mjpeg`` storage never decodes it."""
 
+    encoded: tuple[bytes, bytes]
+    _decoded: dict[int, np.ndarray]
+    _lock: threading.Lock
+
     def __init__(
         self, encoded: tuple[bytes, bytes], seq: int, t_device_ns: int, t_host_ns: int
     ) -> None:

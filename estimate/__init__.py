@@ -1,6 +1,6 @@
 """Force estimation from point clouds: PointNet, image models, baselines, selection, evaluation."""
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.evaluation import EvaluationReport, evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import ForceModel, load_model

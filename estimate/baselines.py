@@ -24,12 +24,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.history_baseline import HistoryBaseline, fit_history
 
 FEATURES = ("displacement_m", "texture_displacement_m")  # PreparedSession's displacements
@@ -78,7 +78,7 @@ class AffineBaseline:
         )
 
 
-Baseline = Union[AffineBaseline, HistoryBaseline]
+Baseline = AffineBaseline | HistoryBaseline
 
 
 def baseline_from_dict(d: dict[str, Any]) -> Baseline:

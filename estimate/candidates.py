@@ -16,15 +16,16 @@ and ``to_dict()``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import FITTERS, AffineBaseline, Baseline, baseline_from_dict
 from vbfe.estimate.dataset import FrameBatches, PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import CnnEstimator, RidgeThumbnail
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 
@@ -122,8 +123,8 @@ class MeanEnsemble:
         return cls(tuple(estimator_from_dict(m) for m in d["members"]), d["name"])
 
 
-AnyEstimator = Union[NetworkEstimator, RidgeThumbnail, CnnEstimator, MeanEnsemble, Baseline]
-_KINDS = {
+AnyEstimator = NetworkEstimator | RidgeThumbnail | CnnEstimator | MeanEnsemble | Baseline
+_KINDS: dict[str, Callable[[dict[str, Any]], AnyEstimator]] = {
     "network": NetworkEstimator.from_dict,
     "ridge": RidgeThumbnail.from_dict,
     "cnn": CnnEstimator.from_dict,
@@ -133,7 +134,7 @@ _KINDS = {
 
 def estimator_from_dict(d: dict[str, Any]) -> AnyEstimator:
     """Rebuild an estimator stored by its ``to_dict``."""
-    return _KINDS.get(d.get("kind"), baseline_from_dict)(d)
+    return _KINDS.get(str(d.get("kind")), baseline_from_dict)(d)
 
 
 def candidate_names(model: str, temporal: bool) -> list[str]:

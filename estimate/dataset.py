@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer, force_target
 from vbfe.estimate.sources import SessionLike, condition_label, open_source
 from vbfe.estimate.train_config import TrainConfig
@@ -134,6 +134,7 @@ def prepare_session(
             elif not np.isfinite(targets[i]).all():
                 no_force += 1
             else:
+                assert preparer is not None  # it cropped the cloud
                 kept.append(i)
                 features.append(preparer.features(cropped, pool_size, rng, points, colors))
         return PreparedSession.from_features(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 
 
 class DepthChangeImage:

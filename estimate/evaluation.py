@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
+from vbfe.common.files import atomic_path
+from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.intervals import coverage_width
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.novelty import QUANTILE as NOVELTY_QUANTILE
@@ -129,7 +131,7 @@ def write_predictions_csv(
     keys = ["measured"]
     for name in methods:
         keys += [name] + [f"{name}_{b}" for b in ("lo", "hi") if f"{name}_{b}" in first]
-    with open(path, "w", newline="", encoding="utf-8") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(
             [
@@ -320,10 +322,11 @@ def evaluate(
         f"force, {sum(v['no_cloud'] for v in skipped.values())} with too few points in "
         "the region of interest",
     ]
-    if "hooke" in model.estimators:
+    hooke = model.estimators.get("hooke")
+    if isinstance(hooke, AffineBaseline):
         notes.append(
             "baselines fitted on the training frames only; Hooke uses one fitted "
-            f"stiffness k̂ = {model.estimators['hooke'].slope.round(2).tolist()} N/m"
+            f"stiffness k̂ = {hooke.slope.round(2).tolist()} N/m"
         )
     if model.novelty is not None:
         overall = flags["overall"]

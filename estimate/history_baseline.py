@@ -79,8 +79,10 @@ class HistoryBaseline:
         return cls(
             d["name"],
             tuple(int(o) for o in d["offsets"]),
-            *(np.asarray(d[k], float) for k in ("x_mean", "x_scale", "y_mean")),
-            layers,
+            x_mean=np.asarray(d["x_mean"], float),
+            x_scale=np.asarray(d["x_scale"], float),
+            y_mean=np.asarray(d["y_mean"], float),
+            layers=layers,
         )
 
 

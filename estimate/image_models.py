@@ -76,8 +76,11 @@ class RidgeThumbnail:
         return cls(
             d["name"],
             int(d["size"]),
-            *(np.asarray(d[k], float) for k in ("mean", "scale", "weights", "intercept")),
-            float(d["alpha"]),
+            mean=np.asarray(d["mean"], float),
+            scale=np.asarray(d["scale"], float),
+            weights=np.asarray(d["weights"], float),
+            intercept=np.asarray(d["intercept"], float),
+            alpha=float(d["alpha"]),
         )
 
 
@@ -145,7 +148,7 @@ def fit_ridge(
     without them by blocked cross-validation (``groups``: a session id per frame, one fold per
     session; else contiguous folds). Returns the fit and its mean check error."""
     alphas = _alphas(len(x), x.shape[1])
-    if x_val is not None and len(x_val):
+    if x_val is not None and y_val is not None and len(x_val):
         errors, n_check = _check_errors(x, y, x_val, y_val, alphas), len(x_val)
     else:
         errors, n_check = np.zeros(len(alphas)), 0
@@ -184,6 +187,11 @@ def fit_ridge_thumbnails(train: Parts, val: Parts, sizes: Sequence[int]) -> Ridg
 
 class DepthCNN(nn.Module):
     """Depth-change image (B × 2 × cells × cells: scaled change, seen mask) → force (newtons)."""
+
+    # buffers (register_buffer), saved with the weights
+    change_scale: torch.Tensor
+    target_mean: torch.Tensor
+    target_std: torch.Tensor
 
     def __init__(self, n_outputs: int = 1, channels: Sequence[int] = (8, 16, 32)) -> None:
         super().__init__()
@@ -281,7 +289,7 @@ def fit_cnn(
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-        entry = {"epoch": epoch}
+        entry: dict[str, float] = {"epoch": epoch}
         if check is not None:
             network.eval()
             with torch.no_grad():

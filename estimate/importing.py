@@ -28,8 +28,8 @@ import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire.resample import resample_at
+from vbfe.common.errors import EstimateError
 from vbfe.common.files import commit, partial_path
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.estimate.tables import read_table
 from vbfe.recon.clouds import CloudWriter
@@ -307,6 +307,7 @@ def frame_times(
         return np.round(np.arange(n_frames) * 1e9 / fps).astype(np.int64)
     if column is None:
         raise EstimateError("--frame-times needs --frame-time-column (the column of frame times)")
+    assert times_csv is not None  # exactly one of fps and times_csv is given
     times = read_table(times_csv, [column])[column] * TIME_UNITS_NS[time_unit]
     if len(times) != n_frames:
         raise EstimateError(f"{times_csv} has {len(times)} frame times for {n_frames} frames")

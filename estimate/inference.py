@@ -10,15 +10,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer
 
 
 class FramePredictor:
-    """Predicts the force of successive clouds of one run with the model's selected method."""
+    """Predicts the force of successive clouds of one run with the model's selected method.
+
+    The first cloud given is the run's rest reference; give the clouds in time order (methods
+    with a temporal window read the frames before each one).
+
+    :param model: a trained model (:func:`vbfe.estimate.model_file.load_model`).
+    :param seed: seeds the draws of each cloud's point pool (predictions are reproducible).
+    """
 
     def __init__(self, model: ForceModel, seed: int = 0) -> None:
         self.model = model
@@ -34,6 +41,7 @@ class FramePredictor:
 
     @property
     def n_outputs(self) -> int:
+        """Values per prediction (1 for the force magnitude or one axis, 3 for the three axes)."""
         return self.model.config.n_outputs
 
     def preparer(self, points: np.ndarray, colors: np.ndarray | None = None) -> FramePreparer:
@@ -59,15 +67,25 @@ class FramePredictor:
         return cropped
 
     def features(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
-        """The features of one raw cloud (and its points' colours), as in training (the
-        texture displacement only when the selected method reads it)."""
+        """The features of one raw cloud, as in training (the texture displacement only when
+        the selected method reads it).
+
+        :param points: the cloud (N×3, metres, may hold NaN).
+        :param colors: its points' colours (N×3) or ``None``.
+        :raises EstimateError: too few points inside the model's region of interest, or the
+            method reads a texture this cloud has not.
+        """
         preparer = self.preparer(points, colors)
         return preparer.features(
             self.cropped(points), self.model.config.n_points, self.rng, points, colors
         )
 
     def predict_features(self, features: FrameFeatures) -> np.ndarray:
-        """Force (outputs,) of the newest frame's features (after the frames before it)."""
+        """The force of the newest frame's features (after the frames before it).
+
+        :param features: from :meth:`features`.
+        :returns: the force, one value per output of the model (``n_outputs``), newtons.
+        """
         self._frames.append(features)
         if len(self._frames) > self._span + 2:
             del self._frames[1]
@@ -85,8 +103,14 @@ class FramePredictor:
         return self.model.predict_session(session, positions=np.array([n - 1]))[0]
 
     def predict(self, points: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
-        """Force (outputs,) of one raw cloud (N×3, may hold NaN; ``colors`` N×3 or ``None``);
-        ``EstimateError`` when it has too few points inside the model's region of interest."""
+        """The force of one raw cloud, the next of the run.
+
+        :param points: the cloud (N×3, metres, may hold NaN).
+        :param colors: its points' colours (N×3) or ``None``.
+        :returns: the force, one value per output of the model (``n_outputs``), newtons.
+        :raises EstimateError: too few points inside the model's region of interest, or the
+            method reads a texture this cloud has not.
+        """
         return self.predict_features(self.features(points, colors))
 
 

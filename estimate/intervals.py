@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.train_config import INTERVAL_SCALES as SCALES
 
 

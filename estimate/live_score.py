@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.acquire import SessionReader
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.evaluation import error_stats
 from vbfe.estimate.preparation import force_target, target_label
 from vbfe.estimate.report import plot_session, write_json

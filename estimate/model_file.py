@@ -20,12 +20,11 @@ import numpy as np
 import torch
 
 from vbfe import __version__
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError, EstimateError
 from vbfe.common.files import atomic_path
 from vbfe.common.settings import parse_table
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.intervals import ConformalInterval
 from vbfe.estimate.novelty import NoveltyFlag
 from vbfe.estimate.splits import SessionSplit

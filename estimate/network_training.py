@@ -17,12 +17,13 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import FrameBatches
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 from vbfe.estimate.train_config import TrainConfig
 
@@ -53,7 +54,7 @@ def resolve_device(name: str) -> torch.device:
 def build_network(
     config: TrainConfig, train_batches: FrameBatches, temporal: bool
 ) -> PointNetRegressor:
-    hparams = dict(
+    hparams: dict[str, Any] = dict(
         n_outputs=config.n_outputs,
         conv_channels=config.conv_channels,
         head_channels=config.head_channels,
@@ -132,7 +133,7 @@ def fit_network(
     )
     history: list[dict[str, float]] = []
     best_loss, best_epoch, best_state = float("inf"), -1, None
-    start = {"epoch": 0}
+    start: dict[str, float] = {"epoch": 0}
     if warm_start and check_batches is not None:
         start["val_loss"], start["val_mae_n"] = _mean_loss(
             network, check_batches, 4 * config.batch_size, device

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import PreparedSession
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.preparation import FrameFeatures
 
 THUMB_CELLS = 8

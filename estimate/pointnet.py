@@ -87,6 +87,13 @@ class PointNetRegressor(nn.Module):
     """Point clouds (B×N×3, or B×N×4 with the rest depth change; metres, any point order) →
     force (B×n_outputs, newtons)."""
 
+    # buffers (register_buffer), saved with the weights
+    target_mean: torch.Tensor
+    target_std: torch.Tensor
+    feature_mean: torch.Tensor
+    feature_std: torch.Tensor
+    depth_scale: torch.Tensor
+
     def __init__(
         self,
         n_outputs: int = 1,
@@ -159,9 +166,9 @@ class TemporalPointNet(PointNetRegressor):
     Input ``B × (1 + k) × N × C`` (C = 3, or 4 with ``rest_depth``): the session's rest frame
     first, then the window oldest to newest. Every cloud is embedded by the shared encoder.
     The force is the single-frame head on the newest cloud (as in ``PointNetRegressor``, whose
-    trained weights it can start from) plus a motion correction: a second head on each window cloud's embedding minus the rest
-    cloud's, so it can read how the surface has moved and how it is moving (a relaxing tissue
-    at constant shape). The correction's output layer starts at zero.
+    trained weights it can start from) plus a motion correction: a second head on each window
+    cloud's embedding minus the rest cloud's, so it can read how the surface has moved and how it is
+    moving (a relaxing tissue at constant shape). The correction's output layer starts at zero.
     """
 
     def __init__(
@@ -181,6 +188,7 @@ class TemporalPointNet(PointNetRegressor):
         self.n_frames = n_frames
         self.motion_head = _head(self.embedding_size * n_frames, head_channels, dropout, n_outputs)
         last = self.motion_head[-1]
+        assert isinstance(last, nn.Linear)
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)
 

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.depth_image import DepthChangeImage
 from vbfe.estimate.displacement import DisplacementGrid
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.rest_depth import RestDepth
 from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig

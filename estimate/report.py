@@ -179,9 +179,9 @@ def plot_scatter(
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     measured, predicted = _plotted(measured_n), _plotted(predicted_n)
-    labels = np.asarray(labels)
-    for label in sorted(set(labels)):
-        mask = labels == label
+    label_of = np.asarray(labels)
+    for label in sorted(set(label_of)):
+        mask = label_of == label
         ax.scatter(measured[mask], predicted[mask], s=4, alpha=0.5, label=label)
     low = float(min(measured.min(), predicted.min(), 0.0))
     top = float(max(measured.max(), predicted.max(), 1e-3))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 
 NEIGHBOURS = 4
 

@@ -11,14 +11,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, Union
+from typing import Any, Protocol
 
 import h5py
 import numpy as np
 
 from vbfe.acquire import SessionReader
-from vbfe.common.errors import VbfeError
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError, VbfeError
 from vbfe.recon import CloudReader, sidecar_path
 
 CLOUDS_SUFFIX = ".clouds.h5"
@@ -30,7 +29,9 @@ class CloudSource(Protocol):
 
     name: str
     conditions: dict[str, Any]
-    n_frames: int
+
+    @property
+    def n_frames(self) -> int: ...
 
     def frame_times_ns(self) -> np.ndarray: ...
     def force_at_frames(self) -> np.ndarray: ...
@@ -186,7 +187,7 @@ class ImportedClouds:
         self._clouds.close()
 
 
-SessionLike = Union[str, Path, SessionClouds]
+SessionLike = str | Path | SessionClouds
 
 
 def open_source(item: SessionLike) -> CloudSource:

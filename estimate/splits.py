@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 
 PARTS = ("train", "val", "test")
 
@@ -166,7 +166,10 @@ def split_by_session(
 def _ranges(frames: np.ndarray, mask: np.ndarray) -> list[list[int]]:
     """``[start, stop)`` frame-number ranges of the runs of True in ``mask`` over used frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [[int(frames[a]), int(frames[b - 1]) + 1] for a, b in zip(edges[::2], edges[1::2], strict=False)]
+    return [
+        [int(frames[a]), int(frames[b - 1]) + 1]
+        for a, b in zip(edges[::2], edges[1::2], strict=False)
+    ]
 
 
 def _from_labels(
@@ -248,8 +251,8 @@ def split_by_ranges(
         label = np.full(len(frames), -1)
         for k, part in enumerate(PARTS):
             if ranges.get(part):
-                a, b = ranges[part]
-                label[(frames >= a) & (frames < b)] = k
+                first, end = ranges[part]
+                label[(frames >= first) & (frames < end)] = k
         if not (label == 0).any():
             raise EstimateError(
                 f"session {s.name} has no usable frame in the training range "

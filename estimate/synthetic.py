@@ -10,6 +10,7 @@ force. Depth noise, dropped (NaN) pixels and a small per-session offset are adde
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def synthetic_sessions(
     repeats: int = 3,
     seed: int = 0,
     prefix: str = "sim",
-    **options: float,
+    **options: Any,
 ) -> list[SessionClouds]:
     """``repeats`` sessions for each (stiffness N/m, pull speed m/s) condition."""
     rng = np.random.default_rng(seed)

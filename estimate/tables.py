@@ -2,7 +2,7 @@
 whitespace- (or comma-, semicolon-, tab-) separated columns of numbers.
 
 A column is named by its header or by its number (0 = first). Every problem is one
-:class:`~vbfe.estimate.errors.EstimateError` line naming the file and what to do.
+:class:`~vbfe.common.errors.EstimateError` line naming the file and what to do.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vbfe.estimate.errors import EstimateError
+from vbfe.common.errors import EstimateError
 
 DELIMITERS = ",;\t"
 

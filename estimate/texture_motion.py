@@ -77,7 +77,7 @@ class TextureMotion:
         mean = float(texture[seen].mean()) if seen.any() else 0.0
         self.contrast = float(band[seen].std() / mean) if mean > 0 else 0.0
         self._rest_texture = self._grey(texture)
-        self._flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        self._flow = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         grid = np.mgrid[0 : self._shape[0], 0 : self._shape[1]].astype(np.float32)
         self._rows, self._cols = grid[0], grid[1]
         border = (2 * max(1, round(BORDER_PX * self._aspect)) + 1, 2 * BORDER_PX + 1)
@@ -145,7 +145,8 @@ class TextureMotion:
         points = np.asarray(points, np.float64).reshape(-1, 3)
         finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
         xyz, texture = self._maps(points[finite], np.asarray(colors, np.float32)[finite])
-        flow = self._flow.calc(self._rest_texture, self._grey(texture), None)
+        # OpenCV allocates the flow when given None; its stubs do not say so
+        flow = self._flow.calc(self._rest_texture, self._grey(texture), None)  # type: ignore[call-overload]
         moved = cv2.remap(
             self._smoothed(xyz),
             self._cols + flow[..., 0],

@@ -8,8 +8,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vbfe.common.errors import EstimateError
 from vbfe.common.settings import parse_table, setting
-from vbfe.estimate.errors import EstimateError
 
 AXES = ("x", "y", "z")
 TARGETS = ("magnitude", "xyz", *AXES, *(f"-{a}" for a in AXES))
@@ -40,21 +40,25 @@ class TrainConfig:
     learning_rate: float = setting(1e-3, gt=0)
     n_points: int = setting(1024, ge=2)
     patience: int = setting(10, ge=1)
-    target: Literal[TARGETS] = "magnitude"  # |F| in newtons, "xyz": the three axes, or "x", "-z"...
-    roi: Literal[ROI_KINDS] = "all"
+    # |F| in newtons, "xyz": the three axes, or "x", "-z"...
+    target: Literal[TARGETS] = "magnitude"  # type: ignore[valid-type]
+    # a Literal of a tuple's values: the settings parser reads them; mypy cannot
+    roi: Literal[ROI_KINDS] = "all"  # type: ignore[valid-type]
     roi_radius_m: float = setting(0.02, gt=0)
     roi_box_m: list[float] = setting([-1.0, -1.0, 0.0, 1.0, 1.0, 1.0])
     pool_factor: int = setting(2, ge=1)  # points kept per frame = pool_factor * n_points
     frame_stride: int = setting(1, ge=1)  # use every k-th frame of each session
     val_fraction: float = setting(0.2, ge=0, lt=1)
     test_fraction: float = setting(0.0, ge=0, lt=1)
-    split: Literal[SPLITS] = "session"  # "session": whole sessions per part; "time": ranges
+    # "session": whole sessions per part; "time": ranges
+    split: Literal[SPLITS] = "session"  # type: ignore[valid-type]
     gap_frames: int = setting(30, ge=0)  # frames left out at every boundary between parts
     train_frames: list[int] = setting([])  # time split: stated [start, stop) frame ranges
     val_frames: list[int] = setting([])
     test_frames: list[int] = setting([])
     folds: int = setting(0, ge=0)  # blocked cross-validation folds (0: none)
-    model: Literal[MODELS] = "auto"  # the model shipped: best on validation, or one forced
+    # the model shipped: best on validation, or one forced
+    model: Literal[MODELS] = "auto"  # type: ignore[valid-type]
     val_max_frames: int = setting(2048, ge=1)  # fixed validation subsample
     seed: int = 0
     conv_channels: list[int] = setting([64, 128, 1024])
@@ -65,7 +69,8 @@ class TrainConfig:
     time_limit_s: float = setting(0.0, ge=0)  # guard: warn and stop a network's training
     # after this wall time (0 = no limit); training is otherwise the same on any machine
     threads: int = setting(2, ge=1)  # torch CPU threads while training (fixed: determinism)
-    device: Literal[DEVICES] = "cpu"  # "auto" (CUDA when torch sees it), "cpu" or "cuda"
+    # "auto" (CUDA when torch sees it), "cpu" or "cuda"
+    device: Literal[DEVICES] = "cpu"  # type: ignore[valid-type]
     temporal_frames: int = setting(0, ge=0)  # temporal model: k frames in its causal window
     temporal_span_frames: int = setting(10, ge=1)  # oldest to newest frame of the window
     temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it
@@ -77,7 +82,8 @@ class TrainConfig:
     history_frames: int = setting(6, ge=0)  # displacement-history baseline: frames (0: off)
     history_span_frames: int = setting(20, ge=1)  # oldest to newest frame of its window
     interval_coverage: float = setting(0.9, gt=0, lt=1)  # prediction intervals' coverage
-    interval_scale: Literal[INTERVAL_SCALES] = "none"  # their width: constant, or with |F|
+    # the intervals' width: constant ("none"), or growing with |F| ("force")
+    interval_scale: Literal[INTERVAL_SCALES] = "none"  # type: ignore[valid-type]
     # selection (and the intervals' calibration) on the validation part needs this many frames
     # from at least two sessions; else on blocked folds of the training part (0: always on
     # the validation part)

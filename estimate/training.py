@@ -26,12 +26,14 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import fit_baselines
 from vbfe.estimate.candidates import (
     CANDIDATES,
@@ -49,7 +51,6 @@ from vbfe.estimate.dataset import (
     prepare_sessions,
     skipped_counts,
 )
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.intervals import ConformalInterval, calibrate, coverage_width
 from vbfe.estimate.model_file import ForceModel, save_model
@@ -145,7 +146,7 @@ def _fit_networks(
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
-    windows = {"pointnet": ()}
+    windows: dict[str, tuple[int, ...]] = {"pointnet": ()}
     if "temporal" in names:
         windows["temporal"] = tuple(config.temporal_window)
     budget = config.time_limit_s / len(windows)
@@ -174,7 +175,7 @@ def _fit_networks(
             device,
             rng,
             deadline,
-            (lambda done, total, stage=stage: progress(stage, done, total)) if progress else None,
+            partial(progress, stage) if progress else None,
             warm_start=bool(window),
         )
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
@@ -416,7 +417,7 @@ def cross_validate(
 ) -> dict[str, Any]:
     """Blocked K-fold cross-validation in time: per fold the whole fit and selection, every
     method's test MAE; summary mean ± sd per method (``selected``: whatever each fold chose)."""
-    folds = []
+    folds: list[dict[str, Any]] = []
     splits = split_folds(prepared, config.folds, config.gap_frames)
     for k, split in enumerate(splits):
         fit = fit_split(prepared, split, config)

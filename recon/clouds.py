@@ -30,15 +30,17 @@ import contextlib
 import hashlib
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
-from vbfe.common.files import require_free_space
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
+from vbfe.common.files import atomic_path, require_free_space
 
 FORMAT_NAME = "vbfe-clouds"
 FORMAT_VERSION = 3
@@ -85,7 +87,7 @@ class CloudWriter:
     """Appends frames to a sidecar; the file is marked complete only by :meth:`finish`."""
 
     def __init__(
-        self, path: str | Path, attrs: dict[str, object], calibration_yaml: str | None
+        self, path: str | Path, attrs: Mapping[str, object], calibration_yaml: str | None
     ) -> None:
         self.path = Path(path)
         require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
@@ -238,7 +240,7 @@ class CloudReader:
         return str(self._file.attrs["session_fingerprint"])
 
     @property
-    def attrs(self) -> dict[str, object]:
+    def attrs(self) -> dict[str, Any]:
         """Root attributes (format, verify, SGBM settings, software version, …)."""
         out = plain_attrs(self._file.attrs)
         out["sgbm"] = json.loads(str(out.get("sgbm_json", "{}")))
@@ -309,7 +311,7 @@ def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray | None =
         "end_header",
     ]
     try:
-        with open(path, "wb") as fh:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             fh.write(("\n".join(header) + "\n").encode("ascii"))
             fh.write(vertices.tobytes())
     except OSError as exc:

@@ -19,10 +19,10 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.drivers.camera.base import StereoCamera
+from vbfe.common.errors import ReconError
+from vbfe.drivers.camera.base import FrameSource
 from vbfe.drivers.projector.base import Projector
 from vbfe.recon import kernels
-from vbfe.recon.errors import ReconError
 
 CAPTURE_NAMES = ("blue", "green", "red", "black", "white")  # primaries in B, G, R order
 FLAT_BGR = {
@@ -74,7 +74,8 @@ class ColorModel:
         """
         if not albedo_window_px:
             offset = tuple(float(v) for v in self.offset) + (0.0,)
-            signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)
+            # OpenCV takes a scalar (per channel) here; its stubs do not say so
+            signal = cv2.subtract(image, offset, dtype=cv2.CV_32F)  # type: ignore[call-overload]
             return cv2.transform(
                 np.maximum(signal, 0.0), np.linalg.inv(self.mixing).astype(np.float32)
             )
@@ -99,7 +100,10 @@ class ColorModel:
         """The uint8 image less the offset (saturating at 0); without an offset, a copy (or
         the image itself)."""
         offset = tuple(float(v) for v in self.offset) + (0.0,)
-        return cv2.subtract(image, offset) if any(offset) else np.ascontiguousarray(image)
+        if not any(offset):
+            return np.ascontiguousarray(image)
+        # OpenCV takes a scalar (per channel) here; its stubs do not say so
+        return cv2.subtract(image, offset)  # type: ignore[call-overload]
 
     @functools.cached_property
     def _albedo_unmix(self) -> np.ndarray | None:
@@ -145,7 +149,7 @@ def estimate_color_model(captures: Mapping[str, np.ndarray]) -> ColorModel:
 
 
 def capture_color_model(
-    camera: StereoCamera,
+    camera: FrameSource,
     projector: Projector,
     frames: int = 3,
     settle_s: float = 0.15,
@@ -159,7 +163,7 @@ def capture_color_model(
     captures = {}
     for name, image in color_calibration_patterns(projector.width, projector.height).items():
         due_ns = projector.show(image, f"color-{name}").t_host_ns + int(round(settle_s * 1e9))
-        views = []
+        views: list[np.ndarray] = []
         while len(views) < frames:
             frame = camera.read_after(due_ns, timeout_s)
             if frame is None:

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from vbfe.acquire import SessionReader
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.recon.clouds import CloudReader, session_fingerprint, sidecar_path
-from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.quality import ReconSettings, params_for
 

@@ -13,11 +13,11 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.pairs import PAIR_NAMING, pair_files
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import CalibrationError, ReconError
 
 
 class StereoImages(NamedTuple):
@@ -86,14 +86,14 @@ def find_pairs(folder: str | Path) -> ImagePairs:
 
 def image_pairs(paths: list[str | Path]) -> ImagePairs:
     """Pairs from two image files (left, right) or one folder of pairs."""
-    paths = [Path(p) for p in paths]
-    missing = [str(p) for p in paths if not p.exists()]
+    files = [Path(p) for p in paths]
+    missing = [str(p) for p in files if not p.exists()]
     if missing:
         raise ReconError(f"{', '.join(missing)} does not exist")
-    if len(paths) == 1 and paths[0].is_dir():
-        return find_pairs(paths[0])
-    if len(paths) == 2 and all(p.is_file() for p in paths):
-        return ImagePairs((paths[0],), (paths[1],), (paths[0].stem,))
+    if len(files) == 1 and files[0].is_dir():
+        return find_pairs(files[0])
+    if len(files) == 2 and all(p.is_file() for p in files):
+        return ImagePairs((files[0],), (files[1],), (files[0].stem,))
     raise ReconError("give a session (.h5), two image files (LEFT RIGHT) or one folder of pairs")
 
 
@@ -135,11 +135,9 @@ def middlebury_calibration(path: str | Path, image_size: tuple[int, int]) -> Cal
             f"{path} is not a Middlebury calib.txt (cam0=[f 0 cx; 0 f cy; 0 0 1], "
             "cam1, doffs, baseline, width, height)"
         )
-    if tuple(calibration.image_size) != tuple(image_size):
-        raise ReconError(
-            f"{path} is for {calibration.image_size[0]}x{calibration.image_size[1]} "
-            f"images but the pair is {image_size[0]}x{image_size[1]}"
-        )
+    mismatch = size_mismatch("the pair has", image_size, str(path), calibration.image_size)
+    if mismatch:
+        raise ReconError(mismatch)
     return calibration
 
 

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 
 DISPARITY_PNG_SCALE = 256.0  # PNG value per pixel of disparity
 DEPTH_PNG_SCALE = 10.0  # PNG value per millimetre of depth
@@ -41,10 +41,9 @@ class MapOutput:
 
 
 def depth_map_m(disparity: np.ndarray, calibration: Calibration) -> np.ndarray:
-    """Depth ``z = f·B/(d - doffs)`` (m, float32, NaN where the disparity is missing or at or
-    beyond infinity)."""
-    doffs = -calibration.doffs  # here: left minus right
-    shifted = disparity.astype(np.float32) - np.float32(doffs)
+    """Depth ``z = f·B/(d - disparity_offset)`` (m, float32, NaN where the disparity is missing
+    or at or beyond infinity)."""
+    shifted = disparity.astype(np.float32) - np.float32(calibration.disparity_offset)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(
             shifted > 0, np.float32(calibration.f * calibration.B) / shifted, np.float32(np.nan)

@@ -8,9 +8,9 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from vbfe.common.errors import ReconError
 from vbfe.common.settings import parse_table, setting
 from vbfe.recon import kernels
-from vbfe.recon.errors import ReconError
 
 MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -38,7 +38,8 @@ class SgbmParams:
     p1: int = setting(0, ge=0)
     p2: int = setting(0, ge=0)
     pre_filter_cap: int = setting(63, ge=0)
-    mode: Literal[MODE_NAMES] = "sgbm_3way"
+    # a Literal of a tuple's values: the settings parser reads them; mypy cannot
+    mode: Literal[MODE_NAMES] = "sgbm_3way"  # type: ignore[valid-type]
     # ± pixels searched along the row when verification rejects a match
     verify_search_px: int = setting(3, ge=0)
     # De Bruijn codes are decoded on the middle row of each block of n rows and copied to the rest

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.common.settings import parse_table, setting
 from vbfe.recon.clouds import CloudReader
-from vbfe.recon.errors import ReconError
 from vbfe.recon.matching import SgbmParams
 
 DISPARITY_STEP = 16  # StereoSGBM needs numDisparities to be a multiple of 16
@@ -55,7 +55,7 @@ def disparity_range(
     calibration: Calibration, min_depth_mm: float, max_depth_mm: float
 ) -> tuple[int, int]:
     """``(min_disparity, num_disparities)`` covering depths ``min_depth_mm..max_depth_mm``:
-    ``d = f·B/z + doffs``, the count rounded up to a multiple of 16."""
+    ``d = f·B/z + disparity_offset``, the count rounded up to a multiple of 16."""
     if not 0 < min_depth_mm < max_depth_mm:
         raise ReconError(f"depth range needs 0 < min < max, got {min_depth_mm}..{max_depth_mm} mm")
     f_b = calibration.f * calibration.B
@@ -64,9 +64,8 @@ def disparity_range(
             f"calibration has f·B = {f_b:.3g} px·m; the rectified pair needs a "
             f"positive focal length and baseline (left camera on the left)"
         )
-    doffs = -calibration.doffs  # here: left minus right
-    low = math.floor(f_b / (max_depth_mm * 1e-3) + doffs)
-    high = math.ceil(f_b / (min_depth_mm * 1e-3) + doffs)
+    low = math.floor(f_b / (max_depth_mm * 1e-3) + calibration.disparity_offset)
+    high = math.ceil(f_b / (min_depth_mm * 1e-3) + calibration.disparity_offset)
     count = DISPARITY_STEP * max(1, math.ceil((high - low + 1) / DISPARITY_STEP))
     return low, count
 
@@ -165,7 +164,7 @@ def summary_line(reader: CloudReader) -> str:
 def frame_lines(reader: CloudReader, limit: int = 20) -> list[str]:
     """Per-frame quality rows (at most ``limit``, spread over the file) for ``vbfe inspect``."""
     n = reader.n_frames
-    picks = np.unique(np.linspace(0, n - 1, min(n, limit)).astype(int)) if n else []
+    picks = np.unique(np.linspace(0, n - 1, min(n, limit)).astype(int)) if n else np.zeros(0, int)
     index = reader.frame_table("frame_index")
     density = reader.frame_table("valid_fraction")
     decoded = reader.frame_table("decoded_fraction")

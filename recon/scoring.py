@@ -25,11 +25,11 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 
 BAD_THRESHOLDS_PX = (1.0, 2.0, 3.0)
 TRUTH_KINDS = ("disparity", "depth")
-DEFAULT_PNG_SCALE = {
+DEFAULT_PNG_SCALE: dict[tuple[str, np.dtype], float] = {
     ("disparity", np.dtype(np.uint16)): 256.0,
     ("depth", np.dtype(np.uint16)): 10.0,
 }

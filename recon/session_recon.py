@@ -11,17 +11,19 @@ import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
+from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
+from vbfe.common.errors import ReconError
 from vbfe.common.files import commit, partial_path
 from vbfe.common.signals import die_with_parent, stop_pool_on_signals
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
-from vbfe.recon.errors import ReconError
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.inputs import ImagePairs
 from vbfe.recon.maps import MapOutput, write_maps
@@ -33,12 +35,12 @@ FrameResult = tuple[int, FrameCloud, dict[str, object]]
 FrameHook = Callable[[str, FrameCloud], object]
 StartHook = Callable[[int, bool], object]
 
-_worker: dict[str, object] = {}  # per-process state: the frame source and reconstructor
+_worker: dict[str, Any] = {}  # per-process state: the frame source and reconstructor
 
 
 def _init_worker(
     source: str | ImagePairs,
-    calibration_yaml: str,
+    calibration: Calibration,
     params: dict,
     verify: bool,
     settings: ReconSettings,
@@ -55,7 +57,7 @@ def _init_worker(
     _worker["reader"] = SessionReader(source) if isinstance(source, str) else source
     _worker["keep_maps"] = keep_maps
     _worker["reconstructor"] = Reconstructor(
-        Calibration.from_yaml_text(calibration_yaml),
+        calibration,
         SgbmParams(**params),
         verify=verify,
         settings=settings,
@@ -105,7 +107,7 @@ def _results(
     """Frame results in frame order, computed in ``workers`` processes (1: in this process)."""
     init_args = (
         source,
-        calibration.to_yaml_text(),
+        calibration,  # pickled to worker processes as it is (no YAML round trip)
         dataclasses.asdict(params),
         verify,
         settings,
@@ -201,12 +203,9 @@ def _reconstruct(
 
 
 def _check_size(what: str, size: tuple[int, int], calibration: Calibration) -> None:
-    if tuple(size) != tuple(calibration.image_size):
-        raise ReconError(
-            f"{what} has {size[0]}x{size[1]} images but the calibration is for "
-            f"{calibration.image_size[0]}x{calibration.image_size[1]}; use the "
-            f"calibration of this camera mode"
-        )
+    mismatch = size_mismatch(f"{what} has", size, "the calibration", calibration.image_size)
+    if mismatch:
+        raise ReconError(mismatch)
 
 
 def reconstruct_images(
@@ -265,10 +264,10 @@ def reconstruct_session(
     ``calibration`` is a :class:`Calibration`, a YAML path, or ``None`` for the one stored in
     the session. ``workers`` processes (default: one per CPU core, at most the number of
     frames) share the frames; ``started(n_frames, partial)`` is called once the session is
-    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the ``[recon]``
-    table) give the depth range a zero ``num_disparities`` is derived from; ``maps`` asks for
-    disparity/depth/quality maps too. The sidecar is written to a temporary name and renamed
-    when complete, so an interrupted run leaves no partial file. A session still being
+    read and the settings checked, ``progress(n)`` with each finished frame count. ``settings`` (the
+    ``[recon]`` table) give the depth range a zero ``num_disparities`` is derived from; ``maps``
+    asks for disparity/depth/quality maps too. The sidecar is written to a temporary name and
+    renamed when complete, so an interrupted run leaves no partial file. A session still being
     recorded is reconstructed up to its frames flushed at the start (``partial``); the sidecar
     then has ``session_partial = True``.
     """

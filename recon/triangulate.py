@@ -1,4 +1,4 @@
-"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, z = fB/(d - doffs) cloud."""
+"""Per-frame reconstruction: rectify, SGBM, De Bruijn verification, the z = fB/(d - d_inf) cloud."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import ReconError
 from vbfe.drivers.projector.pattern import DEFAULT_FRINGES
 from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeCode, FringeDecoder
-from vbfe.recon.errors import ReconError
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
 from vbfe.recon.matching import SgbmParams, disparity_px
 from vbfe.recon.quality import ReconSettings, check_disparity_range, decoded_fraction, params_for
@@ -89,13 +89,13 @@ class Reconstructor:
         )
         self._matcher = self.params.create(3)
         self._pool: ThreadPoolExecutor | None = None
-        self._doffs = -calibration.doffs  # left minus right principal point x
+        self._disparity_offset = calibration.disparity_offset
         self._camera = (
             calibration.f,
             calibration.B,
             calibration.cx,
             calibration.cy,
-            self._doffs,
+            self._disparity_offset,
             calibration.fy,
         )
         # computed once, in OpenCV's fast fixed-point form, reused for every frame; None
@@ -137,7 +137,9 @@ class Reconstructor:
         pool = self._second_thread()
         right_code = pool.submit(self.decoder.decode, right, period) if pool else None
         left_code = self.decoder.decode(left, period)
-        return left_code, right_code.result() if pool else self.decoder.decode(right, period)
+        if right_code is not None:
+            return left_code, right_code.result()
+        return left_code, self.decoder.decode(right, period)
 
     def _verify_and_triangulate(
         self,
@@ -162,7 +164,7 @@ class Reconstructor:
             coded,
             out=out,
             status=status,
-            doffs_px=self._doffs,
+            doffs_px=self._disparity_offset,
         )
         pool, height = self._second_thread(), disparity.shape[0]
         split = height // 2 if pool is not None else height
@@ -182,8 +184,10 @@ class Reconstructor:
             return kernels.triangulate(disparity, status, rect_left, *self._camera)
         height = disparity.shape[0]
         split = height // 2
-        lower = pool.submit(kernels.count_points, disparity, status, self._doffs, split, height)
-        n_upper = kernels.count_points(disparity, status, self._doffs, 0, split)
+        lower = pool.submit(
+            kernels.count_points, disparity, status, self._disparity_offset, split, height
+        )
+        n_upper = kernels.count_points(disparity, status, self._disparity_offset, 0, split)
         return self._fill(
             rect_left, disparity, status, split, n_upper, n_upper + lower.result(), pool
         )
@@ -221,7 +225,8 @@ class Reconstructor:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         self._check_size(left, right)
         rect_left, rect_right = (
-            self._rectify(image, maps) for image, maps in zip((left, right), self._maps, strict=False)
+            self._rectify(image, maps)
+            for image, maps in zip((left, right), self._maps, strict=False)
         )
         if not self.verify:
             disparity, edge = disparity_px(

@@ -75,12 +75,12 @@ def coded_grid(code: FringeCode) -> CodedGrid:
     height, width = code.index.shape
     cell = max(1, int(code.period_px // 2))
     cells = (max(1, width // cell), max(1, height // cell))
-    readable = cv2.resize(
-        cv2.compare(code.index, 0, cv2.CMP_GE), cells, interpolation=cv2.INTER_AREA
-    )
+    # OpenCV compares with a scalar here; its stubs do not say so
+    decoded = cv2.compare(code.index, 0, cv2.CMP_GE)  # type: ignore[call-overload]
+    readable = cv2.resize(decoded, cells, interpolation=cv2.INTER_AREA)
     side = 2 * REGION_FRINGES + 1  # in cells
     share = cv2.blur(readable, (side, side), borderType=cv2.BORDER_REPLICATE)
-    solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)
+    solid = cv2.compare(share, 255 * MIN_REGION_READABLE, cv2.CMP_GE)  # type: ignore[call-overload]
     reach = 2 * 2 * REGION_REACH_FRINGES + 1  # cells are half a fringe wide
     near = cv2.dilate(solid, np.ones((reach, reach), np.uint8))
     return CodedGrid(near, _nearest_source(cells[1], height), _nearest_source(cells[0], width))

@@ -1,7 +1,7 @@
 """The numpy/OpenCV formulation of the decoder (colour normalisation, run/symbol/vote step), of
-the De Bruijn verification and its coded region, of SGBM's fixed-point conversion and of the edge share that the
-compiled loops (``vbfe.recon.kernels``) replaced: the reference the tests hold them to, bit for
-bit."""
+the De Bruijn verification and its coded region, of SGBM's fixed-point conversion and of the edge
+share that the compiled loops (``vbfe.recon.kernels``) replaced: the reference the tests hold them
+to, bit for bit."""
 
 import cv2
 import numpy as np

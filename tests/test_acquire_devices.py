@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.rig import Rig

@@ -21,8 +21,8 @@ from vbfe.acquire import (
 )
 from vbfe.acquire.session.layout import marker_stream, vector_stream
 from vbfe.common.config import load_config
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.device import SampleStream
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions

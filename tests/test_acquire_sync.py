@@ -7,11 +7,11 @@ import pytest
 
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import SessionReader
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.audit import audit_sequence
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.sync.check import SyncLimits, verify_sync
 from vbfe.acquire.sync.corners import corner_offset
+from vbfe.common.errors import SessionError
 
 
 def test_recovers_injected_37_ms_offset_with_ci_and_drift(tmp_path):

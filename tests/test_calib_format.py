@@ -13,13 +13,13 @@ from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.camera import CameraOptions
 from vbfe.calib.capture import CaptureOptions
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.gates import GateLimits
 from vbfe.calib.projector import ProjectorOptions
 from vbfe.calib.projector_capture import GrayCaptureOptions
 from vbfe.calib.stereo import StereoOptions
 from vbfe.cli.main import main
 from vbfe.common.config import default_config
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig
 

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.views import NAMING_RULES, load_images, load_views
+from vbfe.common.errors import CalibrationError
 from vbfe.recon.inputs import find_pairs
 
 
@@ -72,7 +72,11 @@ def test_left_and_right_globs_pair_in_sorted_order(tmp_path):
     views = load_views(
         left_glob=str(tmp_path / "cam_a" / "*.png"), right_glob=str(tmp_path / "cam_b" / "*.png")
     )
-    assert [(l[0, 0, 0], r[0, 0, 0]) for l, r in views.pairs] == [(10, 100), (11, 101), (12, 102)]
+    assert [(left[0, 0, 0], right[0, 0, 0]) for left, right in views.pairs] == [
+        (10, 100),
+        (11, 101),
+        (12, 102),
+    ]
     write(tmp_path / "cam_b" / "x003.png", image(103))
     with pytest.raises(CalibrationError, match="matches 3 images and --right .* 4"):
         load_views(

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from vbfe.calib.calibration import load_calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.views import load_views
 from vbfe.cli.main import main
+from vbfe.common.errors import CalibrationError
 
 DATA = Path(__file__).parent / "data" / "opencv_stereo"
 VIEWS = [f"{i:02d}" for i in range(1, 15) if i != 10]

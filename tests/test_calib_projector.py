@@ -10,7 +10,6 @@ import pytest
 from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.commands import projector_capture
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.projector import (
     GrayCodeCapture,
     calibrate_projector,
@@ -19,6 +18,7 @@ from vbfe.calib.projector import (
     with_projector,
 )
 from vbfe.common.config import load_config
+from vbfe.common.errors import CalibrationError
 from vbfe.truth import board_config, calibration_from_rig, true_rig
 
 SPEC = BoardSpec()

@@ -17,9 +17,9 @@ import pytest
 from tests.fakes.camera import FakeStereoCamera
 from tests.fakes.serial_projector import FakeSerialProjector
 from vbfe.calib.board import BoardDetector, BoardSpec
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.projector import load_captures, projector_images
 from vbfe.calib.projector_capture import GrayCaptureOptions, capture_gray_code
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.projector.serial_projector import SerialProjector, default_commands_path
 
 REPO = Path(__file__).resolve().parents[1]

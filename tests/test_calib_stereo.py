@@ -14,10 +14,10 @@ from vbfe.acquire import SessionWriter, finalize_session
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.check import check_calibration
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.stereo import StereoOptions, calibrate_detections, calibrate_stereo, detect_views
 from vbfe.calib.views import ViewSet, load_views, save_views
 from vbfe.cli.main import main
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
@@ -150,7 +150,7 @@ def test_left_right_desync_is_detected_and_the_views_named():
 
 def test_no_board_found_names_the_board_options():
     views, _ = rendered()
-    blank = [(np.full_like(l, 110), np.full_like(r, 110)) for l, r in views.pairs[:8]]
+    blank = [(np.full_like(left, 110), np.full_like(right, 110)) for left, right in views.pairs[:8]]
     with pytest.raises(CalibrationError, match="no ChArUco board found.*DICT_5X5_100"):
         calibrate_stereo(ViewSet(blank, views.names[:8], "blank"), SPEC)
 
@@ -191,8 +191,8 @@ def test_cli_stereo_writes_yaml_and_report_and_session(tmp_path, capsys):
     writer = SessionWriter(session, (640, 360))
     writer.append_frames(
         [
-            StereoFrame(left=l, right=r, seq=i, t_device_ns=i, t_host_ns=i)
-            for i, (l, r) in enumerate(views.pairs[:2])
+            StereoFrame(left=left, right=right, seq=i, t_device_ns=i, t_host_ns=i)
+            for i, (left, right) in enumerate(views.pairs[:2])
         ]
     )
     writer.close()

@@ -6,7 +6,8 @@ import sys
 import pytest
 
 from vbfe.cli.main import build_parser, main
-from vbfe.common.config import ConfigError, load_config
+from vbfe.common.config import load_config
+from vbfe.common.errors import ConfigError
 
 SUBCOMMANDS = [
     "devices",

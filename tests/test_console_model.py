@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import Acquisition, SessionReader
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.recording.remote import first_free_run, session_path
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.capture import CaptureOptions, ViewCollector
 from vbfe.common.config import load_config
+from vbfe.common.errors import SessionError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 

@@ -120,8 +120,8 @@ def test_held_out_freehand_trials_are_reported_apart(numbers, demo_out):
     # (0.48 N); the MLP on the displacement history, best on the paper's protocol by its
     # timing, 0.47 N here. With textured freehand trials: Hooke 0.17 N (0.44x the mean's
     # 0.38 N), Hooke on the texture's 3D displacement 0.29 N (fitted on two 6 s trials whose
-    # texture-to-truth gain is 1.00 and 1.12, held-out 1.15). (Three trained and two held-out 8 s trials: the temporal model
-    # 0.30 N, 0.42x the mean predictor's 0.72 N; the MLP 0.58 N.)
+    # texture-to-truth gain is 1.00 and 1.12, held-out 1.15). (Three trained and two held-out 8 s
+    # trials: the temporal model 0.30 N, 0.42x the mean predictor's 0.72 N; the MLP 0.58 N.)
     assert best["ratio_to_mean"] <= 0.5
     assert mae["mlp_displacement_history"] > 1.5 * best["mae_n"]
     assert {"pull", "hold"} <= set(freehand["per_phase"]["mean"])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tests.fakes.camera import DISPARITY_PX, FakeStereoCamera, FakeStereoCapture, frame_seq
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
-from vbfe.drivers.errors import DeviceError
 
 W, H, FPS = 32, 24, 30.0
 

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.trocar.base import ForceSensor
 

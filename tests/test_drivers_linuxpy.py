@@ -14,8 +14,8 @@ from tests.fakes.camera import DISPARITY_PX, render_eye
 from tests.fakes.v4l2 import FakeV4L2Node, fake_factories
 from tests.test_acquire_devices import ProfileForce, RecordingProjector
 from vbfe.acquire import Recorder
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.linuxpy_v4l2 import LinuxpyStereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import JpegStereoFrame
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.fakes.serial_projector import FakeSerialProjector
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.projector.frame_id import decode_frame_id, patch_size, stamp_frame_id
 from vbfe.drivers.projector.hdmi import HdmiProjector
 from vbfe.drivers.projector.serial_projector import SerialProjector

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tests.fakes.trocar import FakeTrocar
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.trocar.can_trocar import CanTrocar
 from vbfe.drivers.trocar.dbc import checksum, default_dbc_path, load_frame_format

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import FrameBatches, prepare_session, prepare_sessions
 from vbfe.estimate.depth_image import DepthChangeImage, thumbnails
 from vbfe.estimate.displacement import DisplacementGrid
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.preparation import crop_roi, force_target, sample_points
 from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.splits import (

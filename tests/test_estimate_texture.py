@@ -4,11 +4,11 @@ projected pattern and reconstructed, and Hooke's law on the tracked 3D displacem
 import numpy as np
 import pytest
 
+from vbfe.common.errors import EstimateError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import Plane, UniformAlbedo, tissue_texture
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.sources import SessionClouds

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from vbfe.cli.main import main
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import prepare_session
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model

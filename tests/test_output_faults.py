@@ -16,7 +16,8 @@ import pytest
 from vbfe.acquire import SessionReader, record_session, store_analysis
 from vbfe.cli.main import main
 from vbfe.common.config import load_config
-from vbfe.common.files import OutputError, atomic_path
+from vbfe.common.errors import OutputError
+from vbfe.common.files import atomic_path
 from vbfe.truth import calibration_from_rig, true_rig
 
 REPO = Path(__file__).resolve().parents[1]

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionWriter, finalize_session
+from vbfe.common.errors import ReconError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.recon import CloudReader, make_pattern
-from vbfe.recon.errors import ReconError
 from vbfe.recon.inputs import find_pairs
 from vbfe.recon.maps import read_png_map
 from vbfe.truth import calibration_from_rig
@@ -141,7 +141,8 @@ def test_folder_naming_rules(tmp_path):
         pairs = find_pairs(folder)
         assert pairs.n_frames == 2
         assert all(
-            "left" in str(l) and "right" in str(r) for l, r in zip(pairs.lefts, pairs.rights, strict=False)
+            "left" in str(left) and "right" in str(right)
+            for left, right in zip(pairs.lefts, pairs.rights, strict=False)
         )
     (tmp_path / "suffix" / "c_left.png").write_bytes(
         (tmp_path / "suffix" / "a_left.png").read_bytes()

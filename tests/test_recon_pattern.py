@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.projector.pattern import SYMBOL_CHANNEL_BGR, de_bruijn, fringe_symbols
 from vbfe.recon import make_pattern, save_pattern
 from vbfe.recon.debruijn import code_lookup, window_codes

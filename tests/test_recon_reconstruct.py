@@ -131,7 +131,8 @@ def test_images_of_another_size_are_a_clear_error(scene):
 
 
 def test_sgbm_settings_come_from_the_rig_table():
-    from vbfe.common.config import ConfigError, default_config, section
+    from vbfe.common.config import default_config, section
+    from vbfe.common.errors import ConfigError
 
     params = SgbmParams.from_config(section(default_config(), "sgbm"))
     assert params.num_disparities % 16 == 0 and params.block_size % 2 == 1

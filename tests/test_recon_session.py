@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionWriter, finalize_session
-from vbfe.calib.errors import CalibrationError
 from vbfe.cli.main import main
+from vbfe.common.errors import CalibrationError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -31,13 +31,13 @@ def _write_session(path, pairs, calibration_yaml=None):
     writer.append_frames(
         [
             StereoFrame(
-                left=l,
-                right=r,
+                left=left,
+                right=right,
                 seq=i,
                 t_device_ns=i * 33_333_333,
                 t_host_ns=1_000_000 + i * 33_333_333,
             )
-            for i, (l, r) in enumerate(pairs)
+            for i, (left, right) in enumerate(pairs)
         ]
     )
     writer.close()

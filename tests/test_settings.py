@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vbfe.calib.calibration import Calibration
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError
 from vbfe.common.settings import parse_kwargs, parse_table, setting
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.truth import calibration_from_rig
@@ -54,8 +54,8 @@ def test_unknown_key_and_wrong_type_in_each_table(tmp_path, table, command, unkn
     for toml, key in cases:
         out = _run(tmp_path, command, toml)
         assert out.returncode == 2, out.stderr
-        lines = [l for l in out.stderr.replace("\r", "\n").splitlines() if l.strip()]
-        error = [l for l in lines if ": error:" in l]
+        lines = [line for line in out.stderr.replace("\r", "\n").splitlines() if line.strip()]
+        error = [line for line in lines if ": error:" in line]
         assert len(error) == 1 and error[0].startswith(f"vbfe {command[0]}: error:"), lines
         assert f"[{table}]" in error[0] and repr(key) in error[0] or f"{key} =" in error[0]
         assert "Traceback" not in out.stderr

@@ -6,8 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from vbfe.common.config import ConfigError, load_config
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.config import load_config
+from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.sim import SimBench
 

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views, visible_fraction
 from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.rig import default_rig

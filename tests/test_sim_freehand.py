@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from vbfe.common.config import ConfigError
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.freehand import RELEASE, FreehandProtocol
 from vbfe.drivers.sim.mechanics import HOLD, PAPER_CONDITIONS, PULL, REST, TractionProtocol

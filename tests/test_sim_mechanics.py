@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.mechanics import (
     HOLD,
     PAPER_CONDITIONS,

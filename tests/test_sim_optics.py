@@ -8,8 +8,7 @@ import pytest
 
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.edge_width import edge_width_px
-from vbfe.common.config import ConfigError
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.sim import SimBench
 
 SPEC = BoardSpec(squares_x=10, squares_y=7, square_m=0.003, target="chessboard")

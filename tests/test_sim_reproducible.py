@@ -48,7 +48,7 @@ def _datasets(path) -> dict[str, bytes]:
     with h5py.File(path, "r") as f:
         for group in ("camera", "force"):
             f[group].visititems(
-                lambda name, obj: (
+                lambda name, obj, group=group: (
                     out.__setitem__(f"{group}/{name}", obj[()].tobytes())
                     if isinstance(obj, h5py.Dataset)
                     else None

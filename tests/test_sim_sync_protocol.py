@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import REST, TAP, TapProtocol
 

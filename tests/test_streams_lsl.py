@@ -9,8 +9,7 @@ import pylsl
 import pytest
 
 from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
-from vbfe.common.config import ConfigError
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.streams import StreamSource, stream_sources
 from vbfe.drivers.streams.lsl import LslStream
 from vbfe.drivers.streams.opening import missing_streams, streams_from_config

@@ -12,7 +12,6 @@ import numpy as np
 import pylsl
 import pytest
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.remote import (
     Command,
     RemoteControl,
@@ -21,8 +20,8 @@ from vbfe.acquire.recording.remote import (
     send_command,
     session_path,
 )
+from vbfe.common.errors import LiveError, SessionError
 from vbfe.drivers.samples import ForceSample
-from vbfe.live.errors import LiveError
 from vbfe.live.estimator import LiveEstimate
 from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
 

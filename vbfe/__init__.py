@@ -1,4 +1,5 @@
-"""vbfe: vision-based force estimation for soft-tissue interaction (structured light + stereo endoscope)."""
+"""vbfe: vision-based force estimation for soft-tissue interaction (structured light + stereo
+endoscope)."""
 
 from importlib.metadata import PackageNotFoundError, version
 

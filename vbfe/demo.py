@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from vbfe.common.config import load_config
+from vbfe.common.errors import TruthError
 from vbfe.drivers.sim.freehand import RELEASE
 from vbfe.drivers.sim.mechanics import HOLD, PULL
 
@@ -135,7 +136,18 @@ class DemoResult:
 
 
 def _quiet(stage: str, total: int) -> Callable[[int], None]:
-    return lambda n=1: None
+    def ignore(n: int = 1) -> None:
+        pass
+
+    return ignore
+
+
+def _truth(reader: Any, name: str) -> np.ndarray:
+    """A ground-truth array the simulated session stores (TruthError when it has none)."""
+    values = reader.truth(name)
+    if values is None:
+        raise TruthError(f"{reader.path} stores no true {name}; it is not a simulated session")
+    return values
 
 
 def demo_config(plan: DemoPlan) -> dict[str, dict[str, Any]]:
@@ -179,7 +191,7 @@ def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> 
         "cx": calibration.K1[0, 2],
         "cy": calibration.K1[1, 2],
         "B": calibration.B,
-        "projector_f": calibration.K_proj[0, 0],
+        "projector_f": float("nan") if calibration.K_proj is None else calibration.K_proj[0, 0],
     }
     truth = {
         "f": rig.left.K[0, 0],
@@ -225,7 +237,7 @@ def record_stage(
     sessions = []
     folder = out / "sessions"
     folder.mkdir(parents=True, exist_ok=True)
-    runs = [
+    runs: list[tuple[dict[str, Any], str, str]] = [
         (
             {"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": seed},
             f"k{k:g}_v{v:g}_r{r}",
@@ -282,13 +294,13 @@ def sync_stage(
     from vbfe.acquire.sync.protocol import ProtocolSettings
 
     settings = ProtocolSettings.from_config(config or {})  # the camera's exposure
-    rows = []
+    rows: list[dict[str, Any]] = []
     (out / "sync").mkdir(exist_ok=True)
     step = stage("verify sync", len(sessions))
     for path in sessions:
         report = verify_sync(path, plot_path=out / "sync" / f"{path.stem}.png", settings=settings)
         with SessionReader(path) as reader:
-            truth = reader.truth("image_minus_force_host_offset_ns")
+            truth = _truth(reader, "image_minus_force_host_offset_ns")
         true_s = float(np.median(truth)) / 1e9
         e = report.estimate
         rows.append(
@@ -362,9 +374,10 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     applied = verify_sync(path, limits, settings=settings, apply_correction=True)
     after = verify_sync(path, limits, settings=settings)
     with SessionReader(path) as reader:
-        true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+        true_s = float(np.median(_truth(reader, "image_minus_force_host_offset_ns"))) / 1e9
     bench = run_config["bench"]
     p = before.protocol
+    assert p is not None and p.offset is not None  # a sync protocol session with taps
     step(1)
     return {
         "offset_s": before.estimate.offset_s,
@@ -392,7 +405,7 @@ def reconstruct_stage(
 ) -> dict[str, Any]:
     """Point clouds for every session; a few frames per session scored against true depth."""
     from vbfe.acquire import SessionReader
-    from vbfe.calib import Calibration
+    from vbfe.calib.calibration import stored_calibration
     from vbfe.recon import CloudReader, Reconstructor, SgbmParams, reconstruct_session
     from vbfe.recon.quality import ReconSettings, summary_line
     from vbfe.truth import evaluate_against_truth, rectified_truth, session_bench
@@ -426,7 +439,7 @@ def reconstruct_stage(
     scores: dict[str, list[dict[str, float]]] = {"verified": [], "unverified": []}
     for path in sessions:
         with SessionReader(path) as reader:
-            calibration = Calibration.from_yaml_text(reader.calibration_yaml())
+            calibration = stored_calibration(reader.calibration_yaml(), path)
             bench = session_bench(reader)
             reconstructors = {
                 key: Reconstructor(calibration, params, verify=verify, settings=settings)
@@ -535,7 +548,9 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
         frames = report.frames[str(path)]
         with SessionReader(path) as reader:
             phase_at = dict(
-                zip(reader.frame_times_ns().tolist(), reader.truth("phase").tolist(), strict=False)
+                zip(
+                    reader.frame_times_ns().tolist(), _truth(reader, "phase").tolist(), strict=False
+                )
             )
         phases.append(np.array([phase_at[t] for t in frames["times_ns"].tolist()]))
         rows.append(frames)

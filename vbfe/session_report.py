@@ -48,8 +48,8 @@ def _figure(width: float = 10, height: float = 3.2) -> tuple[Figure, Any]:
 
 
 def _utc(t_ns: int) -> str:
-    when = datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc)
-    return f"{when:%Y-%m-%d %H:%M:%S} UTC"
+    moment = datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.timezone.utc)
+    return f"{moment:%Y-%m-%d %H:%M:%S} UTC"
 
 
 def _intervals(t_ns: np.ndarray) -> tuple[float, float, float]:
@@ -339,8 +339,8 @@ def _calibration(page: HtmlReport, r: SessionReader) -> None:
         )
         return
     from vbfe.calib.calibration import Calibration
-    from vbfe.calib.errors import CalibrationError
     from vbfe.calib.report import summary_rows
+    from vbfe.common.errors import CalibrationError
 
     try:
         page.table(["quantity", "value"], summary_rows(Calibration.from_yaml_text(text)))
@@ -353,8 +353,8 @@ def _reconstruction(page: HtmlReport, clouds_path: Path | None, t0: int) -> None
     if clouds_path is None or not clouds_path.is_file():
         page.paragraph("No clouds file: `vbfe reconstruct SESSION.h5` writes SESSION.clouds.h5.")
         return
+    from vbfe.common.errors import ReconError
     from vbfe.recon.clouds import CloudReader
-    from vbfe.recon.errors import ReconError
 
     try:
         with CloudReader(clouds_path) as clouds:

@@ -23,13 +23,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
-from vbfe.drivers.errors import DeviceError
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
+from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
@@ -40,6 +40,7 @@ _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the 
 _END_GRACE_S = 2.0  # how long a reader may go on after the stop to reach the acquisition's end
 _SAMPLE_QUEUE_FACTOR = 64  # streams other than the camera queue this many more (small) records
 
+L = TypeVar("L", bound=Listener)
 PatternSource = np.ndarray | Callable[[int, int], np.ndarray]
 
 
@@ -61,17 +62,17 @@ class AcquisitionStats:
     @property
     def frames(self) -> int:
         """Frames dispatched."""
-        return self.counts.get("camera", 0)
+        return self.counts.get(CAMERA, 0)
 
     @property
     def samples(self) -> int:
         """Force samples dispatched."""
-        return self.counts.get("force", 0)
+        return self.counts.get(FORCE, 0)
 
     @property
     def events(self) -> int:
         """Projector events dispatched."""
-        return self.counts.get("projector", 0)
+        return self.counts.get(PROJECTOR, 0)
 
     @property
     def write_rate_mb_s(self) -> float:
@@ -183,10 +184,17 @@ class Acquisition:
 
     ``with Acquisition(rig) as acq: acq.add(listener); acq.run(duration_s)`` or call
     :meth:`start` / :meth:`stop` yourself. :meth:`start` opens the rig and :meth:`stop` closes
-    it. When the rig has a projector, ``pattern`` (an image, or a function of the opened
-    projector's ``(width, height)`` that makes one) is shown at the start as ``pattern_name``.
-    ``on_demand``: the camera is read only when asked (:meth:`demand`, one frame each), for
-    consumers in lock-step with the projector (show, then the frames after it).
+    it.
+
+    :param rig: the devices to read (not opened yet).
+    :param pattern: shown on the projector at the start when the rig has one: an image, or a
+        function of the opened projector's ``(width, height)`` that makes one.
+    :param pattern_name: the name the pattern's projector event is recorded under.
+    :param queue_size: frames buffered per camera between its reader and the dispatch (other
+        streams get proportionally more); a full queue drops records, marked as gaps.
+    :param listeners: consumers of the records, in dispatch order (more with :meth:`add`).
+    :param on_demand: read the camera only when asked (:meth:`demand`, one frame each), for
+        consumers in lock-step with the projector (show, then the frames after it).
     """
 
     def __init__(
@@ -221,8 +229,13 @@ class Acquisition:
         self._end_host_ns: int | None = None  # first frame's host time + duration
         self._t_start = 0.0
 
-    def add(self, listener: Listener) -> Listener:
-        """Register ``listener`` (before :meth:`start`); returns it."""
+    def add(self, listener: L) -> L:
+        """Register a listener before :meth:`start`.
+
+        :param listener: the consumer to add after those already registered.
+        :returns: ``listener`` itself.
+        :raises SessionError: the acquisition has already started.
+        """
         if self._started:
             raise SessionError("add listeners before the acquisition starts")
         self.listeners.append(listener)
@@ -231,7 +244,12 @@ class Acquisition:
     # -- lifecycle ------------------------------------------------------------------------
     def start(self, duration_s: float | None = None) -> None:
         """Open the rig, show the pattern, start the listeners, the readers and the dispatch.
-        With ``duration_s``, keep that many seconds of frames (host clock), then end."""
+
+        :param duration_s: keep that many seconds of frames (host clock), then end; ``None``:
+            until :meth:`stop`.
+        :raises SessionError: ``duration_s`` is not positive.
+        :raises DeviceError: a device cannot be opened (those opened are closed again).
+        """
         if duration_s is not None:
             self._set_duration(duration_s)
         self.rig.open()
@@ -253,10 +271,10 @@ class Acquisition:
             raise
         streams = dict(self.rig.streams())
         self.paced = any(
-            d.describe().get("realtime") is False for s, d in streams.items() if s == "camera"
+            d.describe().get("realtime") is False for s, d in streams.items() if s == CAMERA
         )
         for stream, device in streams.items():
-            size = self._queue_size * (1 if stream == "camera" else _SAMPLE_QUEUE_FACTOR)
+            size = self._queue_size * (1 if stream == CAMERA else _SAMPLE_QUEUE_FACTOR)
             self._queues[stream] = queue.Queue(maxsize=size)
             self._pumps.append(
                 _Pump(
@@ -266,8 +284,8 @@ class Acquisition:
                     self._control,
                     self._halt,
                     self.paced,
-                    (lambda: None) if stream == "camera" else self._reached_end_ns,
-                    self._demand if stream == "camera" else None,
+                    (lambda: None) if stream == CAMERA else self._reached_end_ns,
+                    self._demand if stream == CAMERA else None,
                 )
             )
         self._dispatcher = threading.Thread(
@@ -304,9 +322,20 @@ class Acquisition:
         progress_interval_s: float = 0.5,
         on_tick: Callable[[Acquisition, AcquisitionStats], None] | None = None,
     ) -> AcquisitionStats:
-        """Run until ``duration_s`` of frames (host clock) are in, a device is gone, a listener
-        halts it, Ctrl-C or SIGTERM; then stop cleanly. Listeners' ``on_tick`` (and
-        ``on_tick``) are called every 50 ms. Returns the final statistics."""
+        """Run (starting first if needed) until ``duration_s`` of frames (host clock) are in, a
+        device is gone, a listener halts it, Ctrl-C or SIGTERM; then stop cleanly.
+
+        :param duration_s: seconds of frames to keep; ``None``: the duration given to
+            :meth:`start`, else until stopped.
+        :param on_progress: called with the statistics every ``progress_interval_s``.
+        :param progress_interval_s: seconds between ``on_progress`` calls.
+        :param on_tick: called every 50 ms with the acquisition and its statistics, after the
+            listeners' ``on_tick``.
+        :returns: the final statistics (its ``end_reason`` says why it ended).
+        :raises SessionError: ``duration_s`` is not positive, or a listener failed (see
+            :meth:`stop`).
+        :raises DeviceError: a device cannot be opened.
+        """
         if not self._started:
             self.start()
         last_progress = 0.0
@@ -375,8 +404,14 @@ class Acquisition:
         self._halt.set()
 
     def stop(self, reason: str | None = None) -> AcquisitionStats:
-        """Stop reading, dispatch what is queued, close the rig, then every listener's
-        ``on_stop``; raise the first failure (of an ``on_stop``, else of a record hook)."""
+        """Stop reading, dispatch what is queued, close the rig, then call every listener's
+        ``on_stop`` (idempotent).
+
+        :param reason: the end reason recorded when no end condition gave one.
+        :returns: the final statistics.
+        :raises Exception: the first failure of a listener (of an ``on_stop``, else of a record
+            hook), once every listener has been stopped.
+        """
         if self._stopped:
             return self.stats
         self._stopped = True
@@ -455,7 +490,7 @@ class Acquisition:
         s.elapsed_s = (self._frame_t_host[1] - self._frame_t_host[0]) / 1e9
         s.first_frame_host_ns = self._frame_t_host[0]
         s.newest_read_host_ns = max(
-            (p.last_t_host_ns for p in self._pumps if p.stream == "camera"), default=0
+            (p.last_t_host_ns for p in self._pumps if p.stream == CAMERA), default=0
         )
         devices = dict(self.rig.streams())
         s.queue_dropped = {p.stream: p.dropped for p in self._pumps}
@@ -463,17 +498,17 @@ class Acquisition:
         return s
 
     def _dispatch_loop(self) -> None:
-        others = [s for s in self._queues if s != "camera"]
+        others = [s for s in self._queues if s != CAMERA]
         counts = self.stats.counts
-        for stream in [*self._queues, "projector"]:
+        for stream in [*self._queues, PROJECTOR]:
             counts.setdefault(stream, 0)
         try:
             while True:
                 pumps_done = self._halt.is_set() and not any(p.is_alive() for p in self._pumps)
                 batches = {}
-                if "camera" in self._queues:
-                    batches["camera"] = self._within_duration(
-                        _drain(self._queues["camera"], _FRAME_BATCH, 0.0 if pumps_done else 0.02)
+                if CAMERA in self._queues:
+                    batches[CAMERA] = self._within_duration(
+                        _drain(self._queues[CAMERA], _FRAME_BATCH, 0.0 if pumps_done else 0.02)
                     )
                 elif not pumps_done:
                     time.sleep(0.02)
@@ -493,9 +528,9 @@ class Acquisition:
                         if isinstance(message, Gap):
                             listener.on_gap(message)
                         else:
-                            listener.on_records("projector", [message])
+                            listener.on_records(PROJECTOR, [message])
                     if not isinstance(message, Gap):
-                        counts["projector"] += 1
+                        counts[PROJECTOR] += 1
                 for listener in self.listeners:
                     listener.on_round()
                 if pumps_done and not (control or any(batches.values())):

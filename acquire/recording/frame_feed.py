@@ -11,8 +11,8 @@ from collections.abc import Iterator, Sequence
 
 from vbfe.acquire.recording.acquisition import Acquisition
 from vbfe.acquire.recording.listener import Listener
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import first_frame_after
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import StereoFrame
 
@@ -26,7 +26,7 @@ class FrameFeed(Listener):
 
     def __init__(self, size: int = 1) -> None:
         self._frames: queue.Queue[StereoFrame] = queue.Queue(maxsize=size)
-        self._acquisition: Acquisition | None = None
+        self._acquisition: Acquisition  # from on_start, before any frame
 
     def on_start(self, acquisition: Acquisition) -> None:
         self._acquisition = acquisition

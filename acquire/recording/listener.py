@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 if TYPE_CHECKING:
@@ -31,21 +32,30 @@ class Listener:
     ``start``, ``run`` and ``stop``); the record hooks run in the acquisition's dispatch thread,
     in the order listeners were added, one batch at a time, and must be quick (hand heavy work
     to a thread of your own, as the live estimator's mailbox does). An exception in a record
-    hook stops the acquisition; ``stop`` raises it after every listener's ``on_stop``.
+    hook stops the acquisition; ``stop`` raises it after every listener's ``on_stop``. A
+    listener that cannot go on (e.g. a full disk) calls ``acquisition.halt(reason)``.
     """
 
     def on_start(self, acquisition: Acquisition) -> None:
-        """The rig is open and about to be read."""
+        """The rig is open and about to be read.
+
+        :param acquisition: the acquisition this listener was added to.
+        :raises Exception: any failure aborts the start (the rig is closed again).
+        """
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
         """A batch of one stream, in arrival order. Here: ``camera`` → :meth:`on_frames`,
         ``force`` → :meth:`on_samples`, ``projector`` → :meth:`on_events`; override (and call
-        ``super()``) for the streams of further device kinds."""
-        if stream == "camera":
+        ``super()``) for the streams of further device kinds.
+
+        :param stream: the stream's name (a session layout stream or a ``[streams]`` key).
+        :param records: the stream's records (frames, samples, events or stream samples).
+        """
+        if stream == CAMERA:
             self.on_frames(records)
-        elif stream == "force":
+        elif stream == FORCE:
             self.on_samples(records)
-        elif stream == "projector":
+        elif stream == PROJECTOR:
             self.on_events(records)
 
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:
@@ -68,5 +78,11 @@ class Listener:
         patterns with ``acquisition.show``)."""
 
     def on_stop(self, acquisition: Acquisition) -> None:
-        """Reading has ended and every record was dispatched; ``acquisition.stats.end_reason``
-        says why and ``acquisition.error`` holds a failure of a record hook, if any."""
+        """Reading has ended and every record was dispatched.
+
+        :param acquisition: the acquisition; ``acquisition.stats.end_reason`` says why it ended
+            and ``acquisition.error`` holds a failure of a record hook, if any.
+        :raises Exception: raised again by :meth:`Acquisition.stop` once every listener has
+            stopped (e.g. a :class:`~vbfe.common.errors.SessionError` when the session could
+            not be finalized).
+        """

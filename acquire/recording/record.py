@@ -6,7 +6,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.listener import Listener
@@ -15,7 +14,7 @@ from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions

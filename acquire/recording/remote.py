@@ -29,10 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.record import check_camera_size, session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import SessionError, VbfeError
 from vbfe.drivers.registry import open_rig
 
 DEFAULT_PORT = 22345  # LabRecorder's RCSPort
@@ -176,15 +175,14 @@ class RemoteSessions:
     ) -> None:
         self._begin, self._overwrite, self._say = begin, overwrite, on_message
         self._options: dict[str, str] = {}
-        self._recording: Recording | None = None
+        self._active: tuple[Recording, Path] | None = None  # the recording and its file
         self._lock = threading.Lock()
         self.finished: list[Path] = []
-        self._path: Path | None = None
 
     @property
     def recording(self) -> bool:
         """Whether a recording is running."""
-        return self._recording is not None
+        return self._active is not None
 
     def handle(self, command: Command, t_host_ns: int) -> None:
         """Carry out one command; SessionError says why it cannot be."""
@@ -195,21 +193,21 @@ class RemoteSessions:
             elif command.verb == "start":
                 self._start()
             elif command.verb == "stop":
-                if self._recording is None:
+                if self._active is None:
                     raise SessionError("stop: nothing is being recorded")
-                recording, self._recording = self._recording, None
+                (recording, path), self._active = self._active, None
                 self._say(f"remote: {recording.stop()}")
-                self.finished.append(self._path)
+                self.finished.append(path)
             elif command.verb == "mark":
-                if self._recording is None:
+                if self._active is None:
                     raise SessionError("mark: nothing is being recorded")
-                self._recording.mark(command.argument, t_host_ns)
+                self._active[0].mark(command.argument, t_host_ns)
             elif command.verb == "select" and command.argument == "none":
                 raise SessionError("select none: vbfe records the rig and every [streams] entry")
 
     def _start(self) -> None:
-        if self._recording is not None:
-            raise SessionError(f"start: already recording {self._path}; send stop first")
+        if self._active is not None:
+            raise SessionError(f"start: already recording {self._active[1]}; send stop first")
         if not self._options:
             raise SessionError("start: send filename {root:…} {template:…} first")
         path = session_path(self._options)
@@ -218,16 +216,16 @@ class RemoteSessions:
                 f"start: {path} already exists; send a new filename (e.g. the next {{run:N}})"
             )
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._recording, self._path = self._begin(path), path
+        self._active = self._begin(path), path
         self._say(f"remote: recording {path}")
 
     def close(self, reason: str = "stopped by operator") -> None:
         """Stop a recording still running (the server is going away)."""
         with self._lock:
-            if self._recording is not None:
-                recording, self._recording = self._recording, None
+            if self._active is not None:
+                (recording, path), self._active = self._active, None
                 self._say(f"remote: {recording.stop(reason)}")
-                self.finished.append(self._path)
+                self.finished.append(path)
 
 
 class RemoteControl:

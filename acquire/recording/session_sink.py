@@ -24,12 +24,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
-from vbfe.acquire.session.layout import STREAMS, StreamSpec
+from vbfe.acquire.session.layout import CAMERA, STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
+from vbfe.common.errors import SessionError
 from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:
@@ -112,8 +112,8 @@ class SessionSink(Listener):
         self.min_free_bytes = min_free_bytes
         self.on_flush = on_flush
         self.streams = tuple(streams)
-        self._acquisition: Acquisition | None = None
-        self._writer: SessionWriter | None = None
+        self._acquisition: Acquisition  # from on_start, before any record
+        self._writer: SessionWriter  # from on_start
         self._error: BaseException | None = None
         self._fault: str | None = None  # a reason to stop, reported after finalizing
         self._flush_cost_s = 0.0  # longest recent flush
@@ -163,7 +163,7 @@ class SessionSink(Listener):
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
         with self._writing():
-            if stream == "camera":
+            if stream == CAMERA:
                 self._frame_t_device.extend(fr.t_device_ns for fr in records)
             self._writer.append(stream, records)
 

@@ -13,7 +13,8 @@ from vbfe.common.settings import parse_table, setting
 class RecordSettings:
     """The ``[record]`` table (see vbfe/default_rig.toml for what each key means)."""
 
-    compression: Literal[COMPRESSIONS] = "lzf"
+    # a Literal of a tuple's values: the settings parser reads them; mypy cannot
+    compression: Literal[COMPRESSIONS] = "lzf"  # type: ignore[valid-type]
     flush_interval_s: float = setting(1.0, gt=0)
     queue_size: int = setting(64, ge=1)
     min_free_gb: float = setting(1.0, ge=0)

@@ -7,7 +7,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from vbfe.acquire.errors import SessionError
+from vbfe.common.errors import SessionError
 
 
 def free_bytes(directory: str | Path) -> int:

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.listener import Listener
+from vbfe.common.errors import SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import RigOptions, TapScript
 from vbfe.drivers.samples import ForceSample
@@ -154,7 +154,9 @@ class SyncProtocol(Listener):
         if self._last_flash_ns is not None and now_ns < self._last_flash_ns + MIN_FLASH_GAP_S * 1e9:
             return
         if self._patterns is None:
-            self._patterns = (acquisition.pattern, dim(acquisition.pattern))
+            pattern = acquisition.pattern
+            assert isinstance(pattern, np.ndarray)  # made from a function by start()
+            self._patterns = (pattern, dim(pattern))
         self.shown += 1
         event = acquisition.show(
             self._patterns[self.shown % 2], DIM_NAME if self.shown % 2 else PATTERN_NAME

@@ -17,7 +17,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
+from vbfe.common.errors import SessionError
 
 GROUP = "estimate"
 

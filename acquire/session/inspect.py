@@ -13,6 +13,7 @@ from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.clock import ClockFit
 from vbfe.acquire.session.estimates import EstimateStream
 from vbfe.acquire.session.extra_streams import RecordedStream, stream_accounting
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.acquire.session.reader import SessionReader
 
 
@@ -84,9 +85,9 @@ class SessionSummary:
             f"duration  {self.duration_s:.3f} s",
         ]
         w, h = self.frame_size
-        for stream, unit in (("camera", "frames"), ("force", "samples")):
+        for stream, unit in ((CAMERA, "frames"), (FORCE, "samples")):
             au = self.audits[stream]
-            extra = f" {w}x{h}" if stream == "camera" else ""
+            extra = f" {w}x{h}" if stream == CAMERA else ""
             queue = a.get(f"{stream}_queue_dropped")
             at_end = sum(
                 g["count"] for g in self.gaps if g["stream"] == stream and g["next_seq"] < 0
@@ -100,7 +101,7 @@ class SessionSummary:
             )
         lines.append(f"projector {len(self.patterns)} events: {', '.join(self.patterns) or '-'}")
         for stream, fit in self.clocks.items():
-            if stream != "projector":
+            if stream != PROJECTOR:
                 lines.append(
                     f"clock     {stream}: host - device offset {fit.offset_ns / 1e9:.6f} s,"
                     f" drift {fit.drift_ppm:+.1f} ± {fit.drift_uncertainty_ppm:.1f} ppm,"
@@ -113,7 +114,7 @@ class SessionSummary:
                 f"gap       {gap['stream']}: {gap['reason']} after seq {gap['last_seq']}"
                 f" until {after} ({gap['count']} lost)"
             )
-        for stream in ("camera", "force"):
+        for stream in (CAMERA, FORCE):
             for last, nxt in self.audits[stream].gaps[:10]:
                 lines.append(f"gap       {stream}: sequence jumps {last} -> {nxt}")
         lines += [self._stream_line(s) for s in self.streams]
@@ -150,15 +151,13 @@ class SessionSummary:
 def inspect_session(path: str | Path) -> SessionSummary:
     """Summarize a session; raises SessionError when it is not a readable session."""
     with SessionReader(path) as s:
-        audits = {
-            stream: audit_sequence(s.stream_times(stream)[2]) for stream in ("camera", "force")
-        }
+        audits = {stream: audit_sequence(s.stream_times(stream)[2]) for stream in (CAMERA, FORCE)}
         frame_t = s.frame_times_ns()
         force_t = s.force_times_ns()
         spans = [t[-1] - t[0] for t in (frame_t, force_t) if len(t) > 1]
         rates = {
             name: (len(t) - 1) / ((t[-1] - t[0]) / 1e9) if len(t) > 1 and t[-1] > t[0] else 0.0
-            for name, t in (("camera", frame_t), ("force", force_t))
+            for name, t in ((CAMERA, frame_t), (FORCE, force_t))
         }
         return SessionSummary(
             path=Path(path),
@@ -170,7 +169,7 @@ def inspect_session(path: str | Path) -> SessionSummary:
             frame_size=s.frame_size,
             audits=audits,
             rates_hz=rates,
-            clocks={stream: s.clock_fit(stream) for stream in ("camera", "force", "projector")},
+            clocks={stream: s.clock_fit(stream) for stream in (CAMERA, FORCE, PROJECTOR)},
             gaps=s.gaps(),
             patterns=[e.pattern for e in s.projector_events()],
             has_calibration=s.calibration_yaml() is not None,

@@ -22,11 +22,11 @@ import h5py
 import hdf5plugin
 import numpy as np
 
-FORMAT_NAME = "vbfe-session"
 SCHEMA_VERSION = 2  # 2: optional /estimate stream (vbfe live --record)
 
 COMPRESSIONS = ("none", "lzf", "blosc-lz4", "mjpeg")
-STREAMS = ("camera", "force", "projector")  # the core streams (also their HDF5 groups)
+CAMERA, FORCE, PROJECTOR = "camera", "force", "projector"  # the core streams' names
+STREAMS = (CAMERA, FORCE, PROJECTOR)  # the core streams (also their HDF5 groups)
 TIME_COLUMNS = ("t_device_ns", "t_host_ns", "seq")
 GAP_REASONS = ("queue full", "device disconnected", "device error", "bus state change")
 GAP_COLUMNS = ("stream", "reason", "last_seq", "next_seq", "t_host_ns", "count")
@@ -149,20 +149,20 @@ def core_streams(
             )
             for eye in ("left", "right")
         )
-        blobs = ("left_jpeg", "right_jpeg")
+        blobs: tuple[str, ...] = ("left_jpeg", "right_jpeg")
     else:
         images = tuple(
             Column(eye, np.uint8, (height, width, 3), chunk=1, image=True)
             for eye in ("left", "right")
         )
         blobs = ()
-    camera = StreamSpec("camera", images, chunk=256, blobs=blobs)
+    camera = StreamSpec(CAMERA, images, chunk=256, blobs=blobs)
     force = StreamSpec(
-        "force",
+        FORCE,
         (Column("force_n", np.float64, (len(force_axes),), "N", (("axes", list(force_axes)),)),),
     )
     projector = StreamSpec(
-        "projector",
+        PROJECTOR,
         (
             Column("pattern", PATTERN_NAME_DTYPE, value=lambda e: e.pattern.encode()[:64]),
             Column("frame_id", np.int64),
@@ -182,7 +182,7 @@ def extra_streams(attrs: Any) -> tuple[StreamSpec, ...]:
 
 def session_streams(f: h5py.File) -> tuple[StreamSpec, ...]:
     """Every stream of an open session file, from its camera group and declarations."""
-    camera = f["camera"]
+    camera = f[CAMERA]
     size = (int(camera.attrs.get("width", 0)), int(camera.attrs.get("height", 0)))
     force = f.get("force/force_n")
     axes = (

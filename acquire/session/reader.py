@@ -21,23 +21,25 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.clock import ClockFit, fit_clock
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.acquire.session.layout import (
-    FORMAT_NAME,
+    CAMERA,
+    FORCE,
     GAP_COLUMNS,
     GAP_REASONS,
+    PROJECTOR,
     SCHEMA_VERSION,
     STREAMS,
     TIME_COLUMNS,
     StreamSpec,
     session_streams,
 )
-from vbfe.common.files import is_hdf5
+from vbfe.common.errors import SessionError
+from vbfe.common.files import SESSION_FORMAT, is_hdf5
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 
 FRAME_CORRECTION_ATTR = "frame_time_correction_ns"  # in /analysis, subtracted from frame times
@@ -157,10 +159,11 @@ def read_failure_reason(exc: BaseException) -> str:
 
 def check_session(f: h5py.File, path: Path) -> None:
     """Refuse a file that is not a vbfe session or is of a newer schema (closing it)."""
-    if f.attrs.get("format") != FORMAT_NAME:
+    if f.attrs.get("format") != SESSION_FORMAT:
         f.close()
         raise SessionError(
-            f"{path} is an HDF5 file but not a vbfe session (no format={FORMAT_NAME!r} attribute)"
+            f"{path} is an HDF5 file but not a vbfe session "
+            f"(no format={SESSION_FORMAT!r} attribute)"
         )
     version = int(f.attrs.get("schema_version", -1))
     if version > SCHEMA_VERSION:
@@ -178,7 +181,7 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
     """Check the datasets and attributes a reader needs, as the layout table says; returns the
     image encoding and the file's streams."""
     damaged = "the session file is damaged; record it again or restore a copy"
-    camera = f.get("camera")
+    camera = f.get(CAMERA)
     if not isinstance(camera, h5py.Group):
         raise SessionError(f"{path} has no 'camera' group: {damaged}")
     for attr in ("width", "height"):
@@ -225,7 +228,16 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
 
 
 class SessionReader:
-    """Read-only access to a recorded session (frames, forces, events, clock fits, metadata)."""
+    """Read-only access to a recorded session (frames, forces, events, clock fits, metadata).
+
+    Use it as a context manager (``with SessionReader(path) as reader:``) or call
+    :meth:`close`. A session still being written (SWMR) or cut short by a crash is read up to
+    its last complete records (``complete`` and ``closed_cleanly`` say which).
+
+    :param path: the session file (HDF5, written by :class:`SessionWriter`).
+    :raises SessionError: the file is missing, not a vbfe session, of an unknown schema
+        version, or too damaged to read (the message names the file).
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -249,7 +261,7 @@ class SessionReader:
         self.encoding, streams = _check_layout(f, self.path)
         self.streams = {spec.name: spec for spec in streams}
         self.metadata  # noqa: B018 - fails here, naming the file, when the JSON is damaged
-        cam = f["camera"]
+        cam = f[CAMERA]
         self._lengths = {
             spec.name: min(
                 [consistent_rows(f[spec.name])]
@@ -313,12 +325,12 @@ class SessionReader:
     @property
     def n_frames(self) -> int:
         """Number of complete stereo frames."""
-        return self._lengths["camera"]
+        return self._lengths[CAMERA]
 
     @property
     def frame_size(self) -> tuple[int, int]:
         """``(width, height)`` of one eye."""
-        cam = self._file["camera"]
+        cam = self._file[CAMERA]
         return int(cam.attrs["width"]), int(cam.attrs["height"])
 
     def _image(self, eye: str, i: int) -> np.ndarray:
@@ -354,11 +366,16 @@ class SessionReader:
         return blobs[0], blobs[1]
 
     def frame(self, i: int) -> StereoFrame:
-        """Frame ``i`` with its recorded device and host timestamps (not clock-corrected)."""
+        """One stereo frame with its recorded device and host timestamps (not clock-corrected).
+
+        :param i: the frame's index (negative counts from the end).
+        :returns: the frame, its images decoded (BGR).
+        :raises IndexError: ``i`` is out of range.
+        """
         if not -self.n_frames <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range: {self.path} has {self.n_frames} frames")
         i %= self.n_frames
-        t_dev, t_host, seq = self.stream_times("camera")
+        t_dev, t_host, seq = self.stream_times(CAMERA)
         return StereoFrame(
             left=self._image("left", i),
             right=self._image("right", i),
@@ -379,7 +396,8 @@ class SessionReader:
         or an extra stream)."""
         if stream not in self._times:
             n = self.stream_length(stream)
-            self._times[stream] = tuple(self._read(f"{stream}/{k}", n) for k in TIME_COLUMNS)
+            t_device, t_host, seq = (self._read(f"{stream}/{k}", n) for k in TIME_COLUMNS)
+            self._times[stream] = (t_device, t_host, seq)
         return self._times[stream]
 
     def stream_length(self, stream: str) -> int:
@@ -414,17 +432,17 @@ class SessionReader:
     # -- synchronized times and force -----------------------------------------------------
     def frame_times_ns(self) -> np.ndarray:
         """Per-frame capture time on the host clock (clock fit, minus any stored correction)."""
-        t_dev = self.stream_times("camera")[0]
+        t_dev = self.stream_times(CAMERA)[0]
         correction = int(self.analysis().get(FRAME_CORRECTION_ATTR, 0))
-        return self.clock_fit("camera").to_host(t_dev) - correction
+        return self.clock_fit(CAMERA).to_host(t_dev) - correction
 
     def force_times_ns(self) -> np.ndarray:
         """Per-sample force time on the host clock (after the clock fit)."""
-        return self.clock_fit("force").to_host(self.stream_times("force")[0])
+        return self.clock_fit(FORCE).to_host(self.stream_times(FORCE)[0])
 
     def forces_n(self) -> np.ndarray:
         """All force samples, ``(n, 3)`` newtons."""
-        return self._read("force/force_n", self._lengths["force"])
+        return self._read("force/force_n", self._lengths[FORCE])
 
     @property
     def force_axes(self) -> list[str]:
@@ -432,10 +450,11 @@ class SessionReader:
         return [str(a) for a in self._file["force/force_n"].attrs.get("axes", ["x", "y", "z"])]
 
     def force_at_frames(self, max_gap_s: float = 0.05) -> np.ndarray:
-        """Force (``(n_frames, 3)`` N) interpolated at each frame's synchronized time.
+        """The force interpolated at each frame's synchronized time.
 
-        Frames outside the force record, or inside a force gap longer than ``max_gap_s``,
-        get NaN rather than an invented value.
+        :param max_gap_s: frames inside a force gap longer than this get NaN rather than an
+            invented value (as do frames outside the force record).
+        :returns: ``(n_frames, 3)`` newtons.
         """
         return resample_at(
             self.frame_times_ns(), self.force_times_ns(), self.forces_n(), max_gap_s * 1e9
@@ -447,8 +466,12 @@ class SessionReader:
         return [name for name in self.streams if name not in STREAMS and name != MARKS]
 
     def stream(self, name: str) -> RecordedStream:
-        """An extra stream (e.g. ``"robot"``): values or marker text, host and publisher times,
-        channel names and units, the time corrections measured while recording."""
+        """An extra stream: values or marker text, host and publisher times, channel names and
+        units, the time corrections measured while recording.
+
+        :param name: the stream's name (e.g. ``"robot"``, a ``[streams]`` key).
+        :raises SessionError: the session has no such stream.
+        """
         if name not in self.stream_names():
             raise SessionError(
                 f"{self.path} has no stream {name!r}; it has "
@@ -481,7 +504,7 @@ class SessionReader:
         interpolated; NaN outside the stream or inside a gap longer than ``max_gap_s`` (default:
         five sample periods of its nominal rate, else 50 ms)."""
         stream = self.stream(name)
-        if stream.markers:
+        if stream.values is None:
             raise SessionError(
                 f"stream {name} of {self.path} holds event markers, not values; "
                 "read them with events()"
@@ -515,8 +538,8 @@ class SessionReader:
     # -- events, gaps, metadata ---------------------------------------------------------
     def projector_events(self) -> list[ProjectorEvent]:
         """Projector events in recording order."""
-        n = self._lengths["projector"]
-        t_dev, t_host, seq = self.stream_times("projector")
+        n = self._lengths[PROJECTOR]
+        t_dev, t_host, seq = self.stream_times(PROJECTOR)
         names = self._read("projector/pattern", n)
         ids = self._read("projector/frame_id", n)
         return [
@@ -536,7 +559,7 @@ class SessionReader:
         streams = [text(v) for v in self._file["gaps"].attrs.get("streams", STREAMS)]
         out = []
         for row in rows:
-            gap = dict(zip(GAP_COLUMNS, (int(v) for v in row), strict=False))
+            gap: dict[str, Any] = dict(zip(GAP_COLUMNS, (int(v) for v in row), strict=False))
             gap["stream"] = streams[gap["stream"]]
             gap["reason"] = GAP_REASONS[gap["reason"]]
             out.append(gap)

@@ -8,11 +8,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
-from vbfe.acquire.session.layout import FORMAT_NAME, session_streams
+from vbfe.acquire.session.layout import session_streams
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
 from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
-from vbfe.common.files import commit, partial_path, require_free_space
+from vbfe.common.errors import SessionError
+from vbfe.common.files import SESSION_FORMAT, commit, partial_path, require_free_space
 
 
 def _trim(group: h5py.Group, keys: Sequence[str], n: int) -> int:
@@ -68,7 +68,7 @@ def recover_session(
     tmp = partial_path(out_path)
     try:
         with src, h5py.File(tmp, "w", libver="latest") as dst:
-            if src.attrs.get("format") != FORMAT_NAME:
+            if src.attrs.get("format") != SESSION_FORMAT:
                 raise SessionError(f"{path} is not a vbfe session; nothing to recover")
             dst.attrs.update(dict(src.attrs))
             for name in src:

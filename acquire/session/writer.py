@@ -27,15 +27,16 @@ import h5py
 import numpy as np
 
 import vbfe
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
+    CAMERA,
     COMPRESSIONS,
     EXTRA_STREAMS_ATTR,
-    FORMAT_NAME,
+    FORCE,
     GAP_COLUMNS,
     GAP_REASONS,
     JPEG_QUALITY,
+    PROJECTOR,
     SCHEMA_VERSION,
     TIME_COLUMNS,
     StreamSpec,
@@ -44,7 +45,8 @@ from vbfe.acquire.session.layout import (
     session_streams,
 )
 from vbfe.acquire.session.reader import consistent_rows
-from vbfe.common.files import WriterLock
+from vbfe.common.errors import SessionError
+from vbfe.common.files import SESSION_FORMAT, WriterLock
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _JPEG_CHUNK = 1 << 20
@@ -104,7 +106,24 @@ def _encode_jpeg(image: np.ndarray) -> bytes:
 
 class SessionWriter:
     """Writes one session file: the core streams and ``extra_streams``; call the ``append*``
-    methods from a single thread."""
+    methods from a single thread, :meth:`flush` now and then, and :meth:`close` at the end
+    (then :func:`finalize_session` marks the file complete). The file is in SWMR mode once
+    created, so readers may open it while it is written.
+
+    :param path: the session file to create (an existing one is replaced: callers check
+        :func:`vbfe.common.files.check_outputs` first).
+    :param frame_size: ``(width, height)`` of one eye's images.
+    :param compression: how images are stored: one of ``COMPRESSIONS`` of the session layout
+        (``"mjpeg"`` keeps JPEG bytes, the others compress raw pixels).
+    :param metadata: JSON-able facts about the recording (operator, notes, protocol, ...).
+    :param calibration_yaml: the stereo calibration to store with the session (OpenCV YAML).
+    :param force_axes: names of the force columns.
+    :param flush_interval_s: the recorder's flush interval, stored for readers.
+    :param extra_streams: specs of further streams (e.g. LSL streams, event marks).
+    :raises SessionError: an unknown compression, stream names that clash, or a file that
+        cannot be created.
+    :raises OutputError: another process is writing the same file.
+    """
 
     def __init__(
         self,
@@ -148,7 +167,7 @@ class SessionWriter:
         f = self._file
         f.attrs.update(
             {
-                "format": FORMAT_NAME,
+                "format": SESSION_FORMAT,
                 "schema_version": SCHEMA_VERSION,
                 "software_version": vbfe.__version__,
                 "compression": compression,
@@ -168,7 +187,7 @@ class SessionWriter:
         self._data: dict[str, dict[str, h5py.Dataset]] = {}
         for spec in specs:
             self._data[spec.name] = self._create(f.create_group(spec.name), spec)
-        f["camera"].attrs.update(
+        f[CAMERA].attrs.update(
             {"width": frame_size[0], "height": frame_size[1], "encoding": encoding, "color": "BGR"}
         )
         self._gaps = _series(f, "gaps", np.int64, (len(GAP_COLUMNS),), 64)
@@ -207,8 +226,15 @@ class SessionWriter:
         return data
 
     def append(self, stream: str, records: Sequence[Any]) -> None:
-        """Append records of ``stream`` (data first, timestamps last, so a reader never sees a
-        timestamp whose data is missing)."""
+        """Append records of a stream (data first, timestamps last, so a reader never sees a
+        timestamp whose data is missing).
+
+        :param stream: the stream's name.
+        :param records: its records (with ``t_device_ns``, ``t_host_ns``, ``seq`` and the
+            stream's columns as attributes).
+        :raises SessionError: the writer has no such stream.
+        :raises OSError: the file cannot be written (e.g. the disk is full).
+        """
         if not records:
             return
         spec = self.streams.get(stream)
@@ -217,7 +243,7 @@ class SessionWriter:
                 f"{self.path} has no stream {stream!r} (streams: "
                 f"{list(self.streams)}); give its spec to the writer"
             )
-        if stream == "camera":
+        if stream == CAMERA:
             self._append_images(records)
         else:
             data = self._data[stream]
@@ -233,7 +259,7 @@ class SessionWriter:
         self.counts[stream] += len(records)
 
     def _append_images(self, frames: Sequence[StereoFrame]) -> None:
-        data = self._data["camera"]
+        data = self._data[CAMERA]
         if self.compression == "mjpeg":
             for i, eye in enumerate(("left", "right")):
                 blobs = [
@@ -264,15 +290,15 @@ class SessionWriter:
 
     def append_frames(self, frames: Sequence[StereoFrame]) -> None:
         """Append stereo frames."""
-        self.append("camera", frames)
+        self.append(CAMERA, frames)
 
     def append_forces(self, samples: Sequence[ForceSample]) -> None:
         """Append force samples."""
-        self.append("force", samples)
+        self.append(FORCE, samples)
 
     def append_events(self, events: Sequence[ProjectorEvent]) -> None:
         """Append projector events (pattern shown, frame ID)."""
-        self.append("projector", events)
+        self.append(PROJECTOR, events)
 
     def add_gap(
         self, stream: str, reason: str, last_seq: int, next_seq: int, t_host_ns: int, count: int
@@ -296,9 +322,13 @@ class SessionWriter:
         )
 
     def flush(self, clock_pair: tuple[int, int] | None = None) -> dict[str, int]:
-        """Make everything appended so far durable and visible to readers; returns the counts.
-        The (UTC, host) clock pair stored is now's, or ``clock_pair`` for data whose host
-        clock is not this machine's (an imported recording)."""
+        """Make everything appended so far durable and visible to readers.
+
+        :param clock_pair: the (UTC, host) clock pair to store; ``None``: now's (give one for
+            data whose host clock is not this machine's, e.g. an imported recording).
+        :returns: the records written per stream.
+        :raises OSError: the file cannot be written.
+        """
         pair = clock_pair if clock_pair is not None else (time.time_ns(), time.monotonic_ns())
         _append(self._wall, np.array([pair], dtype=np.int64))
         self._file.flush()

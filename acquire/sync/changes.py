@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.corners import OffsetEstimate, _vertex, grey_left_frames
+from vbfe.common.errors import SessionError
 
 _MOTION_WIDTH = 160  # frames are downscaled to this width before differencing
 _EVENT_FRACTION = 0.25  # a segment is an event when its force change is this share of the most
@@ -52,7 +52,9 @@ def _event_bounds(change: np.ndarray, grid_s: float, segment_s: float) -> np.nda
         distance=max(1, int(_EVENT_SPACING_S / grid_s)),
     )
     if len(peaks) >= _MIN_EVENTS:
-        cuts = [a + int(np.argmin(change[a:b])) for a, b in zip(peaks[:-1], peaks[1:], strict=False)]
+        cuts = [
+            a + int(np.argmin(change[a:b])) for a, b in zip(peaks[:-1], peaks[1:], strict=False)
+        ]
         return np.array([0, *cuts, len(change)])
     n_seg = max(2, int(len(change) * grid_s / segment_s))
     return np.linspace(0, len(change), n_seg + 1).astype(int)

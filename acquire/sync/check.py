@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.settings import record_settings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
+from vbfe.acquire.session.layout import CAMERA, FORCE
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.changes import change_offset, motion_energy
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
@@ -37,6 +37,7 @@ from vbfe.acquire.sync.protocol import (
 from vbfe.acquire.sync.streams import stream_offset
 from vbfe.acquire.sync.viscoelastic import METHOD as MODEL_METHOD
 from vbfe.acquire.sync.viscoelastic import model_applies, model_offset
+from vbfe.common.errors import SessionError
 from vbfe.common.files import save_figure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
@@ -154,8 +155,8 @@ class SyncReport:
             "sync_protocol": "sync" if self.protocol is not None else "traction",
             "sync_reasons": json.dumps(self.reasons),
             "sync_drift_ppm": json.dumps(self.drift_ppm),
-            "sync_frame_drop_fraction": self.audits["camera"].drop_fraction,
-            "sync_force_drop_fraction": self.audits["force"].drop_fraction,
+            "sync_frame_drop_fraction": self.audits[CAMERA].drop_fraction,
+            "sync_force_drop_fraction": self.audits[FORCE].drop_fraction,
             "sync_limits": json.dumps(self.limits.__dict__),
             FRAME_CORRECTION_ATTR: int(round(self.correction_s * 1e9)),
             "sync_stream_offsets_s": json.dumps(
@@ -181,7 +182,7 @@ def _protocol_lines(p: ProtocolResult) -> list[str]:
         f"taps       {p.taps_found} found"
         + (f", offset {_interval(p.offset)})" if p.offset else ", none measurable")
     ]
-    if p.flash_latency is not None:
+    if p.flash_latency is not None and p.camera_latency_s is not None:
         lines.append(
             f"flashes    {p.flashes_seen} of {p.flashes_shown} seen, flash latency "
             f"{_interval(p.flash_latency)}); camera latency "
@@ -332,7 +333,8 @@ def _verdict(
     its whole 95% interval lies within the limit and fails only when it lies beyond it."""
     half_ci = (estimate.ci95_s[1] - estimate.ci95_s[0]) / 2
     low, high = (c - (estimate.offset_s - residual) for c in estimate.ci95_s)
-    failures, doubts = [], []
+    failures: list[str] = []
+    doubts: list[str] = []
     if abs(residual) > limits.max_offset_s:
         text = f"offset {1e3 * residual:+.2f} ms exceeds ±{1e3 * limits.max_offset_s:g} ms"
         definite = low > limits.max_offset_s or high < -limits.max_offset_s
@@ -348,7 +350,7 @@ def _verdict(
             f"{1e3 * limits.max_ci_halfwidth_s:g} ms"
         )
         (failures if protocol is not None else doubts).append(text)
-    for stream, limit in (("camera", limits.max_frame_drop), ("force", limits.max_force_drop)):
+    for stream, limit in ((CAMERA, limits.max_frame_drop), (FORCE, limits.max_force_drop)):
         if audits[stream].drop_fraction > limit:
             failures.append(
                 f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
@@ -415,8 +417,8 @@ def verify_sync(
         else:
             estimate = measure_offset(reader, max_lag_s, settings)
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
-        fits = {s: reader.clock_fit(s) for s in ("camera", "force")}
-        audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in ("camera", "force")}
+        fits = {s: reader.clock_fit(s) for s in (CAMERA, FORCE)}
+        audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in (CAMERA, FORCE)}
         streams = {
             name: _stream_check(reader, name, max_lag_s)
             for name in reader.stream_names()

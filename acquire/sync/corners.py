@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
+from vbfe.common.errors import SessionError
 
 _MOTION_WIDTH = 128  # frames are downscaled (area average) to this width
 _COMPONENTS = 3  # leading principal components of the frames that carry the motion

@@ -10,13 +10,14 @@ interval).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
+from vbfe.common.errors import SessionError
 from vbfe.common.files import save_figure
 
 STEP_SIGMAS = 4.0
@@ -75,7 +76,7 @@ def stored_offset(path: str | Path) -> SessionOffset:
     )
 
 
-def in_recording_order(sessions: list[str | Path]) -> list[SessionOffset]:
+def in_recording_order(sessions: Sequence[str | Path]) -> list[SessionOffset]:
     """The sessions' stored offsets, earliest recording first."""
     return sorted((stored_offset(p) for p in sessions), key=lambda s: s.start_ns)
 

@@ -1,5 +1,6 @@
 """Sync protocol analysis: camera latency from projector flashes, image-force offset from taps,
-drift from early against late events (see :mod:`~vbfe.acquire.recording.sync_session` for the recording).
+drift from early against late events (see :mod:`~vbfe.acquire.recording.sync_session` for the
+recording).
 
 *Flashes.* Each frame's rows are averaged into a brightness profile. Around a projector switch
 (host time ``h``) the profile goes from its level before the command to its level after the
@@ -30,7 +31,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.sync_session import DIM_NAME, PATTERN_NAME
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.corners import (
@@ -41,6 +41,7 @@ from vbfe.acquire.sync.corners import (
     _vertex,
     force_axis,
 )
+from vbfe.common.errors import SessionError
 
 _WIDTH = 96  # frames are downscaled to this width
 _COMPONENTS = 3

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset
+from vbfe.common.errors import SessionError
 
 _MAX_RATE_HZ = 250.0  # faster streams are averaged in blocks down to this (the fit's cost)
 
@@ -36,7 +36,7 @@ def stream_offset(reader: SessionReader, name: str, max_lag_s: float = 0.25) -> 
     stream is stamped later than the force of the same instant). SessionError when the stream
     holds markers, does not move, or the force has no corner inside it."""
     stream = reader.stream(name)
-    if stream.markers or len(stream) < 3:
+    if stream.values is None or len(stream) < 3:  # markers
         raise SessionError(f"stream {name} has no motion to check the clocks with")
     values = stream.values[:, np.ptp(stream.values, axis=0) > 0]
     if values.shape[1] == 0:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.sync.corners import (
     Corner,
     OffsetEstimate,
@@ -32,6 +31,7 @@ from vbfe.acquire.sync.corners import (
     force_axis,
     force_corners,
 )
+from vbfe.common.errors import SessionError
 
 _GRID_S = 0.001  # the force is resampled on this grid
 _KNOT_S = 0.4  # knot spacing of the force's spline between corners

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol
 
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.samples import StereoFrame
@@ -19,12 +20,21 @@ def first_frame_after(
             return frame
 
 
+class FrameSource(Protocol):
+    """Frames read as from a camera: a :class:`StereoCamera`, or the frames an acquisition
+    hands on (:class:`vbfe.acquire.recording.frame_feed.FrameFeed`)."""
+
+    def read_after(self, t_host_ns: int, timeout_s: float = 1.0) -> StereoFrame | None:
+        """The first frame that arrived at or after host time ``t_host_ns``; ``None`` on a
+        timeout."""
+
+
 class StereoCamera(SampleStream[StereoFrame]):
     """A stereo endoscope: open, read timestamped frame pairs, close.
 
     ``read`` (written once in :class:`~vbfe.drivers.device.SampleStream`) blocks for at most
     ``timeout_s`` and returns ``None`` when no frame arrived in time; it raises
-    :class:`~vbfe.drivers.errors.DeviceError` when the device is gone. Backends implement
+    :class:`~vbfe.common.errors.DeviceError` when the device is gone. Backends implement
     ``_open``, ``_close`` and ``_read_sample(timeout_s)`` returning a frame with the device's
     own sequence number; sequence jumps are counted as dropped frames here.
     """

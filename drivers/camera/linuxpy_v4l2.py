@@ -27,8 +27,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.samples import JpegStereoFrame, StereoFrame
 
 FOURCCS = ("MJPG", "YUYV")

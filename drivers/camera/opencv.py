@@ -2,11 +2,12 @@
 side-by-side device split in two, read through ``cv2.VideoCapture``.
 
 Use it where linuxpy's V4L2 backend (:mod:`vbfe.drivers.camera.linuxpy_v4l2`) cannot run; it
-has no buffer sequence numbers and never the camera's own JPEG bytes. A background thread grabs frames so ``read(timeout_s)`` can time out; it blocks when the reader
-falls behind, so frames are only ever lost in the kernel, where the device timestamps show it.
-Device time is the V4L2 buffer timestamp (``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, the
-kernel's CLOCK_MONOTONIC at capture); sequence numbers come from the timestamps: an interval of
-more than 1.5 frame periods means frames were dropped, which the base class counts.
+has no buffer sequence numbers and never the camera's own JPEG bytes. A background thread grabs
+frames so ``read(timeout_s)`` can time out; it blocks when the reader falls behind, so frames are
+only ever lost in the kernel, where the device timestamps show it. Device time is the V4L2 buffer
+timestamp (``CAP_PROP_POS_MSEC`` of OpenCV's V4L2 backend, the kernel's CLOCK_MONOTONIC at capture);
+sequence numbers come from the timestamps: an interval of more than 1.5 frame periods means frames
+were dropped, which the base class counts.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.samples import StereoFrame
 
 Device = str | int

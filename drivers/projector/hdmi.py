@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.projector.frame_id import N_BITS, stamp_frame_id
 from vbfe.drivers.qt_app import qt_application
@@ -85,7 +85,8 @@ class HdmiProjector(Projector):
 
     def _show(self, pattern: np.ndarray, name: str, seq: int) -> int:
         """Show ``pattern`` (BGR ``uint8``) full-screen, stamped with frame ID ``seq % 2**16``."""
-        image = np.ascontiguousarray(pattern, dtype=np.uint8)
+        app, window = self._screen()
+        image: np.ndarray = np.ascontiguousarray(pattern, dtype=np.uint8)
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
         if image.shape[:2] != (self.height, self.width):
@@ -104,15 +105,23 @@ class HdmiProjector(Projector):
         qimage = QtGui.QImage(
             image.data, self.width, self.height, image.strides[0], QtGui.QImage.Format.Format_BGR888
         )
-        self._window.setPixmap(QtGui.QPixmap.fromImage(qimage))
-        self._window.repaint()
-        self._app.processEvents()
+        window.setPixmap(QtGui.QPixmap.fromImage(qimage))
+        window.repaint()
+        app.processEvents()
         return frame_id
+
+    def _screen(self) -> tuple[QtWidgets.QApplication, QtWidgets.QLabel]:
+        """The application and the full-screen window; DeviceError when closed."""
+        if self._app is None or self._window is None:
+            raise DeviceError(f"{self.label} is not open")
+        return self._app, self._window
 
     def grab(self) -> np.ndarray:
         """What the window shows now, as a BGR image (for checks and tests)."""
         self.require_open()
-        qimage = self._window.grab().toImage().convertToFormat(QtGui.QImage.Format.Format_BGR888)
+        qimage = (
+            self._screen()[1].grab().toImage().convertToFormat(QtGui.QImage.Format.Format_BGR888)
+        )
         rows = np.frombuffer(qimage.constBits(), np.uint8).reshape(qimage.height(), -1)
         return rows[:, : qimage.width() * 3].reshape(qimage.height(), qimage.width(), 3).copy()
 

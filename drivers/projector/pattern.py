@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 
 N_SYMBOLS = 3  # red, green, blue
 WINDOW = 4  # De Bruijn window length: B(3, 4) has 81 symbols

@@ -21,7 +21,7 @@ import numpy as np
 import serial
 
 from vbfe.common.config import read_toml
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.projector.base import Projector
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,5 @@
-"""The simulated bench: stereo endoscope, projector, deforming tissue and trocar with ground truth."""
+"""The simulated bench: stereo endoscope, projector, deforming tissue and trocar with ground
+truth."""
 
 from vbfe.drivers.sim.bench import SimBench
 

@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_kwargs
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim.board_scene import BoardScene, board_target
@@ -248,12 +248,13 @@ class SimBench:
             )
         )
         self._force_rng = rngs["force_noise"]
+        motion: TapProtocol | FreehandProtocol | TractionProtocol
         if protocol == "sync":
-            protocol = TapProtocol.random(
+            motion = TapProtocol.random(
                 rngs["taps"], sync_taps, sync_duration_s, stiffness_n_per_m, tap_force_n
             )
         elif protocol == "freehand":
-            protocol = _freehand(
+            motion = _freehand(
                 rngs["freehand"],
                 freehand_stiffness_n_per_m,
                 freehand_duration_s,
@@ -261,7 +262,7 @@ class SimBench:
                 rest_s,
             )
         else:
-            protocol = TractionProtocol(
+            motion = TractionProtocol(
                 stiffness_n_per_m, pull_speed_m_per_s, target_force_n, rest_s, hold_s
             )
         self._board = None
@@ -297,9 +298,10 @@ class SimBench:
                 Optics.from_table(board_optics),
             )
         self.trial = Trial(
-            protocol, TissueSample.random(rngs["sample"], working_distance_m), deformation_scale
+            motion, TissueSample.random(rngs["sample"], working_distance_m), deformation_scale
         )
-        tint = tuple(albedo_bgr) if albedo_bgr is not None else UniformAlbedo().bgr
+        b, g, r = UniformAlbedo().bgr if albedo_bgr is None else albedo_bgr
+        tint = (float(b), float(g), float(r))
         albedo = tissue_texture(rngs["texture"], tint_bgr=tint) if textured else UniformAlbedo(tint)
         self._tissue = TissueSurface(distance_m=working_distance_m, texture=albedo)
         self._plane = Plane(
@@ -612,7 +614,8 @@ class SimBench:
             views.append((self.renderer.render(surface), share))
         if len(views) == 1:
             return views[0][0]
-        return tuple(_mix([(pair[eye], w) for pair, w in views]) for eye in range(2))
+        left, right = (_mix([(pair[eye], w) for pair, w in views]) for eye in range(2))
+        return left, right
 
     def _set_lit(self, pattern: np.ndarray) -> None:
         if pattern is not self._lit:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.charuco_scene import (
     BoardTarget,
     ChessboardPattern,
@@ -122,7 +122,7 @@ class BoardScene:
         self.slot_ns = int(round(hold_s * 1e9)) if hold_s > 0 else frame_period_ns
         self.hand_held = hold_s == 0
         self.p_still, self.p_blur, self.blur_px = p_still, p_blur, int(blur_px)
-        self.distance_m, self.max_tilt_deg = tuple(distance_m), max_tilt_deg
+        self.distance_m, self.max_tilt_deg = (distance_m[0], distance_m[1]), max_tilt_deg
         self.in_projector = in_projector
         self.optics = optics
         self._given = list(poses or [])

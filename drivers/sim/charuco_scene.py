@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.optics import Optics
 from vbfe.drivers.sim.rays import camera_rays, intersect_plane
 from vbfe.drivers.sim.rig import PinholeCamera, StereoRig
@@ -79,7 +79,7 @@ class ChessboardPattern:
         )
 
 
-def board_size_m(board: cv2.aruco.CharucoBoard) -> tuple[float, float]:
+def board_size_m(board: cv2.aruco.CharucoBoard | ChessboardPattern) -> tuple[float, float]:
     """Board width and height in metres; raises if the board was not built in metres."""
     square = float(board.getSquareLength())
     if not 0 < square < 0.1:
@@ -91,7 +91,7 @@ def board_size_m(board: cv2.aruco.CharucoBoard) -> tuple[float, float]:
     return nx * square, ny * square
 
 
-def board_texture(board: cv2.aruco.CharucoBoard, px_per_m: float) -> np.ndarray:
+def board_texture(board: cv2.aruco.CharucoBoard | ChessboardPattern, px_per_m: float) -> np.ndarray:
     """The board image (grey uint8) with ``px_per_m`` texture pixels per metre, no margin."""
     w_m, h_m = board_size_m(board)
     size = (int(round(w_m * px_per_m)), int(round(h_m * px_per_m)))
@@ -114,7 +114,9 @@ class BoardTarget:
         return self.texture.shape[1] / self.px_per_m, self.texture.shape[0] / self.px_per_m
 
 
-def charuco_target(board: cv2.aruco.CharucoBoard, px_per_m: float = 40000.0) -> BoardTarget:
+def charuco_target(
+    board: cv2.aruco.CharucoBoard | ChessboardPattern, px_per_m: float = 40000.0
+) -> BoardTarget:
     """The ChArUco ``board`` (built in metres) as a :class:`BoardTarget`."""
     return BoardTarget(
         board_texture(board, px_per_m),
@@ -321,7 +323,7 @@ def random_board_poses(
         tvec = centre - R_board @ half
         rvec, _ = cv2.Rodrigues(R_board)
         pose = (rvec.reshape(3), tvec)
-        if (rig is None or visible_fraction(rig, board, pose) >= min_visible) and (
+        if (rig is None or board is None or visible_fraction(rig, board, pose) >= min_visible) and (
             accept is None or accept(pose)
         ):
             poses.append(pose)

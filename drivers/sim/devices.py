@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
 from vbfe.drivers.samples import ForceSample, StereoFrame

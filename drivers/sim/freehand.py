@@ -56,7 +56,7 @@ class FreehandProtocol:
         t = rest_s
         lo, hi = np.log(force_rate_n_per_s)
         while t < session_s:
-            force = protocol._force(u, q)
+            force = float(protocol._force(u, q))
             level = force
             while abs(level - force) < 0.3:
                 level = float(rng.uniform(0.15, 1.0)) * target_force_n
@@ -155,4 +155,4 @@ class FreehandProtocol:
         phase = np.where(
             resting, REST, np.where(~moving, HOLD, np.where(speed[i] > 0, PULL, RELEASE))
         )
-        return u, self._force(u, q), phase
+        return u, np.asarray(self._force(u, q)), phase

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.sim.tissue import MembraneLoad
 
 PAPER_CONDITIONS = {40.0: 0.01, 80.0: 0.005, 200.0: 0.002}  # stiffness N/m → pull speed m/s
@@ -159,11 +159,12 @@ class Trial:
     def load(self, grasper_displacement_m: float) -> MembraneLoad:
         """The surface load for a grasper displacement."""
         amplitude = self.deformation_scale * grasper_displacement_m
-        vector = tuple(amplitude * c for c in self.sample.pull_direction)
-        return MembraneLoad(self.sample.contact_m, vector, self.radius_m())
+        x, y, z = (amplitude * c for c in self.sample.pull_direction)
+        return MembraneLoad(self.sample.contact_m, (x, y, z), self.radius_m())
 
     def at(self, t_s: float) -> tuple[MembraneLoad, np.ndarray, int]:
-        """Load, force vector (N, left-camera axes, along the pull) and phase at trial time ``t_s``."""
+        """Load, force vector (N, left-camera axes, along the pull) and phase at trial time
+        ``t_s``."""
         u, force, phase = self.protocol.state(np.array([t_s]))
         return (
             self.load(float(u[0])),

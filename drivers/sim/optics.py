@@ -17,8 +17,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_table
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.sim.nuisance import vignette
 
 

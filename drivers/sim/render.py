@@ -67,7 +67,8 @@ def project_points(
 
 
 def pattern_blur_px(rig: StereoRig, distance_m: float) -> float:
-    """Gaussian σ (projector pixels) matching one left-camera pixel's footprint at ``distance_m``."""
+    """Gaussian σ (projector pixels) matching one left-camera pixel's footprint at
+    ``distance_m``."""
     camera_px_m = distance_m / rig.left.f
     projector_px_m = (distance_m + float(np.linalg.norm(rig.T_proj))) / rig.projector.f
     return max(0.0, 0.5 * (camera_px_m / projector_px_m) - 0.3)
@@ -278,7 +279,7 @@ class _Retextured:
     """A surface seen with another albedo."""
 
     base: Surface
-    texture: Texture
+    texture: Texture | None
 
     def hit(self, origin: np.ndarray, dirs: np.ndarray, s0: np.ndarray | None = None) -> Hit:
         return self.base.hit(origin, dirs, s0)

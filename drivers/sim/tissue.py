@@ -99,10 +99,10 @@ def tissue_texture(
     n = int(round(extent_m * px_per_m))
     mottle = np.zeros((n, n), np.float32)
     for sigma_m, weight in ((0.004, 0.6), (0.0012, 0.4)):
-        noise = rng.normal(0.0, 1.0, (n, n)).astype(np.float32)
+        noise: np.ndarray = rng.normal(0.0, 1.0, (n, n)).astype(np.float32)
         noise = cv2.GaussianBlur(noise, (0, 0), sigma_m * px_per_m)
         mottle += weight * noise / max(float(noise.std()), 1e-6)
-    vessels = np.zeros((n, n), np.float32)
+    vessels: np.ndarray = np.zeros((n, n), np.float32)
     for _ in range(6):
         points = rng.uniform(0, n, (5, 2)).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(vessels, [points], False, 1.0, thickness=max(1, int(0.0004 * px_per_m)))

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.device import SampleStream
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.streams.records import StreamInfo, StreamSample
 from vbfe.drivers.streams.settings import StreamSource
 
@@ -157,8 +157,9 @@ class LslStream(SampleStream[StreamSample]):
     def label(self) -> str:
         return f"LSL stream {self.source.describe()}"
 
+    # the devices' class attribute, computed here: the stream is named only once it is found
     @property
-    def stream(self) -> str | None:
+    def stream(self) -> str | None:  # type: ignore[override]
         """The session's name for the stream; ``None`` while an optional stream is missing
         (an acquisition reads only devices that name a stream)."""
         return None if self.missing else self.source.key
@@ -231,7 +232,8 @@ class LslStream(SampleStream[StreamSample]):
         t_device = np.round(np.asarray(stamps, np.float64) * 1e9).astype(np.int64)
         t_host = t_device + self._correction_ns
         self._count_gaps(t_device, overflowed)
-        if self.info.markers:
+        rows: list[tuple[str | None, np.ndarray | None]]
+        if self._info().markers:
             rows = [("\t".join(v.decode("utf-8", "replace") for v in row), None) for row in values]
         else:
             rows = [
@@ -245,10 +247,16 @@ class LslStream(SampleStream[StreamSample]):
         )
         self._seq += len(t_device)
 
+    def _info(self) -> StreamInfo:
+        """The stream's description, known once it is open."""
+        if self.info is None:
+            raise DeviceError(f"{self.label} is not open")
+        return self.info
+
     def _count_gaps(self, t_device: np.ndarray, overflowed: bool) -> None:
         """Stamp steps over 1.5 periods: lost when it is the step into a pull that found the
         buffer full (liblsl dropped the oldest samples there), else the publisher's timing."""
-        rate = self.info.nominal_rate_hz
+        rate = self._info().nominal_rate_hz
         if rate <= 0:
             return
         stamps = (

@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from vbfe.common.config import ConfigError
+from vbfe.common.errors import ConfigError
 from vbfe.common.settings import parse_table, setting
 
 RESERVED = (

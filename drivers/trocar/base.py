@@ -6,15 +6,15 @@ import dataclasses
 
 import numpy as np
 
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.device import SampleStream
-from vbfe.drivers.errors import DeviceError
 from vbfe.drivers.samples import ForceSample
 
 
 class ForceSensor(SampleStream[ForceSample]):
     """A force sensor (the TRF85D trocar): open, read timestamped samples, tare, close.
 
-    ``read`` returns ``None`` on timeout, raises :class:`~vbfe.drivers.errors.DeviceError` when
+    ``read`` returns ``None`` on timeout, raises :class:`~vbfe.common.errors.DeviceError` when
     the interface is gone (bus-off, unplugged), and never raises for one bad frame: backends
     count it in ``stats.malformed`` and go on. Backends implement ``_open``, ``_close`` and
     ``_read_sample(timeout_s)`` returning the *raw* (untared) sample; ``read`` subtracts
@@ -38,7 +38,7 @@ class ForceSensor(SampleStream[ForceSample]):
         """Make the mean of the next ``n_samples`` (unloaded) the zero; return the offset."""
         if n_samples < 1:
             raise DeviceError(f"taring {self.label} needs at least 1 sample, got {n_samples}")
-        raw = []
+        raw: list[np.ndarray] = []
         while len(raw) < n_samples:
             sample = self.read(timeout_s)
             if sample is None:

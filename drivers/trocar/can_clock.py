@@ -8,7 +8,7 @@ others (and with ``clock = "host"``) the device time is the host receive time.
 
 from __future__ import annotations
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 
 CLOCK_CHOICES = ("auto", "interface", "host")
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import can
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.trocar.base import ForceSensor
 from vbfe.drivers.trocar.can_clock import (
@@ -121,10 +121,15 @@ class CanTrocar(ForceSensor):
             self._bus.shutdown()
         self._bus = None
 
+    def _open_bus(self) -> can.BusABC:
+        if self._bus is None:
+            raise DeviceError(f"{self.label} is not open")
+        return self._bus
+
     def _read_sample(self, timeout_s: float) -> ForceSample | None:
         """Receive one CAN message; the raw force sample it carries, if it is one."""
         try:
-            msg = self._bus.recv(timeout=timeout_s)
+            msg = self._open_bus().recv(timeout=timeout_s)
         except (can.CanError, OSError) as exc:
             raise DeviceError(
                 f"{self.label} stopped: {exc}; check the cable, "

@@ -10,12 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import cantools
 import numpy as np
 from cantools.database.can import Message
 
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError
 
 DEFAULT_MESSAGE = "TRF85D_Force"
 DEFAULT_FORCE_SIGNALS = ("Fx", "Fy", "Fz")
@@ -70,6 +71,7 @@ class TrocarFrameFormat:
         return max(float(self.message.get_signal_by_name(s).scale) for s in self.force_signals)
 
     def _checksum_byte(self) -> int:
+        assert self.checksum_signal is not None  # called only for messages with one
         return self.message.get_signal_by_name(self.checksum_signal).start // 8
 
     def _expected_checksum(self, data: bytes) -> int:
@@ -85,7 +87,7 @@ class TrocarFrameFormat:
             if got != want:
                 raise MalformedFrame(f"checksum 0x{got:02x}, expected 0x{want:02x}")
         try:
-            values = self.message.decode(data, decode_choices=False)
+            values: Any = self.message.decode(data, decode_choices=False)  # name -> number
         except (cantools.database.DecodeError, ValueError) as exc:
             raise MalformedFrame(f"cannot decode: {exc}") from None
         force = np.array([float(values[s]) for s in self.force_signals])
@@ -118,7 +120,8 @@ def load_frame_format(
     """
     path = Path(dbc) if dbc is not None else default_dbc_path()
     try:
-        database = cantools.database.load_file(str(path), database_format="dbc")
+        # a DBC file gives a CAN database (cantools types the result as any of its kinds)
+        database: Any = cantools.database.load_file(str(path), database_format="dbc")
     except FileNotFoundError:
         raise DeviceError(
             f"trocar DBC file {path} does not exist; set the trocar option 'dbc' "

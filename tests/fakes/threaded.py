@@ -25,7 +25,7 @@ class ThreadedFake(abc.ABC):
     def _run(self) -> None:
         """The fake device's work loop."""
 
-    def _cleanup(self) -> None:
+    def _cleanup(self) -> None:  # noqa: B027 - an optional hook: by default nothing to release
         """Release what the fake holds once its thread has ended."""
 
     def start(self: T) -> T:

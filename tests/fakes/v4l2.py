@@ -5,10 +5,11 @@
 stream on/off, ``buffer.raw_read()``, ``query_buffer``). Frames are linuxpy's own ``Frame``
 objects around real ``v4l2_buffer`` structs carrying the kernel's sequence number, timestamp and
 flags; the data is a JPEG (or YUYV) of :func:`tests.fakes.camera.render_eye` (a JPEG is
-followed by its sequence number, after the end marker, so every frame's bytes differ). The node can drop
-sequence numbers, flag buffers as corrupt, vanish (``ENODEV``) after some frames, and, paced in real time, lose frames the
-way the kernel does when all buffers are full; nodes given the same ``start_ns`` are a
-hardware-synchronized stereo head (else each starts its frames at its own stream-on).
+followed by its sequence number, after the end marker, so every frame's bytes differ). The node can
+drop sequence numbers, flag buffers as corrupt, vanish (``ENODEV``) after some frames, and, paced in
+real time, lose frames the way the kernel does when all buffers are full; nodes given the same
+``start_ns`` are a hardware-synchronized stereo head (else each starts its frames at its own
+stream-on).
 ``delivered`` keeps every byte string handed out.
 """
 

@@ -36,9 +36,10 @@ import vbfe
 from vbfe.acquire import SessionReader
 from vbfe.bags import builders
 from vbfe.bags.builders import header, msg
-from vbfe.bags.errors import BagError
 from vbfe.bags.images import ImageCodec
 from vbfe.bags.messages import FRAME_IDS, MIN_UNIX_NS, TOPICS, host_to_unix, schema_text, typestore
+from vbfe.common.errors import BagError
+from vbfe.common.files import atomic_path
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 _CHUNK_BYTES = 4 << 20
@@ -122,7 +123,8 @@ class _Mcap:
         self.writer.add_message(
             self._channels[topic],
             log_time=t_ns,
-            data=typestore().serialize_cdr(message, msgtype),
+            # the writer takes any buffer (a memoryview here, no copy); it is annotated bytes
+            data=typestore().serialize_cdr(message, msgtype),  # type: ignore[arg-type]
             publish_time=publish_ns if publish_ns is not None else t_ns,
             sequence=self.counts.get(topic, 0),
         )
@@ -343,8 +345,7 @@ def export_mcap(
     if compression not in COMPRESSIONS:
         raise BagError(f"unknown MCAP compression {compression!r}; use zstd or lz4")
     out_path = Path(out_path)
-    tmp = out_path.with_name(f".{out_path.name}.partial")
-    with SessionReader(session_path) as reader:
+    with atomic_path(out_path) as tmp, SessionReader(session_path) as reader:
         attrs = reader.attrs
         ref = host_to_unix(
             reader.clock_pairs(), attrs.get("start_utc_ns"), attrs.get("start_host_ns")
@@ -360,21 +361,14 @@ def export_mcap(
             return np.asarray(t_host, np.int64) - host_ref + utc_ref
 
         infos = _camera_infos(reader.calibration_yaml(), reader.frame_size)
-        try:
-            with open(tmp, "wb") as fh:
-                stream = _BackgroundFile(fh)
-                try:
-                    out = _Mcap(stream, compression)
-                    summary = _write_all(
-                        reader, out, infos, to_unix, clouds_path, on_progress, images
-                    )
-                    out.writer.finish()
-                finally:
-                    stream.close()
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    os.replace(tmp, out_path)
+        with open(tmp, "wb") as fh:
+            stream = _BackgroundFile(fh)
+            try:
+                out = _Mcap(stream, compression)
+                summary = _write_all(reader, out, infos, to_unix, clouds_path, on_progress, images)
+                out.writer.finish()
+            finally:
+                stream.close()
     return ExportSummary(out_path, summary.counts, summary.first_ns or 0, summary.last_ns)
 
 

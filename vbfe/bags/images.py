@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vbfe.bags.errors import BagError
+from vbfe.common.errors import BagError
 
 DEFAULT_JPEG_QUALITY = 90
 PNG_LEVEL = 1  # zlib level: the size of level 3 within a few %, at half the time

@@ -30,8 +30,9 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from vbfe.acquire import SessionWriter, finalize_session
-from vbfe.bags.errors import BagError
 from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
+from vbfe.common.errors import BagError
+from vbfe.common.files import atomic_path
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, ProjectorEvent, StereoFrame
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -169,7 +170,7 @@ def choose_topics(topics: dict[str, str], given: TopicChoice) -> TopicChoice:
     for topic in (choice.left, choice.right, choice.image):
         if topic is not None and topics[topic] not in IMAGE_TYPES:
             raise BagError(f"{topic} is {topics[topic]}, not an image topic")
-    if choice.image is None:
+    if choice.image is None and choice.left is not None and choice.right is not None:
         choice.left_info = choice.left_info or _info_topic(choice.left, topics)
         choice.right_info = choice.right_info or _info_topic(choice.right, topics)
     return choice
@@ -205,7 +206,7 @@ def _field(msg: Any, name: str) -> Any:
 def calibration_from_camera_info(left: Any, right: Any) -> str:
     """vbfe calibration YAML from the two eyes' rectified ``camera_info`` (K, D, R, P): the
     stereo rotation ``R = R2ᵀ R1`` and translation ``T = R2ᵀ (P2[0,3] / P2[0,0], 0, 0)``."""
-    from vbfe.calib.calibration import Calibration
+    from vbfe.calib.calibration import Calibration, reprojection_matrix
 
     K1, K2 = (np.asarray(_field(m, "k"), float).reshape(3, 3) for m in (left, right))
     R1, R2 = (np.asarray(_field(m, "r"), float).reshape(3, 3) for m in (left, right))
@@ -217,8 +218,6 @@ def calibration_from_camera_info(left: Any, right: Any) -> str:
             "a rectified stereo calibration"
         )
     tx = P2[0, 3] / P2[0, 0]
-    f, cx1, cy, cx2 = P1[0, 0], P1[0, 2], P1[1, 2], P2[0, 2]
-    Q = np.array([[1, 0, 0, -cx1], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, -1 / tx, (cx1 - cx2) / tx]])
     calibration = Calibration(
         K1=K1,
         D1=D1,
@@ -230,7 +229,7 @@ def calibration_from_camera_info(left: Any, right: Any) -> str:
         R2=R2,
         P1=P1,
         P2=P2,
-        Q=Q,
+        Q=reprojection_matrix(P1, P2),
         image_size=(int(left.width), int(left.height)),
         info={"source": "ROS camera_info"},
     )
@@ -281,12 +280,13 @@ class _SessionSink:
         self.last_ns = 0
 
     def host(self, t_ns: int) -> int:
+        assert self.base_ns is not None  # set by the first message
         return t_ns - self.base_ns + _HOST_START_NS
 
     def clock_pair(self) -> tuple[int, int]:
         return self.last_ns, self.host(self.last_ns)
 
-    def frame(self, t_ns: int, left: Any, right: Any, topics: tuple[str, str]) -> None:
+    def frame(self, t_ns: int, left: Any, right: Any, topics: tuple[Any, Any]) -> None:
         host = self.host(t_ns)
         if _is_jpeg(left) and _is_jpeg(right):
             frame: StereoFrame = JpegStereoFrame(
@@ -371,11 +371,10 @@ def import_bag(
     """Write the chosen topics of a bag as a session ``out_path`` (under a temporary name
     renamed when complete); ``on_progress(frames)`` as frames are written."""
     out_path = Path(out_path)
-    tmp = out_path.with_name(f".{out_path.name}.partial")
     try:
-        return _import(bag_path, out_path, tmp, given, on_progress)
+        with atomic_path(out_path) as tmp:
+            return _import(bag_path, out_path, tmp, given, on_progress)
     except _DAMAGED as exc:
-        tmp.unlink(missing_ok=True)
         raise BagError(
             f"{bag_path} is damaged and cannot be read to the end ({type(exc).__name__}: {exc})"
         ) from None
@@ -424,9 +423,7 @@ def _import(
         except BaseException:
             if sink.writer is not None:
                 sink.writer.abort()
-            tmp.unlink(missing_ok=True)
             raise
-    tmp.replace(out_path)
     return ImportSummary(
         out_path,
         sink.frames,
@@ -444,7 +441,8 @@ def _first_string(reader: AnyReader, topic: str) -> str | None:
     if not connections:  # rosbags reads every topic when given none
         return None
     for connection, _, raw in reader.messages(connections=connections):
-        return reader.deserialize(raw, connection.msgtype).data
+        message: Any = reader.deserialize(raw, connection.msgtype)  # a std_msgs/String
+        return message.data
     return None
 
 

@@ -5,6 +5,7 @@ host-to-Unix time map of a session."""
 from __future__ import annotations
 
 from functools import cache
+from typing import Any
 
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -56,7 +57,7 @@ def schema_text(msgtype: str) -> str:
     return typestore().generate_msgdef(msgtype, ros_version=2)[0]
 
 
-def stamp_ns(value: object) -> int:
+def stamp_ns(value: Any) -> int:
     """Unix nanoseconds of a ``builtin_interfaces/Time`` (ROS 1 or 2, as rosbags reads it)."""
     return int(value.sec) * 10**9 + int(getattr(value, "nanosec", getattr(value, "nsec", 0)))
 

@@ -7,8 +7,8 @@ import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from vbfe.acquire.errors import SessionError
 from vbfe.batch.manifest import SessionEntry
+from vbfe.common.errors import SessionError
 from vbfe.common.report import HtmlReport, Link
 
 COLUMNS = (

@@ -16,8 +16,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from vbfe.batch.errors import BatchError
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import EXIT_TERMINATED, BatchError, VbfeError
 from vbfe.common.signals import die_with_parent, raise_for
 
 EXECUTORS = ("local", "ray")
@@ -52,7 +51,7 @@ def _child(
     try:
         conn.send(_call(fn, item))
     except KeyboardInterrupt:  # the parent's SIGTERM (Terminated): cleanups ran, no traceback
-        raise SystemExit(128 + signal.SIGTERM) from None
+        raise SystemExit(EXIT_TERMINATED) from None
     conn.close()
 
 
@@ -79,7 +78,8 @@ def run_local(
                 process.start()
                 send.close()
                 running[receive] = (process, item)
-            for conn in multiprocessing.connection.wait(list(running)):
+            ready = multiprocessing.connection.wait(list(running))
+            for conn in [c for c in list(running) if c in ready]:
                 process, item = running.pop(conn)
                 try:
                     ok, payload = conn.recv()

@@ -15,10 +15,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.acquire.session.reader import SessionReader
-from vbfe.batch.errors import BatchError
+from vbfe.common.errors import BatchError, SessionError
 from vbfe.common.files import atomic_path
 from vbfe.recon.freshness import clouds_status, text_hash
 from vbfe.recon.matching import SgbmParams

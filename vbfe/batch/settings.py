@@ -13,7 +13,8 @@ from vbfe.common.settings import parse_table
 class BatchSettings:
     """The ``[batch]`` table."""
 
-    executor: Literal[EXECUTORS] = "local"
+    # a Literal of a tuple's values: the settings parser reads them; mypy cannot
+    executor: Literal[EXECUTORS] = "local"  # type: ignore[valid-type]
     ray_address: str = ""  # "": a local Ray
 
 

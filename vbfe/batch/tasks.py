@@ -12,7 +12,7 @@ import cv2
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.acquire.sync.check import SYNC_ESTIMATOR, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
-from vbfe.batch.errors import BatchError
+from vbfe.common.errors import BatchError
 from vbfe.common.files import check_outputs
 from vbfe.recon.clouds import CloudReader, sidecar_path
 from vbfe.recon.freshness import clouds_status
@@ -85,7 +85,8 @@ class VerifySyncTask:
                 "verdict": str(stored["sync_verdict"]).upper(),
                 "offset_ms": 1e3 * float(stored["sync_offset_s"]),
             }
-        check_outputs([plot], [session], self.overwrite or same_limits)  # ours when same limits
+        # the plot is ours to replace when the limits are the same
+        check_outputs([plot], [session], bool(self.overwrite or same_limits))
         report = verify_sync(
             session,
             limits,

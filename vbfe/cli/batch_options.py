@@ -8,10 +8,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from vbfe.batch.errors import BatchError
 from vbfe.batch.executors import EXECUTORS, TaskOutcome, run_tasks
 from vbfe.batch.settings import batch_settings as settings_of_table
 from vbfe.cli.common import progress
+from vbfe.common.errors import BatchError
 
 
 def add_batch_options(parser: argparse.ArgumentParser) -> None:

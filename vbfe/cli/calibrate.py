@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,6 @@ from vbfe.calib.board import TARGETS
 from vbfe.calib.camera import uncertainty_text
 from vbfe.calib.capture import coverage_text
 from vbfe.calib.corner_choice import summary_rows as corner_rows
-from vbfe.calib.errors import CalibrationError
 from vbfe.calib.export import FORMATS
 from vbfe.calib.rectify import ZERO_DISPARITY
 from vbfe.calib.report import gate_lines, summary_rows
@@ -23,6 +23,7 @@ from vbfe.calib.views import NAMING_RULES
 from vbfe.cli.common import add_config_option, config_from, positive, progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import read_toml, section
+from vbfe.common.errors import CalibrationError
 
 _BOARD_KEYS = (
     "target",
@@ -85,7 +86,8 @@ def _solve_options(parser: argparse.ArgumentParser) -> None:
 
 
 # the [calib] keys that gate flags set: flag, type, metavar, help
-_GATE_FLAGS = {
+GateFlag = tuple[str, Callable[[str], Any], str, str]
+_GATE_FLAGS: dict[str, GateFlag] = {
     "min_views": (
         "--min-views",
         positive(int),
@@ -135,7 +137,7 @@ def _fraction(text: str) -> float:
     return value
 
 
-_STEREO_FLAGS = {
+_STEREO_FLAGS: dict[str, GateFlag] = {
     "min_baseline_mm": (
         "--min-baseline-mm",
         positive(float, zero=True),
@@ -731,11 +733,12 @@ def run_projector(args: argparse.Namespace) -> int:
             config, args.captures, args.calibration, args.out, args.simulate, args.seed, **board
         )
         bar.update(1)
-    K = calibration.K_proj
+    K, T = calibration.K_proj, calibration.T_proj
+    assert K is not None and T is not None  # set by the projector calibration
     print(
         f"projector fx={K[0, 0]:.2f} fy={K[1, 1]:.2f} cx={K[0, 2]:.2f} cy={K[1, 2]:.2f} px, "
         f"RMS {calibration.rms_projector_px:.3f} px; T (left->projector) = "
-        f"{', '.join(f'{v * 1e3:.2f}' for v in calibration.T_proj)} mm; "
+        f"{', '.join(f'{v * 1e3:.2f}' for v in T)} mm; "
         f"wrote {args.out or args.calibration}"
     )
     return 0

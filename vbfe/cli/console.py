@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from(args)
     calibration: Calibration | None = load_calibration(args.calib) if args.calib else None
     estimator = None
-    if args.model:
+    if args.model and calibration is not None:  # --model without --calib is refused above
         from vbfe.common.config import section
         from vbfe.estimate.model_file import load_model
         from vbfe.live.run import live_estimator

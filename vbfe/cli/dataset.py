@@ -63,8 +63,8 @@ def _cell(value: object, width: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Print the table (and write the manifest); exit 1 when a session is unreadable."""
-    from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import scan_dataset, write_manifest
+    from vbfe.common.errors import BatchError
     from vbfe.recon.matching import SgbmParams
 
     manifest = Path(args.manifest) if args.manifest else None

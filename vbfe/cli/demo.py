@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
+from typing import Any
 
 from vbfe.cli.common import progress
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
@@ -34,14 +35,18 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.demo_report import checks
 
     check_outputs([], directories=[args.out], overwrite=args.overwrite)
-    bars = []
+    bars: list[Any] = []
 
     def stage(name: str, total: int) -> Callable[[int], None]:
         if bars:
             bars[-1].close()
         bar = progress(total=total, desc=name)
         bars.append(bar)
-        return lambda n=1: bar.update(n)
+
+        def advance(n: int = 1) -> None:
+            bar.update(n)
+
+        return advance
 
     try:
         result = run_demo(args.out, quick=args.quick, stage=stage)

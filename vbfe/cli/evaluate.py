@@ -66,7 +66,7 @@ def _run_live(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and print the overall MAE of every method."""
-    from vbfe.estimate.errors import EstimateError
+    from vbfe.common.errors import EstimateError
 
     if args.live:
         if args.model or args.sessions:

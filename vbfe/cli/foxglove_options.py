@@ -39,7 +39,7 @@ def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServe
     address once the rig runs; LiveError for a bad or busy port, BagError for a bad
     ``--images``."""
     from vbfe.bags.images import image_codec
-    from vbfe.live.errors import LiveError
+    from vbfe.common.errors import LiveError
     from vbfe.live.foxglove_server import LIVE_IMAGES, FoxgloveServer
 
     if args.foxglove is None:

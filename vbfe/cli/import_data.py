@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     """Import and print what was written."""
     if args.kind == "bag":
         return run_bag(args)
-    from vbfe.estimate.errors import EstimateError
+    from vbfe.common.errors import EstimateError
 
     missing = [
         flag

@@ -94,9 +94,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run live estimation and print the summary."""
     from vbfe.calib.calibration import load_calibration
+    from vbfe.common.errors import LiveError
     from vbfe.estimate.model_file import load_model
-    from vbfe.live.errors import LiveError
-    from vbfe.live.outputs import LslOutput, UdpOutput, udp_address
+    from vbfe.live.outputs import EstimateOutput, LslOutput, UdpOutput, udp_address
     from vbfe.live.run import live_estimator, live_run, run_headless
     from vbfe.live.settings import live_settings
 
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         args.row_scale,
     )
     print(estimator.describe())
-    outputs = []
+    outputs: list[EstimateOutput] = []
     if args.lsl is not None:
         outputs.append(LslOutput(model.config.target, *([args.lsl] if args.lsl else [])))
     if udp is not None:

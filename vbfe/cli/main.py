@@ -10,7 +10,6 @@ from collections.abc import Sequence
 from vbfe import __version__
 from vbfe.cli import (
     calibrate,
-    console,
     dataset,
     demo,
     devices,
@@ -27,8 +26,16 @@ from vbfe.cli import (
     verify_sync,
     view,
 )
-from vbfe.common.config import ConfigError
-from vbfe.common.errors import VbfeError
+from vbfe.cli import (
+    console as console_command,
+)
+from vbfe.common.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+    ConfigError,
+    VbfeError,
+)
 from vbfe.common.files import os_error_text
 from vbfe.common.signals import Terminated, sigterm_as_interrupt
 
@@ -48,7 +55,7 @@ COMMANDS = (
     train,
     evaluate,
     live,
-    console,
+    console_command,
     demo,
 )
 
@@ -82,22 +89,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             message += f" (rig config {config})"
         message = " ".join(line.strip() for line in message.splitlines())  # one line
         print(f"vbfe {args.command}: error: {message}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except OSError as exc:
         print(f"vbfe {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except MemoryError:
         print(
             f"vbfe {args.command}: error: not enough memory; use smaller inputs or settings",
             file=sys.stderr,
         )
-        return 2
+        return EXIT_BAD_INPUT
     except Terminated:
         print(f"vbfe {args.command}: terminated", file=sys.stderr)
-        return 143
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print(f"vbfe {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def console() -> None:

@@ -11,7 +11,8 @@ import glob
 from collections.abc import Iterable
 from pathlib import Path
 
-from vbfe.common.files import OutputError, Writes
+from vbfe.common.errors import OutputError
+from vbfe.common.files import Writes
 from vbfe.common.files import check_outputs as _check
 
 __all__ = ["OutputError", "add_overwrite_option", "check_outputs", "command_inputs"]
@@ -31,8 +32,8 @@ def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -
     """Every file the inputs stand for: themselves (or the files a glob matches), the sessions
     of manifests (``*.csv`` with a ``path`` column) and (with ``sidecars``) the clouds sidecar
     of every session."""
-    from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import MANIFEST_SUFFIX, read_manifest
+    from vbfe.common.errors import BatchError
     from vbfe.recon.clouds import sidecar_path
 
     out: list[Path] = []

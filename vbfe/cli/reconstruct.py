@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -13,6 +14,10 @@ from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
 from vbfe.cli.common import LazyProgress, add_config_option, config_from, positive
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import section
+
+if TYPE_CHECKING:
+    from vbfe.recon.matching import SgbmParams
+    from vbfe.recon.quality import ReconSettings
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
 
@@ -151,7 +156,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _rectified(args: argparse.Namespace) -> dict[str, float] | None:
     """The --rectified geometry (None without --rectified)."""
-    from vbfe.recon.errors import ReconError
+    from vbfe.common.errors import ReconError
 
     if not args.rectified:
         return None
@@ -184,7 +189,7 @@ def _rectified(args: argparse.Namespace) -> dict[str, float] | None:
 
 def _range_flags(args: argparse.Namespace) -> dict[str, int]:
     """The [sgbm] keys set by --min-disparity/--num-disparities."""
-    from vbfe.recon.errors import ReconError
+    from vbfe.common.errors import ReconError
 
     if args.min_disparity is not None and args.num_disparities is None:
         raise ReconError(
@@ -210,10 +215,12 @@ def _is_batch(args: argparse.Namespace) -> bool:
     )
 
 
-def _run_batch(args: argparse.Namespace, config: dict, params: object, settings: object) -> int:
-    from vbfe.batch.errors import BatchError
+def _run_batch(
+    args: argparse.Namespace, config: dict, params: SgbmParams, settings: ReconSettings
+) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.batch.tasks import ReconstructTask
+    from vbfe.common.errors import BatchError
 
     if args.out or args.ply_dir or args.maps_dir or args.rectified or args.truth:
         raise BatchError(
@@ -266,8 +273,8 @@ class _LazyBar(LazyProgress):
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the quality summary, warnings and truth scores, and say where the
     clouds went."""
+    from vbfe.common.errors import ReconError
     from vbfe.recon.clouds import CloudReader, export_ply, sidecar_path
-    from vbfe.recon.errors import ReconError
     from vbfe.recon.inputs import image_pairs, pair_calibration
     from vbfe.recon.maps import MapOutput
     from vbfe.recon.matching import SgbmParams

@@ -57,8 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the report(s); exit code 0 PASS, 1 FAIL (or, over several sessions, a step in
     the offset between two of them), 3 INCONCLUSIVE (the worst of many)."""
-    from vbfe.batch.errors import BatchError
     from vbfe.batch.manifest import expand_sessions
+    from vbfe.common.errors import BatchError
 
     config = config_from(args)
     limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)

@@ -83,8 +83,8 @@ class LiveTab(Tab):
             self._show_streams(now)
         live = self.station.live
         if live is not None:
-            t_est, est, _, _ = live.curves(WINDOW_S)
-            self.estimate_curve.setData(t_est, est)
+            curves = live.curves(WINDOW_S)
+            self.estimate_curve.setData(curves.t_estimate_s, curves.estimate_n)
             self.status.setText(live.status().line())
         else:
             stats = self.station.stats()

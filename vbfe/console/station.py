@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from vbfe.acquire.errors import SessionError
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.recording.record import (
@@ -32,7 +31,7 @@ from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
-from vbfe.drivers.errors import DeviceError
+from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions

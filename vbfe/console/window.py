@@ -161,7 +161,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
             self._settling = True
             self.rig_op(self.station.settle, on_done=self._settled, on_error=self._unsettled)
         for tab in self.named_tabs().values():
-            tab.refresh()  # type: ignore[attr-defined]
+            tab.refresh()
 
     def _unsettled(self) -> None:
         self._settling = False
@@ -175,7 +175,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         """A recording ended (stopped, its duration, a full disk): tell the tabs, go live."""
         self.message(finished.line())
         for tab in self.named_tabs().values():
-            tab.on_finished(finished)  # type: ignore[attr-defined]
+            tab.on_finished(finished)
         for hook in self.finished_hooks:
             hook(finished)
         if self.options.live_when_idle:

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from vbfe.calib.calibration import Calibration
+from vbfe.common.errors import EstimateError
 from vbfe.drivers.samples import StereoFrame
-from vbfe.estimate.errors import EstimateError
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import FrameFeatures
 from vbfe.live.predictor import LivePredictor
@@ -162,6 +162,7 @@ class FrameEstimator:
     def prepare(self, work: FrameWork) -> FrameWork:
         """The model's features of the frame's cloud (none when it has too few points)."""
         t0 = time.perf_counter()
+        assert work.points is not None  # reconstructed by the stage before
         try:
             work.features = self._predictor.prepare(work.points, work.colors)
         except EstimateError:  # too few points inside the model's region of interest
@@ -195,5 +196,5 @@ class FrameEstimator:
             t_frame_host_ns=work.frame.t_host_ns,
             t_ready_host_ns=time.monotonic_ns(),
             stage_s=(*work.stage_s, t1 - t0),
-            n_points=len(work.points),
+            n_points=0 if work.points is None else len(work.points),
         )

@@ -34,8 +34,8 @@ import numpy as np
 from vbfe.bags import builders
 from vbfe.bags.images import ImageCodec
 from vbfe.bags.messages import TOPICS, schema_text
+from vbfe.common.errors import LiveError
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
-from vbfe.live.errors import LiveError
 from vbfe.live.mailbox import Mailbox
 from vbfe.live.outputs import EstimateOutput
 

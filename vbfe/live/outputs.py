@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vbfe.acquire import Listener
+from vbfe.common.errors import LiveError
 from vbfe.drivers.samples import ForceSample
 from vbfe.drivers.streams.lsl import pylsl
-from vbfe.live.errors import LiveError
 
 if TYPE_CHECKING:
     from vbfe.acquire import Acquisition

@@ -32,8 +32,12 @@ class LivePredictor:
         network = isinstance(estimator, NetworkEstimator)
         self._pool_only = network and model.novelty is None
         # a single-frame network reads the newest pool alone: called directly
-        self._network = estimator.network.eval() if network and not estimator.window else None
-        self._device = next(estimator.network.parameters()).device if network else None
+        self._network: torch.nn.Module | None = None
+        self._device: torch.device | None = None
+        if isinstance(estimator, NetworkEstimator):
+            if not estimator.window:
+                self._network = estimator.network.eval()
+            self._device = next(estimator.network.parameters()).device
         self._interval = model.interval()
 
     def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:

@@ -25,15 +25,16 @@ from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.extra_streams import marks_stream
+from vbfe.acquire.session.layout import CAMERA
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
+from vbfe.common.errors import LiveError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import ForceSample, StereoFrame
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import force_target
-from vbfe.live.errors import LiveError
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
 from vbfe.live.outputs import EstimateOutput
 from vbfe.live.pipeline import Pipeline
@@ -211,11 +212,12 @@ class LiveRun(Listener):
         """The estimator's stages, its reconstruction handing each cloud to the outputs."""
         (name, reconstruct), *rest = self.estimator.stages()
 
-        def reconstruct_and_hand_on(work: FrameWork) -> FrameWork:
-            work = reconstruct(work)
-            for output in self.outputs:
-                output.on_cloud(work.frame.t_host_ns, work.points, work.colors)
-            return work
+        def reconstruct_and_hand_on(work: FrameWork) -> FrameWork | LiveEstimate:
+            done = reconstruct(work)  # an estimate already when the frame is refused
+            if isinstance(done, FrameWork) and done.points is not None and done.colors is not None:
+                for output in self.outputs:
+                    output.on_cloud(done.frame.t_host_ns, done.points, done.colors)
+            return done
 
         return [(name, reconstruct_and_hand_on), *rest]
 
@@ -238,16 +240,16 @@ class LiveRun(Listener):
             self.acquisition.stop(reason)
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = str(exc)
-        recording = isinstance(self.acquisition, Recorder)
-        if lost and not recording and self.error is None:
+        recorder = self.acquisition if isinstance(self.acquisition, Recorder) else None
+        if lost and recorder is None and self.error is None:
             self.error = lost
         if self._pipeline.error is not None and self.error is None:
             self.error = self._pipeline.error
         status = self.status()
-        if recording and self.error is None:
-            with SessionReader(self.acquisition.path) as reader:
-                recorded = reader.stream_times("camera")[2][: reader.n_frames]
-            store_estimates(self.acquisition.path, self.stream(status, recorded))
+        if recorder is not None and self.error is None:
+            with SessionReader(recorder.path) as reader:
+                recorded = reader.stream_times(CAMERA)[2][: reader.n_frames]
+            store_estimates(recorder.path, self.stream(status, recorded))
         return status
 
     def mark(self, text: str) -> bool:

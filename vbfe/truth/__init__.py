@@ -4,8 +4,9 @@ Nothing in ``drivers``' consumers (``acquire``, ``calib``, ``recon``, ``estimate
 package or ``vbfe.drivers.sim``; they see the bench only through the driver interfaces.
 """
 
+from vbfe.common.errors import TruthError
 from vbfe.truth.accuracy import AccuracyReport, evaluate_against_truth, rectified_truth
-from vbfe.truth.bench import TruthError, session_bench, trial_duration_s, true_rig
+from vbfe.truth.bench import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
 from vbfe.truth.scenes import board_config
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.recon.errors import ReconError
+from vbfe.common.errors import ReconError
 from vbfe.recon.triangulate import FrameCloud
 
 BAD_PIXEL_PX = 1.0
@@ -95,9 +95,9 @@ def rectified_truth(
     )[2].reshape(height, width)
     depth_rect = raw_depth / ray_z
     valid_rect = raw_depth > 0
-    doffs = -calibration.doffs  # here: left minus right
+    depth = np.where(valid_rect, depth_rect, 1.0)
     disparity = np.where(
-        valid_rect, calibration.f * calibration.B / np.where(valid_rect, depth_rect, 1.0) + doffs, 0
+        valid_rect, calibration.f * calibration.B / depth + calibration.disparity_offset, 0
     )
     return (
         disparity.astype(np.float32),

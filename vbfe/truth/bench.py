@@ -5,13 +5,9 @@ from __future__ import annotations
 from typing import Any
 
 from vbfe.acquire import SessionReader
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import TruthError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.rig import StereoRig
-
-
-class TruthError(VbfeError):
-    """Ground truth was asked of something that has none (e.g. a session from a real rig)."""
 
 
 def true_rig(config: dict[str, dict[str, Any]]) -> StereoRig:
