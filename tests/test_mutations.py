@@ -502,7 +502,8 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
         return path
 
     for key in payload:
-        optional = key in ("vbfe_version", "created_unix_ns")
+        # metadata, and what model files written before intervals and flags lack
+        optional = key in ("vbfe_version", "created_unix_ns", "interval", "novelty")
         yield f"delete {key}", save({k: v for k, v in payload.items() if k != key}), not optional
     estimators = payload["estimators"]
 

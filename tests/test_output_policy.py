@@ -69,6 +69,22 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
             ["record", f"{d}/cal.yaml", "--calib", f"{d}/cal.yaml", "--overwrite"],
             ["record", o, "--duration", "0.1", "--calib", f"{d}/cal.yaml"],
         ),
+        "console": (  # the session is always new (refused if it exists); screenshots replace
+            ["console", "--record", f"{o}.h5", "--duration", "0.1", "--screenshot", o],
+            [
+                "console",
+                "--calib",
+                f"{d}/cal.yaml",
+                "--record",
+                f"{o}.h5",
+                "--duration",
+                "0.1",
+                "--screenshot",
+                f"{d}/cal.yaml",
+                "--overwrite",
+            ],
+            [],
+        ),
         "calibrate board": (
             ["calibrate", "board", str(out.with_suffix(""))],
             [],
