@@ -14,14 +14,17 @@ record the session (HDF5, as ``vbfe live --record``). ``--foxglove`` runs every 
 ``--repeats`` times without and with ``vbfe live --foxglove``'s server (JPEG 90 images, a
 WebSocket client on loopback subscribed to every topic, as the Foxglove app would be),
 alternating, and prints the median estimate rate with the server over the rate without (goal:
-within 5 %). ``--scale``, ``--row-scale`` and the thread counts default to the ``[live]``
-table, as in ``vbfe live``. The endoscope is the real OpenCV camera driver reading a capture
-that replays frames the bench rendered beforehand, paced on the host clock: a real endoscope's
-frames cost the host nothing to make, while the bench's live rendering would take a large share
-of the two cores (``--render-live`` measures that instead). Run: ``python -m
-benchmarks.bench_live [--seconds S] [--scale 1.0] [--row-scale 1.0] [--background-load 1]
-[--record [--compression blosc-lz4]] [--sizes 640x360,1280x720] [--render-live] [--foxglove
-[--repeats 3]]``.
+within 5 %). ``--model hooke_texture`` runs Hooke's law on the 3D displacement tracked in the
+tissue's texture instead of the PointNet (the bench's tissue textured; goal at 640×360: at
+least 25 est/s, p95 latency at most 80 ms beside one busy process). ``--scale``,
+``--row-scale`` and the thread counts default to the ``[live]`` table, as in ``vbfe live``. The
+endoscope is the real OpenCV camera driver reading a capture that replays frames the bench
+rendered beforehand, paced on the host clock: a real endoscope's frames cost the host nothing
+to make, while the bench's live rendering would take a large share of the two cores
+(``--render-live`` measures that instead). Run: ``python -m benchmarks.bench_live [--seconds S]
+[--scale 1.0] [--row-scale 1.0] [--background-load 1] [--record [--compression blosc-lz4]]
+[--sizes 640x360,1280x720] [--render-live] [--foxglove [--repeats 3]] [--model
+hooke_texture]``.
 """
 
 from __future__ import annotations
@@ -52,7 +55,8 @@ from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
-from vbfe.estimate.candidates import NetworkEstimator
+from vbfe.estimate.baselines import AffineBaseline
+from vbfe.estimate.candidates import CANDIDATES, TEXTURE_FEATURE, NetworkEstimator
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
@@ -146,6 +150,15 @@ def untrained_model(conv_channels: list[int]) -> ForceModel:
     )
 
 
+def texture_model(stiffness_n_per_m: float = 900.0) -> ForceModel:
+    """Hooke's law on the texture's 3D displacement (speed does not depend on the slope)."""
+    name = CANDIDATES["hooke_texture"]
+    hooke = AffineBaseline(name, np.array([stiffness_n_per_m]), np.array([0.0]), TEXTURE_FEATURE)
+    return ForceModel(
+        config=TrainConfig(model="hooke_texture"), selected=name, estimators={name: hooke}
+    )
+
+
 def busy_processes(n: int) -> list[subprocess.Popen]:
     """``n`` processes that each keep one core busy until killed."""
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
@@ -181,7 +194,7 @@ def measure(
     seconds: float,
     scale: float,
     row_scale: float,
-    conv_channels: list[int],
+    model: ForceModel,
     record: Path | None,
     foxglove: bool = False,
 ) -> dict[str, float]:
@@ -195,7 +208,7 @@ def measure(
     )
     calibration = calibration_from_rig(true_rig(config))
     estimator = FrameEstimator(
-        untrained_model(conv_channels),
+        model,
         calibration,
         SgbmParams.from_config(section(config, "sgbm")),
         scale=scale,
@@ -283,6 +296,12 @@ def main() -> None:
         help="PointNet 64-128-1024 instead of the demo's 32-64-256",
     )
     parser.add_argument(
+        "--model",
+        choices=("pointnet", "hooke_texture"),
+        default="pointnet",
+        help="hooke_texture: Hooke's law on the texture's 3D displacement (textured tissue)",
+    )
+    parser.add_argument(
         "--render-live",
         action="store_true",
         help="the bench camera renders every frame in real time (costs CPU)",
@@ -304,8 +323,13 @@ def main() -> None:
     sizes = [tuple(int(v) for v in size.split("x")) for size in args.sizes.split(",")]
     compression = args.compression or section(load_config(), "record")["compression"]
     print(
-        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; PointNet "
-        f"{'-'.join(map(str, channels))}, reconstruction at scale {args.scale}, rows "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
+        + (
+            "Hooke's law on the texture's 3D displacement (textured tissue)"
+            if args.model == "hooke_texture"
+            else f"PointNet {'-'.join(map(str, channels))}"
+        )
+        + f", reconstruction at scale {args.scale}, rows "
         f"{args.row_scale}, "
         f"{'bench rendering live' if args.render_live else 'replayed bench frames'}"
         f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
@@ -317,11 +341,14 @@ def main() -> None:
         f"{'p95 ms':>7} "
         f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES)
     )
+    model = texture_model() if args.model == "hooke_texture" else untrained_model(channels)
     loads = [0] + ([args.background_load] if args.background_load else [])
     with tempfile.TemporaryDirectory() as folder:
         for width, height in sizes:
             config = load_config()
             config["bench"].update(width=width, height=height, fps=FPS)
+            if args.model == "hooke_texture":
+                config["bench"]["textured"] = True
             config["record"]["compression"] = compression
             frames = None if args.render_live else rendered_frames(config, REPLAY_FRAMES)
             foxglove = [False, True] * args.repeats if args.foxglove else [False]
@@ -338,7 +365,7 @@ def main() -> None:
                                 args.seconds,
                                 args.scale,
                                 args.row_scale,
-                                channels,
+                                model,
                                 path if record else None,
                                 fox,
                             )

@@ -14,6 +14,9 @@ displacement there is the frame's point at the new pixel minus the rest point (b
 smoothed first: the matcher's depth errors repeat with the fringes). The feature is the largest
 magnitude of that field smoothed per component, away from the edges of the view.
 
+For speed (``vbfe live``) a cloud is laid on the grid by a compiled loop (``texture_grid.py``)
+with its seen mask as an extra channel, so that each normalised blur is one Gaussian pass.
+
 A cloud without colours (imported depth images) or a plain surface has nothing to track:
 :meth:`TextureMotion.from_rest` says why and the feature is NaN.
 """
@@ -22,6 +25,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from vbfe.estimate.texture_grid import grid_maps
 
 AMBIENT_PERCENTILE = 30  # a channel's unlit level: most of its points lie outside its fringes
 CONTRAST_PERCENTILES = (1, 99)  # rest texture range mapped to 0–255 for the flow
@@ -35,7 +40,8 @@ FILL_PX = 2.0  # holes of the pixel grid are filled by a normalised blur of this
 MAX_GRID_PIXELS = 4_000_000
 
 
-def _normalised(points: np.ndarray) -> np.ndarray:
+def _pixels(points: np.ndarray) -> np.ndarray:
+    """A cloud's ``(x/z, y/z)``: its rectified pixels over ``f``."""
     return points[:, :2] / points[:, 2:3]
 
 
@@ -45,13 +51,14 @@ def _blur(image: np.ndarray, sigma_px: float, aspect: float) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), sigmaX=sigma_px, sigmaY=max(sigma_px * aspect, 0.3))
 
 
-def _normalised_blur(
-    values: np.ndarray, seen: np.ndarray, sigma_px: float, aspect: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Blur of the seen ``values`` (0 elsewhere) and of the seen mask (its weight)."""
-    mask = seen.astype(np.float32)
-    filled = np.where(seen[..., None] if values.ndim == 3 else seen, values, 0)
-    return _blur(filled.astype(np.float32), sigma_px, aspect), _blur(mask, sigma_px, aspect)
+def _weighted_blur(values: np.ndarray, sigma_px: float, aspect: float) -> np.ndarray:
+    """Blur of channels that hold values (0 where unseen) and, last, their seen mask."""
+    return _blur(values, sigma_px, aspect).reshape(values.shape)
+
+
+def _normalised(values: np.ndarray, floor: float = 1e-6) -> np.ndarray:
+    """The value channels of a weighted blur over its weight (the last channel)."""
+    return values[..., :-1] / np.maximum(values[..., -1:], floor)
 
 
 class TextureMotion:
@@ -60,21 +67,24 @@ class TextureMotion:
     def __init__(
         self, rest_points: np.ndarray, rest_colors: np.ndarray, step: tuple[float, float]
     ) -> None:
-        rest = _normalised(rest_points)
+        rest = _pixels(rest_points)
         self._step = np.asarray(step, np.float64)  # grid pitch along x and y (in x/z, y/z)
         self._aspect = float(self._step[0] / self._step[1])
         self._lo = rest.min(axis=0) - 2 * self._step
         cols, rows = (np.ceil((rest.max(axis=0) - self._lo) / self._step) + 3).astype(int)
         self._shape = (int(rows), int(cols))
-        self._ambient = np.maximum(np.percentile(rest_colors, AMBIENT_PERCENTILE, axis=0), 1.0)
+        self._ambient = np.maximum(
+            np.percentile(rest_colors, AMBIENT_PERCENTILE, axis=0), 1.0
+        ).astype(np.float32)
         rest_xyz, texture = self._maps(rest_points, rest_colors)
         self._rest_xyz = self._smoothed(rest_xyz)
-        self._range = np.nanpercentile(texture, CONTRAST_PERCENTILES)
-        filled, seen = self._filled(texture), np.isfinite(texture)
+        seen = texture[..., 1] > 0
+        self._range = np.percentile(texture[seen, 0], CONTRAST_PERCENTILES)
+        filled = self._filled(texture)
         band = _blur(filled, TEXTURE_BAND_PX[0], self._aspect) - _blur(
             filled, TEXTURE_BAND_PX[1], self._aspect
         )
-        mean = float(texture[seen].mean()) if seen.any() else 0.0
+        mean = float(texture[seen, 0].mean()) if seen.any() else 0.0
         self.contrast = float(band[seen].std() / mean) if mean > 0 else 0.0
         self._rest_texture = self._grey(texture)
         self._flow = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -96,7 +106,7 @@ class TextureMotion:
         step = pixel_steps(points)
         if not np.isfinite(step).all():
             return None, "the rest cloud is not laid out on a camera's pixel grid"
-        span = _normalised(points).max(axis=0) - _normalised(points).min(axis=0)
+        span = _pixels(points).max(axis=0) - _pixels(points).min(axis=0)
         if np.prod(span / np.asarray(step) + 5) > MAX_GRID_PIXELS:
             return None, "the rest cloud's pixel grid is too large"
         motion = cls(points, colors, step)
@@ -108,32 +118,29 @@ class TextureMotion:
         return motion, ""
 
     def _maps(self, points: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Points (rows × cols × 3, NaN where none) and texture (rows × cols) on the grid."""
-        ij = np.rint((_normalised(points) - self._lo) / self._step).astype(np.int64)
-        inside = ((ij >= 0) & (ij < np.array(self._shape[::-1]))).all(axis=1)
-        col, row = ij[inside, 0], ij[inside, 1]
-        xyz = np.full(self._shape + (3,), np.nan, np.float32)
-        texture = np.full(self._shape, np.nan, np.float32)
-        xyz[row, col] = points[inside]
-        texture[row, col] = (np.asarray(colors, np.float32)[inside] / self._ambient).min(axis=1)
-        return xyz, texture
+        """Points with their seen mask (rows × cols × 4) and texture with it (rows × cols × 2)
+        on the grid, 0 where unseen."""
+        return grid_maps(
+            np.ascontiguousarray(points).reshape(-1, 3),
+            np.ascontiguousarray(colors, np.float32).reshape(-1, 3),
+            self._lo,
+            self._step,
+            self._ambient,
+            self._shape,
+        )
 
     def _smoothed(self, points: np.ndarray) -> np.ndarray:
-        """A point grid (NaN where none) smoothed by a normalised Gaussian of
+        """A point grid with its seen mask (``_maps``) smoothed by a normalised Gaussian of
         ``POINT_SMOOTH_PX`` (the matcher's depth errors repeat with the fringes, a few pixels
         apart); NaN where under half the neighbourhood is seen."""
-        total, weight = _normalised_blur(
-            points, np.isfinite(points).all(axis=-1), POINT_SMOOTH_PX, self._aspect
-        )
-        return np.where(
-            (weight > 0.5)[..., None], total / np.maximum(weight, 1e-6)[..., None], np.nan
-        ).astype(np.float32)
+        blurred = _weighted_blur(points, POINT_SMOOTH_PX, self._aspect)
+        return np.where(blurred[..., -1:] > 0.5, _normalised(blurred), np.float32(np.nan))
 
-    def _filled(self, image: np.ndarray) -> np.ndarray:
-        """NaN holes filled from their neighbours (normalised Gaussian blur of ``FILL_PX``)."""
-        seen = np.isfinite(image)
-        total, weight = _normalised_blur(image, seen, FILL_PX, self._aspect)
-        return np.where(seen, image, total / np.maximum(weight, 1e-6)).astype(np.float32)
+    def _filled(self, texture: np.ndarray) -> np.ndarray:
+        """The texture (``_maps``) with its holes filled from their neighbours (normalised
+        Gaussian blur of ``FILL_PX``)."""
+        blurred = _normalised(_weighted_blur(texture, FILL_PX, self._aspect))[..., 0]
+        return np.where(texture[..., 1] > 0, texture[..., 0], blurred)
 
     def _grey(self, texture: np.ndarray) -> np.ndarray:
         low, high = self._range
@@ -142,9 +149,7 @@ class TextureMotion:
 
     def displacement_m(self, points: np.ndarray, colors: np.ndarray) -> np.ndarray:
         """3D displacement (rows × cols × 3, m, NaN where unseen) of every rest pixel."""
-        points = np.asarray(points, np.float64).reshape(-1, 3)
-        finite = np.isfinite(points).all(axis=1) & (points[:, 2] > 0)
-        xyz, texture = self._maps(points[finite], np.asarray(colors, np.float32)[finite])
+        xyz, texture = self._maps(points, colors)
         # OpenCV allocates the flow when given None; its stubs do not say so
         flow = self._flow.calc(self._rest_texture, self._grey(texture), None)  # type: ignore[call-overload]
         moved = cv2.remap(
@@ -165,19 +170,22 @@ class TextureMotion:
         if colors is None or len(colors) != len(np.asarray(points).reshape(-1, 3)):
             return float("nan")
         field = self.displacement_m(points, colors)
-        seen = np.isfinite(field).all(axis=-1)
-        inner = cv2.erode(seen.astype(np.uint8), self._border) > 0
+        seen = ~np.isnan(field[..., 0])  # a point's three components are NaN together
+        inner = cv2.erode(seen.view(np.uint8), self._border) > 0
         if not inner.any():
             return float("nan")
-        total, weight = _normalised_blur(field, seen, SMOOTH_PX, self._aspect)
-        return float((np.linalg.norm(total[inner], axis=-1) / weight[inner]).max())
+        weighted = np.empty(field.shape[:2] + (4,), np.float32)
+        weighted[..., :3] = np.where(seen[..., None], field, 0)
+        weighted[..., 3] = seen
+        blurred = _weighted_blur(weighted, SMOOTH_PX, self._aspect)[inner]
+        return float((np.linalg.norm(blurred[:, :3], axis=-1) / blurred[:, 3]).max())
 
 
 def pixel_steps(points: np.ndarray) -> tuple[float, float]:
     """The pixel pitch (in ``x/z``, ``y/z``) of a cloud triangulated row by row on a rectified
     pixel grid: along a row the median step between consecutive points, across rows the median
     step from a row's last point to the next row's first (NaN when the points are no grid)."""
-    step = np.diff(_normalised(points), axis=0)
+    step = np.diff(_pixels(points), axis=0)
     along = step[(step[:, 0] > 0) & (np.abs(step[:, 1]) < 0.25 * step[:, 0]), 0]
     if len(along) < 16:
         return float("nan"), float("nan")
