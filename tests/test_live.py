@@ -302,7 +302,7 @@ def _decoder(channel):
         return generate_dynamic(channel["schemaName"], channel["schema"])[channel["schemaName"]]
     assert channel["schemaEncoding"] == "jsonschema" and channel["encoding"] == "json"
     properties = json.loads(channel["schema"])["properties"]
-    kinds = {"integer": int, "number": (int, float), "string": str, "array": list}
+    kinds = {"integer": int, "number": (int, float), "string": str, "array": list, "boolean": bool}
 
     def decode(data):
         message = json.loads(data)

@@ -349,11 +349,12 @@ def test_live_view_runs_while_a_paced_bench_records_twenty_seconds_without_drops
     )
     assert code == 0, err
     with SessionReader(path) as s:
-        assert s.n_frames == 200 and s.attrs["camera_queue_dropped"] == 0
-        np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(200))
+        # 20 s of 10 fps frames: the 201st lies on the boundary (the camera clock drifts)
+        assert s.n_frames in (200, 201) and s.attrs["camera_queue_dropped"] == 0
+        np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(s.n_frames))
         assert s.attrs["force_queue_dropped"] == 0
     summary = inspect_session(path).text()
-    assert "200 frames" in summary and summary.count("dropped 0 (0.00%)") == 2
+    assert f"{s.n_frames} frames" in summary and summary.count("dropped 0 (0.00%)") == 2
     time.sleep(max(0.0, 20 - (time.monotonic() - started)))
     assert live.poll() is None, live.communicate()[1]
     live.send_signal(signal.SIGINT)

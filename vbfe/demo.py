@@ -55,6 +55,9 @@ class DemoPlan:
     freehand_trials: int  # freehand trials trained on
     freehand_test_trials: int  # freehand trials held out (reported apart)
     freehand_s: float  # length of a freehand trial
+    # selection on blocked folds of the training part when validation has fewer frames
+    # (``[train] select_min_val_frames``; 0: always on the validation part)
+    select_min_val_frames: int
 
     @classmethod
     def full(cls) -> DemoPlan:
@@ -91,6 +94,7 @@ class DemoPlan:
             freehand_trials=6,
             freehand_test_trials=3,
             freehand_s=15.0,
+            select_min_val_frames=300,
         )
 
     @classmethod
@@ -123,6 +127,7 @@ class DemoPlan:
             freehand_trials=2,
             freehand_test_trials=1,
             freehand_s=6.0,
+            select_min_val_frames=0,  # five folds of every candidate would take minutes
         )
 
 
@@ -488,6 +493,7 @@ def estimate_stage(
         temporal_epochs=plan.temporal_epochs,
         split=plan.split,
         gap_frames=plan.gap_frames,
+        select_min_val_frames=plan.select_min_val_frames,
     )
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
