@@ -341,25 +341,30 @@ def test_live_view_runs_while_a_paced_bench_records_twenty_seconds_without_drops
         "--config",
         rig(tmp_path, SMALL_BENCH + "fps = 10.0\nrealtime = true\n", "live.toml"),
     )
-    started = time.monotonic()
-    path = tmp_path / "paced.h5"
-    config = rig(tmp_path, SMALL_BENCH + "fps = 10.0\n[record]\nqueue_size = 2\n")
-    code, out, err = run_vbfe(
-        "record", str(path), "--duration", "20", "--config", config, timeout=400
-    )
-    assert code == 0, err
-    with SessionReader(path) as s:
-        # 20 s of 10 fps frames: the 201st lies on the boundary (the camera clock drifts)
-        assert s.n_frames in (200, 201) and s.attrs["camera_queue_dropped"] == 0
-        np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(s.n_frames))
-        assert s.attrs["force_queue_dropped"] == 0
-    summary = inspect_session(path).text()
-    assert f"{s.n_frames} frames" in summary and summary.count("dropped 0 (0.00%)") == 2
-    time.sleep(max(0.0, 20 - (time.monotonic() - started)))
-    assert live.poll() is None, live.communicate()[1]
-    live.send_signal(signal.SIGINT)
-    _, err = live.communicate(timeout=30)
-    assert live.returncode == 0 and "Fatal" not in err, err
+    try:
+        started = time.monotonic()
+        path = tmp_path / "paced.h5"
+        config = rig(tmp_path, SMALL_BENCH + "fps = 10.0\n[record]\nqueue_size = 2\n")
+        code, out, err = run_vbfe(
+            "record", str(path), "--duration", "20", "--config", config, timeout=400
+        )
+        assert code == 0, err
+        with SessionReader(path) as s:
+            # 20 s of 10 fps frames: the 201st lies on the boundary (the camera clock drifts)
+            assert s.n_frames in (200, 201) and s.attrs["camera_queue_dropped"] == 0
+            np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(s.n_frames))
+            assert s.attrs["force_queue_dropped"] == 0
+        summary = inspect_session(path).text()
+        assert f"{s.n_frames} frames" in summary and summary.count("dropped 0 (0.00%)") == 2
+        time.sleep(max(0.0, 20 - (time.monotonic() - started)))
+        assert live.poll() is None, live.communicate()[1]
+        live.send_signal(signal.SIGINT)
+        _, err = live.communicate(timeout=30)
+        assert live.returncode == 0 and "Fatal" not in err, err
+    finally:  # a failed check must not leave the viewer running
+        if live.poll() is None:
+            live.kill()
+            live.wait()
 
 
 @pytest.mark.slow
