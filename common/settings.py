@@ -27,16 +27,19 @@ _TOML_SCALARS = (bool, int, float, str)
 
 
 def setting(
-    default: Any,
+    default: Any = dataclasses.MISSING,
     *,
     gt: float | None = None,
     ge: float | None = None,
     lt: float | None = None,
     le: float | None = None,
 ) -> Any:
-    """A dataclass field with its default and an optional range (``gt``/``ge``/``lt``/``le``)."""
+    """A dataclass field with its default (none: a required field) and an optional range
+    (``gt``/``ge``/``lt``/``le``)."""
     limits = {"gt": gt, "ge": ge, "lt": lt, "le": le}
     metadata = {"limits": {k: v for k, v in limits.items() if v is not None}}
+    if default is dataclasses.MISSING:
+        return dataclasses.field(metadata=metadata)
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)

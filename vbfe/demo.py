@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -102,20 +102,18 @@ class DemoPlan:
         """A small run for tests (about 140 s of CPU). With one training session per
         condition, validation takes time blocks inside them (a held-out session would take a
         whole condition out of training). Two short freehand trials are trained on and one is
-        held out: enough to check the freehand report, not to measure it (the full run does)."""
-        return cls(
+        held out: enough to check the freehand report, not to measure it (the full run does).
+        Camera rate, network width and time limit are the full run's."""
+        return replace(
+            cls.full(),
             width=480,
             height=270,
-            fps=10.0,
             hold_s=1.0,
             calibration_frames=60,
             projector_poses=6,
             repeats=2,
             epochs=60,
             n_points=256,
-            frame_stride=1,
-            conv_channels=[32, 64, 256],
-            time_limit_s=0.0,
             threads=1,
             recon_check_frames=1,
             temporal_frames=2,

@@ -365,18 +365,15 @@ class SimBench:
         """The tissue/optics nuisances; motion blur is the grasp's travel during one exposure
         at the pull speed, seen at the working distance (an upper bound for the whole view)."""
         dx, dy, _ = self.trial.sample.pull_direction
-        try:
-            return Nuisance(
-                subsurface_blur_mm=subsurface_blur_mm,
-                specular=specular,
-                crosstalk=crosstalk,
-                projector_gamma=projector_gamma,
-                vignetting=vignetting,
-                motion_blur_px=travel_m * self.rig.left.f / distance_m,
-                motion_blur_deg=math.degrees(math.atan2(dy, dx)),
-            )
-        except ValueError as exc:
-            raise DeviceError(f"[bench] {exc}") from None
+        return Nuisance(
+            subsurface_blur_mm=subsurface_blur_mm,
+            specular=specular,
+            crosstalk=crosstalk,
+            projector_gamma=projector_gamma,
+            vignetting=vignetting,
+            motion_blur_px=travel_m * self.rig.left.f / distance_m,
+            motion_blur_deg=math.degrees(math.atan2(dy, dx)),
+        )
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
@@ -431,39 +428,33 @@ class SimBench:
     def conditions(self) -> dict[str, Any]:
         """Experimental conditions of the trial, for session metadata."""
         p, s = self.trial.protocol, self.trial.sample
+        run = {"scene": self.scene, "seed": self.seed, "simulated": True}
         if isinstance(p, TapProtocol):
             return {
                 "protocol": "sync",
                 "stiffness_n_per_m": p.stiffness_n_per_m,
                 "taps": len(p.tap_times_s),
                 "thickness_m": s.thickness_m,
-                "scene": self.scene,
-                "seed": self.seed,
-                "simulated": True,
+                **run,
             }
+        grasp = {
+            "target_force_n": p.target_force_n,
+            "thickness_m": s.thickness_m,
+            "contact_m": list(s.contact_m),
+            "pull_direction": list(s.pull_direction),
+            **run,
+        }
         if isinstance(p, FreehandProtocol):
             return {
                 "protocol": "freehand",
                 "label": f"freehand {p.stiffness_n_per_m:.0f} N/m",
                 "stiffness_n_per_m": p.stiffness_n_per_m,
-                "target_force_n": p.target_force_n,
-                "thickness_m": s.thickness_m,
-                "contact_m": list(s.contact_m),
-                "pull_direction": list(s.pull_direction),
-                "scene": self.scene,
-                "seed": self.seed,
-                "simulated": True,
+                **grasp,
             }
         return {
             "stiffness_n_per_m": p.stiffness_n_per_m,
             "pull_speed_m_per_s": p.pull_speed_m_per_s,
-            "target_force_n": p.target_force_n,
-            "thickness_m": s.thickness_m,
-            "contact_m": list(s.contact_m),
-            "pull_direction": list(s.pull_direction),
-            "scene": self.scene,
-            "seed": self.seed,
-            "simulated": True,
+            **grasp,
         }
 
     def duration_s(self) -> float:

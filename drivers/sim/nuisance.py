@@ -27,10 +27,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vbfe.drivers.sim.optics import refuse_out_of_range, vignette
+
 
 @dataclass(frozen=True)
 class Nuisance:
-    """Physically motivated image degradations (all off by default; see the module text)."""
+    """Physically motivated image degradations (all off by default; see the module text).
+
+    Raises:
+        DeviceError: a value out of range.
+    """
 
     subsurface_blur_mm: float = 0.0
     specular: float = 0.0
@@ -51,12 +57,7 @@ class Nuisance:
             "vignetting": 0 <= self.vignetting < 1,
             "motion_blur_px": self.motion_blur_px >= 0,
         }
-        wrong = [name for name, ok in checks.items() if not ok]
-        if wrong:
-            raise ValueError(
-                f"nuisance setting(s) out of range: "
-                f"{', '.join(f'{n}={getattr(self, n)}' for n in wrong)}"
-            )
+        refuse_out_of_range(self, checks, "[bench] nuisance")
 
     def projector_image(self, pattern: np.ndarray) -> np.ndarray:
         """The pattern as the projector's gamma displays it (``uint8``)."""
@@ -103,17 +104,6 @@ def specular_gain(
     half /= np.linalg.norm(half, axis=-1, keepdims=True)
     cos = np.maximum(np.sum(normal * half, axis=-1), 0)
     return (nuisance.specular * cos**nuisance.specular_shininess).astype(np.float32)
-
-
-def vignette(shape: tuple[int, int], strength: float) -> np.ndarray:
-    """The lens's relative illumination ``1 - strength (r / r_corner)²`` over an image of
-    ``shape`` (height, width; float32)."""
-    height, width = shape
-    v, u = np.mgrid[0:height, 0:width].astype(np.float32)
-    r2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (
-        (width / 2) ** 2 + (height / 2) ** 2
-    )
-    return 1 - strength * r2
 
 
 def _line_kernel(length_px: float, angle_deg: float) -> np.ndarray:

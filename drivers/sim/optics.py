@@ -19,7 +19,6 @@ import numpy as np
 
 from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_table
-from vbfe.drivers.sim.nuisance import vignette
 
 
 @dataclass(frozen=True)
@@ -46,12 +45,7 @@ class Optics:
             "noise_sigma": self.noise_sigma >= 0,
             "jpeg_quality": 0 <= self.jpeg_quality <= 100,
         }
-        wrong = [name for name, ok in checks.items() if not ok]
-        if wrong:
-            raise DeviceError(
-                "[bench] board_optics out of range: "
-                + ", ".join(f"{n} = {getattr(self, n)}" for n in wrong)
-            )
+        refuse_out_of_range(self, checks, "[bench] board_optics")
 
     @classmethod
     def from_table(cls, table: dict[str, Any] | None) -> Optics:
@@ -82,3 +76,27 @@ class Optics:
                 raise DeviceError("OpenCV could not decode a simulated JPEG image")
             grey = decoded
         return grey
+
+
+def refuse_out_of_range(settings: object, checks: dict[str, bool], what: str) -> None:
+    """Raise if any of ``settings``' fields fails its check (``checks``: field name → in range).
+
+    Raises:
+        DeviceError: naming ``what`` and each field out of range with its value.
+    """
+    wrong = [name for name, ok in checks.items() if not ok]
+    if wrong:
+        raise DeviceError(
+            f"{what} out of range: " + ", ".join(f"{n} = {getattr(settings, n)}" for n in wrong)
+        )
+
+
+def vignette(shape: tuple[int, int], strength: float) -> np.ndarray:
+    """The lens's relative illumination ``1 - strength (r / r_corner)²`` over an image of
+    ``shape`` (height, width; float32)."""
+    height, width = shape
+    v, u = np.mgrid[0:height, 0:width].astype(np.float32)
+    r2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (
+        (width / 2) ** 2 + (height / 2) ** 2
+    )
+    return 1 - strength * r2
