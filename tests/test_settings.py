@@ -62,6 +62,26 @@ def test_unknown_key_and_wrong_type_in_each_table(tmp_path, table, command, unkn
         assert not (tmp_path / "s.h5").exists()  # nothing started
 
 
+def test_train_refuses_a_bad_train_key_before_loading_torch(tmp_path):
+    (tmp_path / "rig.toml").write_text("[train]\nepochz = 3\n")
+    out = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "vbfe.cli.main", "train"]
+        + [str(tmp_path / "none.h5"), "--out", str(tmp_path / "m.pt")]
+        + ["--config", str(tmp_path / "rig.toml")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 2, out.stderr
+    imported = [line.split("|")[-1].strip() for line in out.stderr.splitlines() if "|" in line]
+    assert "vbfe.estimate.train_config" in imported  # the config was read ...
+    assert "torch" not in imported  # ... without torch
+    said = [line for line in out.stderr.splitlines() if not line.startswith("import time:")]
+    assert len(said) == 1, said
+    assert said[0].startswith("vbfe train: error: unknown key 'epochz' in [train]; known:")
+    assert "epochs" in said[0] and not (tmp_path / "m.pt").exists()
+
+
 def test_device_keys_are_checked_against_the_backend_before_constructing(tmp_path):
     out = _run(
         tmp_path,

@@ -107,11 +107,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train; print the split as frame ranges, every method's validation MAE and what ships."""
     from vbfe.batch.manifest import expand_sessions
-    from vbfe.estimate import TrainConfig, train  # torch loads only when needed
     from vbfe.estimate.splits import parse_range
+    from vbfe.estimate.train_config import TrainConfig
 
-    check_outputs([args.out], args.sessions, args.overwrite)
-    require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
     overrides = {
         key: getattr(args, key)
         for key in (
@@ -139,6 +137,10 @@ def run(args: argparse.Namespace) -> int:
     if overrides["train_frames"]:
         overrides["split"] = "time"
     config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
+    check_outputs([args.out], args.sessions, args.overwrite)
+    require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
+    from vbfe.estimate.training import train  # torch loads once the inputs are checked
+
     bars = StageProgress()
     try:
         result = train(
