@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
 from vbfe.common.config import default_config
-from vbfe.common.settings import parse_table, setting
+from vbfe.common.settings import limits, parse_table
 
 T = TypeVar("T")
 
@@ -23,46 +23,48 @@ class CalibSettings:
 
     target: Literal["charuco", "chessboard"]
     # a chessboard's (nx, ny), instead of its squares
-    inner_corners: list[int] = setting()
+    inner_corners: list[int] = dataclasses.field(metadata=limits())
     squares_x: int  # board values are checked by BoardSpec, with board-specific messages
     squares_y: int
     square_mm: float
     marker_mm: float
     dictionary: str
     legacy: bool
-    min_corners: int = setting(ge=4)
-    min_views: int = setting(ge=1)
-    outlier_sigma: float = setting(gt=0)
-    outlier_min_px: float = setting(ge=0)
-    view_outlier_z: float = setting(gt=0)
-    view_outlier_min_px: float = setting(ge=0)
-    well_determined_views: int = setting(ge=1)
+    min_corners: int = dataclasses.field(metadata=limits(ge=4))
+    min_views: int = dataclasses.field(metadata=limits(ge=1))
+    outlier_sigma: float = dataclasses.field(metadata=limits(gt=0))
+    outlier_min_px: float = dataclasses.field(metadata=limits(ge=0))
+    view_outlier_z: float = dataclasses.field(metadata=limits(gt=0))
+    view_outlier_min_px: float = dataclasses.field(metadata=limits(ge=0))
+    well_determined_views: int = dataclasses.field(metadata=limits(ge=1))
     fix_k3: bool
-    min_baseline_mm: float = setting(ge=0)
-    nominal_baseline_mm: float = setting(ge=0)
-    baseline_tolerance: float = setting(gt=0)
-    max_rms_px: float = setting(gt=0)
-    min_rectified_fraction: float = setting(ge=0, le=1)
-    desync_min_px: float = setting(ge=0)
+    min_baseline_mm: float = dataclasses.field(metadata=limits(ge=0))
+    nominal_baseline_mm: float = dataclasses.field(metadata=limits(ge=0))
+    baseline_tolerance: float = dataclasses.field(metadata=limits(gt=0))
+    max_rms_px: float = dataclasses.field(metadata=limits(gt=0))
+    min_rectified_fraction: float = dataclasses.field(metadata=limits(ge=0, le=1))
+    desync_min_px: float = dataclasses.field(metadata=limits(ge=0))
     reject_desync: bool
-    rectify_alpha: float = setting(ge=0, le=1)
+    rectify_alpha: float = dataclasses.field(metadata=limits(ge=0, le=1))
     zero_disparity: Literal["auto", "on", "off"]
-    working_distance_mm: float = setting(gt=0)
-    capture_views: int = setting(ge=1)
-    capture_max_views: int = setting(ge=1)
-    min_sharpness: float = setting(ge=0)
-    min_pose_distance: float = setting(ge=0)
-    check_max_depth_error_mm: float = setting(gt=0)
-    check_max_epipolar_px: float = setting(gt=0)
-    projector_window_px: int = setting(ge=1)
-    projector_min_contrast: float = setting(ge=0)
-    projector_width: int = setting(ge=0)  # 0: the projector size of the simulated rig
-    projector_height: int = setting(ge=0)
-    projector_settle_s: float = setting(ge=0)
-    projector_still_level: float = setting(ge=0)
-    projector_change_level: float = setting(ge=0)
-    projector_still_frames: int = setting(ge=1)
-    projector_pose_timeout_s: float = setting(gt=0)
+    working_distance_mm: float = dataclasses.field(metadata=limits(gt=0))
+    capture_views: int = dataclasses.field(metadata=limits(ge=1))
+    capture_max_views: int = dataclasses.field(metadata=limits(ge=1))
+    min_sharpness: float = dataclasses.field(metadata=limits(ge=0))
+    min_pose_distance: float = dataclasses.field(metadata=limits(ge=0))
+    check_max_depth_error_mm: float = dataclasses.field(metadata=limits(gt=0))
+    check_max_epipolar_px: float = dataclasses.field(metadata=limits(gt=0))
+    projector_window_px: int = dataclasses.field(metadata=limits(ge=1))
+    projector_min_contrast: float = dataclasses.field(metadata=limits(ge=0))
+    projector_width: int = dataclasses.field(
+        metadata=limits(ge=0)
+    )  # 0: the projector size of the simulated rig
+    projector_height: int = dataclasses.field(metadata=limits(ge=0))
+    projector_settle_s: float = dataclasses.field(metadata=limits(ge=0))
+    projector_still_level: float = dataclasses.field(metadata=limits(ge=0))
+    projector_change_level: float = dataclasses.field(metadata=limits(ge=0))
+    projector_still_frames: int = dataclasses.field(metadata=limits(ge=1))
+    projector_pose_timeout_s: float = dataclasses.field(metadata=limits(gt=0))
 
 
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:

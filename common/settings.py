@@ -26,20 +26,24 @@ T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)
 
 
+def limits(**bounds: float) -> dict[str, Any]:
+    """The metadata giving a dataclass field its range (``gt``/``ge``/``lt``/``le``): for a
+    required field, ``dataclasses.field(metadata=limits(ge=1))`` (mypy takes only
+    ``dataclasses.field`` for a field without a default)."""
+    return {"limits": bounds}
+
+
 def setting(
-    default: Any = dataclasses.MISSING,
+    default: Any,
     *,
     gt: float | None = None,
     ge: float | None = None,
     lt: float | None = None,
     le: float | None = None,
 ) -> Any:
-    """A dataclass field with its default (none: a required field) and an optional range
-    (``gt``/``ge``/``lt``/``le``)."""
-    limits = {"gt": gt, "ge": ge, "lt": lt, "le": le}
-    metadata = {"limits": {k: v for k, v in limits.items() if v is not None}}
-    if default is dataclasses.MISSING:
-        return dataclasses.field(metadata=metadata)
+    """A dataclass field with its default and an optional range (``gt``/``ge``/``lt``/``le``)."""
+    bounds = {"gt": gt, "ge": ge, "lt": lt, "le": le}
+    metadata = limits(**{k: v for k, v in bounds.items() if v is not None})
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)

@@ -192,23 +192,44 @@ def test_export_then_import_bag_gives_the_same_session(sessions, tmp_path, kind)
 
 
 # -- bags made elsewhere: rosbags' own writers, a robot's topic names -----------------------
+BAG_EPOCH_NS = 1_700_000_000 * 10**9  # the bags made here start at this Unix time
+
+
+def _header(types, t_ns, frame_id, ros1=False):
+    """A ``std_msgs/Header`` stamped ``t_ns`` (ROS 1's has a sequence number)."""
+    stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    kwargs = {"seq": 0} if ros1 else {}
+    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id, **kwargs)
+
+
+def _image_msg(types, header, image, encoding):
+    """A ``sensor_msgs/Image`` of a 3-channel 8-bit ``image``."""
+    height, width = image.shape[:2]
+    return types["sensor_msgs/msg/Image"](
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=3 * width,
+        data=image.reshape(-1),
+    )
+
+
 def _robot_messages(store, session, ros1, compressed):
     """(topic, msgtype, Unix ns, message) of a robot's stereo + wrench recording built from a
     session's frames, forces and calibration."""
     import cv2
 
     types = store.types
-    Time = types["builtin_interfaces/msg/Time"]
-    Header = types["std_msgs/msg/Header"]
 
     def header(t, frame):
-        kwargs = {"seq": 0} if ros1 else {}
-        return Header(stamp=Time(sec=t // 10**9, nanosec=t % 10**9), frame_id=frame, **kwargs)
+        return _header(types, t, frame, ros1)
 
     out = []
     with SessionReader(session) as reader:
         cal = Calibration.from_yaml_text(reader.calibration_yaml())
-        t0 = 1_700_000_000 * 10**9
+        t0 = BAG_EPOCH_NS
         frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + t0
         for i in range(reader.n_frames):
             frame = reader.frame(i)
@@ -233,15 +254,7 @@ def _robot_messages(store, session, ros1, compressed):
                     )
                 else:
                     rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-                    msg = types["sensor_msgs/msg/Image"](
-                        header=h,
-                        height=90,
-                        width=160,
-                        encoding="rgb8",
-                        is_bigendian=0,
-                        step=480,
-                        data=rgb.reshape(-1),
-                    )
+                    msg = _image_msg(types, h, rgb, "rgb8")
                     out.append((f"/stereo/{eye}/image_raw", "sensor_msgs/msg/Image", t, msg))
                 info = {
                     "D" if ros1 else "d": D,
@@ -454,28 +467,16 @@ def test_side_by_side_topic_in_a_rosbag2_mcap_folder(sessions, tmp_path, capsys)
         force = writer.add_connection(
             "/ft/wrench", "geometry_msgs/msg/WrenchStamped", typestore=store
         )
-        frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + 1_700_000_000 * 10**9
+        frame_t = reader.frame_times_ns() - reader.frame_times_ns()[0] + BAG_EPOCH_NS
         for i, frame in enumerate(reader.iter_frames()):
             t = int(frame_t[i])
-            header = types["std_msgs/msg/Header"](
-                stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9),
-                frame_id="endoscope",
-            )
+            header = _header(types, t, "endoscope")
             both = np.hstack([frame.left, frame.right])
             writer.write(
                 image,
                 t,
                 store.serialize_cdr(
-                    types["sensor_msgs/msg/Image"](
-                        header=header,
-                        height=90,
-                        width=320,
-                        encoding="bgr8",
-                        is_bigendian=0,
-                        step=960,
-                        data=both.reshape(-1),
-                    ),
-                    "sensor_msgs/msg/Image",
+                    _image_msg(types, header, both, "bgr8"), "sensor_msgs/msg/Image"
                 ),
             )
             vector = types["geometry_msgs/msg/Vector3"]

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.calibration_nodes import STEREO_MATRICES
 from vbfe.calib.board import BoardSpec
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.camera import CameraOptions
@@ -40,17 +41,7 @@ def test_yaml_round_trip_keeps_every_field(tmp_path, calibration):
     path = calibration.save(tmp_path / "cal.yaml")
     back = Calibration.load(path)
     for name in (
-        "K1",
-        "D1",
-        "K2",
-        "D2",
-        "R",
-        "T",
-        "R1",
-        "R2",
-        "P1",
-        "P2",
-        "Q",
+        *STEREO_MATRICES,
         "K_proj",
         "D_proj",
         "R_proj",

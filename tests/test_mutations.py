@@ -27,6 +27,7 @@ import h5py
 import numpy as np
 import pytest
 
+from tests.calibration_nodes import STEREO_MATRICES
 from vbfe.cli.main import main
 from vbfe.common.config import default_config, read_toml
 
@@ -51,22 +52,7 @@ RECORD_S = "0.4"
 # Session datasets every reader needs; everything else (truth, clock fits, analysis) is optional.
 REQUIRED_SESSION_PREFIXES = ("camera", "force", "projector", "gaps", "clock_pairs")
 REQUIRED_SESSION_ATTRS = {"/": ("format",), "camera": ("width", "height")}
-REQUIRED_CALIBRATION_NODES = (
-    "format",
-    "image_width",
-    "image_height",
-    "K1",
-    "D1",
-    "K2",
-    "D2",
-    "R",
-    "T",
-    "R1",
-    "R2",
-    "P1",
-    "P2",
-    "Q",
-)
+REQUIRED_CALIBRATION_NODES = ("format", "image_width", "image_height", *STEREO_MATRICES)
 
 
 @dataclass
