@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration, reprojection_matrix
+from vbfe.calib.rectify import stereo_rectify
 from vbfe.common.errors import CalibrationError
 
 IMPORT_FORMATS = ("opencv", "kalibr", "ros", "middlebury")
@@ -109,11 +110,25 @@ def _need(value: V | None, what: str, source: str) -> V:
     return value
 
 
-def _rectify(K1, D1, K2, D2, R, T, size: tuple[int, int]) -> dict[str, Any]:
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-        K1, D1, K2, D2, size, R, T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
+def _stereo(
+    K1: np.ndarray,
+    D1: np.ndarray,
+    K2: np.ndarray,
+    D2: np.ndarray,
+    R: np.ndarray,
+    T: np.ndarray,
+    size: tuple[int, int],
+    source: str,
+    rectified: dict[str, np.ndarray] | None = None,
+) -> Calibration:
+    """The calibration of a pair imported from ``source``, with its rectification as given or
+    (``rectified`` None) as ``stereoRectify`` finds it (zero disparity, alpha 0)."""
+    if rectified is None:
+        rect = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha=0, zero_disparity=True)
+        rectified = {"R1": rect.R1, "R2": rect.R2, "P1": rect.P1, "P2": rect.P2, "Q": rect.Q}
+    return Calibration(
+        K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, **rectified, info={"source": source}
     )
-    return dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q)
 
 
 def _opencv(
@@ -135,18 +150,9 @@ def _opencv(
         )
     names = ("R1", "R2", "P1", "P2", "Q")
     given: dict[str, Any] = {name: store.matrix(name) for name in names}
-    if any(v is None for v in given.values()) or unit_m != 1.0:
-        given = _rectify(K1, D1, K2, D2, R, T, size)
-    return Calibration(
-        K1=K1,
-        D1=D1,
-        K2=K2,
-        D2=D2,
-        R=R,
-        T=T,
-        image_size=size,
-        **given,
-        info={"source": f"OpenCV stereo files ({source})"},
+    usable = all(v is not None for v in given.values()) and unit_m == 1.0
+    return _stereo(
+        K1, D1, K2, D2, R, T, size, f"OpenCV stereo files ({source})", given if usable else None
     )
 
 
@@ -178,17 +184,7 @@ def _kalibr(store: _Storage, source: str) -> Calibration:
     T_cn = T_cn.reshape(4, 4)
     (K1, D1, size), (K2, D2, _) = cams
     R, T = T_cn[:3, :3], T_cn[:3, 3]
-    return Calibration(
-        K1=K1,
-        D1=D1,
-        K2=K2,
-        D2=D2,
-        R=R,
-        T=T,
-        image_size=size,
-        **_rectify(K1, D1, K2, D2, R, T, size),
-        info={"source": f"Kalibr camchain ({source})"},
-    )
+    return _stereo(K1, D1, K2, D2, R, T, size, f"Kalibr camchain ({source})")
 
 
 def _ros(stores: list[_Storage], sources: list[str]) -> Calibration:
