@@ -3,12 +3,11 @@ and sessions that fail or kill their worker without stopping the others."""
 
 import csv
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from tests.cli import vbfe
 from vbfe.acquire import record_session
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.batch.executors import run_tasks
@@ -18,17 +17,6 @@ from vbfe.recon import CloudReader, sidecar_path
 from vbfe.truth import calibration_from_rig, true_rig
 
 CONDITIONS = [(40.0, 0.01), (80.0, 0.005), (200.0, 0.002)]
-
-
-def vbfe(*args, cwd=None):
-    """The real CLI in a subprocess."""
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=300,
-    )
 
 
 @pytest.fixture(scope="module")

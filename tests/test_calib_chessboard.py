@@ -7,20 +7,19 @@ from __future__ import annotations
 
 import functools
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.cli import vbfe, vbfe_here
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.stereo import calibrate_detections, detect_views
 from vbfe.calib.views import ViewSet
-from vbfe.cli.main import main
 from vbfe.drivers.sim.charuco_scene import (
     ChessboardPattern,
     random_board_poses,
@@ -38,21 +37,6 @@ BOARD_ARGS = ["--inner-corners", f"{INNER[0]}x{INNER[1]}", "--square-mm", str(SQ
 RIG = default_rig(640, 360, baseline_m=0.004, distortion=True)
 PATTERN = ChessboardPattern(INNER, SQUARE_M)
 DISTANCE_M = (0.035, 0.07)
-
-
-def vbfe(*args: str) -> subprocess.CompletedProcess:
-    """The real CLI in a subprocess."""
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True, text=True, timeout=300
-    )
-
-
-def vbfe_here(capsys, *args: str) -> subprocess.CompletedProcess:
-    """The CLI's entry point in this process (same parser and error printing, no start-up)."""
-    capsys.readouterr()
-    code = main(list(args))
-    out = capsys.readouterr()
-    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 def error_lines(stderr: str) -> list[str]:

@@ -6,7 +6,6 @@ pipeline (tests/plain_opencv.py) on the same images."""
 from __future__ import annotations
 
 import functools
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -15,11 +14,11 @@ import pytest
 
 from tests import calib_image_sets as sets
 from tests import plain_opencv
+from tests.cli import vbfe_here
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.edge_width import edge_width_px
-from vbfe.cli.main import main
 from vbfe.drivers.sim.charuco_scene import ChessboardPattern, random_board_poses, render_board_views
 from vbfe.drivers.sim.rig import default_rig
 
@@ -28,14 +27,6 @@ SPEC = BoardSpec(squares_x=10, squares_y=7, square_m=sets.SQUARE_MM * 1e-3, targ
 # `vbfe calibrate stereo` on the sample at commit 7dd0dd9 (before the per-view choice):
 # fx, fy of K1 and K2 (px) and |T| (mm)
 TODAY = {"K1": (533.5573, 533.5632), "K2": (537.1288, 536.7085), "T_mm": 3.327562}
-
-
-def vbfe_here(capsys, *args: str) -> subprocess.CompletedProcess:
-    """The CLI's entry point in this process."""
-    capsys.readouterr()
-    code = main(list(args))
-    out = capsys.readouterr()
-    return subprocess.CompletedProcess(args, code, out.out, out.err)
 
 
 @functools.cache

@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.cli import vbfe_here
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.gates import GateLimits
 from vbfe.calib.stereo import StereoOptions, calibrate_detections
-from vbfe.cli.main import main
 
 DATA = Path(__file__).parent / "data" / "opencv_stereo"
 VIEWS = [f"{i:02d}" for i in range(1, 15) if i != 10]  # stereo_calib.xml's list
@@ -140,13 +140,6 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
     assert result.renumbered == ["02", "07"]
 
 
-def _vbfe(capsys, *args: str) -> subprocess.CompletedProcess:
-    """The CLI in this process (cheaper than a subprocess; the first test uses one)."""
-    code = main(list(args))
-    out = capsys.readouterr()
-    return subprocess.CompletedProcess(args, code, out.out, out.err)
-
-
 @pytest.mark.parametrize(
     "flag, value, says",
     [
@@ -163,7 +156,7 @@ def _vbfe(capsys, *args: str) -> subprocess.CompletedProcess:
 )
 def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value, says):
     out = tmp_path / "c.yaml"
-    run = _vbfe(
+    run = vbfe_here(
         capsys,
         "calibrate",
         "stereo",
@@ -187,7 +180,7 @@ def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_fa
     cli_run, capsys
 ):
     _, calibration = cli_run
-    go = _vbfe(
+    go = vbfe_here(
         capsys,
         "calibrate",
         "check",
@@ -199,7 +192,7 @@ def test_check_uses_the_stored_board_and_working_distance_flag_and_cites_what_fa
     )
     assert go.returncode == 0, go.stderr
     assert "verdict at 40 mm     GO" in go.stdout
-    no_go = _vbfe(
+    no_go = vbfe_here(
         capsys,
         "calibrate",
         "check",
@@ -226,10 +219,10 @@ def test_export_refuses_to_overwrite_without_the_flag(cli_run, tmp_path, capsys)
         "--out-dir",
         str(tmp_path),
     )
-    assert _vbfe(capsys, *args).returncode == 0
-    again = _vbfe(capsys, *args)
+    assert vbfe_here(capsys, *args).returncode == 0
+    again = vbfe_here(capsys, *args)
     assert again.returncode == 2 and "--overwrite" in again.stderr
-    assert _vbfe(capsys, *args, "--overwrite").returncode == 0
+    assert vbfe_here(capsys, *args, "--overwrite").returncode == 0
 
 
 def test_diagnostics_are_plain_yaml_and_the_board_is_the_chessboard(cli_run):

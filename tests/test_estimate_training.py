@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.estimate_methods import EVALUATED
 from vbfe.cli.main import main
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import prepare_session
@@ -109,16 +110,7 @@ def test_evaluation_writes_metrics_plots_and_baselines(trained, tmp_path):
     held_out[0].clouds[3] = np.full((50, 3), np.nan)
     report = evaluate(path, held_out, tmp_path / "eval")
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert set(metrics["metrics"]) == {
-        "pointnet",
-        "mean",
-        "linear_displacement",
-        "hooke",
-        "ridge_height_map",
-        "mlp_displacement_history",
-        "cnn_depth_change",
-        "ensemble_cnn_hooke",
-    }
+    assert set(metrics["metrics"]) == EVALUATED
     # the ensemble, read back from the model file, is the mean of its two members' forces
     with open(tmp_path / "eval" / "predictions.csv", newline="") as f:
         scored = list(csv.DictReader(f))

@@ -10,14 +10,13 @@ data. Nothing is fetched at test time.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.cli import vbfe
 from vbfe.estimate.sources import ImportedClouds
 
 REALDATA = Path(os.environ.get("VBFE_REALDATA", "/nonexistent"))
@@ -26,12 +25,6 @@ PUNYO = REALDATA / "punyo"
 KINECT_V1_DEPTH = {"fx": 582.6245, "fy": 582.6910, "cx": 313.0448, "cy": 238.4439}  # the authors'
 
 pytestmark = pytest.mark.slow
-
-
-def vbfe(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *args], capture_output=True, text=True, timeout=600
-    )
 
 
 @pytest.mark.skipif(

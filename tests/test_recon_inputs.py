@@ -1,13 +1,11 @@
 """`vbfe reconstruct` on image pairs and sessions: --rectified geometry, depth range derived from
 the calibration, maps, and honest warnings (range saturation, no pattern)."""
 
-import subprocess
-import sys
-
 import cv2
 import numpy as np
 import pytest
 
+from tests.cli import vbfe as _vbfe
 from vbfe.acquire import SessionWriter, finalize_session
 from vbfe.common.errors import ReconError
 from vbfe.drivers.samples import StereoFrame
@@ -18,16 +16,6 @@ from vbfe.recon import CloudReader, make_pattern
 from vbfe.recon.inputs import find_pairs
 from vbfe.recon.maps import read_png_map
 from vbfe.truth import calibration_from_rig
-
-
-def _vbfe(*args, cwd=None):
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 def _render(distance_m, pattern=True, seed=0):

@@ -3,14 +3,13 @@ exact truth as PFM + calib.txt, and a real Middlebury pair scored as plain OpenC
 disparity ranges SGBM cannot hold refused in one line."""
 
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from tests.cli import vbfe as _vbfe
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
@@ -18,15 +17,6 @@ from vbfe.recon import make_pattern
 from vbfe.truth import calibration_from_rig
 
 CONES = Path(__file__).parent / "data" / "middlebury_cones"
-
-
-def _vbfe(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 def _scores(stdout: str) -> dict[str, list[float]]:

@@ -3,28 +3,17 @@ and the dataset view that flags a step in the offset between sessions."""
 
 import copy
 import csv
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from tests.cli import vbfe
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, SyncLimits, verify_sync
 from vbfe.acquire.sync.viscoelastic import METHOD
 from vbfe.common.config import load_config
 from vbfe.truth import trial_duration_s
-
-
-def vbfe(*args):
-    """The real CLI in a subprocess."""
-    return subprocess.run(
-        [sys.executable, "-m", "vbfe.cli.main", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
 
 
 def _manifest(path, sessions):
