@@ -119,7 +119,7 @@ def _stereo(
     T: np.ndarray,
     size: tuple[int, int],
     source: str,
-    rectified: dict[str, np.ndarray] | None = None,
+    rectified: dict[str, Any] | None = None,
 ) -> Calibration:
     """The calibration of a pair imported from ``source``, with its rectification as given or
     (``rectified`` None) as ``stereoRectify`` finds it (zero disparity, alpha 0)."""
