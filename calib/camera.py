@@ -11,7 +11,7 @@ import numpy as np
 
 from vbfe.calib.board import BoardSpec, Detection
 from vbfe.calib.camera_model import CameraModel
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.common.errors import CalibrationError
 
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
@@ -20,7 +20,7 @@ _MIN_VIEW_SPREAD = 0.1  # floor of the per-view RMS spread, as a fraction of the
 
 
 @dataclass
-class CameraOptions:
+class CameraOptions(CalibOptions):
     """Knobs of the robust single-camera solve (defaults: the ``[calib]`` table)."""
 
     min_corners: int = calib_field("min_corners")
@@ -31,11 +31,6 @@ class CameraOptions:
     view_outlier_min_px: float = calib_field("view_outlier_min_px")
     well_determined_views: int = calib_field("well_determined_views")
     fix_k3: bool = calib_field("fix_k3")  # solve k1, k2, p1, p2 only (Kalibr's radtan model)
-
-    @classmethod
-    def from_config(cls, calib_table: dict) -> CameraOptions:
-        """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table)
 
 
 @dataclass

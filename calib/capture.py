@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.calib.views import load_views, save_views
 
 # The spread each coverage parameter must reach for a full bar (ROS camera_calibration's, with
@@ -27,7 +27,7 @@ SHARPNESS_SCALE = {"charuco": 1.0, "chessboard": 3.5}
 
 
 @dataclass
-class CaptureOptions:
+class CaptureOptions(CalibOptions):
     """Thresholds for keeping a view (defaults match the ``[calib]`` table)."""
 
     min_corners: int = calib_field("min_corners")
@@ -35,11 +35,6 @@ class CaptureOptions:
     max_views: int = calib_field("capture_max_views")
     min_sharpness: float = calib_field("min_sharpness")  # see sharpness()
     min_pose_distance: float = calib_field("min_pose_distance")  # sum of |Δ| of X, Y, size, skew
-
-    @classmethod
-    def from_config(cls, calib_table: dict) -> CaptureOptions:
-        """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table)
 
 
 @dataclass

@@ -17,14 +17,14 @@ import cv2
 import numpy as np
 
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.calib.rectify import rectified_fractions, stereo_rectify, worst_fraction
 
 PASS, FAIL, UNCHECKED = "pass", "FAIL", "not checked"
 
 
 @dataclass
-class GateLimits:
+class GateLimits(CalibOptions):
     """Limits of the sanity gates (defaults: the ``[calib]`` table)."""
 
     min_baseline_m: float = calib_field("min_baseline_mm", 1e-3)
@@ -32,11 +32,6 @@ class GateLimits:
     baseline_tolerance: float = calib_field("baseline_tolerance")  # of the nominal baseline
     max_rms_px: float = calib_field("max_rms_px")
     min_rectified_fraction: float = calib_field("min_rectified_fraction")
-
-    @classmethod
-    def from_config(cls, calib_table: dict) -> GateLimits:
-        """Limits from a rig config's ``[calib]`` table (baselines there in mm)."""
-        return from_table(cls, calib_table)
 
 
 @dataclass

@@ -98,3 +98,12 @@ def from_table(cls: type[T], table: dict[str, Any]) -> T:
             value = getattr(checked, key)
             values[f.name] = value * f.metadata["scale"] if f.metadata["scale"] != 1.0 else value
     return cls(**values)
+
+
+class CalibOptions:
+    """A settings dataclass whose :func:`calib_field` fields the ``[calib]`` table sets."""
+
+    @classmethod
+    def from_config(cls: type[T], calib_table: dict[str, Any]) -> T:
+        """Settings from a rig config's ``[calib]`` table (see :func:`from_table`)."""
+        return from_table(cls, calib_table)

@@ -19,7 +19,7 @@ import numpy as np
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.common.errors import CalibrationError
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
@@ -59,7 +59,7 @@ def projector_images(
 
 
 @dataclass
-class ProjectorOptions:
+class ProjectorOptions(CalibOptions):
     """Knobs of :func:`calibrate_projector` (defaults: the ``[calib]`` table)."""
 
     window_px: int = calib_field("projector_window_px")  # half window around each corner
@@ -67,11 +67,6 @@ class ProjectorOptions:
     min_corners: int = calib_field("min_corners")
     min_poses: int = 4
     ransac_px: float = 2.5  # projector pixels
-
-    @classmethod
-    def from_config(cls, calib_table: dict) -> ProjectorOptions:
-        """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table)
 
 
 def corner_projector_points(

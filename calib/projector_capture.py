@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vbfe.calib.options import calib_field, from_table
+from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.calib.projector import GrayCodeCapture, projector_images, save_captures
 from vbfe.common.errors import CalibrationError
 from vbfe.drivers.camera.base import FrameSource
@@ -34,7 +34,7 @@ MAX_DISCARDS = 3  # sequences in a row spoilt by a moving board before the captu
 
 
 @dataclass
-class GrayCaptureOptions:
+class GrayCaptureOptions(CalibOptions):
     """How the capture waits for patterns and poses (defaults: the ``[calib]`` table)."""
 
     settle_s: float = calib_field("projector_settle_s")  # projector latency + one exposure
@@ -43,11 +43,6 @@ class GrayCaptureOptions:
     still_frames: int = calib_field("projector_still_frames")  # frames at rest before capturing
     pose_timeout_s: float = calib_field("projector_pose_timeout_s")  # longest wait for a pose
     read_timeout_s: float = 2.0  # longest wait for one camera frame
-
-    @classmethod
-    def from_config(cls, calib_table: dict) -> GrayCaptureOptions:
-        """Options from a rig config's ``[calib]`` table."""
-        return from_table(cls, calib_table)
 
 
 def _grey(frame: StereoFrame) -> np.ndarray:

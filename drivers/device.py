@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import abc
 import time
-from types import TracebackType
 from typing import Generic, Protocol, TypeVar
 
+from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import StreamStats
 
@@ -28,7 +28,7 @@ class _Sequenced(Protocol):
 S = TypeVar("S", bound=_Sequenced)  # a sample type with a ``seq`` attribute
 
 
-class Device(abc.ABC):
+class Device(ClosedOnExit):
     """A device that is acquired by ``open`` and released by ``close`` (both idempotent).
     ``stream`` names the session stream a readable device feeds (``None``: not read by an
     acquisition, e.g. a projector)."""
@@ -74,14 +74,6 @@ class Device(abc.ABC):
     def __enter__(self: _D) -> _D:
         self.open()
         return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class SampleStream(Device, Generic[S]):

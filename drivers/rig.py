@@ -12,11 +12,11 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from types import TracebackType
 from typing import Any, Protocol
 
 import numpy as np
 
+from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import DeviceError
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.projector.base import Projector
@@ -58,7 +58,7 @@ class SharedBackend(Protocol):
         """JSON-able facts merged into :meth:`Rig.describe` (keys other than ``devices``)."""
 
 
-class Rig:
+class Rig(ClosedOnExit):
     """Named devices opened and closed together (``with rig:`` or :meth:`open`/:meth:`close`).
 
     ``camera``, ``trocar`` and ``projector`` are the well-known ones; further kinds go in
@@ -188,11 +188,3 @@ class Rig:
     def __enter__(self) -> Rig:
         self.open()
         return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

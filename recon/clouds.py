@@ -32,13 +32,13 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import h5py
 import numpy as np
 
 from vbfe.acquire.session.h5attrs import plain_attrs, text
+from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import ReconError
 from vbfe.common.files import atomic_path, require_free_space
 
@@ -167,7 +167,7 @@ class CloudWriter:
         self._file.close()
 
 
-class CloudReader:
+class CloudReader(ClosedOnExit):
     """Read a sidecar written by :func:`vbfe.recon.reconstruct_session` (context manager)."""
 
     def __init__(self, path: str | Path) -> None:
@@ -212,17 +212,6 @@ class CloudReader:
     def close(self) -> None:
         """Close the file."""
         self._file.close()
-
-    def __enter__(self) -> CloudReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     @property
     def n_frames(self) -> int:

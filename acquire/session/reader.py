@@ -14,7 +14,6 @@ import struct
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import cv2
@@ -38,6 +37,7 @@ from vbfe.acquire.session.layout import (
     StreamSpec,
     session_streams,
 )
+from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import SessionError
 from vbfe.common.files import SESSION_FORMAT, is_hdf5
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
@@ -227,7 +227,7 @@ def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]
     return encoding, streams
 
 
-class SessionReader:
+class SessionReader(ClosedOnExit):
     """Read-only access to a recorded session (frames, forces, events, clock fits, metadata).
 
     Use it as a context manager (``with SessionReader(path) as reader:``) or call
@@ -300,17 +300,6 @@ class SessionReader:
     def close(self) -> None:
         """Close the file."""
         self._file.close()
-
-    def __enter__(self) -> SessionReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def _read(self, name: str, n: int | None = None) -> np.ndarray:
         try:
