@@ -4,14 +4,13 @@ calibration and corners against plain OpenCV calls, as OpenCV's stereo_calib.cpp
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from tests.cli import vbfe_here
+from tests.cli import vbfe, vbfe_here
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.gates import GateLimits
@@ -63,29 +62,14 @@ def opencv_reference() -> dict[str, float]:
     return {"rms": rms, "fx_left": K1[0, 0], "fx_right": K2[0, 0], "T": float(np.linalg.norm(T))}
 
 
+# `vbfe calibrate stereo` on the OpenCV sample: a chessboard of 9x6 inner corners, squares of 1
+CALIBRATE_SAMPLE = ("calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1")
+
+
 @pytest.fixture(scope="module")
 def cli_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path_factory.mktemp("opencv_sample") / "c.yaml"
-    run = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "vbfe.cli.main",
-            "calibrate",
-            "stereo",
-            str(DATA),
-            "--inner-corners",
-            "9x6",
-            "--square-mm",
-            "1",
-            "-o",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    return run, out
+    return vbfe(*CALIBRATE_SAMPLE, "-o", str(out), timeout=120), out
 
 
 def test_the_sample_calibrates_through_the_cli_as_plain_opencv_does(cli_run, opencv_reference):
@@ -156,21 +140,7 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
 )
 def test_gate_flags_refuse_naming_the_quantity_value_and_limit(tmp_path, capsys, flag, value, says):
     out = tmp_path / "c.yaml"
-    run = vbfe_here(
-        capsys,
-        "calibrate",
-        "stereo",
-        str(DATA),
-        "--inner-corners",
-        "9x6",
-        "--square-mm",
-        "1",
-        "-o",
-        str(out),
-        "--no-report",
-        flag,
-        value,
-    )
+    run = vbfe_here(capsys, *CALIBRATE_SAMPLE, "-o", str(out), "--no-report", flag, value)
     assert run.returncode == 2 and not out.exists()
     error = run.stderr.strip().splitlines()[-1]
     assert error.startswith("vbfe calibrate: error:") and says in error
