@@ -539,16 +539,17 @@ def _export_images(session, out, images):
     }
 
 
-def test_png_export_is_lossless_and_2x_smaller_than_raw_jpeg90_10x(bench_640, tmp_path):
+def test_png_export_is_lossless_and_2_5x_smaller_than_raw_jpeg90_10x(bench_640, tmp_path):
     sizes, decoded = {}, {}
     for images in ("raw", "png", "jpeg:90"):
         out = tmp_path / f"{images.replace(':', '')}.mcap"
         decoded[images] = _export_images(bench_640, out, images)
         sizes[images] = out.stat().st_size
-    # lossless cannot reach the issue's 3x here: the bench's sensor noise (sigma 1 grey level)
-    # leaves ~3 bits per sample after the best neighbour prediction (LOCO-I residual entropy
-    # 2.9-3.2 bits, an upper bound of ~2.6x); PNG level 1 gets ~2.1x
-    assert sizes["raw"] >= 2 * sizes["png"], sizes
+    # lossless cannot reach the issue's 3x in a format Foxglove shows: the bench's sensor noise
+    # (sigma 1 grey level) leaves 2.6 bits per sample after PNG's best predictor on a flat
+    # image (3.07x; benchmarks/bench_export.py); zlib's run-length strategy gets 2.6x, its
+    # default level 1 (before) 2.1x
+    assert sizes["raw"] >= 2.5 * sizes["png"], sizes
     assert sizes["raw"] >= 10 * sizes["jpeg:90"], sizes
     with SessionReader(bench_640) as reader:
         n = reader.n_frames
@@ -565,6 +566,21 @@ def test_png_export_is_lossless_and_2x_smaller_than_raw_jpeg90_10x(bench_640, tm
                 lossy = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
                 psnr.append(cv2.PSNR(lossy, original))
     assert min(psnr) > 30.0  # the same image, at JPEG 90's quality
+
+
+def test_png_keeps_deflate_where_images_repeat():
+    """Clean images with repeats (OpenCV's grey chessboard sample, Middlebury's cones) keep
+    deflate's gain: the smaller of the two PNG encodings, pixel-identical."""
+    from vbfe.bags.images import image_codec
+
+    data = Path(__file__).parent / "data"
+    # measured 3.9x and 2.5x; run-length alone gets 2.9x and 1.5x
+    for path, ratio in (("opencv_stereo/left01.jpg", 3.5), ("middlebury_cones/im0.png", 2.3)):
+        image = cv2.imread(str(data / path), cv2.IMREAD_COLOR)
+        encoded = image_codec("png").encode(image)
+        decoded = cv2.imdecode(np.frombuffer(encoded, np.uint8), cv2.IMREAD_COLOR)
+        assert np.array_equal(decoded, image), path
+        assert image.nbytes >= ratio * len(encoded), (path, image.nbytes / len(encoded))
 
 
 def test_images_option_is_checked_in_one_line(sessions, tmp_path, capsys):
