@@ -158,6 +158,11 @@ def lossless_survey(session: Path, every: int) -> None:
         ("webp lossless", ".webp", [cv2.IMWRITE_WEBP_QUALITY, 101]),
         ("avif lossless", ".avif", [cv2.IMWRITE_AVIF_QUALITY, 100]),
         (
+            "avif lossless speed 6",
+            ".avif",
+            [cv2.IMWRITE_AVIF_QUALITY, 100, cv2.IMWRITE_AVIF_SPEED, 6],
+        ),
+        (
             "jpeg 2000 lossless (not in Foxglove)",
             ".jp2",
             [cv2.IMWRITE_JPEG2000_COMPRESSION_X1000, 1000],
