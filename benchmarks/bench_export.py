@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import heapq
-import itertools
 import math
 import os
 import tempfile
@@ -122,6 +121,7 @@ def lossless_survey(session: Path, every: int) -> None:
     with SessionReader(session) as reader:
         sigma = float(reader.metadata.get("bench", {}).get("noise_sigma", 1.0))
         frames = [reader.frame(i) for i in range(0, reader.n_frames, every)]
+        following = [reader.frame(i + 1) for i in range(0, reader.n_frames - 1, every)]
     images = [f.left for f in frames] + [f.right for f in frames]
     raw = sum(image.nbytes for image in images)
     png = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY]
@@ -193,7 +193,9 @@ def lossless_survey(session: Path, every: int) -> None:
         "same image, upper neighbour (PNG up)": [x[1:] - x[:-1] for x in ints],
         "same image, LOCO-I median predictor": [x - med(x) for x in ints],
         "previous frame, same eye": [
-            b - a for eye in (lefts, rights) for a, b in itertools.pairwise(eye)
+            getattr(b, eye).astype(np.int16) - getattr(a, eye)
+            for a, b in zip(frames, following, strict=False)
+            for eye in ("left", "right")
         ],
         "other eye, best shift per frame": [
             min((left[:, d:] - right[:, : right.shape[1] - d] for d in range(64)), key=entropy_bits)
