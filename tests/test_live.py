@@ -378,6 +378,10 @@ def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
     assert len(estimates) >= 3
     assert {"force_n", "frame_seq", "t_frame_host_ns", "latency_s", "target"} <= set(estimates[0])
     assert all(e["target"] == "magnitude" and len(e["force_n"]) == 1 for e in estimates)
+    # the model's prediction interval around each estimate, and its out-of-distribution flag
+    assert all(isinstance(e["ood"], bool) for e in estimates)
+    bounded = [e for e in estimates if e["force_n"][0] is not None]
+    assert bounded and all(e["lo_n"][0] < e["force_n"][0] < e["hi_n"][0] for e in bounded)
     clouds = [c for _, c in got["/stereo/points"]]
     assert 2 <= len(clouds) <= 10  # at most 2 a second
     assert clouds[0].width > 100 and clouds[0].point_step == 16

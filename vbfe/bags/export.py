@@ -6,7 +6,8 @@ JPEG; an ``mjpeg`` session's own JPEG bytes, not encoded again), or ``sensor_msg
 ``bgr8`` with ``raw``;
 ``sensor_msgs/CameraInfo`` per eye from the stored calibration; ``geometry_msgs/WrenchStamped``
 for the trocar; ``sensor_msgs/PointCloud2`` from a clouds sidecar; ``vbfe_msgs`` projector
-events, gaps and live estimates; ``std_msgs/String`` with the session's attributes (JSON) and
+events, gaps and live estimates (with their prediction interval and out-of-distribution flag
+when the session stored them); ``std_msgs/String`` with the session's attributes (JSON) and
 its calibration (vbfe YAML, for an exact round trip). Every header stamp and log time is the
 synchronized time in Unix nanoseconds (frame times with the verify-sync correction); the
 publish time is the host arrival. Written with MCAP's writer (``ros2`` profile, ``ros2msg``
@@ -281,6 +282,14 @@ def _events(
         axes = {"magnitude": ["|F|"], "xyz": ["x", "y", "z"]}.get(target, [target])
         if len(axes) != estimates.force_n.shape[1]:
             axes = [f"f{k}" for k in range(estimates.force_n.shape[1])]
+        none = np.zeros((len(estimates), 0))  # no interval stored: empty per message
+        bounds = {
+            name: np.asarray(
+                getattr(estimates, name) if getattr(estimates, name) is not None else none,
+                np.float64,
+            )
+            for name in ("lo_n", "hi_n")
+        }
         for k in range(len(estimates)):
             t = int(to_unix(estimates.t_frame_host_ns[k]))
             yield (
@@ -293,6 +302,9 @@ def _events(
                     target=target,
                     axes=axes,
                     force_n=estimates.force_n[k].astype(np.float64),
+                    lo_n=bounds["lo_n"][k],
+                    hi_n=bounds["hi_n"][k],
+                    ood=bool(estimates.ood[k]) if estimates.ood is not None else False,
                     frame_seq=int(estimates.frame_seq[k]),
                     latency_s=float(estimates.latency_s[k]),
                 ),

@@ -1,6 +1,13 @@
 """How images leave vbfe (``--images`` of ``vbfe export`` and the Foxglove server): ``png``
 (lossless, ``sensor_msgs/CompressedImage`` format ``png``), ``jpeg[:QUALITY]`` (lossy, default
-quality 90) or ``raw`` (uncompressed ``sensor_msgs/Image`` ``bgr8``)."""
+quality 90) or ``raw`` (uncompressed ``sensor_msgs/Image`` ``bgr8``).
+
+PNG is written twice and the smaller kept: zlib's run-length strategy (a Huffman code of the
+filtered bytes, matches only of the previous byte), best where sensor noise leaves string
+matching nothing to find (the bench: 2.6x smaller than raw, against 2.1x at zlib's default),
+and zlib's default level 1, best on clean images with repeats (grey, flat areas). Both are
+plain PNG that any viewer decodes.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +19,11 @@ import numpy as np
 from vbfe.common.errors import BagError
 
 DEFAULT_JPEG_QUALITY = 90
-PNG_LEVEL = 1  # zlib level: the size of level 3 within a few %, at half the time
+# the two PNG encodings tried (smaller kept): run-length strategy, default strategy level 1
+PNG_TRIALS = (
+    [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE],
+    [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_DEFAULT],
+)
 
 
 @dataclass(frozen=True)
@@ -30,7 +41,9 @@ class ImageCodec:
     def encode(self, image: np.ndarray) -> bytes:
         """The bytes of a BGR uint8 image in this codec's format (not for ``raw``)."""
         if self.kind == "png":
-            ok, data = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
+            encoded = [cv2.imencode(".png", image, params) for params in PNG_TRIALS]
+            ok = all(e[0] for e in encoded)
+            data = min((e[1] for e in encoded), key=len)
         else:
             ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
         if not ok:

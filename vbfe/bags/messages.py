@@ -17,8 +17,11 @@ CUSTOM_MSGS = {
     "int64 seq\n",
     "vbfe_msgs/msg/Gap": "std_msgs/Header header\nstring stream\nstring reason\nint64 last_seq\n"
     "int64 next_seq\nint64 count\n",
+    # lo_n, hi_n: the prediction interval per axis (empty: the model has none); ood: the frame
+    # is outside the model's training data (false too when the model has no such flag)
     "vbfe_msgs/msg/ForceEstimate": "std_msgs/Header header\nstring target\nstring[] axes\n"
-    "float64[] force_n\nint64 frame_seq\nfloat64 latency_s\n",
+    "float64[] force_n\nfloat64[] lo_n\nfloat64[] hi_n\nbool ood\nint64 frame_seq\n"
+    "float64 latency_s\n",
 }
 
 TOPICS = {
