@@ -16,7 +16,9 @@ WebSocket client on loopback subscribed to every topic, as the Foxglove app woul
 alternating, and prints the median estimate rate with the server over the rate without (goal:
 within 5 %). ``--model hooke_texture`` runs Hooke's law on the 3D displacement tracked in the
 tissue's texture instead of the PointNet (the bench's tissue textured; goal at 640×360: at
-least 25 est/s, p95 latency at most 80 ms beside one busy process). ``--scale``,
+least 25 est/s, p95 latency at most 80 ms beside one busy process); the live path then computes
+the texture's displacement alone, and ``--novelty`` gives the model a flag of frames outside
+the training data (as ``vbfe train`` stores), which reads every feature. ``--scale``,
 ``--row-scale`` and the thread counts default to the ``[live]`` table, as in ``vbfe live``. The
 endoscope is the real OpenCV camera driver reading a capture that replays frames the bench
 rendered beforehand, paced on the host clock: a real endoscope's frames cost the host nothing
@@ -24,7 +26,7 @@ to make, while the bench's live rendering would take a large share of the two co
 (``--render-live`` measures that instead). Run: ``python -m benchmarks.bench_live [--seconds S]
 [--scale 1.0] [--row-scale 1.0] [--background-load 1] [--record [--compression blosc-lz4]]
 [--sizes 640x360,1280x720] [--render-live] [--foxglove [--repeats 3]] [--model
-hooke_texture]``.
+hooke_texture [--novelty]]``.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ from vbfe.drivers.rig import Rig, RigOptions
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import CANDIDATES, TEXTURE_FEATURE, NetworkEstimator
 from vbfe.estimate.model_file import ForceModel
+from vbfe.estimate.novelty import THUMB_CELLS, K, NoveltyFlag
 from vbfe.estimate.pointnet import PointNetRegressor
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.live.estimator import STAGES, FrameEstimator
@@ -150,12 +153,18 @@ def untrained_model(conv_channels: list[int]) -> ForceModel:
     )
 
 
-def texture_model(stiffness_n_per_m: float = 900.0) -> ForceModel:
-    """Hooke's law on the texture's 3D displacement (speed does not depend on the slope)."""
+def texture_model(stiffness_n_per_m: float = 900.0, novelty: bool = False) -> ForceModel:
+    """Hooke's law on the texture's 3D displacement (speed does not depend on the slope); with
+    ``novelty`` a flag of frames outside the training data (``vbfe train`` stores one), which
+    reads every feature of each frame, not only the texture's."""
     name = CANDIDATES["hooke_texture"]
     hooke = AffineBaseline(name, np.array([stiffness_n_per_m]), np.array([0.0]), TEXTURE_FEATURE)
+    flag = NoveltyFlag(np.zeros((K, THUMB_CELLS**2 + 2)), np.inf, True) if novelty else None
     return ForceModel(
-        config=TrainConfig(model="hooke_texture"), selected=name, estimators={name: hooke}
+        config=TrainConfig(model="hooke_texture"),
+        selected=name,
+        estimators={name: hooke},
+        novelty=flag,
     )
 
 
@@ -302,6 +311,11 @@ def main() -> None:
         help="hooke_texture: Hooke's law on the texture's 3D displacement (textured tissue)",
     )
     parser.add_argument(
+        "--novelty",
+        action="store_true",
+        help="hooke_texture: the model carries a novelty flag (every feature of every frame)",
+    )
+    parser.add_argument(
         "--render-live",
         action="store_true",
         help="the bench camera renders every frame in real time (costs CPU)",
@@ -325,7 +339,8 @@ def main() -> None:
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
         + (
-            "Hooke's law on the texture's 3D displacement (textured tissue)"
+            "Hooke's law on the texture's 3D displacement (textured tissue"
+            + (", novelty flag)" if args.novelty else ")")
             if args.model == "hooke_texture"
             else f"PointNet {'-'.join(map(str, channels))}"
         )
@@ -341,7 +356,11 @@ def main() -> None:
         f"{'p95 ms':>7} "
         f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES)
     )
-    model = texture_model() if args.model == "hooke_texture" else untrained_model(channels)
+    model = (
+        texture_model(novelty=args.novelty)
+        if args.model == "hooke_texture"
+        else untrained_model(channels)
+    )
     loads = [0] + ([args.background_load] if args.background_load else [])
     with tempfile.TemporaryDirectory() as folder:
         for width, height in sizes:

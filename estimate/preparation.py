@@ -143,6 +143,23 @@ class FramePreparer:
             image_count=np.zeros(cells, np.float32),
         )
 
+    def texture_features(self, points: np.ndarray, colors: np.ndarray | None) -> FrameFeatures:
+        """Features holding only the texture displacement of the whole cloud ``points`` and
+        its ``colors`` (an estimator on the texture alone reads nothing else): an empty pool,
+        no surface displacement, an empty depth-change image; NaN without texture tracking."""
+        cells = (self.config.image_cells,) * 2
+        return FrameFeatures(
+            pool=np.zeros((0, 4 if self._rest else 3), np.float32),
+            displacement_m=float("nan"),
+            image_sum=np.zeros(cells, np.float32),
+            image_count=np.zeros(cells, np.float32),
+            texture_displacement_m=(
+                self.texture.peak_displacement_m(points, colors)
+                if self.texture is not None
+                else float("nan")
+            ),
+        )
+
     def _pool(self, pool: np.ndarray) -> np.ndarray:
         """The pool as the networks read it (with the rest depth change when configured)."""
         return self._rest.with_change(pool) if self._rest else pool.astype(np.float32)

@@ -171,14 +171,20 @@ class TextureMotion:
             return float("nan")
         field = self.displacement_m(points, colors)
         seen = ~np.isnan(field[..., 0])  # a point's three components are NaN together
-        inner = cv2.erode(seen.view(np.uint8), self._border) > 0
+        inner = cv2.erode(seen.view(np.uint8), self._border).view(bool)
         if not inner.any():
             return float("nan")
         weighted = np.empty(field.shape[:2] + (4,), np.float32)
-        weighted[..., :3] = np.where(seen[..., None], field, 0)
+        weighted[..., :3] = np.nan_to_num(field, copy=False)
         weighted[..., 3] = seen
-        blurred = _weighted_blur(weighted, SMOOTH_PX, self._aspect)[inner]
-        return float((np.linalg.norm(blurred[:, :3], axis=-1) / blurred[:, 3]).max())
+        blurred = _weighted_blur(weighted, SMOOTH_PX, self._aspect)
+        # the largest squared magnitude over the squared weight, on whole planes (no gather)
+        squared = blurred[..., 0] * blurred[..., 0]
+        for c in (1, 2):
+            squared += blurred[..., c] * blurred[..., c]
+        weight = blurred[..., 3]
+        ratio = np.divide(squared, weight * weight, out=np.zeros_like(squared), where=inner)
+        return float(np.sqrt(ratio.max()))
 
 
 def pixel_steps(points: np.ndarray) -> tuple[float, float]:

@@ -6,7 +6,7 @@ import pytest
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import FrameBatches, prepare_session, prepare_sessions
 from vbfe.estimate.depth_image import DepthChangeImage, thumbnails
-from vbfe.estimate.displacement import DisplacementGrid
+from vbfe.estimate.displacement import MIN_CELL_POINTS, DisplacementGrid
 from vbfe.estimate.preparation import crop_roi, force_target, sample_points
 from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.splits import (
@@ -93,6 +93,27 @@ def test_displacement_grid_measures_a_known_bump():
     spiked = flat.copy()  # one outlier cell (e.g. an occlusion edge) is not a displacement
     spiked[(gx > 0.008) & (gy > 0.008), 2] -= 0.005
     assert grid.peak_displacement_m(spiked) == 0.0
+
+
+def test_displacement_grid_cells_hold_the_median_depth_of_their_points():
+    """The compiled per-cell median against numpy's, cell by cell, on a scattered cloud with
+    cells of even and odd counts, sparse cells (NaN) and points outside the grid."""
+    rng = np.random.default_rng(4)
+    reference = np.column_stack([rng.uniform(-0.01, 0.01, (4000, 2)), rng.normal(0.06, 1e-3, 4000)])
+    grid = DisplacementGrid(reference, cells=12)
+    cloud = np.column_stack([rng.uniform(-0.012, 0.012, (3000, 2)), rng.normal(0.06, 1e-3, 3000)])
+    ij = np.floor((cloud[:, :2] - grid._lo) / grid._size).astype(int)
+    want = np.full((12, 12), np.nan)
+    for i in range(12):
+        for j in range(12):
+            z = cloud[(ij[:, 0] == i) & (ij[:, 1] == j), 2]
+            if len(z) >= MIN_CELL_POINTS:
+                want[i, j] = np.median(z)
+    got = grid.depth_map(cloud)
+    assert np.isnan(want).sum() < 10 and np.array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_array_equal(got, want)
+    sparse = grid.depth_map(cloud[:200])  # about 1.4 points per cell: most are NaN
+    assert 0 < np.isfinite(sparse).sum() < 40
 
 
 def test_displacement_grows_with_force_in_prepared_sessions():

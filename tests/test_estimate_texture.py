@@ -10,13 +10,17 @@ from vbfe.drivers.samples import StereoFrame
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import Plane, UniformAlbedo, tissue_texture
+from vbfe.estimate.baselines import AffineBaseline
+from vbfe.estimate.candidates import CANDIDATES, TEXTURE_FEATURE
+from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.inference import FramePredictor
-from vbfe.estimate.model_file import load_model
+from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 from vbfe.live.estimator import FrameEstimator
+from vbfe.live.predictor import LivePredictor
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.truth import calibration_from_rig
 
@@ -156,3 +160,27 @@ def test_the_fast_texture_feature_keeps_the_reference(shifted_clouds):
     reference = [reference_peak(rest_points, rest_colors, p, c) for p, c in frames]
     assert np.all(np.array(reference) > 3e-4)
     np.testing.assert_allclose(fast, reference, rtol=0.02)
+
+
+def test_live_computes_only_the_texture_and_gives_the_offline_estimates(shifted_clouds):
+    """Hooke's law on the texture without a novelty flag: ``vbfe live`` computes the texture's
+    displacement alone, and its forces are the offline preparation's, frame by frame."""
+    clouds, _, (frames, calibration) = shifted_clouds
+    name = CANDIDATES["hooke_texture"]
+    hooke = AffineBaseline(name, np.array([STIFFNESS_N_PER_M]), np.array([0.0]), TEXTURE_FEATURE)
+    model = ForceModel(
+        config=TrainConfig(model="hooke_texture"), selected=name, estimators={name: hooke}
+    )
+    session = prepare_session(_sessions(clouds)[1], model.config)
+    offline = model.predict_session(session)[:, 0]
+    assert np.all(offline[1:] > 0.2)  # newtons: every moved pose is seen
+    live = LivePredictor(model)
+    order = [0, 3, 2, 1]  # the session's poses
+    features = [live.prepare(*clouds[i]) for i in order]
+    assert all(len(f.pool) == 0 and np.isnan(f.displacement_m) for f in features)
+    forces = [live.model_force(f)[0] for f in features]
+    np.testing.assert_allclose(forces, offline, rtol=1e-6)
+    estimator = FrameEstimator(model, calibration)
+    np.testing.assert_allclose(
+        [estimator.estimate(frames[i]).force_n[0] for i in order], offline, rtol=1e-6
+    )

@@ -7,7 +7,9 @@ pool, so the live path skips the peak displacement and the depth-change image th
 estimators read, and draws the pool by index straight from a cloud whose points are all
 finite (``roi = "all"``) instead of copying the cloud first. When the model carries a flag of
 frames outside the training data (``estimate.novelty``) every frame's full features are
-computed, since the flag reads the depth-change image and the displacement.
+computed, since the flag reads the depth-change image and the displacement. Likewise Hooke's
+law on the texture's displacement (without the flag) reads only that: the live path computes
+it alone, by the same ``TextureMotion`` as in training.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from vbfe.estimate.candidates import NetworkEstimator
+from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures, sample_points
@@ -31,6 +33,9 @@ class LivePredictor:
         estimator = model.estimators[model.selected]
         network = isinstance(estimator, NetworkEstimator)
         self._pool_only = network and model.novelty is None
+        self._texture_only = (
+            getattr(estimator, "feature", None) == TEXTURE_FEATURE and model.novelty is None
+        )
         # a single-frame network reads the newest pool alone: called directly
         self._network: torch.nn.Module | None = None
         self._device: torch.device | None = None
@@ -44,6 +49,13 @@ class LivePredictor:
         """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or
         ``None``); ``EstimateError`` when it has too few points inside the model's region of
         interest."""
+        if self._texture_only:
+            preparer = self._full.preparer(points, colors)
+            if self.model.config.roi != "all":  # a frame the full path refuses is refused
+                self._full.cropped(points)
+            elif np.count_nonzero(np.isfinite(points).all(axis=1)) < MIN_FRAME_POINTS:
+                raise too_few_points()
+            return preparer.texture_features(points, colors)
         if not self._pool_only:
             return self._full.features(points, colors)
         preparer = self._full.preparer(points)
