@@ -66,7 +66,10 @@ class CalibrateTab(Tab):
         self.result_text.setFont(
             QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.SystemFont.FixedFont)
         )
-        layout.addWidget(self.result_text, 1)
+        scroll = QtWidgets.QScrollArea()  # the result's rows scroll; the panes keep their room
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(self.result_text)
+        layout.addWidget(scroll, 2)
         self.capture: LiveCapture | None = None
         self.outcome: CalibrationOutcome | None = None
         self._shown: object = None  # the verdict on view
@@ -177,8 +180,8 @@ class CalibrateTab(Tab):
         low, high = float(sigma_mm.min()), float(sigma_mm.max())
         self.sigma_image.setImage(sigma_mm, autoLevels=False, levels=(low, max(high, low + 1e-9)))
         self.sigma_label.setText(
-            f"depth σ at {umap.working_distance_m * 1e3:.0f} mm over the left image: "
-            f"{low:.3f} (dark) to {high:.3f} mm (bright)"
+            f"depth σ at {umap.working_distance_m * 1e3:.0f} mm, left image: "
+            f"{low:.3f} (dark) to {high:.3f} mm"
         )
 
     def refresh(self) -> None:
