@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from pyqtgraph.Qt import QtCore
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path[:0] = [str(Path(__file__).parent), str(Path(__file__).parent.parent)]  # bench_live, tests
 
 from bench_live import busy_processes, rendered_frames, replay_rig, untrained_model  # noqa: E402
 

@@ -17,6 +17,7 @@ from pyqtgraph.Qt import QtCore
 
 from vbfe.acquire import SessionReader
 from vbfe.acquire.recording.remote import send_command
+from vbfe.calib.report import gate_lines
 from vbfe.common.config import load_config
 from vbfe.console import TAB_NAMES
 from vbfe.console.station import Station
@@ -202,13 +203,17 @@ def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open
 @pytest.mark.slow
 def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_console, tmp_path):
     config = board_config(bench_config(width=480, height=270))
+    config["calib"]["capture_views"] = 8  # the minimum (the default 20 took 2 min on CI)
     window = open_console(config)
     tab = window.calibrate_tab
     window.tabs.setCurrentWidget(tab)
     (tmp_path / "endoscope.yaml").write_text("an earlier calibration")
     click(qtbot, tab.capture_button)
     qtbot.waitUntil(lambda: "board not seen" in tab.capture_text.text(), timeout=WAIT_MS)
-    qtbot.waitUntil(lambda: not tab.capture_button.isChecked(), timeout=120_000)
+    qtbot.waitUntil(
+        lambda: not tab.capture_button.isChecked() or bool(window.errors), timeout=120_000
+    )
+    assert not window.errors
     kept = config["calib"]["capture_views"]  # as `calibrate capture`: enough views, full bars
     assert tab.capture.kept >= kept
     assert len(list((tmp_path / "calib-views").glob("*_left.png"))) == tab.capture.kept
@@ -223,7 +228,13 @@ def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_co
     truth = true_rig(config)
     assert abs(calibration.K1[0, 0] / truth.left.K[0, 0] - 1) < CALIB_F_LIMIT
     assert abs(calibration.B / truth.baseline_m - 1) < CALIB_B_LIMIT
-    assert "stereo RMS" in tab.result_text.text() and "per-view RMS" in tab.result_text.text()
+    text = tab.result_text.text()  # the rows `vbfe calibrate stereo` prints, the gates
+    assert "RMS left / right / stereo" in text and "per-view RMS" in text and "σ(B)" in text
+    assert calibration.info["uncertainty"]["summary"] in text
+    assert all(line in text for line in gate_lines(calibration))
+    sigma = tab.outcome.outcome.result.uncertainty.depth_sigma_m  # the uncertainty map shown
+    assert np.array_equal(tab.sigma_image.image, sigma * 1e3) and sigma.min() > 0
+    assert "depth σ at" in tab.sigma_label.text
     assert (tmp_path / "new.yaml").is_file()
 
 

@@ -10,9 +10,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pyqtgraph as pg
-from pyqtgraph.Qt import QtWidgets
+from pyqtgraph.Qt import QtGui, QtWidgets
 
 from vbfe.calib.capture import annotate, coverage_text
+from vbfe.calib.report import gate_lines, summary_rows
 from vbfe.common.errors import VbfeError
 from vbfe.console.desks import CalibrationOutcome, LiveCapture, calibrate
 from vbfe.console.widgets import ImagePane, Tab, form, value_label
@@ -40,6 +41,14 @@ class CalibrateTab(Tab):
         self.map_view = self.map_widget.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
         self.map_image = pg.ImageItem(axisOrder="row-major")
         self.map_view.addItem(self.map_image)
+        self.map_widget.nextRow()
+        self.sigma_label = self.map_widget.addLabel("depth uncertainty: calibrate to see it")
+        self.map_widget.nextRow()
+        self.sigma_view = self.map_widget.addViewBox(
+            lockAspect=True, invertY=True, enableMouse=False
+        )
+        self.sigma_image = pg.ImageItem(axisOrder="row-major")
+        self.sigma_view.addItem(self.sigma_image)
         panes.addWidget(self.map_widget, 2)
         layout.addLayout(panes, 3)
         buttons = QtWidgets.QHBoxLayout()
@@ -53,8 +62,14 @@ class CalibrateTab(Tab):
         layout.addLayout(buttons)
         self.capture_text = value_label()
         layout.addWidget(self.capture_text)
-        self.result_text = value_label()
-        layout.addWidget(self.result_text, 1)
+        self.result_text = value_label()  # fixed width: the CLI's aligned rows and gates
+        self.result_text.setFont(
+            QtGui.QFontDatabase.systemFont(QtGui.QFontDatabase.SystemFont.FixedFont)
+        )
+        scroll = QtWidgets.QScrollArea()  # the result's rows scroll; the panes keep their room
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(self.result_text)
+        layout.addWidget(scroll, 2)
         self.capture: LiveCapture | None = None
         self.outcome: CalibrationOutcome | None = None
         self._shown: object = None  # the verdict on view
@@ -125,6 +140,8 @@ class CalibrateTab(Tab):
         result = outcome.outcome.result
         c = result.calibration
         per_view = outcome.per_view_rms_px()
+        rows = summary_rows(c)  # as `vbfe calibrate stereo` prints them
+        width = max(len(label) for label, _ in rows)
         lines = [
             f"wrote {outcome.outcome.yaml_path}"
             + (
@@ -132,8 +149,9 @@ class CalibrateTab(Tab):
                 if outcome.outcome.report_paths
                 else ""
             ),
-            f"views used {len(result.names)} | stereo RMS {c.rms_stereo_px:.3f} px | "
-            f"f {c.K1[0, 0]:.2f} px | B {c.B * 1e3:.3f} mm",
+            f"views used {len(result.names)}",
+            *(f"{label:<{width}}  {value}" for label, value in rows),
+            *gate_lines(c),
             "per-view RMS (left): "
             + ", ".join(f"{name} {rms:.2f}" for name, rms in per_view.items()),
         ]
@@ -149,11 +167,29 @@ class CalibrateTab(Tab):
         else:
             lines.append("GO/NO-GO: no stored calibration given (vbfe console --calib FILE)")
         self.result_text.setText("\n".join(lines))
+        self.show_uncertainty(outcome)
         self.console.message(f"calibrated: {outcome.outcome.yaml_path}")
+
+    def show_uncertainty(self, outcome: CalibrationOutcome) -> None:
+        """The calibration's depth σ over the left image (bright: less certain), as the
+        calibration report's uncertainty figure, titled with its range."""
+        umap = outcome.outcome.result.uncertainty
+        if umap is None:
+            return
+        sigma_mm = umap.depth_sigma_m * 1e3
+        low, high = float(sigma_mm.min()), float(sigma_mm.max())
+        self.sigma_image.setImage(sigma_mm, autoLevels=False, levels=(low, max(high, low + 1e-9)))
+        self.sigma_label.setText(
+            f"depth σ at {umap.working_distance_m * 1e3:.0f} mm, left image: "
+            f"{low:.3f} (dark) to {high:.3f} mm"
+        )
 
     def refresh(self) -> None:
         capture = self.capture
         running = capture is not None and capture.running()
+        if running and self.station.ended():  # the live view stopped: no new frames come
+            self.stop_capture()
+            self.console.message("capture stopped: the rig stopped; reopen it on the Rig tab", True)
         if self.capture_button.isChecked() and not running and not self._starting:
             self.capture_button.setChecked(False)  # enough views
         if capture is None or not self.isVisible():
