@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from vbfe.acquire.recording.listener import Listener
+from vbfe.acquire.session.layout import CAMERA
 from vbfe.drivers.samples import StereoFrame
 
 if TYPE_CHECKING:
@@ -58,7 +59,7 @@ class Latest(Listener):
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
         with self._lock:
-            if stream == "camera":
+            if stream == CAMERA:
                 self.frame = records[-1]
             else:
                 kept = self._records.setdefault(stream, deque(maxlen=self._max))
