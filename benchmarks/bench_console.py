@@ -1,13 +1,13 @@
 """The console's UI event loop latency while it records 640x360 and estimates live.
 
-A precise 10 ms Qt timer probes the window's event loop: its latency is how late each tick
-comes (p50/p95, ms). The console (``vbfe console``'s window, the Live tab in view, redrawn every
-100 ms) records the bench at 640x360 30 fps with the live estimate of the demo's PointNet
-(untrained weights: speed does not depend on them); the endoscope replays frames the bench
-rendered beforehand (as benchmarks/bench_live.py: a real endoscope's frames cost the host
-nothing to make). The reference is the same probe in the same process with the window closed
-and nothing running. ``--background-load N`` adds N busy processes (the issue's target: p95 at
-most 50 ms with one). Also prints the estimate rate and latency and the recording's drops.
+A precise 10 ms Qt timer probes the window's event loop: its latency is how late each tick comes
+(p50/p95, ms). The console (``vbfe console``'s window, the Live tab in view: images and traces each
+redrawn every 100 ms, on alternate 50 ms ticks) records the bench at 640x360 30 fps with the live
+estimate of the demo's PointNet (untrained weights: speed does not depend on them); the endoscope
+replays frames the bench rendered beforehand (as benchmarks/bench_live.py: a real endoscope's frames
+cost the host nothing to make). The reference is the same probe in the same process with the window
+closed and nothing running. ``--background-load N`` adds N busy processes (the issue's target: p95
+at most 50 ms with one). Also prints the estimate rate and latency and the recording's drops.
 Run: ``python benchmarks/bench_console.py [--seconds 10] [--background-load 1]``.
 """
 

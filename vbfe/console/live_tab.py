@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 WINDOW_S = 10.0
-MAX_POINTS = 2000  # per curve: a plot of the last seconds at 1 kHz draws every fifth sample
+MAX_POINTS = 600  # per curve: about a point per pixel of the plot (painting more costs the UI)
 _CORE_STREAMS = ("camera", "force", "projector", "marks")
 
 
@@ -50,15 +50,21 @@ class LiveTab(Tab):
         self.status = value_label()
         layout.addWidget(self.status)
         self._shown: StereoFrame | None = None
+        self._traces_turn = False
         self._decoding = False
         # the newest decoded left image and its overlay (shown over the newer frames)
         self.decoded: tuple[np.ndarray, np.ndarray] | None = None
 
     def refresh(self) -> None:
+        """Draw the images and the traces on alternate calls: each pass of the event loop
+        paints half as much (the UI stays responsive beside a busy recorder)."""
         if not self.isVisible():  # drawing costs the recorder CPU: only the tab in view
             return
-        latest = self.station.latest
-        frame = latest.frame
+        self._traces_turn = not self._traces_turn
+        if self._traces_turn:
+            self._draw_traces()
+            return
+        frame = self.station.latest.frame
         if frame is not None and frame is not self._shown:
             left = frame.left
             if self.overlay.isChecked():
@@ -66,6 +72,9 @@ class LiveTab(Tab):
             self.images.show_bgr(0, left)
             self.images.show_bgr(1, frame.right)
             self._shown = frame
+
+    def _draw_traces(self) -> None:
+        latest = self.station.latest
         samples = thinned(latest.records("force"))
         if samples:
             now = samples[-1].t_host_ns
@@ -75,7 +84,7 @@ class LiveTab(Tab):
                 k = len(self.force_curves)
                 self.force_curves.append(
                     self.force_plot.plot(
-                        pen=pg.mkPen(FORCE_PENS[k % 3], width=2), name=f"F{'xyz'[k]}"
+                        pen=pg.mkPen(FORCE_PENS[k % 3], width=1), name=f"F{'xyz'[k]}"
                     )
                 )
             for k, curve in enumerate(self.force_curves):

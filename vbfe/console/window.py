@@ -60,7 +60,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
     """Rig, Live, Record, Calibrate, Sync and Review tabs over ``station``; M marks the
     recording. Closing the window finalizes a running recording."""
 
-    def __init__(self, station: Station, options: ConsoleOptions, interval_ms: int = 100) -> None:
+    def __init__(self, station: Station, options: ConsoleOptions, interval_ms: int = 50) -> None:
         from vbfe.console.calibrate_tab import CalibrateTab
         from vbfe.console.live_tab import LiveTab
         from vbfe.console.record_tab import RecordTab
