@@ -170,7 +170,9 @@ def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
             timeout=WAIT_MS,
         )
         qtbot.waitUntil(lambda: "latency p50" in window.live_tab.status.text(), timeout=WAIT_MS)
-        t_est, estimates = window.live_tab.estimate_curve.getData()
+        curve = window.live_tab.estimate_curve  # drawn on the traces' turn, 10 times a second
+        qtbot.waitUntil(lambda: curve.getData()[1] is not None, timeout=WAIT_MS)
+        t_est, estimates = curve.getData()
         assert len(estimates) >= 1 and np.all(t_est <= 0) and np.all(np.isfinite(estimates))
     finally:
         window.close()
