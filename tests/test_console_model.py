@@ -125,3 +125,27 @@ def test_the_station_records_marks_and_stops_without_qt(tmp_path):
         assert reader.metadata["operator"] == "op"
         assert reader.metadata["conditions"]["k"] == 2.0
         assert reader.n_frames >= 10
+
+
+def test_a_settle_the_view_asked_for_mid_restart_leaves_the_new_acquisition_alone(tmp_path):
+    """The view polls ``ended()`` from its own thread: it may see the old acquisition's thread
+    gone while the worker is between stopping it and starting the next (Stop, then the live
+    view restarting). The settle it then submits runs after that, and must not end the new
+    live view or the new recording."""
+    from vbfe.console.station import SessionRequest, Station
+
+    station = Station(small_config())
+    try:
+        station.submit(station.go_live).result()
+        assert station.submit(station.settle).result() is None  # nothing ended: a no-op
+        assert station.acquisition is not None and station.acquisition.running()
+        session = tmp_path / "s.h5"
+        station.submit(station.start_recording, SessionRequest(session)).result()
+        assert station.submit(station.settle).result() is None
+        assert station.recording == session and station.acquisition.running()
+        finished = station.submit(station.stop_recording).result()
+        assert finished.stats.end_reason == "stopped by operator"
+    finally:
+        station.shutdown()
+    with SessionReader(session) as reader:
+        assert reader.complete and reader.attrs["end_reason"] == "stopped by operator"

@@ -200,9 +200,13 @@ class Station:
         self.finished.put(finished)
         return finished
 
-    def settle(self) -> Finished | str:
+    def settle(self) -> Finished | str | None:
         """Finish an acquisition that ended on its own: a recording's summary, or why the
-        live view ended."""
+        live view ended; ``None`` when none has ended (the view polls :meth:`ended` from its
+        own thread and may have seen a stop or restart half done: checked again here, after
+        every operation submitted before)."""
+        if not self.ended():
+            return None
         if self.recording is not None:
             return self.stop_recording()
         acquisition = self.acquisition

@@ -166,9 +166,9 @@ class ConsoleWindow(QtWidgets.QMainWindow):
     def _unsettled(self) -> None:
         self._settling = False
 
-    def _settled(self, result: Finished | str) -> None:
+    def _settled(self, result: Finished | str | None) -> None:
         self._settling = False
-        if not isinstance(result, Finished):  # a recording's summary comes in station.finished
+        if isinstance(result, str):  # a recording's summary comes in station.finished
             self.message(f"the rig stopped: {result}; reopen it on the Rig tab", True)
 
     def recording_finished(self, finished: Finished) -> None:
