@@ -198,6 +198,11 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
     ]
     half = halved.reconstructor.process(*small)
     assert 0.45 < len(half.points) / len(full.points) < 0.55
+    # the live stage averages the row pairs itself (one weighted sum): the same pixels as
+    # INTER_AREA, so the same cloud
+    live = halved.reconstruct(FrameWork(frame))
+    np.testing.assert_array_equal(live.points, half.points)
+    np.testing.assert_array_equal(live.colors, half.colors)
     # each halved row against the mean depth of its two full rows: nearly every pixel alike
     z_full = depth_map_m(full.disparity, calibration)
     z_pairs = (z_full[0::2] + z_full[1::2]) / 2

@@ -31,6 +31,18 @@ STAGES = ("scale", "reconstruct", "prepare", "model")
 _NO_BOUNDS = np.full(0, np.nan)  # LiveEstimate without an interval
 
 
+def _downscaled(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image`` at ``size`` (width, height) by area averaging; rows averaged in pairs (the
+    ``[live]`` row scale 0.5) by one weighted sum, which gives the same pixels as
+    ``cv2.resize``'s ``INTER_AREA`` (both round half to even) about 10× faster."""
+    height, width = image.shape[:2]
+    if size == (width, height):
+        return image
+    if size == (width, height // 2) and height % 2 == 0:
+        return cv2.addWeighted(image[0::2], 0.5, image[1::2], 0.5, 0.0)
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
 @dataclass(frozen=True)
 class LiveEstimate:
     """The force estimated from one frame, its prediction interval, whether the frame lies
@@ -146,13 +158,7 @@ class FrameEstimator:
         t0 = time.perf_counter()
         size = self.reconstructor.calibration.image_size
         frame = work.frame
-        if size == self.full_size:
-            left, right = frame.left, frame.right
-        else:
-            left, right = (
-                cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-                for image in (frame.left, frame.right)
-            )
+        left, right = (_downscaled(image, size) for image in (frame.left, frame.right))
         t1 = time.perf_counter()
         cloud = self.reconstructor.process(left, right)
         work.points, work.colors = cloud.points, cloud.colors
