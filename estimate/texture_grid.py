@@ -1,8 +1,11 @@
-"""A cloud laid back on its camera's pixel grid, in one compiled pass (``texture_motion.py``).
+"""A cloud laid back on its camera's pixel grid, and the displacement field with its seen
+weight, each in one compiled pass (``texture_motion.py``).
 
 Each finite point in front of the camera (``z > 0``) goes to the grid cell nearest its
 ``(x/z, y/z)``; its texture value there is its least colour channel over that channel's
-ambient level. Where several points fall in one cell the last wins.
+ambient level (where several points fall in one cell the last wins). Its coordinates go to a
+grid of half the columns: each point adds half of itself and of its seen weight to the cell of
+its column pair (the points are smoothed over several columns anyway, ``POINT_SMOOTH_PX``).
 """
 
 from __future__ import annotations
@@ -31,7 +34,11 @@ def _fill(
         if not (0 <= col < cols and 0 <= row < rows):
             continue
         i, j = int(row), int(col)
-        xyz[i, j, 0], xyz[i, j, 1], xyz[i, j, 2], xyz[i, j, 3] = x, y, z, 1.0
+        half = j // 2
+        xyz[i, half, 0] += 0.5 * x
+        xyz[i, half, 1] += 0.5 * y
+        xyz[i, half, 2] += 0.5 * z
+        xyz[i, half, 3] += 0.5
         value = colors[k, 0] / ambient[0]
         for c in range(1, 3):
             value = min(value, colors[k, c] / ambient[c])
@@ -47,10 +54,11 @@ def grid_maps(
     shape: tuple[int, int],
 ) -> tuple[np.ndarray, np.ndarray]:
     """A cloud (N×3, m; colours N×3 float32) on the grid whose cell (0, 0) is at ``lo``
-    (x/z, y/z) with pitch ``step``: its points and seen mask (rows × cols × 4, float32) and
-    its texture and seen mask (rows × cols × 2), 0 where unseen; ``ambient``: each colour
-    channel's unlit level (float32)."""
-    xyz = np.zeros(shape + (4,), np.float32)
+    (x/z, y/z) with pitch ``step``: its points and seen weight on the grid of half the columns
+    (rows × ⌈cols/2⌉ × 4, float32; column pairs averaged, 0 where unseen) and its texture and
+    seen mask (rows × cols × 2), 0 where unseen; ``ambient``: each colour channel's unlit level
+    (float32)."""
+    xyz = np.zeros((shape[0], (shape[1] + 1) // 2, 4), np.float32)
     texture = np.zeros(shape + (2,), np.float32)
     _fill(
         points,
@@ -62,3 +70,70 @@ def grid_maps(
         texture,
     )
     return xyz, texture
+
+
+@numba.njit(cache=True, nogil=True)
+def _points(blurred: np.ndarray, points: np.ndarray) -> None:
+    pairs = blurred.shape[1]
+    for j in range(points.shape[1]):
+        # pair k is centred on column 2k + 0.5; beyond the grid the weight is 0
+        place = (j - 0.5) * 0.5
+        k = int(np.floor(place))
+        t = place - k
+        k0, k1 = max(k, 0), min(k + 1, pairs - 1)
+        lo = 1.0 - t if k >= 0 else 0.0
+        hi = t if k + 1 < pairs else 0.0
+        for i in range(points.shape[0]):
+            weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
+            seen = weight > 0.5
+            for c in range(3):
+                value = (lo * blurred[i, k0, c] + hi * blurred[i, k1, c]) / weight
+                points[i, j, c] = value if seen else np.nan
+            points[i, j, 3] = 1.0 if seen else 0.0
+
+
+def smoothed_points(blurred: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The smoothed points at every pixel of the grid (``shape``) with their seen mask
+    (rows × cols × 4, float32; NaN and 0 where under half the neighbourhood is seen) from the
+    column pairs' blur (values and weight; pair ``k`` centred on column ``2k + 0.5``), by
+    interpolation along the rows."""
+    points = np.empty(shape + (4,), np.float32)
+    _points(blurred, points)
+    return points
+
+
+@numba.njit(cache=True, nogil=True)
+def _field(points: np.ndarray, flow: np.ndarray, rest: np.ndarray, weighted: np.ndarray) -> None:
+    rows, cols = rest.shape[:2]
+    for i in range(rows):
+        for j in range(cols):
+            x, y = j + flow[i, j, 0], i + flow[i, j, 1]
+            x0, y0 = int(np.floor(x)), int(np.floor(y))
+            seen = rest[i, j, 3] > 0 and 0 <= x0 and x0 + 1 < cols and 0 <= y0 and y0 + 1 < rows
+            if seen:  # the four pixels around, each of them seen
+                seen = (
+                    points[y0, x0, 3] > 0
+                    and points[y0, x0 + 1, 3] > 0
+                    and points[y0 + 1, x0, 3] > 0
+                    and points[y0 + 1, x0 + 1, 3] > 0
+                )
+            if seen:
+                ax, ay = x - x0, y - y0
+                for c in range(3):
+                    top = (1 - ax) * points[y0, x0, c] + ax * points[y0, x0 + 1, c]
+                    bottom = (1 - ax) * points[y0 + 1, x0, c] + ax * points[y0 + 1, x0 + 1, c]
+                    weighted[i, j, c] = (1 - ay) * top + ay * bottom - rest[i, j, c]
+                weighted[i, j, 3] = 1.0
+            else:
+                for c in range(4):
+                    weighted[i, j, c] = 0.0
+
+
+def weighted_field(points: np.ndarray, flow: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """The 3D displacement of every rest pixel with its seen mask (rows × cols × 4, float32,
+    0 where unseen): the frame's smoothed ``points`` (:func:`smoothed_points`) interpolated
+    where the ``flow`` (rows × cols × 2, pixels) takes the pixel, seen where the four pixels
+    around are, minus the ``rest``'s (the same, of the rest cloud)."""
+    weighted = np.empty(rest.shape, np.float32)
+    _field(points, np.ascontiguousarray(flow), rest, weighted)
+    return weighted
