@@ -72,17 +72,22 @@ def grid_maps(
     return xyz, texture
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pair_place(j: int, pairs: int) -> tuple[int, int, float, float]:
+    """Pixel column ``j`` on a grid of column pairs (pair ``k`` centred on column ``2k + 0.5``):
+    the two pairs around it and their shares (0 beyond the grid)."""
+    place = (j - 0.5) * 0.5
+    k = int(np.floor(place))
+    t = place - k
+    lo = 1.0 - t if k >= 0 else 0.0
+    hi = t if k + 1 < pairs else 0.0
+    return max(k, 0), min(k + 1, pairs - 1), lo, hi
+
+
 @numba.njit(cache=True, nogil=True)
 def _points(blurred: np.ndarray, points: np.ndarray) -> None:
-    pairs = blurred.shape[1]
     for j in range(points.shape[1]):
-        # pair k is centred on column 2k + 0.5; beyond the grid the weight is 0
-        place = (j - 0.5) * 0.5
-        k = int(np.floor(place))
-        t = place - k
-        k0, k1 = max(k, 0), min(k + 1, pairs - 1)
-        lo = 1.0 - t if k >= 0 else 0.0
-        hi = t if k + 1 < pairs else 0.0
+        k0, k1, lo, hi = _pair_place(j, blurred.shape[1])
         for i in range(points.shape[0]):
             weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
             seen = weight > 0.5
@@ -137,3 +142,46 @@ def weighted_field(points: np.ndarray, flow: np.ndarray, rest: np.ndarray) -> np
     weighted = np.empty(rest.shape, np.float32)
     _field(points, np.ascontiguousarray(flow), rest, weighted)
     return weighted
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairs(values: np.ndarray, pairs: np.ndarray) -> None:
+    cols = values.shape[1]
+    for i in range(values.shape[0]):
+        for k in range(pairs.shape[1]):
+            for c in range(values.shape[2]):
+                right = values[i, 2 * k + 1, c] if 2 * k + 1 < cols else 0.0
+                pairs[i, k, c] = 0.5 * (values[i, 2 * k, c] + right)
+
+
+def column_pairs(values: np.ndarray) -> np.ndarray:
+    """A grid (rows × cols × channels, float32) at half its columns: each pair's mean (a
+    zero column after an odd count)."""
+    pairs = np.empty((values.shape[0], (values.shape[1] + 1) // 2, values.shape[2]), np.float32)
+    _pairs(values, pairs)
+    return pairs
+
+
+@numba.njit(cache=True, nogil=True)
+def _peak(blurred: np.ndarray, inner: np.ndarray) -> float:
+    peak = 0.0
+    for j in range(inner.shape[1]):
+        k0, k1, lo, hi = _pair_place(j, blurred.shape[1])
+        for i in range(inner.shape[0]):
+            if not inner[i, j]:
+                continue
+            weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
+            squared = 0.0
+            for c in range(3):
+                value = lo * blurred[i, k0, c] + hi * blurred[i, k1, c]
+                squared += value * value
+            if weight > 0:
+                peak = max(peak, squared / (weight * weight))
+    return np.sqrt(peak)
+
+
+def peak_magnitude(blurred: np.ndarray, inner: np.ndarray) -> float:
+    """The largest magnitude, over the ``inner`` pixels (rows × cols bool), of a normalised
+    blur of 3D values on a grid of column pairs (values and weight, as
+    :func:`smoothed_points` reads it)."""
+    return float(_peak(blurred, inner))
