@@ -2,8 +2,9 @@
 
 For each resolution a stereo endoscope delivers 30 fps in real time and ``vbfe live``'s
 pipeline (reconstruct -> prepare -> model, each stage on its own thread, the newest frame
-winning) turns the newest frames into forces with the demo's PointNet (32-64-256 on 1024
-points with the rest depth change; untrained weights: speed does not depend on them). Prints
+winning; reconstruct and prepare on one thread for the texture model) turns the newest frames
+into forces with the demo's PointNet (32-64-256 on 1024 points with the rest depth change;
+untrained weights: speed does not depend on them). Prints
 estimates/s, p50/p95 latency from frame capture (host time) to estimate, the share of frames
 skipped, the median of each stage, the CPU the run used (cores), and the OpenCV and torch
 thread counts.
@@ -349,7 +350,8 @@ def main() -> None:
         f"{'bench rendering live' if args.render_live else 'replayed bench frames'}"
         f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
         f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
-        f"threads; recording compression {compression}"
+        f"threads (reconstruct+prepare on one for the texture model); recording compression "
+        f"{compression}"
     )
     print(
         f"{'camera':>10} {'record':>6} {'busy':>4} {'fox':>3} {'est/s':>6} {'p50 ms':>7} "

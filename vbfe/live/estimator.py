@@ -1,9 +1,10 @@
 """One frame to one force estimate in stages: reconstruct (downscale, rectify, match, verify,
 triangulate), prepare (the model's features) and model; each stage timed.
 
-The stages run one after the other (:meth:`FrameEstimator.estimate`) or each on its own thread
-(:meth:`FrameEstimator.stages` with :class:`vbfe.live.pipeline.Pipeline`); both give the same
-estimates for the same frames.
+The stages run one after the other (:meth:`FrameEstimator.estimate`) or on their own threads
+(:meth:`FrameEstimator.stages` with :class:`vbfe.live.pipeline.Pipeline`; a model on the
+texture's displacement reconstructs and prepares on one thread); both give the same estimates
+for the same frames.
 """
 
 from __future__ import annotations
@@ -142,7 +143,15 @@ class FrameEstimator:
 
     def stages(self) -> list[tuple[str, Callable[[FrameWork], FrameWork | LiveEstimate]]]:
         """The (name, function) of each stage, in order, for a :class:`Pipeline` fed with
-        :class:`FrameWork` items."""
+        :class:`FrameWork` items. A model on the texture's displacement prepares each frame on
+        the thread that reconstructed it: its preparation (the optical flow) costs about as
+        much as the reconstruction, and on two cores shared with other work a frame goes
+        through both sooner one after the other than each overlapped with another frame's."""
+        if self._predictor.tracks_texture:
+            return [
+                ("reconstruct+prepare", lambda work: self.prepare(self.reconstruct(work))),
+                ("model", self.estimate_force),
+            ]
         return [
             ("reconstruct", self.reconstruct),
             ("prepare", self.prepare),

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator
+from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures, sample_points
@@ -44,6 +44,12 @@ class LivePredictor:
                 self._network = estimator.network.eval()
             self._device = next(estimator.network.parameters()).device
         self._interval = model.interval()
+
+    @property
+    def tracks_texture(self) -> bool:
+        """The selected estimator reads the texture's displacement: preparing a frame then
+        costs about as much as reconstructing it (the optical flow)."""
+        return reads_texture(self.model.estimators[self.model.selected])
 
     def prepare(self, points: np.ndarray, colors: np.ndarray | None = None) -> FrameFeatures:
         """The features of one raw cloud (N×3, may hold NaN; its points' colours, N×3 or
