@@ -1,6 +1,8 @@
 """Texture tracking: a textured surface moved sideways by a known shift, rendered with the
 projected pattern and reconstructed, and Hooke's law on the tracked 3D displacement."""
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -19,7 +21,8 @@ from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
-from vbfe.live.estimator import FrameEstimator
+from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork
+from vbfe.live.pipeline import Pipeline
 from vbfe.live.predictor import LivePredictor
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.truth import calibration_from_rig
@@ -184,3 +187,15 @@ def test_live_computes_only_the_texture_and_gives_the_offline_estimates(shifted_
     np.testing.assert_allclose(
         [estimator.estimate(frames[i]).force_n[0] for i in order], offline, rtol=1e-6
     )
+    # vbfe live's pipeline reconstructs and prepares each frame on one thread: the same forces
+    staged = FrameEstimator(model, calibration)
+    assert [name for name, _ in staged.stages()] == ["reconstruct+prepare", "model"]
+    delivered, ready = [], threading.Semaphore(0)
+    pipeline = Pipeline(staged.stages(), lambda e: (delivered.append(e), ready.release()))
+    pipeline.start()
+    for i in order:  # one at a time: none skipped
+        pipeline.put(FrameWork(frames[i]))
+        assert ready.acquire(timeout=60)
+    pipeline.stop()
+    np.testing.assert_allclose([e.force_n[0] for e in delivered], offline, rtol=1e-6)
+    assert all(len(e.stage_s) == len(STAGES) for e in delivered)
