@@ -185,3 +185,27 @@ def peak_magnitude(blurred: np.ndarray, inner: np.ndarray) -> float:
     blur of 3D values on a grid of column pairs (values and weight, as
     :func:`smoothed_points` reads it)."""
     return float(_peak(blurred, inner))
+
+
+@numba.njit(cache=True, nogil=True)
+def _grey(
+    texture: np.ndarray, blurred: np.ndarray, low: float, scale: float, grey: np.ndarray
+) -> None:
+    floor = np.float32(1e-6)
+    for i in range(texture.shape[0]):
+        for j in range(texture.shape[1]):
+            if texture[i, j, 1] > 0:
+                value = texture[i, j, 0]
+            else:  # a hole: its neighbours' normalised blur
+                value = blurred[i, j, 0] / max(blurred[i, j, 1], floor)
+            level = (np.float64(value) - low) * scale
+            grey[i, j] = np.uint8(min(max(level, 0.0), 255.0))
+
+
+def grey_image(texture: np.ndarray, blurred: np.ndarray, low: float, scale: float) -> np.ndarray:
+    """The texture (rows × cols × 2: value and seen mask) with its holes filled from
+    ``blurred`` (its normalised blur: values and weight), as 8-bit grey: ``(value - low) ·
+    scale`` clipped to 0–255."""
+    grey = np.empty(texture.shape[:2], np.uint8)
+    _grey(texture, blurred, low, scale, grey)
+    return grey

@@ -33,6 +33,7 @@ import numpy as np
 
 from vbfe.estimate.texture_grid import (
     column_pairs,
+    grey_image,
     grid_maps,
     peak_magnitude,
     smoothed_points,
@@ -162,7 +163,8 @@ class TextureMotion:
     def _grey(self, texture: np.ndarray) -> np.ndarray:
         low, high = self._range
         scale = 255.0 / max(float(high - low), 1e-6)
-        return np.clip((self._filled(texture) - low) * scale, 0, 255).astype(np.uint8)
+        blurred = _weighted_blur(texture, FILL_PX, self._aspect)  # fills the holes (_filled)
+        return grey_image(texture, blurred, float(low), scale)
 
     def _weighted_field(self, points: np.ndarray, colors: np.ndarray) -> np.ndarray:
         """3D displacement (m) of every rest pixel with its seen mask (rows × cols × 4, 0 where
