@@ -86,9 +86,11 @@ def _pair_place(j: int, pairs: int) -> tuple[int, int, float, float]:
 
 @numba.njit(cache=True, nogil=True)
 def _points(blurred: np.ndarray, points: np.ndarray) -> None:
-    for j in range(points.shape[1]):
-        k0, k1, lo, hi = _pair_place(j, blurred.shape[1])
-        for i in range(points.shape[0]):
+    cols = points.shape[1]
+    place = [_pair_place(j, blurred.shape[1]) for j in range(cols)]
+    for i in range(points.shape[0]):
+        for j in range(cols):
+            k0, k1, lo, hi = place[j]
             weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
             seen = weight > 0.5
             for c in range(3):
@@ -164,12 +166,14 @@ def column_pairs(values: np.ndarray) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True)
 def _peak(blurred: np.ndarray, inner: np.ndarray) -> float:
+    cols = inner.shape[1]
+    place = [_pair_place(j, blurred.shape[1]) for j in range(cols)]
     peak = 0.0
-    for j in range(inner.shape[1]):
-        k0, k1, lo, hi = _pair_place(j, blurred.shape[1])
-        for i in range(inner.shape[0]):
+    for i in range(inner.shape[0]):
+        for j in range(cols):
             if not inner[i, j]:
                 continue
+            k0, k1, lo, hi = place[j]
             weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
             squared = 0.0
             for c in range(3):
