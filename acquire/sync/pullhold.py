@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from vbfe.acquire.sync.corners import OffsetEstimate, _box, force_axis, force_corners
-from vbfe.acquire.sync.viscoelastic import _GRID_S, _best, _block_rows, _deviance, _design
+from vbfe.acquire.sync.viscoelastic import _GRID_S, _best, _block_rows, _design, _deviance
 from vbfe.common.errors import SessionError
 
 METHOD = "pull-hold fit"
@@ -33,6 +33,7 @@ _FORCE_BLOCK_S = 0.05  # force bootstrap block length
 _N_BOOT = 200
 _N_FORCE_BOOT = 40
 _MIN_FRAMES = 20
+_SHAPE_KNOTS = 12  # interior knots of the image components' spline in the displacement
 
 
 def _ramp(t_s: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -57,11 +58,11 @@ def fit_force(t_s: np.ndarray, force: np.ndarray, start: np.ndarray) -> np.ndarr
 
 
 def _start(t_s: np.ndarray, force: np.ndarray) -> np.ndarray:
-    """Starting parameters from the force's corners: the first must end a rest, the last
-    start a hold."""
+    """Starting parameters from the force's corners: exactly two, the end of a rest and the
+    start of a hold."""
     step = float(np.median(np.diff(t_s)))
     corners = force_corners(t_s, _box(force, max(1, int(round(0.01 / step)))))
-    if len(corners) < 2 or corners[0].flat != "before" or corners[-1].flat != "after":
+    if len(corners) != 2 or corners[0].flat != "before" or corners[-1].flat != "after":
         raise SessionError("the force is not one pull from rest to a hold")
     onset, hold = corners[0].time_s, corners[-1].time_s
     f0 = float(np.median(force[t_s < onset]))
@@ -119,16 +120,16 @@ def pull_hold_offset(
     y = y / (y.std(axis=0) + 1e-12)
     u = exposed(params)
     lags = np.arange(-max_lag_s, max_lag_s + _GRID_S / 2, _GRID_S)
-    profile = _deviance(_design(u, t, lags), y)
+    profile = _deviance(_design(u, t, lags, _SHAPE_KNOTS), y)
     offset = _best(profile, lags)
-    x = _design(u, t, np.array([offset]))[0]
+    x = _design(u, t, np.array([offset]), _SHAPE_KNOTS)[0]
     coef, *_ = np.linalg.lstsq(x, y, rcond=None)
     fitted = x @ coef
     residual = y - fitted
 
     near = np.arange(offset - _REFINE_S, offset + _REFINE_S + _GRID_S / 2, _GRID_S)
     near = near[np.abs(near) <= max_lag_s]
-    qt = np.linalg.qr(_design(u, t, near))[0].transpose(0, 2, 1).copy()  # lag × p × n
+    qt = np.linalg.qr(_design(u, t, near, _SHAPE_KNOTS))[0].transpose(0, 2, 1).copy()  # lag × p × n
     n = len(t)
     rng = np.random.default_rng(seed)
     rows = _block_rows(rng, n, max(2, int(round(_BLOCK_S / float(np.median(np.diff(t)))))), n_boot)
@@ -144,7 +145,7 @@ def pull_hold_offset(
     force_boot = []
     for pick in _block_rows(rng, len(noise), block, n_force_boot):
         again = fit_force(t_force, smooth + noise[pick], params)
-        force_boot.append(_best(_deviance(_design(exposed(again), t, near), y), near))
+        force_boot.append(_best(_deviance(_design(exposed(again), t, near, _SHAPE_KNOTS), y), near))
     both = np.array(image_boot) + rng.permutation(
         np.resize(np.array(force_boot) - np.mean(force_boot), n_boot)
     )
