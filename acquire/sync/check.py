@@ -34,6 +34,7 @@ from vbfe.acquire.sync.protocol import (
     ProtocolSettings,
     analyse_protocol,
 )
+from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD_METHOD
 from vbfe.acquire.sync.pullhold import pull_hold_offset
 from vbfe.acquire.sync.streams import stream_offset
 from vbfe.acquire.sync.viscoelastic import METHOD as MODEL_METHOD
@@ -246,7 +247,7 @@ def _plot(path: Path, report: SyncReport) -> None:
         ax.set_xlabel("time in the session (s)")
         ax.set_ylabel("image time - force time (ms)")
     else:
-        model = e.method == MODEL_METHOD
+        model = e.method in (MODEL_METHOD, PULL_HOLD_METHOD)
         ax.plot(
             e.lags_s * 1e3,
             e.correlation,

@@ -27,6 +27,7 @@ from vbfe.common.errors import SessionError
 
 METHOD = "pull-hold fit"
 _TAU0_S = 1.5  # starting relaxation time of the force fit
+_TAU_RANGE_S = (0.05, 20.0)  # the relaxation time the force fit may take
 _REFINE_S = 0.03  # bootstrap refits search this far around the best offset
 _BLOCK_S = 1.5  # image bootstrap block length
 _FORCE_BLOCK_S = 0.05  # force bootstrap block length
@@ -45,16 +46,25 @@ def _ramp(t_s: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def fit_force(t_s: np.ndarray, force: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Least-squares parameters of :func:`_ramp` through every force sample from ``start``."""
+    """Least-squares parameters of :func:`_ramp` through every force sample from ``start``.
+    The solid's gains keep the sign of the start's ramp (a short, nearly straight pull
+    otherwise trades a negative ``a`` against a long ``τ``) and ``τ`` stays within
+    ``_TAU_RANGE_S``."""
     from scipy.optimize import least_squares
 
+    sign = 1.0 if start[3] >= 0 else -1.0
+    low = np.array([-np.inf, -np.inf, -np.inf, 0.0, 0.0, np.log(_TAU_RANGE_S[0])])
+    high = np.array([np.inf, np.inf, np.inf, np.inf, np.inf, np.log(_TAU_RANGE_S[1])])
+    flip = np.array([1.0, 1.0, 1.0, sign, sign, 1.0])
+    x0 = np.clip(start * flip, low + 1e-9, high - 1e-9)
     fit = least_squares(
-        lambda p: _ramp(t_s, p) - force,
-        start,
+        lambda p: _ramp(t_s, p * flip) - force,
+        x0,
+        bounds=(low, high),
         x_scale=np.array([0.1, 0.01, 0.01, 0.1, 0.1, 0.3]),
         diff_step=1e-6,
     )
-    return fit.x
+    return fit.x * flip
 
 
 def _start(t_s: np.ndarray, force: np.ndarray) -> np.ndarray:
