@@ -272,9 +272,8 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
         "while the whole 95% interval lies beyond the limit, PASS only while it lies "
         "within, INCONCLUSIVE otherwise. A freehand trial, whose force turns often, is "
         "measured by one viscoelastic model of the whole trial; a single pull and hold "
-        "by fitting its whole force record with the protocol's shape and its frames with "
-        "the grasp displacement that shape implies, still too coarsely to judge a few ms: "
-        "that is what the sync protocol session is for."
+        "cannot tell the tissue's creep from the offset, so it is measured at its two "
+        "force corners, bluntly: that is what the sync protocol session is for."
     )
     _images(report, [r["plot"] for r in sync["sessions"][:1] if r["plot"]], "sync", out)
     report.heading("Sync protocol session (taps and projector flashes)")
