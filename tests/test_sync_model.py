@@ -11,13 +11,8 @@ from tests.cli import vbfe
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, SyncLimits, verify_sync
-from vbfe.acquire.sync.corners import frame_components
-from vbfe.acquire.sync.protocol import ProtocolSettings
-from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD
-from vbfe.acquire.sync.pullhold import pull_hold_offset
 from vbfe.acquire.sync.viscoelastic import METHOD
 from vbfe.common.config import load_config
-from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 from vbfe.truth import trial_duration_s
 
 
@@ -102,45 +97,3 @@ def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp
     assert abs(e.offset_s - true_s) <= 0.002
     assert e.ci95_s[0] <= true_s <= e.ci95_s[1]
     assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.003
-
-
-def _pull_hold_error(folder, index):
-    """A pull-hold session as the full demo records it (640×360, 10 fps, the paper's condition
-    ``index % 3``, seed ``index + 1``): the passive estimate, its error and whether its 95%
-    interval holds the truth."""
-    config = load_config(None)
-    config["record"]["min_free_gb"] = 0.0
-    k, v = list(PAPER_CONDITIONS.items())[index % 3]
-    config["bench"].update(
-        width=640, height=360, fps=10.0, stiffness_n_per_m=k, pull_speed_m_per_s=v, seed=index + 1
-    )
-    path = folder / f"pullhold{index}.h5"
-    record_session(copy.deepcopy(config), path, duration_s=trial_duration_s(config))
-    with SessionReader(path) as reader:
-        true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-        e = pull_hold_offset(
-            reader.frame_times_ns(),
-            frame_components(reader),
-            reader.force_times_ns(),
-            reader.forces_n(),
-            ProtocolSettings.from_config(config).exposure_s,
-        )
-    path.unlink()
-    return e, e.offset_s - true_s, e.ci95_s[0] <= true_s <= e.ci95_s[1]
-
-
-def test_a_pull_hold_session_is_measured_from_both_whole_records(tmp_path):
-    e, error, holds = _pull_hold_error(tmp_path, 0)
-    assert e.method == PULL_HOLD
-    assert abs(error) <= 0.002 and holds
-    assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.008
-
-
-@pytest.mark.slow
-def test_the_demos_18_pull_hold_sessions_median_error_and_coverage(tmp_path):
-    """The same 18 sessions benchmarks/bench_sync.py --protocols --fps 10 --freehand 0 records."""
-    found = [_pull_hold_error(tmp_path, i) for i in range(18)]
-    errors = np.abs([error for _, error, _ in found])
-    assert all(e.method == PULL_HOLD for e, _, _ in found)
-    assert np.median(errors) <= 0.0025
-    assert sum(holds for _, _, holds in found) >= 17
