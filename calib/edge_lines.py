@@ -54,13 +54,14 @@ def grid_vectors(corners: np.ndarray, inner: tuple[int, int]) -> tuple[np.ndarra
 def _crossings(profiles: np.ndarray, s: np.ndarray, fit: np.ndarray) -> tuple[np.ndarray, ...]:
     """Where each profile (…×m, sampled at ``s``) crosses the middle of its end levels, nearest
     its centre and refined by a line through the samples within ``fit`` (…, in ``s`` units) of
-    the crossing; and each profile's contrast (end to end)."""
+    the crossing; and each profile's contrast (end to end; 0 where it does not cross)."""
     ends = max(2, len(s) // _ENDS)
     low, high = profiles[..., :ends].mean(axis=-1), profiles[..., -ends:].mean(axis=-1)
     level = profiles - ((low + high) / 2)[..., None]
     above = level * np.sign(high - low)[..., None] > 0
     steps = np.abs(np.arange(len(s) - 1) - (len(s) - 2) / 2)
-    k = np.where(above[..., 1:] != above[..., :-1], steps, np.inf).argmin(axis=-1)[..., None]
+    change = above[..., 1:] != above[..., :-1]
+    k = np.where(change, steps, np.inf).argmin(axis=-1)[..., None]
     y0 = np.take_along_axis(level, k, -1)[..., 0]
     y1 = np.take_along_axis(level, k + 1, -1)[..., 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -71,7 +72,7 @@ def _crossings(profiles: np.ndarray, s: np.ndarray, fit: np.ndarray) -> tuple[np
         slope = (n * (w * x * level).sum(-1) - sx * sy) / (n * (w * x * x).sum(-1) - sx * sx)
         refined = first - (sy - slope * sx) / n / slope
     good = np.isfinite(refined) & (np.abs(refined - first) < (s[1] - s[0]) * 2)
-    return np.where(good, refined, first), high - low
+    return np.where(good, refined, first), np.where(change.any(axis=-1), high - low, 0.0)
 
 
 def _tangent(
