@@ -199,3 +199,20 @@ def test_live_computes_only_the_texture_and_gives_the_offline_estimates(shifted_
     pipeline.stop()
     np.testing.assert_allclose([e.force_n[0] for e in delivered], offline, rtol=1e-6)
     assert all(len(e.stage_s) == len(STAGES) for e in delivered)
+
+
+def test_live_searching_the_rest_depths_gives_the_offline_estimates(shifted_clouds):
+    """With ``[live] depth_margin_mm`` the matcher searches, after the rest frame, only its
+    depths ± the margin: fewer disparities, and the forces stay the offline preparation's."""
+    clouds, _, (frames, calibration) = shifted_clouds
+    name = CANDIDATES["hooke_texture"]
+    hooke = AffineBaseline(name, np.array([STIFFNESS_N_PER_M]), np.array([0.0]), TEXTURE_FEATURE)
+    model = ForceModel(
+        config=TrainConfig(model="hooke_texture"), selected=name, estimators={name: hooke}
+    )
+    offline = model.predict_session(prepare_session(_sessions(clouds)[1], model.config))[:, 0]
+    estimator = FrameEstimator(model, calibration, depth_margin_mm=10.0)
+    whole = estimator.reconstructor.params.num_disparities
+    forces = [estimator.estimate(frames[i]).force_n[0] for i in (0, 3, 2, 1)]
+    assert estimator.reconstructor.searched.num_disparities < whole  # set after the rest frame
+    np.testing.assert_allclose(forces, offline, rtol=0.02)
