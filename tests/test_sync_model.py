@@ -86,7 +86,7 @@ def _freehand_session(folder, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [101, 104])
+@pytest.mark.parametrize("seed", [101, 104, 118])  # 118: five force corners
 def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp_path, seed):
     """benchmarks/bench_sync.py --protocols holds the 20-trial figures."""
     path = _freehand_session(tmp_path, seed)
