@@ -216,3 +216,22 @@ def test_live_searching_the_rest_depths_gives_the_offline_estimates(shifted_clou
     forces = [estimator.estimate(frames[i]).force_n[0] for i in (0, 3, 2, 1)]
     assert estimator.reconstructor.searched.num_disparities < whole  # set after the rest frame
     np.testing.assert_allclose(forces, offline, rtol=0.02)
+
+
+def test_a_cloud_in_two_patches_far_apart_is_tracked():
+    """Two textured patches 100 pixels apart (a tool across the view, or an imported cloud
+    cut by a depth range): the grid between them has no weight at all, and the feature is
+    still computed (a shift of the second patch is seen, the still cloud reads ~0)."""
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:60, 0:220].astype(np.float64)
+    keep = (u < 60) | (u >= 160)
+    f, z = 500.0, 0.06
+    points = np.column_stack([u[keep] / f * z, v[keep] / f * z, np.full(keep.sum(), z)])
+    texture = rng.integers(60, 200, size=(60, 220)).astype(np.uint8)
+    colors = np.repeat(texture[keep][:, None], 3, axis=1)
+    motion, reason = TextureMotion.from_rest(points, colors)
+    assert motion is not None, reason
+    assert motion.peak_displacement_m(points, colors) < 1e-5
+    pushed = points.copy()
+    pushed[points[:, 0] > 100 / f * z, 2] -= 1e-3  # the second patch 1 mm nearer
+    assert 0.5e-3 < motion.peak_displacement_m(pushed, colors) < 1.5e-3
