@@ -71,6 +71,7 @@ def console_run(config: dict, frames: list[np.ndarray], seconds: float, folder: 
         SgbmParams.from_config(section(config, "sgbm")),
         scale=settings.scale,
         row_scale=settings.row_scale,
+        depth_margin_mm=settings.depth_margin_mm,
     )
     station = Station(
         config,

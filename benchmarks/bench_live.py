@@ -207,6 +207,7 @@ def measure(
     model: ForceModel,
     record: Path | None,
     foxglove: bool = False,
+    depth_margin_mm: float = 0.0,
 ) -> dict[str, float]:
     """Run live estimation on a real-time bench for ``seconds`` (replaying ``frames``, or
     rendering live when None), recording into ``record`` when given, served to a Foxglove
@@ -223,6 +224,7 @@ def measure(
         SgbmParams.from_config(section(config, "sgbm")),
         scale=scale,
         row_scale=row_scale,
+        depth_margin_mm=depth_margin_mm,
     )
     acquisition = (
         session_recorder(config, record, rig, streams=(marks_stream(),))
@@ -277,6 +279,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--scale", type=float, default=None, help="default: [live] scale")
+    parser.add_argument(
+        "--depth-margin-mm",
+        type=float,
+        help="default: [live] depth_margin_mm (0: search the whole [recon] depth range)",
+    )
     parser.add_argument("--row-scale", type=float, default=None, help="default: [live] row_scale")
     parser.add_argument("--sizes", default="640x360,1280x720")
     parser.add_argument(
@@ -331,6 +338,8 @@ def main() -> None:
     settings = live_settings(section(load_config(), "live"))
     args.scale = args.scale or settings.scale
     args.row_scale = args.row_scale or settings.row_scale
+    if args.depth_margin_mm is None:
+        args.depth_margin_mm = settings.depth_margin_mm
     if args.opencv_threads is not None:
         settings = dataclasses.replace(settings, opencv_threads=args.opencv_threads)
     use_threads(settings)
@@ -346,7 +355,7 @@ def main() -> None:
             else f"PointNet {'-'.join(map(str, channels))}"
         )
         + f", reconstruction at scale {args.scale}, rows "
-        f"{args.row_scale}, "
+        f"{args.row_scale}, depth margin {args.depth_margin_mm:g} mm, "
         f"{'bench rendering live' if args.render_live else 'replayed bench frames'}"
         f" at {FPS:.0f} fps; OpenCV threads {cv2.getNumThreads()}, torch threads "
         f"{torch.get_num_threads()}; stages reconstruct -> prepare -> model on their own "
@@ -389,6 +398,7 @@ def main() -> None:
                                 model,
                                 path if record else None,
                                 fox,
+                                args.depth_margin_mm,
                             )
                         finally:
                             for process in busy:

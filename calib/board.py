@@ -11,14 +11,13 @@ import cv2
 import numpy as np
 
 from vbfe.calib.chessboard import (
-    SECTOR,
     canonical,
     corner_spacing,
     find_chessboard,
     refine,
-    sector_corners,
     subpix_windows,
 )
+from vbfe.calib.edge_lines import EDGE_LINES, edge_line_corners
 from vbfe.calib.edge_width import edge_width_px, neighbour_pairs
 from vbfe.calib.options import calib_field, calib_settings, from_table
 from vbfe.common.errors import CalibrationError
@@ -163,9 +162,9 @@ SUBPIX = "cornerSubPix"
 
 @dataclass(frozen=True)
 class Candidate:
-    """One refinement of a view's corners: the method (``cornerSubPix``, the sector detector's
-    ``ACCURACY`` pass or the ChArUco detector's own), its half-window (0: none) and the corners
-    (n×2, numbered as the detection's ids)."""
+    """One refinement of a view's corners: the method (``cornerSubPix``, the crossing of a
+    chessboard's edge lines or the ChArUco detector's own), its half-window (0: none) and the
+    corners (n×2, numbered as the detection's ids)."""
 
     method: str
     half_window: int
@@ -210,7 +209,8 @@ class BoardDetector:
     chessboard corners with ``findChessboardCorners`` (``findChessboardCornersSB`` where it
     fails), sub-pixel refined in the adaptive window. With ``candidates`` each detection also
     carries the other refinements worth comparing (see :class:`Detection`): cornerSubPix in
-    OpenCV's larger windows and, for chessboards, the sector detector's ``ACCURACY`` corners."""
+    OpenCV's larger windows and, for chessboards, the crossings of the board's edge lines
+    (:mod:`vbfe.calib.edge_lines`)."""
 
     def __init__(self, spec: BoardSpec, candidates: bool = False) -> None:
         self.spec = spec
@@ -254,9 +254,9 @@ class BoardDetector:
         if not self.with_candidates:
             return Detection(ids, corners)
         found = [Candidate(SUBPIX, h, refine(grey, start, h)) for h in windows[1:]]
-        sector = sector_corners(grey, inner, start, spacing)
-        if sector is not None:
-            found.append(Candidate(f"{SECTOR} accuracy", 0, sector))
+        crossing = edge_line_corners(grey, corners, inner)
+        if crossing is not None:
+            found.append(Candidate(EDGE_LINES, 0, crossing))
         return Detection(
             ids,
             corners,

@@ -1,6 +1,6 @@
-"""Plain chessboards: finding the board (:func:`find_chessboard`), the corner refinements worth
-comparing (cornerSubPix windows, the sector detector's ``ACCURACY`` corners), and one corner
-numbering for every eye and view.
+"""Plain chessboards: finding the board (:func:`find_chessboard`), the cornerSubPix windows
+worth comparing (the crossings of the board's edge lines are :mod:`vbfe.calib.edge_lines`'),
+and one corner numbering for every eye and view.
 
 A chessboard reads the same turned by 180° (a square one also by 90°), and OpenCV may number
 it from either end (a square one turned or mirrored): :func:`canonical` numbers every detection
@@ -27,11 +27,10 @@ _MAX_HALF_WINDOW_PER_SPACING = 0.35
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
 # No single window suits every image (issue 40): soft, noisy corners want OpenCV's larger windows
 # (half 8-11), small sharp ones the adaptive window; each view keeps the candidate that fits the
-# board best (vbfe.calib.corner_choice). Windows beyond 0.75 × the spacing take in the next
-# row's edges wholesale and are not tried.
+# board best (vbfe.calib.corner_choice), most often the edge-line crossings. Windows beyond
+# 0.75 × the spacing take in the next row's edges wholesale and are not tried.
 _TRIED_HALF_WINDOWS = (5, 8, 11)
 _MAX_TRIED_HALF_WINDOW_PER_SPACING = 0.75
-_SECTOR_MARGIN_SPACINGS = 3.0  # crop around the board for the sector detector's accuracy pass
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 CLASSIC = "findChessboardCorners"
 SECTOR = "findChessboardCornersSB"
@@ -112,17 +111,6 @@ def canonical(corners: np.ndarray, inner: tuple[int, int]) -> np.ndarray:
     return options[int(np.argmax([d[0] / (np.linalg.norm(d) + 1e-12) for d in direction]))]
 
 
-def _as_numbered(reference: np.ndarray, corners: np.ndarray, inner: tuple[int, int]) -> np.ndarray:
-    """``corners`` (n×2) renumbered to match ``reference`` (the same board's corners found by
-    another detector, numbered any way, mirrored or not)."""
-    nx, ny = inner
-    grid = corners.reshape(ny, nx, 2)
-    options = [grid, grid[::-1]] if nx != ny else [grid, grid.transpose(1, 0, 2)]
-    every = [n for o in options for n in _numberings(o.reshape(-1, 2), inner)]
-    gaps = [float(np.abs(n - reference).max()) for n in every]
-    return every[int(np.argmin(gaps))]
-
-
 def subpix_windows(spacing_px: float) -> list[int]:
     """cornerSubPix half-sizes to try for corners ``spacing_px`` apart: the adaptive
     :func:`half_window` first, then OpenCV's 5, 8 and 11 where the window stays within
@@ -140,24 +128,6 @@ def refine(grey: np.ndarray, corners: np.ndarray, half: int) -> np.ndarray:
         .reshape(-1, 2)
         .astype(np.float64)
     )
-
-
-def sector_corners(
-    grey: np.ndarray, inner: tuple[int, int], near: np.ndarray, spacing_px: float
-) -> np.ndarray | None:
-    """``findChessboardCornersSB`` with ``ACCURACY`` around the corners ``near`` (n×2; the
-    image cropped to the board plus :data:`_SECTOR_MARGIN_SPACINGS` spacings, several times
-    faster than the whole image), numbered as ``near``; ``None`` when it misses the board."""
-    margin = _SECTOR_MARGIN_SPACINGS * spacing_px
-    height, width = grey.shape
-    x0, y0 = np.maximum(np.floor(near.min(axis=0) - margin), 0).astype(int)
-    x1, y1 = np.minimum(np.ceil(near.max(axis=0) + margin), (width, height)).astype(int)
-    crop = np.ascontiguousarray(grey[y0:y1, x0:x1])
-    found, corners = cv2.findChessboardCornersSB(crop, inner, flags=cv2.CALIB_CB_ACCURACY)
-    if not found:
-        return None
-    placed = corners.reshape(-1, 2).astype(np.float64) + (x0, y0)
-    return _as_numbered(near, placed, inner)
 
 
 def _displacement_spread(left: np.ndarray, right: np.ndarray) -> float:

@@ -3,10 +3,14 @@ detection (:class:`vbfe.calib.board.Candidate`) are compared by their reprojecti
 after a per-view pose solve (``solvePnP``) with the camera's intrinsics, which come from a
 calibration on the corners chosen so far (or are given, when fixed).
 
-No single refinement suits every image (issue 40): on soft, noisy 1080p views OpenCV's 23×23
-window or the sector detector's ``ACCURACY`` corners fit best, on small sharp corners an 11×11
-or smaller window does, and neighbouring views of one set may differ. The residual measures the
-corners against the board's known geometry, so the choice needs no image model.
+No single refinement suits every image (issue 40): on soft, noisy 1080p views the crossings of
+the board's edge lines fit best, on small sharp corners sometimes an 11×11 or smaller window
+does, and neighbouring views of one set may differ. The residual measures the corners against
+the board's known geometry, so the choice needs no image model; but a pose absorbs a bias that
+moves a view's corners as a whole (a scale), so only refinements free of such a bias on a
+symmetric corner are compared: the sector detector's ``ACCURACY`` corners are not (their lower
+residual on blurred boards came with f and B 0.1 % off the truth, see
+:mod:`vbfe.calib.edge_lines`).
 """
 
 from __future__ import annotations

@@ -57,17 +57,6 @@ def _baseline_gates(cal: Calibration, limits: GateLimits) -> list[Gate]:
     limit = f"> {limits.min_baseline_m * 1e3:g} mm (--min-baseline-mm)"
     if not np.isfinite(B) or not np.isfinite(T):
         gate = Gate("baseline", "not finite", limit, FAIL, "baseline is not a finite number")
-    elif B < 0:
-        gate = Gate(
-            "baseline",
-            measured,
-            "> 0 mm (left eye left of the right one)",
-            FAIL,
-            f"baseline {B * 1e3:.4f} mm is negative (limit: above 0): the right eye's "
-            "images come from the camera left of the left eye's, so the files' eye labels "
-            "are reversed with respect to the geometry; exchange the eyes' files "
-            "(left <-> right) or give --swap-eyes",
-        )
     elif min(abs(B), T) < limits.min_baseline_m:
         gate = Gate(
             "baseline",
@@ -78,6 +67,17 @@ def _baseline_gates(cal: Calibration, limits: GateLimits) -> list[Gate]:
             f"{limits.min_baseline_m * 1e3:g} mm (--min-baseline-mm): the left "
             "and right images look like one camera's; check the eyes are two "
             "cameras, and that --square-mm is the board's square in mm",
+        )
+    elif B < 0:
+        gate = Gate(
+            "baseline",
+            measured,
+            "> 0 mm (left eye left of the right one)",
+            FAIL,
+            f"baseline {B * 1e3:.4f} mm is negative (limit: above 0): the right eye's "
+            "images come from the camera left of the left eye's, so the files' eye labels "
+            "are reversed with respect to the geometry; exchange the eyes' files "
+            "(left <-> right) or give --swap-eyes",
         )
     else:
         gate = Gate("baseline", measured, limit, PASS)

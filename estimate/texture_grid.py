@@ -93,9 +93,9 @@ def _points(blurred: np.ndarray, points: np.ndarray) -> None:
             k0, k1, lo, hi = place[j]
             weight = lo * blurred[i, k0, 3] + hi * blurred[i, k1, 3]
             seen = weight > 0.5
-            for c in range(3):
-                value = (lo * blurred[i, k0, c] + hi * blurred[i, k1, c]) / weight
-                points[i, j, c] = value if seen else np.nan
+            for c in range(3):  # divided only where seen: the weight may be 0 elsewhere
+                value = lo * blurred[i, k0, c] + hi * blurred[i, k1, c]
+                points[i, j, c] = value / weight if seen else np.nan
             points[i, j, 3] = 1.0 if seen else 0.0
 
 

@@ -269,7 +269,8 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
     """(training, held-out) parts of blocked folds of ``parts``: whole sessions dealt to
     ``folds`` folds (as many as there are sessions, if fewer), or, with one session, the
     session cut into ``folds`` contiguous blocks in time (``gap_frames`` each side of a
-    held-out block left out)."""
+    held-out block left out, at most so many that every fold still trains on half the
+    session's frames: a short part is not left with nothing to fit)."""
     if len(parts) >= 2:
         n = min(folds, len(parts))
         fold_of = np.arange(len(parts)) % n
@@ -286,10 +287,12 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
         held: Parts = []
         for session, positions in parts:
             block = np.arange(len(positions)) * folds // max(len(positions), 1)
+            # held block n/K plus 2 gaps at most n/2
+            gap = min(gap_frames, len(positions) * (folds - 2) // (4 * folds))
             frames = session.frame_index[positions]
             test = frames[block == k]
             if len(test):
-                near = (frames >= test.min() - gap_frames) & (frames <= test.max() + gap_frames)
+                near = (frames >= test.min() - gap) & (frames <= test.max() + gap)
                 held.append((session, positions[block == k]))
                 if (~near).any():
                     train.append((session, positions[~near]))
@@ -441,6 +444,7 @@ def cross_validate(
                 "test_mae_n": mae,
                 "test_interval": covered,
                 "n_test_frames": int(len(measured)),
+                "n_train_frames": sum(len(f) for _, f in split.frames("train", prepared)),
             }
         )
         if progress is not None:

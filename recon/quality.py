@@ -78,6 +78,21 @@ def params_for(calibration: Calibration, params: SgbmParams, settings: ReconSett
     return replace(params, min_disparity=low, num_disparities=count)
 
 
+def narrowed(
+    calibration: Calibration, params: SgbmParams, min_depth_mm: float, max_depth_mm: float
+) -> SgbmParams | None:
+    """``params`` searching only the disparities of surfaces ``min_depth_mm..max_depth_mm``
+    away that ``params`` searches (the count a multiple of 16); ``None`` when that is no
+    fewer disparities."""
+    low, count = disparity_range(calibration, min_depth_mm, max_depth_mm)
+    top = params.min_disparity + params.num_disparities
+    low = max(low, params.min_disparity)
+    count = DISPARITY_STEP * math.ceil((min(low + count, top) - low) / DISPARITY_STEP)
+    if count <= 0 or count >= params.num_disparities:
+        return None
+    return replace(params, min_disparity=min(low, top - count), num_disparities=count)
+
+
 def sgbm_buffer_bytes(params: SgbmParams, image_size: tuple[int, int]) -> int:
     """Bytes of cost buffers StereoSGBM needs for ``params`` on images of ``image_size``."""
     width, height = image_size

@@ -16,8 +16,14 @@ from vbfe.recon import kernels
 from vbfe.recon.color import ColorModel
 from vbfe.recon.decode import FringeCode, FringeDecoder
 from vbfe.recon.kernels import NO_MATCH, UNVERIFIED
-from vbfe.recon.matching import SgbmParams, disparity_px
-from vbfe.recon.quality import ReconSettings, check_disparity_range, decoded_fraction, params_for
+from vbfe.recon.matching import DISPARITY_SCALE, SgbmParams, disparity_px
+from vbfe.recon.quality import (
+    ReconSettings,
+    check_disparity_range,
+    decoded_fraction,
+    narrowed,
+    params_for,
+)
 from vbfe.recon.verify import COUNT_NAMES, CodedGrid, coded_grid, verify_rows
 
 
@@ -64,7 +70,8 @@ class Reconstructor:
     A zero ``num_disparities`` is derived from the calibration's ``f·B`` and the depth range of
     ``settings`` (the ``[recon]`` table); ``params`` holds the settings actually used. The two
     views are decoded on two threads at once when ``parallel_decode`` is true (default: when
-    OpenCV has several threads).
+    OpenCV has several threads). :meth:`search_depths` narrows the search to the depths a
+    scene is known to span (``vbfe live``: its rest frame's).
     """
 
     def __init__(
@@ -87,7 +94,9 @@ class Reconstructor:
             n_fringes,
             row_step=self.params.decode_row_step,
         )
-        self._matcher = self.params.create(3)
+        # what SGBM searches (the settings, the matcher) and the columns left of which matches
+        # are dropped (0: none); one tuple, read once per frame, swapped by search_depths
+        self._search = (self.params, self.params.create(3), 0)
         self._pool: ThreadPoolExecutor | None = None
         self._disparity_offset = calibration.disparity_offset
         self._camera = (
@@ -114,6 +123,36 @@ class Reconstructor:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode")
         return self._pool
+
+    @property
+    def searched(self) -> SgbmParams:
+        """The SGBM settings the next frame is matched with (``params`` or, after
+        :meth:`search_depths`, a narrower range)."""
+        return self._search[0]
+
+    def search_depths(self, min_depth_mm: float, max_depth_mm: float) -> SgbmParams:
+        """From the next frame on, search only the disparities of surfaces ``min_depth_mm`` to
+        ``max_depth_mm`` away (within ``params``' range; SGBM's cost grows with the count);
+        the pixels that ``params``' range leaves unmatched at the left edge stay unmatched,
+        so the clouds keep their extent. Returns the settings searched (``params`` when the
+        depths span no fewer disparities). Safe while another thread reconstructs."""
+        searched = narrowed(self.calibration, self.params, min_depth_mm, max_depth_mm)
+        if searched is None:
+            self._search = (self.params, self.params.create(3), 0)
+            return self.params
+        blind = self.params.min_disparity + self.params.num_disparities
+        self._search = (searched, searched.create(3), blind)
+        return searched
+
+    def _match(
+        self, rect_left: np.ndarray, rect_right: np.ndarray
+    ) -> tuple[np.ndarray, SgbmParams]:
+        """SGBM's fixed-point disparity on the searched range, and the settings searched."""
+        params, matcher, blind = self._search
+        raw = matcher.compute(rect_left, rect_right)
+        if blind:  # OpenCV's "no match" value
+            raw[:, :blind] = (params.min_disparity - 1) * DISPARITY_SCALE
+        return raw, params
 
     def _check_size(self, left: np.ndarray, right: np.ndarray) -> None:
         width, height = self.calibration.image_size
@@ -229,20 +268,18 @@ class Reconstructor:
             for image, maps in zip((left, right), self._maps, strict=False)
         )
         if not self.verify:
-            disparity, edge = disparity_px(
-                self._matcher.compute(rect_left, rect_right), self.params
-            )
+            disparity, edge = disparity_px(*self._match(rect_left, rect_right))
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))
             decoded = float("nan")
             counts: dict[str, int] = {}
             cloud = self._triangulate(rect_left, disparity, status)
         else:
             left_code, right_code = self._decode(rect_left, rect_right)
-            raw = self._matcher.compute(rect_left, rect_right)
+            raw, searched = self._match(rect_left, rect_right)
             # the left's coded region in the second thread while this one converts SGBM's output
             pool = self._second_thread()
             region = pool.submit(_coded_region, left_code) if pool is not None else None
-            disparity, edge = disparity_px(raw, self.params)
+            disparity, edge = disparity_px(raw, searched)
             coded, decoded = region.result() if region is not None else _coded_region(left_code)
             disparity, status, counts, cloud = self._verify_and_triangulate(
                 rect_left, disparity, left_code, right_code, coded

@@ -5,6 +5,7 @@ pipeline (tests/plain_opencv.py) on the same images."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from pathlib import Path
 
@@ -19,7 +20,12 @@ from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera_model import CameraModel
 from vbfe.calib.edge_width import edge_width_px
-from vbfe.drivers.sim.charuco_scene import ChessboardPattern, random_board_poses, render_board_views
+from vbfe.drivers.sim.charuco_scene import (
+    ChessboardPattern,
+    random_board_poses,
+    render_board_views,
+    render_mono_views,
+)
 from vbfe.drivers.sim.rig import default_rig
 
 BOARD_ARGS = ["--inner-corners", "9x6", "--square-mm", str(sets.SQUARE_MM)]
@@ -91,7 +97,8 @@ def test_camera_on_the_dark_set_fits_as_well_as_the_best_plain_pipeline(capsys, 
 
 def test_every_dark_image_is_found_and_offers_each_refinement():
     """The darkened sample (mean grey 20, σ 3, JPEG): the board is found in the images and each
-    detection carries the adaptive, OpenCV-sized and sector-detector corners, numbered alike."""
+    detection carries the adaptive and OpenCV-sized windows' corners and the edge lines'
+    crossings, numbered alike."""
     detector = BoardDetector(SPEC, candidates=True)
     labels = set()
     for pair in sets.dark()[:4]:
@@ -103,7 +110,7 @@ def test_every_dark_image_is_found_and_offers_each_refinement():
                 gaps = np.linalg.norm(c.corners - det.corners, axis=1)
                 assert np.median(gaps) < 1.0, c.label  # the spacing is 20-37 px
     assert {"cornerSubPix half 5", "cornerSubPix half 8", "cornerSubPix half 11"} <= labels
-    assert "findChessboardCornersSB accuracy" in labels
+    assert "edge lines" in labels
 
 
 def test_edge_width_measures_the_blur_added_to_an_image():
@@ -161,12 +168,63 @@ def test_endoscope_renders_fit_as_well_as_the_best_plain_pipeline_and_the_truth(
     assert len(cal.info["views"]) == best.n_pairs and not cal.info["dropped_views"]
     assert cal.rms_stereo_px <= 1.02 * best.rms, (cal.rms_stereo_px, pipeline, summary)
     assert np.linalg.norm(cal.T) == pytest.approx(best.T_norm, rel=0.003), (pipeline, summary)
-    # against the truth: issue 40 asks 0.05 %; the sector detector's corners, kept on most views
-    # for their lower residual, make f and B 0.1 % off on these renders (see the notes)
+    # against the truth, as issue 40 asks: f and B within 0.05 % (the sector detector's corners
+    # made them 0.1 % off, see test_edge_line_corners_have_no_scale_bias_on_a_blurred_board)
     for K, camera in ((cal.K1, rig.left), (cal.K2, rig.right)):
-        assert K[0, 0] == pytest.approx(camera.K[0, 0], rel=0.002)
-        assert K[1, 1] == pytest.approx(camera.K[1, 1], rel=0.002)
-    assert cal.B == pytest.approx(rig.baseline_m, rel=0.002)
+        assert K[0, 0] == pytest.approx(camera.K[0, 0], rel=0.0005)
+        assert K[1, 1] == pytest.approx(camera.K[1, 1], rel=0.0005)
+    assert cal.B == pytest.approx(rig.baseline_m, rel=0.0005)
+
+
+def _scale(corners: np.ndarray, truth: np.ndarray) -> float:
+    """The relative scale about the board's centre that best maps ``truth`` onto ``corners``,
+    minus 1 (after the mean shift)."""
+    errors = corners - truth - (corners - truth).mean(axis=0)
+    spread = truth - truth.mean(axis=0)
+    return float(np.sum(errors * spread) / np.sum(spread * spread))
+
+
+def test_edge_line_corners_have_no_scale_bias_on_a_blurred_board():
+    """A noise-free 1080p render through the endoscope optics' blur and vignetting (σ 2 px
+    defocus), the board tilted: the edge lines' crossings are within 0.02 px RMS of the true
+    corners and scale the board by less than 0.003 %, where the sector detector's ACCURACY
+    corners are over 0.1 px off and scale it by +0.05 % (which a per-view pose absorbs: the
+    reason they are not among the candidates)."""
+    rig = sets.endoscope_rig()
+    pattern = ChessboardPattern(sets.ENDOSCOPE_INNER, sets.ENDOSCOPE_SQUARE_MM * 1e-3)
+    optics = dataclasses.replace(sets.ENDOSCOPE_OPTICS, shot_noise=0, noise_sigma=0, jpeg_quality=0)
+    rng = np.random.default_rng(0)
+    pose = random_board_poses(
+        1, rng, distance_m=(0.055, 0.085), max_tilt_deg=45.0, rig=rig, board=pattern, min_visible=1
+    )[0]
+    grey = render_mono_views(rig.left, pattern, [pose], optics=optics, supersample=2, rng=rng)
+    grey = grey[0][..., 0]
+    R_board, _ = cv2.Rodrigues(pose[0])
+    truth = rig.left.project(
+        pattern.getChessboardCorners().astype(np.float64) @ R_board.T + pose[1]
+    )
+    nx, ny = sets.ENDOSCOPE_INNER
+    spec = BoardSpec(
+        squares_x=nx + 1, squares_y=ny + 1, square_m=pattern.square_m, target="chessboard"
+    )
+
+    def numbered_as_truth(corners: np.ndarray) -> np.ndarray:
+        grid = corners.reshape(ny, nx, 2)
+        turns = [np.rot90(grid, k).reshape(-1, 2) for k in (0, 2)]
+        return min(turns, key=lambda c: np.abs(c - truth).max())
+
+    def rms(corners: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((corners - truth) ** 2, axis=1))))
+
+    found = BoardDetector(spec, candidates=True).detect(grey)
+    crossings = numbered_as_truth(
+        next(c.corners for c in found.candidates if c.label == "edge lines")
+    )
+    assert rms(crossings) < 0.02 and abs(_scale(crossings, truth)) < 3e-5
+    ok, sector = cv2.findChessboardCornersSB(grey, (nx, ny), flags=cv2.CALIB_CB_ACCURACY)
+    assert ok
+    sector = numbered_as_truth(sector.reshape(-1, 2).astype(np.float64))
+    assert rms(sector) > 0.1 and _scale(sector, truth) > 4e-4
 
 
 def test_a_square_board_is_numbered_one_way_in_every_eye_and_view():

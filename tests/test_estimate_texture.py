@@ -199,3 +199,39 @@ def test_live_computes_only_the_texture_and_gives_the_offline_estimates(shifted_
     pipeline.stop()
     np.testing.assert_allclose([e.force_n[0] for e in delivered], offline, rtol=1e-6)
     assert all(len(e.stage_s) == len(STAGES) for e in delivered)
+
+
+def test_live_searching_the_rest_depths_gives_the_offline_estimates(shifted_clouds):
+    """With ``[live] depth_margin_mm`` the matcher searches, after the rest frame, only its
+    depths ± the margin: fewer disparities, and the forces stay the offline preparation's."""
+    clouds, _, (frames, calibration) = shifted_clouds
+    name = CANDIDATES["hooke_texture"]
+    hooke = AffineBaseline(name, np.array([STIFFNESS_N_PER_M]), np.array([0.0]), TEXTURE_FEATURE)
+    model = ForceModel(
+        config=TrainConfig(model="hooke_texture"), selected=name, estimators={name: hooke}
+    )
+    offline = model.predict_session(prepare_session(_sessions(clouds)[1], model.config))[:, 0]
+    estimator = FrameEstimator(model, calibration, depth_margin_mm=10.0)
+    whole = estimator.reconstructor.params.num_disparities
+    forces = [estimator.estimate(frames[i]).force_n[0] for i in (0, 3, 2, 1)]
+    assert estimator.reconstructor.searched.num_disparities < whole  # set after the rest frame
+    np.testing.assert_allclose(forces, offline, rtol=0.02)
+
+
+def test_a_cloud_in_two_patches_far_apart_is_tracked():
+    """Two textured patches 100 pixels apart (a tool across the view, or an imported cloud
+    cut by a depth range): the grid between them has no weight at all, and the feature is
+    still computed (a shift of the second patch is seen, the still cloud reads ~0)."""
+    rng = np.random.default_rng(5)
+    v, u = np.mgrid[0:60, 0:220].astype(np.float64)
+    keep = (u < 60) | (u >= 160)
+    f, z = 500.0, 0.06
+    points = np.column_stack([u[keep] / f * z, v[keep] / f * z, np.full(keep.sum(), z)])
+    texture = rng.integers(60, 200, size=(60, 220)).astype(np.uint8)
+    colors = np.repeat(texture[keep][:, None], 3, axis=1)
+    motion, reason = TextureMotion.from_rest(points, colors)
+    assert motion is not None, reason
+    assert motion.peak_displacement_m(points, colors) < 1e-5
+    pushed = points.copy()
+    pushed[points[:, 0] > 100 / f * z, 2] -= 1e-3  # the second patch 1 mm nearer
+    assert 0.5e-3 < motion.peak_displacement_m(pushed, colors) < 1.5e-3

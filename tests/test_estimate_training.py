@@ -395,6 +395,13 @@ def test_cli_blocked_cross_validation_reports_every_fold_and_method(clouds_file,
         assert re.search(rf"{method}: \d+\.\d+ ± \d+\.\d+", out), method
     cv = load_model(model).record["cross_validation"]
     assert len(cv["folds"]) == 3 and cv["summary"]["mean"]["sd_mae_n"] >= 0
+    assert "warning: the gap" not in out
+    # a gap near the block's length leaves folds little to train on: said, with the way out
+    wide = ["--folds", "3", "--gap", "20", "--model", "ridge", "--overwrite"]
+    assert main(["train", str(path), "--out", str(model), "--config", str(rig), *wide]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"warning: the gap of 20 frames leaves fold 1 \d+ training frames", out)
+    assert "lower --gap" in out
     assert main(["train", str(path), "--out", str(tmp_path / "two.pt"), "--folds", "2"]) == 2
     assert "at least 3" in capsys.readouterr().err and not (tmp_path / "two.pt").exists()
 

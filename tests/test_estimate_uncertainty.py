@@ -305,8 +305,15 @@ def test_training_folds_hold_out_whole_sessions_or_blocks_in_time_with_a_gap():
     assert len(in_time) == 5
     seen = np.concatenate([held[0][1] for _, held in in_time])
     np.testing.assert_array_equal(np.sort(seen), positions)  # every frame held out once
+    n = len(positions)
+    gap = min(3, n * 3 // 20)  # a short session: each fold still trains on half its frames
+    assert gap < 3
     for fit, held in in_time:
         test = session.frame_index[held[0][1]]
         fitted = session.frame_index[fit[0][1]] if fit else np.zeros(0, int)
         assert np.all(np.diff(test) == 1)  # a contiguous block
-        assert np.all((fitted < test.min() - 3) | (fitted > test.max() + 3))  # and its gap
+        assert np.all((fitted < test.min() - gap) | (fitted > test.max() + gap))  # its gap
+        assert len(fitted) >= n / 2
+        beyond = [test.min() - gap - 1, test.max() + gap + 1]  # the gap is no wider
+        beyond = [f for f in beyond if f in session.frame_index[positions]]
+        assert np.isin(beyond, fitted).all()

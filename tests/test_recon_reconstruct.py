@@ -140,3 +140,29 @@ def test_sgbm_settings_come_from_the_rig_table():
         SgbmParams.from_config({"num_disparities": 100})
     with pytest.raises(ConfigError, match=r"unknown key 'blocksize' in \[sgbm\]"):
         SgbmParams.from_config({"blocksize": 5})
+
+
+def test_a_search_narrowed_to_the_scenes_depths_keeps_its_cloud(scene):
+    """``search_depths`` around the depths a cloud spans (vbfe live: its rest frame's ± a
+    margin) matches fewer disparities with the same extent and accuracy; a search that cuts
+    the surface off shows in the edge share."""
+    _, calibration, pair = scene
+    truth = (pair.disparity_left_px, pair.depth_left_m, pair.valid_left)
+    whole = Reconstructor(calibration, SgbmParams()).process(pair.left, pair.right)
+    near, far = np.percentile(whole.points[:, 2], [0.5, 99.5]) * 1e3  # 58-77 mm
+    narrow = Reconstructor(calibration, SgbmParams())
+    searched = narrow.search_depths(near - 10, far + 10)
+    assert searched.num_disparities == narrow.params.num_disparities // 2
+    cloud = narrow.process(pair.left, pair.right)
+    columns = [np.flatnonzero(c.valid.any(axis=0))[[0, -1]] for c in (whole, cloud)]
+    assert np.array_equal(*columns)
+    before, after = (evaluate_against_truth(c, *truth) for c in (whole, cloud))
+    assert abs(after.n_valid - before.n_valid) < 0.002 * before.n_valid
+    assert after.median_abs_depth_error_m < 1.02 * before.median_abs_depth_error_m
+    assert after.p95_abs_depth_error_m < 1.02 * before.p95_abs_depth_error_m
+    assert after.bad_pixel_rate <= before.bad_pixel_rate + 1e-4
+    assert cloud.edge_fraction < 1e-3
+    # depths the rig's range does not narrow leave the search as it was
+    assert narrow.search_depths(1.0, 1000.0) == narrow.params
+    narrow.search_depths(near + 2, far - 8)
+    assert narrow.process(pair.left, pair.right).edge_fraction > 0.1

@@ -186,7 +186,20 @@ def print_cross_validation(cv: dict) -> None:
             f"fold {k + 1}: {fold['description']}; selected {fold['selected']}; test MAE (N): "
             + ", ".join(f"{m} {v:.3f}" for m, v in fold["test_mae_n"].items())
         )
-    print(f"{len(cv['folds'])}-fold blocked cross-validation, test MAE mean ± sd (N):")
+    k = len(cv["folds"])
+    short = [  # trained on under half the (K − 2) blocks a fold would train on without gaps
+        (n + 1, fold["n_train_frames"])
+        for n, fold in enumerate(cv["folds"])
+        if fold.get("n_train_frames", float("inf")) < (k - 2) * fold["n_test_frames"] / 2
+    ]
+    if short:
+        print(
+            f"warning: the gap of {cv['gap_frames']} frames leaves "
+            + ", ".join(f"fold {n} {m} training frames" for n, m in short)
+            + f" (about {cv['folds'][0]['n_test_frames']} frames per block): a short "
+            "recording; lower --gap for folds that can fit"
+        )
+    print(f"{k}-fold blocked cross-validation, test MAE mean ± sd (N):")
     for method, s in sorted(cv["summary"].items(), key=lambda kv: kv[1]["mean_mae_n"]):
         print(
             f"  {method:>24}: {s['mean_mae_n']:.3f} ± {s['sd_mae_n']:.3f}"

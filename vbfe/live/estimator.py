@@ -23,12 +23,13 @@ from vbfe.calib.calibration import Calibration
 from vbfe.common.errors import EstimateError
 from vbfe.drivers.samples import StereoFrame
 from vbfe.estimate.model_file import ForceModel
-from vbfe.estimate.preparation import FrameFeatures
+from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures
 from vbfe.live.predictor import LivePredictor
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
 STAGES = ("scale", "reconstruct", "prepare", "model")
+REST_DEPTH_PERCENTILES = (0.5, 99.5)  # the rest cloud's depth span (a few stray matches aside)
 _NO_BOUNDS = np.full(0, np.nan)  # LiveEstimate without an interval
 
 
@@ -94,7 +95,9 @@ class FrameEstimator:
     fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1
     matches fewer rows (rows averaged together) at the full width: the depth resolution, set
     by the disparity along the rows, stays; the cloud has fewer points, and the model samples
-    its own few from it.
+    its own few from it. With ``depth_margin_mm`` > 0 the matcher searches, from the frame
+    after the rest on, only the rest cloud's depths ± that margin
+    (:meth:`vbfe.recon.Reconstructor.search_depths`: fewer disparities, the same extent).
     """
 
     def __init__(
@@ -107,6 +110,7 @@ class FrameEstimator:
         device: str = "cpu",
         seed: int = 0,
         row_scale: float = 1.0,
+        depth_margin_mm: float = 0.0,
     ) -> None:
         for name, value in (("scale", scale), ("row scale", row_scale)):
             if not 0.1 <= value <= 1.0:
@@ -130,6 +134,8 @@ class FrameEstimator:
         if network is not None:
             network.to(torch.device(device))
         self._predictor = LivePredictor(model, seed)
+        self.depth_margin_mm = depth_margin_mm
+        self._rest_seen = False  # the first cloud prepared (the rest) has set the search
 
     def describe(self) -> str:
         """One line: what is reconstructed, the stages and the thread counts used."""
@@ -178,12 +184,25 @@ class FrameEstimator:
         """The model's features of the frame's cloud (none when it has too few points)."""
         t0 = time.perf_counter()
         assert work.points is not None  # reconstructed by the stage before
+        if not self._rest_seen:
+            self._rest_seen = True
+            self._search_near(work.points)
         try:
             work.features = self._predictor.prepare(work.points, work.colors)
         except EstimateError:  # too few points inside the model's region of interest
             work.features = None
         work.stage_s.append(time.perf_counter() - t0)
         return work
+
+    def _search_near(self, rest: np.ndarray) -> None:
+        """Match only the rest cloud's depths ± ``depth_margin_mm`` from now on (nothing
+        without a margin or a rest of too few points)."""
+        depth_mm = rest[:, 2][np.isfinite(rest[:, 2]) & (rest[:, 2] > 0)] * 1e3
+        if self.depth_margin_mm <= 0 or len(depth_mm) < MIN_FRAME_POINTS:
+            return
+        near, far = np.percentile(depth_mm, REST_DEPTH_PERCENTILES)
+        margin = self.depth_margin_mm
+        self.reconstructor.search_depths(max(float(near) - margin, 1e-3), float(far) + margin)
 
     def estimate_force(self, work: FrameWork) -> LiveEstimate:
         """The model's force from the prepared features (NaN without features)."""

@@ -125,6 +125,7 @@ def live_estimator(
         scale=scale or settings.scale,
         device=device,
         row_scale=row_scale or settings.row_scale,
+        depth_margin_mm=settings.depth_margin_mm,
     )
 
 

@@ -15,6 +15,7 @@ class LiveSettings:
     scale: float = setting(1.0, ge=0.1, le=1.0)
     row_scale: float = setting(0.5, ge=0.1, le=1.0)
     verify: bool = True
+    depth_margin_mm: float = setting(10.0, ge=0)  # search the rest's depths ± this (0: [recon]'s)
     device: Literal["auto", "cpu", "cuda"] = "auto"
     torch_threads: int = setting(1, ge=1)
     opencv_threads: int = setting(0, ge=0)  # 0: one per core
