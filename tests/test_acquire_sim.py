@@ -7,6 +7,7 @@ import pytest
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import verify_sync
+from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD
 from vbfe.cli.main import main
 from vbfe.common.config import load_config
 
@@ -61,8 +62,8 @@ def test_verify_sync_recovers_the_bench_latency_difference(sim_session):
     png = path.with_suffix(".png")
     report = verify_sync(path, store=False, plot_path=png)
     assert png.stat().st_size > 5000
-    e = report.estimate  # default deformation: the pull's start and end are what align
-    assert e.method == "force corners" and e.corners == 2
+    e = report.estimate  # one pull from rest to a hold: both whole records are fitted
+    assert e.method == PULL_HOLD
     assert e.offset_s == pytest.approx(0.037, abs=0.005)
     assert e.ci95_s[0] <= 0.037 <= e.ci95_s[1]
     assert report.drift_ppm["force"] == pytest.approx(-60.0, abs=30)  # 3000 samples, 0.2 ms jitter

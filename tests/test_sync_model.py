@@ -11,8 +11,11 @@ from tests.cli import vbfe
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, SyncLimits, verify_sync
+from vbfe.acquire.sync.protocol import ProtocolSettings
+from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD
 from vbfe.acquire.sync.viscoelastic import METHOD
 from vbfe.common.config import load_config
+from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 from vbfe.truth import trial_duration_s
 
 
@@ -97,3 +100,24 @@ def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp
     assert abs(e.offset_s - true_s) <= 0.002
     assert e.ci95_s[0] <= true_s <= e.ci95_s[1]
     assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.003
+
+
+def test_a_pull_hold_session_is_measured_from_both_whole_records(tmp_path):
+    """The demo's seed-9 session (640×360, 10 fps, k = 40 N/m): whole-frame components erred by
+    11.7 ms there; benchmarks/bench_sync.py --protocols --fps 10 --freehand 0 holds all 18."""
+    config = load_config(None)
+    config["record"]["min_free_gb"] = 0.0
+    k, v = list(PAPER_CONDITIONS.items())[8 % 3]
+    config["bench"].update(
+        width=640, height=360, fps=10.0, stiffness_n_per_m=k, pull_speed_m_per_s=v, seed=9
+    )
+    path = tmp_path / "pullhold.h5"
+    record_session(copy.deepcopy(config), path, duration_s=trial_duration_s(config))
+    with SessionReader(path) as reader:
+        true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
+    settings = ProtocolSettings.from_config(config)
+    e = verify_sync(path, settings=settings, store=False).estimate
+    assert e.method == PULL_HOLD
+    assert abs(e.offset_s - true_s) <= 0.003
+    assert e.ci95_s[0] <= true_s <= e.ci95_s[1]
+    assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.008

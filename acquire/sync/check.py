@@ -27,13 +27,20 @@ from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.layout import CAMERA, FORCE
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.changes import change_offset, motion_energy
-from vbfe.acquire.sync.corners import OffsetEstimate, corner_offset, frame_components
+from vbfe.acquire.sync.corners import (
+    OffsetEstimate,
+    corner_offset,
+    frame_components,
+    grasp_components,
+)
 from vbfe.acquire.sync.protocol import (
     EventEstimate,
     ProtocolResult,
     ProtocolSettings,
     analyse_protocol,
 )
+from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD_METHOD
+from vbfe.acquire.sync.pullhold import pull_hold_offset
 from vbfe.acquire.sync.streams import stream_offset
 from vbfe.acquire.sync.viscoelastic import METHOD as MODEL_METHOD
 from vbfe.acquire.sync.viscoelastic import model_applies, model_offset
@@ -245,7 +252,7 @@ def _plot(path: Path, report: SyncReport) -> None:
         ax.set_xlabel("time in the session (s)")
         ax.set_ylabel("image time - force time (ms)")
     else:
-        model = e.method == MODEL_METHOD
+        model = e.method in (MODEL_METHOD, PULL_HOLD_METHOD)
         ax.plot(
             e.lags_s * 1e3,
             e.correlation,
@@ -269,16 +276,24 @@ def measure_offset(
     reader: SessionReader, max_lag_s: float = 0.25, settings: ProtocolSettings | None = None
 ) -> OffsetEstimate:
     """The offset from the viscoelastic model of the whole session when the force has enough
-    pulls, holds and releases to pin the tissue's lag (:func:`model_applies`); else from the
-    force corners when they pin it to within a frame period (95% interval), else the better
+    pulls, holds and releases to pin the tissue's lag (:func:`model_applies`); else, for one pull
+    from rest to a hold, from the fit of both whole records (:func:`pull_hold_offset`, the image
+    side from a window around the grasp: :func:`grasp_components`); else from
+    the force corners when they pin it to within a frame period (95% interval), else the better
     determined of the corner and the change-correlation measurement."""
     t_force, forces = reader.force_times_ns(), reader.forces_n()
     t_frames = reader.frame_times_ns()
     components = frame_components(reader)
+    exposure_s = (settings or ProtocolSettings()).exposure_s
     if model_applies(t_force, forces, len(t_frames)):
-        exposure_s = (settings or ProtocolSettings()).exposure_s
         return model_offset(t_frames, components, t_force, forces, exposure_s, max_lag_s=max_lag_s)
     found, errors = [], []
+    try:  # one pull from rest to a hold: both whole records fitted with the protocol's shape
+        return pull_hold_offset(
+            t_frames, grasp_components(reader), t_force, forces, exposure_s, max_lag_s=max_lag_s
+        )
+    except SessionError as err:
+        errors.append(str(err))
     try:
         found.append(corner_offset(t_frames, components, t_force, forces, max_lag_s=max_lag_s))
     except SessionError as err:

@@ -25,6 +25,10 @@ from vbfe.common.errors import SessionError
 
 _MOTION_WIDTH = 128  # frames are downscaled (area average) to this width
 _COMPONENTS = 3  # leading principal components of the frames that carry the motion
+_GRASP_WIDTH = 320  # frames are downscaled to this width to find and crop the grasp's window
+_GRASP_HALF = 0.075  # half side of the grasp's square window, as a fraction of that width
+_GRASP_END_FRAMES = 5  # frames averaged at each end of the session to find the window
+_GRASP_BLUR = 6.0  # Gaussian blur (px at _GRASP_WIDTH) of the change map before its peak
 _FORCE_SMOOTH_S = 0.01  # symmetric box over the force while looking for corners
 _CORNER_GRID_S = 0.005  # the force is resampled on this grid to find its corners
 _SLOPE_WINDOW_S = 0.3  # slopes before/after a candidate corner are fitted over this long
@@ -76,6 +80,24 @@ def frame_components(reader: SessionReader) -> np.ndarray:
     pixels = np.asarray(rows, np.float32)
     pixels -= pixels.mean(axis=0)
     return _leading_components(pixels, _COMPONENTS)
+
+
+def grasp_components(reader: SessionReader) -> np.ndarray:
+    """Leading principal components (frames × 3, ``U·S``) of a square window of the grey left
+    frames around the grasp: where the image changed most between the session's first and last
+    frames (blurred change map). Whole-frame components mix the grasp's motion with everything
+    else that changes; the window keeps the part that follows the grasp's displacement."""
+    frames = np.asarray([g.astype(np.float32) for g in grey_left_frames(reader, _GRASP_WIDTH)])
+    ends = min(_GRASP_END_FRAMES, len(frames))
+    change = cv2.GaussianBlur(
+        np.abs(frames[-ends:].mean(0) - frames[:ends].mean(0)), (0, 0), _GRASP_BLUR
+    )
+    cy, cx = np.unravel_index(int(np.argmax(change)), change.shape)
+    half = max(2, int(round(_GRASP_HALF * frames.shape[2])))
+    y0 = int(np.clip(cy - half, 0, max(0, frames.shape[1] - 2 * half)))
+    x0 = int(np.clip(cx - half, 0, max(0, frames.shape[2] - 2 * half)))
+    window = frames[:, y0 : y0 + 2 * half, x0 : x0 + 2 * half].reshape(len(frames), -1)
+    return _leading_components(window - window.mean(axis=0), _COMPONENTS)
 
 
 def _leading_components(

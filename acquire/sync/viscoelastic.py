@@ -114,10 +114,10 @@ def _lag(force: np.ndarray, tau_s: float) -> np.ndarray:
     return out
 
 
-def _shape_design(u: np.ndarray, lo: float, hi: float) -> np.ndarray:
+def _shape_design(u: np.ndarray, lo: float, hi: float, knots: int = _SHAPE_KNOTS) -> np.ndarray:
     """Uniform cubic B-spline basis (… × basis functions) in ``u`` over ``[lo, hi]``, with
-    ``_SHAPE_KNOTS`` interior knots."""
-    intervals = _SHAPE_KNOTS + 1
+    ``knots`` interior knots."""
+    intervals = knots + 1
     s = np.clip((u - lo) / ((hi - lo) or 1.0), 0.0, 1.0) * intervals
     i = np.minimum(s.astype(int), intervals - 1)
     f = s - i
@@ -140,10 +140,12 @@ def _deviance(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return len(y) * np.sum(np.log(np.maximum(rss, 1e-300)), axis=1)
 
 
-def _design(u: np.ndarray, t_s: np.ndarray, lags_s: np.ndarray) -> np.ndarray:
+def _design(
+    u: np.ndarray, t_s: np.ndarray, lags_s: np.ndarray, knots: int = _SHAPE_KNOTS
+) -> np.ndarray:
     """The shape spline of ``u`` (grid) at the frame times minus each lag (lags × n × p)."""
     index = np.rint((t_s[None, :] - lags_s[:, None]) / _GRID_S).astype(int)
-    return _shape_design(u[index], float(u.min()), float(u.max()))
+    return _shape_design(u[index], float(u.min()), float(u.max()), knots)
 
 
 def _best(deviance: np.ndarray, lags_s: np.ndarray) -> float:
