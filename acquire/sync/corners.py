@@ -26,7 +26,7 @@ from vbfe.common.errors import SessionError
 _MOTION_WIDTH = 128  # frames are downscaled (area average) to this width
 _COMPONENTS = 3  # leading principal components of the frames that carry the motion
 _GRASP_WIDTH = 320  # frames are downscaled to this width to find and crop the grasp's window
-_GRASP_HALF = 0.075  # half side of the grasp's square window, as a fraction of that width
+_GRASP_HALF = 0.15  # half side of the grasp's square window, as a fraction of that width
 _GRASP_END_FRAMES = 5  # frames averaged at each end of the session to find the window
 _GRASP_BLUR = 6.0  # Gaussian blur (px at _GRASP_WIDTH) of the change map before its peak
 _FORCE_SMOOTH_S = 0.01  # symmetric box over the force while looking for corners
