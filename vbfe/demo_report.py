@@ -272,8 +272,9 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
         "while the whole 95% interval lies beyond the limit, PASS only while it lies "
         "within, INCONCLUSIVE otherwise. A freehand trial, whose force turns often, is "
         "measured by one viscoelastic model of the whole trial; a single pull and hold "
-        "cannot tell the tissue's creep from the offset, so it is measured at its two "
-        "force corners, bluntly: that is what the sync protocol session is for."
+        "by fitting its whole force record with the protocol's shape and a window of its "
+        "frames around the grasp with the displacement that shape implies, to a few ms: "
+        "the sync protocol session is what pins the offset more finely."
     )
     _images(report, [r["plot"] for r in sync["sessions"][:1] if r["plot"]], "sync", out)
     report.heading("Sync protocol session (taps and projector flashes)")
