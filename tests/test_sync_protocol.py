@@ -155,7 +155,7 @@ def test_traction_session_is_inconclusive_not_failed_once_corrected(tmp_path):
     first = verify_sync(path, apply_correction=True)
     assert first.protocol is None
     half = (first.estimate.ci95_s[1] - first.estimate.ci95_s[0]) / 2
-    assert half > first.limits.max_ci_halfwidth_s  # one short pull and hold at 10 fps: too uncertain
+    assert half > first.limits.max_ci_halfwidth_s  # one short pull-hold: too uncertain
     assert first.verdict == INCONCLUSIVE
     assert "record a sync protocol session" in first.text()
     with SessionReader(path) as reader:
