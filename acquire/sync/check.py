@@ -283,9 +283,9 @@ def measure_offset(
     determined of the corner and the change-correlation measurement."""
     t_force, forces = reader.force_times_ns(), reader.forces_n()
     t_frames = reader.frame_times_ns()
-    components = frame_components(reader)
     exposure_s = (settings or ProtocolSettings()).exposure_s
     if model_applies(t_force, forces, len(t_frames)):
+        components = frame_components(reader)
         return model_offset(t_frames, components, t_force, forces, exposure_s, max_lag_s=max_lag_s)
     found, errors = [], []
     try:  # one pull from rest to a hold: both whole records fitted with the protocol's shape
@@ -294,6 +294,7 @@ def measure_offset(
         )
     except SessionError as err:
         errors.append(str(err))
+    components = frame_components(reader)  # only now: a pull-hold session never reads them
     try:
         found.append(corner_offset(t_frames, components, t_force, forces, max_lag_s=max_lag_s))
     except SessionError as err:

@@ -190,7 +190,7 @@ def print_cross_validation(cv: dict) -> None:
     short = [  # trained on under half the (K − 2) blocks a fold would train on without gaps
         (n + 1, fold["n_train_frames"])
         for n, fold in enumerate(cv["folds"])
-        if fold.get("n_train_frames", float("inf")) < (k - 2) * fold["n_test_frames"] / 2
+        if fold["n_train_frames"] < (k - 2) * fold["n_test_frames"] / 2
     ]
     if short:
         print(
