@@ -10,7 +10,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -18,6 +20,7 @@ import pytest
 
 from tests.test_acquire_devices import write_bar_session
 from vbfe.acquire import AcquisitionStats, Recorder, SessionError, SessionReader
+from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
@@ -232,6 +235,42 @@ def test_free_space_guard_stops_and_finalizes_before_the_disk_is_full(tmp_path, 
     assert left_gb >= 0.0075, err
     with assert_consistent_times(path) as reader:
         assert reader.complete and reader.attrs["end_reason"].startswith("disk almost full")
+
+
+class _StallOnce(Listener):
+    """A listener whose first frames take 2 s: the frames queue up meanwhile (a busy machine)."""
+
+    def __init__(self) -> None:
+        self.stalled = False
+
+    def on_frames(self, frames: Sequence[Any]) -> None:
+        if not self.stalled:
+            self.stalled = True
+            time.sleep(2.0)
+
+
+def test_a_backlog_of_frames_does_not_outrun_the_free_space_guard(tmp_path, small_disk):
+    disk, limit = small_disk
+    if limit is not None:
+        pytest.skip("free space is only measurable on a real small file system")
+    config = load_config(
+        rig(tmp_path, '[bench]\nwidth = 640\nheight = 360\n[record]\ncompression = "none"\n')
+    )
+    config["record"]["min_free_gb"] = 0.04
+    path = disk / "backlog.h5"
+    stall = _StallOnce()
+    recorder = session_recorder(config, path, open_rig(config), listeners=(stall,))
+    recorder.start()
+    with pytest.raises(SessionError, match="disk almost full") as raised:
+        recorder.run(20.0)
+    # the 2 s stall queued ~60 frames (83 MB, more than the disk): written in pieces, free
+    # space read between them, the guard stopped within its 10 MB margin
+    assert stall.stalled
+    left_gb = float(str(raised.value).split("disk almost full: ")[1].split(" GB left")[0])
+    assert left_gb >= 0.0075, raised.value
+    with assert_consistent_times(path) as reader:
+        assert reader.complete and reader.attrs["end_reason"].startswith("disk almost full")
+        assert f"finalized with {reader.n_frames} frames" in str(raised.value)
 
 
 # -- damaged files ------------------------------------------------------------------------------

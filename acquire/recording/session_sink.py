@@ -162,10 +162,25 @@ class SessionSink(Listener):
         self._next_flush = time.monotonic() + self._flush_period_s()
 
     def on_records(self, stream: str, records: Sequence[Any]) -> None:
+        if self._fault is not None:  # halted for space: what is still queued is not written
+            return
         with self._writing():
+            # a backlog of frames comes in one call: written a few at a time, the free space
+            # read between them, so it cannot outrun the stop margin
+            step = len(records)
             if stream == CAMERA:
-                self._frame_t_device.extend(fr.t_device_ns for fr in records)
-            self._writer.append(stream, records)
+                camera = self._acquisition.rig.camera
+                pair_bytes = 6 * camera.width * camera.height  # uncompressed: the most it takes
+                step = max(1, self._check_every() // pair_bytes)
+            for start in range(0, len(records), step):
+                part = records[start : start + step]
+                if stream == CAMERA:
+                    self._frame_t_device.extend(fr.t_device_ns for fr in part)
+                self._writer.append(stream, part)
+                if self._writer.bytes_written - self._checked_at_bytes >= self._check_every():
+                    self._check_space()
+                    if self._fault is not None:
+                        return
 
     def on_gap(self, gap: Gap) -> None:
         with self._writing():
@@ -199,14 +214,8 @@ class SessionSink(Listener):
                 self._next_flush += self._flush_period_s()
                 if self._next_flush <= time.monotonic():
                     self._next_flush = time.monotonic()
-            check_every = max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
-            if (
-                now >= self._next_space_check
-                or writer.bytes_written - self._checked_at_bytes >= check_every
-            ):
+            if now >= self._next_space_check:
                 self._check_space()
-                self._next_space_check = now + _SPACE_CHECK_S
-                self._checked_at_bytes = writer.bytes_written
         stats.bytes_written = writer.bytes_written
 
     def on_stop(self, acquisition: Acquisition) -> None:
@@ -235,7 +244,7 @@ class SessionSink(Listener):
         if self._fault is not None:
             raise SessionError(
                 f"{self._fault}; recording stopped and {self.path} finalized with "
-                f"{stats.frames} frames"
+                f"{writer.counts[CAMERA]} frames"
             )
 
     # -- internals ------------------------------------------------------------------------
@@ -259,9 +268,15 @@ class SessionSink(Listener):
         if self.on_flush is not None:
             self.on_flush(stats)
 
+    def _check_every(self) -> int:
+        """Bytes written between two reads of the free space: an eighth of the stop margin."""
+        return max(self.min_free_bytes // 32, _MIN_SPACE_CHECK_BYTES)
+
     def _check_space(self) -> None:
         """Halt the acquisition (the session is then finalized) when free space falls below a
         quarter of ``min_free_bytes``."""
+        self._next_space_check = time.monotonic() + _SPACE_CHECK_S
+        self._checked_at_bytes = self._writer.bytes_written
         free = free_bytes(self.path.parent)
         if free < self.min_free_bytes // 4 and self._fault is None:
             self._fault = (
