@@ -50,6 +50,12 @@ class PreparedSession:
         return condition_label(self.conditions)
 
     @property
+    def protocol(self) -> str:
+        """What the operator did: ``"freehand"``, …; ``"traction"`` (the paper's pull and
+        hold) unless the session's conditions state another."""
+        return str(self.conditions.get("protocol", "traction"))
+
+    @property
     def n_used(self) -> int:
         return len(self.times_ns)
 

@@ -160,13 +160,16 @@ def write_predictions_csv(
     return path
 
 
-def _with_intervals(model: ForceModel, per_method: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Every method's force and, for methods with an interval, ``<method>_lo``/``_hi``."""
+def _with_intervals(
+    model: ForceModel, per_method: dict[str, np.ndarray], protocol: str
+) -> dict[str, np.ndarray]:
+    """Every method's force and, for methods with an interval, ``<method>_lo``/``_hi`` (the
+    interval of the session's ``protocol``)."""
     out = dict(per_method)
     for method, force in per_method.items():
         interval = model.interval(method)
         if interval is not None:
-            out[f"{method}_lo"], out[f"{method}_hi"] = interval.bounds(force)
+            out[f"{method}_lo"], out[f"{method}_hi"] = interval.bounds(force, protocol)
     return out
 
 
@@ -240,7 +243,9 @@ def evaluate(
         if seen:
             seen_in_training.append(session.name)
         per_method = _with_intervals(
-            model, {m: model.predict_session(session, m, positions) for m in methods}
+            model,
+            {m: model.predict_session(session, m, positions) for m in methods},
+            session.protocol,
         )
         for method, force in per_method.items():
             predictions[method].append(force)
@@ -347,6 +352,12 @@ def evaluate(
         f"prediction intervals: {100 * interval.coverage:g} % nominal, calibrated on "
         f"{interval.n_calibration} held-out frames ({interval.source}), width "
         + ("constant" if interval.scale == "none" else "growing with |F|")
+        + (
+            "; per protocol, from its own frames: "
+            + ", ".join(f"{k or 'unstated'} ±{v[0]:.3g}" for k, v in interval.protocols.items())
+            if interval.protocols
+            else ""
+        )
         if interval is not None
         else "no prediction intervals (model file without them)"
     )

@@ -9,12 +9,17 @@ a frame is ``|measured − predicted| / difficulty`` per output; the interval of
 calibration scores (infinite when ``n`` is too small for the coverage). Difficulty ``"none"``
 is 1 (a constant width); ``"force"`` is ``floor + |predicted|`` (errors grow with the force;
 ``floor`` the median ``|predicted|`` of the calibration frames), so the band widens under load.
+
+When the calibration frames come from several protocols (pull-and-hold trials and freehand
+ones, whose errors differ), each protocol also gets its own quantile from its own frames
+(Mondrian conformal prediction: coverage holds within each protocol, not only over their
+mix); a frame of a protocol without one (too few frames, or not stated) gets the pooled one.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,8 +32,10 @@ from vbfe.estimate.train_config import INTERVAL_SCALES as SCALES
 class ConformalInterval:
     """Calibrated interval of one method.
 
-    ``quantile``: per output, in units of the difficulty; ``source``: where the calibration
-    residuals came from (``"validation"`` or ``"training folds"``).
+    ``quantile``: per output, in units of the difficulty, pooled over every calibration frame;
+    ``protocols``: the same from each protocol's frames alone (when they were of several);
+    ``source``: where the calibration residuals came from (``"validation"`` or ``"training
+    folds"``).
     """
 
     coverage: float
@@ -37,6 +44,7 @@ class ConformalInterval:
     floor_n: float = 1.0
     n_calibration: int = 0
     source: str = "validation"
+    protocols: dict[str, np.ndarray] = field(default_factory=dict)
 
     def difficulty(self, predicted_n: np.ndarray) -> np.ndarray:
         """Per frame and output, the factor the quantile is multiplied by."""
@@ -45,10 +53,21 @@ class ConformalInterval:
             return self.floor_n + np.abs(predicted)
         return np.ones_like(predicted)
 
-    def bounds(self, predicted_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi), each shaped like ``predicted_n`` (frames × outputs, or outputs)."""
+    def bounds(
+        self, predicted_n: np.ndarray, protocol: str | np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), each shaped like ``predicted_n`` (frames × outputs, or outputs).
+
+        :param protocol: the frames' protocol (one for all, or one per frame): its own
+            quantile when calibrated, else (and with ``None``) the pooled one.
+        """
         predicted = np.asarray(predicted_n, np.float64)
-        half = self.quantile * self.difficulty(predicted)
+        quantile = np.broadcast_to(self.quantile, predicted.shape).copy()
+        if protocol is not None and self.protocols:
+            labels = np.broadcast_to(np.asarray(protocol, dtype=object), predicted.shape[:-1])
+            for name, q in self.protocols.items():
+                quantile[labels == name] = q
+        half = quantile * self.difficulty(predicted)
         return predicted - half, predicted + half
 
     def to_dict(self) -> dict[str, Any]:
@@ -59,6 +78,7 @@ class ConformalInterval:
             "floor_n": self.floor_n,
             "n_calibration": self.n_calibration,
             "source": self.source,
+            "protocols": {k: [float(q) for q in v] for k, v in self.protocols.items()},
         }
 
     @classmethod
@@ -72,7 +92,15 @@ class ConformalInterval:
             float(d.get("floor_n", 1.0)),
             int(d.get("n_calibration", 0)),
             str(d.get("source", "validation")),
+            {k: np.asarray(v, np.float64) for k, v in d.get("protocols", {}).items()},
         )
+
+
+def _quantile(scores: np.ndarray, coverage: float) -> np.ndarray:
+    """The ``⌈(n + 1)·coverage⌉``-th smallest score per output (infinite when n is too small)."""
+    n = len(scores)
+    rank = math.ceil((n + 1) * coverage)
+    return np.sort(scores, axis=0)[rank - 1] if rank <= n else np.full(scores.shape[1], np.inf)
 
 
 def calibrate(
@@ -81,10 +109,11 @@ def calibrate(
     coverage: float,
     scale: str = "none",
     source: str = "validation",
+    protocols: np.ndarray | None = None,
 ) -> ConformalInterval:
     """The interval whose ``coverage`` holds on frames exchangeable with these held-out ones
-    (frames × outputs each). ``EstimateError`` for a coverage outside (0, 1) or an unknown
-    ``scale``."""
+    (frames × outputs each; ``protocols``: each frame's protocol, for per-protocol quantiles).
+    ``EstimateError`` for a coverage outside (0, 1) or an unknown ``scale``."""
     if not 0 < coverage < 1:
         raise EstimateError(f"interval coverage {coverage} must be in (0, 1), e.g. 0.9")
     if scale not in SCALES:
@@ -96,10 +125,23 @@ def calibrate(
     interval = ConformalInterval(
         coverage, np.zeros(predicted.shape[1]), scale, max(floor, 1e-3), n, source
     )
-    scores = np.sort(np.abs(measured - predicted) / interval.difficulty(predicted), axis=0)
-    rank = math.ceil((n + 1) * coverage)
-    quantile = scores[rank - 1] if rank <= n else np.full(predicted.shape[1], np.inf)
-    return ConformalInterval(coverage, quantile, scale, interval.floor_n, n, source)
+    scores = np.abs(measured - predicted) / interval.difficulty(predicted)
+    by_protocol: dict[str, np.ndarray] = {}
+    labels = np.asarray(protocols if protocols is not None else [""] * n, dtype=object)
+    if len(set(labels)) > 1:
+        for name in sorted(set(labels)):
+            q = _quantile(scores[labels == name], coverage)
+            if np.isfinite(q).all():
+                by_protocol[str(name)] = q
+    return ConformalInterval(
+        coverage,
+        _quantile(scores, coverage),
+        scale,
+        interval.floor_n,
+        n,
+        source,
+        by_protocol,
+    )
 
 
 def coverage_width(lo_n: np.ndarray, hi_n: np.ndarray, measured_n: np.ndarray) -> dict[str, float]:

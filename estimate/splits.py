@@ -35,6 +35,9 @@ class FramedSession(Protocol):
     def condition(self) -> str: ...
 
     @property
+    def protocol(self) -> str: ...
+
+    @property
     def n_used(self) -> int: ...
 
 
@@ -131,13 +134,35 @@ class SessionSplit:
 def split_by_session(
     sessions: Sequence[FramedSession], val_fraction: float, test_fraction: float, seed: int
 ) -> SessionSplit:
-    """Split sessions (not frames) into train/val/test, stratified by condition.
+    """Split sessions (not frames) into train/val/test, stratified by protocol and condition.
 
-    Within each condition the sessions are shuffled and dealt round-robin so that every part
-    gets its share of every condition when there are enough repeats; at least one session
-    always stays in training.
+    Each protocol (pull-and-hold, freehand, …) is split apart and gives validation and test
+    its share of sessions, so the held-out frames that select the model and calibrate its
+    intervals include every protocol with enough sessions. Within a protocol, each condition's
+    sessions are shuffled and dealt round-robin so that every part gets its share of every
+    condition when there are enough repeats; at least one session of each protocol always
+    stays in training.
     """
     rng = np.random.default_rng(seed)
+    protocols: dict[str, list[FramedSession]] = defaultdict(list)
+    for s in sessions:
+        protocols[s.protocol].append(s)
+    split = SessionSplit(train=[])
+    for protocol in sorted(protocols):
+        part = _deal_sessions(protocols[protocol], val_fraction, test_fraction, rng)
+        split.train += part.train
+        split.val += part.val
+        split.test += part.test
+    return split
+
+
+def _deal_sessions(
+    sessions: Sequence[FramedSession],
+    val_fraction: float,
+    test_fraction: float,
+    rng: np.random.Generator,
+) -> SessionSplit:
+    """The split of one protocol's sessions, stratified by condition."""
     groups: dict[str, list[str]] = defaultdict(list)
     for s in sessions:
         groups[s.condition].append(s.name)

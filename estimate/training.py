@@ -186,6 +186,12 @@ def _fit_networks(
             "stopped_by": outcome.stopped_by,
             "start_val_loss": outcome.start_val_loss,
         }
+        if window and outcome.best_epoch == 0:
+            notes.append(
+                f"{name}: no epoch improved on its start (PointNet's weights, motion "
+                "correction at zero) on validation: it is kept as it started and predicts as "
+                "pointnet does"
+            )
         if outcome.stopped_by == "time limit":
             notes.append(
                 f"warning: {name} was stopped by the time limit ({config.time_limit_s:g}"
@@ -265,6 +271,11 @@ def _measured(parts: Parts) -> np.ndarray:
     return np.concatenate([s.targets_n[p] for s, p in parts])
 
 
+def _protocols(parts: Parts) -> np.ndarray:
+    """Each frame's protocol, in the order of :func:`_measured`."""
+    return np.concatenate([np.full(len(p), s.protocol, dtype=object) for s, p in parts])
+
+
 def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Parts, Parts]]:
     """(training, held-out) parts of blocked folds of ``parts``: whole sessions dealt to
     ``folds`` folds (as many as there are sessions, if fewer), or, with one session, the
@@ -305,22 +316,22 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
 
 def _out_of_fold(
     names: list[str], train_parts: Parts, config: TrainConfig
-) -> tuple[dict[str, np.ndarray], np.ndarray, str]:
+) -> tuple[dict[str, np.ndarray], Parts, str]:
     """Every method's out-of-fold predictions over blocked folds of the training part, the
-    measured force of the same frames (in the same order) and a line saying what was done."""
+    held-out frames in the same order and a line saying what was done."""
     folds = training_folds(train_parts, config.select_folds, config.gap_frames)
     predicted: dict[str, list[np.ndarray]] = {}
-    measured = []
+    held_parts: Parts = []
     for fold_train, held in folds:
         estimators, _, _ = _fit_estimators(list(names), fold_train, [], config, None, [])
         for name, estimator in estimators.items():
             predicted.setdefault(name, []).append(_predictions(estimator, held))
-        measured.append(_measured(held))
+        held_parts += held
     n = len(folds)
     complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
     kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
     where = f"{n} blocked folds of the training part ({kind})"
-    return complete, np.concatenate(measured) if n else np.zeros((0, 1)), where
+    return complete, held_parts, where
 
 
 def fit_split(
@@ -358,11 +369,12 @@ def fit_split(
         for name, e in estimators.items()
     }
     held: dict[str, np.ndarray] = {}
-    measured, where = np.zeros((0, config.n_outputs)), "validation"
+    held_parts: Parts = []
+    where = "validation"
     if config.select_min_val_frames and (
         n_val < config.select_min_val_frames or len(val_parts) < 2
     ):
-        held, measured, where = _out_of_fold(names, train_parts, config)
+        held, held_parts, where = _out_of_fold(names, train_parts, config)
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
             f"{config.select_min_val_frames} frames or 2 sessions): selection and intervals "
@@ -370,7 +382,8 @@ def fit_split(
         )
     elif val_parts:
         held = {name: _predictions(e, val_parts) for name, e in estimators.items()}
-        measured, where = _measured(val_parts), "validation"
+        held_parts = val_parts
+    measured = _measured(held_parts) if held_parts else np.zeros((0, config.n_outputs))
     scores = {n: float(np.linalg.norm(p - measured, axis=1).mean()) for n, p in held.items()}
     if not any(n in scores for n in names):
         scores, where = val_mae, "validation" if val_parts else "training"
@@ -383,7 +396,12 @@ def fit_split(
     notes.append(note)
     intervals = {
         name: calibrate(
-            p, measured, config.interval_coverage, config.interval_scale, where
+            p,
+            measured,
+            config.interval_coverage,
+            config.interval_scale,
+            where,
+            _protocols(held_parts),
         ).to_dict()
         for name, p in held.items()
     }
@@ -432,7 +450,8 @@ def cross_validate(
             mae[name] = float(np.linalg.norm(predicted - measured, axis=1).mean())
             if name in fit.intervals:
                 interval = ConformalInterval.from_dict(fit.intervals[name])
-                covered[name] = coverage_width(*interval.bounds(predicted), measured)
+                bounds = interval.bounds(predicted, _protocols(test))
+                covered[name] = coverage_width(*bounds, measured)
         mae["selected"] = mae[fit.selected]
         if fit.selected in covered:
             covered["selected"] = covered[fit.selected]

@@ -152,6 +152,21 @@ def test_split_is_by_session_without_leakage_and_stratified():
     assert split_by_session(sessions, 0.25, 0.25, seed=5) == split
 
 
+def test_split_by_session_gives_every_protocol_its_share_of_validation():
+    """Freehand trials, each of its own tissue (one condition per session), are validated on
+    as the pull-and-hold sessions are: each protocol is split apart."""
+    sessions = prepare_sessions(
+        synthetic_sessions(repeats=5, fps=1, points_per_side=10), small_config()
+    )
+    freehand = sessions[:5]
+    for k, session in enumerate(freehand):
+        session.conditions.update(protocol="freehand", label=f"freehand {40 + k} N/m")
+    split = split_by_session(sessions, val_fraction=0.2, test_fraction=0.0, seed=1)
+    names = {s.name for s in freehand}
+    assert len(names & set(split.val)) == 1 and len(names & set(split.train)) == 4
+    assert len(set(split.val) - names) == 2  # 0.2 of the 10 pull-and-hold sessions
+
+
 def test_split_keeps_one_training_session():
     sessions = prepare_sessions(
         synthetic_sessions(repeats=1, fps=1, points_per_side=10)[:2], small_config()

@@ -14,7 +14,7 @@ from vbfe.common.config import default_config
 from vbfe.estimate.dataset import prepare_sessions
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
-from vbfe.estimate.intervals import calibrate
+from vbfe.estimate.intervals import ConformalInterval, calibrate
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
@@ -74,6 +74,35 @@ def test_the_interval_is_the_finite_sample_conformal_quantile():
     lo, hi = scaled.bounds(np.array([[0.0], [10.0]]))
     ratio = (hi[1, 0] - lo[1, 0]) / (hi[0, 0] - lo[0, 0])
     assert ratio == pytest.approx((scaled.floor_n + 10) / scaled.floor_n) and ratio > 1.5
+
+
+def test_each_protocol_gets_the_coverage_from_its_own_frames():
+    """Freehand errors three times the pull-and-hold ones: one pooled quantile over-covers the
+    one and under-covers the other; per protocol (Mondrian) both hold 90 %."""
+    rng = np.random.default_rng(3)
+
+    def frames(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        protocol = np.array(["traction", "freehand"] * (n // 2), dtype=object)
+        errors = rng.normal(0, np.where(protocol == "freehand", 3.0, 1.0))[:, None]
+        return np.zeros((n, 1)), errors, protocol
+
+    predicted, measured, protocol = frames(2000)
+    interval = calibrate(predicted, measured, 0.9, "none", "validation", protocol)
+    assert sorted(interval.protocols) == ["freehand", "traction"]
+    interval = ConformalInterval.from_dict(interval.to_dict())
+    predicted, measured, protocol = frames(20000)
+    for name in ("traction", "freehand"):
+        rows = protocol == name
+        lo, hi = interval.bounds(predicted[rows], name)
+        assert 0.88 <= np.mean((measured[rows] >= lo) & (measured[rows] <= hi)) <= 0.92
+        lo, hi = interval.bounds(predicted[rows])  # pooled: wrong both ways
+        pooled = np.mean((measured[rows] >= lo) & (measured[rows] <= hi))
+        assert pooled > 0.97 if name == "traction" else pooled < 0.85
+    lo, hi = interval.bounds(predicted, protocol)  # one protocol per frame
+    assert 0.88 <= np.mean((measured >= lo) & (measured <= hi)) <= 0.92
+    # a protocol the calibration did not see gets the pooled quantile
+    lo, hi = interval.bounds(predicted[:1], "sync")
+    assert hi[0, 0] == pytest.approx(interval.quantile[0])
 
 
 def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):

@@ -98,6 +98,7 @@ class FrameEstimator:
     its own few from it. With ``depth_margin_mm`` > 0 the matcher searches, from the frame
     after the rest on, only the rest cloud's depths ± that margin
     (:meth:`vbfe.recon.Reconstructor.search_depths`: fewer disparities, the same extent).
+    ``protocol`` picks the model's interval of that protocol for the bounds (``None``: pooled).
     """
 
     def __init__(
@@ -111,6 +112,7 @@ class FrameEstimator:
         seed: int = 0,
         row_scale: float = 1.0,
         depth_margin_mm: float = 0.0,
+        protocol: str | None = None,
     ) -> None:
         for name, value in (("scale", scale), ("row scale", row_scale)):
             if not 0.1 <= value <= 1.0:
@@ -133,7 +135,7 @@ class FrameEstimator:
         network = getattr(model.estimators[model.selected], "network", None)
         if network is not None:
             network.to(torch.device(device))
-        self._predictor = LivePredictor(model, seed)
+        self._predictor = LivePredictor(model, seed, protocol)
         self.depth_margin_mm = depth_margin_mm
         self._rest_seen = False  # the first cloud prepared (the rest) has set the search
 

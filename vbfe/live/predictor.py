@@ -33,10 +33,17 @@ def _finite_rows(points: np.ndarray) -> int:
 
 class LivePredictor:
     """Predicts the force of successive clouds of one run with the model's selected method;
-    the run's first usable cloud is its rest reference (start with the tissue at rest)."""
+    the run's first usable cloud is its rest reference (start with the tissue at rest).
 
-    def __init__(self, model: ForceModel, seed: int = 0) -> None:
+    :param model: the trained model.
+    :param seed: seed of the point draws.
+    :param protocol: what the operator does: the bounds are that protocol's interval when the
+        model calibrated one, else (and with ``None``) the pooled one.
+    """
+
+    def __init__(self, model: ForceModel, seed: int = 0, protocol: str | None = None) -> None:
         self.model = model
+        self.protocol = protocol
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window
         estimator = model.estimators[model.selected]
         network = isinstance(estimator, NetworkEstimator)
@@ -97,7 +104,7 @@ class LivePredictor:
         """The prediction interval (lo, hi) of an estimate (NaN: the model has none)."""
         if self._interval is None:
             return np.full_like(force_n, np.nan), np.full_like(force_n, np.nan)
-        return self._interval.bounds(force_n)
+        return self._interval.bounds(force_n, self.protocol)
 
     def novelty(self, features: FrameFeatures) -> tuple[float, bool]:
         """A frame's distance from the training data (m; NaN: the model has no flag) and

@@ -126,6 +126,7 @@ def live_estimator(
         device=device,
         row_scale=row_scale or settings.row_scale,
         depth_margin_mm=settings.depth_margin_mm,
+        protocol=settings.protocol or None,
     )
 
 
