@@ -89,6 +89,9 @@ class TrainConfig:
     # the validation part)
     select_min_val_frames: int = setting(300, ge=0)
     select_folds: int = setting(5, ge=3)  # those blocked folds (sessions, or blocks in time)
+    # with a validation part, the methods quick to refit (baselines, ridge, Hooke on the
+    # texture) also calibrate their intervals on those folds' out-of-fold residuals
+    interval_folds: bool = True
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:

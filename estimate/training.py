@@ -69,6 +69,8 @@ from vbfe.estimate.train_config import TrainConfig
 MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 
 Parts = list[tuple[PreparedSession, np.ndarray]]
+# candidates refitted per fold for their intervals (the baselines always are): seconds each
+QUICK_TO_REFIT = (CANDIDATES["ridge"], CANDIDATES["hooke_texture"])
 
 
 @dataclass
@@ -334,6 +336,32 @@ def _out_of_fold(
     return complete, held_parts, where
 
 
+Residuals = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]]
+
+
+def _with_out_of_fold(
+    names: list[str], train_parts: Parts, config: TrainConfig, validation: Residuals
+) -> Residuals:
+    """The validation residuals of the methods quick to refit (baselines, ridge, Hooke on the
+    texture) joined by their out-of-fold residuals over blocked folds of the training part:
+    (predicted, measured, protocols, source) per method. A validation part holds few
+    sessions of each protocol; these hold every training session once, as a new trial."""
+    quick = [n for n in names if n in QUICK_TO_REFIT]
+    held, held_parts, where = _out_of_fold(quick, train_parts, config)
+    measured, protocols = _measured(held_parts), _protocols(held_parts)
+    joined: Residuals = {}
+    for name, predicted in held.items():
+        if name in validation:
+            p, m, labels, source = validation[name]
+            joined[name] = (
+                np.concatenate([p, predicted]),
+                np.concatenate([m, measured]),
+                np.concatenate([labels, protocols]),
+                f"{source} and {where}",
+            )
+    return joined
+
+
 def fit_split(
     prepared: Sequence[PreparedSession],
     split: SessionSplit,
@@ -394,16 +422,14 @@ def fit_split(
     scored = [n for n in names if n in scores]
     selected, note = select(scored, scores, where, config.model == "auto")
     notes.append(note)
+    residuals = {name: (p, measured, _protocols(held_parts), where) for name, p in held.items()}
+    if config.interval_folds and where == "validation" and held:
+        residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
     intervals = {
         name: calibrate(
-            p,
-            measured,
-            config.interval_coverage,
-            config.interval_scale,
-            where,
-            _protocols(held_parts),
+            p, m, config.interval_coverage, config.interval_scale, source, protocols
         ).to_dict()
-        for name, p in held.items()
+        for name, (p, m, protocols, source) in residuals.items()
     }
     return SplitFit(
         split, estimators, val_mae, selected, notes, histories, seconds, scores, intervals

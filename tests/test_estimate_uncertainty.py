@@ -3,6 +3,7 @@ validation sets: on synthetic trials (fast) and on bench trials recorded and rec
 (slow)."""
 
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
@@ -178,8 +179,17 @@ def test_a_large_validation_part_selects_and_calibrates_there(tmp_path):
     result = train(sessions, tmp_path / "m.pt", config)
     model = load_model(result.model_path)
     n_val = sum(len(s.clouds) for s in sessions if s.name in model.record["split"]["val"])
-    assert model.interval().source == "validation" and model.interval().n_calibration == n_val
+    n_train = sum(len(s.clouds) for s in sessions if s.name in model.record["split"]["train"])
     assert model.record["selection_mae_n"] == model.record["validation_mae_n"]
+    # ridge and the baselines refit in seconds: their intervals also take the out-of-fold
+    # residuals of the training part's folds, every training session once
+    for method in ("ridge_height_map", "mean"):
+        interval = model.interval(method)
+        assert interval.source == "validation and 5 blocked folds of the training part (sessions)"
+        assert interval.n_calibration == n_val + n_train
+    config = dataclasses.replace(config, interval_folds=False)
+    model = load_model(train(sessions, tmp_path / "v.pt", config).model_path)
+    assert model.interval().source == "validation" and model.interval().n_calibration == n_val
 
 
 def test_evaluate_reports_coverage_and_flags_a_tissue_outside_the_training_range(tmp_path):
@@ -274,8 +284,8 @@ def test_ninety_percent_intervals_cover_ninety_percent_of_new_trials(tmp_path):
                 lo, hi = model.interval().bounds(predicted, protocol)
                 into[s.protocol] += list(np.ravel((s.targets_n >= lo) & (s.targets_n <= hi)))
             widths.append(float(np.mean(hi - lo)))
-    for protocol, values in coverage.items():
-        assert 0.86 <= np.mean(values) <= 0.94, ({k: np.mean(v) for k, v in coverage.items()})
+    for values in coverage.values():
+        assert 0.86 <= np.mean(values) <= 0.94, {k: np.mean(v) for k, v in coverage.items()}
     assert np.mean(pooled["traction"]) > 0.94 and np.mean(pooled["freehand"]) < 0.86, {
         k: np.mean(v) for k, v in pooled.items()
     }

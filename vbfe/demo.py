@@ -58,6 +58,9 @@ class DemoPlan:
     # selection on blocked folds of the training part when validation has fewer frames
     # (``[train] select_min_val_frames``; 0: always on the validation part)
     select_min_val_frames: int
+    # the intervals' width: freehand forces range over several newtons and the errors with
+    # them ("force": floor + |F|; see estimate/intervals.py)
+    interval_scale: str
 
     @classmethod
     def full(cls) -> DemoPlan:
@@ -95,6 +98,7 @@ class DemoPlan:
             freehand_test_trials=3,
             freehand_s=15.0,
             select_min_val_frames=300,
+            interval_scale="force",
         )
 
     @classmethod
@@ -492,6 +496,7 @@ def estimate_stage(
         split=plan.split,
         gap_frames=plan.gap_frames,
         select_min_val_frames=plan.select_min_val_frames,
+        interval_scale=plan.interval_scale,
     )
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
