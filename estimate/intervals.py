@@ -13,7 +13,9 @@ is 1 (a constant width); ``"force"`` is ``floor + |predicted|`` (errors grow wit
 When the calibration frames come from several protocols (pull-and-hold trials and freehand
 ones, whose errors differ), each protocol also gets its own quantile from its own frames
 (Mondrian conformal prediction: coverage holds within each protocol, not only over their
-mix); a frame of a protocol without one (too few frames, or not stated) gets the pooled one.
+mix), when they come from at least ``MIN_PROTOCOL_SESSIONS`` sessions: trials of a protocol
+differ (tissue, speed), and one trial cannot stand for the others. A frame of a protocol
+without its own quantile (too few sessions or frames, or not stated) gets the pooled one.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ import numpy as np
 
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.train_config import INTERVAL_SCALES as SCALES
+
+MIN_PROTOCOL_SESSIONS = 3  # a protocol's own quantile needs frames of this many sessions
 
 
 @dataclass(frozen=True)
@@ -110,10 +114,12 @@ def calibrate(
     scale: str = "none",
     source: str = "validation",
     protocols: np.ndarray | None = None,
+    sessions: np.ndarray | None = None,
 ) -> ConformalInterval:
     """The interval whose ``coverage`` holds on frames exchangeable with these held-out ones
-    (frames × outputs each; ``protocols``: each frame's protocol, for per-protocol quantiles).
-    ``EstimateError`` for a coverage outside (0, 1) or an unknown ``scale``."""
+    (frames × outputs each; ``protocols`` and ``sessions``: each frame's protocol and session,
+    for per-protocol quantiles). ``EstimateError`` for a coverage outside (0, 1) or an unknown
+    ``scale``."""
     if not 0 < coverage < 1:
         raise EstimateError(f"interval coverage {coverage} must be in (0, 1), e.g. 0.9")
     if scale not in SCALES:
@@ -128,10 +134,11 @@ def calibrate(
     scores = np.abs(measured - predicted) / interval.difficulty(predicted)
     by_protocol: dict[str, np.ndarray] = {}
     labels = np.asarray(protocols if protocols is not None else [""] * n, dtype=object)
+    trials = np.asarray(sessions if sessions is not None else np.arange(n), dtype=object)
     if len(set(labels)) > 1:
         for name in sorted(set(labels)):
             q = _quantile(scores[labels == name], coverage)
-            if np.isfinite(q).all():
+            if np.isfinite(q).all() and len(set(trials[labels == name])) >= MIN_PROTOCOL_SESSIONS:
                 by_protocol[str(name)] = q
     return ConformalInterval(
         coverage,

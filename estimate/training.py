@@ -273,9 +273,11 @@ def _measured(parts: Parts) -> np.ndarray:
     return np.concatenate([s.targets_n[p] for s, p in parts])
 
 
-def _protocols(parts: Parts) -> np.ndarray:
-    """Each frame's protocol, in the order of :func:`_measured`."""
-    return np.concatenate([np.full(len(p), s.protocol, dtype=object) for s, p in parts])
+def _frame_labels(parts: Parts) -> np.ndarray:
+    """Each frame's protocol and session (rows), in the order of :func:`_measured`."""
+    return np.concatenate(
+        [np.array([[s.protocol, s.name]] * len(p), dtype=object).reshape(-1, 2) for s, p in parts]
+    ).T
 
 
 def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Parts, Parts]]:
@@ -336,6 +338,7 @@ def _out_of_fold(
     return complete, held_parts, where
 
 
+# per method: predicted, measured, the frames' (protocol, session) rows and where they came from
 Residuals = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]]
 
 
@@ -344,19 +347,19 @@ def _with_out_of_fold(
 ) -> Residuals:
     """The validation residuals of the methods quick to refit (baselines, ridge, Hooke on the
     texture) joined by their out-of-fold residuals over blocked folds of the training part:
-    (predicted, measured, protocols, source) per method. A validation part holds few
+    (predicted, measured, labels, source) per method. A validation part holds few
     sessions of each protocol; these hold every training session once, as a new trial."""
     quick = [n for n in names if n in QUICK_TO_REFIT]
     held, held_parts, where = _out_of_fold(quick, train_parts, config)
-    measured, protocols = _measured(held_parts), _protocols(held_parts)
+    measured, labels = _measured(held_parts), _frame_labels(held_parts)
     joined: Residuals = {}
     for name, predicted in held.items():
         if name in validation:
-            p, m, labels, source = validation[name]
+            p, m, known, source = validation[name]
             joined[name] = (
                 np.concatenate([p, predicted]),
                 np.concatenate([m, measured]),
-                np.concatenate([labels, protocols]),
+                np.concatenate([known, labels], axis=1),
                 f"{source} and {where}",
             )
     return joined
@@ -422,14 +425,15 @@ def fit_split(
     scored = [n for n in names if n in scores]
     selected, note = select(scored, scores, where, config.model == "auto")
     notes.append(note)
-    residuals = {name: (p, measured, _protocols(held_parts), where) for name, p in held.items()}
+    labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
+    residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
         residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
     intervals = {
         name: calibrate(
-            p, m, config.interval_coverage, config.interval_scale, source, protocols
+            p, m, config.interval_coverage, config.interval_scale, source, *rows
         ).to_dict()
-        for name, (p, m, protocols, source) in residuals.items()
+        for name, (p, m, rows, source) in residuals.items()
     }
     return SplitFit(
         split, estimators, val_mae, selected, notes, histories, seconds, scores, intervals
@@ -476,7 +480,7 @@ def cross_validate(
             mae[name] = float(np.linalg.norm(predicted - measured, axis=1).mean())
             if name in fit.intervals:
                 interval = ConformalInterval.from_dict(fit.intervals[name])
-                bounds = interval.bounds(predicted, _protocols(test))
+                bounds = interval.bounds(predicted, _frame_labels(test)[0])
                 covered[name] = coverage_width(*bounds, measured)
         mae["selected"] = mae[fit.selected]
         if fit.selected in covered:
