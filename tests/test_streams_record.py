@@ -4,6 +4,7 @@ time, and a recording driven through LabRecorder's remote-control commands."""
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import socket
@@ -135,6 +136,7 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT dumps every thread's stack
     )
     try:
         line = proc.stdout.readline()
@@ -168,7 +170,12 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
             stopped = time.monotonic()
     finally:
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
+        try:
+            out, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:  # seen once in CI (2026-12-05): where it hangs
+            proc.send_signal(signal.SIGABRT)
+            out, err = proc.communicate(timeout=10)
+            pytest.fail(f"record --remote did not exit 60 s after Ctrl-C; its threads:\n{err}")
     assert proc.returncode == 0, err
     path = tmp_path / "sub-P003" / "pull_run-002.h5"
     with SessionReader(path) as reader:
