@@ -137,6 +137,9 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT dumps every thread's stack
+        # Ctrl-C as in a terminal: a shell starts background jobs with SIGINT ignored, and a
+        # child inherits that (the CI ran as one once: the server never saw the test's Ctrl-C)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         line = proc.stdout.readline()
@@ -172,7 +175,7 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         proc.send_signal(signal.SIGINT)
         try:
             out, err = proc.communicate(timeout=60)
-        except subprocess.TimeoutExpired:  # seen once in CI (2026-12-05): where it hangs
+        except subprocess.TimeoutExpired:  # say where it hangs
             proc.send_signal(signal.SIGABRT)
             out, err = proc.communicate(timeout=10)
             pytest.fail(f"record --remote did not exit 60 s after Ctrl-C; its threads:\n{err}")
