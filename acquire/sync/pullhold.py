@@ -22,18 +22,25 @@ from __future__ import annotations
 import numpy as np
 
 from vbfe.acquire.sync.corners import OffsetEstimate, _box, force_axis, force_corners
-from vbfe.acquire.sync.viscoelastic import _GRID_S, _best, _block_rows, _design, _deviance
+from vbfe.acquire.sync.viscoelastic import (
+    _BLOCK_S,
+    _FORCE_BLOCK_S,
+    _GRID_S,
+    _REFINE_S,
+    _best,
+    _block_rows,
+    _design,
+    _deviance,
+    _estimate,
+    _frames_in_record,
+)
 from vbfe.common.errors import SessionError
 
 METHOD = "pull-hold fit"
 _TAU0_S = 1.5  # starting relaxation time of the force fit
 _TAU_RANGE_S = (0.05, 20.0)  # the relaxation time the force fit may take
-_REFINE_S = 0.03  # bootstrap refits search this far around the best offset
-_BLOCK_S = 1.5  # image bootstrap block length
-_FORCE_BLOCK_S = 0.05  # force bootstrap block length
 _N_BOOT = 200
 _N_FORCE_BOOT = 40
-_MIN_FRAMES = 20
 _SHAPE_KNOTS = 12  # interior knots of the image components' spline in the displacement
 
 
@@ -120,14 +127,7 @@ def pull_hold_offset(
         u = displacement(grid, p)
         return _box(u, box) if box > 1 else u
 
-    t_frames = (t_frames_ns - t0) / 1e9
-    inside = (t_frames - max_lag_s >= 0) & (t_frames + max_lag_s <= grid[-1])
-    if inside.sum() < _MIN_FRAMES:
-        raise SessionError(
-            f"only {int(inside.sum())} frames lie inside the force record (need {_MIN_FRAMES})"
-        )
-    t, y = t_frames[inside], components[inside]
-    y = y / (y.std(axis=0) + 1e-12)
+    t, y = _frames_in_record((t_frames_ns - t0) / 1e9, components, grid, max_lag_s)
     u = exposed(params)
     lags = np.arange(-max_lag_s, max_lag_s + _GRID_S / 2, _GRID_S)
     profile = _deviance(_design(u, t, lags, _SHAPE_KNOTS), y)
@@ -156,16 +156,4 @@ def pull_hold_offset(
     for pick in _block_rows(rng, len(noise), block, n_force_boot):
         again = fit_force(t_force, smooth + noise[pick], params)
         force_boot.append(_best(_deviance(_design(exposed(again), t, near, _SHAPE_KNOTS), y), near))
-    both = np.array(image_boot) + rng.permutation(
-        np.resize(np.array(force_boot) - np.mean(force_boot), n_boot)
-    )
-    low, high = np.percentile(both, [2.5, 97.5])
-    floor = _GRID_S / 2
-    return OffsetEstimate(
-        offset_s=offset,
-        std_s=float(np.hypot(both.std(), _GRID_S / np.sqrt(12))),
-        ci95_s=(float(min(low, offset)) - floor, float(max(high, offset)) + floor),
-        method=METHOD,
-        lags_s=lags,
-        correlation=-(profile - profile.min()) / n,
-    )
+    return _estimate(offset, image_boot, force_boot, rng, METHOD, lags, profile, n)

@@ -184,14 +184,7 @@ def model_offset(
         return force / scale
 
     force = exposed(cleaned)
-    t_frames = (t_frames_ns - t0) / 1e9 + row_delay_s
-    inside = (t_frames - max_lag_s >= 0) & (t_frames + max_lag_s <= grid[-1])
-    if inside.sum() < _MIN_FRAMES:
-        raise SessionError(
-            f"only {int(inside.sum())} frames lie inside the force record (need {_MIN_FRAMES})"
-        )
-    t, y = t_frames[inside], components[inside]
-    y = y / (y.std(axis=0) + 1e-12)
+    t, y = _frames_in_record((t_frames_ns - t0) / 1e9 + row_delay_s, components, grid, max_lag_s)
     coarse = np.arange(-max_lag_s, max_lag_s + _COARSE_S / 2, _COARSE_S)
     lags = np.arange(-max_lag_s, max_lag_s + _GRID_S / 2, _GRID_S)
 
@@ -245,18 +238,47 @@ def model_offset(
     for pick in _block_rows(rng, len(noise), block, n_force_boot):
         again = exposed(clean_force(t_force, smooth + noise[pick], grid))
         force_boot.append(_best(_deviance(_design(displacement(fit.x, again), t, near), y), near))
+    return _estimate(offset, image_boot, force_boot, rng, METHOD, lags, profile, n)
+
+
+def _frames_in_record(
+    t_frames_s: np.ndarray, components: np.ndarray, grid_s: np.ndarray, max_lag_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The frame times (s) whose every lag stays inside the force record ``grid_s`` and their
+    components scaled to unit spread; SessionError when too few."""
+    inside = (t_frames_s - max_lag_s >= 0) & (t_frames_s + max_lag_s <= grid_s[-1])
+    if inside.sum() < _MIN_FRAMES:
+        raise SessionError(
+            f"only {int(inside.sum())} frames lie inside the force record (need {_MIN_FRAMES})"
+        )
+    y = components[inside]
+    return t_frames_s[inside], y / (y.std(axis=0) + 1e-12)
+
+
+def _estimate(
+    offset_s: float,
+    image_boot: list[float],
+    force_boot: list[float],
+    rng: np.random.Generator,
+    method: str,
+    lags_s: np.ndarray,
+    deviance: np.ndarray,
+    n_frames: int,
+) -> OffsetEstimate:
+    """The offset with its spread and 95% interval from the image's bootstrap offsets plus the
+    force's (centred, paired at random), widened by the lag grid's resolution."""
     both = np.array(image_boot) + rng.permutation(
-        np.resize(np.array(force_boot) - np.mean(force_boot), n_boot)
+        np.resize(np.array(force_boot) - np.mean(force_boot), len(image_boot))
     )
     low, high = np.percentile(both, [2.5, 97.5])
     floor = _GRID_S / 2  # the grid's resolution: the bootstrap cannot see below it
     return OffsetEstimate(
-        offset_s=offset,
+        offset_s=offset_s,
         std_s=float(np.hypot(both.std(), _GRID_S / np.sqrt(12))),
-        ci95_s=(float(min(low, offset)) - floor, float(max(high, offset)) + floor),
-        method=METHOD,
-        lags_s=lags,
-        correlation=-(profile - profile.min()) / n,
+        ci95_s=(float(min(low, offset_s)) - floor, float(max(high, offset_s)) + floor),
+        method=method,
+        lags_s=lags_s,
+        correlation=-(deviance - deviance.min()) / n_frames,
     )
 
 
