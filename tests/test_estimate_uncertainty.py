@@ -12,6 +12,7 @@ import torch
 from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
 from vbfe.common.config import default_config
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import prepare_sessions
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
@@ -175,6 +176,27 @@ def test_a_model_shipping_a_baseline_runs_frame_by_frame(tmp_path):
     force = predictor.model_force(predictor.prepare(sessions[0].clouds[-1]))
     lo, hi = predictor.bounds(force)
     assert lo < force < hi and hi - lo == pytest.approx(2 * model.interval().quantile)
+
+
+def test_live_draws_the_band_of_the_protocol_it_is_told_and_refuses_an_unknown_one(tmp_path):
+    rng = np.random.default_rng(8)
+    sessions = trials(rng, 6, "hold") + freehand(trials(rng, 6, "free", noise_m=4e-4))
+    model = load_model(
+        train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST)).model_path
+    )
+    interval = model.interval()
+    assert sorted(interval.protocols) == ["freehand", "traction"]
+    cloud = sessions[0].clouds[-1]
+    for protocol, half in (("freehand", interval.protocols["freehand"]), (None, interval.quantile)):
+        predictor = LivePredictor(model, protocol=protocol)
+        force = predictor.model_force(predictor.prepare(cloud))
+        lo, hi = predictor.bounds(force)
+        assert hi - lo == pytest.approx(2 * half)
+    with pytest.raises(EstimateError, match=r"'freehnd'.*its protocols: freehand, traction"):
+        LivePredictor(model, protocol="freehnd")
+    plain = train(trials(rng, 6, "only"), tmp_path / "p.pt", TrainConfig(model="ridge", **FAST))
+    with pytest.raises(EstimateError, match="one pooled interval"):
+        LivePredictor(load_model(plain.model_path), protocol="freehand")
 
 
 def test_a_large_validation_part_selects_and_calibrates_there(tmp_path):

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from vbfe.common.errors import EstimateError
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
@@ -37,8 +38,9 @@ class LivePredictor:
 
     :param model: the trained model.
     :param seed: seed of the point draws.
-    :param protocol: what the operator does: the bounds are that protocol's interval when the
-        model calibrated one, else (and with ``None``) the pooled one.
+    :param protocol: what the operator does: the bounds are that protocol's interval
+        (``None``: the pooled one).
+    :raises EstimateError: the model calibrated no interval of ``protocol``.
     """
 
     def __init__(self, model: ForceModel, seed: int = 0, protocol: str | None = None) -> None:
@@ -59,6 +61,13 @@ class LivePredictor:
                 self._network = estimator.network.eval()
             self._device = next(estimator.network.parameters()).device
         self._interval = model.interval()
+        known = sorted(self._interval.protocols) if self._interval is not None else []
+        if protocol and protocol not in known:
+            raise EstimateError(
+                f"[live] protocol {protocol!r}: the model has no interval of it ("
+                + (f"its protocols: {', '.join(known)}" if known else "one pooled interval")
+                + "); name one of them or leave protocol empty"
+            )
 
     @property
     def tracks_texture(self) -> bool:
