@@ -127,7 +127,7 @@ def passive(args: argparse.Namespace) -> None:
                 true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
             read_s = _read_time(path)
             start = time.perf_counter()
-            report = verify_sync(path, store=False)
+            report = verify_sync(path, settings=ProtocolSettings.from_config(run), store=False)
             verify_s = time.perf_counter() - start
             e = report.estimate
             errors.append(e.offset_s - true_s)
@@ -159,12 +159,13 @@ def passive(args: argparse.Namespace) -> None:
     )
 
 
-def _passive_row(path: Path) -> tuple[float, float, bool, str]:
-    """verify-sync on one session: error against the bench's true offset, 95% half-width,
-    whether the interval holds the truth, and the method."""
+def _passive_row(path: Path, settings: ProtocolSettings) -> tuple[float, float, bool, str]:
+    """verify-sync on one session (the camera's exposure from ``settings``, as ``vbfe
+    verify-sync`` takes it from the rig file): error against the bench's true offset, 95%
+    half-width, whether the interval holds the truth, and the method."""
     with SessionReader(path) as reader:
         true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-    e = verify_sync(path, store=False).estimate
+    e = verify_sync(path, settings=settings, store=False).estimate
     return (
         e.offset_s - true_s,
         (e.ci95_s[1] - e.ci95_s[0]) / 2,
@@ -191,7 +192,9 @@ def protocols(args: argparse.Namespace) -> None:
         ],
         "pull-hold": [
             {"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": 1 + i}
-            for i, (k, v) in enumerate([(k, v) for k, v in PAPER_CONDITIONS.items()] * args.seeds)
+            for i, (k, v) in enumerate(  # seeds paired with conditions as the demo pairs them
+                [(k, v) for k, v in PAPER_CONDITIONS.items() for _ in range(args.seeds)]
+            )
         ],
     }
     print(
@@ -207,7 +210,7 @@ def protocols(args: argparse.Namespace) -> None:
                 path = Path(folder) / f"{name}{i}.h5"
                 record_session(run, path, duration_s=trial_duration_s(run))
                 start = time.perf_counter()
-                rows.append(_passive_row(path))
+                rows.append(_passive_row(path, ProtocolSettings.from_config(run)))
                 times.append(time.perf_counter() - start)
                 err, half, covers, method = rows[-1]
                 print(

@@ -89,13 +89,15 @@ def _freehand_session(folder, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [101, 104, 118])  # 118: five force corners
+@pytest.mark.parametrize("seed", [101, 108, 118])  # 118: five force corners
 def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp_path, seed):
-    """benchmarks/bench_sync.py --protocols holds the 20-trial figures."""
+    """benchmarks/bench_sync.py --protocols holds the 20-trial figures. Seed 108's interval was
+    the widest of the 20 (±3.33 ms) while the force's spline had knots every 0.4 s."""
     path = _freehand_session(tmp_path, seed)
     with SessionReader(path) as reader:
         true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-    e = verify_sync(path, store=False).estimate
+    settings = ProtocolSettings.from_config(load_config(None))  # the exposure, as the CLI reads it
+    e = verify_sync(path, settings=settings, store=False).estimate
     assert e.method == METHOD
     assert abs(e.offset_s - true_s) <= 0.002
     assert e.ci95_s[0] <= true_s <= e.ci95_s[1]
@@ -103,13 +105,15 @@ def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp
 
 
 def test_a_pull_hold_session_is_measured_from_both_whole_records(tmp_path):
-    """The demo's seed-9 session (640×360, 10 fps, k = 40 N/m): whole-frame components erred by
-    11.7 ms there; benchmarks/bench_sync.py --protocols --fps 10 --freehand 0 holds all 18."""
+    """The demo's seed-15 session (640×360, 10 fps, k = 200 N/m, the demo's worst): the
+    grasp's window in the left camera alone erred by -4.3 ms, whole-frame components by -4.4 ms
+    (and by 11.7 ms on seed 9); both cameras' windows: -2.2 ms.
+    benchmarks/bench_sync.py --protocols --fps 10 --freehand 0 measures all 18."""
     config = load_config(None)
     config["record"]["min_free_gb"] = 0.0
-    k, v = list(PAPER_CONDITIONS.items())[8 % 3]
+    k, v = list(PAPER_CONDITIONS.items())[(15 - 1) // 6]  # the demo's pairing of seed and condition
     config["bench"].update(
-        width=640, height=360, fps=10.0, stiffness_n_per_m=k, pull_speed_m_per_s=v, seed=9
+        width=640, height=360, fps=10.0, stiffness_n_per_m=k, pull_speed_m_per_s=v, seed=15
     )
     path = tmp_path / "pullhold.h5"
     record_session(copy.deepcopy(config), path, duration_s=trial_duration_s(config))
@@ -118,6 +122,6 @@ def test_a_pull_hold_session_is_measured_from_both_whole_records(tmp_path):
     settings = ProtocolSettings.from_config(config)
     e = verify_sync(path, settings=settings, store=False).estimate
     assert e.method == PULL_HOLD
-    assert abs(e.offset_s - true_s) <= 0.004
+    assert abs(e.offset_s - true_s) <= 0.003
     assert e.ci95_s[0] <= true_s <= e.ci95_s[1]
-    assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.008
+    assert (e.ci95_s[1] - e.ci95_s[0]) / 2 <= 0.007

@@ -63,14 +63,19 @@ class OffsetEstimate:
         return len(self.corner_lags_s)
 
 
+def _grey(image: np.ndarray, max_width: int) -> np.ndarray:
+    """``image`` in grey, area-downscaled to at most ``max_width``."""
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    scale = min(1.0, max_width / grey.shape[1])
+    if scale < 1.0:
+        grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    return grey
+
+
 def grey_left_frames(reader: SessionReader, max_width: int) -> Iterator[np.ndarray]:
     """Every left frame of the session in grey, area-downscaled to at most ``max_width``."""
     for frame in reader.iter_frames():
-        grey = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
-        scale = min(1.0, max_width / grey.shape[1])
-        if scale < 1.0:
-            grey = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        yield grey
+        yield _grey(frame.left, max_width)
 
 
 def frame_components(reader: SessionReader) -> np.ndarray:
@@ -83,11 +88,22 @@ def frame_components(reader: SessionReader) -> np.ndarray:
 
 
 def grasp_components(reader: SessionReader) -> np.ndarray:
-    """Leading principal components (frames × 3, ``U·S``) of a square window of the grey left
-    frames around the grasp: where the image changed most between the session's first and last
+    """Leading principal components (frames × 3, ``U·S``) of a square window around the grasp
+    in both grey frames of each stereo pair, the two windows' pixels side by side. Each
+    camera's window is where its picture changed most between the session's first and last
     frames (blurred change map). Whole-frame components mix the grasp's motion with everything
-    else that changes; the window keeps the part that follows the grasp's displacement."""
-    frames = np.asarray([g.astype(np.float32) for g in grey_left_frames(reader, _GRASP_WIDTH)])
+    else that changes; the window keeps the part that follows the grasp's displacement, and the
+    second camera's independent pixel noise averages out of the components."""
+    left, right = [], []
+    for frame in reader.iter_frames():
+        left.append(_grey(frame.left, _GRASP_WIDTH))
+        right.append(_grey(frame.right, _GRASP_WIDTH))
+    window = np.hstack([_grasp_window(np.asarray(frames, np.float32)) for frames in (left, right)])
+    return _leading_components(window - window.mean(axis=0), _COMPONENTS)
+
+
+def _grasp_window(frames: np.ndarray) -> np.ndarray:
+    """The pixels (frames × pixels) of the square window around the grasp in ``frames``."""
     ends = min(_GRASP_END_FRAMES, len(frames))
     change = cv2.GaussianBlur(
         np.abs(frames[-ends:].mean(0) - frames[:ends].mean(0)), (0, 0), _GRASP_BLUR
@@ -96,8 +112,7 @@ def grasp_components(reader: SessionReader) -> np.ndarray:
     half = max(2, int(round(_GRASP_HALF * frames.shape[2])))
     y0 = int(np.clip(cy - half, 0, max(0, frames.shape[1] - 2 * half)))
     x0 = int(np.clip(cx - half, 0, max(0, frames.shape[2] - 2 * half)))
-    window = frames[:, y0 : y0 + 2 * half, x0 : x0 + 2 * half].reshape(len(frames), -1)
-    return _leading_components(window - window.mean(axis=0), _COMPONENTS)
+    return frames[:, y0 : y0 + 2 * half, x0 : x0 + 2 * half].reshape(len(frames), -1)
 
 
 def _leading_components(
