@@ -49,7 +49,7 @@ from vbfe.common.files import save_figure
 
 PASS, FAIL, INCONCLUSIVE = "PASS", "FAIL", "INCONCLUSIVE"
 MIN_TAPS = 5  # fewer taps found: a protocol session cannot pass
-SYNC_ESTIMATOR = "viscoelastic-1"  # stored with each result: older results are measured again
+SYNC_ESTIMATOR = "viscoelastic-2"  # stored with each result: older results are measured again
 
 
 @dataclass(frozen=True)
