@@ -34,9 +34,8 @@ from vbfe.acquire.sync.corners import (
 from vbfe.common.errors import SessionError
 
 _GRID_S = 0.001  # the force is resampled on this grid
-_KNOT_S = 0.2  # knot spacing of the force's spline between corners: a hand changes its pull
-# within fractions of a second; knots every 0.4 s blunted those changes (freehand intervals up
-# to ±3.3 ms, 20 bench trials; ±2.7 ms at 0.2 s; wider spacing: wider still)
+_KNOT_S = 0.4  # knot spacing of the force's spline between corners (0.2 s: narrower intervals
+# on 15 s freehand trials, but a 6 s trial of the quick demo erred -2.9 ms outside its interval)
 _CORNER_CLEARANCE_S = 0.03  # regular knots this close to a corner are left out
 _CORNER_WINDOW_S = 0.4  # force samples within this of a corner place it
 _CORNER_SEARCH_S = 0.04  # and searched this far around where it was detected
