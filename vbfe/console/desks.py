@@ -115,11 +115,14 @@ def calibrate(
     out_path: Path,
     stored: Path | None = None,
     overwrite: bool = False,
+    swap_eyes: bool = False,
+    intrinsics: tuple[Path, Path] | None = None,
 ) -> CalibrationOutcome:
-    """``calibrate stereo`` on the captured views into ``out_path`` (refused when it exists
-    unless ``overwrite``, as the CLI), then ``calibrate check`` of ``stored`` against it."""
-    check_outputs([out_path], [folder, stored], overwrite)
-    outcome = commands.stereo(config, folder, out_path)
+    """``calibrate stereo`` on a views folder (any layout the CLI takes; ``swap_eyes`` and
+    fixed ``intrinsics`` as its options) into ``out_path`` (refused when it exists unless
+    ``overwrite``, as the CLI), then ``calibrate check`` of ``stored`` against it."""
+    check_outputs([out_path], [folder, stored, *(intrinsics or ())], overwrite)
+    outcome = commands.stereo(config, folder, out_path, swap_eyes=swap_eyes, intrinsics=intrinsics)
     check = commands.check(config, stored, new_path=out_path) if stored is not None else None
     return CalibrationOutcome(outcome, check)
 
