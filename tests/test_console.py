@@ -53,7 +53,7 @@ def open_console(qtbot, tmp_path):
 
     yield make
     for window in windows:
-        window.close()
+        window.close_now()
         dispose_widget(window)
 
 
@@ -75,8 +75,9 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     window.tabs.setCurrentWidget(tab)
     tab.root.setText(str(tmp_path))
     tab.operator.setText("operator A")
+    tab.participant.setText("P007")
     tab.conditions.setText("stiffness=80, tissue=hose")
-    first = tmp_path / "P001_traction_run-001.h5"
+    first = tmp_path / "P007_traction_run-001.h5"
     assert tab.next_file.text() == "" or Path(tab.next_file.text()) == first
     click(qtbot, tab.start_button)
     qtbot.waitUntil(lambda: recorded_frames(window) >= 10 or bool(window.errors), timeout=WAIT_MS)
@@ -84,12 +85,25 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     qtbot.keyClick(window, QtCore.Qt.Key.Key_M)
     click(qtbot, tab.mark_button)
     qtbot.waitUntil(lambda: "MB/s" in tab.numbers.text() and "markers 2" in tab.numbers.text())
+    asked = []  # closing the window while recording asks first; "no" keeps it recording
+    window.ask = lambda question: asked.append(question) or False
+    window.close()
+    assert asked == [f"Recording {first.name}: stop it and close the window?"]
+    assert window.isVisible() and window.station.recording == first
     click(qtbot, tab.stop_button)
+    tab.refresh()  # until the session is finalized: stopping, nothing to press
+    assert tab.numbers.text().startswith("stopping: finalizing")
+    assert not (tab.stop_button.isEnabled() or tab.start_button.isEnabled())
     qtbot.waitUntil(lambda: "last session" in tab.last.text(), timeout=WAIT_MS)
     with SessionReader(first) as reader:
         assert reader.complete
         assert [e["text"] for e in reader.events()] == ["marker 1", "marker 2"]
-        assert reader.metadata["operator"] == "operator A"
+        meta = reader.metadata
+        assert (meta["operator"], meta["participant"], meta["task"]) == (
+            "operator A",
+            "P007",
+            "traction",
+        )
         conditions = reader.metadata["conditions"]  # the operator's, beside the bench's own
         assert (conditions["stiffness"], conditions["tissue"]) == (80.0, "hose")
     qtbot.waitUntil(lambda: tab.next_file.text().endswith("run-002.h5"))
@@ -119,7 +133,19 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     click(qtbot, tab.start_button)
     qtbot.waitUntil(lambda: "already exists" in window.message_label.text())
     assert (tmp_path / "fixed.h5").read_bytes() == b"an earlier session"
-    assert window.station.recording is None
+    assert "choose a new file name" in window.errors[-1] and "--" not in window.errors[-1]
+    # an empty template, a data folder two levels from any existing one: refused, nothing made
+    tab.template.setText("")
+    click(qtbot, tab.start_button)
+    assert (
+        window.errors[-1]
+        == "cannot record: no file template: fill in 'file template', e.g. %p_%b_run-%n.h5"
+    )
+    tab.template.setText("%p.h5")
+    tab.root.setText(str(tmp_path / "typo" / "data"))
+    click(qtbot, tab.start_button)
+    assert "choose an existing folder in 'folder'" in window.errors[-1]
+    assert not (tmp_path / "typo").exists() and window.station.recording is None
     assert all("Traceback" not in e and "\n" not in e for e in window.errors)
 
 

@@ -80,6 +80,10 @@ def _summary(page: HtmlReport, r: SessionReader) -> None:
             ("status", status),
             ("started", _utc(int(a.get("start_utc_ns") or 0))),
             ("operator / notes", f"{meta.get('operator') or '-'} / {meta.get('notes') or '-'}"),
+            (
+                "participant / task",
+                f"{meta.get('participant') or '-'} / {meta.get('task') or '-'}",
+            ),
             ("duration", f"{duration:.2f} s"),
             (
                 "frames",

@@ -128,13 +128,17 @@ def session_recorder(
     overwrite: bool = False,
     listeners: tuple[Listener, ...] = (),
     streams: tuple[StreamSpec, ...] = (),
+    participant: str = "",
+    task: str = "",
 ) -> Recorder:
     """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
-    pattern, a traction session's metadata) over ``rig``, with further ``listeners`` and
-    extra ``streams``; not started yet."""
+    pattern, a traction session's metadata: operator, participant, task, notes, conditions)
+    over ``rig``, with further ``listeners`` and extra ``streams``; not started yet."""
     settings = record_settings(config)
     metadata: dict[str, Any] = {
         "operator": operator,
+        "participant": participant,
+        "task": task,
         "notes": notes,
         "conditions": dict(conditions or {}),
         "protocol": {"kind": "traction"},

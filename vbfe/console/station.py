@@ -30,6 +30,7 @@ from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration
+from vbfe.calib.commands import board_scene
 from vbfe.common.config import section
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
@@ -52,6 +53,8 @@ class SessionRequest:
     notes: str = ""
     conditions: dict[str, Any] = field(default_factory=dict)
     duration_s: float | None = None
+    participant: str = ""
+    task: str = ""
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,7 @@ class Station:
         self.device_errors: dict[str, str | None] = {}  # of the last failed start
         self.marks = 0
         self.pattern_on = False  # the live view shows the structured-light pattern
+        self.board_scene = False  # the simulated bench shows the calibration board
         self.finished: queue.SimpleQueue[Finished] = queue.SimpleQueue()  # for the view
         self._runner: threading.Thread | None = None
         self._run_error: BaseException | None = None
@@ -132,14 +136,16 @@ class Station:
         return None if live is None else live.status()
 
     # -- worker-thread operations (call through submit) ----------------------------------------
-    def go_live(self, pattern: bool = True) -> None:
+    def go_live(self, pattern: bool = True, board: bool = False) -> None:
         """Show the rig live, nothing recorded: the structured-light pattern on, or (``pattern``
-        false) the projector left dark, as calibration views need the board in room light. A
-        recording started meanwhile (remote control) is left alone."""
+        false) the projector left dark, as calibration views need the board in room light;
+        ``board``: the simulated bench shows the ``[calib]`` board (a real rig is as it is).
+        A recording started meanwhile (remote control) is left alone."""
         if self.recording is not None:
             return
         self._end_current("live view restarted")
-        rig = self._open_rig(self._options())
+        config = board_scene(self.config) if board else self.config
+        rig = self._open_rig(self._options(), config)
         self._begin(Acquisition(rig, pattern=make_pattern if pattern else None))
         self.pattern_on = pattern
 
@@ -162,6 +168,8 @@ class Station:
                 self.calibration.to_yaml_text() if self.calibration is not None else None
             ),
             streams=(marks_stream(),),
+            participant=request.participant,
+            task=request.task,
         )
         self._end_current("recording starts")
         self._begin(recorder, request.duration_s)
@@ -241,8 +249,10 @@ class Station:
         ``vbfe live`` (in real time)."""
         return RigOptions(realtime=True) if self.estimator is not None else RigOptions()
 
-    def _open_rig(self, options: RigOptions) -> Rig:
-        self.rig = self._rig_factory(self.config, options)
+    def _open_rig(self, options: RigOptions, config: Config | None = None) -> Rig:
+        config = config if config is not None else self.config
+        self.board_scene = config is not self.config
+        self.rig = self._rig_factory(config, options)
         return self.rig
 
     def _begin(
