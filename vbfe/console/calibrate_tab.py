@@ -64,16 +64,16 @@ class BoardForm(QtWidgets.QWidget):
         self.target.addItems(TARGETS)
         self.target.setCurrentText(spec.target)
         self.squares_x, self.squares_y = QtWidgets.QSpinBox(), QtWidgets.QSpinBox()
-        for box, value in ((self.squares_x, spec.squares_x), (self.squares_y, spec.squares_y)):
-            box.setRange(2, 99)
-            box.setValue(value)
+        for count, n in ((self.squares_x, spec.squares_x), (self.squares_y, spec.squares_y)):
+            count.setRange(2, 99)
+            count.setValue(n)
         self.corners = QtWidgets.QLabel()
         self.square_mm, self.marker_mm = QtWidgets.QDoubleSpinBox(), QtWidgets.QDoubleSpinBox()
-        for box, value in ((self.square_mm, spec.square_m), (self.marker_mm, spec.marker_m)):
-            box.setRange(0.01, 1000.0)
-            box.setDecimals(3)
-            box.setSuffix(" mm")
-            box.setValue(value * 1e3)
+        for size, metres in ((self.square_mm, spec.square_m), (self.marker_mm, spec.marker_m)):
+            size.setRange(0.01, 1000.0)
+            size.setDecimals(3)
+            size.setSuffix(" mm")
+            size.setValue(metres * 1e3)
         self.dictionary = QtWidgets.QComboBox()
         self.dictionary.addItems(DICTIONARIES)
         self.dictionary.setCurrentText(spec.dictionary)
