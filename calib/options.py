@@ -65,6 +65,7 @@ class CalibSettings:
     projector_change_level: float = dataclasses.field(metadata=limits(ge=0))
     projector_still_frames: int = dataclasses.field(metadata=limits(ge=1))
     projector_pose_timeout_s: float = dataclasses.field(metadata=limits(gt=0))
+    calibration: str  # the rig's stereo calibration file ("": none yet)
 
 
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:

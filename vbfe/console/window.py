@@ -4,6 +4,7 @@ asked, failures as a one-line message in the window)."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -15,6 +16,7 @@ from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
 from vbfe.calib.board import BoardSpec
 from vbfe.calib.commands import set_board
+from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import os_error_text
 from vbfe.console import TAB_NAMES
@@ -125,6 +127,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         self.timer = QtCore.QTimer(self)
         self.timer.timeout.connect(self.refresh)
         self.timer.start(interval_ms)
+        self.load_settled()
 
     def named_tabs(self) -> dict[str, QtWidgets.QWidget]:
         """The tabs by name, in order."""
@@ -175,6 +178,22 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         self.message_label.setText(text)
         if error:
             self.errors.append(text)
+
+    def use_rig_file(self, path: Path) -> None:
+        """Keep what the operator settles in ``path`` from now on."""
+        self.options = dataclasses.replace(self.options, rig_file=path)
+
+    def load_settled(self) -> None:
+        """Load the calibration and model the rig file names (settled on an earlier day)."""
+        live = self.live_tab
+        calibration = str(section(self.station.config, "calib").get("calibration") or "")
+        model = str(section(self.station.config, "live").get("model") or "")
+        if calibration and self.station.calibration is None:
+            live.calibration.setText(calibration)
+            live.load_calibration()
+            if model and self.station.estimator is None:
+                live.model.setText(model)
+                live.load_model()
 
     def close_now(self) -> None:
         """Close without asking (Ctrl-C, SIGTERM): a running recording is finalized."""
