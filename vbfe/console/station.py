@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -300,7 +299,7 @@ class Station:
         acquisition = self.acquisition
         if self.recording is None or not isinstance(acquisition, Recorder):
             raise SessionError("marks go into a recording: start one first")
-        acquisition.sink.mark(text, time.monotonic_ns())
+        acquisition.sink.mark(text, acquisition.rig.host_now_ns())
         self.marks += 1
 
     # -- internals ----------------------------------------------------------------------------
