@@ -168,6 +168,10 @@ def upgrade_file(
     with WriterLock(path):
         src, clean = open_session_file(path)
         with src:
+            if not str(src.attrs.get("format", "")).startswith("vbfe-"):
+                raise SessionError(
+                    f"{path} is not a vbfe session or cloud file; nothing to upgrade"
+                )
             if not clean:
                 raise SessionError(
                     f"{path} was not closed cleanly; recover it first (vbfe inspect {path} "

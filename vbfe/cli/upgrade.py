@@ -9,6 +9,7 @@ from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION, IMAGE
 from vbfe.acquire.session.portable import upgrade_file
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import OutputError
+from vbfe.common.files import is_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         raise OutputError(
             f"upgrading {source} in place replaces it: pass --overwrite, or -o OUT.h5 for a copy"
         )
+    images = f", camera images {args.compression}" if is_session(source) else ""
     upgrade_file(source, out, args.compression, overwrite=args.overwrite)
     where = "in place" if out == source else f"into {out}"
-    print(f"upgraded {source} {where}: HDF5 1.10 format, images {args.compression}")
+    print(f"upgraded {source} {where}: HDF5 1.10 file format{images}")
     return 0
