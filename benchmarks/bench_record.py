@@ -1,33 +1,45 @@
-"""Recording throughput: 1920×1080 RGB stereo at 30 fps + 1 kHz force, per frame storage.
+"""Recording throughput per image codec: stereo at 30 fps + 1 kHz force, at 640x360 and 1080p.
 
-For each storage it prints
+For each frame size and storage it prints
   * writer-only speed: how many times faster than real time SessionWriter stores the streams
-    (same batching as the recorder), and that as a ratio to a plain ``file.write`` of the same
-    raw bytes measured in the same run, plus the CPU time per stereo frame;
+    (same batching as the recorder), as a ratio to a plain ``file.write`` of the same raw bytes
+    measured in the same run, the CPU time per stereo frame, and the real-time factor one free
+    core gives at that CPU time ("1 core": what a busy machine cannot change);
   * a real-time recording through the Recorder (threads, queues, SWMR flushes) with paced
-    devices: frames and samples stored, drops, CPU per frame (all threads), file size and
-    compression ratio.
+    devices: frames stored and dropped, CPU per frame (all threads), MB per second of
+    recording and the compression ratio;
+  * read speed: stereo frames per second read back (decompressed) by h5py;
+  * who can read the images: "stock HDF5" (MATLAB, HDFView, h5dump, any h5py), "with plugin"
+    (hdf5plugin's filters, HDF5_PLUGIN_PATH) or "h5py only".
+``--busy N`` runs N busy processes beside every measurement (a shared lab machine).
 ``mjpeg-reencode`` is the ``mjpeg`` storage fed decoded frames (as the OpenCV backend gives):
 every frame is JPEG-encoded on the way in. ``mjpeg-passthrough`` is the ``mjpeg`` storage fed
 the camera's own JPEG bytes (as the linuxpy V4L2 backend gives, :class:`JpegStereoFrame`, never
 decoded): written as they are. Frames are pre-generated (structured-light pattern + sensor
 noise), so synthesis does not count.
 
-    python benchmarks/bench_record.py [--seconds 20] [--storages lzf mjpeg-passthrough ...]
+    python -m benchmarks.bench_record [--seconds 20] [--sizes 640x360 1920x1080] [--busy 1]
+        [--storages gzip lzf mjpeg-passthrough ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import subprocess
+import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
+import h5py
 import numpy as np
 
 from vbfe.acquire import Recorder, SessionWriter
-from vbfe.acquire.session.layout import COMPRESSIONS
+from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION, IMAGE_CODECS
 from vbfe.drivers.camera.base import StereoCamera
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.base import Projector
@@ -36,25 +48,28 @@ from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, StereoFrame
 from vbfe.drivers.trocar.base import ForceSensor
 
-WIDTH, HEIGHT, FPS, FORCE_HZ = 1920, 1080, 30.0, 1000.0
+FPS, FORCE_HZ = 30.0, 1000.0
 STORAGES = {name: (name, False) for name in COMPRESSIONS if name != "mjpeg"}
 STORAGES.update({"mjpeg-reencode": ("mjpeg", False), "mjpeg-passthrough": ("mjpeg", True)})
 
 
-def make_frames(n: int = 8, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+def make_frames(
+    size: tuple[int, int], n: int = 8, seed: int = 0
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Stereo pairs that look like the endoscope's view: pattern on a shaded surface + noise."""
+    width, height = size
     rng = np.random.default_rng(seed)
-    pattern = make_pattern(WIDTH, HEIGHT).astype(np.float32)
-    yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float32)
+    pattern = make_pattern(width, height).astype(np.float32)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
     frames = []
     for k in range(n):
-        shade = 0.5 + 0.4 * np.cos((xx - WIDTH / 2 - 20 * k) / WIDTH * 3) * np.cos(
-            (yy - HEIGHT / 2) / HEIGHT * 2
+        shade = 0.5 + 0.4 * np.cos((xx - width / 2 - 20 * k) / width * 3) * np.cos(
+            (yy - height / 2) / height * 2
         )
         pair = []
         for shift in (0.0, 12.0):
             m = np.float32([[1, 0, shift + 3 * k], [0, 1, 0]])
-            lit = cv2.warpAffine(pattern, m, (WIDTH, HEIGHT), borderMode=cv2.BORDER_REFLECT)
+            lit = cv2.warpAffine(pattern, m, (width, height), borderMode=cv2.BORDER_REFLECT)
             image = lit * shade[..., None] + rng.normal(0, 2.0, lit.shape).astype(np.float32)
             pair.append(np.clip(image, 0, 255).astype(np.uint8))
         frames.append(tuple(pair))
@@ -76,7 +91,8 @@ class PregeneratedCamera(StereoCamera):
     ) -> None:
         super().__init__()
         self.frames, self.encoded = frames, encoded
-        self.width, self.height, self.fps = WIDTH, HEIGHT, FPS
+        self.height, self.width = frames[0][0].shape[:2]
+        self.fps = FPS
         self._seq, self._t0 = 0, 0
 
     def _open(self) -> None:
@@ -160,8 +176,9 @@ def writer_only_s(
     samples; ``encoded`` given: frames are the camera's JPEG bytes."""
     path = folder / f"writer-{compression}.h5"
     per_frame = int(FORCE_HZ / FPS)
+    height, width = frames[0][0].shape[:2]
     start, cpu_start = time.perf_counter(), time.process_time()
-    writer = SessionWriter(path, (WIDTH, HEIGHT), compression)
+    writer = SessionWriter(path, (width, height), compression)
     for i in range(n_frames):
         if encoded:
             frame: StereoFrame = JpegStereoFrame(encoded[i % len(encoded)], i, i, i)
@@ -175,14 +192,27 @@ def writer_only_s(
             writer.flush()
     writer.close()
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu_start
-    path.unlink()
     return elapsed, cpu
+
+
+def read_fps(path: Path) -> float:
+    """Stereo frames per second h5py reads back (decompressed) from a session."""
+    with h5py.File(path, "r") as f:
+        camera = f["camera"]
+        eyes = ("left", "right") if "left" in camera else ("left_jpeg", "right_jpeg")
+        n = camera["t_host_ns"].shape[0]
+        start = time.perf_counter()
+        for i in range(n):
+            for eye in eyes:
+                camera[eye][i] if eye in ("left", "right") else camera[eye][:1]
+        return n / max(time.perf_counter() - start, 1e-9)
 
 
 def recorder_run(
     folder: Path, compression: str, frames: list, encoded: list | None, seconds: float
 ) -> dict:
-    """A real-time recording through the Recorder; returns counts, drops, CPU and size."""
+    """A real-time recording through the Recorder; returns counts, drops, CPU, size and the
+    read-back speed."""
     path = folder / f"rec-{compression}.h5"
     devices = Rig(PregeneratedCamera(frames, encoded), PacedForce(), NullProjector())
     rec = Recorder(devices, path, compression=compression, min_free_bytes=0)
@@ -191,56 +221,90 @@ def recorder_run(
     stats = rec.run(seconds)
     cpu = time.process_time() - cpu_start
     size = path.stat().st_size
+    reads = read_fps(path)
     path.unlink()
     return {
         "frames": stats.frames,
         "samples": stats.samples,
         "dropped": stats.dropped,
         "cpu_ms_per_frame": 1e3 * cpu / max(stats.frames, 1),
-        "size_mb": size / 1e6,
-        "raw_mb": stats.frames * WIDTH * HEIGHT * 6 / 1e6,
+        "mb_per_s": size / 1e6 / seconds,
+        "ratio": stats.frames * frames[0][0].nbytes * 2 / max(size, 1),
+        "read_fps": reads,
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--storages", nargs="+", default=list(STORAGES), choices=list(STORAGES))
-    parser.add_argument("--dir", default=None, help="where to write (default: a temp dir)")
-    args = parser.parse_args()
-    frames = make_frames()
+@contextlib.contextmanager
+def busy_processes(n: int) -> Iterator[None]:
+    """``n`` processes spinning a core each while the block runs."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(max(n, 0))]
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+
+
+def bench_size(size: tuple[int, int], storages: list[str], seconds: float, folder: Path) -> None:
+    """Every storage at one frame size (see the module docstring for the columns)."""
+    frames = make_frames(size)
     encoded = [
         tuple(
             cv2.imencode(".jpg", eye, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for eye in pair
         )
         for pair in frames
     ]
-    n_frames = int(args.seconds * FPS)
-    with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
-        folder = Path(tmp)
-        ref = reference_write_s(folder, frames, n_frames)
+    n_frames = int(seconds * FPS)
+    width, height = size
+    ref = reference_write_s(folder, frames, n_frames)
+    print(
+        f"{width}x{height} RGB stereo at 30 fps ({width * height * 6 * FPS / 1e6:.0f} MB/s "
+        f"raw) + force at 1 kHz, {seconds:g} s; plain file.write: {seconds / ref:.2f}x real time"
+    )
+    print(
+        f"{'storage':<17} {'writer x rt':>11} {'vs write':>8} {'CPU ms/fr':>9} {'1 core':>6} "
+        f"{'rec frames':>10} {'dropped':>7} {'rec CPU ms/fr':>13} {'MB/s rec':>8} "
+        f"{'ratio':>5} {'read fr/s':>9}  readable by"
+    )
+    for storage in storages:
+        compression, passthrough = STORAGES[storage]
+        jpegs = encoded if passthrough else None
+        w, w_cpu = writer_only_s(folder, compression, frames, jpegs, n_frames)
+        (folder / f"writer-{compression}.h5").unlink()
+        r = recorder_run(folder, compression, frames, jpegs, seconds)
+        dropped = sum(r["dropped"].values()) if isinstance(r["dropped"], dict) else r["dropped"]
+        default = " (default)" if compression == DEFAULT_COMPRESSION else ""
         print(
-            f"{args.seconds:g} s of 1920x1080 RGB stereo at 30 fps "
-            f"({WIDTH * HEIGHT * 6 * FPS / 1e6:.0f} MB/s raw) + force at 1 kHz"
+            f"{storage:<17} {seconds / w:>10.2f}x {ref / w:>7.2f}x {1e3 * w_cpu / n_frames:>9.1f} "
+            f"{n_frames / FPS / max(w_cpu, 1e-9):>5.1f}x "
+            f"{r['frames']:>10} {dropped:>7} {r['cpu_ms_per_frame']:>13.1f} "
+            f"{r['mb_per_s']:>8.1f} {r['ratio']:>4.1f}x {r['read_fps']:>9.0f}  "
+            f"{IMAGE_CODECS[compression].reach}{default}",
+            flush=True,
         )
-        print(f"reference: plain file.write of the raw frames: {args.seconds / ref:.2f}x real time")
-        print(
-            f"{'storage':<17} {'writer x realtime':>17} {'vs file.write':>13} "
-            f"{'writer CPU ms/fr':>16} {'rec frames':>10} {'dropped':>24} "
-            f"{'rec CPU ms/fr':>13} {'size MB':>8} {'ratio':>6}"
-        )
-        for storage in args.storages:
-            compression, passthrough = STORAGES[storage]
-            jpegs = encoded if passthrough else None
-            w, w_cpu = writer_only_s(folder, compression, frames, jpegs, n_frames)
-            r = recorder_run(folder, compression, frames, jpegs, args.seconds)
-            print(
-                f"{storage:<17} {args.seconds / w:>16.2f}x {ref / w:>12.2f}x "
-                f"{1e3 * w_cpu / n_frames:>16.1f} {r['frames']:>10} {str(r['dropped']):>24} "
-                f"{r['cpu_ms_per_frame']:>13.1f} {r['size_mb']:>8.0f} "
-                f"{r['raw_mb'] / max(r['size_mb'], 1e-9):>5.1f}x",
-                flush=True,
-            )
+
+
+def _size(text: str) -> tuple[int, int]:
+    width, height = text.lower().split("x")
+    return int(width), int(height)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--sizes", nargs="+", type=_size, default=[(640, 360), (1920, 1080)])
+    parser.add_argument("--storages", nargs="+", default=list(STORAGES), choices=list(STORAGES))
+    parser.add_argument("--busy", type=int, default=1, help="busy processes beside (default 1)")
+    parser.add_argument("--dir", default=None, help="where to write (default: a temp dir)")
+    args = parser.parse_args()
+    print(
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} before, "
+        f"{args.busy} busy process(es) beside"
+    )
+    with tempfile.TemporaryDirectory(dir=args.dir) as tmp, busy_processes(args.busy):
+        for size in args.sizes:
+            bench_size(size, args.storages, args.seconds, Path(tmp))
 
 
 if __name__ == "__main__":

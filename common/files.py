@@ -25,6 +25,11 @@ PARTIAL_SUFFIX = ".partial"
 LOCK_SUFFIX = ".lock"
 SESSION_FORMAT = "vbfe-session"  # the format attribute of a session file (acquire's layout)
 
+# Every HDF5 file vbfe writes uses the oldest file format that gives SWMR (crash-safe appends
+# with readers open): HDF5 1.10's. Whatever HDF5 the installed h5py bundles, MATLAB, HDFView,
+# h5dump, R, Julia and older h5py (HDF5 >= 1.10) open the files.
+HDF5_LIBVER = ("v110", "v110")
+
 Writes = Literal["file", "hdf5", "session"]
 
 
@@ -35,6 +40,14 @@ def is_hdf5(path: str | Path) -> bool:
             return fh.read(8) == HDF5_SIGNATURE
     except OSError:
         return False
+
+
+def create_hdf5(path: str | Path) -> Any:
+    """A new HDF5 file (an ``h5py.File``, replacing ``path``) in the portable format
+    :data:`HDF5_LIBVER`."""
+    import h5py
+
+    return h5py.File(path, "w", libver=HDF5_LIBVER)
 
 
 def is_session(path: str | Path) -> bool:

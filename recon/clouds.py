@@ -40,10 +40,12 @@ import numpy as np
 from vbfe.acquire.session.h5attrs import plain_attrs, text
 from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import ReconError
-from vbfe.common.files import atomic_path, require_free_space
+from vbfe.common.files import atomic_path, create_hdf5, require_free_space
 
 FORMAT_NAME = "vbfe-clouds"
 FORMAT_VERSION = 3
+# deflate (built into every HDF5, so h5dump and MATLAB read the clouds) with byte shuffle
+_DEFLATE = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 DISPARITY_COLUMNS = ["min", "median", "max", "mean"]
 COUNT_COLUMNS = ["sgbm_matches", "kept", "corrected", "rejected"]
 FRAME_TABLES = {
@@ -92,7 +94,7 @@ class CloudWriter:
         self.path = Path(path)
         require_free_space(self.path.parent, FREE_MARGIN_BYTES, "the point clouds")
         try:
-            self._file = h5py.File(self.path, "w")
+            self._file = create_hdf5(self.path)
         except OSError as exc:
             raise ReconError(f"cannot create cloud file {self.path}: {exc}") from None
         f = self._file
@@ -102,14 +104,12 @@ class CloudWriter:
         if calibration_yaml is not None:  # clouds imported from elsewhere have none
             f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
         f.create_dataset(
-            "points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3), compression="lzf"
+            "points", (0, 3), np.float32, maxshape=(None, 3), chunks=(65536, 3), **_DEFLATE
         ).attrs["units"] = "m"
         f.create_dataset(
-            "colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3), compression="lzf"
+            "colors", (0, 3), np.uint8, maxshape=(None, 3), chunks=(65536, 3), **_DEFLATE
         ).attrs["channel_order"] = "RGB"
-        f.create_dataset(
-            "verified", (0,), bool, maxshape=(None,), chunks=(65536,), compression="lzf"
-        )
+        f.create_dataset("verified", (0,), bool, maxshape=(None,), chunks=(65536,), **_DEFLATE)
         self._frames: dict[str, list] = {name: [] for name in FRAME_TABLES}
         self._offsets = [0]
 

@@ -31,7 +31,7 @@ def record(path, duration_s=1.0, compression="lzf", **options):
     return devices, stats
 
 
-@pytest.mark.parametrize("compression", ["none", "lzf", "blosc-lz4", "mjpeg"])
+@pytest.mark.parametrize("compression", ["gzip", "none", "zstd", "lzf", "blosc-lz4", "mjpeg"])
 def test_round_trip_keeps_frames_forces_events_and_metadata(tmp_path, compression):
     path = tmp_path / "s.h5"
     devices, stats = record(path, compression=compression)

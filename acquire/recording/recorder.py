@@ -9,7 +9,7 @@ from typing import Any
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats, PatternSource
 from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.session_sink import SessionSink
-from vbfe.acquire.session.layout import StreamSpec
+from vbfe.acquire.session.layout import DEFAULT_COMPRESSION, StreamSpec
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 
@@ -27,7 +27,7 @@ class Recorder(Acquisition):
         self,
         rig: Rig,
         path: str | Path,
-        compression: str = "lzf",
+        compression: str = DEFAULT_COMPRESSION,
         flush_interval_s: float = 1.0,
         metadata: dict[str, Any] | None = None,
         calibration_yaml: str | None = None,

@@ -27,7 +27,7 @@ import numpy as np
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.recording.storage import check_destination, free_bytes
 from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
-from vbfe.acquire.session.layout import CAMERA, STREAMS, StreamSpec
+from vbfe.acquire.session.layout import CAMERA, DEFAULT_COMPRESSION, STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 from vbfe.common.errors import SessionError
 from vbfe.drivers.streams.records import StreamInfo
@@ -93,7 +93,7 @@ class SessionSink(Listener):
     def __init__(
         self,
         path: str | Path,
-        compression: str = "lzf",
+        compression: str = DEFAULT_COMPRESSION,
         flush_interval_s: float = 1.0,
         metadata: dict[str, Any] | None = None,
         calibration_yaml: str | None = None,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from vbfe.acquire.session.layout import COMPRESSIONS
+from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION
 from vbfe.common.settings import parse_table, setting
 
 
@@ -14,7 +14,7 @@ class RecordSettings:
     """The ``[record]`` table (see vbfe/default_rig.toml for what each key means)."""
 
     # a Literal of a tuple's values: the settings parser reads them; mypy cannot
-    compression: Literal[COMPRESSIONS] = "lzf"  # type: ignore[valid-type]
+    compression: Literal[COMPRESSIONS] = DEFAULT_COMPRESSION  # type: ignore[valid-type]
     flush_interval_s: float = setting(1.0, gt=0)
     queue_size: int = setting(64, ge=1)
     min_free_gb: float = setting(1.0, ge=0)

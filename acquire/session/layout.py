@@ -22,9 +22,10 @@ import h5py
 import hdf5plugin
 import numpy as np
 
+from vbfe.acquire.session.deflate import write_deflated
+
 SCHEMA_VERSION = 2  # 2: optional /estimate stream (vbfe live --record)
 
-COMPRESSIONS = ("none", "lzf", "blosc-lz4", "mjpeg")
 CAMERA, FORCE, PROJECTOR = "camera", "force", "projector"  # the core streams' names
 STREAMS = (CAMERA, FORCE, PROJECTOR)  # the core streams (also their HDF5 groups)
 TIME_COLUMNS = ("t_device_ns", "t_host_ns", "seq")
@@ -194,12 +195,70 @@ def session_streams(f: h5py.File) -> tuple[StreamSpec, ...]:
     return (*core_streams(size, encoding, axes), *extra_streams(f.attrs))
 
 
-def image_filter(compression: str) -> dict:
+@dataclass(frozen=True)
+class ImageCodec:
+    """How a session stores its camera images: the HDF5 filter of the raw-pixel datasets
+    (``keywords``: h5py ``create_dataset`` keywords), who can read them, and (``write_row``)
+    a writer of one image row cheaper than HDF5's own filter, where there is one."""
+
+    name: str
+    keywords: Callable[[], dict[str, Any]]
+    reach: str  # who decodes it: "stock HDF5", "with plugin" or "h5py only"
+    readers: str
+    write_row: Callable[[h5py.Dataset, int, np.ndarray], None] | None = None
+
+
+def _no_filter() -> dict[str, Any]:
+    return {}
+
+
+IMAGE_CODECS = {
+    codec.name: codec
+    for codec in (
+        ImageCodec(
+            "gzip",
+            lambda: {"compression": "gzip", "compression_opts": 1},
+            "stock HDF5",
+            "every HDF5 reader (deflate is built into HDF5: MATLAB, HDFView, h5dump, h5py)",
+            write_deflated,
+        ),
+        ImageCodec("none", _no_filter, "stock HDF5", "every HDF5 reader"),
+        ImageCodec(
+            "zstd",
+            lambda: dict(hdf5plugin.Zstd(clevel=1)),
+            "with plugin",
+            "h5py with hdf5plugin; MATLAB, HDFView and h5dump with HDF5_PLUGIN_PATH set to "
+            "hdf5plugin's plugin folder (filter 32015)",
+        ),
+        ImageCodec(
+            "blosc-lz4",
+            lambda: dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE)),
+            "with plugin",
+            "h5py with hdf5plugin; MATLAB, HDFView and h5dump with HDF5_PLUGIN_PATH set to "
+            "hdf5plugin's plugin folder (filter 32001)",
+        ),
+        ImageCodec(
+            "lzf",
+            lambda: {"compression": "lzf"},
+            "h5py only",
+            "h5py only (filter 32000 ships with h5py; other readers need it built as a plugin)",
+        ),
+        ImageCodec(
+            "mjpeg",
+            _no_filter,
+            "stock HDF5",
+            "every HDF5 reader reads the JPEG bytes (left_jpeg + left_jpeg_index); decode them "
+            "with any JPEG decoder",
+        ),
+    )
+}
+COMPRESSIONS = tuple(IMAGE_CODECS)  # the names a session's ``compression`` may take
+DEFAULT_COMPRESSION = "gzip"  # chosen by benchmarks/bench_record.py (docs: session format)
+
+
+def image_filter(compression: str) -> dict[str, Any]:
     """h5py ``create_dataset`` keywords for raw image chunks under a compression option."""
-    if compression == "none" or compression == "mjpeg":
-        return {}
-    if compression == "lzf":
-        return {"compression": "lzf"}
-    if compression == "blosc-lz4":
-        return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
-    raise ValueError(f"unknown compression {compression!r}; choose one of {COMPRESSIONS}")
+    codec = IMAGE_CODECS.get(compression)
+    if codec is None:
+        raise ValueError(f"unknown compression {compression!r}; choose one of {COMPRESSIONS}")
+    return codec.keywords()

@@ -9,10 +9,17 @@ import h5py
 import numpy as np
 
 from vbfe.acquire.session.layout import session_streams
+from vbfe.acquire.session.portable import copy_tree, image_datasets
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
 from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
 from vbfe.common.errors import SessionError
-from vbfe.common.files import SESSION_FORMAT, commit, partial_path, require_free_space
+from vbfe.common.files import (
+    SESSION_FORMAT,
+    commit,
+    create_hdf5,
+    partial_path,
+    require_free_space,
+)
 
 
 def _trim(group: h5py.Group, keys: Sequence[str], n: int) -> int:
@@ -67,12 +74,10 @@ def recover_session(
     src, _ = open_session_file(path)
     tmp = partial_path(out_path)
     try:
-        with src, h5py.File(tmp, "w", libver="latest") as dst:
+        with src, create_hdf5(tmp) as dst:
             if src.attrs.get("format") != SESSION_FORMAT:
                 raise SessionError(f"{path} is not a vbfe session; nothing to recover")
-            dst.attrs.update(dict(src.attrs))
-            for name in src:
-                src.copy(src[name], dst, name=name)
+            copy_tree(src, dst, image_datasets(src, str(src.attrs.get("compression"))))
             dropped = _keep_consistent_rows(dst)
             finish_file(
                 dst,

@@ -31,10 +31,12 @@ from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
     CAMERA,
     COMPRESSIONS,
+    DEFAULT_COMPRESSION,
     EXTRA_STREAMS_ATTR,
     FORCE,
     GAP_COLUMNS,
     GAP_REASONS,
+    IMAGE_CODECS,
     JPEG_QUALITY,
     PROJECTOR,
     SCHEMA_VERSION,
@@ -46,7 +48,7 @@ from vbfe.acquire.session.layout import (
 )
 from vbfe.acquire.session.reader import consistent_rows
 from vbfe.common.errors import SessionError
-from vbfe.common.files import SESSION_FORMAT, WriterLock
+from vbfe.common.files import SESSION_FORMAT, WriterLock, create_hdf5
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 _JPEG_CHUNK = 1 << 20
@@ -129,7 +131,7 @@ class SessionWriter:
         self,
         path: str | Path,
         frame_size: tuple[int, int],
-        compression: str = "lzf",
+        compression: str = DEFAULT_COMPRESSION,
         metadata: dict[str, Any] | None = None,
         calibration_yaml: str | None = None,
         force_axes: Sequence[str] = ("x", "y", "z"),
@@ -160,7 +162,7 @@ class SessionWriter:
         self._lock = WriterLock(self.path).acquire()  # before the old file is truncated
         self._reserve = _reserve_space(self.path.parent)
         try:
-            self._file = h5py.File(self.path, "w", libver="latest")
+            self._file = create_hdf5(self.path)
         except OSError as exc:
             self._release_reserve()
             raise SessionError(f"cannot create session file {self.path}: {exc}") from None
@@ -280,12 +282,16 @@ class SessionWriter:
                     f"frame {fr.seq} for {self.path} is {fr.left.shape}, "
                     f"expected {expected} (did the camera change size?)"
                 )
+        write_row = IMAGE_CODECS[self.compression].write_row
         for eye in ("left", "right"):
             ds = data[eye]
             n = ds.shape[0]
             ds.resize(n + len(frames), axis=0)
             for k, fr in enumerate(frames):
-                ds[n + k] = getattr(fr, eye)
+                if write_row is None:
+                    ds[n + k] = getattr(fr, eye)
+                else:
+                    write_row(ds, n + k, getattr(fr, eye))
             self.bytes_written += len(frames) * fr.left.nbytes
 
     def append_frames(self, frames: Sequence[StereoFrame]) -> None:

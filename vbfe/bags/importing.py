@@ -30,6 +30,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from vbfe.acquire import SessionWriter, finalize_session
+from vbfe.acquire.session.layout import DEFAULT_COMPRESSION
 from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
 from vbfe.common.errors import BagError
 from vbfe.common.files import atomic_path
@@ -297,7 +298,7 @@ class _SessionSink:
             frame = StereoFrame(
                 _decode(left, topics[0]), _decode(right, topics[1]), self.frames, host, host
             )
-            compression = "lzf"
+            compression = DEFAULT_COMPRESSION
         self._append(frame, compression)
 
     def side_by_side(self, t_ns: int, msg: Any, topic: str) -> None:
@@ -310,7 +311,7 @@ class _SessionSink:
         host = self.host(t_ns)
         self._append(
             StereoFrame(image[:, :half].copy(), image[:, half:].copy(), self.frames, host, host),
-            "lzf",
+            DEFAULT_COMPRESSION,
         )
 
     def _append(self, frame: StereoFrame, compression: str) -> None:

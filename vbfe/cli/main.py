@@ -23,6 +23,7 @@ from vbfe.cli import (
     record,
     report,
     train,
+    upgrade,
     verify_sync,
     view,
 )
@@ -45,6 +46,7 @@ COMMANDS = (
     mark,
     view,
     inspect,
+    upgrade,
     report,
     verify_sync,
     calibrate,
