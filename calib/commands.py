@@ -66,17 +66,8 @@ def board_spec(config: Config, **overrides: Any) -> BoardSpec:
 
 
 def set_board(config: Config, spec: BoardSpec) -> None:
-    """Put ``spec`` into the config's ``[calib]`` table (as squares; sizes in mm)."""
-    table = config.setdefault("calib", {})
-    table.update(
-        target=spec.target,
-        squares_x=spec.squares_x,
-        squares_y=spec.squares_y,
-        square_mm=round(spec.square_m * 1e3, 6),
-        marker_mm=round(spec.marker_m * 1e3, 6),
-        dictionary=spec.dictionary,
-        inner_corners=[],
-    )
+    """Put ``spec`` into the config's ``[calib]`` table (:meth:`BoardSpec.calib_table`)."""
+    config.setdefault("calib", {}).update(spec.calib_table())
 
 
 def board_scene(config: Config) -> Config:

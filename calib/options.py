@@ -30,6 +30,7 @@ class CalibSettings:
     marker_mm: float
     dictionary: str
     legacy: bool
+    calibration: str  # the rig's stereo calibration file ("": none settled)
     min_corners: int = dataclasses.field(metadata=limits(ge=4))
     min_views: int = dataclasses.field(metadata=limits(ge=1))
     outlier_sigma: float = dataclasses.field(metadata=limits(gt=0))
@@ -65,7 +66,6 @@ class CalibSettings:
     projector_change_level: float = dataclasses.field(metadata=limits(ge=0))
     projector_still_frames: int = dataclasses.field(metadata=limits(ge=1))
     projector_pose_timeout_s: float = dataclasses.field(metadata=limits(gt=0))
-    calibration: str  # the rig's stereo calibration file ("": none yet)
 
 
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:

@@ -84,6 +84,7 @@ class SessionSummary:
             f", notes {a.get('notes') or '-'}",
             f"subject   participant {self.metadata.get('participant') or '-'}, task "
             f"{self.metadata.get('task') or '-'}",
+            f"rig       {self.metadata.get('rig') or '-'}",
             f"duration  {self.duration_s:.3f} s",
         ]
         w, h = self.frame_size
