@@ -99,13 +99,18 @@ def run(args: argparse.Namespace) -> int:
 
         estimator = live_estimator(config, rig_from(args).live, load_model(args.model), calibration)
     station = Station(config, calibration, args.calib or "the calibration", estimator, args.model)
+    station.model_path = Path(args.model) if args.model else None
     headless = (
         Headless(args.duration, args.screenshot, args.screenshot_dir)
         if args.duration is not None
         else None
     )
     options = ConsoleOptions(
-        args.out, Path(args.calib) if args.calib else None, args.overwrite, headless is None
+        args.out,
+        Path(args.calib) if args.calib else None,
+        args.overwrite,
+        headless is None,
+        rig_from(args).source.path,  # what the operator settles is kept there
     )
     code, _ = run_console(station, options, headless, args.record, args.remote, args.remote_bind)
     finished = station.last_session
