@@ -427,3 +427,33 @@ def test_a_real_window_under_xvfb(tmp_path):
     finally:
         server.terminate()
         server.wait(timeout=10)
+
+
+def test_a_recording_cut_off_by_kill_9_is_explained_by_the_next_window(
+    qtbot, open_console, tmp_path
+):
+    from vbfe.common.files import WriterLock, stale_locks
+
+    killed = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import os, signal; from vbfe.common.files import WriterLock; "
+            f"WriterLock({str(tmp_path / 'cut.h5')!r}).acquire(); "
+            "print(os.getpid(), flush=True); os.kill(os.getpid(), signal.SIGKILL)",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    pid = killed.stdout.strip()
+    assert killed.returncode == -signal.SIGKILL and pid
+    with WriterLock(tmp_path / "busy.h5"):  # held by a live writer: not stale
+        assert stale_locks(tmp_path) == [(tmp_path / "cut.h5", pid)]
+    window = open_console(bench_config(), live=False)
+    tab = window.record_tab
+    tab.root.setText(str(tmp_path))
+    tab.check_stale()
+    assert tab.stale.text().startswith(
+        f"cut.h5 was not closed cleanly: its recorder (process {pid}) was killed"
+    )
