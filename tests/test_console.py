@@ -1,6 +1,7 @@
 """`vbfe console` clicked through with pytest-qt on the simulated bench, and run headless
 through the CLI: record with markers and remote control, bad inputs as messages in the window,
-calibrate from captured board views, the sync protocol, screenshots."""
+calibrate from captured board views, screenshots (the sync protocol and the rest of the day:
+tests/test_console_day.py)."""
 
 import os
 import shutil
@@ -283,31 +284,6 @@ def test_a_board_that_is_not_found_is_a_message(qtbot, open_console, tmp_path):
     qtbot.waitUntil(lambda: bool(window.errors), timeout=WAIT_MS)
     assert window.errors[-1].startswith("calibration refused:")
     assert not (tmp_path / "endoscope.yaml").exists()
-
-
-@pytest.mark.slow
-def test_the_sync_protocol_passes_after_the_correction_is_applied(qtbot, open_console, tmp_path):
-    config = bench_config(width=160, height=90)  # small: rendered in real time under load
-    window = open_console(config)
-    tab = window.sync_tab
-    window.tabs.setCurrentWidget(tab)
-    tab.taps.setValue(10)
-    tab.flashes.setValue(10)
-    tab.duration.setValue(10.0)
-    click(qtbot, tab.run_button)
-    qtbot.waitUntil(lambda: "flashes" in tab.progress.text(), timeout=WAIT_MS)
-    qtbot.waitUntil(lambda: tab.apply_button.isEnabled(), timeout=90_000)
-    before = tab.outcome.report
-    assert before.verdict == "FAIL"  # the bench's 37 ms offset, uncorrected
-    assert before.estimate.offset_s == pytest.approx(0.037, abs=0.001)
-    click(qtbot, tab.apply_button)
-    qtbot.waitUntil(lambda: tab.outcome.after is not None, timeout=WAIT_MS)
-    after = tab.outcome.after
-    assert abs(after.estimate.offset_s) < 0.001  # the correction removed the offset
-    if after.verdict != "PASS":  # only when an overloaded machine made the bench drop frames
-        assert after.reasons and all(" dropped " in r for r in after.reasons), after.reasons
-    assert f"verdict {after.verdict}" in tab.report.text()
-    assert config["record"]["frame_time_correction_s"] == pytest.approx(0.037, abs=0.001)
 
 
 def vbfe(*args, env=None, timeout=180):
