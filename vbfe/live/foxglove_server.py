@@ -61,24 +61,19 @@ def _json_value(value: Any) -> Any:
 
 
 def _json_type(annotation: str) -> dict[str, Any]:
-    """The JSON schema of a record field from its type annotation (numbers, arrays of
-    numbers, strings; anything else: any value)."""
+    """The JSON schema of a record field from its type annotation, in the types the Foxglove
+    app reads (its ``parseJsonSchema``: one type per field, never ``"null"``): numbers,
+    integers, strings, booleans, arrays of numbers. A NaN (or ``None``) goes out as ``null``
+    all the same: the app's decoder passes any JSON value through.
+
+    :raises TypeError: for an annotation of another type (a field the app could not plot)."""
     kinds = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
-    parts = [p.strip() for p in annotation.split("|")]
-    types: list[str] = []
-    for part in parts:
-        if part == "None":
-            types.append("null")
-        elif any(k in part for k in ("ndarray", "tuple", "list", "Sequence")):
-            return {
-                "type": ["array", "null"] if "None" in parts else "array",
-                "items": {"type": ["number", "null"]},
-            }
-        elif part in kinds:
-            types += [kinds[part], "null"] if part == "float" else [kinds[part]]
-        else:
-            return {}
-    return {"type": types[0] if len(types) == 1 else types}
+    parts = [p.strip() for p in annotation.split("|") if p.strip() != "None"]
+    if len(parts) == 1 and any(k in parts[0] for k in ("ndarray", "tuple", "list", "Sequence")):
+        return {"type": "array", "items": {"type": "number"}}
+    if len(parts) == 1 and parts[0] in kinds:
+        return {"type": kinds[parts[0]]}
+    raise TypeError(f"no JSON schema type the Foxglove app reads for {annotation!r}")
 
 
 def estimate_schema() -> dict[str, Any]:
@@ -187,7 +182,7 @@ class FoxgloveServer(EstimateOutput):
             fields: dict[str, dict[str, Any]] = (
                 {"text": {"type": "string"}}
                 if info.markers
-                else {label: {"type": ["number", "null"]} for label in info.channels}
+                else {label: {"type": "number"} for label in info.channels}
             )
             fields["t_device_ns"] = {"type": "integer"}
             self._channels[STREAM_TOPIC + name] = foxglove.Channel(
