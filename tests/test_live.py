@@ -1,6 +1,7 @@
 """Live force estimation: the newest-frame mailbox, reduced-resolution reconstruction, and
 `vbfe live` on the bench with a model trained here, recording its estimate stream."""
 
+import signal
 import subprocess
 import sys
 import threading
@@ -410,7 +411,7 @@ def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
     with robot:
         proc = subprocess.Popen(
             [sys.executable, "-m", "vbfe.cli.main", "live", "--model", model, "--calib", calib]
-            + ["--duration", "9", "--headless", "--config", with_stream]
+            + ["--duration", "60", "--headless", "--config", with_stream]
             + ["--foxglove", str(port)],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -424,9 +425,11 @@ def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
                 start_ns = time.time_ns()
                 for channel, log_time, data in client.messages(4.0):
                     got[channel["topic"]].append((log_time, decoders[channel["topic"]](data)))
+            proc.send_signal(signal.SIGTERM)  # live ends on it as on its duration: exit 0
         finally:
             out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
+    assert " estimates from " in out  # the closing lines: it stopped, not died
     refused = {t: app_schema_error(c) for t, c in channels.items() if app_schema_error(c)}
     assert not refused and "/vbfe/streams/robot" in channels, refused
     assert len(got["/vbfe/streams/robot"]) >= 100  # 4 s of 100 Hz

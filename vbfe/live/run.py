@@ -29,6 +29,7 @@ from vbfe.acquire.session.layout import CAMERA
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
 from vbfe.common.errors import LiveError
+from vbfe.common.signals import Terminated
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
@@ -418,8 +419,9 @@ def run_headless(
     on_status: Callable[[LiveStatus], None],
     interval_s: float = 1.0,
 ) -> LiveStatus:
-    """Wait until ``duration_s`` (wall clock), the end of the recording, or Ctrl-C, reporting
-    the status every ``interval_s``; then stop the run."""
+    """Wait until ``duration_s`` (wall clock), the end of the recording, Ctrl-C or SIGTERM
+    (the run's normal ends: the session is finished), reporting the status every
+    ``interval_s``; then stop the run."""
     reason = "duration reached"
     try:
         next_report = time.monotonic() + interval_s
@@ -430,6 +432,8 @@ def run_headless(
             if time.monotonic() >= next_report:
                 on_status(run.status())
                 next_report += interval_s
+    except Terminated:
+        reason = "stopped by SIGTERM"
     except KeyboardInterrupt:
         reason = "stopped by operator"
     return run.stop(reason)
