@@ -425,6 +425,51 @@ def test_the_foxglove_server_speaks_the_subprotocols_docs_foxglove_md_names():
         server.on_stop(None)
 
 
+def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
+    """A client that subscribes to the raw images and the trocar's wrench and stops reading,
+    beside one that reads the wrench: the fast one gets all it was handed; the slow one, once
+    the socket's buffers are full of images, gets less than it was handed (foxglove-sdk
+    dropped the oldest for it) and the closing line names both clients' shares and that a
+    slow client loses the oldest; the server does not wait for it at the end (foxglove-sdk's
+    stop would, forever)."""
+    import re
+
+    from tests.foxglove_client import FoxgloveClient
+    from vbfe.acquire import Acquisition
+    from vbfe.bags.images import ImageCodec
+    from vbfe.drivers.registry import open_rig
+    from vbfe.drivers.rig import RigOptions
+    from vbfe.live.foxglove_server import BACKLOG, FoxgloveServer
+
+    config = load_config()
+    config["bench"].update(width=320, height=180, fps=10.0)
+    server = FoxgloveServer(0, ImageCodec("raw"))
+    acquisition = Acquisition(open_rig(config, RigOptions(realtime=True)), listeners=(server,))
+    acquisition.start()
+    try:
+        with (
+            FoxgloveClient("127.0.0.1", server.port) as fast,
+            FoxgloveClient("127.0.0.1", server.port) as slow,
+        ):
+            topics = {"/trocar/wrench", "/stereo/left/image_raw", "/stereo/right/image_raw"}
+            fast.subscribe([fast.wait_for_topics(topics)["/trocar/wrench"]["id"]])
+            slow.subscribe([c["id"] for c in slow.wait_for_topics(topics).values()])
+            received = sum(1 for _ in fast.messages(4.0))  # the slow one reads nothing
+            acquisition.stop()
+            received += sum(1 for _ in fast.messages(0.5))
+            late = sum(1 for _ in slow.messages(2.0))
+    finally:
+        acquisition.stop()
+    line = server.summary()
+    shares = [int(n) for n in re.findall(r"client \d+: (\d+)", line)]
+    assert len(shares) == 2 and f"beyond {BACKLOG} queued" in line, line
+    assert min(shares) >= 3000  # ~4 s of the 1 kHz trocar each
+    assert received in shares  # the fast client got every message handed for it
+    slow_share = max(shares) if received == min(shares) else min(shares)
+    assert late < slow_share - 500  # the slow one lost the oldest (fewer than handed)
+    assert line.endswith("a client that stopped reading was left behind at the end")
+
+
 @pytest.mark.slow
 def test_foxglove_client_sees_images_wrench_estimates_and_clouds_live(rig):
     """`vbfe live --foxglove PORT` on the bench, watched by a WebSocket client on loopback as
