@@ -155,6 +155,7 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     assert (folder / "eval" / "live_force.png").is_file()
 
 
+@pytest.mark.slow  # real time
 def test_sigkill_of_live_record_keeps_the_estimates_up_to_the_last_flush(rig, tmp_path):
     """`vbfe live --record` killed (SIGKILL) a few seconds in: the recovered session holds
     the estimates of its frames as they were flushed, the newest within a flush interval
@@ -425,6 +426,7 @@ def test_the_foxglove_server_speaks_the_subprotocols_docs_foxglove_md_names():
         server.on_stop(None)
 
 
+@pytest.mark.slow  # real time
 def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
     """A client that subscribes to the raw images and the trocar's wrench and stops reading,
     beside one that reads the wrench: the fast one gets all it was handed; the slow one, once
