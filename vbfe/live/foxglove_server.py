@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from foxglove.websocket import ChannelView, Client, ServerListener
 
 from vbfe.bags import builders
 from vbfe.bags.images import ImageCodec
@@ -99,7 +100,7 @@ BACKLOG = 1024  # foxglove-sdk's queue of messages per client (its message_backl
 STOP_WAIT_S = 2.0  # the longest wait at the end for the clients to take what is queued
 
 
-class _Subscribers:
+class _Subscribers(ServerListener):
     """Which client subscribes to which channel (foxglove-sdk's ``ServerListener`` callbacks,
     on its threads), and how many messages were handed over for each client."""
 
@@ -108,12 +109,12 @@ class _Subscribers:
         self._by_channel: dict[int, set[int]] = {}
         self.handed: dict[int, int] = {}  # by client id, in the order they subscribed
 
-    def on_subscribe(self, client: Any, channel: Any) -> None:
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
         with self._lock:
             self._by_channel.setdefault(channel.id, set()).add(client.id)
             self.handed.setdefault(client.id, 0)
 
-    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
         with self._lock:
             self._by_channel.get(channel.id, set()).discard(client.id)
 
