@@ -7,7 +7,8 @@ into forces with the demo's PointNet (32-64-256 on 1024 points with the rest dep
 untrained weights: speed does not depend on them). Prints
 estimates/s, p50/p95 latency from frame capture (host time) to estimate, the share of frames
 skipped, the median of each stage, the CPU the run used (cores), and the OpenCV and torch
-thread counts.
+thread counts; recording, the frames the file holds and those it lost (``lost: queue``: the
+recorder's queue was full; ``device``: the camera side lost them).
 
 ``--background-load N`` runs every configuration twice, without and then beside N busy
 processes (a lab PC also runs the recorder and the viewer); ``--record`` adds runs that also
@@ -49,7 +50,7 @@ import numpy as np
 import torch
 
 from tests.foxglove_client import FoxgloveClient
-from vbfe.acquire import Acquisition
+from vbfe.acquire import Acquisition, SessionReader
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.common.config import load_config, section
@@ -251,8 +252,17 @@ def measure(
             + ", ".join(f"{n} {topic}" for topic, n in sorted(viewer.items()))
             + f"; {server.frames_skipped} frames skipped for it"
         )
+    lost = {"queue": float("nan"), "device": float("nan"), "frames": float("nan")}
+    if record is not None:  # what the file lost: the writer's queue full, the camera's side
+        with SessionReader(record) as reader:
+            lost = {
+                "queue": reader.attrs["camera_queue_dropped"],
+                "device": reader.attrs["camera_device_dropped"],
+                "frames": reader.n_frames,
+            }
     if len(run.estimates) < 2:  # e.g. every frame came later than [live] max_frame_age_s
         return {
+            **lost,
             "rate": 0.0,
             "p50": float("nan"),
             "p95": float("nan"),
@@ -266,6 +276,7 @@ def measure(
     latency = np.array([e.latency_s for e in estimates]) * 1e3
     span_s = (estimates[-1].t_ready_host_ns - estimates[0].t_ready_host_ns) / 1e9
     return {
+        **lost,
         "rate": (len(estimates) - 1) / span_s,
         "p50": float(np.percentile(latency, 50)),
         "p95": float(np.percentile(latency, 95)),
@@ -365,7 +376,9 @@ def main() -> None:
     print(
         f"{'camera':>10} {'record':>6} {'busy':>4} {'fox':>3} {'est/s':>6} {'p50 ms':>7} "
         f"{'p95 ms':>7} "
-        f"{'skipped':>7} {'cores':>5} " + " ".join(f"{s + ' ms':>14}" for s in STAGES)
+        f"{'skipped':>7} {'cores':>5} "
+        + " ".join(f"{s + ' ms':>14}" for s in STAGES)
+        + f" {'frames':>6} {'lost: queue':>11} {'device':>6}"
     )
     model = (
         texture_model(novelty=args.novelty)
@@ -409,7 +422,9 @@ def main() -> None:
                             f"{width:>5}x{height:<4} {'yes' if record else 'no':>6} {load:>4} "
                             f"{'on' if fox else 'off':>3} {r['rate']:6.1f} {r['p50']:7.1f} "
                             f"{r['p95']:7.1f} {r['skipped']:7.0%} "
-                            f"{r['cores']:5.2f} " + " ".join(f"{r[s]:14.1f}" for s in STAGES),
+                            f"{r['cores']:5.2f} "
+                            + " ".join(f"{r[s]:14.1f}" for s in STAGES)
+                            + f" {r['frames']:6.0f} {r['queue']:11.0f} {r['device']:6.0f}",
                             flush=True,
                         )
                     if args.foxglove:

@@ -6,6 +6,7 @@ server's JSON ``advertise`` operations, ``subscribe``, and binary message-data f
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import socket
@@ -21,9 +22,15 @@ _SETTLE_S = 0.3
 
 
 class FoxgloveClient:
-    """Connect to ``ws://host:port`` (retrying for ``timeout_s`` while it starts)."""
+    """Connect to ``ws://host:port`` (retrying for ``timeout_s`` while it starts), offering
+    ``subprotocols``; :attr:`subprotocol` is the one the server chose.
 
-    def __init__(self, host: str, port: int, timeout_s: float = 30.0) -> None:
+    :raises ConnectionError: when the server refuses the upgrade (its answer in the message).
+    """
+
+    def __init__(
+        self, host: str, port: int, timeout_s: float = 30.0, subprotocols: str = SUBPROTOCOLS
+    ) -> None:
         deadline = time.monotonic() + timeout_s
         while True:
             try:
@@ -38,7 +45,7 @@ class FoxgloveClient:
             (
                 f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
                 f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
-                f"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {SUBPROTOCOLS}\r\n\r\n"
+                f"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {subprotocols}\r\n\r\n"
             ).encode()
         )
         self._buffer = b""
@@ -47,7 +54,20 @@ class FoxgloveClient:
         head, self._buffer = self._buffer.split(b"\r\n\r\n", 1)
         status = head.split(b"\r\n", 1)[0]
         if b" 101 " not in status:
-            raise ConnectionError(f"not a WebSocket upgrade: {head.decode(errors='replace')}")
+            self._sock.settimeout(1.0)
+            with contextlib.suppress(OSError):  # the body, when the server says why
+                self._buffer += self._sock.recv(1 << 16)
+            self._sock.close()
+            answer = (head + b"\r\n\r\n" + self._buffer).decode(errors="replace")
+            raise ConnectionError(f"not a WebSocket upgrade: {answer}")
+        self.subprotocol = next(
+            (
+                line.split(b":", 1)[1].strip().decode()
+                for line in head.split(b"\r\n")
+                if line.lower().startswith(b"sec-websocket-protocol:")
+            ),
+            "",
+        )
         self.channels: dict[int, dict[str, Any]] = {}  # advertised, by channel id
         self.server_info: dict[str, Any] = {}
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
@@ -174,3 +194,59 @@ class FoxgloveClient:
                 channel = self.channels.get(self._subscriptions.get(sub_id, -1))
                 if channel is not None:
                     yield channel, log_time, payload[13:]
+
+
+def app_schema_error(channel: dict[str, Any]) -> str | None:
+    """What the Foxglove app says when it cannot read an advertised JSON channel's schema
+    (None: it reads it), by the rules of its ``parseChannel`` and ``parseJsonSchema``
+    (lichtblick-suite/lichtblick 66adecb, packages/mcap-support/src): JSON messages need a
+    ``jsonschema`` schema (or none) whose root is an object; each property is a ``oneOf`` of
+    numeric ``const`` alternatives, or one ``type`` of boolean, string (no encoding but base64),
+    number, integer, a nested object (same rules), or an array whose ``items`` are one of those
+    (strings without an encoding); anything else, a list of types or ``"null"`` included, is
+    refused."""
+    if channel["encoding"] != "json":
+        return None
+    if channel["schemaEncoding"] != "jsonschema":
+        return f"JSON with schema encoding {channel['schemaEncoding']!r}"
+    if not channel["schema"]:
+        return None
+    schema = json.loads(channel["schema"])
+    if not isinstance(schema, dict):
+        return "schema is not a JSON object"
+    return _object_error(schema, channel["schemaName"])
+
+
+def _object_error(schema: dict[str, Any], path: str) -> str | None:
+    if schema.get("type") != "object":
+        return f'Expected "type": "object" for schema {path}, got {schema.get("type")!r}'
+    for name, field in (schema.get("properties") or {}).items():
+        where = f"{path}.{name}"
+        if isinstance(field.get("oneOf"), list):
+            if not all(isinstance(alt.get("const"), int | float) for alt in field["oneOf"]):
+                return f"Unsupported type for {where}: oneOf alternatives must be numbers"
+            continue
+        kind = field.get("type")
+        if kind in ("boolean", "number", "integer"):
+            continue
+        if kind == "string":
+            if field.get("contentEncoding") not in (None, "base64"):
+                return f"Unsupported contentEncoding {field['contentEncoding']!r} in {where}"
+        elif kind == "object":
+            error = _object_error(field, where)
+            if error:
+                return error
+        elif kind == "array":
+            items = field.get("items") or {}
+            item_kind = items.get("type")
+            if item_kind == "string" and items.get("contentEncoding") is not None:
+                return f"Unsupported contentEncoding for array item {where}"
+            if item_kind == "object":
+                error = _object_error(items, where)
+                if error:
+                    return error
+            elif item_kind not in ("boolean", "string", "number", "integer"):
+                return f"Unsupported type {json.dumps(item_kind)} for array item {where}"
+        else:
+            return f"Unsupported type {json.dumps(kind)} for {where}"
+    return None

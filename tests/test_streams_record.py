@@ -240,7 +240,7 @@ def test_record_serves_foxglove_the_streams_while_recording_every_frame(tmp_path
 
     import cv2
 
-    from tests.foxglove_client import FoxgloveClient
+    from tests.foxglove_client import FoxgloveClient, app_schema_error
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -269,6 +269,8 @@ def test_record_serves_foxglove_the_streams_while_recording_every_frame(tmp_path
             out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert "Foxglove: sent" in out and "frames skipped for the viewer (none for the file)" in out
+    refused = {t: app_schema_error(c) for t, c in channels.items() if app_schema_error(c)}
+    assert not refused, refused  # the Foxglove app reads every channel advertised
     properties = json.loads(channels["/vbfe/streams/robot"]["schema"])["properties"]
     assert set(properties) == {"joint1_position", "joint2_position", "t_device_ns"}
     received = [json.loads(data) for data in got["/vbfe/streams/robot"]]

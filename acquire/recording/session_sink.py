@@ -83,11 +83,11 @@ class SessionSink(Listener):
     """Write every record of an acquisition into the new session file ``path``.
 
     ``streams`` are the specs of streams beyond the core ones (camera, force, projector) that
-    the rig's further devices feed; the rig's LSL streams (devices with an ``info``) are added
-    when it starts. With a :func:`marks_stream` among them, :meth:`mark` puts event marks into
-    the session from any thread. ``on_flush(stats)`` is called after each flush (dispatch
-    thread). The destination is checked (folder, free space, ``overwrite``) when the sink is
-    made.
+    the rig's further devices feed, or :meth:`post` from any thread; the rig's LSL streams
+    (devices with an ``info``) are added when it starts. With a :func:`marks_stream` among
+    them, :meth:`mark` puts event marks into the session from any thread.
+    ``on_flush(stats)`` is called after each flush (dispatch thread). The destination is
+    checked (folder, free space, ``overwrite``) when the sink is made.
     """
 
     def __init__(
@@ -120,8 +120,9 @@ class SessionSink(Listener):
         self._next_flush = self._next_space_check = 0.0
         self._checked_at_bytes = 0
         self._frame_t_device: list[int] = []
-        self._marks: list[Mark] = []
-        self._marks_lock = threading.Lock()
+        self._marks = 0
+        self._posted: list[tuple[str, Sequence[Any]]] = []
+        self._posted_lock = threading.Lock()
 
     @contextlib.contextmanager
     def _writing(self) -> Iterator[None]:
@@ -188,26 +189,44 @@ class SessionSink(Listener):
                 gap.stream, gap.reason, gap.last_seq, gap.next_seq, gap.t_host_ns, gap.count
             )
 
+    def add_stream(self, spec: StreamSpec) -> None:
+        """One more stream to record, fed by :meth:`post` (before the acquisition starts).
+
+        :raises SessionError: the session file is made already."""
+        if hasattr(self, "_writer"):
+            raise SessionError(f"{self.path} is being recorded: streams are added before")
+        self.streams += (spec,)
+
+    def post(self, stream: str, records: Sequence[Any]) -> None:
+        """Records of one of ``streams`` from any thread: written by the dispatch thread within
+        a round, flushed with the frames (posted after the stop: not written).
+
+        :raises SessionError: the session has no such stream."""
+        if stream not in (spec.name for spec in self.streams):
+            raise SessionError(f"{self.path} records no stream {stream!r}")
+        with self._posted_lock:
+            self._posted.append((stream, records))
+
     def mark(self, text: str, t_host_ns: int) -> None:
-        """Put an event mark at host time ``t_host_ns`` into the session (any thread; written
-        by the dispatch thread within a round)."""
+        """Put an event mark at host time ``t_host_ns`` into the session (any thread).
+
+        :raises SessionError: the session records no event marks."""
         if MARKS not in (spec.name for spec in self.streams):
             raise SessionError(f"{self.path} records no event marks (no {MARKS!r} stream)")
-        with self._marks_lock:
-            self._marks.append(Mark(text, len(self._marks), t_host_ns, t_host_ns))
+        with self._posted_lock:
+            self._marks += 1
+            self._posted.append((MARKS, [Mark(text, self._marks - 1, t_host_ns, t_host_ns)]))
 
-    def _write_marks(self) -> None:
-        if MARKS not in self._writer.streams:
-            return
-        with self._marks_lock:
-            written = self._writer.counts.get(MARKS, 0)
-            pending = self._marks[written:]
-        self._writer.append(MARKS, pending)
+    def _write_posted(self) -> None:
+        with self._posted_lock:
+            posted, self._posted = self._posted, []
+        for stream, records in posted:
+            self._writer.append(stream, records)
 
     def on_round(self) -> None:
         writer, stats = self._writer, self._acquisition.stats
         with self._writing():
-            self._write_marks()
+            self._write_posted()
             now = time.monotonic()
             if now >= self._next_flush:  # on the clock: a slow flush does not shift the next
                 self._flush()
@@ -222,7 +241,7 @@ class SessionSink(Listener):
         writer, stats = self._writer, acquisition.stats
         if self._error is None:
             with contextlib.suppress(Exception), self._writing():
-                self._write_marks()
+                self._write_posted()
                 writer.close()
         stats.flushed, stats.bytes_written = dict(writer.flushed_counts), writer.bytes_written
         if self._error is not None:

@@ -7,7 +7,7 @@ from typing import Any
 
 import h5py
 
-from vbfe.acquire.session.estimates import EstimateStream, write_estimates
+from vbfe.acquire.session.estimates import EstimateStream, finish_estimates, write_estimates
 from vbfe.acquire.session.reader import check_session, open_session_file
 from vbfe.common.files import WriterLock
 
@@ -37,3 +37,10 @@ def store_estimates(session_path: str | Path, stream: EstimateStream) -> None:
     with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
         check_session(f, Path(session_path))
         write_estimates(f, stream)
+
+
+def store_estimate_counts(session_path: str | Path, counts: dict[str, Any]) -> None:
+    """Add a live run's counts to the ``/estimate`` stream it wrote into a closed session."""
+    with WriterLock(session_path), open_session_file(session_path, "r+")[0] as f:
+        check_session(f, Path(session_path))
+        finish_estimates(f, counts)

@@ -22,6 +22,7 @@ import numpy as np
 
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.clock import ClockFit, fit_clock
+from vbfe.acquire.session.estimates import GROUP as ESTIMATES
 from vbfe.acquire.session.estimates import EstimateStream, read_estimates
 from vbfe.acquire.session.extra_streams import MARKS, RecordedStream
 from vbfe.acquire.session.h5attrs import plain_attrs, text
@@ -174,7 +175,8 @@ def check_session(f: h5py.File, path: Path) -> None:
         )
 
 
-_KINDS = {"i": "iu", "f": "f", "u": "u", "S": "S", "T": "OST"}  # layout kind -> dtype kinds read
+# layout kind -> dtype kinds read
+_KINDS = {"i": "iu", "f": "f", "u": "u", "b": "b", "S": "S", "T": "OST"}
 
 
 def _check_layout(f: h5py.File, path: Path) -> tuple[str, tuple[StreamSpec, ...]]:
@@ -452,7 +454,7 @@ class SessionReader(ClosedOnExit):
     # -- extra streams (``[streams]``) and event marks ----------------------------------------
     def stream_names(self) -> list[str]:
         """Names of the extra streams recorded with the session (e.g. ``[streams]`` keys)."""
-        return [name for name in self.streams if name not in STREAMS and name != MARKS]
+        return [name for name in self.streams if name not in (*STREAMS, MARKS, ESTIMATES)]
 
     def stream(self, name: str) -> RecordedStream:
         """An extra stream: values or marker text, host and publisher times, channel names and
@@ -608,8 +610,12 @@ class SessionReader(ClosedOnExit):
         return sorted(self._file["truth"]) if "truth" in self._file else []
 
     def estimates(self) -> EstimateStream | None:
-        """The live force estimates stored with the session (schema 2), or ``None``."""
-        return read_estimates(self._file, self.path)
+        """The live force estimates stored with the session (schema 2) of its recorded
+        frames, or ``None``."""
+        group = self._file.get(ESTIMATES)
+        rows = consistent_rows(group) if group is not None and "t_host_ns" in group else 0
+        seqs = self.stream_times(CAMERA)[2][: self.n_frames]
+        return read_estimates(self._file, self.path, seqs, rows)
 
     def analysis(self) -> dict[str, Any]:
         """Results stored by analyses such as verify-sync (``/analysis`` attributes)."""

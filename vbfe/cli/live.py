@@ -178,11 +178,7 @@ def run(args: argparse.Namespace) -> int:
         f"(raw host times, {status.mae_count} estimates)"
     )
     if server is not None:
-        print(
-            f"Foxglove: sent {sum(server.sent.values())} messages; {server.frames_skipped} "
-            f"frames skipped for the viewer, {server.records_dropped} records dropped for the "
-            "viewer"
-        )
+        print(server.summary())
         if server.error:
             print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if args.record:

@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code (2: bad input or a
-    file that cannot be read or written; 130: Ctrl-C; 143: SIGTERM)."""
+    file that cannot be read or written; 130: Ctrl-C; 143: SIGTERM, but for the commands that
+    end on them as on their duration, ``record`` and ``live``, which exit 0)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

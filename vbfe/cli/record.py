@@ -219,11 +219,7 @@ def run(args: argparse.Namespace) -> int:
     )
     _print_stream_accounting(args.output, stats)
     if server is not None:
-        print(
-            f"Foxglove: sent {sum(server.sent.values())} messages; {server.frames_skipped} "
-            f"frames skipped for the viewer (none for the file), {server.records_dropped} "
-            "records dropped for the viewer"
-        )
+        print(server.summary(recording=True))
         if server.error:
             print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if protocol is not None:

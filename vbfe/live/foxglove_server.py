@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from foxglove.websocket import ChannelView, Client, ServerListener
 
 from vbfe.bags import builders
 from vbfe.bags.images import ImageCodec
@@ -61,24 +62,19 @@ def _json_value(value: Any) -> Any:
 
 
 def _json_type(annotation: str) -> dict[str, Any]:
-    """The JSON schema of a record field from its type annotation (numbers, arrays of
-    numbers, strings; anything else: any value)."""
+    """The JSON schema of a record field from its type annotation, in the types the Foxglove
+    app reads (its ``parseJsonSchema``: one type per field, never ``"null"``): numbers,
+    integers, strings, booleans, arrays of numbers. A NaN (or ``None``) goes out as ``null``
+    all the same: the app's decoder passes any JSON value through.
+
+    :raises TypeError: for an annotation of another type (a field the app could not plot)."""
     kinds = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
-    parts = [p.strip() for p in annotation.split("|")]
-    types: list[str] = []
-    for part in parts:
-        if part == "None":
-            types.append("null")
-        elif any(k in part for k in ("ndarray", "tuple", "list", "Sequence")):
-            return {
-                "type": ["array", "null"] if "None" in parts else "array",
-                "items": {"type": ["number", "null"]},
-            }
-        elif part in kinds:
-            types += [kinds[part], "null"] if part == "float" else [kinds[part]]
-        else:
-            return {}
-    return {"type": types[0] if len(types) == 1 else types}
+    parts = [p.strip() for p in annotation.split("|") if p.strip() != "None"]
+    if len(parts) == 1 and any(k in parts[0] for k in ("ndarray", "tuple", "list", "Sequence")):
+        return {"type": "array", "items": {"type": "number"}}
+    if len(parts) == 1 and parts[0] in kinds:
+        return {"type": kinds[parts[0]]}
+    raise TypeError(f"no JSON schema type the Foxglove app reads for {annotation!r}")
 
 
 def estimate_schema() -> dict[str, Any]:
@@ -98,6 +94,35 @@ def estimate_json(estimate: LiveEstimate, target: str) -> dict[str, Any]:
     out["latency_s"] = estimate.latency_s
     out["target"] = target
     return out
+
+
+BACKLOG = 1024  # foxglove-sdk's queue of messages per client (its message_backlog_size)
+STOP_WAIT_S = 2.0  # the longest wait at the end for the clients to take what is queued
+
+
+class _Subscribers(ServerListener):
+    """Which client subscribes to which channel (foxglove-sdk's ``ServerListener`` callbacks,
+    on its threads), and how many messages were handed over for each client."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._by_channel: dict[int, set[int]] = {}
+        self.handed: dict[int, int] = {}  # by client id, in the order they subscribed
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        with self._lock:
+            self._by_channel.setdefault(channel.id, set()).add(client.id)
+            self.handed.setdefault(client.id, 0)
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        with self._lock:
+            self._by_channel.get(channel.id, set()).discard(client.id)
+
+    def count(self, channel_id: int) -> None:
+        """One message logged on the channel: one more for each of its subscribers."""
+        with self._lock:
+            for client in self._by_channel.get(channel_id, ()):
+                self.handed[client] += 1
 
 
 class FoxgloveServer(EstimateOutput):
@@ -126,6 +151,7 @@ class FoxgloveServer(EstimateOutput):
         self.cloud_interval_ns = int(1e9 / cloud_hz)
         self.frames_skipped = self.records_dropped = 0
         self.error: str | None = None  # why the sending thread stopped early
+        self.stalled = False  # a client was still not reading when the server closed
         self.sent: dict[str, int] = {}  # messages sent per topic
         self._frames: Mailbox[StereoFrame] = Mailbox()
         self._clouds: Mailbox[tuple[int, np.ndarray, np.ndarray]] = Mailbox()
@@ -137,6 +163,7 @@ class FoxgloveServer(EstimateOutput):
         self._server: Any = None
         self._context: Any = None
         self._channels: dict[str, Any] = {}
+        self._subscribers = _Subscribers()
         self._stream_labels: dict[str, tuple[str, ...]] = {}
 
     # -- lifecycle --------------------------------------------------------------------------
@@ -152,7 +179,12 @@ class FoxgloveServer(EstimateOutput):
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
-                name="vbfe", host=self.host, port=self.port, context=self._context
+                name="vbfe",
+                host=self.host,
+                port=self.port,
+                context=self._context,
+                server_listener=self._subscribers,
+                message_backlog_size=BACKLOG,
             )
         except Exception as exc:  # noqa: BLE001 - the SDK's own error types vary by version
             raise LiveError(
@@ -187,7 +219,7 @@ class FoxgloveServer(EstimateOutput):
             fields: dict[str, dict[str, Any]] = (
                 {"text": {"type": "string"}}
                 if info.markers
-                else {label: {"type": ["number", "null"]} for label in info.channels}
+                else {label: {"type": "number"} for label in info.channels}
             )
             fields["t_device_ns"] = {"type": "integer"}
             self._channels[STREAM_TOPIC + name] = foxglove.Channel(
@@ -211,12 +243,17 @@ class FoxgloveServer(EstimateOutput):
         )
 
     def on_stop(self, acquisition: Acquisition) -> None:
-        """Stop sending and close the server."""
+        """Stop sending and close the server: foxglove-sdk's ``stop`` waits for every client
+        to take what is queued for it, forever for one that stopped reading, so it is waited
+        for ``STOP_WAIT_S`` at most (then left to end with the process; ``stalled`` set)."""
         self._halt.set()
         if self._thread is not None:
             self._thread.join()
         if self._server is not None:
-            self._server.stop()
+            stopping = threading.Thread(target=self._server.stop, name="vbfe-fox-stop", daemon=True)
+            stopping.start()
+            stopping.join(STOP_WAIT_S)
+            self.stalled = stopping.is_alive()
             self._server = None
         self.frames_skipped = self._frames.skipped
 
@@ -280,8 +317,30 @@ class FoxgloveServer(EstimateOutput):
                 self._send_record(kind, item)
 
     def _log(self, topic: str, t_ns: int, data: Any) -> None:
-        self._channels[topic].log(data, log_time=int(t_ns))
+        channel = self._channels[topic]
+        channel.log(data, log_time=int(t_ns))
         self.sent[topic] = self.sent.get(topic, 0) + 1
+        self._subscribers.count(channel.id())
+
+    def summary(self, recording: bool = False) -> str:
+        """The closing line: messages sent, each client's share, what was skipped or dropped
+        for the viewer (``recording``: none for the file). foxglove-sdk queues at most
+        ``BACKLOG`` messages per client and drops the oldest for one that reads slower,
+        without telling how many: a client's share is what it was handed, not what it got."""
+        clients = self._subscribers.handed
+        per_client = (
+            " (" + ", ".join(f"client {c}: {n}" for c, n in clients.items()) + ")"
+            if clients
+            else ""
+        )
+        return (
+            f"Foxglove: sent {sum(self.sent.values())} messages{per_client}; a client that "
+            f"reads slower loses the oldest beyond {BACKLOG} queued (foxglove-sdk does not "
+            f"count them); {self.frames_skipped} frames skipped for the viewer"
+            + (" (none for the file)" if recording else "")
+            + f", {self.records_dropped} records dropped for the viewer"
+            + ("; a client that stopped reading was left behind at the end" if self.stalled else "")
+        )
 
     def _send(self, topic: str, msgtype: str, t_ns: int, message: Any) -> None:
         self._log(topic, t_ns, builders.cdr(message, msgtype))

@@ -2,7 +2,9 @@
 the trocar's samples to a short history; the estimates come out with their latency and error.
 
 With a session path the acquisition is a recorder (the rig is recorded as by ``vbfe record``)
-and the estimate stream is stored in the session when the run ends.
+and each estimate goes into the session's ``/estimate`` stream as it comes, flushed with the
+frames (a recorder that dies keeps them up to its last flush); the run's counts are added
+when it ends.
 """
 
 from __future__ import annotations
@@ -19,16 +21,20 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vbfe.acquire import Acquisition, EstimateStream, Listener, SessionReader, store_estimates
+from vbfe.acquire import Acquisition, Listener, SessionReader
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
+from vbfe.acquire.session.annotate import store_estimate_counts
+from vbfe.acquire.session.estimates import GROUP as ESTIMATES
+from vbfe.acquire.session.estimates import EstimateRecord, estimate_stream_spec
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.acquire.session.layout import CAMERA
 from vbfe.calib.calibration import Calibration
 from vbfe.common.config import section
 from vbfe.common.errors import LiveError
+from vbfe.common.signals import Terminated
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
@@ -174,7 +180,8 @@ def live_run(
 class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
     itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
-    recorded). The estimator's stages run as a :class:`Pipeline`, each on its own thread.
+    recorded, each estimate into its ``/estimate`` stream as it comes). The estimator's stages
+    run as a :class:`Pipeline`, each on its own thread.
 
     A frame that reaches the run more than ``max_frame_age_s`` after its capture (0: no
     limit) is skipped: the acquisition is behind (a recorder short of CPU), and estimating
@@ -196,6 +203,16 @@ class LiveRun(Listener):
             acquisition.add(output)
         self.outputs = tuple(outputs)
         self.acquisition = acquisition
+        if isinstance(acquisition, Recorder):
+            settings = {
+                "target": estimator.model.config.target,
+                "outputs": estimator.model.config.n_outputs,
+                "scale": estimator.scale,
+                "row_scale": estimator.row_scale,
+                "model": model_name,
+            }
+            outputs_n = estimator.model.config.n_outputs
+            acquisition.sink.add_stream(estimate_stream_spec(outputs_n, STAGES, settings))
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
         self._pipeline = Pipeline(self._stages(), self._record)
@@ -251,7 +268,7 @@ class LiveRun(Listener):
         if recorder is not None and self.error is None:
             with SessionReader(recorder.path) as reader:
                 recorded = reader.stream_times(CAMERA)[2][: reader.n_frames]
-            store_estimates(recorder.path, self.stream(status, recorded))
+            store_estimate_counts(recorder.path, self.counts(status, recorded))
         return status
 
     def mark(self, text: str) -> bool:
@@ -286,10 +303,13 @@ class LiveRun(Listener):
         value = self._scalars(estimate.force_n[None])[0]
         with self._lock:
             self.estimates.append(estimate)
+            count = len(self.estimates)
             self._trocar_at_estimates.append(trocar)
             if np.isfinite(value) and np.isfinite(trocar):
                 self._abs_error_sum += abs(value - trocar)
                 self._abs_error_count += 1
+        if isinstance(self.acquisition, Recorder):
+            self.acquisition.sink.post(ESTIMATES, [EstimateRecord(estimate, count - 1)])
         for output in self.outputs:
             output.on_estimate(estimate)
 
@@ -380,36 +400,19 @@ class LiveRun(Listener):
             np.array([e.ood for e in estimates], bool),
         )
 
-    def stream(self, status: LiveStatus, recorded_seqs: np.ndarray) -> EstimateStream:
-        """The estimates of the recorded frames as the session's ``/estimate`` stream (a
-        frame past the recording's end, or lost by the recorder, keeps no estimate)."""
+    def counts(self, status: LiveStatus, recorded_seqs: np.ndarray) -> dict[str, Any]:
+        """What the run's ``/estimate`` stream adds at the end: frames seen, estimated and
+        skipped, the estimates of frames the recording does not hold (past its end, or lost
+        by the recorder: not read back), the running error."""
         with self._lock:
-            kept = np.isin([e.frame_seq for e in self.estimates], recorded_seqs)
-            estimates = [e for e, k in zip(self.estimates, kept, strict=False) if k]
-        outputs = self.estimator.model.config.n_outputs
-        return EstimateStream(
-            force_n=np.array([e.force_n for e in estimates], np.float64).reshape(-1, outputs),
-            frame_seq=np.array([e.frame_seq for e in estimates], np.int64),
-            t_frame_host_ns=np.array([e.t_frame_host_ns for e in estimates], np.int64),
-            t_ready_host_ns=np.array([e.t_ready_host_ns for e in estimates], np.int64),
-            stage_s=np.array([e.stage_s for e in estimates], np.float64).reshape(-1, len(STAGES)),
-            lo_n=np.array([e.lo_n for e in estimates], np.float64).reshape(-1, outputs),
-            hi_n=np.array([e.hi_n for e in estimates], np.float64).reshape(-1, outputs),
-            ood=np.array([e.ood for e in estimates], bool),
-            stages=list(STAGES),
-            attrs={
-                "target": self.target,
-                "outputs": outputs,
-                "frames_seen": status.frames,
-                "estimated": status.estimates,
-                "of_unrecorded_frames": int((~kept).sum()),
-                "skipped_frames": status.skipped,
-                "scale": self.estimator.scale,
-                "row_scale": self.estimator.row_scale,
-                "running_mae_n": status.mae_n,
-                "model": self.model_name,
-            },
-        )
+            seqs = [e.frame_seq for e in self.estimates]
+        return {
+            "frames_seen": status.frames,
+            "estimated": status.estimates,
+            "of_unrecorded_frames": int((~np.isin(seqs, recorded_seqs)).sum()),
+            "skipped_frames": status.skipped,
+            "running_mae_n": status.mae_n,
+        }
 
 
 def run_headless(
@@ -418,8 +421,9 @@ def run_headless(
     on_status: Callable[[LiveStatus], None],
     interval_s: float = 1.0,
 ) -> LiveStatus:
-    """Wait until ``duration_s`` (wall clock), the end of the recording, or Ctrl-C, reporting
-    the status every ``interval_s``; then stop the run."""
+    """Wait until ``duration_s`` (wall clock), the end of the recording, Ctrl-C or SIGTERM
+    (the run's normal ends: the session is finished), reporting the status every
+    ``interval_s``; then stop the run."""
     reason = "duration reached"
     try:
         next_report = time.monotonic() + interval_s
@@ -430,6 +434,8 @@ def run_headless(
             if time.monotonic() >= next_report:
                 on_status(run.status())
                 next_report += interval_s
+    except Terminated:
+        reason = "stopped by SIGTERM"
     except KeyboardInterrupt:
         reason = "stopped by operator"
     return run.stop(reason)
