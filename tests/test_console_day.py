@@ -154,7 +154,8 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
     before, after = sync.outcome.report, sync.outcome.after
     assert before.verdict == "FAIL"  # the bench's 37 ms image-force offset, uncorrected
     measured = sync.outcome.applied.correction_s
-    assert before.estimate.offset_s == pytest.approx(0.037, abs=0.001)
+    low, high = before.estimate.ci95_s
+    assert low <= 0.037 <= high and high - low < 0.01  # its 95 % interval holds the truth
     assert measured == before.estimate.offset_s  # what was applied is what was measured
     assert abs(after.estimate.offset_s) < 0.001  # the correction removed the offset
     if after.verdict != "PASS":  # only when an overloaded machine made the bench drop frames
