@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -221,14 +222,19 @@ def grab_png(widget: QtWidgets.QWidget, path: str | Path) -> Path:
     return Path(path)
 
 
-def exec_until_closed(app: QtWidgets.QApplication, window: QtWidgets.QWidget) -> int:
-    """Run the event loop until the window closes, Ctrl-C or SIGTERM (which close it; a timer
-    hands control back to Python regularly so that its signal handlers run)."""
+def exec_until_closed(
+    app: QtWidgets.QApplication,
+    window: QtWidgets.QWidget,
+    close: Callable[[], object] | None = None,
+) -> int:
+    """Run the event loop until the window closes, Ctrl-C or SIGTERM (which close it with
+    ``close``, default ``window.close``; a timer hands control back to Python regularly so
+    that its signal handlers run)."""
     handlers = {}
+    close = close or window.close
     if threading.current_thread() is threading.main_thread():
         handlers = {
-            sig: signal.signal(sig, lambda *_: window.close())
-            for sig in (signal.SIGINT, signal.SIGTERM)
+            sig: signal.signal(sig, lambda *_: close()) for sig in (signal.SIGINT, signal.SIGTERM)
         }
     wake = QtCore.QTimer()
     wake.timeout.connect(lambda: None)

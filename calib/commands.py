@@ -65,6 +65,31 @@ def board_spec(config: Config, **overrides: Any) -> BoardSpec:
     return BoardSpec.from_config(table)
 
 
+def set_board(config: Config, spec: BoardSpec) -> None:
+    """Put ``spec`` into the config's ``[calib]`` table (:meth:`BoardSpec.calib_table`)."""
+    config.setdefault("calib", {}).update(spec.calib_table())
+
+
+def board_scene(config: Config) -> Config:
+    """``config`` with the simulated bench showing the ``[calib]`` board (moved by hand), as
+    capturing views needs; a rig whose camera is not simulated is returned unchanged."""
+    if section(config, "camera").get("backend") != "sim":
+        return config
+    spec = board_spec(config)
+    bench = {
+        **section(config, "bench"),
+        "scene": "board",
+        "board": spec.target,
+        "board_squares_x": spec.squares_x,
+        "board_squares_y": spec.squares_y,
+        "board_square_mm": spec.square_m * 1e3,
+        "board_marker_mm": spec.marker_m * 1e3,
+        "board_dictionary": spec.dictionary,
+        "board_legacy": spec.legacy,
+    }
+    return {**config, "bench": bench}
+
+
 def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[Path, Path]:
     """Write the printable board (PNG and true-scale PDF)."""
     spec = board_spec(config, **overrides)

@@ -264,3 +264,25 @@ class WriterLock:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+def stale_locks(folder: str | Path) -> list[tuple[Path, str]]:
+    """The files in ``folder`` whose :class:`WriterLock` was left behind by a writer that
+    died (killed, power lost) without releasing it: (the file, the dead holder's PID)."""
+    stale: list[tuple[Path, str]] = []
+    for lock_path in sorted(Path(folder).glob(f".*{LOCK_SUFFIX}")):
+        try:
+            fd = os.open(lock_path, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue  # held: its writer is alive
+        else:
+            holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
+            name = lock_path.name[1 : -len(LOCK_SUFFIX)]
+            stale.append((lock_path.with_name(name), holder))
+        finally:
+            os.close(fd)
+    return stale

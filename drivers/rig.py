@@ -10,6 +10,7 @@ shares one bench): that state is a :class:`SharedBackend`, which adds its descri
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -146,6 +147,15 @@ class Rig(ClosedOnExit):
             out.update(shared.describe())
         out["devices"] = {name: d.describe() for name, d in self.devices.items()}
         return out
+
+    def host_now_ns(self) -> int:
+        """Now on the host clock the devices stamp samples with (a simulator not run in real
+        time keeps its own), e.g. for an event mark put in by the operator."""
+        for backend in self.shared:
+            clock = getattr(backend, "host_now_ns", None)
+            if clock is not None:
+                return int(clock())
+        return time.monotonic_ns()
 
     def open(self) -> None:
         """Open every device (idempotent); if one fails, close those opened and re-raise.

@@ -80,6 +80,10 @@ def _summary(page: HtmlReport, r: SessionReader) -> None:
             ("status", status),
             ("started", _utc(int(a.get("start_utc_ns") or 0))),
             ("operator / notes", f"{meta.get('operator') or '-'} / {meta.get('notes') or '-'}"),
+            (
+                "participant / task",
+                f"{meta.get('participant') or '-'} / {meta.get('task') or '-'}",
+            ),
             ("duration", f"{duration:.2f} s"),
             (
                 "frames",
@@ -118,13 +122,27 @@ def _force(page: HtmlReport, r: SessionReader, t0: int) -> None:
     for x in drops:
         ax.axvline(x, color="orange", lw=1, alpha=0.8)
     gaps = [g for g in r.gaps() if g["stream"] in ("force", "camera")]
-    host0 = r.stream_times("force")[1][0] - (t[0] - t0)  # host time of the plot's zero
+    host0 = plot_zero_host_ns(r, t0)
     for g in gaps:
         ax.axvspan(
             (g["t_host_ns"] - host0) / 1e9,
             (g["t_host_ns"] - host0) / 1e9 + 0.02,
             color="red",
             alpha=0.4,
+        )
+    marks = marker_times_s(r, host0)
+    for x, label in marks:
+        ax.axvline(x, color="purple", lw=1.2, ls="--")
+        ax.annotate(
+            label,
+            (x, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(3, -3),
+            textcoords="offset points",
+            rotation=90,
+            va="top",
+            fontsize=7,
+            color="purple",
         )
     ax.set_xlabel("time since the first frame (s)")
     ax.set_ylabel("force (N)")
@@ -133,9 +151,25 @@ def _force(page: HtmlReport, r: SessionReader, t0: int) -> None:
     fig.tight_layout()
     page.inline_image(
         png_bytes(fig),
-        f"trocar force; orange lines: {len(drops)} sequence "
-        f"drops ({audit.dropped} samples), red bands: {len(gaps)} recorder gaps",
+        f"trocar force; purple dashed lines: {len(marks)} markers, orange lines: {len(drops)} "
+        f"sequence drops ({audit.dropped} samples), red bands: {len(gaps)} recorder gaps",
     )
+
+
+def plot_zero_t0_ns(r: SessionReader) -> int:
+    """The plots' time zero: the first frame (or force sample) on the session's clock."""
+    frame_t, force_t = r.frame_times_ns(), r.force_times_ns()
+    return int(frame_t[0]) if len(frame_t) else int(force_t[0]) if len(force_t) else 0
+
+
+def plot_zero_host_ns(r: SessionReader, t0: int) -> int:
+    """The host time of the force plot's zero ``t0``."""
+    return int(r.stream_times("force")[1][0] - (r.force_times_ns()[0] - t0))
+
+
+def marker_times_s(r: SessionReader, host0_ns: int) -> list[tuple[float, str]]:
+    """The session's event marks as (seconds after host time ``host0_ns``, text)."""
+    return [((e["t_host_ns"] - host0_ns) / 1e9, e["text"]) for e in r.events()]
 
 
 def _frames(page: HtmlReport, r: SessionReader, t0: int) -> None:
@@ -454,8 +488,7 @@ def session_page(session_path: str | Path, clouds_path: str | Path | None = None
     clouds = Path(clouds_path) if clouds_path is not None else sidecar_path(session_path)
     with SessionReader(session_path) as r:
         page = HtmlReport(f"Session {Path(session_path).name}")
-        frame_t, force_t = r.frame_times_ns(), r.force_times_ns()
-        t0 = int(frame_t[0]) if len(frame_t) else int(force_t[0]) if len(force_t) else 0
+        t0 = plot_zero_t0_ns(r)
         page.heading("Summary")
         _summary(page, r)
         _force(page, r, t0)

@@ -32,6 +32,10 @@ class SimBackend:
         self.bench = SimBench.from_config(table)
         self.truth = self.bench
 
+    def host_now_ns(self) -> int:
+        """Now on the bench's host clock (simulated when not in real time)."""
+        return self.bench.host_now_ns()
+
     def describe(self) -> dict[str, Any]:
         """The trial's conditions and the bench's description (enough to rebuild it)."""
         return {"conditions": self.bench.conditions(), "bench": self.bench.describe()}

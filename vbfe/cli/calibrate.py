@@ -20,9 +20,17 @@ from vbfe.calib.export import FORMATS
 from vbfe.calib.rectify import ZERO_DISPARITY
 from vbfe.calib.report import gate_lines, summary_rows
 from vbfe.calib.views import NAMING_RULES
-from vbfe.cli.common import add_config_option, config_from, positive, progress
+from vbfe.cli.common import (
+    add_config_option,
+    add_settle_option,
+    check_settle,
+    config_from,
+    positive,
+    progress,
+    rig_from,
+    settle_values,
+)
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import read_toml, section
 from vbfe.common.errors import CalibrationError
 
 _BOARD_KEYS = (
@@ -210,11 +218,9 @@ def _settings(args: argparse.Namespace) -> dict[str, Any]:
     given = {key: getattr(args, key, None) for key in _GATE_FLAGS}
     if getattr(args, "fix_k3", None):
         given["fix_k3"] = True
-    config = getattr(args, "config", None)
-    if given.get("nominal_baseline_mm") is None and config is not None:
-        given["nominal_baseline_mm"] = (
-            read_toml(config, "rig config").get("calib", {}).get("nominal_baseline_mm")
-        )
+    rig = rig_from(args)
+    if given.get("nominal_baseline_mm") is None and rig.set_by_file("calib", "nominal_baseline_mm"):
+        given["nominal_baseline_mm"] = rig.calib.nominal_baseline_mm
     return {key: value for key, value in given.items() if value is not None}
 
 
@@ -355,6 +361,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
+    add_settle_option(p, "the calibration's path and its board ([calib])")
     p.add_argument(
         "--store-in", metavar="SESSION.h5", help="also store the calibration inside this session"
     )
@@ -600,6 +607,7 @@ def _check_session_target(path: str) -> None:
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary; every destination is checked before the work."""
     out = Path(args.out)
+    check_settle(args)
     reports = [] if args.no_report else [out.with_suffix(".png"), out.with_suffix(".html")]
     check_outputs(
         [out, *reports],
@@ -660,6 +668,15 @@ def run_stereo(args: argparse.Namespace) -> int:
     _print_solve_notes(
         result.dropped, result.calibration.info["rejected_corners"], None
     )  # a weak result is noted in the summary rows
+    settle_values(
+        args,
+        {
+            "calib": {
+                "calibration": str(Path(outcome.yaml_path).resolve()),
+                **commands.board_spec(config, **board).calib_table(),
+            }
+        },
+    )
     return 0
 
 
@@ -753,15 +770,13 @@ def run_color(args: argparse.Namespace) -> int:
     """Project flat colours, fit the crosstalk model and store it in the calibration."""
     from vbfe.acquire import frame_feed
     from vbfe.calib.calibration import load_calibration
-    from vbfe.calib.options import calib_settings
     from vbfe.drivers.registry import open_rig
     from vbfe.recon.color import capture_color_model
 
     _check_update(args, [])
     calibration = load_calibration(args.calibration)
-    config = config_from(args)
-    settle_s = calib_settings(section(config, "calib")).projector_settle_s
-    rig = open_rig(config, families=("camera", "projector"))
+    settle_s = rig_from(args).calib.projector_settle_s
+    rig = open_rig(rig_from(args).tables, families=("camera", "projector"))
     with frame_feed(rig) as frames:
         model = capture_color_model(frames, rig.projector, frames=args.frames, settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)

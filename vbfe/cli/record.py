@@ -16,7 +16,7 @@ from vbfe.acquire.recording.remote import (
 )
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.layout import COMPRESSIONS
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, config_from, progress, rig_from
 from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
@@ -61,7 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--calib",
         metavar="CALIB.yaml",
         default=None,
-        help="calibration file to store with the session",
+        help="calibration file to store with the session (default: the rig's [calib] "
+        "calibration, when it settles one)",
     )
     parser.add_argument(
         "--tare",
@@ -151,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
             "name the new session file (SESSION.h5), or wait for remote-control "
             "commands with --remote PORT"
         )
+    args.calib = args.calib or rig_from(args).calib.calibration or None  # the rig's settled one
     check_outputs(
         [args.output] if args.output else [], [args.calib], args.overwrite, writes="session"
     )
@@ -201,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
             calibration_name=args.calib,
             on_warning=lambda w: bar.write(f"vbfe record: warning: {w}", file=sys.stderr),
             listeners=(server,) if server is not None else (),
+            rig_source=rig_from(args).banner(),
         )
         show(stats)
     finally:
@@ -256,6 +259,7 @@ def _run_remote(
         calibration_size=calibration_size,
         calibration_name=args.calib,
         overwrite=args.overwrite,
+        rig_source=rig_from(args).banner(),
     )
     sessions = RemoteSessions(begin, args.overwrite, on_message=lambda m: print(m, flush=True))
     server = RemoteControl(sessions, args.remote, args.remote_bind)

@@ -8,8 +8,9 @@ from pathlib import Path
 from vbfe.acquire.sync.check import FAIL, PASS, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.common import add_config_option, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.rig_config import settle
 
 EXIT_CODES = {PASS: 0, FAIL: 1}  # anything else (INCONCLUSIVE): 3
 
@@ -60,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.common.errors import BatchError
 
-    config = config_from(args)
-    limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
+    rig = rig_from(args)
+    limits, settings = SyncLimits.from_record(rig.record), ProtocolSettings.from_record(rig.record)
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
@@ -76,8 +77,15 @@ def run(args: argparse.Namespace) -> int:
         )
         print(report.text())
         if args.apply:
+            written = settle(
+                rig_from(args),
+                {"record": {"frame_time_correction_s": round(report.correction_s, 6)}},
+            )
             print(
-                f"rig config  add to [record] of your rig.toml so new sessions are corrected: "
+                written.text()
+                if written is not None
+                else "rig config  no rig file to keep it in (vbfe rig init writes one); add to "
+                f"[record] of your rig.toml so new sessions are corrected: "
                 f"{report.config_suggestion()}"
             )
         return EXIT_CODES.get(report.verdict, 3)
@@ -93,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if plot:
         check_outputs([plot], sessions, args.overwrite)
-    executor, address = batch_settings(args, config.get("batch", {}))
+    executor, address = batch_settings(args, rig.batch)
     task = VerifySyncTask(
         limits=dict(limits.__dict__),
         settings=dict(settings.__dict__),

@@ -44,6 +44,7 @@ class HeadlessRun:
 
     def __init__(self, window: ConsoleWindow, plan: Headless, record: Path | None) -> None:
         self.window, self.plan, self.record = window, plan, record
+        window.confirm_close = False  # nobody to ask: the run closes the window itself
         self.code = 0
         self.finished: Finished | None = None
         self.shot: set[str] = set()
@@ -117,7 +118,7 @@ def run_console(
         )
     else:
         window.rig_op(station.go_live, what="opening the rig")
-    exec_until_closed(app, window)
+    exec_until_closed(app, window, window.close_now)
     code = driver.code if driver is not None else 0
     dispose_widget(window)
     return code, window

@@ -1,6 +1,8 @@
-"""Calibrate tab: board views captured from the live frames with the detected corners drawn,
-the coverage bars and map, why views were rejected, the kept count; Calibrate runs the stereo
-calibration off the UI thread and shows RMS, per-view error and the GO/NO-GO against the stored
+"""Calibrate tab: the board (ChArUco or chessboard) and the views folder (captured here or
+any layout ``calibrate stereo`` takes), swap eyes, fixed intrinsics; board views captured from
+the live frames (the simulated bench shows the board by itself) with the detected corners and
+the coverage map; Calibrate runs the stereo calibration off the UI thread and shows RMS, the
+report's per-view error, coverage and uncertainty figures and the GO/NO-GO against the stored
 calibration; the YAML is written under the CLI's output policy."""
 
 from __future__ import annotations
@@ -8,49 +10,189 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
-import pyqtgraph as pg
-from pyqtgraph.Qt import QtGui, QtWidgets
+from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
+from vbfe.calib.board import TARGETS, BoardSpec
 from vbfe.calib.capture import annotate, coverage_text
+from vbfe.calib.commands import board_spec, set_board
 from vbfe.calib.report import gate_lines, summary_rows
+from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
 from vbfe.console.desks import CalibrationOutcome, LiveCapture, calibrate
-from vbfe.console.widgets import ImagePane, Tab, form, value_label
+from vbfe.console.widgets import ImagePane, Tab, form, value_label, with_picker
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
+DICTIONARIES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+_CELL_PX = 60  # the coverage map's cells as drawn
+
+
+def coverage_picture(grid: np.ndarray) -> np.ndarray:
+    """The capture's coverage grid (kept corners per image region) as a BGR picture with the
+    count written in each cell (red: none yet)."""
+    rows, cols = grid.shape
+    level = (255 * grid / max(int(grid.max()), 1)).astype(np.uint8)
+    big = np.kron(level, np.ones((_CELL_PX, _CELL_PX), np.uint8))
+    picture = cv2.applyColorMap(255 - big, cv2.COLORMAP_BONE)
+    for (r, c), n in np.ndenumerate(grid):
+        cv2.putText(
+            picture,
+            str(int(n)),
+            (c * _CELL_PX + 8, r * _CELL_PX + 38),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.8,
+            (0, 0, 200) if n == 0 else (0, 0, 0),
+            2,
+        )
+    cv2.rectangle(picture, (0, 0), (cols * _CELL_PX - 1, rows * _CELL_PX - 1), (0, 0, 0), 1)
+    return picture
+
+
+class BoardForm(QtWidgets.QWidget):
+    """The ``[calib]`` board as fields: target, squares (with the inner corners a chessboard's
+    detector counts), square and marker size, dictionary; every change goes into the rig
+    config (a bad value: a message naming the field)."""
+
+    def __init__(self, tab: CalibrateTab) -> None:
+        super().__init__()
+        self.tab = tab
+        spec = board_spec(tab.station.config)
+        self.target = QtWidgets.QComboBox()
+        self.target.addItems(TARGETS)
+        self.target.setCurrentText(spec.target)
+        self.squares_x, self.squares_y = QtWidgets.QSpinBox(), QtWidgets.QSpinBox()
+        for count, n in ((self.squares_x, spec.squares_x), (self.squares_y, spec.squares_y)):
+            count.setRange(2, 99)
+            count.setValue(n)
+        self.corners = QtWidgets.QLabel()
+        self.square_mm, self.marker_mm = QtWidgets.QDoubleSpinBox(), QtWidgets.QDoubleSpinBox()
+        for size, metres in ((self.square_mm, spec.square_m), (self.marker_mm, spec.marker_m)):
+            size.setRange(0.01, 1000.0)
+            size.setDecimals(3)
+            size.setSuffix(" mm")
+            size.setValue(metres * 1e3)
+        self.dictionary = QtWidgets.QComboBox()
+        self.dictionary.addItems(DICTIONARIES)
+        self.dictionary.setCurrentText(spec.dictionary)
+        self.min_views = QtWidgets.QSpinBox()
+        self.min_views.setRange(1, 999)
+        self.min_views.setValue(int(section(tab.station.config, "calib")["min_views"]))
+        squares = QtWidgets.QHBoxLayout()
+        squares.addWidget(self.squares_x)
+        squares.addWidget(QtWidgets.QLabel("×"))
+        squares.addWidget(self.squares_y)
+        squares.addWidget(self.corners, 1)
+        squares_row = QtWidgets.QWidget()
+        squares_row.setLayout(squares)
+        squares.setContentsMargins(0, 0, 0, 0)
+        layout = form(
+            [
+                ("board", self.target),
+                ("squares", squares_row),
+                ("square size", self.square_mm),
+                ("marker size (ChArUco)", self.marker_mm),
+                ("dictionary (ChArUco)", self.dictionary),
+                ("fewest views", self.min_views),
+            ]
+        )
+        self.setLayout(layout)
+        self.target.currentTextChanged.connect(self.changed)
+        self.dictionary.currentTextChanged.connect(self.changed)
+        for box in (self.squares_x, self.squares_y, self.square_mm, self.marker_mm, self.min_views):
+            box.valueChanged.connect(self.changed)
+        self.changed()
+
+    def spec(self) -> BoardSpec:
+        """The board the fields describe (validated: a bad value raises, naming it)."""
+        return BoardSpec(
+            squares_x=self.squares_x.value(),
+            squares_y=self.squares_y.value(),
+            square_m=self.square_mm.value() * 1e-3,
+            marker_m=self.marker_mm.value() * 1e-3,
+            dictionary=self.dictionary.currentText(),
+            legacy=bool(section(self.tab.station.config, "calib").get("legacy", False)),
+            target=self.target.currentText(),
+        )
+
+    def set_spec(self, spec: BoardSpec) -> None:
+        """Show ``spec`` in the fields (and so in the config)."""
+        self.target.setCurrentText(spec.target)
+        self.squares_x.setValue(spec.squares_x)
+        self.squares_y.setValue(spec.squares_y)
+        self.square_mm.setValue(spec.square_m * 1e3)
+        self.marker_mm.setValue(spec.marker_m * 1e3)
+        self.dictionary.setCurrentText(spec.dictionary)
+
+    def changed(self) -> None:
+        """Put the fields into the rig config's ``[calib]``; say what is wrong with them."""
+        charuco = self.target.currentText() == "charuco"
+        self.marker_mm.setEnabled(charuco)
+        self.dictionary.setEnabled(charuco)
+        nx, ny = self.squares_x.value() - 1, self.squares_y.value() - 1
+        self.corners.setText(
+            f"inner corners = squares − 1: {nx} × {ny}"
+            + ("" if charuco else " (what a chessboard detector counts, e.g. 9 × 6)")
+        )
+        config = self.tab.station.config
+        config.setdefault("calib", {})["min_views"] = self.min_views.value()
+        try:
+            set_board(config, self.spec())
+        except VbfeError as exc:
+            self.tab.console.message(f"board: {exc}", True)
+
 
 class CalibrateTab(Tab):
-    """Capture controls over the annotated view and the coverage map; the result below."""
+    """Board and folder settings, capture controls over the annotated view and the coverage
+    map, or the calibration's report figures; the result's numbers below."""
 
     def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         out = console.options.out_dir
         layout = QtWidgets.QVBoxLayout(self)
+        settings = QtWidgets.QHBoxLayout()
         self.folder = QtWidgets.QLineEdit(str(out / "calib-views"))
-        self.out = QtWidgets.QLineEdit(str(out / "endoscope.yaml"))
-        layout.addLayout(form([("views folder", self.folder), ("calibration file", self.out)]))
-        panes = QtWidgets.QHBoxLayout()
-        self.view = ImagePane(1)
-        panes.addWidget(self.view, 3)
-        self.map_widget = pg.GraphicsLayoutWidget()
-        self.map_widget.addLabel("coverage map: kept corners per region of the image")
-        self.map_widget.nextRow()
-        self.map_view = self.map_widget.addViewBox(lockAspect=True, invertY=True, enableMouse=False)
-        self.map_image = pg.ImageItem(axisOrder="row-major")
-        self.map_view.addItem(self.map_image)
-        self.map_widget.nextRow()
-        self.sigma_label = self.map_widget.addLabel("depth uncertainty: calibrate to see it")
-        self.map_widget.nextRow()
-        self.sigma_view = self.map_widget.addViewBox(
-            lockAspect=True, invertY=True, enableMouse=False
+        self.folder.setToolTip(
+            "captured views, or any folder 'calibrate stereo' takes: left/NAME + right/NAME, "
+            "NAME_left + NAME_right, leftNN + rightNN, ..."
         )
-        self.sigma_image = pg.ImageItem(axisOrder="row-major")
-        self.sigma_view.addItem(self.sigma_image)
-        panes.addWidget(self.map_widget, 2)
-        layout.addLayout(panes, 3)
+        self.out = QtWidgets.QLineEdit(str(out / "endoscope.yaml"))
+        self.swap_eyes = QtWidgets.QCheckBox("swap eyes (the files' left is the right eye)")
+        self.left_camera, self.right_camera = QtWidgets.QLineEdit(), QtWidgets.QLineEdit()
+        for edit in (self.left_camera, self.right_camera):
+            edit.setPlaceholderText("none: solved with the stereo pair")
+        settings.addLayout(
+            form(
+                [
+                    ("views folder", with_picker(self.folder, "folder", "views folder")),
+                    ("calibration file", with_picker(self.out, "save", "calibration file")),
+                    ("", self.swap_eyes),
+                    ("fixed intrinsics, left", with_picker(self.left_camera, "open")),
+                    ("fixed intrinsics, right", with_picker(self.right_camera, "open")),
+                ]
+            ),
+            3,
+        )
+        self.board = BoardForm(self)
+        settings.addWidget(self.board, 2)
+        layout.addLayout(settings)
+        self.pages = QtWidgets.QStackedWidget()  # capture (preview, coverage) or report
+        panes = QtWidgets.QWidget()
+        pane_layout = QtWidgets.QHBoxLayout(panes)
+        pane_layout.setContentsMargins(0, 0, 0, 0)
+        self.view = ImagePane(1)
+        pane_layout.addWidget(self.view, 3)
+        self.map_view = ImagePane(1)  # coverage: kept corners per region of the image
+        pane_layout.addWidget(self.map_view, 2)
+        self.pages.addWidget(panes)
+        self.figures = QtWidgets.QLabel()  # the report's figures at their own size
+        report_scroll = QtWidgets.QScrollArea()
+        report_scroll.setWidget(self.figures)
+        report_scroll.setWidgetResizable(True)
+        self.pages.addWidget(report_scroll)
+        layout.addWidget(self.pages, 4)
         buttons = QtWidgets.QHBoxLayout()
         self.capture_button = QtWidgets.QPushButton("Capture views")
         self.capture_button.setCheckable(True)
@@ -82,8 +224,7 @@ class CalibrateTab(Tab):
             return
         folder = Path(self.folder.text().strip())
         try:
-            if self.capture is None or self.capture.folder != folder:
-                self.capture = LiveCapture(self.station.config, folder)
+            self.capture = LiveCapture(self.station.config, folder)  # the board as set now
         except VbfeError as exc:
             self.console.message(f"cannot capture: {exc}", True)
             self.capture_button.setChecked(False)
@@ -93,10 +234,13 @@ class CalibrateTab(Tab):
             self.capture_button.setChecked(False)
             return
         # the board is seen in room light: the live view restarts with the projector dark
+        # (the simulated bench shows the board)
         self._starting = True
+        self.pages.setCurrentIndex(0)
         self.console.rig_op(
             self.station.go_live,
             False,
+            True,
             on_done=self._start_capture,
             what="opening the rig",
             on_error=self._capture_failed,
@@ -104,6 +248,11 @@ class CalibrateTab(Tab):
 
     def _start_capture(self, _: None) -> None:
         self._starting = False
+        if self.station.board_scene:
+            self.console.message(
+                "simulated bench: it shows the board set on this tab while capturing "
+                "(the Rig tab's Open rig shows the tissue again)"
+            )
         if self.capture is not None and self.capture_button.isChecked():
             self.capture.start(self.station.latest)
 
@@ -118,24 +267,49 @@ class CalibrateTab(Tab):
         if self.capture_button.isChecked():
             self.capture_button.setChecked(False)
 
+    def intrinsics(self) -> tuple[Path, Path] | None:
+        """The fixed intrinsics' camera files (left, right), or ``None`` to solve them."""
+        left, right = self.left_camera.text().strip(), self.right_camera.text().strip()
+        if not left and not right:
+            return None
+        if not (left and right):
+            raise VbfeError(
+                "fixed intrinsics need both camera files: fill in both 'fixed intrinsics' "
+                "fields, or empty both to solve them"
+            )
+        return Path(left), Path(right)
+
     def calibrate(self) -> None:
         """Calibrate from the views folder off the UI thread."""
         self.stop_capture()
-        stored = self.console.options.stored_calibration
+        try:
+            intrinsics = self.intrinsics()
+        except VbfeError as exc:
+            self.console.message(f"calibration refused: {exc}", True)
+            return
         self.result_text.setText("calibrating…")
+        self.calibrate_button.setEnabled(False)
         self.console.work_op(
             calibrate,
             self.station.config,
             Path(self.folder.text().strip()),
             Path(self.out.text().strip()),
-            stored,
+            self.console.options.stored_calibration,
             self.console.options.overwrite,
+            self.swap_eyes.isChecked(),
+            intrinsics,
             on_done=self.show_outcome,
             what="calibration refused",
+            on_error=self._refused,
         )
 
+    def _refused(self) -> None:
+        self.calibrate_button.setEnabled(True)
+        self.result_text.setText(f"not calibrated: {self.console.message_label.text()}")
+
     def show_outcome(self, outcome: CalibrationOutcome) -> None:
-        """The calibration's numbers and the go/no-go."""
+        """The calibration's numbers, the report's figures and the go/no-go."""
+        self.calibrate_button.setEnabled(True)
         self.outcome = outcome
         result = outcome.outcome.result
         c = result.calibration
@@ -165,24 +339,34 @@ class CalibrateTab(Tab):
                 else "NO-GO: " + "; ".join(failures)
             )
         else:
-            lines.append("GO/NO-GO: no stored calibration given (vbfe console --calib FILE)")
+            lines.append("GO/NO-GO: no stored calibration (load one on the Live tab)")
         self.result_text.setText("\n".join(lines))
-        self.show_uncertainty(outcome)
+        self.show_figures(outcome)
         self.console.message(f"calibrated: {outcome.outcome.yaml_path}")
+        self.console.settled(calibration=outcome.outcome.yaml_path, board=self.board.spec())
 
-    def show_uncertainty(self, outcome: CalibrationOutcome) -> None:
-        """The calibration's depth σ over the left image (bright: less certain), as the
-        calibration report's uncertainty figure, titled with its range."""
-        umap = outcome.outcome.result.uncertainty
-        if umap is None:
+    def show_figures(self, outcome: CalibrationOutcome) -> None:
+        """The report's figures (per-view error, corner coverage, rectified pair; depth
+        uncertainty and board coverage per region) one above the other, at their own size."""
+        stem = outcome.outcome.yaml_path.with_suffix("")
+        paths = [stem.with_suffix(".png"), stem.parent / f"{stem.name}_uncertainty.png"]
+        images = [QtGui.QImage(str(p)) for p in paths if p.is_file()]
+        images = [image for image in images if not image.isNull()]
+        if not images:
             return
-        sigma_mm = umap.depth_sigma_m * 1e3
-        low, high = float(sigma_mm.min()), float(sigma_mm.max())
-        self.sigma_image.setImage(sigma_mm, autoLevels=False, levels=(low, max(high, low + 1e-9)))
-        self.sigma_label.setText(
-            f"depth σ at {umap.working_distance_m * 1e3:.0f} mm, left image: "
-            f"{low:.3f} (dark) to {high:.3f} mm"
-        )
+        width = max(image.width() for image in images)
+        height = sum(image.height() for image in images)
+        canvas = QtGui.QPixmap(width, height)
+        canvas.fill(QtGui.QColor("white"))
+        painter = QtGui.QPainter(canvas)
+        y = 0
+        for image in images:
+            painter.drawImage(0, y, image)
+            y += image.height()
+        painter.end()
+        self.figures.setPixmap(canvas)
+        self.figures.setAlignment(QtCore.Qt.AlignmentFlag.AlignHCenter)
+        self.pages.setCurrentIndex(1)
 
     def refresh(self) -> None:
         capture = self.capture
@@ -194,7 +378,10 @@ class CalibrateTab(Tab):
             self.capture_button.setChecked(False)  # enough views
         if capture is None or not self.isVisible():
             if capture is None:
-                self.capture_text.setText("no views captured yet: show the board and press Capture")
+                self.capture_text.setText(
+                    "no views captured yet: show the board and press Capture views, or give a "
+                    "folder of views and press Calibrate"
+                )
             return
         last = capture.last
         if last is not None and last is not self._shown:
@@ -203,11 +390,7 @@ class CalibrateTab(Tab):
             shown = annotate(left, verdict.left, coverage) if verdict.left is not None else left
             self.view.show_bgr(0, shown)
             grid = capture.collector.coverage_map((left.shape[1], left.shape[0]))
-            self.map_image.setImage(
-                (255 * grid / max(int(grid.max()), 1)).astype(np.uint8),
-                autoLevels=False,
-                levels=(0, 255),
-            )
+            self.map_view.show_bgr(0, coverage_picture(grid))
             self._shown = last
             reasons = ", ".join(f"{k}: {n}" for k, n in capture.rejections.most_common())
             self.capture_text.setText(

@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 from collections import Counter
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -19,11 +20,29 @@ from vbfe.calib.capture import CaptureOptions, Verdict, ViewCollector, rejection
 from vbfe.calib.check import CheckResult
 from vbfe.calib.views import load_views, save_views
 from vbfe.cli.outputs import check_outputs
-from vbfe.common.config import section
+from vbfe.common.config import default_config, section
 from vbfe.drivers.samples import StereoFrame
 
 Config = dict[str, dict[str, object]]
 _IDLE_WAIT_S = 0.02
+
+
+def save_rig_file(config: Config, path: Path) -> Path:
+    """Write ``config`` as a new rig file: the built-in one with its comments, each value
+    that ``config`` changes set (an existing file is refused: it is kept as it is)."""
+    import tomlkit
+
+    from vbfe.common.files import write_bytes_atomic
+
+    check_outputs([path], [])
+    text = resources.files("vbfe").joinpath("default_rig.toml").read_text(encoding="utf-8")
+    doc = tomlkit.parse(text)
+    defaults = default_config()
+    for table, values in config.items():
+        for key, value in values.items():
+            if defaults.get(table, {}).get(key) != value:
+                doc[table][key] = str(value) if isinstance(value, Path) else value
+    return write_bytes_atomic(path, tomlkit.dumps(doc))
 
 
 class LiveCapture:
@@ -115,11 +134,14 @@ def calibrate(
     out_path: Path,
     stored: Path | None = None,
     overwrite: bool = False,
+    swap_eyes: bool = False,
+    intrinsics: tuple[Path, Path] | None = None,
 ) -> CalibrationOutcome:
-    """``calibrate stereo`` on the captured views into ``out_path`` (refused when it exists
-    unless ``overwrite``, as the CLI), then ``calibrate check`` of ``stored`` against it."""
-    check_outputs([out_path], [folder, stored], overwrite)
-    outcome = commands.stereo(config, folder, out_path)
+    """``calibrate stereo`` on a views folder (any layout the CLI takes; ``swap_eyes`` and
+    fixed ``intrinsics`` as its options) into ``out_path`` (refused when it exists unless
+    ``overwrite``, as the CLI), then ``calibrate check`` of ``stored`` against it."""
+    check_outputs([out_path], [folder, stored, *(intrinsics or ())], overwrite)
+    outcome = commands.stereo(config, folder, out_path, swap_eyes=swap_eyes, intrinsics=intrinsics)
     check = commands.check(config, stored, new_path=out_path) if stored is not None else None
     return CalibrationOutcome(outcome, check)
 

@@ -1,8 +1,12 @@
-"""Live tab: left and right images (the De Bruijn decode as an optional overlay), the force
-trace and numeric streams on one time axis, and the live estimate with its latency."""
+"""Live tab: the calibration and model in use (load, unload, estimate on or off), left and
+right images (the De Bruijn decode as an optional overlay), the force trace and numeric streams
+on one time axis, and the live estimate's |F| with its 90 % band beside the trocar's |F|, the
+frames outside the training data flagged."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -10,13 +14,14 @@ import pyqtgraph as pg
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.acquire.viewer import FORCE_PENS, STREAM_PENS
-from vbfe.console.widgets import ImagePane, Tab, value_label
+from vbfe.console.widgets import ImagePane, Tab, value_label, with_picker
 from vbfe.drivers.samples import StereoFrame
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 WINDOW_S = 10.0
+BAND_PEN, BAND_BRUSH = (31, 78, 158, 90), (31, 78, 158, 50)  # the estimate's 90 % band
 MAX_POINTS = 600  # per curve: about a point per pixel of the plot (painting more costs the UI)
 _CORE_STREAMS = ("camera", "force", "projector", "marks")
 
@@ -27,6 +32,37 @@ class LiveTab(Tab):
     def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
+        station = console.station
+        self.calibration = QtWidgets.QLineEdit(
+            station.calibration_name if station.calibration is not None else ""
+        )
+        self.calibration.setPlaceholderText("calibration YAML (none loaded)")
+        self.model = QtWidgets.QLineEdit(station.model_name)
+        self.model.setPlaceholderText("model .pt from vbfe train (none loaded)")
+        self.estimate = QtWidgets.QCheckBox("estimate")
+        self.estimate.setChecked(station.estimate_on)
+        self.estimate.toggled.connect(self.toggle_estimate)
+        controls = QtWidgets.QGridLayout()
+        rows = (
+            ("calibration", self.calibration, self.load_calibration, self.unload_calibration),
+            ("model", self.model, self.load_model, self.unload_model),
+        )
+        self.load_buttons: dict[str, QtWidgets.QPushButton] = {}
+        for r, (name, edit, load, unload) in enumerate(rows):
+            controls.addWidget(QtWidgets.QLabel(name), r, 0)
+            controls.addWidget(with_picker(edit, "open", f"{name} file"), r, 1)
+            load_button, unload_button = (
+                QtWidgets.QPushButton("Load"),
+                QtWidgets.QPushButton("Unload"),
+            )
+            load_button.clicked.connect(load)
+            unload_button.clicked.connect(unload)
+            controls.addWidget(load_button, r, 2)
+            controls.addWidget(unload_button, r, 3)
+            self.load_buttons[name] = load_button
+        controls.addWidget(self.estimate, 1, 4)
+        controls.setColumnStretch(1, 1)
+        layout.addLayout(controls)
         self.images = ImagePane(2)
         layout.addWidget(self.images, 3)
         self.overlay = QtWidgets.QCheckBox("De Bruijn decode overlay (left)")
@@ -37,10 +73,24 @@ class LiveTab(Tab):
         self.force_plot.addLegend(offset=(5, 5))
         self.force_plot.setXRange(-WINDOW_S, 0.0)
         self.force_curves: list[pg.PlotDataItem] = []
-        self.estimate_curve = self.force_plot.plot(
-            pen=None, symbol="o", symbolSize=5, symbolBrush="#000000", name="estimate"
-        )
         layout.addWidget(self.force_plot, 2)
+        self.magnitude_plot = pg.PlotWidget(background="w")  # estimate against trocar, |F|
+        self.magnitude_plot.setXLink(self.force_plot)
+        self.magnitude_plot.setLabel("left", "|F|", units="N")
+        self.magnitude_plot.addLegend(offset=(5, 5))
+        self.trocar_curve = self.magnitude_plot.plot(pen=pg.mkPen("k", width=2), name="trocar |F|")
+        self.band_lo = self.magnitude_plot.plot(pen=pg.mkPen(BAND_PEN))
+        self.band_hi = self.magnitude_plot.plot(pen=pg.mkPen(BAND_PEN), name="90 % band")
+        self.band = pg.FillBetweenItem(self.band_lo, self.band_hi, brush=pg.mkBrush(BAND_BRUSH))
+        self.magnitude_plot.addItem(self.band)
+        self.estimate_curve = self.magnitude_plot.plot(
+            pen=None, symbol="o", symbolSize=5, symbolBrush="#1f4e9e", name="estimate"
+        )
+        self.ood_curve = self.magnitude_plot.plot(
+            pen=None, symbol="x", symbolSize=9, symbolPen="#c00000", name="outside training data"
+        )
+        layout.addWidget(self.magnitude_plot, 2)
+        self.magnitude_plot.hide()  # shown while the estimate runs
         self.stream_plot = pg.PlotWidget(background="w")
         self.stream_plot.setXLink(self.force_plot)
         self.stream_plot.setLabel("left", "streams")
@@ -49,6 +99,10 @@ class LiveTab(Tab):
         layout.addWidget(self.stream_plot, 1)
         self.status = value_label()
         layout.addWidget(self.status)
+        self.flag = value_label()  # the newest estimate's frame is outside the training data
+        self.flag.setStyleSheet("color: #ffffff; background: #c00000; padding: 3px")
+        self.flag.hide()
+        layout.addWidget(self.flag)
         self._shown: StereoFrame | None = None
         self._traces_turn = False
         self._decoding = False
@@ -91,15 +145,34 @@ class LiveTab(Tab):
                 curve.setData(t, forces[:, k])
             self._show_streams(now)
         live = self.station.live
+        self.magnitude_plot.setVisible(live is not None)
         if live is not None:
             curves = live.curves(WINDOW_S)
+            self.trocar_curve.setData(curves.t_trocar_s, curves.trocar_n)
             self.estimate_curve.setData(curves.t_estimate_s, curves.estimate_n)
+            banded = np.isfinite(curves.lo_n) & np.isfinite(curves.hi_n)
+            t_band = curves.t_estimate_s[banded]
+            self.band_lo.setData(t_band, curves.lo_n[banded])
+            self.band_hi.setData(t_band, curves.hi_n[banded])
+            self.ood_curve.setData(curves.t_estimate_s[curves.ood], curves.estimate_n[curves.ood])
+            flagged = bool(len(curves.ood)) and bool(curves.ood[-1])
+            self.flag.setVisible(flagged)
+            self.flag.setText(
+                "⚠ the newest frame is outside the model's training data: its estimate "
+                "may be far off"
+            )
             self.status.setText(live.status().line())
         else:
+            self.flag.hide()
             stats = self.station.stats()
+            station = self.station
+            why = (
+                "estimate switched off"
+                if station.estimator is not None
+                else "no model loaded: load a calibration and a model above"
+            )
             self.status.setText(
-                "no model loaded (vbfe console --model MODEL.pt --calib CALIB.yaml)"
-                + (f" | {stats.frames} frames, {stats.samples} force samples" if stats else "")
+                why + (f" | {stats.frames} frames, {stats.samples} force samples" if stats else "")
             )
 
     def _show_streams(self, now_ns: int) -> None:
@@ -120,6 +193,58 @@ class LiveTab(Tab):
                     pen = pg.mkPen(STREAM_PENS[len(self.stream_curves) % len(STREAM_PENS)])
                     self.stream_curves[key] = self.stream_plot.plot(pen=pen, name=key)
                 self.stream_curves[key].setData(t, values[:, k])
+
+    # -- calibration and model ----------------------------------------------------------------
+    def load_calibration(self) -> None:
+        """Use the calibration file in the field (checked against the camera's image size)."""
+        path = self._path(self.calibration, "calibration")
+        if path is not None:
+            self._use(self.station.use_calibration, path, "calibration", calibration=path)
+
+    def unload_calibration(self) -> None:
+        """No calibration (and so no estimate)."""
+        self._use(self.station.use_calibration, None, "calibration")
+
+    def load_model(self) -> None:
+        """Estimate with the model file in the field."""
+        path = self._path(self.model, "model")
+        if path is not None:
+            self._use(self.station.use_model, path, "model", model=path)
+
+    def unload_model(self) -> None:
+        """No live estimate."""
+        self._use(self.station.use_model, None, "model")
+
+    def toggle_estimate(self, on: bool) -> None:
+        """Switch the live estimate on or off."""
+        self.console.rig_op(self.station.set_estimate, on, what="estimate")
+
+    def _path(self, edit: QtWidgets.QLineEdit, what: str) -> Path | None:
+        text = edit.text().strip()
+        if not text:
+            self.console.message(f"no {what} file: fill in '{what}' (Live tab)", True)
+            return None
+        return Path(text)
+
+    def _use(
+        self, fn: Callable[[Path | None], None], path: Path | None, what: str, **settled: Path
+    ) -> None:
+        button = self.load_buttons[what]
+
+        def done(_: None) -> None:
+            button.setEnabled(True)
+            self.console.message(f"{what} {'loaded: ' + str(path) if path else 'unloaded'}")
+            if settled:
+                self.console.settled(**settled)  # type: ignore[arg-type]
+
+        button.setEnabled(False)
+        self.console.rig_op(
+            fn,
+            path,
+            on_done=done,
+            what=f"{what} refused",
+            on_error=lambda: button.setEnabled(True),
+        )
 
     def _with_overlay(self, frame: StereoFrame) -> np.ndarray:
         """The left image with the last decoded fringe indices coloured over it; the decode of

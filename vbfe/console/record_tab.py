@@ -19,14 +19,31 @@ from vbfe.acquire.recording.remote import (
 )
 from vbfe.acquire.recording.storage import free_bytes
 from vbfe.cli.record import parse_conditions
-from vbfe.common.errors import VbfeError
+from vbfe.common.errors import SessionError, VbfeError
+from vbfe.common.files import stale_locks
 from vbfe.console.station import Finished, SessionRequest
-from vbfe.console.widgets import Tab, form, value_label
+from vbfe.console.widgets import Tab, form, value_label, with_picker
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 DEFAULT_TEMPLATE = "%p_%b_run-%n.h5"
+
+
+def make_session_folder(root: Path, path: Path) -> Path | None:
+    """Make the folders ``path`` needs under the data folder ``root``: ``root`` itself only
+    when its parent exists (a mistyped folder is not made several levels deep), the template's
+    subfolders under it. Returns the first folder made, if any."""
+    if path.parent.is_dir():
+        return None
+    if not root.is_dir() and not root.parent.is_dir():
+        raise SessionError(
+            f"the data folder {root} does not exist, nor does {root.parent}: choose an "
+            "existing folder in 'folder'"
+        )
+    made = next(p for p in [*reversed(path.parents), path.parent] if not p.is_dir())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return made
 
 
 class RemoteRecording:
@@ -68,7 +85,7 @@ class RecordTab(Tab):
         layout.addLayout(
             form(
                 [
-                    ("folder", self.root),
+                    ("folder", with_picker(self.root, "folder", "data folder")),
                     ("file template (%p %b %n)", self.template),
                     ("participant (%p)", self.participant),
                     ("task (%b)", self.task),
@@ -92,23 +109,41 @@ class RecordTab(Tab):
         layout.addLayout(buttons)
         self.numbers = value_label()
         layout.addWidget(self.numbers)
+        self.warning = value_label()  # drops while recording
+        self.warning.setStyleSheet("color: #ffffff; background: #c00000; padding: 4px")
+        self.warning.hide()
+        layout.addWidget(self.warning)
         self.remote_label = value_label()
         layout.addWidget(self.remote_label)
         self.last = value_label()
         layout.addWidget(self.last)
+        self.stale = value_label()  # sessions a killed recorder left unfinished
+        self.stale.setStyleSheet("color: #c00000")
+        layout.addWidget(self.stale)
+        self.root.editingFinished.connect(self.check_stale)
         layout.addStretch(1)
         self.remote: RemoteControl | None = None
         self.remote_sessions: RemoteSessions | None = None
         # the form as remote control's recordings take it (read by its threads, which must
         # not touch widgets; kept up to date by refresh)
         self.remote_request = SessionRequest(Path())
+        self.stopping = False  # Stop pressed, the session being finalized
+        self.check_stale()
 
     # -- the form -----------------------------------------------------------------------------
     def options(self) -> dict[str, str]:
-        """The form as remote control's ``filename`` options."""
+        """The form as remote control's ``filename`` options (an empty folder or template is
+        refused, naming the field)."""
+        root, template = self.root.text().strip(), self.template.text().strip()
+        if not root:
+            raise SessionError("no data folder: fill in 'folder'")
+        if not template:
+            raise SessionError(
+                f"no file template: fill in 'file template', e.g. {DEFAULT_TEMPLATE}"
+            )
         return {
-            "root": self.root.text().strip() or ".",
-            "template": self.template.text().strip() or DEFAULT_TEMPLATE,
+            "root": root,
+            "template": template,
             "participant": self.participant.text().strip(),
             "task": self.task.text().strip(),
         }
@@ -127,6 +162,21 @@ class RecordTab(Tab):
             self.notes.text(),
             parse_conditions(pairs),
             duration if duration > 0 else None,
+            self.participant.text().strip(),
+            self.task.text().strip(),
+        )
+
+    def check_stale(self) -> None:
+        """Explain the sessions in the data folder whose recorder died while writing them."""
+        root = Path(self.root.text().strip() or ".")
+        stale = stale_locks(root) if root.is_dir() else []
+        self.stale.setText(
+            "".join(
+                f"{path.name} was not closed cleanly: its recorder (process {pid}) was killed "
+                "or lost power while recording; it is readable up to its last flush (Review "
+                f"tab), and the lock file .{path.name}.lock it left may be deleted\n"
+                for path, pid in stale
+            ).strip()
         )
 
     # -- controls -----------------------------------------------------------------------------
@@ -135,16 +185,17 @@ class RecordTab(Tab):
         try:
             path = self.next_path()
             request = self.request(path)
-            path.parent.mkdir(parents=True, exist_ok=True)
+            made = make_session_folder(Path(self.options()["root"]), path)
         except (VbfeError, OSError) as exc:
             from vbfe.console.window import error_line
 
             self.console.message(f"cannot record: {error_line(exc)}", True)
             return
+        said = f" (made the folder {made})" if made is not None else ""
         self.console.rig_op(
             self.station.start_recording,
             request,
-            on_done=lambda p: self.console.message(f"recording {p}"),
+            on_done=lambda p: self.console.message(f"recording {p}{said}"),
             what="cannot record",
         )
 
@@ -153,7 +204,11 @@ class RecordTab(Tab):
         if self.station.recording is None:
             self.console.message("nothing is being recorded", True)
             return
-        self.console.rig_op(self.station.stop_recording, what="stop")
+        self.stopping = True
+        self.console.rig_op(self.station.stop_recording, what="stop", on_error=self._stopped)
+
+    def _stopped(self, _: object = None) -> None:
+        self.stopping = False
 
     def add_marker(self) -> None:
         """A marker at the host's now ("marker <n>")."""
@@ -187,9 +242,9 @@ class RecordTab(Tab):
         except VbfeError:  # conditions being typed: the last good form stays
             pass
         recording = self.station.recording
-        self.start_button.setEnabled(recording is None)
-        self.stop_button.setEnabled(recording is not None)
-        self.mark_button.setEnabled(recording is not None)
+        self.start_button.setEnabled(recording is None and not self.stopping)
+        self.stop_button.setEnabled(recording is not None and not self.stopping)
+        self.mark_button.setEnabled(recording is not None and not self.stopping)
         if not self.isVisible() and recording is None:
             return
         try:
@@ -197,9 +252,20 @@ class RecordTab(Tab):
         except VbfeError as exc:
             self.next_file.setText(str(exc))
         stats = self.station.stats()
+        if self.stopping:
+            self.numbers.setText(f"stopping: finalizing {recording or 'the session'}…")
+            return
         if recording is None or stats is None:
             self.numbers.setText("not recording")
             return
+        dropped = {k: n for k, n in stats.dropped.items() if n > 0}
+        self.warning.setVisible(bool(dropped))
+        if dropped:
+            self.warning.setText(
+                "⚠ data lost while recording: "
+                + ", ".join(f"{k} dropped {n}" for k, n in dropped.items())
+                + " (a busy machine or a device that cannot keep up; see the Rig tab)"
+            )
         folder = recording.parent
         free = free_bytes(folder) / 1e9 if os.path.isdir(folder) else float("nan")
         self.numbers.setText(
@@ -210,4 +276,6 @@ class RecordTab(Tab):
         )
 
     def on_finished(self, finished: Finished) -> None:
+        self.stopping = False
         self.last.setText(f"last session: {finished.line()}")
+        self.check_stale()

@@ -1,13 +1,17 @@
 """Rig tab: every device of the rig with its state, rate, drops and clock offset, live; a
-device that failed to open with the one-line reason."""
+device that failed to open with the one-line reason; the simulated bench named as such; the
+rig file the window keeps what the operator settles in (saved here as a new file)."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pyqtgraph.Qt import QtWidgets
 
-from vbfe.console.widgets import Tab, value_label
+from vbfe.common.errors import VbfeError
+from vbfe.console.desks import save_rig_file
+from vbfe.console.widgets import Tab, value_label, with_picker
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
@@ -21,6 +25,21 @@ class RigTab(Tab):
     def __init__(self, console: ConsoleWindow) -> None:
         super().__init__(console)
         layout = QtWidgets.QVBoxLayout(self)
+        self.simulated = value_label()
+        layout.addWidget(self.simulated)
+        file_row = QtWidgets.QHBoxLayout()
+        rig_file = console.options.rig_file
+        self.rig_file = QtWidgets.QLineEdit(
+            str(rig_file or console.options.out_dir / "vbfe-rig.toml")
+        )
+        file_row.addWidget(QtWidgets.QLabel("rig file"))
+        file_row.addWidget(with_picker(self.rig_file, "save", "rig file"), 1)
+        self.save_button = QtWidgets.QPushButton("Save rig file")
+        self.save_button.clicked.connect(self.save)
+        file_row.addWidget(self.save_button)
+        layout.addLayout(file_row)
+        self.file_state = value_label()
+        layout.addWidget(self.file_state)
         self.table = QtWidgets.QTableWidget(0, len(COLUMNS))
         self.table.setHorizontalHeaderLabels(COLUMNS)
         self.table.horizontalHeader().setStretchLastSection(True)
@@ -32,6 +51,23 @@ class RigTab(Tab):
         self.open_button = QtWidgets.QPushButton("Open rig (live view)")
         self.open_button.clicked.connect(self.open_rig)
         layout.addWidget(self.open_button)
+
+    def save(self) -> None:
+        """Write the rig as it runs now into a new rig file; settled values go there from now
+        on."""
+        path = Path(self.rig_file.text().strip())
+        if path == self.console.options.rig_file:
+            self.console.message(f"{path} is already the rig file: settled values go there")
+            return
+        try:
+            save_rig_file(self.station.config, path)
+        except (VbfeError, OSError) as exc:
+            from vbfe.console.window import error_line
+
+            self.console.message(f"rig file not saved: {error_line(exc)}", True)
+            return
+        self.console.use_rig_file(path)
+        self.console.message(f"saved the rig file {path}")
 
     def open_rig(self) -> None:
         """Start the live view (again)."""
@@ -71,6 +107,23 @@ class RigTab(Tab):
         return out
 
     def refresh(self) -> None:
+        config = self.station.config
+        simulated = [
+            name
+            for name in ("camera", "trocar", "projector")
+            if config.get(name, {}).get("backend") == "sim"
+        ]
+        self.simulated.setText(
+            f"simulated bench: {', '.join(simulated)} simulated (set real backends in the rig file)"
+            if simulated
+            else "real devices"
+        )
+        rig_file = self.console.options.rig_file
+        self.file_state.setText(
+            f"settled values (board, calibration, sync correction, model) are kept in {rig_file}"
+            if rig_file is not None
+            else "no rig file: settled values are lost when the window closes; save one here"
+        )
         rows = self.rows()
         self.table.setRowCount(len(rows))
         for r, row in enumerate(rows):

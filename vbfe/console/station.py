@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -29,7 +28,8 @@ from vbfe.acquire.recording.record import (
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.calib.calibration import Calibration
+from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib.commands import board_scene
 from vbfe.common.config import section
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
@@ -52,6 +52,8 @@ class SessionRequest:
     notes: str = ""
     conditions: dict[str, Any] = field(default_factory=dict)
     duration_s: float | None = None
+    participant: str = ""
+    task: str = ""
 
 
 @dataclass(frozen=True)
@@ -106,6 +108,9 @@ class Station:
         self.device_errors: dict[str, str | None] = {}  # of the last failed start
         self.marks = 0
         self.pattern_on = False  # the live view shows the structured-light pattern
+        self.board_scene = False  # the simulated bench shows the calibration board
+        self.estimate_on = True  # the operator may switch the live estimate off
+        self.model_path: Path | None = None
         self.finished: queue.SimpleQueue[Finished] = queue.SimpleQueue()  # for the view
         self._runner: threading.Thread | None = None
         self._run_error: BaseException | None = None
@@ -132,14 +137,18 @@ class Station:
         return None if live is None else live.status()
 
     # -- worker-thread operations (call through submit) ----------------------------------------
-    def go_live(self, pattern: bool = True) -> None:
+    def go_live(self, pattern: bool = True, board: bool = False) -> None:
         """Show the rig live, nothing recorded: the structured-light pattern on, or (``pattern``
-        false) the projector left dark, as calibration views need the board in room light. A
-        recording started meanwhile (remote control) is left alone."""
+        false) the projector left dark, as calibration views need the board in room light;
+        ``board``: the simulated bench shows the ``[calib]`` board (a real rig is as it is).
+        A recording started meanwhile (remote control) is left alone."""
         if self.recording is not None:
             return
         self._end_current("live view restarted")
-        rig = self._open_rig(self._options())
+        config = board_scene(self.config) if board else self.config
+        rig = self._open_rig(self._options(), config)
+        if self.calibration is not None and self.estimator is not None and self.estimate_on:
+            check_camera_size(rig, self.calibration.image_size, self.calibration_name)
         self._begin(Acquisition(rig, pattern=make_pattern if pattern else None))
         self.pattern_on = pattern
 
@@ -162,6 +171,8 @@ class Station:
                 self.calibration.to_yaml_text() if self.calibration is not None else None
             ),
             streams=(marks_stream(),),
+            participant=request.participant,
+            task=request.task,
         )
         self._end_current("recording starts")
         self._begin(recorder, request.duration_s)
@@ -226,23 +237,82 @@ class Station:
         finally:
             self._ops.shutdown(wait=True)
 
+    def use_calibration(self, path: Path | None) -> None:
+        """Use the calibration file ``path`` (``None``: none) for recordings and the live
+        estimate; one made for another image size than the open camera's is refused, as
+        ``vbfe live`` refuses it. The live view restarts with it."""
+        self._not_recording("change the calibration")
+        if path is None:
+            self.calibration, self.estimator, self.model_path = None, None, None
+            self._restart_live()
+            return
+        calibration = load_calibration(path)
+        if self.rig is not None:
+            check_camera_size(self.rig, calibration.image_size, str(path))
+        estimator = (
+            self._estimator(self.model_path, calibration) if self.model_path is not None else None
+        )
+        self.calibration, self.calibration_name = calibration, str(path)
+        self.estimator = estimator
+        self._restart_live()
+
+    def use_model(self, path: Path | None) -> None:
+        """Estimate force live with the model file ``path`` (``None``: no estimate) and the
+        calibration in use; the live view restarts with it."""
+        self._not_recording("change the model")
+        if path is None:
+            self.estimator, self.model_path, self.model_name = None, None, ""
+        else:
+            if self.calibration is None:
+                raise SessionError(
+                    "the estimate needs the calibration it reconstructs with: load one first"
+                )
+            self.estimator = self._estimator(path, self.calibration)
+            self.model_path, self.model_name = path, str(path)
+        self._restart_live()
+
+    def set_estimate(self, on: bool) -> None:
+        """Run the live estimate (of a loaded model) or not; the live view restarts."""
+        self.estimate_on = on
+        if self.recording is None:
+            self._restart_live()
+
+    def _estimator(self, path: Path, calibration: Calibration) -> FrameEstimator:
+        from vbfe.estimate.model_file import load_model
+        from vbfe.live.run import live_estimator
+        from vbfe.live.settings import live_settings
+
+        settings = live_settings(section(self.config, "live"))
+        return live_estimator(self.config, settings, load_model(path), calibration)
+
+    def _not_recording(self, what: str) -> None:
+        if self.recording is not None:
+            raise SessionError(f"cannot {what} while {self.recording.name} is recorded: stop it")
+
+    def _restart_live(self) -> None:
+        if self.acquisition is not None and self.recording is None:
+            self.go_live(self.pattern_on)
+
     # -- any thread ---------------------------------------------------------------------------
     def mark(self, text: str) -> None:
         """An event mark at the host's now in the running recording."""
         acquisition = self.acquisition
         if self.recording is None or not isinstance(acquisition, Recorder):
             raise SessionError("marks go into a recording: start one first")
-        acquisition.sink.mark(text, time.monotonic_ns())
+        acquisition.sink.mark(text, acquisition.rig.host_now_ns())
         self.marks += 1
 
     # -- internals ----------------------------------------------------------------------------
     def _options(self) -> RigOptions:
         """As ``vbfe record`` and ``view --live`` run the rig; with the live estimate, as
         ``vbfe live`` (in real time)."""
-        return RigOptions(realtime=True) if self.estimator is not None else RigOptions()
+        estimating = self.estimator is not None and self.estimate_on
+        return RigOptions(realtime=True) if estimating else RigOptions()
 
-    def _open_rig(self, options: RigOptions) -> Rig:
-        self.rig = self._rig_factory(self.config, options)
+    def _open_rig(self, options: RigOptions, config: Config | None = None) -> Rig:
+        config = config if config is not None else self.config
+        self.board_scene = config is not self.config
+        self.rig = self._rig_factory(config, options)
         return self.rig
 
     def _begin(
@@ -250,7 +320,7 @@ class Station:
     ) -> None:
         acquisition.add(self.latest)
         live = None
-        if self.estimator is not None and estimate:
+        if self.estimator is not None and estimate and self.estimate_on:
             from vbfe.live.run import LiveRun
             from vbfe.live.settings import live_settings
 

@@ -29,15 +29,43 @@ class ImagePane(pg.GraphicsLayoutWidget):
             view.addItem(item)
             self.items.append(item)
 
-    def show_bgr(self, index: int, image: np.ndarray) -> None:
+    def show_bgr(self, index: int, image: np.ndarray, max_width: int = MAX_SHOWN_WIDTH) -> None:
         """Show a BGR (or grey) uint8 image in pane ``index``, reduced to at most
-        :data:`MAX_SHOWN_WIDTH` pixels wide (painting a large image costs the UI thread)."""
-        factor = -(-image.shape[1] // MAX_SHOWN_WIDTH)
+        ``max_width`` pixels wide (painting a large image costs the UI thread)."""
+        factor = -(-image.shape[1] // max_width)
         if factor > 1:
             size = (image.shape[1] // factor, image.shape[0] // factor)
             image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image
         self.items[index].setImage(rgb, autoLevels=False, levels=(0, 255))
+
+
+def with_picker(edit: QtWidgets.QLineEdit, kind: str, caption: str = "") -> QtWidgets.QWidget:
+    """``edit`` with a "…" button beside it that picks a path into it: ``kind`` is "folder",
+    "open" (an existing file) or "save" (a new file)."""
+    button = QtWidgets.QToolButton()
+    button.setText("…")
+    button.setToolTip(f"choose {caption or kind}")
+
+    def pick() -> None:
+        start = edit.text().strip()
+        dialogs = QtWidgets.QFileDialog
+        if kind == "folder":
+            chosen = dialogs.getExistingDirectory(edit, caption, start)
+        elif kind == "open":
+            chosen = dialogs.getOpenFileName(edit, caption, start)[0]
+        else:
+            chosen = dialogs.getSaveFileName(edit, caption, start)[0]
+        if chosen:
+            edit.setText(chosen)
+
+    button.clicked.connect(pick)
+    row = QtWidgets.QWidget()
+    layout = QtWidgets.QHBoxLayout(row)
+    layout.setContentsMargins(0, 0, 0, 0)
+    layout.addWidget(edit, 1)
+    layout.addWidget(button)
+    return row
 
 
 def form(rows: list[tuple[str, QtWidgets.QWidget]]) -> QtWidgets.QFormLayout:

@@ -4,6 +4,8 @@ asked, failures as a one-line message in the window)."""
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -12,11 +14,38 @@ from typing import Any
 
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
+from vbfe.calib.board import BoardSpec
+from vbfe.calib.commands import set_board
+from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import os_error_text
 from vbfe.console import TAB_NAMES
 from vbfe.console.station import Finished, Station
 from vbfe.drivers.qt_app import qt_application
+
+# The CLI's options that refusals name, as the window's fields (the rest of the words stay)
+WINDOW_TERMS = {
+    "pass --overwrite to replace it or choose a new name": "choose a new name in the window",
+    "--swap-eyes": "'swap eyes' (Calibrate tab)",
+    "--intrinsics LEFT RIGHT": "the 'fixed intrinsics' files (Calibrate tab)",
+    "--intrinsics": "the 'fixed intrinsics' files (Calibrate tab)",
+    "--min-views": "'fewest views' (Calibrate tab)",
+    "--target": "'board' (Calibrate tab)",
+    "--inner-corners": "'squares' (Calibrate tab)",
+    "--squares-x, --squares-y": "'squares' (Calibrate tab)",
+    "--square-mm": "'square size' (Calibrate tab)",
+    "--marker-mm": "'marker size' (Calibrate tab)",
+    "--condition": "'conditions' (Record tab)",
+    "--config": "the rig file (Rig tab)",
+    "--calib": "the calibration (Live tab)",
+    "--model": "the model (Live tab)",
+}
+_TERMS = re.compile("|".join(re.escape(k) for k in sorted(WINDOW_TERMS, key=len, reverse=True)))
+
+
+def window_terms(text: str) -> str:
+    """``text`` with the CLI's options it names replaced by the window's fields."""
+    return _TERMS.sub(lambda m: WINDOW_TERMS[m.group(0)], text)
 
 
 def error_line(exc: BaseException) -> str:
@@ -48,12 +77,15 @@ class ConsoleOptions:
     :param stored_calibration: the calibration the GO/NO-GO check compares against.
     :param overwrite: replace existing calibration files (sessions are never replaced).
     :param live_when_idle: show the rig live when nothing is recorded (off in headless runs).
+    :param rig_file: where what the operator settles (board, calibration, sync correction,
+        model) is written back; ``None``: nowhere (the window says so).
     """
 
     out_dir: Path
     stored_calibration: Path | None = None
     overwrite: bool = False
     live_when_idle: bool = True
+    rig_file: Path | None = None
 
 
 class ConsoleWindow(QtWidgets.QMainWindow):
@@ -77,6 +109,10 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         self._pending: list[_Pending] = []
         self._settling = False
         self.finished_hooks: list[Callable[[Finished], None]] = []
+        self.message_label = QtWidgets.QLabel()
+        self.message_label.setWordWrap(True)
+        self.errors: list[str] = []
+        self.confirm_close = True  # ask before a close ends a recording (off in headless runs)
         self.tabs = QtWidgets.QTabWidget()
         self.rig_tab = RigTab(self)
         self.live_tab = LiveTab(self)
@@ -87,13 +123,11 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         for name, tab in self.named_tabs().items():
             self.tabs.addTab(tab, name)
         self.setCentralWidget(self.tabs)
-        self.message_label = QtWidgets.QLabel()
-        self.message_label.setWordWrap(True)
         self.statusBar().addWidget(self.message_label, 1)
-        self.errors: list[str] = []
         self.timer = QtCore.QTimer(self)
         self.timer.timeout.connect(self.refresh)
         self.timer.start(interval_ms)
+        self.load_settled()
 
     def named_tabs(self) -> dict[str, QtWidgets.QWidget]:
         """The tabs by name, in order."""
@@ -136,11 +170,84 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         return bool(self._pending) or self._settling
 
     def message(self, text: str, error: bool = False) -> None:
-        """Show ``text`` in the status bar (red for an error)."""
+        """Show ``text`` in the status bar (red for an error, the CLI's options it names
+        replaced by the window's fields)."""
+        if error:
+            text = window_terms(text)
         self.message_label.setStyleSheet("color: #c00000" if error else "")
         self.message_label.setText(text)
         if error:
             self.errors.append(text)
+
+    def use_rig_file(self, path: Path) -> None:
+        """Keep what the operator settles in ``path`` from now on."""
+        self.options = dataclasses.replace(self.options, rig_file=path)
+
+    def load_settled(self) -> None:
+        """Load the calibration and model the rig file names (settled on an earlier day)."""
+        live = self.live_tab
+        calibration = str(section(self.station.config, "calib").get("calibration") or "")
+        model = str(section(self.station.config, "live").get("model") or "")
+        if calibration and self.station.calibration is None:
+            live.calibration.setText(calibration)
+            live.load_calibration()
+            if model and self.station.estimator is None:
+                live.model.setText(model)
+                live.load_model()
+
+    def close_now(self) -> None:
+        """Close without asking (Ctrl-C, SIGTERM): a running recording is finalized."""
+        self.confirm_close = False
+        self.close()
+
+    def ask(self, question: str) -> bool:
+        """A yes/no question to the operator (no: the default)."""
+        buttons = QtWidgets.QMessageBox.StandardButton
+        answer = QtWidgets.QMessageBox.question(
+            self, "vbfe console", question, buttons.Yes | buttons.No, buttons.No
+        )
+        return answer == buttons.Yes
+
+    def settled(
+        self,
+        board: BoardSpec | None = None,
+        calibration: Path | None = None,
+        correction_s: float | None = None,
+        model: Path | None = None,
+    ) -> None:
+        """Write what the operator settled into the rig file (comments kept, the previous file
+        backed up), so that the next window starts there; without a rig file, say so."""
+        changes: dict[str, dict[str, Any]] = {}
+        if board is not None:
+            set_board(changes, board)
+        if calibration is not None:
+            changes.setdefault("calib", {})["calibration"] = calibration.absolute()
+        if correction_s is not None:
+            changes["record"] = {"frame_time_correction_s": correction_s}
+        if model is not None:
+            changes["live"] = {"model": model.absolute()}
+        if not changes:
+            return
+        rig_file = self.options.rig_file
+        if rig_file is None:
+            self.message(
+                self.message_label.text()
+                + " (not kept for the next day: no rig file; save one on the Rig tab)"
+            )
+            return
+        from vbfe.common.rig_writeback import write_back
+
+        try:
+            done = write_back(rig_file, changes)
+        except (VbfeError, OSError) as exc:
+            self.message(f"rig file not updated: {error_line(exc)}", True)
+            return
+        if done.changes:
+            self.message(
+                self.message_label.text()
+                + f"; kept in {rig_file}"
+                + (f" (previous file: {done.backup.name})" if done.backup else "")
+            )
 
     # -- polling ------------------------------------------------------------------------------
     def refresh(self) -> None:
@@ -190,7 +297,16 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         super().keyPressEvent(event)
 
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:  # noqa: N802 - Qt's name
-        """Finalize a running recording and close the rig before the window goes."""
+        """Finalize a running recording (after asking) and close the rig before the window
+        goes."""
+        recording = self.station.recording
+        if (
+            recording is not None
+            and self.confirm_close
+            and not self.ask(f"Recording {recording.name}: stop it and close the window?")
+        ):
+            event.ignore()
+            return
         self.timer.stop()
         self.calibrate_tab.stop_capture()
         self.record_tab.close_remote()
