@@ -129,8 +129,8 @@ def write_back(
             raise ConfigError(f"rig file {path}: {table} is not a table; make it [{table}]")
         for key, value in values.items():
             new = _plain(value, f"[{table}] {key}")
-            item = target.get(key)
-            old = item.unwrap() if hasattr(item, "unwrap") else item
+            item: Any = target.get(key)
+            old = item.unwrap() if isinstance(item, tomlkit.items.Item) else item
             if old == new and type(old) is type(new):
                 continue
             target[key] = new  # type: ignore[index]
