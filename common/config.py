@@ -54,18 +54,22 @@ def read_toml(path: str | Path, what: str, error: type[VbfeError] = ConfigError)
         raise error(f"{what} {path} is not valid TOML: {exc}") from None
 
 
-def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
-    """Load a rig TOML file over the defaults; ``None`` gives the defaults (simulated bench)."""
+def over_defaults(user: dict[str, Any], where: str = "rig config") -> dict[str, dict[str, Any]]:
+    """A rig file's tables merged over the defaults (an unknown table is a ConfigError)."""
     config = default_config()
-    if path is None:
-        return config
-    user = read_toml(path, "rig config")
     unknown = set(user) - set(config)
     if unknown:
         raise ConfigError(
-            f"rig config {path} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
+            f"{where} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
         )
     return _merge(config, user)
+
+
+def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
+    """Load a rig TOML file over the defaults; ``None`` gives the defaults (simulated bench)."""
+    if path is None:
+        return default_config()
+    return over_defaults(read_toml(path, "rig config"), f"rig config {path}")
 
 
 def section(config: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:

@@ -41,6 +41,7 @@ def record_session(
     calibration_name: str = "the calibration",
     on_warning: Callable[[str], None] | None = None,
     listeners: tuple[Listener, ...] = (),
+    rig_source: str = "",
 ) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
@@ -53,7 +54,8 @@ def record_session(
     (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
     non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
     correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found;
-    further ``listeners`` (e.g. a live viewer) follow the recorder's."""
+    further ``listeners`` (e.g. a live viewer) follow the recorder's. ``rig_source`` (which rig
+    file, or that the simulated bench ran) is stored in the session's metadata."""
     settings = record_settings(config)
     options = RigOptions()
     if protocol is not None:
@@ -76,6 +78,7 @@ def record_session(
         calibration_yaml,
         overwrite,
         listeners,
+        rig_source=rig_source,
     )
     if protocol is not None:
         recorder.metadata["protocol"] = protocol.describe()
@@ -128,6 +131,7 @@ def session_recorder(
     overwrite: bool = False,
     listeners: tuple[Listener, ...] = (),
     streams: tuple[StreamSpec, ...] = (),
+    rig_source: str = "",
 ) -> Recorder:
     """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
     pattern, a traction session's metadata) over ``rig``, with further ``listeners`` and
@@ -139,6 +143,8 @@ def session_recorder(
         "conditions": dict(conditions or {}),
         "protocol": {"kind": "traction"},
     }
+    if rig_source:
+        metadata["rig"] = rig_source
     return Recorder(
         rig,
         path,

@@ -82,6 +82,7 @@ class SessionSummary:
             f"status    {status}",
             f"started   {start:%Y-%m-%d %H:%M:%S} UTC, operator {a.get('operator') or '-'}"
             f", notes {a.get('notes') or '-'}",
+            f"rig       {self.metadata.get('rig') or '-'}",
             f"duration  {self.duration_s:.3f} s",
         ]
         w, h = self.frame_size

@@ -10,16 +10,18 @@ from typing import Any
 
 from tqdm import tqdm
 
-from vbfe.common.config import load_config
+from vbfe.rig_config import RigConfig, load_rig
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
-    """Add ``--config rig.toml`` (defaults run the simulated bench)."""
+    """Add ``--config rig.toml``; without it the rig file is found as
+    :mod:`vbfe.common.rig_discovery` says (else the simulated bench runs)."""
     parser.add_argument(
         "--config",
         metavar="RIG.toml",
         default=None,
-        help="rig configuration (default: the simulated bench)",
+        help="rig file (default: $VBFE_RIG, then ./vbfe-rig.toml, then rig.toml in the user "
+        "config folder; none: the simulated bench)",
     )
 
 
@@ -43,9 +45,18 @@ def positive(kind: type = float, zero: bool = False) -> Callable[[str], Any]:
     return parse
 
 
+def rig_from(args: argparse.Namespace) -> RigConfig:
+    """The rig configuration the user chose, parsed once per command (the entry point loads
+    it before the command runs and prints its banner)."""
+    rig = getattr(args, "rig", None)
+    if rig is None:
+        rig = args.rig = load_rig(getattr(args, "config", None))
+    return rig
+
+
 def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
-    """The rig configuration the user chose."""
-    return load_config(getattr(args, "config", None))
+    """The rig configuration's merged tables (for library code that still takes the dict)."""
+    return rig_from(args).tables
 
 
 def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm:

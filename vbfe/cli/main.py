@@ -22,6 +22,7 @@ from vbfe.cli import (
     reconstruct,
     record,
     report,
+    rig,
     train,
     upgrade,
     verify_sync,
@@ -30,6 +31,7 @@ from vbfe.cli import (
 from vbfe.cli import (
     console as console_command,
 )
+from vbfe.cli.common import rig_from
 from vbfe.common.errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
@@ -42,6 +44,7 @@ from vbfe.common.signals import Terminated, sigterm_as_interrupt
 
 COMMANDS = (
     devices,
+    rig,
     record,
     mark,
     view,
@@ -84,6 +87,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         with sigterm_as_interrupt():
+            if hasattr(args, "config"):  # the command uses the rig: say which, first
+                print(rig_from(args).banner(), flush=True)
             return int(args.func(args) or 0)
     except VbfeError as exc:
         message = str(exc)

@@ -8,8 +8,9 @@ from pathlib import Path
 from vbfe.acquire.sync.check import FAIL, PASS, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.common import add_config_option, config_from, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
+from vbfe.rig_config import settle
 
 EXIT_CODES = {PASS: 0, FAIL: 1}  # anything else (INCONCLUSIVE): 3
 
@@ -76,8 +77,15 @@ def run(args: argparse.Namespace) -> int:
         )
         print(report.text())
         if args.apply:
+            written = settle(
+                rig_from(args),
+                {"record": {"frame_time_correction_s": round(report.correction_s, 6)}},
+            )
             print(
-                f"rig config  add to [record] of your rig.toml so new sessions are corrected: "
+                written.text()
+                if written is not None
+                else "rig config  no rig file to keep it in (vbfe rig init writes one); add to "
+                f"[record] of your rig.toml so new sessions are corrected: "
                 f"{report.config_suggestion()}"
             )
         return EXIT_CODES.get(report.verdict, 3)
