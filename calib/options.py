@@ -30,6 +30,7 @@ class CalibSettings:
     marker_mm: float
     dictionary: str
     legacy: bool
+    calibration: str  # the rig's stereo calibration file ("": none settled)
     min_corners: int = dataclasses.field(metadata=limits(ge=4))
     min_views: int = dataclasses.field(metadata=limits(ge=1))
     outlier_sigma: float = dataclasses.field(metadata=limits(gt=0))

@@ -18,7 +18,7 @@ import pytest
 from tests.test_acquire_devices import write_bar_session
 from vbfe.cli.main import build_parser, main
 
-READ_ONLY = {"devices", "view", "calibrate check", "mark"}  # mark: the recorder writes
+READ_ONLY = {"devices", "view", "calibrate check", "mark", "rig show"}  # mark: the recorder writes
 APPENDS = {"calibrate capture", "calibrate projector-capture"}  # add files, never replace one
 NEW_FILES_ONLY = {"live"}  # --record makes a new session; nothing to overwrite
 
@@ -85,6 +85,7 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
             ],
             [],
         ),
+        "rig init": (["rig", "init", o], [], []),
         "calibrate board": (
             ["calibrate", "board", str(out.with_suffix(""))],
             [],

@@ -13,9 +13,10 @@ from tests.fakes.lagging_camera import LaggingCamera
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.recording import record as record_module
 from vbfe.acquire.recording.sync_session import SyncProtocol
+from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
-from vbfe.common.config import load_config
+from vbfe.common.config import load_config, read_toml
 from vbfe.drivers import registry
 
 SEEDS = [1, 2, 3]  # each protocol session records 20 s in real time; benchmarks/bench_sync.py
@@ -178,8 +179,9 @@ def test_cli_records_a_protocol_session_and_applies_its_correction(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text(
         "[bench]\nwidth = 320\nheight = 180\nfps = 30.0\ndistortion = false\n"
-        "[record]\nmin_free_gb = 0.0\n"
+        "[record]\nmin_free_gb = 0.0  # the test's disk may be small\n"
     )
+    before = rig.read_text()
     session = tmp_path / "sync.h5"
     done = _vbfe(
         "record",
@@ -204,6 +206,17 @@ def test_cli_records_a_protocol_session_and_applies_its_correction(tmp_path):
     check = _vbfe("verify-sync", str(session), "--config", str(rig), "--apply", cwd=tmp_path)
     assert check.returncode == 0, check.stdout + check.stderr
     assert "verdict    PASS" in check.stdout and "frame_time_correction_s = 0.03" in check.stdout
+    # --apply settled the correction in the rig file: comments kept, the old file backed up
+    (backup,) = tmp_path.glob("rig.toml.*.bak")
+    assert backup.read_text() == before and "# the test's disk may be small" in rig.read_text()
+    settled_s = read_toml(rig, "rig")["record"]["frame_time_correction_s"]
+    assert 0.03 < settled_s < 0.045, settled_s  # the bench's 37 ms
+    nxt = _vbfe(
+        "record", str(tmp_path / "next.h5"), "--duration", "0.3", "--config", str(rig), cwd=tmp_path
+    )
+    assert nxt.returncode == 0, nxt.stderr
+    with SessionReader(tmp_path / "next.h5") as reader:  # the next recording carries it
+        assert reader.analysis()[FRAME_CORRECTION_ATTR] == round(settled_s * 1e9)
     bad = _vbfe(
         "record",
         str(tmp_path / "x.h5"),

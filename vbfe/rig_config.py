@@ -56,6 +56,10 @@ class RigConfig:
             for f in ("camera", "trocar", "projector")
         )
 
+    def set_by_file(self, table: str, key: str) -> bool:
+        """Whether the rig file sets ``[table] key`` (not the built-in default)."""
+        return self.origins.get((table, key), DEFAULT_ORIGIN) != DEFAULT_ORIGIN
+
     def banner(self) -> str:
         """The line every command prints first: the rig file, or that the simulator runs."""
         if self.source.path is not None and self.simulated:

@@ -20,9 +20,18 @@ from vbfe.calib.export import FORMATS
 from vbfe.calib.rectify import ZERO_DISPARITY
 from vbfe.calib.report import gate_lines, summary_rows
 from vbfe.calib.views import NAMING_RULES
-from vbfe.cli.common import add_config_option, config_from, positive, progress
+from vbfe.cli.common import (
+    add_config_option,
+    add_settle_option,
+    check_settle,
+    config_from,
+    positive,
+    progress,
+    rig_from,
+    settle_values,
+)
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import read_toml, section
+from vbfe.common.config import section
 from vbfe.common.errors import CalibrationError
 
 _BOARD_KEYS = (
@@ -210,11 +219,9 @@ def _settings(args: argparse.Namespace) -> dict[str, Any]:
     given = {key: getattr(args, key, None) for key in _GATE_FLAGS}
     if getattr(args, "fix_k3", None):
         given["fix_k3"] = True
-    config = getattr(args, "config", None)
-    if given.get("nominal_baseline_mm") is None and config is not None:
-        given["nominal_baseline_mm"] = (
-            read_toml(config, "rig config").get("calib", {}).get("nominal_baseline_mm")
-        )
+    rig = rig_from(args)
+    if given.get("nominal_baseline_mm") is None and rig.set_by_file("calib", "nominal_baseline_mm"):
+        given["nominal_baseline_mm"] = rig.calib.nominal_baseline_mm
     return {key: value for key, value in given.items() if value is not None}
 
 
@@ -355,6 +362,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
+    add_settle_option(p, "the calibration's path and the board options given here ([calib])")
     p.add_argument(
         "--store-in", metavar="SESSION.h5", help="also store the calibration inside this session"
     )
@@ -600,6 +608,7 @@ def _check_session_target(path: str) -> None:
 def run_stereo(args: argparse.Namespace) -> int:
     """Calibrate and print the summary; every destination is checked before the work."""
     out = Path(args.out)
+    check_settle(args)
     reports = [] if args.no_report else [out.with_suffix(".png"), out.with_suffix(".html")]
     check_outputs(
         [out, *reports],
@@ -660,6 +669,7 @@ def run_stereo(args: argparse.Namespace) -> int:
     _print_solve_notes(
         result.dropped, result.calibration.info["rejected_corners"], None
     )  # a weak result is noted in the summary rows
+    settle_values(args, {"calib": {"calibration": str(Path(outcome.yaml_path).resolve()), **board}})
     return 0
 
 

@@ -10,7 +10,8 @@ from typing import Any
 
 from tqdm import tqdm
 
-from vbfe.rig_config import RigConfig, load_rig
+from vbfe.common.errors import ConfigError
+from vbfe.rig_config import RigConfig, load_rig, settle
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
@@ -23,6 +24,44 @@ def add_config_option(parser: argparse.ArgumentParser) -> None:
         help="rig file (default: $VBFE_RIG, then ./vbfe-rig.toml, then rig.toml in the user "
         "config folder; none: the simulated bench)",
     )
+
+
+def add_settle_option(parser: argparse.ArgumentParser, what: str) -> None:
+    """Add ``--settle``: keep ``what`` in the rig file for the next commands."""
+    parser.add_argument(
+        "--settle",
+        action="store_true",
+        help=f"keep {what} in the rig file, so the next commands (and the next day) start "
+        "there (comments kept, the previous file backed up)",
+    )
+
+
+def check_settle(args: argparse.Namespace) -> None:
+    """Before any work: ``--settle`` needs a rig file to write into.
+
+    :raises ConfigError: there is none (the simulated bench's defaults).
+    """
+    if getattr(args, "settle", False) and rig_from(args).source.path is None:
+        raise ConfigError(
+            "--settle: no rig file to keep the result in; write one with `vbfe rig init` "
+            "or name it with --config"
+        )
+
+
+def settle_values(args: argparse.Namespace, changes: dict[str, dict[str, Any]]) -> None:
+    """With ``--settle``: write ``changes`` (table -> key -> value) into the rig file and
+    print what changed (tuples as lists; ``None`` values left out)."""
+    if not getattr(args, "settle", False):
+        return
+    plain = {
+        table: {
+            k: list(v) if isinstance(v, tuple) else v for k, v in values.items() if v is not None
+        }
+        for table, values in changes.items()
+    }
+    written = settle(rig_from(args), plain)
+    if written is not None:
+        print(written.text())
 
 
 def positive(kind: type = float, zero: bool = False) -> Callable[[str], Any]:

@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.common import (
+    add_config_option,
+    add_settle_option,
+    check_settle,
+    positive,
+    rig_from,
+    settle_values,
+)
 from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import check_outputs
-from vbfe.common.config import section
 
 DEVICES = ("auto", "cpu", "cuda")
 
@@ -24,13 +31,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "estimate over the trocar's force, or prints a status line with --headless. Defaults "
         "come from the [live] table.",
     )
-    parser.add_argument("--model", required=True, metavar="MODEL.pt", help="from vbfe train")
+    parser.add_argument(
+        "--model", metavar="MODEL.pt", help="from vbfe train (default: the rig's [live] model)"
+    )
     parser.add_argument(
         "--calib",
-        required=True,
         metavar="CALIB.yaml",
-        help="calibration of this camera mode (or a session that stores one)",
+        help="calibration of this camera mode, or a session that stores one (default: the "
+        "rig's [calib] calibration)",
     )
+    add_settle_option(parser, "the model and calibration ([live] model, [calib] calibration)")
     parser.add_argument(
         "--record",
         metavar="SESSION.h5",
@@ -98,11 +108,20 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.estimate.model_file import load_model
     from vbfe.live.outputs import EstimateOutput, LslOutput, UdpOutput, udp_address
     from vbfe.live.run import live_estimator, live_run, run_headless
-    from vbfe.live.settings import live_settings
 
+    rig = rig_from(args)
+    settings = rig.live
+    args.model = args.model or settings.model or None
+    args.calib = args.calib or rig.calib.calibration or None
+    for option, value, key in (
+        ("--model", args.model, "[live] model"),
+        ("--calib", args.calib, "[calib] calibration"),
+    ):
+        if value is None:
+            raise LiveError(f"give {option}: the rig file sets no {key} ({rig.banner()})")
     check_outputs([args.record], [args.model, args.calib], writes="session")  # a new file
-    config = config_from(args)
-    settings = live_settings(section(config, "live"))
+    check_settle(args)
+    config = rig.tables
     udp = udp_address(args.udp) if args.udp is not None else None
     for option, value in (("--scale", args.scale), ("--row-scale", args.row_scale)):
         if value is not None and value > 1:
@@ -111,6 +130,13 @@ def run(args: argparse.Namespace) -> int:
             )
     calibration = load_calibration(args.calib)
     model = load_model(args.model)
+    settle_values(
+        args,
+        {
+            "live": {"model": str(Path(args.model).resolve())},
+            "calib": {"calibration": str(Path(args.calib).resolve())},
+        },
+    )
     server = foxglove_server(args, model.config.target)
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(

@@ -61,7 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--calib",
         metavar="CALIB.yaml",
         default=None,
-        help="calibration file to store with the session",
+        help="calibration file to store with the session (default: the rig's [calib] "
+        "calibration, when it settles one)",
     )
     parser.add_argument(
         "--tare",
@@ -151,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
             "name the new session file (SESSION.h5), or wait for remote-control "
             "commands with --remote PORT"
         )
+    args.calib = args.calib or rig_from(args).calib.calibration or None  # the rig's settled one
     check_outputs(
         [args.output] if args.output else [], [args.calib], args.overwrite, writes="session"
     )

@@ -7,7 +7,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from vbfe.cli.common import StageProgress, add_config_option, config_from, positive
+from vbfe.cli.common import (
+    StageProgress,
+    add_config_option,
+    add_settle_option,
+    check_settle,
+    config_from,
+    positive,
+    settle_values,
+)
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.config import section
 from vbfe.common.files import require_free_space
@@ -38,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="sessions, or a manifest CSV written by vbfe dataset",
     )
     parser.add_argument("--out", required=True, metavar="MODEL.pt", help="model file to write")
+    add_settle_option(parser, "the model as the one vbfe live loads ([live] model)")
     parser.add_argument("--epochs", type=int, help="maximum epochs (early stopping may end sooner)")
     parser.add_argument("--points", type=int, dest="n_points", help="points per cloud")
     parser.add_argument("--batch-size", type=int)
@@ -138,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         overrides["split"] = "time"
     config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
     check_outputs([args.out], args.sessions, args.overwrite)
+    check_settle(args)
     require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
     from vbfe.estimate.training import train  # torch loads once the inputs are checked
 
@@ -176,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
             f"frames not used: {skipped['no_force']} without a force, {skipped['no_cloud']} "
             "with too few points in the region of interest"
         )
+    settle_values(args, {"live": {"model": str(Path(result.model_path).resolve())}})
     return 0
 
 

@@ -21,6 +21,7 @@ class LiveSettings:
     opencv_threads: int = setting(0, ge=0)  # 0: one per core
     status_interval_s: float = setting(1.0, gt=0)
     max_frame_age_s: float = setting(0.25, ge=0)  # later frames are skipped (0: no limit)
+    model: str = ""  # the model file loaded when none is given ("": none settled)
     protocol: str = ""  # the interval of this protocol, when calibrated ("": pooled)
 
 
