@@ -9,12 +9,15 @@ API (for the CLI and the console window)::
     done.changes  # [("record", "frame_time_correction_s", 0.0, 0.037)]: (table, key, was, now)
     print(done.text())  # one line per change, then where the backup is
 
+From the app (CLI, window), ``vbfe.rig_config.settle(rig, changes)`` does the same into the
+file a loaded :class:`~vbfe.rig_config.RigConfig` came from, checking every table as the commands
+do (``check=vbfe.rig_config.check_file``); it returns ``None`` when there is no rig file.
+
 ``changes`` maps table -> key -> value (TOML scalars, lists, :class:`~pathlib.Path` written as
 a string). Keys and tables absent from the file are added; every other line, comment and blank
 line is kept as it was (tomlkit). The new text is checked before anything is written: it must be
-TOML and, when ``check`` is given (``vbfe.rig_config.check_tables`` validates every table the way
-the commands do), pass it, else :class:`~vbfe.common.errors.ConfigError` and the file is
-untouched. The old file is copied to a dated backup next to it, then the new one is renamed over
+TOML and pass ``check`` when given, else :class:`~vbfe.common.errors.ConfigError` and the file
+is untouched. The old file is copied to a dated backup next to it, then the new one is renamed over
 it (atomic). A file that would not change is not written and gets no backup. The file need not
 exist (it is created, no backup). What to settle where: the board in ``[calib]`` (``target``,
 ``inner_corners``/``squares_x``/``squares_y``, ``square_mm``, ``marker_mm``, ``dictionary``),

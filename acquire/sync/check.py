@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.recording.settings import record_settings
+from vbfe.acquire.recording.settings import RecordSettings, record_settings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.layout import CAMERA, FORCE
@@ -64,7 +64,11 @@ class SyncLimits:
     @classmethod
     def from_config(cls, config: dict[str, dict[str, Any]]) -> SyncLimits:
         """Limits from a rig configuration's ``[record]`` table."""
-        table = record_settings(config)
+        return cls.from_record(record_settings(config))
+
+    @classmethod
+    def from_record(cls, table: RecordSettings) -> SyncLimits:
+        """Limits from the ``[record]`` settings."""
         return cls(
             table.sync_max_offset_s,
             table.sync_max_ci_halfwidth_s,

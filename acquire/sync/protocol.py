@@ -31,6 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vbfe.acquire.recording.settings import RecordSettings
 from vbfe.acquire.recording.sync_session import DIM_NAME, PATTERN_NAME
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR, SessionReader
 from vbfe.acquire.sync.corners import (
@@ -67,13 +68,18 @@ class ProtocolSettings:
 
     @classmethod
     def from_config(cls, config: dict[str, dict[str, Any]]) -> ProtocolSettings:
-        """Settings from a rig configuration's ``[record]`` table."""
+        """Settings from a rig configuration's ``[record]`` table (absent keys: 0)."""
         table = config.get("record", {})
         return cls(
             float(table.get("sync_exposure_s", 0.0)),
             float(table.get("sync_line_time_s", 0.0)),
             float(table.get("sync_projector_latency_s", 0.0)),
         )
+
+    @classmethod
+    def from_record(cls, table: RecordSettings) -> ProtocolSettings:
+        """Settings from the ``[record]`` settings."""
+        return cls(table.sync_exposure_s, table.sync_line_time_s, table.sync_projector_latency_s)
 
 
 @dataclass

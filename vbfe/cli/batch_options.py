@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from vbfe.batch.executors import EXECUTORS, TaskOutcome, run_tasks
-from vbfe.batch.settings import batch_settings as settings_of_table
+from vbfe.batch.settings import BatchSettings
 from vbfe.cli.common import progress
 from vbfe.common.errors import BatchError
 
@@ -33,9 +33,9 @@ def add_batch_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def batch_settings(args: argparse.Namespace, table: dict[str, Any]) -> tuple[str, str | None]:
+def batch_settings(args: argparse.Namespace, settings: BatchSettings) -> tuple[str, str | None]:
     """The executor and Ray address: command-line options over the ``[batch]`` table."""
-    return settings_of_table(table, args.executor, args.ray_address)
+    return args.executor or settings.executor, args.ray_address or settings.ray_address or None
 
 
 def run_batch(

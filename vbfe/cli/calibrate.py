@@ -31,7 +31,6 @@ from vbfe.cli.common import (
     settle_values,
 )
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
 from vbfe.common.errors import CalibrationError
 
 _BOARD_KEYS = (
@@ -763,15 +762,13 @@ def run_color(args: argparse.Namespace) -> int:
     """Project flat colours, fit the crosstalk model and store it in the calibration."""
     from vbfe.acquire import frame_feed
     from vbfe.calib.calibration import load_calibration
-    from vbfe.calib.options import calib_settings
     from vbfe.drivers.registry import open_rig
     from vbfe.recon.color import capture_color_model
 
     _check_update(args, [])
     calibration = load_calibration(args.calibration)
-    config = config_from(args)
-    settle_s = calib_settings(section(config, "calib")).projector_settle_s
-    rig = open_rig(config, families=("camera", "projector"))
+    settle_s = rig_from(args).calib.projector_settle_s
+    rig = open_rig(rig_from(args).tables, families=("camera", "projector"))
     with frame_feed(rig) as frames:
         model = capture_color_model(frames, rig.projector, frames=args.frames, settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)

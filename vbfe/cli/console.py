@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import add_config_option, config_from, positive
+from vbfe.cli.common import add_config_option, config_from, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
 from vbfe.console import TAB_NAMES
@@ -94,14 +94,10 @@ def run(args: argparse.Namespace) -> int:
     calibration: Calibration | None = load_calibration(args.calib) if args.calib else None
     estimator = None
     if args.model and calibration is not None:  # --model without --calib is refused above
-        from vbfe.common.config import section
         from vbfe.estimate.model_file import load_model
         from vbfe.live.run import live_estimator
-        from vbfe.live.settings import live_settings
 
-        estimator = live_estimator(
-            config, live_settings(section(config, "live")), load_model(args.model), calibration
-        )
+        estimator = live_estimator(config, rig_from(args).live, load_model(args.model), calibration)
     station = Station(config, calibration, args.calib or "the calibration", estimator, args.model)
     headless = (
         Headless(args.duration, args.screenshot, args.screenshot_dir)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import add_config_option, config_from, progress
+from vbfe.cli.common import add_config_option, progress, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
 
 SHOWN = (
     ("path", 28),
@@ -65,14 +64,13 @@ def run(args: argparse.Namespace) -> int:
     """Print the table (and write the manifest); exit 1 when a session is unreadable."""
     from vbfe.batch.manifest import scan_dataset, write_manifest
     from vbfe.common.errors import BatchError
-    from vbfe.recon.matching import SgbmParams
 
     manifest = Path(args.manifest) if args.manifest else None
     if manifest is not None and manifest.suffix != ".csv":
         raise BatchError(f"manifest {manifest} must end in .csv")
     report = None if args.report is None else Path(args.report or Path(args.folder) / "report")
     check_outputs([manifest], overwrite=args.overwrite, directories=[report])
-    params = SgbmParams.from_config(section(config_from(args), "sgbm"))
+    params = rig_from(args).sgbm
     entries = scan_dataset(
         args.folder, params, relative_to=manifest.parent if manifest else args.folder
     )

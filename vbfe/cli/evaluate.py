@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import StageProgress, add_config_option, config_from
+from vbfe.cli.common import StageProgress, add_config_option, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -78,10 +77,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.model or not args.out:
         raise EstimateError("give MODEL.pt and --out DIR (or --live SESSION.h5)")
     from vbfe.batch.manifest import expand_sessions
-    from vbfe.estimate import TrainConfig, evaluate, use_threads  # torch loads only when needed
+    from vbfe.estimate import evaluate, use_threads  # torch loads only when needed
 
     check_outputs([], [args.model, *args.sessions], args.overwrite, directories=[args.out])
-    use_threads(TrainConfig.from_table(section(config_from(args), "train")).threads)
+    use_threads(rig_from(args).train.threads)
     bars = StageProgress()
     try:
         sessions = [str(p) for p in expand_sessions(args.sessions)]

@@ -11,9 +11,8 @@ from typing import TYPE_CHECKING
 from tqdm import tqdm
 
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import LazyProgress, add_config_option, config_from, positive
+from vbfe.cli.common import LazyProgress, add_config_option, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
 
 if TYPE_CHECKING:
     from vbfe.recon.matching import SgbmParams
@@ -227,7 +226,7 @@ def _run_batch(
             "--out, --ply-dir, --maps-dir, --rectified and --truth take one "
             "input; with several sessions each one's clouds go next to it"
         )
-    executor, address = batch_settings(args, config.get("batch", {}))
+    executor, address = batch_settings(args, rig_from(args).batch)
     task = ReconstructTask(
         sgbm=dataclasses.asdict(params),
         verify=not args.no_verify,
@@ -278,13 +277,14 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.recon.inputs import image_pairs, pair_calibration
     from vbfe.recon.maps import MapOutput
     from vbfe.recon.matching import SgbmParams
-    from vbfe.recon.quality import ReconSettings, quality_warnings, summary_line
+    from vbfe.recon.quality import quality_warnings, summary_line
     from vbfe.recon.scoring import score_disparity, truth_disparity
     from vbfe.recon.session_recon import reconstruct_images, reconstruct_session
 
-    config = config_from(args)
-    params = SgbmParams.from_config({**section(config, "sgbm"), **_range_flags(args)})
-    settings = ReconSettings.from_config(section(config, "recon"))
+    rig = rig_from(args)
+    flags = _range_flags(args)
+    params = SgbmParams.from_config({**rig.tables["sgbm"], **flags}) if flags else rig.sgbm
+    settings, config = rig.recon, rig.tables
     if _is_batch(args):
         return _run_batch(args, config, params, settings)
     maps = MapOutput(Path(args.maps_dir), args.maps_format) if args.maps_dir else None

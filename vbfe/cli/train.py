@@ -12,12 +12,11 @@ from vbfe.cli.common import (
     add_config_option,
     add_settle_option,
     check_settle,
-    config_from,
     positive,
+    rig_from,
     settle_values,
 )
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
-from vbfe.common.config import section
 from vbfe.common.files import require_free_space
 
 MODEL_FREE_BYTES = 64 << 20  # a model file with its baselines and training record, with room
@@ -145,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         overrides[f"{part}_frames"] = parse_range(text, f"--{part}") if text else None
     if overrides["train_frames"]:
         overrides["split"] = "time"
-    config = TrainConfig.from_table(section(config_from(args), "train"), **overrides)
+    config = TrainConfig.from_table(rig_from(args).tables["train"], **overrides)
     check_outputs([args.out], args.sessions, args.overwrite)
     check_settle(args)
     require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")

@@ -8,7 +8,7 @@ from pathlib import Path
 from vbfe.acquire.sync.check import FAIL, PASS, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.cli.batch_options import add_batch_options, batch_settings, run_batch
-from vbfe.cli.common import add_config_option, config_from, positive, rig_from
+from vbfe.cli.common import add_config_option, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.rig_config import settle
 
@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.batch.manifest import expand_sessions
     from vbfe.common.errors import BatchError
 
-    config = config_from(args)
-    limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
+    rig = rig_from(args)
+    limits, settings = SyncLimits.from_record(rig.record), ProtocolSettings.from_record(rig.record)
     sessions = expand_sessions(args.sessions)
     if len(sessions) == 1 and not args.sessions[0].endswith(".csv") and not args.executor:
         plot = args.plot or str(Path(sessions[0]).with_suffix(".sync.png"))
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if plot:
         check_outputs([plot], sessions, args.overwrite)
-    executor, address = batch_settings(args, config.get("batch", {}))
+    executor, address = batch_settings(args, rig.batch)
     task = VerifySyncTask(
         limits=dict(limits.__dict__),
         settings=dict(settings.__dict__),
