@@ -107,6 +107,21 @@ class BoardSpec:
             f"{', legacy pattern' if self.legacy else ''}"
         )
 
+    def calib_table(self) -> dict[str, Any]:
+        """The ``[calib]`` keys that give this board (what a rig file keeps of it)."""
+        table: dict[str, Any] = {"target": self.target, "square_mm": round(self.square_m * 1e3, 9)}
+        if self.target == "chessboard":
+            return {**table, "inner_corners": list(self.inner_corners)}
+        return {
+            **table,
+            "inner_corners": [],
+            "squares_x": self.squares_x,
+            "squares_y": self.squares_y,
+            "marker_mm": round(self.marker_m * 1e3, 9),
+            "dictionary": self.dictionary,
+            "legacy": self.legacy,
+        }
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (stored in the calibration's info): a chessboard without the
         ChArUco-only marker size, dictionary and legacy flag."""

@@ -15,6 +15,7 @@ from vbfe.calib.board import BoardDetector, BoardSpec, Detection
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.gates import GateLimits
 from vbfe.calib.stereo import StereoOptions, calibrate_detections
+from vbfe.common.config import read_toml
 
 DATA = Path(__file__).parent / "data" / "opencv_stereo"
 VIEWS = [f"{i:02d}" for i in range(1, 15) if i != 10]  # stereo_calib.xml's list
@@ -66,10 +67,32 @@ def opencv_reference() -> dict[str, float]:
 CALIBRATE_SAMPLE = ("calibrate", "stereo", str(DATA), "--inner-corners", "9x6", "--square-mm", "1")
 
 
+RIG = "# the lab's rig\n[calib]\nmin_views = 6  # kept as written\n"
+
+
 @pytest.fixture(scope="module")
 def cli_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    """The sample calibrated with --settle into a rig file (``rig.toml`` beside ``c.yaml``)."""
     out = tmp_path_factory.mktemp("opencv_sample") / "c.yaml"
-    return vbfe(*CALIBRATE_SAMPLE, "-o", str(out), timeout=120), out
+    rig = out.parent / "rig.toml"
+    rig.write_text(RIG)
+    settle = ("--settle", "--config", str(rig))
+    return vbfe(*CALIBRATE_SAMPLE, "-o", str(out), *settle, timeout=120), out
+
+
+def test_settle_keeps_the_calibration_and_its_board_in_the_rig_file(cli_run):
+    run, out = cli_run
+    rig = out.parent / "rig.toml"
+    assert run.returncode == 0, run.stderr
+    assert f"rig file {rig}: [calib] calibration = " in run.stdout
+    calib = read_toml(rig, "rig")["calib"]
+    assert calib["calibration"] == str(out.resolve())
+    board = (calib["target"], calib["inner_corners"], calib["square_mm"])
+    assert board == ("chessboard", [9, 6], 1)
+    text = rig.read_text()
+    assert "# the lab's rig" in text and "min_views = 6  # kept as written" in text
+    (backup,) = out.parent.glob("rig.toml.*.bak")
+    assert backup.read_text() == RIG
 
 
 def test_the_sample_calibrates_through_the_cli_as_plain_opencv_does(cli_run, opencv_reference):

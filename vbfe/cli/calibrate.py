@@ -361,7 +361,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--out", default="calibration.yaml", help="calibration YAML to write")
     p.add_argument("--no-report", action="store_true", help="skip the PNG/HTML report")
-    add_settle_option(p, "the calibration's path and the board options given here ([calib])")
+    add_settle_option(p, "the calibration's path and its board ([calib])")
     p.add_argument(
         "--store-in", metavar="SESSION.h5", help="also store the calibration inside this session"
     )
@@ -668,7 +668,15 @@ def run_stereo(args: argparse.Namespace) -> int:
     _print_solve_notes(
         result.dropped, result.calibration.info["rejected_corners"], None
     )  # a weak result is noted in the summary rows
-    settle_values(args, {"calib": {"calibration": str(Path(outcome.yaml_path).resolve()), **board}})
+    settle_values(
+        args,
+        {
+            "calib": {
+                "calibration": str(Path(outcome.yaml_path).resolve()),
+                **commands.board_spec(config, **board).calib_table(),
+            }
+        },
+    )
     return 0
 
 
