@@ -78,7 +78,10 @@ def test_train_refuses_a_bad_train_key_before_loading_torch(tmp_path):
     assert "torch" not in imported  # ... without torch
     said = [line for line in out.stderr.splitlines() if not line.startswith("import time:")]
     assert len(said) == 1, said
-    assert said[0].startswith("vbfe train: error: unknown key 'epochz' in [train]; known:")
+    assert said[0].startswith(
+        f"vbfe train: error: rig config {tmp_path / 'rig.toml'} (from --config): unknown key "
+        "'epochz' in [train]; known:"
+    )
     assert "epochs" in said[0] and not (tmp_path / "m.pt").exists()
 
 
