@@ -86,6 +86,11 @@ def cases(i: dict[str, Path], out: Path) -> dict[str, tuple[list[str], list[str]
             [],
         ),
         "rig init": (["rig", "init", o], [], []),
+        "upgrade": (
+            ["upgrade", s, "-o", o],
+            ["upgrade", s, "-o", s, "--overwrite"],
+            ["upgrade", f"{d}/run.clouds.h5", "-o", o],
+        ),
         "calibrate board": (
             ["calibrate", "board", str(out.with_suffix(""))],
             [],

@@ -142,6 +142,7 @@ def test_remote_control_drives_a_recording(tmp_path: Path) -> None:
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
+        assert proc.stdout.readline() == f"rig file {toml} (from --config): simulated bench\n"
         line = proc.stdout.readline()
         port = int(re.search(r"listening on 127\.0\.0\.1:(\d+)", line).group(1))
         with socket.create_connection(("127.0.0.1", port), timeout=60) as sock:
