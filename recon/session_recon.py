@@ -17,13 +17,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.common.errors import ReconError
 from vbfe.common.files import commit, partial_path
 from vbfe.common.signals import die_with_parent, stop_pool_on_signals
+from vbfe.common.version import __version__
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.inputs import ImagePairs

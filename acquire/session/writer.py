@@ -27,7 +27,6 @@ import cv2
 import h5py
 import numpy as np
 
-import vbfe
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
     CAMERA,
@@ -52,6 +51,7 @@ from vbfe.acquire.session.reader import consistent_rows
 from vbfe.common.errors import SessionError
 from vbfe.common.files import SESSION_FORMAT, WriterLock, create_hdf5
 from vbfe.common.logs import LINE_FORMAT, LogLines
+from vbfe.common.version import __version__
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 
 log = logging.getLogger(__name__)
@@ -177,7 +177,7 @@ class SessionWriter:
             {
                 "format": SESSION_FORMAT,
                 "schema_version": SCHEMA_VERSION,
-                "software_version": vbfe.__version__,
+                "software_version": __version__,
                 "compression": compression,
                 "operator": str(metadata.get("operator", "")),
                 "notes": str(metadata.get("notes", "")),

@@ -7,7 +7,6 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from vbfe import __version__
 from vbfe.cli import (
     calibrate,
     dataset,
@@ -42,6 +41,7 @@ from vbfe.common.errors import (
 )
 from vbfe.common.files import os_error_text
 from vbfe.common.signals import Terminated, sigterm_as_interrupt
+from vbfe.common.version import __version__
 
 COMMANDS = (
     devices,
