@@ -1,6 +1,6 @@
 """The HDF5 session layout as one table of streams (schema documented in
-docs/session-format.md): it drives creation (writer), checking (reader), trimming (recovery)
-and the end-of-recording clock fits.
+docs/reference/session-format.md): it drives creation (writer), checking (reader), trimming
+(recovery) and the end-of-recording clock fits.
 
 A stream is one HDF5 group of equally long datasets, one row per record: the time columns
 ``t_device_ns`` (the device's clock, see ``clock``), ``t_host_ns`` and ``seq`` (``int64``),
