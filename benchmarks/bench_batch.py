@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
         pool = timed("local", sessions, cores)
         ray_s = timed("ray", sessions, cores) if importlib.util.find_spec("ray") else None
     print(
-        f"{args.sessions} sessions of {args.seconds:.0f} s (320x180, 15 fps), {cores} cores, "
+        f"{args.sessions} sessions of {args.seconds:g} s (320x180, 15 fps), {cores} cores, "
         f"load average {os.getloadavg()[0]:.1f}"
     )
     print(f"{'serial (1 process)':<24} {serial:7.1f} s   speed-up 1.00x")
