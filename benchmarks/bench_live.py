@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="default: [live] opencv_threads (0: one per core)",
     )
-    args = smoke.parse(parser, argv, seconds=1.0, sizes="320x180", repeats=1)
+    args = smoke.parse(parser, argv, seconds=4.0, sizes="320x180", repeats=1)
     settings = live_settings(section(load_config(), "live"))
     args.scale = args.scale or settings.scale
     args.row_scale = args.row_scale or settings.row_scale
