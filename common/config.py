@@ -65,7 +65,7 @@ def over_defaults(user: dict[str, Any], where: str = "rig config") -> dict[str, 
         raise ConfigError(
             f"{where} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
         )
-    log.info("rig config %s read: tables %s", path, ", ".join(sorted(user)))
+    log.info("%s read: tables %s", where, ", ".join(sorted(user)))
     return _merge(config, user)
 
 
