@@ -2,7 +2,7 @@
 
 Records N short sessions on the simulated bench (with their exact calibration), then
 reconstructs all of them three ways in the same run and prints each wall time and its ratio to
-the serial run. Run: ``python benchmarks/bench_batch.py [--sessions N] [--seconds S]``.
+the serial run. Run: ``python -m benchmarks.bench_batch [--sessions N] [--seconds S]``.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import smoke
 from vbfe.acquire import record_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.tasks import ReconstructTask
@@ -50,11 +51,11 @@ def timed(executor: str, sessions: list[str], workers: int) -> float:
     return elapsed
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sessions", type=int, default=6)
     parser.add_argument("--seconds", type=float, default=2.0)
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, sessions=2, seconds=0.5)
     cores = os.cpu_count() or 1
     with tempfile.TemporaryDirectory() as tmp:
         sessions = record_sessions(Path(tmp), args.sessions, args.seconds)
@@ -62,7 +63,7 @@ def main() -> None:
         pool = timed("local", sessions, cores)
         ray_s = timed("ray", sessions, cores) if importlib.util.find_spec("ray") else None
     print(
-        f"{args.sessions} sessions of {args.seconds:.0f} s (320x180, 15 fps), {cores} cores, "
+        f"{args.sessions} sessions of {args.seconds:g} s (320x180, 15 fps), {cores} cores, "
         f"load average {os.getloadavg()[0]:.1f}"
     )
     print(f"{'serial (1 process)':<24} {serial:7.1f} s   speed-up 1.00x")

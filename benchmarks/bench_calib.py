@@ -30,6 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from benchmarks import smoke
 from tests import calib_image_sets as image_sets
 from tests import plain_opencv
 from vbfe.calib.board import BoardDetector, BoardSpec
@@ -253,7 +254,7 @@ def corner_table(name: str, corner_set: CornerSet) -> None:
         print(f"vs truth: max |df|/f (fx, fy) {f_err:.4%}, |dB|/B {b_err:.4%}")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--sets",
@@ -268,9 +269,9 @@ def main() -> None:
     parser.add_argument(
         "--endoscope-views", type=int, default=20, help="SD endoscope views per set (0: skip)"
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, views=[8], seeds=1, poses=0, endoscope_views=0)
     print("corners: vbfe beside plain OpenCV pipelines")
-    for name in args.sets or list(CORNER_SETS):
+    for name in args.sets or list(CORNER_SETS)[: 1 if args.smoke else None]:
         corner_table(name, CORNER_SETS[name])
     if args.sets:
         return

@@ -8,7 +8,7 @@ replays frames the bench rendered beforehand (as benchmarks/bench_live.py: a rea
 cost the host nothing to make). The reference is the same probe in the same process with the window
 closed and nothing running. ``--background-load N`` adds N busy processes (the issue's target: p95
 at most 50 ms with one). Also prints the estimate rate and latency and the recording's drops.
-Run: ``python benchmarks/bench_console.py [--seconds 10] [--background-load 1]``.
+Run: ``python -m benchmarks.bench_console [--seconds 10] [--background-load 1]``.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ sys.path[:0] = [str(Path(__file__).parent), str(Path(__file__).parent.parent)]  
 
 from bench_live import busy_processes, rendered_frames, replay_rig, untrained_model  # noqa: E402
 
+from benchmarks import smoke  # noqa: E402
 from vbfe.common.config import load_config, section  # noqa: E402
 from vbfe.console.station import SessionRequest, Station  # noqa: E402
 from vbfe.console.window import ConsoleOptions, ConsoleWindow  # noqa: E402
@@ -103,11 +104,11 @@ def console_run(config: dict, frames: list[np.ndarray], seconds: float, folder: 
     return {"latency": latency, "status": statuses[-1] if statuses else None, **vars(finished[0])}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--background-load", type=int, default=0, metavar="N")
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, seconds=1.0, background_load=0)
     config = load_config()
     config["bench"].update(width=640, height=360, fps=FPS)
     frames = rendered_frames(config, 60)

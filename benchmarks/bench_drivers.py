@@ -17,6 +17,7 @@ import time
 import can
 import numpy as np
 
+from benchmarks import smoke
 from tests.fakes.camera import FakeStereoCapture, render_eye
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.trocar.can_trocar import CanTrocar
@@ -83,10 +84,10 @@ def camera_rates(n: int, width: int, height: int) -> tuple[float, float]:
     return raw, driver
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20000, help="trocar frames (default 20000)")
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, frames=500)
     raw, driver = trocar_rates(args.frames)
     print(
         f"trocar: bare recv {raw:9.0f} frames/s   CanTrocar.read {driver:9.0f} frames/s   "

@@ -1,8 +1,8 @@
 """Force-estimation benchmark: train, evaluate against the baselines, time inference.
 
-    python benchmarks/bench_estimate.py                      # synthetic 3 stiffness × 3 speeds
-    python benchmarks/bench_estimate.py run*.h5 --out DIR    # recorded sessions with clouds
-    python benchmarks/bench_estimate.py --sim-bench 3 --out DIR   # record + reconstruct first
+    python -m benchmarks.bench_estimate                      # synthetic 3 stiffness × 3 speeds
+    python -m benchmarks.bench_estimate run*.h5 --out DIR    # recorded sessions with clouds
+    python -m benchmarks.bench_estimate --sim-bench 3 --out DIR   # record + reconstruct first
 
 Held-out sessions (one repeat per condition) are evaluated. Per method (every candidate and
 baseline) it prints the training time, the validation and held-out MAE (also as a ratio to the
@@ -13,7 +13,7 @@ step) on the CPU and, when torch sees one, on CUDA. Times are also given as rati
 reference matmul of the paper network's widest layer (2048×128 @ 128×1024), timed in the same
 run, because the machine may be shared.
 
-    python benchmarks/bench_estimate.py --timing-only        # latency and throughput only
+    python -m benchmarks.bench_estimate --timing-only        # latency and throughput only
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks import smoke
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import ForceModel, load_model
@@ -210,7 +211,7 @@ def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: in
     return paths
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sessions", nargs="*", help="sessions with clouds (default: synthetic)")
     parser.add_argument("--out", default=None, help="directory for model and report")
@@ -239,7 +240,7 @@ def main() -> None:
     parser.add_argument(
         "--timing-only", action="store_true", help="only inference latency and training throughput"
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, repeats=1, epochs=2, time_limit=10.0, points=64)
     torch.set_num_threads(args.threads)
     conv, head = [32, 64, 256], [128, 64]
     print(f"load average (1, 5, 15 min) at start: {os.getloadavg()} on {os.cpu_count()} CPUs")

@@ -11,7 +11,7 @@ AVIF lossless, and JPEG 2000, which Foxglove cannot show) with its size ratio, b
 and time, and the entropy figures that bound them (the sensor noise's own entropy, the floor
 of a PNG predictor, and the residual entropy when predicting from the same image, the
 previous frame or the other eye); and the machine load. Run:
-``python benchmarks/bench_export.py [--seconds S] [--width W --height H] [--repeats N]``.
+``python -m benchmarks.bench_export [--seconds S] [--width W --height H] [--repeats N]``.
 """
 
 from __future__ import annotations
@@ -30,10 +30,11 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from benchmarks import smoke
 from vbfe.acquire import SessionReader, record_session
 from vbfe.bags.export import export_mcap
-from vbfe.bags.images import image_codec
 from vbfe.common.config import load_config
+from vbfe.messages.images import image_codec
 from vbfe.truth import calibration_from_rig, true_rig
 
 
@@ -231,7 +232,7 @@ def best_of(repeats: int, run) -> tuple[float, float]:
     return min(t[0] for t in times), min(t[1] for t in times)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--width", type=int, default=640)
@@ -240,7 +241,7 @@ def main() -> None:
     parser.add_argument(
         "--every", type=int, default=12, help="the lossless survey takes every N-th frame"
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, seconds=0.5, width=320, height=180, repeats=1, every=4)
     with tempfile.TemporaryDirectory() as tmp:
         session = Path(tmp) / "session.h5"
         config = load_config()

@@ -7,14 +7,17 @@ predicted by 15-nearest-neighbour regression fitted on trials 0–29 and scored 
 the mean predictor. No images are rendered: this is the floor any image-based model meets on
 the bench. A second floor sees only the depth (z) component of that displacement, as a
 depth-change image does: the pull's elevation (20–50° per trial) then scales what is seen.
-Run: ``python benchmarks/bench_freehand_identifiability.py``.
+Run: ``python -m benchmarks.bench_freehand_identifiability``.
 """
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from benchmarks import smoke
 from vbfe.drivers.sim import SimBench
 
 RANGES = ((40.0, 200.0), (60.0, 110.0), (70.0, 95.0), (75.0, 90.0), (80.0, 80.0))
@@ -50,15 +53,20 @@ def observations(stiffness_range: tuple[float, float], seeds: range) -> np.ndarr
     return np.concatenate(rows)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=40, help="per range; the last quarter scored")
+    parser.add_argument("--ranges", type=int, default=len(RANGES), help="the first N ranges")
+    args = smoke.parse(parser, argv, trials=8, ranges=1)
+    n_train = args.trials * 3 // 4
     print(
         "stiffness range (N/m) | ideal observer MAE (N) | depth component only (N) | "
         "mean predictor MAE (N)"
     )
     scale = np.array([0.003, 0.015])  # typical displacement and radius (m)
-    for low, high in RANGES:
-        data = observations((low, high), range(40))
-        train, test = data[data[:, 0] < 30], data[data[:, 0] >= 30]
+    for low, high in RANGES[: args.ranges]:
+        data = observations((low, high), range(args.trials))
+        train, test = data[data[:, 0] < n_train], data[data[:, 0] >= n_train]
         floors = []
         for displacement in (1, 4):  # the whole visible displacement, its depth component
             columns = [displacement, 2]

@@ -15,7 +15,7 @@ displacement (3D, and its depth component for the depth-only measure), then Hook
 (``--test``, the demo's r6–r8 by default) and by leave-three-trials-out cross-validation over
 all trials, beside the mean predictor; last, the frame preparation's time per frame with and
 without the texture tracking (a ratio: the machine is shared). Run:
-``python benchmarks/bench_freehand_texture.py --trials 18 --workers 2`` (``--remeasure`` after
+``python -m benchmarks.bench_freehand_texture --trials 18 --workers 2`` (``--remeasure`` after
 a change of the measures: they are kept beside each session).
 """
 
@@ -24,12 +24,14 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.acquire import SessionReader, record_session
 from vbfe.demo import FREEHAND, FREEHAND_FIRST_SEED, DemoPlan, demo_config
 from vbfe.estimate.displacement import DisplacementGrid
@@ -43,9 +45,8 @@ from vbfe.truth import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
 
 
-def record(folder: Path, trials: list[int]) -> None:
+def record(folder: Path, trials: list[int], plan: DemoPlan) -> None:
     """Record and reconstruct the textured freehand trials not yet in ``folder``."""
-    plan = DemoPlan.full()
     config = demo_config(plan)
     yaml_text = calibration_from_rig(true_rig(config)).to_yaml_text()
     params = SgbmParams.from_config(config["sgbm"])
@@ -145,7 +146,7 @@ def hooke_mae(
     return float(np.abs(d_test * (d @ y) / (d @ d) - y_test).mean())
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sessions", type=Path, default=Path("/tmp/vbfe-bench-texture"))
     parser.add_argument("--trials", type=int, default=18, help="freehand trials r0 … r(n-1)")
@@ -156,10 +157,12 @@ def main() -> None:
         help="measure again (after a change of the measures), not the kept ones",
     )
     parser.add_argument("--workers", type=int, default=1, help="trials measured at once")
-    args = parser.parse_args()
+    args = smoke.parse(
+        parser, argv, trials=4, test="3", sessions=Path(tempfile.mkdtemp(prefix="vbfe-smoke-"))
+    )
     numbers = list(range(args.trials))
     test = [int(r) for r in args.test.split(",")]
-    record(args.sessions, numbers)
+    record(args.sessions, numbers, DemoPlan.quick() if args.smoke else DemoPlan.full())
     paths = [args.sessions / f"{FREEHAND}_r{r}.h5" for r in numbers]
     with ProcessPoolExecutor(args.workers) as pool:
         trials = dict(

@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 import torch
 
+from benchmarks import smoke
 from tests.foxglove_client import FoxgloveClient
 from vbfe.acquire import Acquisition, SessionReader
 from vbfe.acquire.recording.record import session_recorder
@@ -286,7 +287,7 @@ def measure(
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--scale", type=float, default=None, help="default: [live] scale")
@@ -345,7 +346,7 @@ def main() -> None:
         default=None,
         help="default: [live] opencv_threads (0: one per core)",
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, seconds=4.0, sizes="320x180", repeats=1)
     settings = live_settings(section(load_config(), "live"))
     args.scale = args.scale or settings.scale
     args.row_scale = args.row_scale or settings.row_scale

@@ -5,7 +5,7 @@ verification, triangulation) next to bare OpenCV StereoSGBM with the same settin
 pair, measured in the same run (goal: ratio ≤ 1.15, wall time and CPU time of one thread), the
 per-stage CPU profile, then the accuracy against the rendered truth with and without
 verification (and of the verified points alone). Run:
-``python benchmarks/bench_recon.py [--repeats N] [--sizes 1280x720 640x360]``.
+``python -m benchmarks.bench_recon [--repeats N] [--sizes 1280x720 640x360]``.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.common.config import default_config, section
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -67,25 +68,20 @@ def stage_profile(
     reconstructor: Reconstructor, left: np.ndarray, right: np.ndarray, repeats: int
 ) -> dict[str, float]:
     """Median one-thread CPU time (s) of each stage of the verified pipeline."""
-    rect_left, rect_right = (
-        reconstructor._rectify(image, maps)  # noqa: SLF001 (benchmark)
-        for image, maps in zip((left, right), reconstructor._maps, strict=False)
-    )
-    decoder, params = reconstructor.decoder, reconstructor.params
+    rect_left, rect_right = reconstructor.rectify(left, right)
+    decoder, params = reconstructor.decoder, reconstructor.searched
+    matcher = params.create(3)  # the reconstructor's matcher, made from the same settings
     left_code = decoder.decode(rect_left)
     right_code = decoder.decode(rect_right, period_px=left_code.period_px)
-    disparity = sgbm_disparity(rect_left, rect_right, params, reconstructor._matcher)
+    disparity = sgbm_disparity(rect_left, rect_right, params, matcher)
     verified, status, _ = verify_disparity(
         disparity, left_code, right_code, params.verify_search_px
     )
     cal = reconstructor.calibration
     stages = {
-        "rectify": lambda: [
-            reconstructor._rectify(image, maps)
-            for image, maps in zip((left, right), reconstructor._maps, strict=False)
-        ],
+        "rectify": lambda: reconstructor.rectify(left, right),
         "sgbm (+ fixed-point to px)": lambda: sgbm_disparity(
-            rect_left, rect_right, params, reconstructor._matcher
+            rect_left, rect_right, params, matcher
         ),
         "decode left": lambda: decoder.decode(rect_left),
         "decode right": lambda: decoder.decode(rect_right, period_px=left_code.period_px),
@@ -164,11 +160,11 @@ def bench_size(width: int, height: int, repeats: int) -> None:
         )
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--sizes", nargs="+", default=["1280x720", "640x360"], metavar="WxH")
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, repeats=1, sizes=["640x360"])
     for size in args.sizes:
         width, height = (int(v) for v in size.lower().split("x"))
         bench_size(width, height, args.repeats)

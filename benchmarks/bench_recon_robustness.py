@@ -8,7 +8,7 @@ the code confirmed (the rest are SGBM's, kept where the pattern cannot be read),
 |Δz| and the bad-pixel rate (|Δd| > 1 px) of each. Under crosstalk the verified pipeline is
 also run with a colour model fitted from flat red/green/blue/black/white projections onto a
 white plane rendered with the same crosstalk (the bench's colour calibration capture). Run:
-``python benchmarks/bench_recon_robustness.py`` (about a minute at 640×360).
+``python -m benchmarks.bench_recon_robustness`` (about a minute at 640×360).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.drivers.sim.nuisance import Nuisance
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -80,11 +81,11 @@ def scores(pair, reconstructor: Reconstructor) -> tuple[float, float, float, flo
     )
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=360)
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, width=320, height=180)
     start = time.perf_counter()
     rig = default_rig(args.width, args.height, working_distance_m=DISTANCE_M)
     calibration = calibration_from_rig(rig)

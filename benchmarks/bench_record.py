@@ -38,6 +38,7 @@ import cv2
 import h5py
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.acquire import Recorder, SessionWriter
 from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION, IMAGE_CODECS
 from vbfe.drivers.camera.base import StereoCamera
@@ -290,14 +291,14 @@ def _size(text: str) -> tuple[int, int]:
     return int(width), int(height)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--sizes", nargs="+", type=_size, default=[(640, 360), (1920, 1080)])
     parser.add_argument("--storages", nargs="+", default=list(STORAGES), choices=list(STORAGES))
     parser.add_argument("--busy", type=int, default=1, help="busy processes beside (default 1)")
     parser.add_argument("--dir", default=None, help="where to write (default: a temp dir)")
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, seconds=0.5, sizes=[(320, 180)], storages=["lzf"], busy=0)
     print(
         f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} before, "
         f"{args.busy} busy process(es) beside"

@@ -5,11 +5,12 @@ De Bruijn pattern on the deforming tissue, and of a full bench camera read (mech
 grid + render), each also as a multiple of the time of one ``cv2.remap`` of a same-size BGR
 image measured in the same run. Recording a 30 fps session needs ≥ 10 camera reads per second.
 
-    python benchmarks/bench_sim_render.py
+    python -m benchmarks.bench_sim_render
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Iterator
 from functools import partial
@@ -17,6 +18,7 @@ from functools import partial
 import cv2
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import TissueSample, TractionProtocol, Trial
@@ -53,8 +55,12 @@ def _render_next(
     renderer.render(tissue.with_load(trial.at(next(times))[0]))
 
 
-def main() -> None:
-    for width, height in ((1280, 720), (640, 360)):
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", nargs="+", default=["1280x720", "640x360"], metavar="WxH")
+    args = smoke.parse(parser, argv, sizes=["320x180"])
+    for size in args.sizes:
+        width, height = (int(v) for v in size.lower().split("x"))
         unit = reference_remap(width, height)
         rig = default_rig(width, height)
         renderer = StereoRenderer(rig, rng=np.random.default_rng(0))

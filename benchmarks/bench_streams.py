@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pylsl
 
+from benchmarks import smoke
 from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
 from vbfe.acquire import SessionReader
 from vbfe.common.config import load_config
@@ -161,10 +162,10 @@ def bench_live(folder: Path, seconds: float) -> None:
     )
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, seconds=1.0)
     print(
         f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} on {os.cpu_count()} cores"
     )

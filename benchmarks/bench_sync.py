@@ -5,13 +5,13 @@ each kind (``--seeds`` sessions each, 320×180 at 30 fps, true offset 37 ms): pe
 events, the offset's error and 95% half-width and the flash latency's, so an operator knows how
 many taps are enough. Analysis time is a ratio: verify-sync over reading the frames once.
 
-    python benchmarks/bench_sync.py [--events 5 10 20 40 --seeds 3]
+    python -m benchmarks.bench_sync [--events 5 10 20 40 --seeds 3]
 
 With ``--protocols``: per protocol, the passive offset's error, 95% half-width and coverage:
 ``--freehand`` textured freehand trials (20) and ``--seeds`` pull-hold sessions per paper
 condition (6: the demo's 18), recorded as the demo records them (seeds, texture).
 
-    python benchmarks/bench_sync.py --protocols [--width 640 --height 360 --fps 10]
+    python -m benchmarks.bench_sync --protocols [--width 640 --height 360 --fps 10]
 
 With ``--passive``: records one traction session per (paper condition, seed) through
 ``record_session`` with the default ``[bench]`` table (size, rate and hold overridable), runs
@@ -21,7 +21,7 @@ truth, and the camera/trocar drift estimates (± standard error) against the ben
 spread of the errors. Time is reported as a ratio: verify-sync time over the time to read the
 session's frames once.
 
-    python benchmarks/bench_sync.py --passive [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
+    python -m benchmarks.bench_sync --passive [--width 640 --height 360 --fps 30 --hold 3 --seeds 2]
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.sync.check import verify_sync
@@ -231,7 +232,7 @@ def protocols(args: argparse.Namespace) -> None:
             )
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--events",
@@ -260,7 +261,7 @@ def main() -> None:
         default=None,
         help="sessions per event count (3) or per paper condition (2)",
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, events=[5], seeds=1)
     if args.protocols:
         args.seeds = 6 if args.seeds is None else args.seeds
         protocols(args)

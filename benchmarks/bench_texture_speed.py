@@ -18,6 +18,7 @@ import time
 import cv2
 import numpy as np
 
+from benchmarks import smoke
 from benchmarks.bench_live import rendered_frames
 from tests.texture_reference import reference_peak
 from vbfe.common.config import load_config, section
@@ -48,11 +49,11 @@ def live_clouds(size: tuple[int, int], n: int) -> list[tuple[np.ndarray, np.ndar
     return clouds
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--size", default="640x360")
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, frames=3, size="320x180")
     size = tuple(int(v) for v in args.size.split("x"))
     clouds = live_clouds((size[0], size[1]), args.frames)
     rest = clouds[0]

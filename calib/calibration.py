@@ -1,5 +1,5 @@
 """The calibration record and its file format (OpenCV FileStorage YAML, see
-docs/calibration-format.md).
+docs/reference/calibration-format.md).
 
 Lengths are metres (the board's square size is given in metres), pixels are of the full-size
 image. ``f, B, cx, cy`` are those of the rectified pair: ``f = P1[0,0]``, ``cx = P1[0,2]``,

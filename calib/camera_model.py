@@ -1,5 +1,5 @@
 """A single camera's intrinsics and their file (OpenCV FileStorage YAML, ``format:
-vbfe-camera``, see docs/calibration-format.md): what ``vbfe calibrate camera`` writes and
+vbfe-camera``, see docs/reference/calibration-format.md): what ``vbfe calibrate camera`` writes and
 ``vbfe calibrate stereo --intrinsics`` reads as fixed intrinsics."""
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ residual on blurred boards came with f and B 0.1 % off the truth, see
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from dataclasses import dataclass
 
@@ -23,6 +24,8 @@ import numpy as np
 
 from vbfe.calib.board import BoardSpec, Candidate, Detection
 from vbfe.calib.camera_model import CameraModel
+
+log = logging.getLogger(__name__)
 
 _ROUNDS = 2  # choose, recalibrate on the chosen corners, choose again
 _MIN_CORNERS = 6  # fewer leave a view's pose and residual poorly determined
@@ -139,6 +142,10 @@ def choose_corners(
         )
         for name, d, c, r in zip(names, detections, picked, residual, strict=True)
     ]
+    for record in records:
+        log.debug("%s %s: corners kept from %s", camera, record.view, record.method)
+    methods = Counter(record.method for record in records)
+    log.info("%s camera: corners chosen in %d views (%s)", camera, len(records), dict(methods))
     return chosen, records
 
 

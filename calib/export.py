@@ -1,7 +1,7 @@
 """Export a calibration to the formats other tools read: ROS ``camera_info`` YAML (one file per
 eye), a Kalibr camchain YAML, OpenCV's stereo sample files (``intrinsics.yml`` +
 ``extrinsics.yml``) and a Middlebury ``calib.txt`` (the rectified pair). See
-docs/calibration-format.md; :mod:`vbfe.calib.importers` reads them back."""
+docs/reference/calibration-format.md; :mod:`vbfe.calib.importers` reads them back."""
 
 from __future__ import annotations
 

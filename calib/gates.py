@@ -10,6 +10,7 @@ these before writing; ``calibrate check`` says NO-GO for such a file. Every gate
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -19,6 +20,8 @@ import numpy as np
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.options import CalibOptions, calib_field
 from vbfe.calib.rectify import rectified_fractions, stereo_rectify, worst_fraction
+
+log = logging.getLogger(__name__)
 
 PASS, FAIL, UNCHECKED = "pass", "FAIL", "not checked"
 
@@ -236,6 +239,8 @@ def stereo_gates(
             ),
         )
     )
+    for gate in gates:
+        log.info("gate %s: %s (limit %s): %s", gate.name, gate.measured, gate.limit, gate.verdict)
     return gates
 
 

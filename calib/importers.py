@@ -1,7 +1,7 @@
 """Calibrations made by other tools, read into vbfe's :class:`Calibration` (the inverse of
 :mod:`vbfe.calib.export`): OpenCV's stereo sample files (``M1 D1 M2 D2 R T``, also ``K1 …``,
 YAML or XML, one file or intrinsics + extrinsics), a Kalibr camchain, a ROS ``camera_info``
-pair (left, right) and a Middlebury ``calib.txt``. See docs/calibration-format.md."""
+pair (left, right) and a Middlebury ``calib.txt``. See docs/reference/calibration-format.md."""
 
 from __future__ import annotations
 

@@ -8,12 +8,15 @@ loads the file and merges it over the defaults, which run the simulated bench.
 from __future__ import annotations
 
 import copy
+import logging
 import sys
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from vbfe.common.errors import ConfigError, VbfeError
+
+log = logging.getLogger(__name__)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -62,6 +65,7 @@ def over_defaults(user: dict[str, Any], where: str = "rig config") -> dict[str, 
         raise ConfigError(
             f"{where} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
         )
+    log.info("%s read: tables %s", where, ", ".join(sorted(user)))
     return _merge(config, user)
 
 

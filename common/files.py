@@ -18,7 +18,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, Literal
 
-from vbfe.common.errors import OutputError
+from vbfe.common.errors import OutputError, VbfeError
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 PARTIAL_SUFFIX = ".partial"
@@ -211,6 +211,17 @@ def os_error_text(exc: OSError) -> str:
         reason = "permission denied; write elsewhere"
     text = f"{name}: {reason}" if name else reason
     return text[:400]
+
+
+def error_line(exc: BaseException) -> str:
+    """What went wrong, in one line, as the CLI prints it."""
+    if isinstance(exc, OSError):
+        text = os_error_text(exc)
+    elif isinstance(exc, VbfeError):
+        text = str(exc)
+    else:
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
 
 
 class WriterLock:

@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from vbfe.common.errors import ConfigError
+from vbfe.common.errors import ConfigError, VbfeError
 
 T = TypeVar("T")
 _TOML_SCALARS = (bool, int, float, str)
@@ -204,4 +204,18 @@ def parse_kwargs(
         if key not in known:
             raise _unknown(name, key, list(known), where)
         out[key] = _check(name, key, value, known[key], {})
+    return out
+
+
+def parse_conditions(pairs: list[str]) -> dict[str, object]:
+    """KEY=VALUE pairs as a conditions table (numbers where they parse)."""
+    out: dict[str, object] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise VbfeError(f"--condition {pair!r} is not KEY=VALUE")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
     return out

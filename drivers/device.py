@@ -10,12 +10,15 @@ stays raised once the device is gone, sequence tracking with drop and gap counti
 from __future__ import annotations
 
 import abc
+import logging
 import time
 from typing import Generic, Protocol, TypeVar
 
 from vbfe.common.closing import ClosedOnExit
 from vbfe.common.errors import DeviceError
 from vbfe.drivers.samples import StreamStats
+
+log = logging.getLogger(__name__)
 
 _D = TypeVar("_D", bound="Device")
 
@@ -51,12 +54,14 @@ class Device(ClosedOnExit):
         if not self._is_open:
             self._open()
             self._is_open = True
+            log.info("%s opened", self.label)
 
     def close(self) -> None:
         """Release the device; idempotent."""
         if self._is_open:
             self._is_open = False
             self._close()
+            log.info("%s closed", self.label)
 
     def require_open(self) -> None:
         """Raise DeviceError naming the device unless it is open."""
@@ -134,4 +139,5 @@ class SampleStream(Device, Generic[S]):
             if lost > 0:
                 stats.gaps.append((last, seq))
                 stats.dropped += lost
+                log.debug("%s: %d samples lost between seq %d and %d", self.label, lost, last, seq)
         self._last_seq, self._malformed_at_last = seq, stats.malformed

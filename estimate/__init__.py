@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     from vbfe.estimate.evaluation import EvaluationReport as EvaluationReport
     from vbfe.estimate.evaluation import evaluate as evaluate
     from vbfe.estimate.inference import FramePredictor as FramePredictor
+    from vbfe.estimate.live_predictor import LivePredictor as LivePredictor
     from vbfe.estimate.model_file import ForceModel as ForceModel
     from vbfe.estimate.model_file import load_model as load_model
     from vbfe.estimate.sources import (
@@ -38,6 +39,7 @@ _MODULES = {
     "EvaluationReport": "evaluation",
     "evaluate": "evaluation",
     "FramePredictor": "inference",
+    "LivePredictor": "live_predictor",
     "ForceModel": "model_file",
     "load_model": "model_file",
     "RecordedSession": "sources",

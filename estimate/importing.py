@@ -9,7 +9,7 @@ before ``data10``) and depths outside a range are dropped. Forces come from a te
 outside the force record), a frame-index column (0 = first frame file), or one row per frame.
 The clouds are written with recon's ``CloudWriter`` (the format of ``vbfe reconstruct``'s
 sidecars); the forces at the frames and the conditions go in a ``labels`` group of the same
-file (see docs/importing.md).
+file (see docs/how-to/import.md).
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ import cv2
 import h5py
 import numpy as np
 
-from vbfe import __version__
 from vbfe.acquire.resample import resample_at
 from vbfe.common.errors import EstimateError
 from vbfe.common.files import commit, partial_path
+from vbfe.common.version import __version__
 from vbfe.estimate.sources import CLOUDS_SUFFIX, LABELS_GROUP
 from vbfe.estimate.tables import read_table
 from vbfe.recon.clouds import CloudWriter

@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from vbfe import __version__
 from vbfe.common.errors import ConfigError, EstimateError
 from vbfe.common.files import atomic_path
 from vbfe.common.settings import parse_table
+from vbfe.common.version import __version__
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.intervals import ConformalInterval

@@ -22,6 +22,7 @@ stops a network, a warning says so.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -65,6 +66,8 @@ from vbfe.estimate.splits import (
     split_folds,
 )
 from vbfe.estimate.train_config import TrainConfig
+
+log = logging.getLogger(__name__)
 
 MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 
@@ -424,6 +427,7 @@ def fit_split(
         )
     scored = [n for n in names if n in scores]
     selected, note = select(scored, scores, where, config.model == "auto")
+    log.info("%s", note)
     notes.append(note)
     labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import multiprocessing
 import os
 import signal
@@ -16,13 +17,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vbfe import __version__
 from vbfe.acquire import SessionError, SessionReader
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.calib.calibration import Calibration, load_calibration, stored_calibration
 from vbfe.common.errors import ReconError
 from vbfe.common.files import commit, partial_path
 from vbfe.common.signals import die_with_parent, stop_pool_on_signals
+from vbfe.common.version import __version__
 from vbfe.recon.clouds import COUNT_COLUMNS, CloudWriter, sidecar_path
 from vbfe.recon.freshness import fingerprint_of
 from vbfe.recon.inputs import ImagePairs
@@ -30,6 +31,8 @@ from vbfe.recon.maps import MapOutput, write_maps
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.quality import ReconSettings, check_disparity_range, params_for
 from vbfe.recon.triangulate import FrameCloud, Reconstructor
+
+log = logging.getLogger(__name__)
 
 FrameResult = tuple[int, FrameCloud, dict[str, object]]
 FrameHook = Callable[[str, FrameCloud], object]
@@ -195,6 +198,9 @@ def _reconstruct(
             if progress is not None:
                 progress(1)
         writer.finish()
+        log.info(
+            "%d %s frames reconstructed into %s (%d workers)", n_frames, kind, out_path, workers
+        )
     except BaseException:
         writer.abort()
         tmp_path.unlink(missing_ok=True)

@@ -167,6 +167,11 @@ class Reconstructor:
     def _rectify(self, image: np.ndarray, maps: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
         return image if maps is None else cv2.remap(image, *maps, cv2.INTER_LINEAR)
 
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pair rectified as :meth:`process` rectifies it (the calibration's maps)."""
+        (left_maps, right_maps) = self._maps
+        return self._rectify(left, left_maps), self._rectify(right, right_maps)
+
     def _decode(self, left: np.ndarray, right: np.ndarray) -> tuple[FringeCode, FringeCode]:
         """Fringe codes of both rectified views (the right with the left's fringe width). The
         two views are decoded at once where OpenCV has several threads (the kernels release the
@@ -263,10 +268,7 @@ class Reconstructor:
     def process(self, left: np.ndarray, right: np.ndarray) -> FrameCloud:
         """Point cloud of one raw (unrectified) BGR stereo pair."""
         self._check_size(left, right)
-        rect_left, rect_right = (
-            self._rectify(image, maps)
-            for image, maps in zip((left, right), self._maps, strict=False)
-        )
+        rect_left, rect_right = self.rectify(left, right)
         if not self.verify:
             disparity, edge = disparity_px(*self._match(rect_left, rect_right))
             status = np.where(np.isfinite(disparity), np.uint8(UNVERIFIED), np.uint8(NO_MATCH))

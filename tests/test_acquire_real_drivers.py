@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 
+from tests.cli import vbfe_here
 from tests.fakes.camera import FakeStereoCamera, frame_seq
 from tests.fakes.trocar import FakeTrocar
 from tests.test_acquire_devices import RecordingProjector, force_profile
@@ -49,3 +51,43 @@ def test_v4l2_camera_vanishing_ends_session_with_gap_and_can_forces(tmp_path):
         at_end = json.loads(s.attrs["devices_at_end_json"])["trocar"]["device_clock"]
         assert at_start.startswith("interface timestamp if the first frame carries one")
         assert at_end.startswith("the sender's time.time()")
+        # the session keeps the recording's log: devices opened and closed, the gap, the
+        # drops and the clock fits
+        log = "\n".join(s.log())
+    for words in ("opened", "closed", "camera gap (device disconnected)", "2 records dropped"):
+        assert words in log, (words, log)
+    assert "force clock fit:" in log and "camera clock fit:" in log
+
+
+def test_record_log_file_holds_device_and_drop_events(tmp_path, capsys):
+    """`vbfe record --log-file L` (the real CLI, a simulated camera, the CAN trocar on a
+    virtual bus that loses every 25th sample): the device and drop events reach L."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text(
+        "[bench]\nwidth = 160\nheight = 120\n[record]\nmin_free_gb = 0.0\n"
+        '[trocar]\nbackend = "can"\ninterface = "virtual"\nchannel = "log-file-test"\n'
+    )
+    log_file = tmp_path / "record.log"
+    with FakeTrocar(
+        "log-file-test", force_profile, rate_hz=500.0, drop_counters=range(0, 10**6, 25)
+    ):
+        done = vbfe_here(
+            capsys,
+            "record",
+            str(tmp_path / "s.h5"),
+            "--duration",
+            "0.5",
+            "--config",
+            str(rig),
+            "--log-file",
+            str(log_file),
+        )
+    assert done.returncode == 0, done.err
+    log = log_file.read_text()
+    for words in ("trocar on CAN virtual channel", "opened", "closed", "force: "):
+        assert words in log, (words, log)
+    dropped = re.search(r"force: (\d+) records dropped \(0 by the queue", log)
+    assert dropped and int(dropped[1]) >= 2, log
+    with SessionReader(tmp_path / "s.h5") as s:
+        assert dropped[0] in "\n".join(s.log())
+        assert int(dropped[1]) == s.attrs["force_device_dropped"]

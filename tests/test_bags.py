@@ -606,7 +606,7 @@ def test_png_export_is_lossless_and_2_5x_smaller_than_raw_jpeg90_10x(bench_640, 
 def test_png_keeps_deflate_where_images_repeat():
     """Clean images with repeats (OpenCV's grey chessboard sample, Middlebury's cones) keep
     deflate's gain: the smaller of the two PNG encodings, pixel-identical."""
-    from vbfe.bags.images import image_codec
+    from vbfe.messages.images import image_codec
 
     data = Path(__file__).parent / "data"
     # measured 3.9x and 2.5x; run-length alone gets 2.9x and 1.5x
@@ -711,7 +711,7 @@ def test_layout_names_only_topics_the_export_and_the_live_server_write(sessions,
 
 
 def test_the_fast_wrench_packing_gives_rosbags_own_cdr_bytes():
-    from vbfe.bags import builders
+    from vbfe.messages import builders
 
     t_ns = np.array([1_700_000_000_123_456_789, 1_700_000_001_000_000_001, 2_000_000_000 * 10**9])
     forces = np.array([[0.1, -0.2, 3.5], [1e-3, 2.0, -7.25], [np.nan, np.inf, 0.0]])

@@ -108,7 +108,7 @@ def test_single_camera_images_from_a_folder_a_glob_or_one_eye(tmp_path):
         load_images(tmp_path / "pairs")
 
 
-def test_naming_rules_are_in_the_help_and_the_readme():
+def test_naming_rules_are_in_the_help_and_the_manual():
     import subprocess
     import sys
 
@@ -120,5 +120,5 @@ def test_naming_rules_are_in_the_help_and_the_readme():
     ).stdout
     flat = " ".join(help_text.split())
     assert "left<name>.png + right<name>.png" in flat and "--left GLOB" in flat
-    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
-    assert "left01.jpg" in readme and "calibrate camera" in readme
+    guide = (Path(__file__).parents[1] / "docs/how-to/calibrate.md").read_text(encoding="utf-8")
+    assert "left01.jpg" in guide and "calibrate camera" in guide

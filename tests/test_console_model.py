@@ -42,7 +42,10 @@ def test_latest_keeps_the_newest_frame_the_last_seconds_and_the_rates():
     view = latest.view("force")
     assert view.count == stats.samples
     assert view.rate_hz == pytest.approx(1000.0, rel=0.05)  # the bench's trocar rate
-    assert latest.view("camera").rate_hz == pytest.approx(30.0, rel=0.2)
+    # the rate of the frames that came: a bench camera rendering in real time on a loaded
+    # machine skips frames itself (device-side, counted apart)
+    delivered = stats.frames / (stats.frames + stats.dropped["camera"])
+    assert latest.view("camera").rate_hz == pytest.approx(30.0 * delivered, rel=0.2)
     newest = force[-1]
     assert view.clock_offset_s == (newest.t_host_ns - newest.t_device_ns) / 1e9
     assert latest.view("projector").clock_offset_s is None  # the sim projector has no clock

@@ -16,6 +16,7 @@ from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import CANDIDATES, TEXTURE_FEATURE
 from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.inference import FramePredictor
+from vbfe.estimate.live_predictor import LivePredictor
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.sources import SessionClouds
 from vbfe.estimate.texture_motion import TextureMotion
@@ -23,7 +24,6 @@ from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork
 from vbfe.live.pipeline import Pipeline
-from vbfe.live.predictor import LivePredictor
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.truth import calibration_from_rig
 

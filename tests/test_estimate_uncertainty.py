@@ -17,12 +17,12 @@ from vbfe.estimate.dataset import prepare_sessions
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.intervals import ConformalInterval, calibrate
+from vbfe.estimate.live_predictor import LivePredictor
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import select, train, training_folds
 from vbfe.live.estimator import FrameEstimator
-from vbfe.live.predictor import LivePredictor
 from vbfe.recon import reconstruct_session
 from vbfe.truth import calibration_from_rig, true_rig
 

@@ -4,7 +4,7 @@ Set ``VBFE_REALDATA`` to a folder holding ``learning-to-see-forces/data`` (the `
 folder of github.com/gaocong13/Learning-to-See-Forces) and/or ``punyo/`` (``pc/pc_*.npy`` from
 ``demo/0/expand`` of github.com/uiuc-iml/punyo_force_estimation and ``forces.csv``, its
 ``data.json`` rows ``[t_s, pressure_hPa, joints[6], wrench[6]]`` as
-``frame,t_s,pressure_hpa,fx,fy,fz,tx,ty,tz`` from the wrench; docs/importing.md); each test
+``frame,t_s,pressure_hpa,fx,fy,fz,tx,ty,tz`` from the wrench; docs/how-to/import.md); each test
 skips without its data. Nothing is fetched at test time.
 """
 

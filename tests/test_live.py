@@ -406,7 +406,7 @@ def test_the_estimate_schema_is_one_the_foxglove_app_reads_and_nan_goes_out_as_n
 
 def test_the_foxglove_server_speaks_the_subprotocols_docs_foxglove_md_names():
     """`foxglove.sdk.v1` and `foxglove.sdk.v1.1` connect; a client offering only the older
-    `foxglove.websocket.v1` gets HTTP 400, as docs/foxglove.md says."""
+    `foxglove.websocket.v1` gets HTTP 400, as docs/how-to/foxglove.md says."""
     from tests.foxglove_client import SUBPROTOCOLS, FoxgloveClient
     from vbfe.live.foxglove_server import FoxgloveServer
 
@@ -438,10 +438,10 @@ def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
 
     from tests.foxglove_client import FoxgloveClient
     from vbfe.acquire import Acquisition
-    from vbfe.bags.images import ImageCodec
     from vbfe.drivers.registry import open_rig
     from vbfe.drivers.rig import RigOptions
     from vbfe.live.foxglove_server import BACKLOG, FoxgloveServer
+    from vbfe.messages.images import ImageCodec
 
     config = load_config()
     config["bench"].update(width=320, height=180, fps=10.0)

@@ -23,12 +23,12 @@ from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import NetworkEstimator
 from vbfe.estimate.inference import FramePredictor
+from vbfe.estimate.live_predictor import LivePredictor
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.pointnet import PointNetRegressor, TemporalPointNet
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork
 from vbfe.live.pipeline import Pipeline
-from vbfe.live.predictor import LivePredictor
 from vbfe.live.run import LiveRun
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.recon.maps import depth_map_m

@@ -257,5 +257,5 @@ def test_h5dump_reads_plugin_codecs_with_the_documented_plugin_path(
     import hdf5plugin
 
     path = write_session(tmp_path / "s.h5", compression=compression)
-    monkeypatch.setenv("HDF5_PLUGIN_PATH", hdf5plugin.PLUGIN_PATH)  # docs/other-readers.md
+    monkeypatch.setenv("HDF5_PLUGIN_PATH", hdf5plugin.PLUGIN_PATH)  # docs/how-to/other-readers.md
     assert_h5dump_reads_session(path)

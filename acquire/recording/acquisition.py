@@ -16,6 +16,7 @@ the threads happened to stop.
 from __future__ import annotations
 
 import contextlib
+import logging
 import queue
 import signal
 import sys
@@ -33,6 +34,8 @@ from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
+
+log = logging.getLogger(__name__)
 
 _READ_TIMEOUT_S = 0.2
 _FRAME_BATCH = 1  # frames dispatched per round (listeners look at their clocks in between)
@@ -294,6 +297,11 @@ class Acquisition:
         self._dispatcher.start()
         for pump in self._pumps:
             pump.start()
+        log.info(
+            "acquisition started: streams %s%s",
+            ", ".join(streams),
+            " (paced: the camera is not real time)" if self.paced else "",
+        )
 
     def _show_initial_pattern(self) -> None:
         if self.pattern is None or not self.rig.has("projector"):
@@ -426,6 +434,19 @@ class Acquisition:
         stats = self.update_stats()
         if not stats.end_reason:
             stats.end_reason = self._stop_request or self._halt_reason or "stopped"
+        log.info(
+            "acquisition stopped (%s): %s",
+            stats.end_reason,
+            ", ".join(f"{n} {stream}" for stream, n in stats.counts.items()),
+        )
+        for stream, dropped in stats.dropped.items():
+            if dropped:
+                log.warning(
+                    "%s: %d records dropped (%d by the queue, the rest by the device)",
+                    stream,
+                    dropped,
+                    stats.queue_dropped.get(stream, 0),
+                )
         failures = []
         for listener in self.listeners if self._started else ():
             try:
@@ -524,6 +545,14 @@ class Acquisition:
                         for listener in self.listeners:
                             listener.on_records(stream, items)
                 for message in control:
+                    if isinstance(message, Gap):
+                        log.warning(
+                            "%s gap (%s): %d records lost after seq %d",
+                            message.stream,
+                            message.reason,
+                            message.count,
+                            message.last_seq,
+                        )
                     for listener in self.listeners:
                         if isinstance(message, Gap):
                             listener.on_gap(message)

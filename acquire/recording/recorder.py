@@ -54,6 +54,16 @@ class Recorder(Acquisition):
         super().__init__(rig, pattern, pattern_name, queue_size, (self.sink, *listeners))
         self.what = str(self.sink.path)
 
+    def start(self, duration_s: float | None = None) -> None:
+        """Start as :meth:`Acquisition.start` does, the session collecting the log lines from
+        the opening of the devices on (``vbfe.*`` loggers, information and above)."""
+        self.sink.log.attach()
+        try:
+            super().start(duration_s)
+        except BaseException:
+            self.sink.log.detach()
+            raise
+
     @property
     def path(self) -> Path:
         """The session file."""

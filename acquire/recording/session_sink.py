@@ -30,6 +30,7 @@ from vbfe.acquire.session.extra_streams import MARKS, lsl_stream_spec
 from vbfe.acquire.session.layout import CAMERA, DEFAULT_COMPRESSION, STREAMS, StreamSpec
 from vbfe.acquire.session.writer import SessionWriter, finalize_session
 from vbfe.common.errors import SessionError
+from vbfe.common.logs import LogLines
 from vbfe.drivers.streams.records import StreamInfo
 
 if TYPE_CHECKING:
@@ -123,6 +124,7 @@ class SessionSink(Listener):
         self._marks = 0
         self._posted: list[tuple[str, Sequence[Any]]] = []
         self._posted_lock = threading.Lock()
+        self.log = LogLines()  # the recording's log lines, kept in the session
 
     @contextlib.contextmanager
     def _writing(self) -> Iterator[None]:
@@ -227,6 +229,7 @@ class SessionSink(Listener):
         writer, stats = self._writer, self._acquisition.stats
         with self._writing():
             self._write_posted()
+            writer.append_log(self.log.take())
             now = time.monotonic()
             if now >= self._next_flush:  # on the clock: a slow flush does not shift the next
                 self._flush()
@@ -238,10 +241,17 @@ class SessionSink(Listener):
         stats.bytes_written = writer.bytes_written
 
     def on_stop(self, acquisition: Acquisition) -> None:
+        try:
+            self._stop(acquisition)
+        finally:
+            self.log.detach()
+
+    def _stop(self, acquisition: Acquisition) -> None:
         writer, stats = self._writer, acquisition.stats
         if self._error is None:
             with contextlib.suppress(Exception), self._writing():
                 self._write_posted()
+                writer.append_log(self.log.take())
                 writer.close()
         stats.flushed, stats.bytes_written = dict(writer.flushed_counts), writer.bytes_written
         if self._error is not None:
@@ -252,14 +262,18 @@ class SessionSink(Listener):
             if closed and free_bytes(self.path.parent) > _FINALIZE_MIN_FREE_BYTES:
                 with contextlib.suppress(SessionError, OSError, RuntimeError):
                     finalize_session(
-                        self.path, self._final_attrs(acquisition, f"write failed: {reason}")
+                        self.path,
+                        self._final_attrs(acquisition, f"write failed: {reason}"),
+                        log_lines=self.log,
                     )
             raise SessionError(
                 f"writing {self.path} failed ({reason}); recording stopped, the "
                 "file keeps what was written before the failure (see `vbfe "
                 f"inspect {self.path}`)"
             ) from None
-        finalize_session(self.path, self._final_attrs(acquisition), self._truth(acquisition))
+        finalize_session(
+            self.path, self._final_attrs(acquisition), self._truth(acquisition), self.log
+        )
         if self._fault is not None:
             raise SessionError(
                 f"{self._fault}; recording stopped and {self.path} finalized with "

@@ -1,2 +1,2 @@
 """The HDF5 session format: its layout, the writer, the reader, inspection, verification and
-recovery (documented in docs/session-format.md)."""
+recovery (documented in docs/reference/session-format.md)."""

@@ -1,6 +1,6 @@
 """The HDF5 session layout as one table of streams (schema documented in
-docs/session-format.md): it drives creation (writer), checking (reader), trimming (recovery)
-and the end-of-recording clock fits.
+docs/reference/session-format.md): it drives creation (writer), checking (reader), trimming
+(recovery) and the end-of-recording clock fits.
 
 A stream is one HDF5 group of equally long datasets, one row per record: the time columns
 ``t_device_ns`` (the device's clock, see ``clock``), ``t_host_ns`` and ``seq`` (``int64``),
@@ -33,6 +33,7 @@ GAP_REASONS = ("queue full", "device disconnected", "device error", "bus state c
 GAP_COLUMNS = ("stream", "reason", "last_seq", "next_seq", "t_host_ns", "count")
 PATTERN_NAME_DTYPE = "S64"
 JPEG_QUALITY = 95
+LOG = "log"  # the recording's log lines (text, one per row; sessions from before have none)
 EXTRA_STREAMS_ATTR = "extra_streams_json"  # root attribute: the specs of non-core streams
 TEXT = h5py.string_dtype()  # dtype of a text column (e.g. LSL string markers)
 

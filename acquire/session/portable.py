@@ -18,7 +18,6 @@ from typing import Any
 import h5py
 import numpy as np
 
-import vbfe
 from vbfe.acquire.session.layout import COMPRESSIONS, image_filter, session_streams
 from vbfe.acquire.session.reader import SessionReader, open_session_file
 from vbfe.common.errors import SessionError
@@ -30,6 +29,7 @@ from vbfe.common.files import (
     partial_path,
     require_free_space,
 )
+from vbfe.common.version import __version__
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,7 @@ def upgrade_file(
                         dst.attrs["upgraded_from_compression"] = str(src.attrs.get("compression"))
                         dst.attrs["compression"] = compression
                     dst.attrs["upgraded_utc_ns"] = time.time_ns()
-                    dst.attrs["upgraded_by"] = f"vbfe {vbfe.__version__}"
+                    dst.attrs["upgraded_by"] = f"vbfe {__version__}"
                 with h5py.File(tmp, "r") as check:
                     problem = next(iter(_differences(src, check, UPGRADE_ATTRS)), None)
                 if problem is not None:

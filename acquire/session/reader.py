@@ -31,6 +31,7 @@ from vbfe.acquire.session.layout import (
     FORCE,
     GAP_COLUMNS,
     GAP_REASONS,
+    LOG,
     PROJECTOR,
     SCHEMA_VERSION,
     STREAMS,
@@ -555,6 +556,12 @@ class SessionReader(ClosedOnExit):
             gap["reason"] = GAP_REASONS[gap["reason"]]
             out.append(gap)
         return out
+
+    def log(self) -> list[str]:
+        """The recording's log lines (empty for sessions written before they were kept)."""
+        if LOG not in self._file:
+            return []
+        return [text(v) for v in self._file[LOG][:]]
 
     def clock_pairs(self) -> np.ndarray:
         """``(n, 2)`` pairs of (UTC ns, host monotonic ns) taken at every flush."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import json
+import logging
 import os
 import shutil
 import socket
@@ -26,7 +27,6 @@ import cv2
 import h5py
 import numpy as np
 
-import vbfe
 from vbfe.acquire.session.clock import fit_clock
 from vbfe.acquire.session.layout import (
     CAMERA,
@@ -38,6 +38,7 @@ from vbfe.acquire.session.layout import (
     GAP_REASONS,
     IMAGE_CODECS,
     JPEG_QUALITY,
+    LOG,
     PROJECTOR,
     SCHEMA_VERSION,
     TIME_COLUMNS,
@@ -49,7 +50,11 @@ from vbfe.acquire.session.layout import (
 from vbfe.acquire.session.reader import consistent_rows
 from vbfe.common.errors import SessionError
 from vbfe.common.files import SESSION_FORMAT, WriterLock, create_hdf5
+from vbfe.common.logs import LINE_FORMAT, LogLines
+from vbfe.common.version import __version__
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+
+log = logging.getLogger(__name__)
 
 _JPEG_CHUNK = 1 << 20
 RESERVE_BYTES = 16 << 20  # held back so HDF5 can still write out its caches after a full disk
@@ -153,6 +158,7 @@ class SessionWriter:
             "clock_pairs",
             "clock",
             "truth",
+            LOG,
         }:
             raise SessionError(
                 f"stream names for {path} must be unique and not a session "
@@ -171,7 +177,7 @@ class SessionWriter:
             {
                 "format": SESSION_FORMAT,
                 "schema_version": SCHEMA_VERSION,
-                "software_version": vbfe.__version__,
+                "software_version": __version__,
                 "compression": compression,
                 "operator": str(metadata.get("operator", "")),
                 "notes": str(metadata.get("notes", "")),
@@ -202,6 +208,8 @@ class SessionWriter:
         )
         self._wall = _series(f, "clock_pairs", np.int64, (2,), 64)
         self._wall.attrs["columns"] = ["t_utc_ns", "t_host_ns"]
+        self._log = _series(f, LOG, h5py.string_dtype(), (), 256)
+        self._log.attrs["format"] = LINE_FORMAT
         if calibration_yaml is not None:
             f.create_dataset("calibration_yaml", data=calibration_yaml, dtype=h5py.string_dtype())
         f.swmr_mode = True
@@ -327,6 +335,11 @@ class SessionWriter:
             ),
         )
 
+    def append_log(self, lines: Sequence[str]) -> None:
+        """Append log lines of the recording (see :class:`vbfe.common.logs.LogLines`)."""
+        if lines:
+            _append(self._log, np.array(lines, dtype=object))
+
     def flush(self, clock_pair: tuple[int, int] | None = None) -> dict[str, int]:
         """Make everything appended so far durable and visible to readers.
 
@@ -372,9 +385,13 @@ class SessionWriter:
 
 
 def finalize_session(
-    path: str | Path, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None = None
+    path: str | Path,
+    attrs: dict[str, Any],
+    truth: dict[str, np.ndarray] | None = None,
+    log_lines: LogLines | None = None,
 ) -> None:
-    """After a clean close: store clock fits per stream, end attributes and optional truth.
+    """After a clean close: store clock fits per stream, end attributes, optional truth and
+    the lines ``log_lines`` collected meanwhile (the clock fits' among them).
 
     The file is reopened without HDF5's file lock (``locking=False``): a reader that has the
     session open holds a shared lock that would otherwise make this fail."""
@@ -385,6 +402,11 @@ def finalize_session(
             raise SessionError(f"cannot reopen {path} to finish the session: {exc}") from None
         with f:
             finish_file(f, attrs, truth)
+            if log_lines is not None and LOG in f:
+                lines = log_lines.take()
+                if log_lines.skipped:
+                    lines.append(f"... {log_lines.skipped} further log lines not kept")
+                _append(f[LOG], np.array(lines, dtype=object))
 
 
 def finish_file(f: h5py.File, attrs: dict[str, Any], truth: dict[str, np.ndarray] | None) -> None:
@@ -393,7 +415,16 @@ def finish_file(f: h5py.File, attrs: dict[str, Any], truth: dict[str, np.ndarray
     for spec in session_streams(f):
         n = consistent_rows(f[spec.name])
         t_dev, t_host = f[spec.name]["t_device_ns"][:n], f[spec.name]["t_host_ns"][:n]
-        clock.require_group(spec.name).attrs.update(fit_clock(t_dev, t_host).to_attrs())
+        fit = fit_clock(t_dev, t_host)
+        clock.require_group(spec.name).attrs.update(fit.to_attrs())
+        log.info(
+            "%s clock fit: %d pairs, drift %.2f ppm, jitter %.3f ms, latency %.3f ms",
+            spec.name,
+            fit.n_pairs,
+            fit.drift_ppm,
+            fit.jitter_ns / 1e6,
+            fit.latency_ns / 1e6,
+        )
     if truth:
         group = f.require_group("truth")
         for name, values in truth.items():

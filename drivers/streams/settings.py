@@ -27,6 +27,7 @@ RESERVED = (
     "gaps",
     "clock",
     "clock_pairs",
+    "log",
     "truth",
     "analysis",
     "calibration_yaml",

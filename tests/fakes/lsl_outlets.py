@@ -1,5 +1,6 @@
 """Real LSL outlets standing in for a lab's other programs: a robot publishing its joint state
-at 1 kHz (as docs/streams.md's ROS 2 bridge does) and an experiment script's marker stream."""
+at 1 kHz (as docs/how-to/publish-streams.md's ROS 2 bridge does) and an experiment script's
+marker stream."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """``vbfe export --format mcap``: a session as an MCAP file of ROS 2 messages.
 
 Topics (see :data:`messages.TOPICS`): per eye ``sensor_msgs/CompressedImage``
-(``.../compressed``) as ``--images`` says (:mod:`vbfe.bags.images`: PNG, lossless, by default;
+(``.../compressed``) as ``--images`` says (:mod:`vbfe.messages.images`: PNG, lossless, by default;
 JPEG; an ``mjpeg`` session's own JPEG bytes, not encoded again), or ``sensor_msgs/Image``
 ``bgr8`` with ``raw``;
 ``sensor_msgs/CameraInfo`` per eye from the stored calibration; ``geometry_msgs/WrenchStamped``
@@ -33,14 +33,21 @@ import numpy as np
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
-import vbfe
 from vbfe.acquire import SessionReader
-from vbfe.bags import builders
-from vbfe.bags.builders import header, msg
-from vbfe.bags.images import ImageCodec
-from vbfe.bags.messages import FRAME_IDS, MIN_UNIX_NS, TOPICS, host_to_unix, schema_text, typestore
 from vbfe.common.errors import BagError
 from vbfe.common.files import atomic_path
+from vbfe.common.version import __version__
+from vbfe.messages import builders
+from vbfe.messages.builders import header, msg
+from vbfe.messages.images import ImageCodec
+from vbfe.messages.topics import (
+    FRAME_IDS,
+    MIN_UNIX_NS,
+    TOPICS,
+    host_to_unix,
+    schema_text,
+    typestore,
+)
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
 _CHUNK_BYTES = 4 << 20
@@ -97,7 +104,7 @@ class _Mcap:
 
     def __init__(self, fh: Any, compression: str) -> None:
         self.writer = Writer(fh, chunk_size=_CHUNK_BYTES, compression=COMPRESSIONS[compression])
-        self.writer.start(profile=Profile.ROS2, library=f"vbfe {vbfe.__version__}")
+        self.writer.start(profile=Profile.ROS2, library=f"vbfe {__version__}")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self.counts: dict[str, int] = {}

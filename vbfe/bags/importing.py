@@ -31,10 +31,10 @@ from rosbags.typesys import Stores, get_typestore
 
 from vbfe.acquire import SessionWriter, finalize_session
 from vbfe.acquire.session.layout import DEFAULT_COMPRESSION
-from vbfe.bags.messages import MIN_UNIX_NS, TOPICS, stamp_ns
 from vbfe.common.errors import BagError
 from vbfe.common.files import atomic_path
 from vbfe.drivers.samples import ForceSample, JpegStereoFrame, ProjectorEvent, StereoFrame
+from vbfe.messages.topics import MIN_UNIX_NS, TOPICS, stamp_ns
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 FORCE_TYPES = (

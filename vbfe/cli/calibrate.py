@@ -430,7 +430,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="first capture N poses into CAPTURES with the rig's camera and projector "
         "(as projector-capture; rendered on the simulated bench)",
     )
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument(
+        "--seed", type=int, default=None, help="simulated bench: pose seed of the captures"
+    )
     _board_options(p)
     add_overwrite_option(p)
     add_config_option(p)

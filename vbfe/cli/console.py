@@ -65,7 +65,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="serve `vbfe record --remote`'s commands on this TCP port (0: any free port)",
     )
-    parser.add_argument("--remote-bind", default="127.0.0.1", metavar="ADDRESS")
+    parser.add_argument(
+        "--remote-bind",
+        default="127.0.0.1",
+        metavar="ADDRESS",
+        help="address the remote-control port listens on (default: localhost only; 0.0.0.0 "
+        "for every interface)",
+    )
     add_overwrite_option(parser)
     add_config_option(parser)
     parser.set_defaults(func=run)

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "With --manifest the rows go to a CSV that train, evaluate, reconstruct and "
         "verify-sync accept instead of a list of session files.",
     )
-    parser.add_argument("folder", metavar="DIR")
+    parser.add_argument("folder", metavar="DIR", help="folder searched for sessions")
     parser.add_argument(
         "--manifest",
         metavar="FILE.csv",

@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--live SESSION.h5, scores the estimates that `vbfe live --record` "
         "stored in the session against its trocar.",
     )
-    parser.add_argument("model", metavar="MODEL.pt", nargs="?")
+    parser.add_argument("model", metavar="MODEL.pt", nargs="?", help="from vbfe train")
     parser.add_argument(
         "sessions",
         nargs="*",

@@ -18,8 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "bytes unless raw), "
         "camera_info from the stored calibration, the trocar as WrenchStamped, point clouds "
         "from a clouds file, projector events, gaps and live estimates; Unix timestamps from "
-        "the session's clock pairs. See docs/bags.md. (`vbfe calibrate export` writes a "
-        "calibration alone as ROS / Kalibr / OpenCV files.)",
+        "the session's clock pairs. See docs/how-to/export-mcap.md. (`vbfe calibrate export` "
+        "writes a calibration alone as ROS / Kalibr / OpenCV files.)",
     )
     add_session_output_options(
         parser, ".mcap", "output file", "also write these point clouds as sensor_msgs/PointCloud2"
@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Export and print what was written."""
     from vbfe.bags.export import export_mcap
-    from vbfe.bags.images import image_codec
+    from vbfe.messages.images import image_codec
 
     images = image_codec(args.images)
     session, out = session_and_output(args, ".mcap")

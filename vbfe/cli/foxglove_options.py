@@ -24,7 +24,7 @@ def add_foxglove_options(parser: argparse.ArgumentParser) -> None:
         help=f"serve the rig live to Foxglove on ws://127.0.0.1:PORT (default {DEFAULT_PORT}; "
         "0: a free port): images, trocar wrench, projector events, extra streams, estimates "
         "and clouds (vbfe live); frames are skipped for the viewer, never for the recording "
-        "(docs/foxglove.md)",
+        "(docs/how-to/foxglove.md)",
     )
     parser.add_argument(
         "--images",
@@ -38,9 +38,9 @@ def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServe
     """The server ``--foxglove`` asks for, listening already (None without it), printing its
     address once the rig runs; LiveError for a bad or busy port, BagError for a bad
     ``--images``."""
-    from vbfe.bags.images import image_codec
     from vbfe.common.errors import LiveError
     from vbfe.live.foxglove_server import LIVE_IMAGES, FoxgloveServer
+    from vbfe.messages.images import image_codec
 
     if args.foxglove is None:
         if args.images is not None:
@@ -54,7 +54,7 @@ def foxglove_server(args: argparse.Namespace, target: str = "") -> FoxgloveServe
         images,
         target=target,
         on_ready=lambda url: print(
-            f"Foxglove: open {url} (docs/foxglove.md)", file=sys.stderr, flush=True
+            f"Foxglove: open {url} (docs/how-to/foxglove.md)", file=sys.stderr, flush=True
         ),
     )
     server.open()  # a busy port is refused before anything is recorded

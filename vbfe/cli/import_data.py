@@ -19,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Turn a folder of frames (KIND clouds: *.ply/*.npy point clouds in metres; "
         "KIND depth: 16-bit PNG depth images) and a force CSV into OUT.clouds.h5, which "
         "`vbfe train` and `vbfe evaluate` take like a reconstructed session (see "
-        "docs/importing.md); or (KIND bag) a ROS bag — MCAP file, rosbag2 folder or ROS 1 "
-        ".bag — into a session OUT.h5 (see docs/bags.md).",
+        "docs/how-to/import.md); or (KIND bag) a ROS bag — MCAP file, rosbag2 folder or ROS 1 "
+        ".bag — into a session OUT.h5 (see docs/how-to/export-mcap.md).",
     )
     parser.add_argument("kind", choices=("clouds", "depth", "bag"), help="what the input is")
     parser.add_argument(
@@ -35,7 +35,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="force table (clouds, depth): CSV with a header row, or headerless "
         "columns separated by commas or whitespace",
     )
-    parser.add_argument("--out", "-o", required=True, metavar="OUT.clouds.h5|OUT.h5")
+    parser.add_argument(
+        "--out",
+        "-o",
+        required=True,
+        metavar="OUT.clouds.h5|OUT.h5",
+        help="the file to write: OUT.clouds.h5 for clouds and depth, a session OUT.h5 for a bag",
+    )
     parser.add_argument(
         "--force-columns",
         metavar="FX,FY,FZ",

@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="SOURCE_ID",
         help="publish the estimates (LSL stream vbfe-estimate) and the trocar "
         "(vbfe-trocar) for other programs; SOURCE_ID tells two vbfe apart "
-        "(default vbfe@HOST; docs/streams.md)",
+        "(default vbfe@HOST; docs/how-to/publish-streams.md)",
     )
     parser.add_argument(
         "--udp",

@@ -7,7 +7,6 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from vbfe import __version__
 from vbfe.cli import (
     calibrate,
     dataset,
@@ -32,6 +31,7 @@ from vbfe.cli import (
     console as console_command,
 )
 from vbfe.cli.common import rig_from
+from vbfe.common import logs
 from vbfe.common.errors import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
@@ -41,6 +41,7 @@ from vbfe.common.errors import (
 )
 from vbfe.common.files import os_error_text
 from vbfe.common.signals import Terminated, sigterm_as_interrupt
+from vbfe.common.version import __version__
 
 COMMANDS = (
     devices,
@@ -73,10 +74,50 @@ def build_parser() -> argparse.ArgumentParser:
         "train and evaluate with a structured-light stereo endoscope and a force trocar.",
     )
     parser.add_argument("--version", action="version", version=f"vbfe {__version__}")
+    _add_log_options(parser, None)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS:
         module.register(sub)
+    for command in _parsers(sub):  # `vbfe record -v` as well as `vbfe -v record`
+        _add_log_options(command, argparse.SUPPRESS)
     return parser
+
+
+def _parsers(sub: argparse._SubParsersAction) -> list[argparse.ArgumentParser]:
+    """Every parser under ``sub``: the subcommands and their own actions."""
+    found = []
+    for parser in dict.fromkeys(sub.choices.values()):
+        found.append(parser)
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                found += _parsers(action)
+    return found
+
+
+def _add_log_options(parser: argparse.ArgumentParser, default: object) -> None:
+    """``-v``/``-q``/``--log-file``; below the top level ``default`` is SUPPRESS, so a
+    subcommand's parser keeps what the top level parsed unless given again."""
+    group = parser.add_argument_group("logging")
+    group.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0 if default is None else default,
+        help="log what the library does on stderr (-v information, -vv debug)",
+    )
+    group.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=False if default is None else default,
+        help="log only errors on stderr (not warnings)",
+    )
+    group.add_argument(
+        "--log-file",
+        metavar="FILE",
+        default=default,
+        help="append the log (information and above; debug with -vv) to FILE",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -86,6 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        logs.configure(-1 if args.quiet else args.verbose, args.log_file)
         with sigterm_as_interrupt():
             if hasattr(args, "config"):  # the command uses the rig: say which, first
                 print(rig_from(args).banner(), flush=True)

@@ -20,6 +20,7 @@ from vbfe.cli.common import add_config_option, config_from, progress, rig_from
 from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
+from vbfe.common.settings import parse_conditions
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -101,7 +102,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help=f"wait for LabRecorder's remote-control commands on this TCP port "
         f"(its default: {DEFAULT_PORT}; 0: any free port) and record whenever "
-        "told to (docs/streams.md); Ctrl-C to quit",
+        "told to (docs/how-to/publish-streams.md); Ctrl-C to quit",
     )
     parser.add_argument(
         "--remote-bind",
@@ -123,20 +124,6 @@ def _positive_seconds(text: str) -> float:
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
     return value
-
-
-def parse_conditions(pairs: list[str]) -> dict[str, object]:
-    """KEY=VALUE pairs as a conditions table (numbers where they parse)."""
-    out: dict[str, object] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise VbfeError(f"--condition {pair!r} is not KEY=VALUE")
-        try:
-            out[key] = float(value)
-        except ValueError:
-            out[key] = value
-    return out
 
 
 def run(args: argparse.Namespace) -> int:

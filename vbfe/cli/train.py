@@ -48,8 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_settle_option(parser, "the model as the one vbfe live loads ([live] model)")
     parser.add_argument("--epochs", type=int, help="maximum epochs (early stopping may end sooner)")
     parser.add_argument("--points", type=int, dest="n_points", help="points per cloud")
-    parser.add_argument("--batch-size", type=int)
-    parser.add_argument("--learning-rate", type=float)
+    parser.add_argument("--batch-size", type=int, help="clouds per step ([train] batch_size)")
+    parser.add_argument(
+        "--learning-rate", type=float, help="NAdam's initial rate ([train] learning_rate)"
+    )
     parser.add_argument(
         "--target",
         metavar="magnitude|xyz|AXIS",
@@ -97,9 +99,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--device", metavar="auto|cpu|cuda", help="cpu (default), cuda, or auto")
     parser.add_argument(
-        "--time-limit", type=positive(float), dest="time_limit_s", metavar="SECONDS"
+        "--time-limit",
+        type=positive(float),
+        dest="time_limit_s",
+        metavar="SECONDS",
+        help="stop a network's training after this long, with a warning ([train] time_limit_s)",
     )
-    parser.add_argument("--seed", type=int)
+    parser.add_argument(
+        "--seed", type=int, help="of the split, the sampling and the weights ([train] seed)"
+    )
     parser.add_argument(
         "--coverage",
         type=float,

@@ -23,7 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "drift and drops of sessions; PASS/FAIL against the rig's limits "
         "(exit 0/1; 3: inconclusive, record --protocol sync)",
     )
-    parser.add_argument("sessions", nargs="+", metavar="SESSION.h5|MANIFEST.csv")
+    parser.add_argument(
+        "sessions",
+        nargs="+",
+        metavar="SESSION.h5|MANIFEST.csv",
+        help="sessions, or a manifest CSV written by vbfe dataset",
+    )
     parser.add_argument(
         "--plot",
         metavar="PNG",

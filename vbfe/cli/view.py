@@ -13,7 +13,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "view", help="replay a session (images, force, drops) or watch the devices live (--live)"
     )
-    parser.add_argument("session", metavar="SESSION.h5", nargs="?", default=None)
+    parser.add_argument(
+        "session", metavar="SESSION.h5", nargs="?", default=None, help="the session to replay"
+    )
     parser.add_argument("--live", action="store_true", help="show the rig's devices live")
     add_config_option(parser)
     parser.set_defaults(func=run)

@@ -15,11 +15,11 @@ import numpy as np
 from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.sync.check import SyncLimits, SyncReport, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
+from vbfe.batch.inputs import check_outputs
 from vbfe.calib import commands
 from vbfe.calib.capture import CaptureOptions, Verdict, ViewCollector, rejection_kind
 from vbfe.calib.check import CheckResult
 from vbfe.calib.views import load_views, save_views
-from vbfe.cli.outputs import check_outputs
 from vbfe.common.config import default_config, section
 from vbfe.drivers.samples import StereoFrame
 

@@ -18,9 +18,9 @@ from vbfe.acquire.recording.remote import (
     session_path,
 )
 from vbfe.acquire.recording.storage import free_bytes
-from vbfe.cli.record import parse_conditions
 from vbfe.common.errors import SessionError, VbfeError
-from vbfe.common.files import stale_locks
+from vbfe.common.files import error_line, stale_locks
+from vbfe.common.settings import parse_conditions
 from vbfe.console.station import Finished, SessionRequest
 from vbfe.console.widgets import Tab, form, value_label, with_picker
 
@@ -187,8 +187,6 @@ class RecordTab(Tab):
             request = self.request(path)
             made = make_session_folder(Path(self.options()["root"]), path)
         except (VbfeError, OSError) as exc:
-            from vbfe.console.window import error_line
-
             self.console.message(f"cannot record: {error_line(exc)}", True)
             return
         said = f" (made the folder {made})" if made is not None else ""

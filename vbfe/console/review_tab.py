@@ -15,7 +15,7 @@ from pyqtgraph.Qt import QtWidgets
 
 from vbfe.acquire.session.catalog import COLUMNS, SessionEntry, list_sessions
 from vbfe.acquire.viewer import FORCE_PENS
-from vbfe.cli.outputs import check_outputs
+from vbfe.batch.inputs import check_outputs
 from vbfe.console.station import Finished
 from vbfe.console.widgets import Tab, value_label, with_picker
 

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from pyqtgraph.Qt import QtWidgets
 
 from vbfe.common.errors import VbfeError
+from vbfe.common.files import error_line
 from vbfe.console.desks import save_rig_file
 from vbfe.console.widgets import Tab, value_label, with_picker
 
@@ -62,8 +63,6 @@ class RigTab(Tab):
         try:
             save_rig_file(self.station.config, path)
         except (VbfeError, OSError) as exc:
-            from vbfe.console.window import error_line
-
             self.console.message(f"rig file not saved: {error_line(exc)}", True)
             return
         self.console.use_rig_file(path)

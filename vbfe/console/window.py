@@ -18,7 +18,7 @@ from vbfe.calib.board import BoardSpec
 from vbfe.calib.commands import set_board
 from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
-from vbfe.common.files import os_error_text
+from vbfe.common.files import error_line
 from vbfe.console import TAB_NAMES
 from vbfe.console.station import Finished, Station
 from vbfe.drivers.qt_app import qt_application
@@ -46,17 +46,6 @@ _TERMS = re.compile("|".join(re.escape(k) for k in sorted(WINDOW_TERMS, key=len,
 def window_terms(text: str) -> str:
     """``text`` with the CLI's options it names replaced by the window's fields."""
     return _TERMS.sub(lambda m: WINDOW_TERMS[m.group(0)], text)
-
-
-def error_line(exc: BaseException) -> str:
-    """What went wrong, in one line, as the CLI prints it."""
-    if isinstance(exc, OSError):
-        text = os_error_text(exc)
-    elif isinstance(exc, VbfeError):
-        text = str(exc)
-    else:
-        text = f"{type(exc).__name__}: {exc}"
-    return " ".join(text.split())
 
 
 @dataclass(frozen=True)

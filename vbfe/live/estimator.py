@@ -22,9 +22,9 @@ import torch
 from vbfe.calib.calibration import Calibration
 from vbfe.common.errors import EstimateError
 from vbfe.drivers.samples import StereoFrame
+from vbfe.estimate import LivePredictor
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures
-from vbfe.live.predictor import LivePredictor
 from vbfe.recon.matching import SgbmParams
 from vbfe.recon.triangulate import Reconstructor
 
@@ -90,8 +90,8 @@ class FrameEstimator:
 
     The reconstructor (rectification maps, matcher) is built once and reused for every frame;
     the model's selected estimator reads every cloud against the run's first usable cloud
-    (:class:`vbfe.live.predictor.LivePredictor`), so start with the tissue at rest; a network
-    runs on ``device`` (``"cpu"`` or ``"cuda"``). On a machine with several cores the
+    (:class:`vbfe.estimate.live_predictor.LivePredictor`), so start with the tissue at rest; a
+    network runs on ``device`` (``"cpu"`` or ``"cuda"``). On a machine with several cores the
     fringe codes are decoded on a second thread while SGBM matches. ``row_scale`` < 1
     matches fewer rows (rows averaged together) at the full width: the depth resolution, set
     by the disparity along the rows, stays; the cloud has fewer points, and the model samples

@@ -1,7 +1,7 @@
 """``--foxglove [PORT]``: the running rig served to Foxglove over its WebSocket protocol
 (foxglove-sdk), as one more listener of the acquisition.
 
-Topics and schemas are the MCAP export's (:data:`vbfe.bags.messages.TOPICS`, ROS 2 messages in
+Topics and schemas are the MCAP export's (:data:`vbfe.messages.topics.TOPICS`, ROS 2 messages in
 CDR, which Foxglove reads without plugins): both eyes' images as
 ``sensor_msgs/CompressedImage`` (``--images``: JPEG 90 by default, PNG, or raw
 ``sensor_msgs/Image``) at most ``image_hz`` frames a second, the trocar's
@@ -32,13 +32,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from foxglove.websocket import ChannelView, Client, ServerListener
 
-from vbfe.bags import builders
-from vbfe.bags.images import ImageCodec
-from vbfe.bags.messages import TOPICS, schema_text
 from vbfe.common.errors import LiveError
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.live.mailbox import Mailbox
 from vbfe.live.outputs import EstimateOutput
+from vbfe.messages import builders
+from vbfe.messages.images import ImageCodec
+from vbfe.messages.topics import TOPICS, schema_text
 
 if TYPE_CHECKING:
     from vbfe.acquire import Acquisition

@@ -1,6 +1,6 @@
 """The ROS 2 messages vbfe writes, built from its records: for the MCAP export and the live
 Foxglove server alike (each one's topic, type and frame id are written once, here and in
-:mod:`vbfe.bags.messages`)."""
+:mod:`vbfe.messages.topics`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.bags.messages import FRAME_IDS, typestore
+from vbfe.messages.topics import FRAME_IDS, typestore
 
 _FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
 IMAGE = "sensor_msgs/msg/Image"

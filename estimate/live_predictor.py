@@ -1,15 +1,15 @@
 """Force from successive raw clouds in two steps (prepare, model), computing only what the
 selected estimator reads.
 
-The estimates are ``estimate.inference.FramePredictor``'s (same rest cloud, same random draws,
-same causal window): a network (PointNet or the temporal model) reads only each frame's point
-pool, so the live path skips the peak displacement and the depth-change image the other
-estimators read, and draws the pool by index straight from a cloud whose points are all
-finite (``roi = "all"``) instead of copying the cloud first. When the model carries a flag of
-frames outside the training data (``estimate.novelty``) every frame's full features are
-computed, since the flag reads the depth-change image and the displacement. Likewise Hooke's
-law on the texture's displacement (without the flag) reads only that: the live path computes
-it alone, by the same ``TextureMotion`` as in training.
+The estimates are :class:`~vbfe.estimate.inference.FramePredictor`'s (same rest cloud, same
+random draws, same causal window): a network (PointNet or the temporal model) reads only each
+frame's point pool, so the live path skips the peak displacement and the depth-change image the
+other estimators read, and draws the pool (the one draw, ``preparation.sample_points``) straight
+from a cloud whose points are all finite (``roi = "all"``) instead of copying the cloud first.
+When the model carries a flag of frames outside the training data (``estimate.novelty``) every
+frame's full features are computed, since the flag reads the depth-change image and the
+displacement. Likewise Hooke's law on the texture's displacement (without the flag) reads only
+that: the live path computes it alone, by the same ``TextureMotion`` as in training.
 """
 
 from __future__ import annotations
@@ -93,12 +93,10 @@ class LivePredictor:
         if self.model.config.roi == "all" and _finite_rows(points) == len(points):
             if len(points) < MIN_FRAME_POINTS:
                 raise too_few_points()
-            draw = self._full.rng.choice(
-                len(points), size=pool_size, replace=len(points) < pool_size
-            )
-            pool = np.asarray(points[draw], np.float64)
+            cloud = points  # every point finite and inside: no copy of the cloud
         else:
-            pool = sample_points(self._full.cropped(points), pool_size, self._full.rng)
+            cloud = self._full.cropped(points)
+        pool = np.asarray(sample_points(cloud, pool_size, self._full.rng), np.float64)
         return preparer.pool_features(pool)
 
     def model_force(self, features: FrameFeatures) -> np.ndarray:
