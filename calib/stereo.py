@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
+from vbfe.calib.board_mistakes import check_board_options
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera import (
     CRITERIA,
@@ -203,11 +204,12 @@ def calibrate_stereo(
     detected view."""
     options = options or StereoOptions()
     image_size = check_sizes(views)
+    check_board_options([left for left, _ in views.pairs], spec, views.source, options.min_corners)
     detections = detect_views(views, spec, step)
     if all(len(dl) == 0 and len(dr) == 0 for dl, dr in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
-            f"board options ({spec.describe()}) match the printed board"
+            f"board options ({spec.describe()}) match the printed board{spec.size_hint()}"
         )
     return calibrate_detections(
         detections, views.names, image_size, spec, options, views.source, intrinsics
