@@ -110,7 +110,7 @@ def _candidates(spec: BoardSpec, grey: np.ndarray) -> Iterator[tuple[BoardSpec, 
                 for legacy in (spec.legacy, not spec.legacy):
                     if (x, y, dictionary, legacy) == (sx, sy, spec.dictionary, spec.legacy):
                         continue
-                    changed = [f"--squares-x {x} --squares-y {y}"]
+                    changed = [f"--squares-x {x} --squares-y {y}"] if (x, y) != (sx, sy) else []
                     if dictionary != spec.dictionary:
                         changed.append(f"--dictionary {dictionary}")
                     if legacy != spec.legacy:
@@ -161,6 +161,8 @@ def check_board_options(
     are where a chessboard was given, raise a CalibrationError naming the board seen and the
     options for it. Returns when the board is seen or nothing is (the full detection then
     decides)."""
+    if spec.target == "charuco":
+        spec.board()  # an unknown dictionary or too small a one is refused as it is
     first = [_grey(image) for image in images[:PROBED_VIEWS]]
     if any(_seen(grey, spec, min_corners) for grey in first):
         return
