@@ -17,9 +17,10 @@ baseline, dim and noisy; 9×6 and 7×7 boards; then as issue 56's labs measured 
 it beside plain OpenCV (findChessboardCorners + cornerSubPix 11×11, calibrateCamera per eye,
 stereoCalibrate with the intrinsics as a guess) on the same images: worst error of f (fx, fy),
 of cx, cy (px) and of B, stereo RMS, views used, rectified f; beside each joint solve the same
-tool with each eye's intrinsics fixed from half as many other views (vbfe: `calibrate camera`
-per eye, then `calibrate stereo --intrinsics`; OpenCV: calibrateCamera, then stereoCalibrate
-with CALIB_FIX_INTRINSIC), with its f and B as ratios to that tool's joint solve.
+tool with each eye's intrinsics fixed from half as many other views, at least 8 (vbfe:
+`calibrate camera` per eye, then `calibrate stereo --intrinsics`; OpenCV: calibrateCamera,
+then stereoCalibrate with CALIB_FIX_INTRINSIC), with its f and B as ratios to that tool's joint
+solve.
 Run: ``python -m benchmarks.bench_calib [--sets sharp dark] [--views 10 20 30] [--seeds 3]
 [--poses 8] [--endoscope-views 20] [--endoscope-only]`` (``--sets`` alone: the corner table only).
 """
@@ -182,9 +183,9 @@ def _vbfe_rows(folder, weak, name: str, rig, tmp) -> list[tuple]:
 
 def endoscope_rows(n_views: int, seeds: int, barrel: bool = False) -> None:
     """Print vbfe (the CLI with the board options only; joint and with each eye's intrinsics
-    fixed from `calibrate camera` on half as many other views) beside plain OpenCV (joint and
-    FIX_INTRINSIC) on SD endoscope renders, per board and seed; f and B also as ratios to the
-    same tool's joint solve."""
+    fixed from `calibrate camera` on half as many other views, at least 8) beside plain OpenCV
+    (joint and FIX_INTRINSIC) on SD endoscope renders, per board and seed; f and B also as
+    ratios to the same tool's joint solve."""
     from pathlib import Path
 
     from vbfe.truth.endoscope import (
@@ -216,7 +217,7 @@ def endoscope_rows(n_views: int, seeds: int, barrel: bool = False) -> None:
                     folder, inner, 3.0, n_views, seed=300 + seed, rig=true_rig
                 )
                 write_sd_endoscope_views(
-                    weak, inner, 3.0, max(6, n_views // 2), seed=600 + seed, rig=true_rig
+                    weak, inner, 3.0, max(8, n_views // 2), seed=600 + seed, rig=true_rig
                 )
                 rows = _vbfe_rows(folder, weak, name, rig, Path(tmp))
                 rows.append(("opencv", *plain_opencv_stereo(folder, inner, 3e-3, rig)))
