@@ -12,12 +12,17 @@ stereo RMS, and the solve time (corner detection + calibrations), also as a rati
 detecting the board in one image measured in the same run. Projector: Gray-code captures at
 P poses; prints the relative error of the projector's fx, fy, cx, cy and of its translation.
 SD endoscope (vbfe.truth.endoscope: 640×480, fx/fy = 1.1, principal points 90 px apart, 6 mm
-baseline, dim and noisy; 9×6 and 7×7 boards): vbfe's `calibrate stereo FOLDER` as a user runs
+baseline, dim and noisy; 9×6 and 7×7 boards; then as issue 56's labs measured theirs: fx/fy 1.05,
+85 px apart, k1 -0.3, eyes 0.7° apart): vbfe's `calibrate stereo FOLDER` as a user runs
 it beside plain OpenCV (findChessboardCorners + cornerSubPix 11×11, calibrateCamera per eye,
 stereoCalibrate with the intrinsics as a guess) on the same images: worst error of f (fx, fy),
-of cx, cy (px) and of B, stereo RMS, views used.
+of cx, cy (px) and of B, stereo RMS, views used, rectified f; beside each joint solve the same
+tool with each eye's intrinsics fixed from half as many other views, at least 8 (vbfe:
+`calibrate camera` per eye, then `calibrate stereo --intrinsics`; OpenCV: calibrateCamera,
+then stereoCalibrate with CALIB_FIX_INTRINSIC), with its f and B as ratios to that tool's joint
+solve.
 Run: ``python -m benchmarks.bench_calib [--sets sharp dark] [--views 10 20 30] [--seeds 3]
-[--poses 8] [--endoscope-views 20]`` (``--sets`` alone: the corner table only).
+[--poses 8] [--endoscope-views 20] [--endoscope-only]`` (``--sets`` alone: the corner table only).
 """
 
 from __future__ import annotations
@@ -94,12 +99,10 @@ def _truth_errors(K1, K2, B: float, rig) -> tuple[float, float, float]:
     return f_err, c_err, abs(B / rig.baseline_m - 1)
 
 
-def plain_opencv_stereo(folder, inner: tuple[int, int], square_m: float, rig):
-    """Plain OpenCV on an endoscope folder: (errors, stereo RMS, views used)."""
+def _plain_corners(folder, inner: tuple[int, int]) -> dict[str, list]:
+    """findChessboardCorners + cornerSubPix 11x11 in the pairs both eyes see whole."""
     import cv2
 
-    obj = np.zeros((inner[0] * inner[1], 3), np.float32)
-    obj[:, :2] = np.mgrid[0 : inner[0], 0 : inner[1]].T.reshape(-1, 2) * square_m
     subpix = (cv2.TERM_CRITERIA_MAX_ITER + cv2.TERM_CRITERIA_EPS, 30, 0.01)
     corners: dict[str, list] = {"left": [], "right": []}
     for left in sorted((folder / "left").iterdir()):
@@ -114,63 +117,128 @@ def plain_opencv_stereo(folder, inner: tuple[int, int], square_m: float, rig):
         if all(c is not None for c in found):
             corners["left"].append(found[0])
             corners["right"].append(found[1])
+    return corners
+
+
+def plain_opencv_stereo(folder, inner: tuple[int, int], square_m: float, rig, intrinsics_from=None):
+    """Plain OpenCV on an endoscope folder: (errors, stereo RMS, views used, rectified f, B);
+    with ``intrinsics_from`` (another folder) each eye's intrinsics are calibrated on that
+    folder's views and fixed (``CALIB_FIX_INTRINSIC``)."""
+    import cv2
+
+    obj = np.zeros((inner[0] * inner[1], 3), np.float32)
+    obj[:, :2] = np.mgrid[0 : inner[0], 0 : inner[1]].T.reshape(-1, 2) * square_m
+    corners = _plain_corners(folder, inner)
+    own = corners if intrinsics_from is None else _plain_corners(intrinsics_from, inner)
+    size = (640, 480)
+    _, K1, D1, _, _ = cv2.calibrateCamera([obj] * len(own["left"]), own["left"], size, None, None)
+    _, K2, D2, _, _ = cv2.calibrateCamera([obj] * len(own["right"]), own["right"], size, None, None)
     n = len(corners["left"])
-    objs, size = [obj] * n, (640, 480)
-    _, K1, D1, _, _ = cv2.calibrateCamera(objs, corners["left"], size, None, None)
-    _, K2, D2, _, _ = cv2.calibrateCamera(objs, corners["right"], size, None, None)
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS if intrinsics_from is None else cv2.CALIB_FIX_INTRINSIC
     rms, K1, D1, K2, D2, R, T, _, _ = cv2.stereoCalibrate(
-        objs, corners["left"], corners["right"], K1, D1, K2, D2, size,
-        flags=cv2.CALIB_USE_INTRINSIC_GUESS,
-    )  # fmt: skip
-    _, _, _, P2, _, _, _ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T)
-    return _truth_errors(K1, K2, float(-P2[0, 3] / P2[0, 0]), rig), float(rms), n
+        [obj] * n, corners["left"], corners["right"], K1, D1, K2, D2, size, flags=flags
+    )
+    _, _, P1, P2, _, _, _ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T)
+    B = float(-P2[0, 3] / P2[0, 0])
+    return _truth_errors(K1, K2, B, rig), float(rms), n, float(P1[0, 0]), B
 
 
-def endoscope_rows(n_views: int, seeds: int) -> None:
-    """Print vbfe (the CLI with the board options only) beside plain OpenCV on SD endoscope
-    renders, per board and seed."""
+def _vbfe_rows(folder, weak, name: str, rig, tmp) -> list[tuple]:
+    """vbfe's joint solve and its fixed-intrinsics solve (each eye's `calibrate camera` on the
+    weaker views of ``weak``), as a user runs them: (tool, errors, RMS, views, f, B) or
+    (tool, exit code) when refused."""
     import contextlib
     import io
-    from pathlib import Path
 
     from vbfe.calib.calibration import load_calibration
     from vbfe.cli.main import main as vbfe
-    from vbfe.truth.endoscope import write_sd_endoscope_views
 
-    print(f"\nSD endoscope ({n_views} views, 640x480, fx/fy 1.1, cx 90 px apart, B 6 mm, dim)")
+    board = ["--inner-corners", name, "--square-mm", "3"]
+    quiet = io.StringIO()
+
+    def run(*args) -> int:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            return vbfe([*map(str, args), *board])
+
+    rows: list[tuple] = []
+    cameras = [tmp / "left.yaml", tmp / "right.yaml"]
+    solves = {"vbfe": [], "fixed": ["--intrinsics", *cameras]}
+    for eye, camera in zip(("left", "right"), cameras, strict=True):
+        if run("calibrate", "camera", weak, "--eye", eye, "-o", camera) != 0:
+            solves.pop("fixed")
+            rows.append(("fixed", "camera refused"))
+            break
+    for tool, extra in solves.items():
+        out = tmp / f"{tool}.yaml"
+        code = run("calibrate", "stereo", folder, "-o", out, "--no-report", *extra)
+        if code != 0:
+            rows.append(
+                (tool, f"refused (exit {code}): {quiet.getvalue().strip().splitlines()[-1]}")
+            )
+            continue
+        cal = load_calibration(out)
+        errors = _truth_errors(cal.K1, cal.K2, cal.B, rig)
+        rows.append((tool, errors, cal.rms_stereo_px, len(cal.info["views"]), cal.f, cal.B))
+    return rows
+
+
+def endoscope_rows(n_views: int, seeds: int, barrel: bool = False) -> None:
+    """Print vbfe (the CLI with the board options only; joint and with each eye's intrinsics
+    fixed from `calibrate camera` on half as many other views, at least 8) beside plain OpenCV
+    (joint and FIX_INTRINSIC) on SD endoscope renders, per board and seed; f and B also as
+    ratios to the same tool's joint solve."""
+    from pathlib import Path
+
+    from vbfe.truth.endoscope import (
+        barrel_endoscope_rig,
+        sd_endoscope_rig,
+        write_sd_endoscope_views,
+    )
+
+    true_rig = barrel_endoscope_rig() if barrel else sd_endoscope_rig()
     print(
-        f"{'board':>5} {'seed':>4} {'tool':>6} {'max df/f':>9} {'max dc px':>9} {'dB/B':>7} "
-        f"{'RMS px':>7} {'views':>5}"
+        f"\nSD endoscope ({n_views} views, 640x480, "
+        + (
+            "fx/fy 1.05, cx 85 px apart, k1 -0.3, eyes 0.7 deg apart"
+            if barrel
+            else "fx/fy 1.1, cx 90 px apart"
+        )
+        + ", B 6 mm, dim)"
+    )
+    print(
+        f"{'board':>5} {'seed':>4} {'tool':>12} {'max df/f':>9} {'max dc px':>9} {'dB/B':>7} "
+        f"{'RMS px':>7} {'views':>5} {'rect f':>7} {'f/joint':>8} {'B/joint':>8}"
     )
     for inner in ((9, 6), (7, 7)):
         name = f"{inner[0]}x{inner[1]}"
         for seed in range(seeds):
             with tempfile.TemporaryDirectory() as tmp:
-                folder = Path(tmp) / "views"
-                rig = write_sd_endoscope_views(folder, inner, 3.0, n_views, seed=300 + seed)
-                out = Path(tmp) / "c.yaml"
-                args = ["calibrate", "stereo", str(folder), "--inner-corners", name]
-                quiet = io.StringIO()
-                with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-                    code = vbfe([*args, "--square-mm", "3", "-o", str(out), "--no-report"])
-                rows = []
-                if code == 0:
-                    cal = load_calibration(out)
-                    rows.append(
-                        (
-                            "vbfe",
-                            _truth_errors(cal.K1, cal.K2, cal.B, rig),
-                            cal.rms_stereo_px,
-                            len(cal.info["views"]),
-                        )
-                    )
-                else:
-                    print(f"{name:>5} {seed:>4} {'vbfe':>6} refused (exit {code})")
+                folder, weak = Path(tmp) / "views", Path(tmp) / "weak"
+                rig = write_sd_endoscope_views(
+                    folder, inner, 3.0, n_views, seed=300 + seed, rig=true_rig
+                )
+                write_sd_endoscope_views(
+                    weak, inner, 3.0, max(8, n_views // 2), seed=600 + seed, rig=true_rig
+                )
+                rows = _vbfe_rows(folder, weak, name, rig, Path(tmp))
                 rows.append(("opencv", *plain_opencv_stereo(folder, inner, 3e-3, rig)))
-                for tool, (f_err, c_err, b_err), rms, n in rows:
+                rows.append(("opencv fixed", *plain_opencv_stereo(folder, inner, 3e-3, rig, weak)))
+                joint = {"vbfe": None, "fixed": None, "opencv": None, "opencv fixed": None}
+                for row in rows:
+                    if len(row) > 2:
+                        joint[row[0]] = row
+                for row in rows:
+                    if len(row) == 2:
+                        print(f"{name:>5} {seed:>4} {row[0]:>12} {row[1]}")
+                        continue
+                    tool, (f_err, c_err, b_err), rms, n, f, B = row
+                    base = joint["vbfe" if tool in ("vbfe", "fixed") else "opencv"]
+                    ratios = (
+                        f"{f / base[4]:>8.4f} {B / base[5]:>8.4f}" if base else f"{'-':>8} {'-':>8}"
+                    )
                     print(
-                        f"{name:>5} {seed:>4} {tool:>6} {f_err * 100:>8.3f}% {c_err:>9.2f} "
-                        f"{b_err * 100:>6.3f}% {rms:>7.3f} {n:>5}"
+                        f"{name:>5} {seed:>4} {tool:>12} {f_err * 100:>8.3f}% {c_err:>9.2f} "
+                        f"{b_err * 100:>6.3f}% {rms:>7.3f} {n:>5} {f:>7.1f} {ratios}"
                     )
 
 
@@ -269,7 +337,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--endoscope-views", type=int, default=20, help="SD endoscope views per set (0: skip)"
     )
+    parser.add_argument(
+        "--endoscope-only", action="store_true", help="only the SD endoscope tables"
+    )
     args = smoke.parse(parser, argv, views=[8], seeds=1, poses=0, endoscope_views=0)
+    if args.endoscope_only:
+        endoscope_rows(args.endoscope_views, args.seeds)
+        endoscope_rows(args.endoscope_views, args.seeds, barrel=True)
+        return
     print("corners: vbfe beside plain OpenCV pipelines")
     for name in args.sets or list(CORNER_SETS)[: 1 if args.smoke else None]:
         corner_table(name, CORNER_SETS[name])
@@ -321,6 +396,7 @@ def main(argv: list[str] | None = None) -> None:
 
     if args.endoscope_views:
         endoscope_rows(args.endoscope_views, args.seeds)
+        endoscope_rows(args.endoscope_views, args.seeds, barrel=True)
 
 
 if __name__ == "__main__":

@@ -122,6 +122,16 @@ class BoardSpec:
             "legacy": self.legacy,
         }
 
+    def size_hint(self) -> str:
+        """How the board's size is counted, for a message that it was not found."""
+        if self.target == "chessboard":
+            nx, ny = self.inner_corners
+            return (
+                f" (--inner-corners counts the corners where four squares meet: a board of "
+                f"{nx}x{ny} squares has {nx - 1}x{ny - 1})"
+            )
+        return " (--squares-x/-y count the squares, markers included)"
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (stored in the calibration's info): a chessboard without the
         ChArUco-only marker size, dictionary and legacy flag."""

@@ -93,6 +93,19 @@ def find_chessboard(grey: np.ndarray, inner: tuple[int, int]) -> tuple[np.ndarra
     return None
 
 
+def seen_quickly(grey: np.ndarray, inner: tuple[int, int]) -> bool:
+    """Whether a quick look finds the board whole (fractions of a second where
+    :func:`find_chessboard` takes seconds to give up): the classic detector with its fast
+    check, then the sector-based one, on the contrast-stretched image when it is dim."""
+    if float(np.percentile(grey, 99.5) - np.percentile(grey, 0.5)) <= 200:
+        grey = _stretched(grey)
+    flags = _CLASSIC_FLAGS | cv2.CALIB_CB_FAST_CHECK
+    return bool(
+        cv2.findChessboardCorners(grey, inner, flags=flags)[0]
+        or cv2.findChessboardCornersSB(grey, inner, flags=cv2.CALIB_CB_ACCURACY)[0]
+    )
+
+
 def canonical(corners: np.ndarray, inner: tuple[int, int]) -> np.ndarray:
     """The corners (n×2) numbered as the board is seen from its front (rows then columns of
     object points map to image directions without a mirror) and with the rows running as

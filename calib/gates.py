@@ -19,7 +19,13 @@ import numpy as np
 
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.options import CalibOptions, calib_field
-from vbfe.calib.rectify import rectified_fractions, stereo_rectify, worst_fraction
+from vbfe.calib.rectify import (
+    ALPHAS,
+    rectified_fractions,
+    stereo_rectify,
+    usable,
+    worst_fraction,
+)
 
 log = logging.getLogger(__name__)
 
@@ -111,51 +117,103 @@ def _baseline_gates(cal: Calibration, limits: GateLimits) -> list[Gate]:
     return [gate, Gate("nominal baseline", measured, limit, FAIL if problem else PASS, problem)]
 
 
+_SUPPORTED = 0.05  # a cause is named when leaving it out keeps this much more of the image
+
+
 def rectification_cause(cal: Calibration, min_fraction: float) -> str:
-    """What crops the rectified images, measured: the share of the image rectification would
-    keep without each candidate cause (zero disparity with the principal-point offset between
-    the eyes, the distortion, the rotation between the eyes); the cause whose removal keeps most
-    is named, with what fixes it."""
+    """What crops the rectified images, measured: the share of the image rectification keeps
+    (the smaller of valid and kept, both eyes) as solved and, at the best free scaling, without
+    each candidate cause (zero disparity with the principal-point offset between the eyes, the
+    distortion, the rotation between the eyes). Only a cause whose removal keeps
+    :data:`_SUPPORTED` more is named, and only remedies whose recomputed share reaches
+    ``min_fraction`` are offered, each with the options that give it."""
     size = cal.image_size
     alpha = float(cal.info.get("rectify_alpha", 0.0))
     zero = abs(cal.doffs) < 1e-6
     angle = math.degrees(float(np.linalg.norm(cv2.Rodrigues(cal.R)[0])))
     dx, dy = cal.K2[0, 2] - cal.K1[0, 2], cal.K2[1, 2] - cal.K1[1, 2]
 
-    def kept(D1: np.ndarray, D2: np.ndarray, zero_disparity: bool, R: np.ndarray) -> float:
-        rect = stereo_rectify(cal.K1, D1, cal.K2, D2, size, R, cal.T, alpha, zero_disparity)
-        return worst_fraction(cal.K1, D1, cal.K2, D2, rect, size)
+    def kept(
+        D1: np.ndarray, D2: np.ndarray, zero_disparity: bool, R: np.ndarray, a: float
+    ) -> float:
+        rect = stereo_rectify(cal.K1, D1, cal.K2, D2, size, R, cal.T, a, zero_disparity)
+        return worst_fraction(cal.K1, D1, cal.K2, D2, rect, size) if usable(rect) else 0.0
 
-    no_distortion = np.zeros_like(cal.D1), np.zeros_like(cal.D2)
+    def best(
+        D1: np.ndarray, D2: np.ndarray, zero_disparity: bool, R: np.ndarray
+    ) -> tuple[float, float]:
+        shares = {a: kept(D1, D2, zero_disparity, R, a) for a in ALPHAS}
+        a = max(shares, key=lambda k: shares[k])
+        return shares[a], a
+
+    def options(zero_disparity: bool, a: float, fix_k3: bool = False) -> str:
+        said = [f"--rectify-alpha {a:g}"] if a != alpha else []
+        if zero_disparity != zero:
+            said.insert(0, f"--zero-disparity {'on' if zero_disparity else 'off'}")
+        return " ".join((["--fix-k3"] if fix_k3 else []) + said)
+
+    solved = kept(cal.D1, cal.D2, zero, cal.R, alpha)
+    no_k3 = [np.where(np.arange(len(D)) == 4, 0.0, D) for D in (cal.D1, cal.D2)]
     without = {
-        "distortion": kept(*no_distortion, zero, cal.R),
-        "rotation": kept(cal.D1, cal.D2, zero, np.eye(3)),
+        "distortion": best(np.zeros_like(cal.D1), np.zeros_like(cal.D2), zero, cal.R),
+        "rotation": best(cal.D1, cal.D2, zero, np.eye(3)),
     }
     if zero:
-        without["offset"] = kept(cal.D1, cal.D2, False, cal.R)
-    cause = max(without, key=lambda k: without[k])
+        without["offset"] = best(cal.D1, cal.D2, False, cal.R)
+    remedies: dict[str, list[tuple[str, tuple[float, float]]]] = {
+        "offset": [
+            (
+                options(False, without.get("offset", (0.0, alpha))[1]),
+                without.get("offset", (0.0, alpha)),
+            )
+        ],
+        "distortion": [],
+        "rotation": [],  # a property of the rig: no option removes it
+    }
+    k3_share, k3_alpha = best(no_k3[0], no_k3[1], zero, cal.R)
+    remedies["distortion"].append((options(zero, k3_alpha, True), (k3_share, k3_alpha)))
+    scaled = best(cal.D1, cal.D2, zero, cal.R)
     measured = (
-        f"measured: {kept(cal.D1, cal.D2, zero, cal.R) * 100:.0f} % kept as solved, "
-        + (f"{without['offset'] * 100:.0f} % without zero disparity, " if zero else "")
-        + f"{without['distortion'] * 100:.0f} % without distortion, "
-        f"{without['rotation'] * 100:.0f} % without the rotation between the eyes; the eyes "
+        f"measured, share of the image kept (the smaller of valid and kept pixels, both eyes): "
+        f"{solved * 100:.0f} % as solved (--rectify-alpha {alpha:g}, zero disparity "
+        f"{'on' if zero else 'off'}); at the best free scaling "
+        f"{scaled[0] * 100:.0f} % as solved, "
+        + (f"{without['offset'][0] * 100:.0f} % without zero disparity, " if zero else "")
+        + f"{without['distortion'][0] * 100:.0f} % without distortion, "
+        f"{without['rotation'][0] * 100:.0f} % without the rotation between the eyes; the eyes "
         f"are {angle:.2f}° apart, their principal points {dx:+.1f} px apart in x and {dy:+.1f} "
         f"px in y, k1 {cal.D1[0]:.3f} / {cal.D2[0]:.3f}"
     )
-    fixes = {
-        "offset": "the offset between the eyes' principal points: zero-disparity rectification "
-        "gives both rectified eyes one principal point, which crops the image by about the "
-        "offset; rectify without forcing zero disparity (--zero-disparity off, or auto), "
-        "which keeps each eye's principal point and stores the offset as doffs",
-        "distortion": "the distortion, which bends the image border out of the rectified view: "
-        "if the lens does not distort that much it is poorly determined (add views with the "
-        "board in the image corners, or --fix-k3); if it does, keep the whole camera image "
-        "with free scaling (--rectify-alpha 1, black borders in the rectified image)",
-        "rotation": "the rotation between the eyes (rectification turns both images by half "
-        "of it): keep the whole camera image with free scaling (--rectify-alpha 1, black "
-        "borders in the rectified image); more views do not change it",
+    names = {
+        "offset": "the offset between the eyes' principal points (zero disparity gives both "
+        "rectified eyes one principal point)",
+        "distortion": "the distortion (it bends the image border out of the rectified view)",
+        "rotation": "the rotation between the eyes (rectification turns both images by half of it)",
     }
-    return f"the cause is {fixes[cause]} ({measured})"
+    causes = [k for k in without if without[k][0] - solved >= _SUPPORTED]
+    causes.sort(key=lambda k: -without[k][0])
+    if not causes:
+        text = (
+            "no single cause: leaving out the offset, the distortion or the rotation between "
+            f"the eyes keeps less than {_SUPPORTED * 100:g} points more"
+        )
+    else:
+        text = "the cause is " + " and ".join(names[k] for k in causes)
+    fixes = [
+        f"{said} (recomputed: {share * 100:.0f} %)"
+        for k in causes
+        for said, (share, _) in remedies[k]
+        if share >= min_fraction and said
+    ]
+    if scaled[0] >= min_fraction and scaled[0] > solved + 1e-3:
+        fixes.append(f"{options(zero, scaled[1])} (recomputed: {scaled[0] * 100:.0f} %)")
+    advice = (
+        "; remedy: " + "; or ".join(fixes)
+        if fixes
+        else f"; no rectification option keeps {min_fraction * 100:g} % (--min-rectified-fraction"
+        " sets the limit)"
+    )
+    return f"{text}{advice} ({measured})"
 
 
 def stereo_gates(
@@ -179,11 +237,16 @@ def stereo_gates(
         for eye, cx, cy in points
         if not (np.isfinite(cx) and np.isfinite(cy) and 0 <= cx < w and 0 <= cy < h)
     ]
+    if abs(cal.doffs) > 1e-6:  # each eye keeps its own: the valid-area gate judges the crop
+        outside = [(eye, cx, cy) for eye, cx, cy in outside if not np.isfinite(cx + cy)]
     gates.append(
         Gate(
             "rectified principal points",
             " / ".join(f"{eye} ({cx:.1f}, {cy:.1f}) px" for eye, cx, cy in points),
-            f"inside the {w}x{h} image",
+            f"inside the {w}x{h} image"
+            + (
+                " (not required: zero disparity off, doffs stored)" if abs(cal.doffs) > 1e-6 else ""
+            ),
             UNCHECKED if not geometry else FAIL if outside else PASS,
             None
             if not (geometry and outside)
@@ -204,10 +267,12 @@ def stereo_gates(
         )
     }
     low = {eye: f for eye, f in fractions.items() if min(f) < limits.min_rectified_fraction}
+    alpha = float(cal.info.get("rectify_alpha", 0.0))
     gates.append(
         Gate(
             "rectified image kept",
-            " / ".join(f"{eye} {min(f) * 100:.0f} %" for eye, f in fractions.items()),
+            " / ".join(f"{eye} {min(f) * 100:.0f} %" for eye, f in fractions.items())
+            + (f" (--rectify-alpha {alpha:g})" if alpha else ""),
             f">= {limits.min_rectified_fraction * 100:g} % (--min-rectified-fraction)",
             UNCHECKED if not geometry else FAIL if low else PASS,
             None

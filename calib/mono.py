@@ -6,6 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from vbfe.calib.board import BoardDetector, BoardSpec
+from vbfe.calib.board_mistakes import check_board_options
 from vbfe.calib.camera import (
     CameraFit,
     CameraOptions,
@@ -50,6 +51,7 @@ def calibrate_mono(
     views were dropped."""
     options, limits = options or CameraOptions(), limits or GateLimits()
     size = image_size(images)
+    check_board_options(images.images, spec, images.source, options.min_corners)
     detector = BoardDetector(spec, candidates=True)
     names, dets, dropped = [], [], {}
     for name, image in zip(images.names, images.images, strict=False):
@@ -65,7 +67,7 @@ def calibrate_mono(
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(images)} images of "
             f"{images.source}; check the board options ({spec.describe()}) "
-            "match the printed board"
+            f"match the printed board{spec.size_hint()}"
         )
     need_views(len(dets), options, images.source, dropped)
     dets, corners = choose_corners(spec, dets, names, size, camera, solve_flags(options))

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 ZERO_DISPARITY = ("auto", "on", "off")  # auto: on unless it keeps less than the gate's fraction
+ALPHAS = tuple(k / 10 for k in range(11))  # free scalings tried when one fails
 _GRID_STEP = 8  # px between sampled pixels when measuring rectification coverage
 
 
@@ -28,6 +29,7 @@ class Rectification:
     P2: np.ndarray
     Q: np.ndarray
     zero_disparity: bool
+    alpha: float = 0.0  # stereoRectify's free scaling
 
 
 def _grid(size: tuple[int, int]) -> np.ndarray:
@@ -107,7 +109,22 @@ def stereo_rectify(
         alpha=alpha,
         newImageSize=size,
     )
-    return Rectification(R1, R2, P1, P2, Q, zero_disparity)
+    return Rectification(R1, R2, P1, P2, Q, zero_disparity, alpha)
+
+
+def usable(rect: Rectification) -> bool:
+    """Whether both rectified eyes have a finite, positive focal length (``stereoRectify`` gives
+    a negative one for free scaling of some geometries)."""
+    return bool(
+        np.isfinite(rect.P1).all()
+        and np.isfinite(rect.P2).all()
+        and rect.P1[0, 0] > 0
+        and rect.P2[0, 0] > 0
+    )
+
+
+def _score(K1, D1, K2, D2, rect: Rectification, size: tuple[int, int]) -> float:
+    return worst_fraction(K1, D1, K2, D2, rect, size) if usable(rect) else -1.0
 
 
 def rectify(
@@ -124,14 +141,25 @@ def rectify(
 ) -> Rectification:
     """The pair's rectification: ``zero_disparity`` ``on``/``off`` forces or leaves out
     OpenCV's zero-disparity flag; ``auto`` forces it unless that keeps less than
-    ``min_fraction`` of an eye's image and leaving it out keeps more."""
+    ``min_fraction`` of an eye's image and leaving it out keeps more. When neither keeps
+    ``min_fraction`` at ``alpha``, the free scaling in :data:`ALPHAS` that keeps most (the
+    smaller of valid and kept, :func:`worst_fraction`) is taken; its alpha is ``alpha``."""
     if zero_disparity not in ZERO_DISPARITY:
         raise ValueError(f"zero_disparity must be one of {ZERO_DISPARITY}, got {zero_disparity!r}")
     forced = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha, zero_disparity != "off")
-    if zero_disparity != "auto" or worst_fraction(K1, D1, K2, D2, forced, size) >= min_fraction:
-        return forced
-    free = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha, False)
-    better = worst_fraction(K1, D1, K2, D2, free, size) > worst_fraction(
-        K1, D1, K2, D2, forced, size
-    )
-    return free if better else forced
+    if zero_disparity != "auto" or _score(K1, D1, K2, D2, forced, size) >= min_fraction:
+        best = forced
+    else:
+        free = stereo_rectify(K1, D1, K2, D2, size, R, T, alpha, False)
+        better = _score(K1, D1, K2, D2, free, size) > _score(K1, D1, K2, D2, forced, size)
+        best = free if better else forced
+    if _score(K1, D1, K2, D2, best, size) >= min_fraction:
+        return best
+    settings = [best.zero_disparity] if zero_disparity != "auto" else [True, False]
+    tried = [
+        stereo_rectify(K1, D1, K2, D2, size, R, T, a, zero)
+        for zero in settings
+        for a in ALPHAS
+        if a != alpha
+    ]
+    return max([best, *tried], key=lambda r: _score(K1, D1, K2, D2, r, size))

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from vbfe.calib.board import BoardDetector, BoardSpec, Detection
+from vbfe.calib.board_mistakes import check_board_options
 from vbfe.calib.calibration import Calibration
 from vbfe.calib.camera import (
     CRITERIA,
@@ -31,7 +32,7 @@ from vbfe.calib.chessboard import is_clear, same_numbering
 from vbfe.calib.corner_choice import CornerChoice, choose_corners, counts
 from vbfe.calib.gates import FAIL, GateLimits, stereo_gates
 from vbfe.calib.options import calib_field, from_table
-from vbfe.calib.rectify import rectify
+from vbfe.calib.rectify import Rectification, rectified_fractions, rectify, usable
 from vbfe.calib.uncertainty import StereoSolve, UncertaintyMap, uncertainty_map
 from vbfe.calib.views import ViewSet, check_sizes
 from vbfe.common.errors import CalibrationError
@@ -203,11 +204,12 @@ def calibrate_stereo(
     detected view."""
     options = options or StereoOptions()
     image_size = check_sizes(views)
+    check_board_options([left for left, _ in views.pairs], spec, views.source, options.min_corners)
     detections = detect_views(views, spec, step)
     if all(len(dl) == 0 and len(dr) == 0 for dl, dr in detections):
         raise CalibrationError(
             f"no {spec.name} found in any of the {len(views)} views of {views.source}; check the "
-            f"board options ({spec.describe()}) match the printed board"
+            f"board options ({spec.describe()}) match the printed board{spec.size_hint()}"
         )
     return calibrate_detections(
         detections, views.names, image_size, spec, options, views.source, intrinsics
@@ -274,6 +276,7 @@ def calibrate_detections(
     :func:`choose_corners`); with ``intrinsics`` (left, right) the cameras' intrinsics are
     fixed (``CALIB_FIX_INTRINSIC``)."""
     options = options or StereoOptions()
+    given = detections
     fixed = (None, None) if intrinsics is None else intrinsics
     if intrinsics is not None:
         _check_intrinsics(intrinsics, image_size)
@@ -369,6 +372,11 @@ def calibrate_detections(
         options.zero_disparity,
         options.gates.min_rectified_fraction,
     )
+    if not usable(rect):
+        raise CalibrationError(
+            _unrectifiable(rect, rms, options, source)
+            + _joint_beside(given, view_names, image_size, spec, options, intrinsics)
+        )
     per_view_rms = np.column_stack(
         [
             left.per_view_rms_px,
@@ -393,13 +401,15 @@ def calibrate_detections(
         rms_right_px=right.rms_px,
         rms_stereo_px=float(rms),
         per_view_rms_px=per_view_rms,
-        info={"rectify_alpha": options.rectify_alpha},
+        info={"rectify_alpha": rect.alpha},
     )
     gates = stereo_gates(calibration, options.gates, names)
     problems = [g.problem for g in gates if g.verdict == FAIL and g.problem]
     if problems:
         raise CalibrationError(
-            f"{source}: stereo calibration refused, nothing written: " + "; ".join(problems)
+            f"{source}: stereo calibration refused, nothing written: "
+            + "; ".join(problems)
+            + _joint_beside(given, view_names, image_size, spec, options, intrinsics, calibration)
         )
     weak = weak_note(len(names), options)
     calibration.info = _info(
@@ -446,6 +456,62 @@ def calibrate_detections(
         renumbered,
         uncertainty,
         kept,
+    )
+
+
+def _summary(cal: Calibration) -> str:
+    kept = min(
+        min(rectified_fractions(K, D, R, P, cal.image_size))
+        for K, D, R, P in ((cal.K1, cal.D1, cal.R1, cal.P1), (cal.K2, cal.D2, cal.R2, cal.P2))
+    )
+    return (
+        f"f {cal.f:.2f} px, B {cal.B * 1e3:.4f} mm, {kept * 100:.0f} % of the image kept, "
+        f"stereo RMS {cal.rms_stereo_px:.3f} px"
+    )
+
+
+def _joint_beside(
+    detections: list[tuple[Detection, Detection]],
+    names: list[str],
+    image_size: tuple[int, int],
+    spec: BoardSpec,
+    options: StereoOptions,
+    intrinsics: tuple[CameraModel, CameraModel] | None,
+    refused: Calibration | None = None,
+) -> str:
+    """For a refused fixed-intrinsics solve: the joint solve's numbers beside it (empty for a
+    joint solve)."""
+    if intrinsics is None:
+        return ""
+    fixed = f" (with --intrinsics: {_summary(refused)})" if refused is not None else ""
+    try:
+        joint = calibrate_detections(detections, names, image_size, spec, options).calibration
+    except CalibrationError as exc:
+        why = str(exc).split("nothing written: ", 1)[-1]
+        return f"; the joint solve (without --intrinsics) of the same views is refused too: {why}"
+    return (
+        f"; the joint solve (without --intrinsics) of the same views passes: {_summary(joint)}"
+        f"{fixed}: calibrate without --intrinsics, or recalibrate each eye"
+    )
+
+
+def _unrectifiable(rect: Rectification, rms: float, options: StereoOptions, source: str) -> str:
+    """Why no rectification came out with positive focal lengths: the pairs only when their own
+    stereo reprojection error is above the gate's limit."""
+    focal = f"P1[0,0] = {rect.P1[0, 0]:.4g} px, P2[0,0] = {rect.P2[0, 0]:.4g} px"
+    if rms > options.gates.max_rms_px:
+        return (
+            f"{source}: stereo calibration refused, nothing written: the rectified focal lengths "
+            f"({focal}) are not positive and the pairs fit with stereo RMS {rms:.3f} px (limit "
+            f"{options.gates.max_rms_px:g} px): the views' left and right images do not show the "
+            "same board poses; check each pair is one moment of one rig and the board options "
+            "match the board"
+        )
+    return (
+        f"{source}: stereo calibration refused, nothing written: OpenCV's stereoRectify gave "
+        f"no positive rectified focal length ({focal}) at any free scaling (--rectify-alpha 0 "
+        f"to 1) although the pairs fit (stereo RMS {rms:.3f} px): the eyes' rotation and "
+        "intrinsics leave no common rectified view"
     )
 
 
@@ -513,7 +579,7 @@ def _info(
         "std_right": dict(zip(names_std, map(float, right.std_intrinsics), strict=False)),
         "sigma_B_m": sigma_B,
         "working_distance_m": z,
-        "rectify_alpha": options.rectify_alpha,
+        "rectify_alpha": cal.info["rectify_alpha"],
         "depth_sigma_at_working_distance_m": depth_sigma,
         "depth_per_px_disparity_at_working_distance_m": z * z / (cal.f * cal.B),
         "epipolar_rms_px": float(np.sqrt(np.mean(epi**2))) if epi.size else float("nan"),

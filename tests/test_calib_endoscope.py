@@ -102,20 +102,34 @@ def test_intrinsics_fixed_from_per_eye_camera_runs(endoscope, tmp_path, capsys):
     assert "--intrinsics LEFT RIGHT look exchanged" in capsys.readouterr().err
 
 
-def test_zero_disparity_gives_way_to_the_principal_point_offset_the_cause_is_named(
+def test_zero_disparity_forced_takes_free_scaling_or_names_what_its_measurement_supports(
     endoscope, tmp_path, capsys
 ):
     folder, rig = endoscope["9x6"]
     out = tmp_path / "c.yaml"
     stereo = ["calibrate", "stereo", str(folder), *_board("9x6"), "--no-report"]
-    strict = ["--min-rectified-fraction", "0.8"]  # zero disparity keeps about 2/3 of the image
-    assert main([*stereo, *strict, "--zero-disparity", "on", "-o", str(out)]) == 2
+    strict = ["--min-rectified-fraction", "0.8"]  # zero disparity at alpha 0 keeps about 2/3
+    # forced zero disparity: the free scaling that keeps the most is taken (issue 56)
+    assert main([*stereo, *strict, "--zero-disparity", "on", "-o", str(out)]) == 0
+    cal = load_calibration(out)
+    assert cal.info["zero_disparity"] == 1 and cal.info["rectify_alpha"] > 0
+    assert {row[3] for row in cal.info["gates"]} == {"pass", "not checked"}
+    # beyond what any free scaling keeps: refused, naming only what the numbers support
+    assert main([*stereo, "--min-rectified-fraction", "0.93", "--zero-disparity", "on"]) == 2
     line = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "the cause is the offset between the eyes' principal points" in line
-    assert "--zero-disparity off" in line
+    solved = re.search(r"at the best free scaling (\d+) % as solved", line)
+    without = re.search(r"(\d+) % without zero disparity", line)
+    assert solved and without and int(solved[1]) < 93, line
+    if "the cause is the offset between the eyes' principal points" in line:
+        assert int(without[1]) >= int(solved[1]) + 5
+    else:
+        assert "no single cause" in line
+    remedy = re.search(r"--zero-disparity off[^;(]*\(recomputed: (\d+) %\)", line)
+    assert (remedy is not None) == ("the cause is the offset" in line and int(without[1]) >= 93)
     offset = re.search(r"principal points ([+-][\d.]+) px apart in x", line)
     assert offset and float(offset[1]) == pytest.approx(90.0, abs=2.0)
     # auto (the default): each eye keeps its principal point, the offset is stored as doffs
+    out = tmp_path / "auto.yaml"
     assert main([*stereo, *strict, "-o", str(out)]) == 0
     cal = load_calibration(out)
     assert cal.info["zero_disparity"] == 0  # stored as an integer

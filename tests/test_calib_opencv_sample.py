@@ -156,7 +156,7 @@ def test_pair_05s_outlier_corner_is_rejected_and_views_numbered_apart_are_named(
         (
             "--min-rectified-fraction",
             "0.99",
-            "keeps 8",  # about 85 % of each eye's image at alpha 0
+            "(limit 99 %, --min-rectified-fraction)",  # no free scaling keeps 99 %
         ),
         ("--min-baseline-mm", "100", "below the minimum 100 mm (--min-baseline-mm)"),
     ],

@@ -155,11 +155,12 @@ def test_no_board_found_names_the_board_options():
         calibrate_stereo(ViewSet(blank, views.names[:8], "blank"), SPEC)
 
 
-def test_wrong_dictionary_finds_no_board():
+def test_wrong_dictionary_names_the_one_seen():
     views, _ = rendered()
     wrong = BoardSpec(dictionary="DICT_4X4_50")
     subset = ViewSet(views.pairs[:6], views.names[:6], "subset")
-    with pytest.raises(CalibrationError, match="no ChArUco board found.*DICT_4X4_50"):
+    seen = r"no ChArUco board.*DICT_4X4_50 in the first 3 views.*use --dictionary DICT_5X5_50$"
+    with pytest.raises(CalibrationError, match=seen):
         calibrate_stereo(subset, wrong)
     with pytest.raises(CalibrationError, match="unknown ArUco dictionary 'DICT_NOPE'"):
         calibrate_stereo(subset, BoardSpec(dictionary="DICT_NOPE"))

@@ -10,6 +10,7 @@ range gives them.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,19 @@ def sd_endoscope_rig() -> StereoRig:
     return SimBench.from_config(dict(SD_ENDOSCOPE)).rig
 
 
+def barrel_endoscope_rig() -> StereoRig:
+    """The SD endoscope as the labs of issue 56 measured theirs: fx / fy = 1.05, principal
+    points 85 px apart in x, barrel distortion k1 = -0.3, the eyes turned 0.7° apart."""
+    from vbfe.drivers.sim.rig import pinhole
+
+    rig = sd_endoscope_rig()
+    left = pinhole(640, 480, 70.0, (-0.3, 0.08, 0.0, 0.0, 0.0), (-42.0, 3.0), 1.05)
+    right = pinhole(640, 480, 70.0, (-0.29, 0.07, 0.0, 0.0, 0.0), (43.0, -2.0), 1.05)
+    axis = np.array([0.2, 1.0, 0.1]) / np.linalg.norm([0.2, 1.0, 0.1])
+    R = cv2.Rodrigues(np.radians(0.7) * axis)[0]
+    return dataclasses.replace(rig, left=left, right=right, R=R)
+
+
 def write_sd_endoscope_views(
     folder: str | Path,
     inner_corners: tuple[int, int],
@@ -48,11 +62,13 @@ def write_sd_endoscope_views(
     n_views: int,
     seed: int = 0,
     swap_eyes: bool = False,
+    rig: StereoRig | None = None,
 ) -> StereoRig:
     """Render ``n_views`` dim, noisy chessboard views (``inner_corners``, ``square_mm``) at
-    random poses into ``folder/left/leftNN.png`` + ``folder/right/rightNN.png`` (with
-    ``swap_eyes`` the files' eye labels are reversed); returns the true rig."""
-    rig = sd_endoscope_rig()
+    random poses of ``rig`` (default :func:`sd_endoscope_rig`) into ``folder/left/leftNN.png``
+    + ``folder/right/rightNN.png`` (with ``swap_eyes`` the files' eye labels are reversed);
+    returns the true rig."""
+    rig = rig or sd_endoscope_rig()
     nx, ny = inner_corners
     target = board_target("chessboard", nx + 1, ny + 1, square_mm, 0.0, "", False)
     rng = np.random.default_rng(seed)
