@@ -56,6 +56,7 @@ from vbfe.estimate.intervals import ConformalInterval, calibrate, coverage_width
 from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.network_training import build_network, fit_network, resolve_device
 from vbfe.estimate.novelty import fit_novelty
+from vbfe.estimate.preparation import physical_estimate
 from vbfe.estimate.sources import SessionLike
 from vbfe.estimate.splits import (
     SessionSplit,
@@ -264,9 +265,11 @@ def _fit_estimators(
     return estimators, histories, seconds
 
 
-def _predictions(estimator: AnyEstimator, parts: Parts) -> np.ndarray:
-    """Force (frames × outputs) of the frames of every (session, positions) part."""
-    return np.concatenate([estimator.predict_session(s, p) for s, p in parts])
+def _predictions(estimator: AnyEstimator, parts: Parts, config: TrainConfig) -> np.ndarray:
+    """Force (frames × outputs) of the frames of every (session, positions) part, as the
+    model file gives it (a magnitude is never below 0 N)."""
+    force = np.concatenate([estimator.predict_session(s, p) for s, p in parts])
+    return physical_estimate(force, config.target)
 
 
 def _measured(parts: Parts) -> np.ndarray:
@@ -329,7 +332,7 @@ def _out_of_fold(
     for fold_train, held in folds:
         estimators, _, _ = _fit_estimators(list(names), fold_train, [], config, None, [])
         for name, estimator in estimators.items():
-            predicted.setdefault(name, []).append(_predictions(estimator, held))
+            predicted.setdefault(name, []).append(_predictions(estimator, held, config))
         held_parts += held
     n = len(folds)
     complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
@@ -396,7 +399,9 @@ def fit_split(
     )
     check = val_parts or train_parts
     val_mae = {
-        name: float(np.linalg.norm(_predictions(e, check) - _measured(check), axis=1).mean())
+        name: float(
+            np.linalg.norm(_predictions(e, check, config) - _measured(check), axis=1).mean()
+        )
         for name, e in estimators.items()
     }
     held: dict[str, np.ndarray] = {}
@@ -412,7 +417,7 @@ def fit_split(
             f"on {where}"
         )
     elif val_parts:
-        held = {name: _predictions(e, val_parts) for name, e in estimators.items()}
+        held = {name: _predictions(e, val_parts, config) for name, e in estimators.items()}
         held_parts = val_parts
     measured = _measured(held_parts) if held_parts else np.zeros((0, config.n_outputs))
     scores = {n: float(np.linalg.norm(p - measured, axis=1).mean()) for n, p in held.items()}
@@ -476,7 +481,7 @@ def cross_validate(
         measured = _measured(test)
         mae, covered = {}, {}
         for name, estimator in fit.estimators.items():
-            predicted = _predictions(estimator, test)
+            predicted = _predictions(estimator, test, config)
             mae[name] = float(np.linalg.norm(predicted - measured, axis=1).mean())
             if name in fit.intervals:
                 interval = ConformalInterval.from_dict(fit.intervals[name])
