@@ -91,6 +91,7 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     # displacement can; trained with freehand trials too it reads the paper's timing less
     # (quick runs: 0.38-0.39 N against 0.47-0.48 N for Hooke; 0.32 N trained on paper alone)
     assert mae["mlp_displacement_history"] <= 0.9 * best_baseline
+    assert set(force["per_phase"]) == set(force["metrics"])  # estimators only, no flag
     phases = force["per_phase"]["pointnet"]
     assert set(phases) == {"pull", "hold"} and phases["hold"]["n_frames"] > 0
 

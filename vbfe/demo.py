@@ -515,6 +515,8 @@ def estimate_stage(
     return {
         "train_sessions": [s.stem for s in training],
         "test_sessions": [s.stem for s in held_out],
+        "selected": result.selected,
+        "selection_notes": result.notes,
         "train_seconds": result.duration_s,
         "epochs_run": result.epochs_run,
         "metrics": report.metrics,
@@ -565,7 +567,7 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
         rows.append(frames)
     phase = np.concatenate(phases)
     measured = np.concatenate([f["measured_n"] for f in rows])
-    methods = [m for m in rows[0] if m not in ("times_ns", "frame_index", "measured_n")]
+    methods = list(report.metrics)  # the estimators (not their intervals or the flag)
     return {
         method: {
             name: error_stats(
