@@ -318,7 +318,11 @@ def evaluate(
         f"target {model.config.target} ({label})",
         f"selected model: {model.selected}; validation MAE per method (N): "
         + ", ".join(f"{m} {v:.3f}" for m, v in model.record.get("validation_mae_n", {}).items()),
-        *(n for n in model.record.get("notes", []) if n.startswith("warning")),
+        *(
+            n
+            for n in model.record.get("notes", [])
+            if n.startswith(("warning", "selected model", "held-out MAE"))
+        ),
         split_note,
         "MAE/RMSE 95 % intervals: bootstrap over contiguous time blocks "
         f"({BOOTSTRAP_RESAMPLES} resamples of {len(time_blocks([len(m) for m in measured]))}"

@@ -27,6 +27,7 @@ from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_di
 from vbfe.estimate.dataset import PreparedSession
 from vbfe.estimate.intervals import ConformalInterval
 from vbfe.estimate.novelty import NoveltyFlag
+from vbfe.estimate.preparation import physical_estimate
 from vbfe.estimate.splits import SessionSplit
 from vbfe.estimate.train_config import TrainConfig
 
@@ -65,13 +66,15 @@ class ForceModel:
         method: str | None = None,
         positions: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Force (frames × outputs) of the selected (or the named) method."""
+        """Force (frames × outputs) of the selected (or the named) method (a magnitude is
+        never below 0 N)."""
         name = method or self.selected
         if name not in self.estimators:
             raise EstimateError(
                 f"this model file has no {name!r} estimator; it has {', '.join(self.estimators)}"
             )
-        return self.estimators[name].predict_session(session, positions)
+        force = self.estimators[name].predict_session(session, positions)
+        return physical_estimate(force, self.config.target)
 
 
 def save_model(path: str | Path, model: ForceModel) -> Path:

@@ -55,6 +55,12 @@ def force_target(forces_n: np.ndarray, target: str) -> np.ndarray:
     return sign * forces_n[:, "xyz".index(target[-1])][:, None]
 
 
+def physical_estimate(predicted_n: np.ndarray, target: str) -> np.ndarray:
+    """An estimator's force as a physical one: a magnitude below 0 N is impossible and reads 0
+    (every method's estimate passes here, in training, evaluation and ``vbfe live``)."""
+    return np.maximum(predicted_n, 0.0) if target == "magnitude" else predicted_n
+
+
 def target_label(target: str) -> str:
     """Axis label of a target: ``|F| (N)``, ``F (N)`` for three axes, ``Fx (N)``, ``−Fz (N)``."""
     if target == "magnitude":

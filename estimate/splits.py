@@ -131,6 +131,25 @@ class SessionSplit:
         )
 
 
+def autocorrelation_frames(values: np.ndarray) -> int:
+    """The force's autocorrelation time: the first lag (frames) at which the autocorrelation
+    of ``values`` (frames × outputs; the mean of the outputs') falls below 1/e (the series'
+    length when it never does). Frames closer than this to a held-out one nearly copy it."""
+    series = np.asarray(values, np.float64).reshape(len(values), -1)
+    centred = series - series.mean(axis=0)
+    power = (centred**2).sum()
+    if len(series) < 2 or power <= 0:
+        return 0
+    acf = np.array(
+        [
+            (centred[lag:] * centred[: len(series) - lag]).sum() / power
+            for lag in range(1, len(series))
+        ]
+    )
+    below = np.flatnonzero(acf < np.exp(-1))
+    return int(below[0]) + 1 if len(below) else len(series)
+
+
 def split_by_session(
     sessions: Sequence[FramedSession], val_fraction: float, test_fraction: float, seed: int
 ) -> SessionSplit:

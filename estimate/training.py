@@ -5,9 +5,11 @@ frame ranges), fits the baselines and every candidate (``candidates.py``) on the
 frames, scores all of them on the validation frames (MAE of the force error vector) or, when
 the validation part is small (``[train] select_min_val_frames``, or one session), on blocked
 folds of the training part (``training_folds``: whole sessions, or blocks in time of a single
-session), selects the candidate with the lowest score (``[train] model = "auto"``; a baseline
-that beats every candidate ships instead, and says so) or the one forced (with a warning when
-it loses to a baseline), calibrates every method's prediction interval on the same held-out
+session with a gap of at least the force's autocorrelation time), selects the method with the
+lowest held-out MAE, each protocol's frames weighted equally, among those no worse than the mean
+predictor on any protocol's held-out trials (``[train] model = "auto"``; a baseline that beats
+every candidate ships instead, and says so) or the one forced (with a warning when it loses to
+a baseline), calibrates every method's prediction interval on the same held-out
 residuals (``intervals.py``), fits the flag of frames outside the training data
 (``novelty.py``) and writes everything to a model file (``model_file.py``). With ``folds``
 ≥ 3 it first runs blocked cross-validation in time (``splits.split_folds``): the whole
@@ -57,9 +59,11 @@ from vbfe.estimate.intervals import ConformalInterval, calibrate, coverage_width
 from vbfe.estimate.model_file import ForceModel, save_model
 from vbfe.estimate.network_training import build_network, fit_network, resolve_device
 from vbfe.estimate.novelty import fit_novelty
+from vbfe.estimate.preparation import physical_estimate
 from vbfe.estimate.sources import SessionLike
 from vbfe.estimate.splits import (
     SessionSplit,
+    autocorrelation_frames,
     split_by_ranges,
     split_by_session,
     split_by_time,
@@ -267,9 +271,11 @@ def _fit_estimators(
     return estimators, histories, seconds
 
 
-def _predictions(estimator: AnyEstimator, parts: Parts) -> np.ndarray:
-    """Force (frames × outputs) of the frames of every (session, positions) part."""
-    return np.concatenate([estimator.predict_session(s, p) for s, p in parts])
+def _predictions(estimator: AnyEstimator, parts: Parts, config: TrainConfig) -> np.ndarray:
+    """Force (frames × outputs) of the frames of every (session, positions) part, as the
+    model file gives it (a magnitude is never below 0 N)."""
+    force = np.concatenate([estimator.predict_session(s, p) for s, p in parts])
+    return physical_estimate(force, config.target)
 
 
 def _measured(parts: Parts) -> np.ndarray:
@@ -286,9 +292,10 @@ def _frame_labels(parts: Parts) -> np.ndarray:
 def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Parts, Parts]]:
     """(training, held-out) parts of blocked folds of ``parts``: whole sessions dealt to
     ``folds`` folds (as many as there are sessions, if fewer), or, with one session, the
-    session cut into ``folds`` contiguous blocks in time (``gap_frames`` each side of a
-    held-out block left out, at most so many that every fold still trains on half the
-    session's frames: a short part is not left with nothing to fit)."""
+    session cut into ``folds`` contiguous blocks in time (``gap_frames``, or the force's
+    autocorrelation time when longer, each side of a held-out block left out, at most so many
+    that every fold still trains on half the session's frames: a short part is not left with
+    nothing to fit)."""
     if len(parts) >= 2:
         n = min(folds, len(parts))
         fold_of = np.arange(len(parts)) % n
@@ -306,7 +313,8 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
         for session, positions in parts:
             block = np.arange(len(positions)) * folds // max(len(positions), 1)
             # held block n/K plus 2 gaps at most n/2
-            gap = min(gap_frames, len(positions) * (folds - 2) // (4 * folds))
+            gap = max(gap_frames, autocorrelation_frames(session.targets_n[positions]))
+            gap = min(gap, len(positions) * (folds - 2) // (4 * folds))
             frames = session.frame_index[positions]
             test = frames[block == k]
             if len(test):
@@ -332,7 +340,7 @@ def _out_of_fold(
     for fold_train, held in folds:
         estimators, _, _ = _fit_estimators(list(names), fold_train, [], config, None, [])
         for name, estimator in estimators.items():
-            predicted.setdefault(name, []).append(_predictions(estimator, held))
+            predicted.setdefault(name, []).append(_predictions(estimator, held, config))
         held_parts += held
     n = len(folds)
     complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
@@ -399,7 +407,9 @@ def fit_split(
     )
     check = val_parts or train_parts
     val_mae = {
-        name: float(np.linalg.norm(_predictions(e, check) - _measured(check), axis=1).mean())
+        name: float(
+            np.linalg.norm(_predictions(e, check, config) - _measured(check), axis=1).mean()
+        )
         for name, e in estimators.items()
     }
     held: dict[str, np.ndarray] = {}
@@ -415,21 +425,35 @@ def fit_split(
             f"on {where}"
         )
     elif val_parts:
-        held = {name: _predictions(e, val_parts) for name, e in estimators.items()}
+        held = {name: _predictions(e, val_parts, config) for name, e in estimators.items()}
         held_parts = val_parts
     measured = _measured(held_parts) if held_parts else np.zeros((0, config.n_outputs))
-    scores = {n: float(np.linalg.norm(p - measured, axis=1).mean()) for n, p in held.items()}
+    labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
+    by_protocol = held_out_mae(held, measured, labels[0])
+    scores = {n: float(np.mean(list(v.values()))) for n, v in by_protocol.items()}
     if not any(n in scores for n in names):
         scores, where = val_mae, "validation" if val_parts else "training"
+        by_protocol = {n: {"": v} for n, v in scores.items()}
         notes.append(
             "warning: no held-out frames to select on or to calibrate intervals with: "
             f"selected on {where}, no intervals"
         )
     scored = [n for n in names if n in scores]
-    selected, note = select(scored, scores, where, config.model == "auto")
+    selected, note = select(scored, scores, by_protocol, where, config.model == "auto")
     log.info("%s", note)
     notes.append(note)
-    labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
+    notes.append(
+        f"held-out MAE per method on {where} (N; protocols weighted equally): "
+        + ", ".join(
+            f"{n} {scores[n]:.3f}"
+            + (
+                " (" + ", ".join(f"{p} {v:.3f}" for p, v in by_protocol[n].items()) + ")"
+                if len(by_protocol[n]) > 1
+                else ""
+            )
+            for n in sorted(scores, key=scores.__getitem__)
+        )
+    )
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
         residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
@@ -444,26 +468,77 @@ def fit_split(
     )
 
 
-def select(names: list[str], scores: dict[str, float], where: str, auto: bool) -> tuple[str, str]:
-    """The method shipped and a line saying which and why: the candidate with the lowest
-    score, unless a baseline scores lower (then, with ``auto``, that baseline ships; a forced
-    model ships with a warning)."""
+def held_out_mae(
+    held: dict[str, np.ndarray], measured: np.ndarray, protocols: np.ndarray
+) -> dict[str, dict[str, float]]:
+    """Per method, the MAE of its held-out predictions within each protocol."""
+    names = sorted(set(protocols.tolist()), key=str)
+    return {
+        method: {
+            str(p): float(np.linalg.norm(force - measured, axis=1)[protocols == p].mean())
+            for p in names
+        }
+        for method, force in held.items()
+    }
+
+
+def select(
+    names: list[str],
+    scores: dict[str, float],
+    by_protocol: dict[str, dict[str, float]],
+    where: str,
+    auto: bool,
+) -> tuple[str, str]:
+    """The method shipped and a line saying which and why.
+
+    ``scores``: every method's held-out MAE, each protocol weighted equally (``by_protocol``:
+    per protocol). With ``auto`` the method with the lowest score ships among those no worse
+    than the mean predictor in any protocol (the mean predictor itself always is): a baseline
+    that beats every candidate ships, and a candidate that beats the mean on one protocol's
+    trials but loses on another's does not. A forced model ships with a warning when it loses
+    to a baseline.
+    """
     best = min(names, key=lambda name: scores[name])
     baselines = {n: v for n, v in scores.items() if n not in CANDIDATES.values()}
     best_baseline = min(baselines, key=lambda n: baselines[n])
-    how = "forced by --model" if not auto else f"best of {len(names)} candidates"
-    line = f"selected model: {best} ({how}), {where} MAE {scores[best]:.3f} N"
-    if scores[best] <= baselines[best_baseline]:
-        return best, f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
-    if auto:
-        return best_baseline, (
-            f"warning: the best candidate {best} ({scores[best]:.3f} N on {where}) LOSES to "
-            f"the baseline {best_baseline} ({baselines[best_baseline]:.3f} N): shipping "
-            f"{best_baseline}; force a candidate with --model to ship it anyway"
+    if not auto:
+        line = f"selected model: {best} (forced by --model), {where} MAE {scores[best]:.3f} N"
+        if scores[best] <= baselines[best_baseline]:
+            return best, f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N"
+        return best, (
+            f"warning: {line} LOSES to the baseline {best_baseline} "
+            f"({baselines[best_baseline]:.3f} N on {where})"
         )
-    return best, (
-        f"warning: {line} LOSES to the baseline {best_baseline} "
-        f"({baselines[best_baseline]:.3f} N on {where})"
+    mean = by_protocol.get("mean", {})
+
+    def no_worse_than_mean(method: str) -> bool:
+        return all(v <= mean.get(p, np.inf) for p, v in by_protocol[method].items())
+
+    eligible = [n for n in [*names, *baselines] if no_worse_than_mean(n)] or list(baselines)
+    shipped = min(eligible, key=lambda name: scores[name])
+    losing = [
+        f"{n} {scores[n]:.3f} N"
+        for n in names
+        if not no_worse_than_mean(n) and scores[n] < scores[shipped]
+    ]
+    why = (
+        f"; better on the mean of the protocols but worse than the mean predictor on one "
+        f"protocol's trials, not shipped: {', '.join(losing)}"
+        if losing
+        else ""
+    )
+    line = (
+        f"selected model: {shipped} (lowest {where} MAE of {len(names)} candidates and "
+        f"{len(baselines)} baselines, never worse than the mean predictor on any protocol), "
+        f"{scores[shipped]:.3f} N"
+    )
+    if shipped in names:
+        return shipped, (
+            f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N{why}"
+        )
+    return shipped, (
+        f"warning: the best candidate {best} ({scores[best]:.3f} N on {where}) LOSES to "
+        f"the baseline {shipped}: {line}{why}; force a candidate with --model to ship it anyway"
     )
 
 
@@ -480,7 +555,7 @@ def cross_validate(
         measured = _measured(test)
         mae, covered = {}, {}
         for name, estimator in fit.estimators.items():
-            predicted = _predictions(estimator, test)
+            predicted = _predictions(estimator, test, config)
             mae[name] = float(np.linalg.norm(predicted - measured, axis=1).mean())
             if name in fit.intervals:
                 interval = ConformalInterval.from_dict(fit.intervals[name])

@@ -87,10 +87,13 @@ def test_force_model_is_evaluated_beside_the_baselines_on_held_out_sessions(numb
     assert mae["temporal"] <= 0.8 * mae["mean"]
     best_baseline = min(mae["linear_displacement"], mae["hooke"])
     assert min(mae["pointnet"], mae["temporal"]) <= 1.05 * best_baseline
-    # the displacement's recent course tells pull from hold, which no function of the current
-    # displacement can; trained with freehand trials too it reads the paper's timing less
-    # (quick runs: 0.38-0.39 N against 0.47-0.48 N for Hooke; 0.32 N trained on paper alone)
-    assert mae["mlp_displacement_history"] <= 0.9 * best_baseline
+    # the shipped model, selected on whole held-out sessions, beats the mean predictor on the
+    # held-out sessions (quick run validating on one paper session and one freehand trial:
+    # CNN shipped, 0.58 N against 0.87 N; it validated on later frames of its training trials
+    # before and shipped the ridge, 1.50 N against 0.90 N)
+    freehand = {m: v["overall"]["mae_n"] for m, v in force["freehand"]["metrics"].items()}
+    assert mae[force["selected"]] < mae["mean"] and freehand[force["selected"]] < freehand["mean"]
+    assert set(force["per_phase"]) == set(force["metrics"])  # estimators only, no flag
     phases = force["per_phase"]["pointnet"]
     assert set(phases) == {"pull", "hold"} and phases["hold"]["n_frames"] > 0
 

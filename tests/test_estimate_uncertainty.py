@@ -19,6 +19,7 @@ from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.intervals import ConformalInterval, calibrate
 from vbfe.estimate.live_predictor import LivePredictor
 from vbfe.estimate.model_file import load_model
+from vbfe.estimate.splits import autocorrelation_frames
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import select, train, training_folds
@@ -145,23 +146,50 @@ def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
     assert distance < model.novelty.threshold and not flagged  # a training frame
 
 
+def _one_protocol(scores):
+    return {name: {"pull-hold": v} for name, v in scores.items()}
+
+
 def test_auto_ships_the_baseline_when_every_candidate_loses_to_it():
     scores = {"mean": 0.9, "linear_displacement": 0.31, "hooke": 0.35}
     scores.update(pointnet=0.5, ridge_height_map=0.33, cnn_depth_change=0.6)
     candidates = ["pointnet", "ridge_height_map", "cnn_depth_change"]
     where = "5 blocked folds of the training part (sessions)"
-    shipped, note = select(candidates, scores, where, auto=True)
+    shipped, note = select(candidates, scores, _one_protocol(scores), where, auto=True)
     assert shipped == "linear_displacement"
     assert note.startswith("warning: the best candidate ridge_height_map (0.330 N on 5 blocked")
-    assert "LOSES to the baseline linear_displacement (0.310 N): shipping linear_displacement" in (
+    assert "LOSES to the baseline linear_displacement: selected model: linear_displacement" in (
         note
     )
     # forced, the losing candidate ships, with the warning
-    shipped, note = select(["ridge_height_map"], scores, where, auto=False)
+    shipped, note = select(["ridge_height_map"], scores, _one_protocol(scores), where, auto=False)
     assert shipped == "ridge_height_map" and "forced by --model" in note and "LOSES" in note
     # a candidate as good as the best baseline ships
-    shipped, note = select(candidates, {**scores, "pointnet": 0.31}, where, auto=True)
+    better = {**scores, "pointnet": 0.31}
+    shipped, note = select(candidates, better, _one_protocol(better), where, auto=True)
     assert shipped == "pointnet" and not note.startswith("warning")
+
+
+def test_auto_never_ships_a_method_worse_than_the_mean_predictor_on_a_protocol():
+    # the ridge is best on the mean of the protocols but loses to the mean predictor on the
+    # freehand trials (as the quick demo's ridge did on new freehand trials): Hooke ships
+    by_protocol = {
+        "mean": {"pull-hold": 0.90, "freehand": 0.40},
+        "hooke": {"pull-hold": 0.50, "freehand": 0.20},
+        "ridge_height_map": {"pull-hold": 0.10, "freehand": 0.45},
+        "pointnet": {"pull-hold": 0.60, "freehand": 0.30},
+    }
+    scores = {n: float(np.mean(list(v.values()))) for n, v in by_protocol.items()}
+    candidates = ["pointnet", "ridge_height_map"]
+    shipped, note = select(candidates, scores, by_protocol, "validation", auto=True)
+    assert shipped == "hooke" and "ridge_height_map 0.275 N" in note
+    assert "worse than the mean predictor on one protocol" in note
+    # when every method loses to the mean predictor somewhere, the mean predictor ships
+    worse = {n: {**v, "freehand": 0.5} for n, v in by_protocol.items() if n != "mean"}
+    worse["mean"] = by_protocol["mean"]
+    scores = {n: float(np.mean(list(v.values()))) for n, v in worse.items()}
+    shipped, _ = select(candidates, scores, worse, "validation", auto=True)
+    assert shipped == "mean"
 
 
 def test_a_model_shipping_a_baseline_runs_frame_by_frame(tmp_path):
@@ -372,6 +400,16 @@ def test_bench_trial_on_a_far_softer_tissue_is_flagged_live_and_in_evaluate(tmp_
         np.testing.assert_allclose([e.lo_n, e.hi_n], [e.force_n - half, e.force_n + half])
     shown = report.frames[str(soft)]["ood"]
     assert sum(e.ood for e in usable) == pytest.approx(shown.sum(), abs=2)
+
+
+def test_the_autocorrelation_time_is_the_lag_where_the_force_forgets_itself():
+    rng = np.random.default_rng(3)
+    force = np.zeros(20000)
+    for t in range(1, len(force)):  # AR(1): autocorrelation 0.9**lag, below 1/e from lag 10
+        force[t] = 0.9 * force[t - 1] + rng.normal()
+    assert autocorrelation_frames(force[:, None]) == 10
+    assert autocorrelation_frames(rng.normal(size=(5000, 1))) == 1  # white noise
+    assert autocorrelation_frames(np.linspace(0, 3, 50)[:, None]) > 10  # a pull: long
 
 
 def test_training_folds_hold_out_whole_sessions_or_blocks_in_time_with_a_gap():

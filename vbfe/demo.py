@@ -52,6 +52,7 @@ class DemoPlan:
     temporal_epochs: int  # it starts from PointNet's encoder, so it needs fewer epochs
     split: str  # how training picks its validation frames: "session" or "time" blocks
     gap_frames: int  # time split: frames left out between blocks
+    val_fraction: float  # sessions of each protocol held out to validate (select, calibrate)
     freehand_trials: int  # freehand trials trained on
     freehand_test_trials: int  # freehand trials held out (reported apart)
     freehand_s: float  # length of a freehand trial
@@ -94,6 +95,7 @@ class DemoPlan:
             protocol_s=20.0,
             split="session",
             gap_frames=0,
+            val_fraction=0.2,
             freehand_trials=6,
             freehand_test_trials=3,
             freehand_s=15.0,
@@ -103,11 +105,14 @@ class DemoPlan:
 
     @classmethod
     def quick(cls) -> DemoPlan:
-        """A small run for tests (about 140 s of CPU). With one training session per
-        condition, validation takes time blocks inside them (a held-out session would take a
-        whole condition out of training). Two short freehand trials are trained on and one is
-        held out: enough to check the freehand report, not to measure it (the full run does).
-        Camera rate, network width and time limit are the full run's."""
+        """A small run for tests (about 140 s of CPU). Like the full run it validates on
+        whole sessions: one paper session (its condition's only training repeat) and one of
+        the two freehand trials trained on are held out to stop the networks, select the
+        shipped model and calibrate the intervals, so that what wins there wins on a new
+        trial (validating on later frames of the training trials, the end of the pull and
+        the hold, shipped the method worst on new trials). One freehand trial is held out for
+        the report: enough to check it, not to measure it (the full run does). Camera rate,
+        network width and time limit are the full run's."""
         return replace(
             cls.full(),
             width=480,
@@ -124,8 +129,7 @@ class DemoPlan:
             temporal_span_frames=5,
             temporal_epochs=15,
             protocol_s=10.0,
-            split="time",
-            gap_frames=4,
+            val_fraction=0.34,  # one of each protocol's sessions (three paper, two freehand)
             freehand_trials=2,
             freehand_test_trials=1,
             freehand_s=6.0,
@@ -495,6 +499,7 @@ def estimate_stage(
         temporal_epochs=plan.temporal_epochs,
         split=plan.split,
         gap_frames=plan.gap_frames,
+        val_fraction=plan.val_fraction,
         select_min_val_frames=plan.select_min_val_frames,
         interval_scale=plan.interval_scale,
     )
@@ -515,6 +520,8 @@ def estimate_stage(
     return {
         "train_sessions": [s.stem for s in training],
         "test_sessions": [s.stem for s in held_out],
+        "selected": result.selected,
+        "selection_notes": result.notes,
         "train_seconds": result.duration_s,
         "epochs_run": result.epochs_run,
         "metrics": report.metrics,
@@ -565,7 +572,7 @@ def phase_metrics(report: Any, sessions: list[Path]) -> dict[str, dict[str, dict
         rows.append(frames)
     phase = np.concatenate(phases)
     measured = np.concatenate([f["measured_n"] for f in rows])
-    methods = [m for m in rows[0] if m not in ("times_ns", "frame_index", "measured_n")]
+    methods = list(report.metrics)  # the estimators (not their intervals or the flag)
     return {
         method: {
             name: error_stats(
