@@ -6,14 +6,14 @@
   cross-validation over the training frames: one fold per session, or contiguous blocks).
 - ``cnn_depth_change``: a small convolutional network on the full depth-change image (two
   channels: the change scaled by its training spread, and where points were seen), seeded,
-  CPU-sized (thousands of weights), trained with Adam for ``cnn_epochs`` keeping the epoch
-  with the lowest validation MAE.
+  CPU-sized (thousands of weights), trained with Adam for up to ``cnn_epochs`` keeping the
+  epoch with the lowest validation MAE, stopped ``patience`` epochs after it.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -261,10 +261,18 @@ def _images(parts: Parts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def fit_cnn(
-    train: Parts, val: Parts, n_outputs: int, channels: Sequence[int], epochs: int, seed: int
+    train: Parts,
+    val: Parts,
+    n_outputs: int,
+    channels: Sequence[int],
+    epochs: int,
+    seed: int,
+    patience: int | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
 ) -> tuple[CnnEstimator, list[dict[str, float]]]:
-    """Train the CNN on the training frames, keeping the epoch of lowest validation MAE (the
-    last without validation frames); seeded without touching torch's global random state."""
+    """Train the CNN on the training frames for up to ``epochs``, keeping the epoch of lowest
+    validation MAE and stopping ``patience`` epochs after it (without validation frames: all
+    ``epochs``, the last kept); seeded without touching torch's global random state."""
     sums, counts, y = _images(train)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
@@ -281,7 +289,7 @@ def fit_cnn(
         network.parameters(), CNN_LEARNING_RATE, weight_decay=CNN_WEIGHT_DECAY
     )
     generator = torch.Generator().manual_seed(seed)
-    best, best_state, history = float("inf"), None, []
+    best, best_epoch, best_state, history = float("inf"), 0, None, []
     for epoch in range(1, epochs + 1):
         network.train()
         for index in torch.randperm(len(x), generator=generator).split(CNN_BATCH):
@@ -296,8 +304,13 @@ def fit_cnn(
                 error = (network(x_check) - torch.from_numpy(check[2])).norm(dim=1)
             entry["val_mae_n"] = float(error.mean())
             if entry["val_mae_n"] < best:
-                best, best_state = entry["val_mae_n"], copy.deepcopy(network.state_dict())
+                best, best_epoch = entry["val_mae_n"], epoch
+                best_state = copy.deepcopy(network.state_dict())
         history.append(entry)
+        if progress is not None:
+            progress(epoch, epochs, best)
+        if check is not None and patience is not None and epoch - best_epoch >= patience:
+            break
     if best_state is not None:
         network.load_state_dict(best_state)
     return CnnEstimator(network.eval()), history

@@ -16,7 +16,7 @@ import copy
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,8 +36,9 @@ class FitOutcome:
     best_epoch: int
     best_val_loss: float
     val_mae_n: float
-    stopped_by: str  # "epochs", "patience" or "time limit"
+    stopped_by: str  # "epochs", "patience", "time limit" or "refit" (``stop_after``)
     start_val_loss: float = float("nan")  # of the starting weights (warm start only)
+    epoch_seconds: list[float] = field(default_factory=list)  # wall time of each epoch
 
 
 def resolve_device(name: str) -> torch.device:
@@ -109,13 +110,17 @@ def fit_network(
     device: torch.device,
     rng: np.random.Generator,
     deadline: float | None,
-    progress: Callable[[int, int], None] | None,
+    progress: Callable[[int, int, float], None] | None,
     warm_start: bool = False,
+    stop_after: int | None = None,
 ) -> FitOutcome:
     """Train ``network`` in place; it ends with the best (or, without validation, last) weights.
 
     With ``warm_start`` the starting weights compete too (best epoch 0): a network that starts
     from a trained one is never handed back worse on the validation frames than it started.
+    ``stop_after``: stop after so many epochs of the ``epochs``-long schedule (a refit without
+    validation that stops where a fit with validation found its best epoch; 0 keeps the
+    starting weights). ``progress(epoch, epochs, best validation loss)`` after each epoch.
     """
     network.to(device)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
@@ -141,7 +146,12 @@ def fit_network(
         best_loss, best_epoch = start["val_loss"], 0
         best_state = copy.deepcopy(network.state_dict())
     stopped_by = "epochs"
-    for epoch in range(1, epochs + 1):
+    last = epochs if stop_after is None else min(stop_after, epochs)
+    if last < epochs:
+        stopped_by = "refit"
+    epoch_seconds: list[float] = []
+    for epoch in range(1, last + 1):
+        clock = time.perf_counter()
         network.train()
         total, count = 0.0, 0
         for points, y in train_batches.batches(config.batch_size, rng):
@@ -171,8 +181,9 @@ def fit_network(
                 best_loss, best_epoch = entry["val_loss"], epoch
                 best_state = copy.deepcopy(network.state_dict())
         history.append(entry)
+        epoch_seconds.append(time.perf_counter() - clock)
         if progress is not None:
-            progress(epoch, epochs)
+            progress(epoch, epochs, best_loss)
         if stopped_by == "time limit":
             break
         if check_batches is not None and epoch - max(best_epoch, 0) >= config.patience:
@@ -190,4 +201,5 @@ def fit_network(
         val_mae_n=best.get("val_mae_n", float("nan")),
         stopped_by=stopped_by,
         start_val_loss=start.get("val_loss", float("nan")),
+        epoch_seconds=epoch_seconds,
     )

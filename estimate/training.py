@@ -25,11 +25,11 @@ stops a network, a warning says so.
 from __future__ import annotations
 
 import logging
+import math
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,7 @@ from vbfe.estimate.splits import (
     split_by_time,
     split_folds,
 )
+from vbfe.estimate.stage_times import STATUS_SEPARATOR, StageTimes
 from vbfe.estimate.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -109,6 +110,8 @@ class TrainResult:
     skipped: dict[str, dict[str, int]]
     duration_s: float
     fit_seconds: dict[str, float] = field(default_factory=dict)  # wall time per fit
+    stage_seconds: dict[str, dict[str, float]] = field(default_factory=dict)  # wall, CPU
+    device: str = "cpu"  # where the networks trained
     notes: list[str] = field(default_factory=list)
     cross_validation: dict[str, Any] | None = None
     intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
@@ -143,6 +146,33 @@ def make_split(prepared: Sequence[PreparedSession], config: TrainConfig) -> Sess
     return split_by_session(prepared, config.val_fraction, config.test_fraction, config.seed)
 
 
+def _status(name: str, started: float, best_loss: float) -> str:
+    """A candidate's progress label: its time so far and best validation loss."""
+    parts = [f"{name} epochs", f"{time.perf_counter() - started:.0f} s"]
+    if math.isfinite(best_loss):
+        parts.append(f"best val loss {best_loss:.4g}")
+    return STATUS_SEPARATOR.join(parts)
+
+
+def _epoch_progress(
+    progress: ProgressFn | None, name: str, started: float
+) -> Callable[[int, int, float], None] | None:
+    """``progress`` for one candidate's epochs, labelled with :func:`_status`."""
+    if progress is None:
+        return None
+    return lambda done, total, best: progress(_status(name, started, best), done, total)
+
+
+def _stopping_note(name: str, runs: int, best_epoch: int, stopped_by: str, patience: int) -> str:
+    """What early stopping did to one network."""
+    if stopped_by == "patience":
+        return (
+            f"{name}: stopped after {runs} epochs, {patience} without a better validation "
+            f"loss; best epoch {best_epoch}"
+        )
+    return f"{name}: {runs} epochs ({stopped_by}), best epoch {best_epoch}"
+
+
 def _fit_networks(
     names: list[str],
     train_parts: Parts,
@@ -150,8 +180,11 @@ def _fit_networks(
     config: TrainConfig,
     progress: ProgressFn | None,
     notes: list[str],
+    stop_after: dict[str, int],
+    times: StageTimes,
 ) -> tuple[dict[str, NetworkEstimator], dict[str, Any]]:
-    """PointNet, then (when asked) the temporal model started from it."""
+    """PointNet, then (when asked) the temporal model started from it; a network named in
+    ``stop_after`` stops after so many epochs (a refit where validation found its best)."""
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
@@ -162,6 +195,7 @@ def _fit_networks(
     fitted: dict[str, NetworkEstimator] = {}
     histories: dict[str, Any] = {}
     for name, window in windows.items():
+        started = time.perf_counter()
         train_batches = FrameBatches(train_parts, config.n_points, window)
         check_batches = (
             FrameBatches(val_parts, config.n_points, window, max_frames=config.val_max_frames)
@@ -169,24 +203,25 @@ def _fit_networks(
             else None
         )
         network = build_network(config, train_batches, temporal=bool(window))
-        epochs, stage = config.epochs, "epochs"
+        epochs = config.epochs
         if window:  # start as the trained single-frame network, motion correction at zero
             network.load_state_dict(fitted["pointnet"].network.state_dict(), strict=False)
-            epochs, stage = config.temporal_epochs or config.epochs, "temporal epochs"
+            epochs = config.temporal_epochs or config.epochs
         deadline = time.monotonic() + budget if budget > 0 else None
-        started = time.perf_counter()
-        outcome = fit_network(
-            network,
-            train_batches,
-            check_batches,
-            config,
-            epochs,
-            device,
-            rng,
-            deadline,
-            partial(progress, stage) if progress else None,
-            warm_start=bool(window),
-        )
+        with times.stage(name):
+            outcome = fit_network(
+                network,
+                train_batches,
+                check_batches,
+                config,
+                epochs,
+                device,
+                rng,
+                deadline,
+                _epoch_progress(progress, name, started),
+                warm_start=bool(window),
+                stop_after=stop_after.get(name),
+            )
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
         histories[name] = {
             "fit_s": time.perf_counter() - started,
@@ -194,7 +229,19 @@ def _fit_networks(
             "best_epoch": outcome.best_epoch,
             "stopped_by": outcome.stopped_by,
             "start_val_loss": outcome.start_val_loss,
+            "epoch_seconds": outcome.epoch_seconds,
+            "device": str(device),
         }
+        if check_batches is not None:
+            notes.append(
+                _stopping_note(
+                    name,
+                    len(outcome.history),
+                    outcome.best_epoch,
+                    outcome.stopped_by,
+                    config.patience,
+                )
+            )
         if window and outcome.best_epoch == 0:
             notes.append(
                 f"{name}: no epoch improved on its start (PointNet's weights, motion "
@@ -210,6 +257,22 @@ def _fit_networks(
     return fitted, histories
 
 
+def best_epochs(histories: dict[str, Any]) -> dict[str, int]:
+    """Per network fitted with validation (the CNN's as ``cnn``): the epochs a refit on other
+    frames without validation runs, the best epoch (at least 1, except a temporal model whose
+    start was best: 0 keeps it as PointNet)."""
+    out: dict[str, int] = {}
+    for name, h in histories.items():
+        entries = h["history"] if isinstance(h, dict) else h
+        if not entries or "val_mae_n" not in entries[0]:
+            continue  # fitted without validation: a refit runs every epoch
+        if name == "cnn":
+            out[name] = 1 + int(np.argmin([e["val_mae_n"] for e in entries]))
+        else:
+            out[name] = h["best_epoch"] if name == "temporal" else max(h["best_epoch"], 1)
+    return out
+
+
 def _fit_estimators(
     names: list[str],
     train_parts: Parts,
@@ -217,37 +280,54 @@ def _fit_estimators(
     config: TrainConfig,
     progress: ProgressFn | None,
     notes: list[str],
+    stop_after: dict[str, int] | None = None,
+    times: StageTimes | None = None,
 ) -> tuple[dict[str, AnyEstimator], dict[str, Any], dict[str, float]]:
     """Baselines and the candidates ``names`` fitted on ``train_parts`` (``val_parts``: early
-    stopping); a candidate that cannot be fitted is taken out of ``names`` with a note."""
+    stopping; ``stop_after``: per network, the epochs of a refit, see :func:`best_epochs`);
+    a candidate that cannot be fitted is taken out of ``names`` with a note."""
+    times = times or StageTimes()
+    stop_after = stop_after or {}
     clock = time.perf_counter()
-    estimators: dict[str, AnyEstimator] = dict(
-        fit_baselines(train_parts, config.history_window, config.seed)
-    )
+    with times.stage("baselines"):
+        estimators: dict[str, AnyEstimator] = dict(
+            fit_baselines(train_parts, config.history_window, config.seed)
+        )
     seconds = {"baselines": time.perf_counter() - clock}
     histories: dict[str, Any] = {}
     if {"pointnet", "temporal"} & set(names):
-        networks, histories = _fit_networks(names, train_parts, val_parts, config, progress, notes)
+        networks, histories = _fit_networks(
+            names, train_parts, val_parts, config, progress, notes, stop_after, times
+        )
         estimators.update(networks)
         seconds.update({name: h["fit_s"] for name, h in histories.items()})
     if CANDIDATES["ridge"] in names:
         clock = time.perf_counter()
-        estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(
-            train_parts, val_parts, config.ridge_sizes
-        )
+        with times.stage(CANDIDATES["ridge"]):
+            estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(
+                train_parts, val_parts, config.ridge_sizes
+            )
         seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
     if {CANDIDATES["cnn"], CANDIDATES["ensemble"]} & set(names):  # the ensemble needs the CNN
         clock = time.perf_counter()
-        cnn, histories["cnn"] = fit_cnn(
-            train_parts,
-            val_parts,
-            config.n_outputs,
-            config.cnn_channels,
-            config.cnn_epochs,
-            config.seed,
-        )
+        with times.stage(CANDIDATES["cnn"]):
+            cnn, histories["cnn"] = fit_cnn(
+                train_parts,
+                val_parts,
+                config.n_outputs,
+                config.cnn_channels,
+                stop_after.get("cnn", config.cnn_epochs),
+                config.seed,
+                config.patience,
+                _epoch_progress(progress, "cnn", time.perf_counter()),
+            )
         estimators[cnn.name] = cnn
         seconds[cnn.name] = time.perf_counter() - clock
+        if val_parts:
+            runs = len(histories["cnn"])
+            best = best_epochs({"cnn": histories["cnn"]})["cnn"]
+            stopped = "patience" if runs < config.cnn_epochs else "epochs"
+            notes.append(_stopping_note(cnn.name, runs, best, stopped, config.patience))
     if CANDIDATES["ensemble"] in names:
         estimators[CANDIDATES["ensemble"]] = MeanEnsemble(
             tuple(estimators[m] for m in ENSEMBLE_MEMBERS)
@@ -330,15 +410,22 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
 
 
 def _out_of_fold(
-    names: list[str], train_parts: Parts, config: TrainConfig
+    names: list[str],
+    train_parts: Parts,
+    config: TrainConfig,
+    stop_after: dict[str, int] | None = None,
+    times: StageTimes | None = None,
 ) -> tuple[dict[str, np.ndarray], Parts, str]:
     """Every method's out-of-fold predictions over blocked folds of the training part, the
-    held-out frames in the same order and a line saying what was done."""
+    held-out frames in the same order and a line saying what was done. ``stop_after``: per
+    network, the epochs each fold trains (:func:`best_epochs` of the fit with validation)."""
     folds = training_folds(train_parts, config.select_folds, config.gap_frames)
     predicted: dict[str, list[np.ndarray]] = {}
     held_parts: Parts = []
     for fold_train, held in folds:
-        estimators, _, _ = _fit_estimators(list(names), fold_train, [], config, None, [])
+        estimators, _, _ = _fit_estimators(
+            list(names), fold_train, [], config, None, [], stop_after, times
+        )
         for name, estimator in estimators.items():
             predicted.setdefault(name, []).append(_predictions(estimator, held, config))
         held_parts += held
@@ -354,14 +441,18 @@ Residuals = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]]
 
 
 def _with_out_of_fold(
-    names: list[str], train_parts: Parts, config: TrainConfig, validation: Residuals
+    names: list[str],
+    train_parts: Parts,
+    config: TrainConfig,
+    validation: Residuals,
+    times: StageTimes | None = None,
 ) -> Residuals:
     """The validation residuals of the methods quick to refit (baselines, ridge, Hooke on the
     texture) joined by their out-of-fold residuals over blocked folds of the training part:
     (predicted, measured, labels, source) per method. A validation part holds few
     sessions of each protocol; these hold every training session once, as a new trial."""
     quick = [n for n in names if n in QUICK_TO_REFIT]
-    held, held_parts, where = _out_of_fold(quick, train_parts, config)
+    held, held_parts, where = _out_of_fold(quick, train_parts, config, times=times)
     measured, labels = _measured(held_parts), _frame_labels(held_parts)
     joined: Residuals = {}
     for name, predicted in held.items():
@@ -381,6 +472,7 @@ def fit_split(
     split: SessionSplit,
     config: TrainConfig,
     progress: ProgressFn | None = None,
+    times: StageTimes | None = None,
 ) -> SplitFit:
     """Fit baselines and candidates on ``split``'s training part, score all on validation (or,
     when it is small, on blocked folds of the training part), select the shipped model and
@@ -402,8 +494,9 @@ def fit_split(
         )
         val_parts = []
     names = candidate_names(config.model, config.temporal_frames > 0)
+    times = times or StageTimes()
     estimators, histories, seconds = _fit_estimators(
-        names, train_parts, val_parts, config, progress, notes
+        names, train_parts, val_parts, config, progress, notes, times=times
     )
     check = val_parts or train_parts
     val_mae = {
@@ -418,7 +511,12 @@ def fit_split(
     if config.select_min_val_frames and (
         n_val < config.select_min_val_frames or len(val_parts) < 2
     ):
-        held, held_parts, where = _out_of_fold(names, train_parts, config)
+        fold_times = StageTimes()
+        with times.stage("selection folds"):
+            held, held_parts, where = _out_of_fold(
+                names, train_parts, config, best_epochs(histories), fold_times
+            )
+        times.seconds.update({f"selection folds: {k}": v for k, v in fold_times.seconds.items()})
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
             f"{config.select_min_val_frames} frames or 2 sessions): selection and intervals "
@@ -456,7 +554,8 @@ def fit_split(
     )
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
-        residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
+        with times.stage("interval folds"):
+            residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
     intervals = {
         name: calibrate(
             p, m, config.interval_coverage, config.interval_scale, source, *rows
@@ -604,21 +703,29 @@ def train(
     write the model file to ``out``.
 
     ``progress(stage, done, total)`` is called per prepared session (``"sessions"``), per
-    epoch (``"epochs"``, ``"temporal epochs"``) and per cross-validation fold (``"folds"``).
+    epoch of each network (``"pointnet epochs · 12 s · best val loss 0.31"``: the part
+    before ``" · "`` names the stage, the rest is its time so far and best validation loss;
+    ``temporal``, ``cnn``) and per cross-validation fold (``"folds"``).
     Torch runs on ``config.threads`` threads inside and the caller's count is restored.
     """
     config = config or TrainConfig()
     started = time.monotonic()
+    times = StageTimes()
+    device = resolve_device(config.device)  # a --device torch cannot use: refused before work
     with _training_threads(config.threads), torch.random.fork_rng(devices=[]):
         # tracking the texture triples a frame's preparation: only for the candidate reading it
         texture = CANDIDATES["hooke_texture"] in candidate_names(
             config.model, config.temporal_frames > 0
         )
-        prepared = prepare_sessions(sessions, config, progress, texture)
+        with times.stage("preparation"):
+            prepared = prepare_sessions(sessions, config, progress, texture)
         if len({s.name for s in prepared}) != len(prepared):
             raise EstimateError("the same session was given twice; give each session once")
-        cv = cross_validate(prepared, config, progress) if config.folds else None
-        fit = fit_split(prepared, make_split(prepared, config), config, progress)
+        cv = None
+        if config.folds:
+            with times.stage("cross-validation"):
+                cv = cross_validate(prepared, config, progress)
+        fit = fit_split(prepared, make_split(prepared, config), config, progress, times)
     skipped = skipped_counts(prepared)
     pointnet = fit.histories.get("pointnet", {"history": [], "best_epoch": 0})
     record = {
@@ -631,8 +738,10 @@ def train(
         "notes": fit.notes,
         "histories": fit.histories,
         "fit_seconds": fit.fit_seconds,
+        "stage_seconds": times.seconds,
         "skipped": skipped,
         "threads": config.threads,
+        "device": str(device),
         "conditions": {s.name: s.conditions for s in prepared},
         "cross_validation": cv,
     }
@@ -655,6 +764,8 @@ def train(
         skipped=skipped,
         duration_s=time.monotonic() - started,
         fit_seconds=fit.fit_seconds,
+        stage_seconds=times.seconds,
+        device=str(device),
         notes=fit.notes,
         cross_validation=cv,
         intervals=fit.intervals,

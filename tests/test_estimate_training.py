@@ -18,7 +18,7 @@ from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.estimate.training import train
+from vbfe.estimate.training import best_epochs, train
 
 SMALL = dict(fps=4, points_per_side=20)
 
@@ -93,6 +93,40 @@ def test_training_writes_a_model_with_its_record(trained):
     assert np.abs(live[:, 0] - measured).mean() < 0.3 * np.abs(measured - measured.mean()).mean()
     with pytest.raises(EstimateError, match="rest cloud"):
         FramePredictor(model).predict(np.full((50, 3), np.nan))
+
+
+def test_every_network_stops_early_and_the_record_times_every_stage(trained):
+    path, result = trained
+    record = load_model(path).record
+    for name, history in record["histories"].items():
+        entries = history["history"] if name != "cnn" else history
+        runs = len(entries)
+        best = record["histories"]["pointnet"]["best_epoch"] if name == "pointnet" else None
+        if name == "pointnet":  # stopped by patience: exactly `patience` epochs after its best
+            assert history["stopped_by"] in ("patience", "epochs")
+            if history["stopped_by"] == "patience":
+                assert runs - best == 10
+            assert len(history["epoch_seconds"]) == runs and history["device"] == "cpu"
+        what = "cnn_depth_change" if name == "cnn" else name
+        assert any(n.startswith(f"{what}: ") and "best epoch" in n for n in result.notes), name
+    stages = record["stage_seconds"]
+    assert {"preparation", "baselines", "pointnet", "cnn_depth_change"} <= set(stages)
+    for seconds in stages.values():
+        assert seconds["wall_s"] >= 0 and seconds["cpu_s"] >= 0
+    assert stages["pointnet"]["cpu_s"] > 0
+    assert record["device"] == result.device == "cpu"
+
+
+def test_fold_refits_stop_where_validation_found_the_best_epoch():
+    histories = {
+        "pointnet": {"history": [{"val_mae_n": 1.0}] * 7, "best_epoch": 4},
+        "temporal": {"history": [{"val_mae_n": 1.0}] * 3, "best_epoch": 0},
+        "cnn": [{"val_mae_n": v} for v in (3.0, 2.0, 2.5, 1.5, 1.7)],
+    }
+    # the temporal model whose start was best is not retrained: it stays its PointNet start
+    assert best_epochs(histories) == {"pointnet": 4, "temporal": 0, "cnn": 4}
+    # fitted without validation: a refit runs every epoch
+    assert best_epochs({"pointnet": {"history": [{"train_loss": 1.0}], "best_epoch": 1}}) == {}
 
 
 def test_model_learns_force_on_held_out_sessions(trained, tmp_path):
@@ -285,13 +319,24 @@ def test_cli_evaluate_refuses_a_non_model(tmp_path, capsys):
 
 def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp_path):
     sessions = synthetic_sessions(repeats=2, seed=3, prefix="warm", fps=2, points_per_side=12)
+    labels: list[str] = []
     result = train(
         sessions,
         tmp_path / "warm.pt",
         tiny_config(
-            epochs=4, temporal_frames=2, temporal_span_frames=2, temporal_epochs=4, model="temporal"
+            epochs=4,
+            temporal_frames=2,
+            temporal_span_frames=2,
+            temporal_epochs=40,
+            patience=2,
+            model="temporal",
         ),
+        progress=lambda stage, done, total: labels.append(stage),
     )
+    # progress per candidate: its stage, its time so far and its best validation loss
+    epochs = [label.split(" · ") for label in labels if label.startswith("temporal epochs")]
+    assert epochs and all(len(p) == 3 and re.fullmatch(r"\d+ s", p[1]) for p in epochs)
+    assert all(re.fullmatch(r"best val loss [\d.e+-]+", p[2]) for p in epochs)
     model = load_model(result.model_path)
     assert model.selected == "temporal" and "forced by --model" in " ".join(result.notes)
     live = FramePredictor(model)  # vbfe live keeps the causal window of the shipped model
@@ -300,6 +345,11 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
     temporal = model.record["histories"]["temporal"]
     assert len(temporal["history"]) >= 1 and temporal["start_val_loss"] > 0
     best = temporal["best_epoch"]
+    # a model that stops improving stops `patience` epochs later, and says so
+    assert len(temporal["history"]) == best + 2 and temporal["stopped_by"] == "patience"
+    assert f"temporal: stopped after {best + 2} epochs, 2 without a better" in " ".join(
+        result.notes
+    )
     if best:  # a gain over the start, the PointNet it was built from
         assert temporal["history"][best - 1]["val_loss"] < temporal["start_val_loss"]
     else:  # exactly that PointNet: the same head on the newest cloud, motion correction at zero

@@ -479,6 +479,7 @@ def estimate_stage(
     """Train on most paper sessions and freehand trials; evaluate every method the evaluation
     returns on the held-out paper sessions and, apart, on the held-out freehand trials."""
     from vbfe.estimate.evaluation import evaluate
+    from vbfe.estimate.stage_times import STATUS_SEPARATOR
     from vbfe.estimate.train_config import TrainConfig
     from vbfe.estimate.training import train, use_threads
 
@@ -506,7 +507,8 @@ def estimate_stage(
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
-    def progress(name: str, done: int, total: int) -> None:
+    def progress(stage_label: str, done: int, total: int) -> None:
+        name = stage_label.split(STATUS_SEPARATOR)[0]  # the status changes every epoch
         if name not in bars:
             bars[name] = stage(f"force model: {name}", total), [0]
         step, last = bars[name]

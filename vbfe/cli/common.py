@@ -11,6 +11,7 @@ from typing import Any
 from tqdm import tqdm
 
 from vbfe.common.errors import ConfigError
+from vbfe.estimate.stage_times import STATUS_SEPARATOR
 from vbfe.rig_config import RigConfig, load_rig, settle
 
 
@@ -130,18 +131,22 @@ STAGE_UNITS = {"sessions": "session", "epochs": "epoch", "predict": "session"}
 
 
 class StageProgress:
-    """One progress bar per stage of a ``(stage, done, total)`` progress callback."""
+    """One progress bar per stage of a ``(stage, done, total)`` progress callback; a stage
+    ``"name · status"`` (``STATUS_SEPARATOR``) keeps the bar of ``name`` and shows the status."""
 
     def __init__(self) -> None:
         self._stage: str | None = None
         self._bar: tqdm | None = None
 
     def __call__(self, stage: str, done: int, total: int) -> None:
-        if stage != self._stage:
+        name = stage.split(STATUS_SEPARATOR)[0]
+        if name != self._stage:
             self.close()
-            self._stage = stage
-            self._bar = progress(total=total, desc=stage, unit=STAGE_UNITS.get(stage, "it"))
+            self._stage = name
+            unit = STAGE_UNITS.get(name.split()[-1], "it")
+            self._bar = progress(total=total, desc=stage, unit=unit)
         assert self._bar is not None
+        self._bar.set_description(stage, refresh=False)
         self._bar.update(done - self._bar.n)
 
     def close(self) -> None:

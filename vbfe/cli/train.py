@@ -97,7 +97,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="K",
         help="also train the temporal model on a causal window of K frames",
     )
-    parser.add_argument("--device", metavar="auto|cpu|cuda", help="cpu (default), cuda, or auto")
+    parser.add_argument(
+        "--device",
+        metavar="auto|cpu|cuda",
+        help="where the networks train: cpu (default), cuda, or auto (cuda when torch sees a "
+        "GPU; the last line says which)",
+    )
     parser.add_argument(
         "--time-limit",
         type=positive(float),
@@ -183,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
         print_cross_validation(result.cross_validation)
     print(
         f"model written to {result.model_path}: ships {result.selected} "
-        f"({result.duration_s:.0f} s, torch on {config.threads} thread(s))"
+        f"({result.duration_s:.0f} s, networks on {result.device}, torch on "
+        f"{config.threads} CPU thread(s))"
     )
     skipped = {
         key: sum(v[key] for v in result.skipped.values()) for key in ("no_force", "no_cloud")
