@@ -8,7 +8,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vbfe.acquire.session.layout import session_streams
+from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION, session_streams
 from vbfe.acquire.session.portable import copy_tree, image_datasets
 from vbfe.acquire.session.reader import SessionReader, consistent_rows, open_session_file
 from vbfe.acquire.session.writer import RESERVE_BYTES, finish_file
@@ -77,7 +77,9 @@ def recover_session(
         with src, create_hdf5(tmp) as dst:
             if src.attrs.get("format") != SESSION_FORMAT:
                 raise SessionError(f"{path} is not a vbfe session; nothing to recover")
-            copy_tree(src, dst, image_datasets(src, str(src.attrs.get("compression"))))
+            stored = str(src.attrs.get("compression"))  # images keep their codec where known
+            codec = stored if stored in COMPRESSIONS else DEFAULT_COMPRESSION
+            copy_tree(src, dst, image_datasets(src, codec))
             dropped = _keep_consistent_rows(dst)
             finish_file(
                 dst,
