@@ -225,9 +225,10 @@ class ConsoleWindow(QtWidgets.QMainWindow):
             )
             return
         from vbfe.common.rig_writeback import write_back
+        from vbfe.rig_config import check_file
 
-        try:
-            done = write_back(rig_file, changes)
+        try:  # checked as a whole rig file before it is written, as `--settle` does
+            done = write_back(rig_file, changes, check=check_file)
         except (VbfeError, OSError) as exc:
             self.message(f"rig file not updated: {error_line(exc)}", True)
             return
