@@ -21,7 +21,12 @@ from vbfe.common.errors import EstimateError
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
-from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures, sample_points
+from vbfe.estimate.preparation import (
+    MIN_FRAME_POINTS,
+    FrameFeatures,
+    physical_estimate,
+    sample_points,
+)
 
 
 def _finite_rows(points: np.ndarray) -> int:
@@ -105,7 +110,8 @@ class LivePredictor:
             return self._full.predict_features(features)
         points = torch.from_numpy(features.pool[None, : self.model.config.n_points])
         with torch.no_grad():
-            return self._network(points.to(self._device))[0].cpu().double().numpy()
+            force = self._network(points.to(self._device))[0].cpu().double().numpy()
+        return physical_estimate(force, self.model.config.target)
 
     def bounds(self, force_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The prediction interval (lo, hi) of an estimate (NaN: the model has none)."""
