@@ -34,7 +34,6 @@ from vbfe.common.version import __version__
 log = logging.getLogger(__name__)
 
 _BLOCK_BYTES = 32 << 20  # values copied (and compared) this many bytes at a time
-_BUILTIN_FILTERS = {"gzip", "lzf", "szip"}
 # attributes an upgrade changes or adds (everything else is kept as it was)
 UPGRADE_ATTRS = ("compression", "upgraded_utc_ns", "upgraded_by", "upgraded_from_compression")
 
@@ -50,20 +49,24 @@ def _filters(ds: h5py.Dataset, image_keywords: dict[str, Any] | None) -> dict[st
     keywords: dict[str, Any] = {"fletcher32": ds.fletcher32}
     if image_keywords is not None:
         keywords.update(image_keywords)
-    elif ds.compression in _BUILTIN_FILTERS or ds.compression is None and _plugin_filtered(ds):
+    elif _compressed(ds):
         keywords.update(compression="gzip", compression_opts=1, shuffle=ds.dtype.itemsize > 1)
     return keywords
 
 
-def _plugin_filtered(ds: h5py.Dataset) -> bool:
-    """Whether ``ds`` has a filter other than HDF5's checksum and shuffle (a plugin's)."""
+def _compressed(ds: h5py.Dataset) -> bool:
+    """Whether ``ds`` has a filter other than HDF5's checksum and shuffle (built in or a
+    plugin's)."""
     plist = ds.id.get_create_plist()
     ids = {plist.get_filter(i)[0] for i in range(plist.get_nfilters())}
     return bool(ids - {h5py.h5z.FILTER_FLETCHER32, h5py.h5z.FILTER_SHUFFLE})
 
 
-def _row_blocks(ds: h5py.Dataset) -> Iterator[slice]:
-    """Slices of whole rows of ``ds`` about :data:`_BLOCK_BYTES` each."""
+def _row_blocks(ds: h5py.Dataset) -> Iterator[slice | tuple[()]]:
+    """Slices of whole rows of ``ds`` about :data:`_BLOCK_BYTES` each (a scalar: ``()``)."""
+    if ds.shape == ():
+        yield ()
+        return
     n = ds.shape[0]
     row = max(int(np.prod(ds.shape[1:], dtype=np.int64)) * ds.dtype.itemsize, 1)
     step = max(_BLOCK_BYTES // row, 1)
@@ -136,14 +139,9 @@ def _differences(a: Any, b: Any, skip: tuple[str, ...]) -> Iterator[str]:
         if isinstance(x, h5py.Dataset):
             if x.shape != y.shape or x.dtype != y.dtype:
                 yield f"{x.name}: shape or type differs"
-            elif x.shape == () or x.chunks is None:
-                if not np.array_equal(np.asarray(x[()]), np.asarray(y[()])):
-                    yield f"{x.name}: values differ"
             elif any(not np.array_equal(x[rows], y[rows]) for rows in _row_blocks(x)):
                 yield f"{x.name}: values differ"
-            yield from _differences(x, y, ())
-        else:
-            yield from _differences(x, y, ())
+        yield from _differences(x, y, ())
 
 
 def upgrade_file(
