@@ -43,24 +43,6 @@ def load() -> str:
     return "load average " + ", ".join(f"{v:.1f}" for v in os.getloadavg())
 
 
-def demo_like_config() -> dict[str, Any]:
-    """The quick demo's training settings (``vbfe.demo.estimate_stage``)."""
-    plan = DemoPlan.quick()
-    return dict(
-        epochs=plan.epochs,
-        n_points=plan.n_points,
-        conv_channels=plan.conv_channels,
-        threads=plan.threads,
-        temporal_frames=plan.temporal_frames,
-        temporal_span_frames=plan.temporal_span_frames,
-        temporal_epochs=plan.temporal_epochs,
-        split=plan.split,
-        gap_frames=plan.gap_frames,
-        select_min_val_frames=plan.select_min_val_frames,
-        interval_scale=plan.interval_scale,
-    )
-
-
 def bare_epoch_s(config: TrainConfig, prepared: list, window: tuple[int, ...]) -> float:
     """Seconds of one epoch of a bare loop: the network, its batches drawn beforehand."""
     parts = make_split(prepared, config).frames("train", prepared)
@@ -148,7 +130,11 @@ def main() -> None:
         bench(args.sessions, TrainConfig.from_table(table, **overrides), "recorded")
     if args.demo_like or not args.sessions:
         sessions = synthetic_sessions(repeats=2, seed=1, prefix="demo", fps=10)
-        bench(sessions, TrainConfig.from_table({**demo_like_config(), **table}), "demo-like")
+        bench(
+            sessions,
+            TrainConfig.from_table({**DemoPlan.quick().train_options(), **table}),
+            "demo-like",
+        )
 
 
 if __name__ == "__main__":

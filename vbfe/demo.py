@@ -103,6 +103,25 @@ class DemoPlan:
             interval_scale="force",
         )
 
+    def train_options(self) -> dict[str, Any]:
+        """The ``[train]`` settings this plan overrides (keywords of ``TrainConfig``)."""
+        return dict(
+            epochs=self.epochs,
+            n_points=self.n_points,
+            frame_stride=self.frame_stride,
+            conv_channels=self.conv_channels,
+            time_limit_s=self.time_limit_s,
+            threads=self.threads,
+            temporal_frames=self.temporal_frames,
+            temporal_span_frames=self.temporal_span_frames,
+            temporal_epochs=self.temporal_epochs,
+            split=self.split,
+            gap_frames=self.gap_frames,
+            val_fraction=self.val_fraction,
+            select_min_val_frames=self.select_min_val_frames,
+            interval_scale=self.interval_scale,
+        )
+
     @classmethod
     def quick(cls) -> DemoPlan:
         """A small run for tests (about 140 s of CPU). Like the full run it validates on
@@ -487,23 +506,7 @@ def estimate_stage(
     held_out = [s for s in paper if s.stem.endswith(f"_r{plan.repeats - 1}")]
     held_out_freehand = [s for s in sessions if is_freehand(s)][plan.freehand_trials :]
     training = [s for s in sessions if s not in held_out + held_out_freehand]
-    train_config = TrainConfig.from_table(
-        config["train"],
-        epochs=plan.epochs,
-        n_points=plan.n_points,
-        frame_stride=plan.frame_stride,
-        conv_channels=plan.conv_channels,
-        time_limit_s=plan.time_limit_s,
-        threads=plan.threads,
-        temporal_frames=plan.temporal_frames,
-        temporal_span_frames=plan.temporal_span_frames,
-        temporal_epochs=plan.temporal_epochs,
-        split=plan.split,
-        gap_frames=plan.gap_frames,
-        val_fraction=plan.val_fraction,
-        select_min_val_frames=plan.select_min_val_frames,
-        interval_scale=plan.interval_scale,
-    )
+    train_config = TrainConfig.from_table(config["train"], **plan.train_options())
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 
