@@ -347,6 +347,7 @@ def _verdict(
     protocol: ProtocolResult | None,
     audits: dict[str, StreamAudit],
     limits: SyncLimits,
+    recorder_lost: dict[str, int] | None = None,
 ) -> tuple[str, list[str]]:
     """PASS/FAIL (protocol sessions, or any definite failure) or INCONCLUSIVE (a passive
     estimate too uncertain to judge), with the reasons. A passive estimate passes only when
@@ -374,7 +375,7 @@ def _verdict(
         if audits[stream].drop_fraction > limit:
             failures.append(
                 f"{stream} dropped {100 * audits[stream].drop_fraction:.1f}% "
-                f"(limit {100 * limit:g}%)"
+                f"(limit {100 * limit:g}%){_drop_origin(audits[stream], recorder_lost, stream)}"
             )
     if protocol is not None:
         if protocol.offset is not None and protocol.offset.n_used < MIN_TAPS:
@@ -400,6 +401,14 @@ def _verdict(
     if failures:
         return FAIL, failures + doubts
     return (INCONCLUSIVE, doubts) if doubts else (PASS, [])
+
+
+def _drop_origin(audit: StreamAudit, recorder_lost: dict[str, int] | None, stream: str) -> str:
+    """Where a stream's missing samples were lost, when the session says (newer sessions)."""
+    if recorder_lost is None or stream not in recorder_lost:
+        return ""
+    lost = min(recorder_lost[stream], audit.dropped)
+    return f": {audit.dropped - lost} never delivered by the device, {lost} lost by the recorder"
 
 
 def _stream_check(reader: SessionReader, name: str, max_lag_s: float) -> OffsetEstimate | str:
@@ -439,6 +448,12 @@ def verify_sync(
         previous = int(reader.analysis().get(FRAME_CORRECTION_ATTR, 0)) / 1e9
         fits = {s: reader.clock_fit(s) for s in (CAMERA, FORCE)}
         audits = {s: audit_sequence(reader.stream_times(s)[2]) for s in (CAMERA, FORCE)}
+        attrs = reader.attrs
+        recorder_lost = {
+            s: int(attrs[f"{s}_queue_dropped"])
+            for s in (CAMERA, FORCE)
+            if f"{s}_queue_dropped" in attrs
+        }
         streams = {
             name: _stream_check(reader, name, max_lag_s)
             for name in reader.stream_names()
@@ -446,7 +461,7 @@ def verify_sync(
         }
     applied = estimate.offset_s if apply_correction else 0.0
     residual = estimate.offset_s - applied
-    verdict, reasons = _verdict(estimate, residual, protocol, audits, limits)
+    verdict, reasons = _verdict(estimate, residual, protocol, audits, limits, recorder_lost)
     report = SyncReport(
         path=Path(path),
         estimate=estimate,

@@ -295,10 +295,13 @@ def tap_lag(
     template: np.ndarray,
     window: tuple[float, float],
     max_lag_s: float,
+    correction_s: float = 0.0,
 ) -> tuple[float, float] | None:
     """Lag (s) of the image motion behind the force over one tap, and its standard error: the
-    frames' components in ``window`` fitted by a quadratic in the delayed force template."""
-    inside = (t_frames >= window[0]) & (t_frames <= window[1])
+    frames' components in ``window`` fitted by a quadratic in the delayed force template. The
+    frames are chosen by their times before ``correction_s`` (already in ``t_frames``), so a
+    stored correction shifts the lag by itself and changes nothing else."""
+    inside = (t_frames + correction_s >= window[0]) & (t_frames + correction_s <= window[1])
     if inside.sum() < 10:
         return None
     t, c = t_frames[inside], components[inside]
@@ -356,7 +359,7 @@ def analyse_protocol(
             max(onset - _TAP_MARGIN_S, ends[j - 1] + 0.1 if j else -np.inf),
             min(ends[j] + _TAP_MARGIN_S, onsets[j + 1] - 0.1 if j + 1 < len(onsets) else np.inf),
         )
-        found = tap_lag(t_frames, components, t_force, template, window, max_lag_s)
+        found = tap_lag(t_frames, components, t_force, template, window, max_lag_s, correction_s)
         if found is not None:
             taps.append((onset, found[0], float(np.hypot(found[1], std))))
     offset = combine(*map(np.array, zip(*taps, strict=False))) if taps else None
