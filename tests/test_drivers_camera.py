@@ -114,5 +114,7 @@ def test_fake_stereo_camera_runs_in_real_time_with_moving_content():
     assert not np.array_equal(frames[0].left[1:], frames[5].left[1:])  # the bar moved
     span_ns = frames[-1].t_host_ns - frames[0].t_host_ns
     assert 0.10e9 < span_ns < 0.5e9  # 14 periods of 10 ms, paced on the host clock
-    skew = [f.t_device_ns - f.t_host_ns for f in frames]
-    assert offset_ns - 5e6 < np.median(skew) <= offset_ns + 1e5
+    # device time = host time at capture + the offset; the host stamps on receipt, later by
+    # a latency that a busy machine stretches for some frames but not for every one
+    skew = np.array([f.t_device_ns - f.t_host_ns for f in frames])
+    assert np.all(skew <= offset_ns + 1e5) and offset_ns - 5e6 < skew.max()
