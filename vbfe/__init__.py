@@ -3,12 +3,16 @@ endoscope)."""
 
 import os
 
-# Torch's OpenMP threads busy-wait between parallel regions by default: on a machine whose
-# cores are busy with other work (a recording, a second program, CI beside other jobs) they
-# spin against it, and a 20 s training took 270 s at load 20 (9 s of CPU became 100 s).
-# Passive waiting sleeps instead; set before any vbfe module imports torch, and only when the
-# user has not chosen (pytorch/pytorch#57715, #80777).
+# Thread pools that busy-wait starve the recorder's threads and each other on a machine whose
+# cores are busy (a recording, a second program, CI beside other jobs). Set before numpy,
+# scipy or torch load, and only where the user has not chosen:
+# - torch's OpenMP threads wait passively between parallel regions: a 20 s MLP fit took 270 s
+#   at load 20 when they spun (9 s of CPU became 100 s) (pytorch/pytorch#57715, #80777);
+# - OpenBLAS (numpy, scipy) runs one thread: vbfe's linear algebra is many small solves (the
+#   sync fits' SVDs of 3000x6 Jacobians), which a second thread only slows: a sync check took
+#   76 s (25 s CPU) at load 16 with OpenBLAS's threads, 14 s (2.6 s CPU) on one.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from vbfe.common.version import __version__  # noqa: E402
 
