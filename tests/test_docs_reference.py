@@ -25,3 +25,25 @@ def test_every_rig_file_key_is_in_the_reference():
         assert f"## `[{table}]`" in page
         for key in keys:
             assert f"| `{key}` |" in page, f"[{table}] {key}"
+
+
+def test_the_benchmark_page_shows_what_a_kept_run_printed(tmp_path, capsys):
+    from benchmarks import logbook
+    from tools.docs_benchmarks import benchmarks_markdown
+
+    assert logbook.main(["bench_drivers", "--smoke"], runs=tmp_path) == 2  # never kept
+    assert logbook.main(["bench_nothing"], runs=tmp_path) == 2
+    assert not list(tmp_path.iterdir())
+    capsys.readouterr()
+    assert logbook.main(["bench_drivers", "--frames", "300"], runs=tmp_path) == 0
+    printed = capsys.readouterr().out
+    (kept,) = (tmp_path / "bench_drivers").glob("*.json")
+    page = benchmarks_markdown(tmp_path)
+    scripts = sorted(p.stem for p in (logbook.ROOT / "benchmarks").glob("bench_*.py"))
+    assert [line[4:-1] for line in page.splitlines() if line.startswith("## ")] == scripts
+    section = page.split("## `bench_drivers`")[1].split("\n## ")[0]
+    assert "`python -m benchmarks.bench_drivers --frames 300`" in section
+    assert "load average" in section and "cores" in section
+    lines = [line for line in printed.splitlines() if line and not line.startswith("kept in")]
+    assert lines and all(line in section for line in lines)  # what it printed, as printed
+    assert section.count("No kept run yet") == 0 and "No kept run yet" in page
