@@ -153,3 +153,38 @@ def test_a_marker_stream_keeps_its_text_and_gaps_through_a_recovery_copy(tmp_pat
         assert list(session.stream_column("markers", "text")) == ["start", "stop ü"]
         assert session.stream_times("markers")[1].tolist() == [10, 11]
         assert session.gaps()[0]["stream"] == "markers" and dropped["markers"] == 0
+
+
+class SlowView(Listener):
+    """A view that takes 60 ms over each frame, as the live estimate does on a busy machine."""
+
+    lossy = True
+
+    def __init__(self) -> None:
+        self.seen: list[int] = []
+
+    def on_frames(self, frames) -> None:
+        time.sleep(0.06)
+        self.seen.extend(frame.seq for frame in frames)
+
+
+def test_a_slow_lossy_listener_skips_frames_counted_and_the_file_loses_none(tmp_path):
+    view = SlowView()  # half the camera's 30 fps: in the writer's thread it would fill the queue
+    with Recorder(
+        bar_devices(speed=1.0),
+        tmp_path / "s.h5",
+        min_free_bytes=0,
+        queue_size=4,
+        listeners=(view,),
+    ) as recorder:
+        stats = recorder.run(1.5)
+    with SessionReader(tmp_path / "s.h5") as session:
+        seqs = session.stream_times("camera")[2]
+        assert session.n_frames == stats.frames >= 40
+        assert (np.diff(seqs) == 1).all() and not session.gaps()
+        assert session.attrs["camera_queue_dropped"] == 0
+    assert stats.live_skipped > 10 and len(view.seen) < stats.frames
+    assert view.seen == sorted(view.seen)  # the newest frame each time, never an older one
+    # every frame is written, and either seen or counted as skipped by the view (the readers
+    # may have read a frame or two past the end, which neither the file nor the view keeps)
+    assert stats.frames <= len(view.seen) + stats.live_skipped <= stats.frames + 3

@@ -11,6 +11,7 @@ import pytest
 
 from vbfe.acquire import SessionReader
 from vbfe.common.config import load_config
+from vbfe.common.mailbox import Mailbox
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
@@ -18,7 +19,6 @@ from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 from vbfe.live.estimator import STAGES
-from vbfe.live.mailbox import Mailbox
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.truth import calibration_from_rig, true_rig
 

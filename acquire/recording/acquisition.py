@@ -2,6 +2,13 @@
 pymeasure's Worker: per-device reader threads → bounded queues → one dispatch thread that hands
 every record to the registered :class:`~vbfe.acquire.recording.listener.Listener`\\ s.
 
+Lossy listeners (``Listener.lossy``: the live estimate, the viewers) are served apart, by a
+dispatch thread of their own that the readers feed directly: the newest camera frame through a
+one-slot mailbox (a frame not taken in time is replaced, counted in ``live_skipped``), the
+other streams' records through a bounded queue (full: dropped, counted in ``live_dropped``).
+They always see the newest frame, however far behind the writer is, and nothing they do
+holds the recording back.
+
 For a real-time device a full queue never blocks it: the record is dropped, counted and
 reported as a gap. A device that describes itself as not real time (``describe()["realtime"]
 is False``, the simulated bench run as fast as it renders) waits for room instead: the
@@ -31,6 +38,7 @@ import numpy as np
 from vbfe.acquire.recording.listener import Gap, Listener
 from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.common.errors import DeviceError, SessionError
+from vbfe.common.mailbox import Mailbox
 from vbfe.drivers.projector.pattern import PATTERN_NAME
 from vbfe.drivers.rig import Rig
 from vbfe.drivers.samples import ProjectorEvent, StereoFrame
@@ -59,6 +67,8 @@ class AcquisitionStats:
     flushed: dict[str, int] = field(default_factory=dict)  # what a file sink made durable
     dropped: dict[str, int] = field(default_factory=dict)  # queue overflows + device-side drops
     queue_dropped: dict[str, int] = field(default_factory=dict)  # queue overflows alone
+    live_skipped: int = 0  # frames no lossy listener saw (a newer one replaced them)
+    live_dropped: int = 0  # other records dropped for the lossy listeners (their queue full)
     bytes_written: int = 0  # payload a file sink wrote
     end_reason: str = ""
 
@@ -96,6 +106,7 @@ class _Pump(threading.Thread):
         paced: bool = False,
         read_until_ns: Callable[[], int | None] = lambda: None,
         demand: threading.Semaphore | None = None,
+        live: Callable[[str, Any], None] | None = None,
     ) -> None:
         super().__init__(name=f"vbfe-read-{stream}", daemon=True)
         self.stream, self._device, self._out = stream, device, out
@@ -103,6 +114,7 @@ class _Pump(threading.Thread):
         self.paced = paced
         self._read_until_ns = read_until_ns
         self._demand = demand  # read only when a consumer asked (one read per release)
+        self._live = live  # offered every item read, for the lossy listeners
         self.dropped = 0
         self.last_seq = -1
         self.last_t_host_ns = 0  # host time of the newest item read
@@ -141,6 +153,8 @@ class _Pump(threading.Thread):
                     self._demand.release()  # still owed
                 continue
             self.last_t_host_ns = item.t_host_ns
+            if self._live is not None:
+                self._live(self.stream, item)
             try:
                 if self.paced:
                     self._put_paced(item)
@@ -194,7 +208,8 @@ class Acquisition:
         function of the opened projector's ``(width, height)`` that makes one.
     :param pattern_name: the name the pattern's projector event is recorded under.
     :param queue_size: frames buffered per camera between its reader and the dispatch (other
-        streams get proportionally more); a full queue drops records, marked as gaps.
+        streams, and the lossy listeners' records, get proportionally more); a full queue
+        drops records, marked as gaps.
     :param listeners: consumers of the records, in dispatch order (more with :meth:`add`).
     :param on_demand: read the camera only when asked (:meth:`demand`, one frame each), for
         consumers in lock-step with the projector (show, then the frames after it).
@@ -224,6 +239,15 @@ class Acquisition:
         self._stop_request: str | None = None
         self._pumps: list[_Pump] = []
         self._dispatcher: threading.Thread | None = None
+        self._direct: list[Listener] = []  # served by the dispatch thread, every record
+        self._lossy: list[Listener] = []  # served by the live dispatch thread
+        self._live_frames: Mailbox[StereoFrame] = Mailbox()
+        self._live_records: queue.Queue[tuple[str | None, Any]] = queue.Queue(
+            queue_size * _SAMPLE_QUEUE_FACTOR
+        )
+        self._live_dropped = 0
+        self._live_dispatcher: threading.Thread | None = None
+        self._dispatch_done = threading.Event()
         self._started = self._stopped = False
         self.paced = False  # the camera is not real time: readers wait for room, nothing drops
         self._frame_t_host = [0, 0]  # first, last kept
@@ -272,6 +296,8 @@ class Acquisition:
                 with contextlib.suppress(Exception):
                     listener.on_stop(self)
             raise
+        self._lossy = [listener for listener in self.listeners if listener.lossy]
+        self._direct = [listener for listener in self.listeners if not listener.lossy]
         streams = dict(self.rig.streams())
         self.paced = any(
             d.describe().get("realtime") is False for s, d in streams.items() if s == CAMERA
@@ -289,12 +315,18 @@ class Acquisition:
                     self.paced,
                     (lambda: None) if stream == CAMERA else self._reached_end_ns,
                     self._demand if stream == CAMERA else None,
+                    self._offer_live if self._lossy else None,
                 )
             )
         self._dispatcher = threading.Thread(
             target=self._dispatch_loop, name="vbfe-dispatch", daemon=True
         )
         self._dispatcher.start()
+        if self._lossy:
+            self._live_dispatcher = threading.Thread(
+                target=self._live_loop, name="vbfe-dispatch-live", daemon=True
+            )
+            self._live_dispatcher.start()
         for pump in self._pumps:
             pump.start()
         log.info(
@@ -321,6 +353,8 @@ class Acquisition:
         that runs :meth:`run`, e.g. from a listener's ``on_tick``)."""
         event = self.rig.projector.show(pattern, name)
         self._control.put(event)
+        if self._lossy:
+            self._offer_live(PROJECTOR, event)
         return event
 
     def run(
@@ -430,6 +464,8 @@ class Acquisition:
             pump.join(timeout=5.0)
         if self._dispatcher is not None:
             self._dispatcher.join()
+        if self._live_dispatcher is not None:
+            self._live_dispatcher.join()
         self.rig.close()
         stats = self.update_stats()
         if not stats.end_reason:
@@ -515,10 +551,41 @@ class Acquisition:
         )
         devices = dict(self.rig.streams())
         s.queue_dropped = {p.stream: p.dropped for p in self._pumps}
+        s.live_skipped, s.live_dropped = self.live_skipped, self._live_dropped
         s.dropped = {p.stream: p.dropped + devices[p.stream].stats.dropped for p in self._pumps}
         return s
 
+    def backlog(self) -> float:
+        """How full the camera's queue to the dispatch is (0 … 1): how far the listeners of
+        every frame (the file's writer) are behind; 0 for a paced camera, which waits."""
+        frames = self._queues.get(CAMERA)
+        if frames is None or self.paced:
+            return 0.0
+        return frames.qsize() / frames.maxsize
+
+    @property
+    def live_skipped(self) -> int:
+        """Frames no lossy listener saw: a newer one replaced them before they were taken."""
+        return self._live_frames.skipped
+
+    def _offer_live(self, stream: str | None, item: Any) -> None:
+        """Hand a record (``stream`` ``None``: a :class:`Gap`) to the lossy listeners' thread;
+        never waits."""
+        if stream == CAMERA:
+            self._live_frames.put(item)
+            return
+        try:
+            self._live_records.put_nowait((stream, item))
+        except queue.Full:
+            self._live_dropped += 1
+
     def _dispatch_loop(self) -> None:
+        try:
+            self._dispatch()
+        finally:
+            self._dispatch_done.set()
+
+    def _dispatch(self) -> None:
         others = [s for s in self._queues if s != CAMERA]
         counts = self.stats.counts
         for stream in [*self._queues, PROJECTOR]:
@@ -542,7 +609,7 @@ class Acquisition:
                 for stream, items in batches.items():
                     if items:
                         counts[stream] += len(items)
-                        for listener in self.listeners:
+                        for listener in self._direct:
                             listener.on_records(stream, items)
                 for message in control:
                     if isinstance(message, Gap):
@@ -553,19 +620,57 @@ class Acquisition:
                             message.count,
                             message.last_seq,
                         )
-                    for listener in self.listeners:
+                        if self._lossy:
+                            self._offer_live(None, message)
+                    for listener in self._direct:
                         if isinstance(message, Gap):
                             listener.on_gap(message)
                         else:
                             listener.on_records(PROJECTOR, [message])
                     if not isinstance(message, Gap):
                         counts[PROJECTOR] += 1
-                for listener in self.listeners:
+                for listener in self._direct:
                     listener.on_round()
                 if pumps_done and not (control or any(batches.values())):
                     break
         except Exception as exc:  # handed to stop(), which raises it after the listeners stop
             self.error = exc
+            self._halt.set()
+
+    def _live_loop(self) -> None:
+        """Serve the lossy listeners: the newest frame and what else came, each round, until
+        the dispatch has ended and nothing is left; records past the acquisition's end are
+        not handed over. A failing hook stops the acquisition as in the dispatch."""
+        try:
+            while True:
+                dispatched = self._dispatch_done.is_set()
+                frame = self._live_frames.take(0.0 if dispatched else 0.02)
+                items = _drain(self._live_records, 1 << 20)
+                end = self._end_host_ns
+                batches: dict[str, list[Any]] = {}
+                if frame is not None:
+                    batches[CAMERA] = [frame]
+                gaps = []
+                for stream, item in items:
+                    if stream is None:
+                        gaps.append(item)
+                    elif stream == PROJECTOR or end is None or item.t_host_ns < end:
+                        batches.setdefault(stream, []).append(item)
+                if end is not None and frame is not None and frame.t_host_ns >= end:
+                    del batches[CAMERA]
+                for stream, records in batches.items():
+                    for listener in self._lossy:
+                        listener.on_records(stream, records)
+                for gap in gaps:
+                    for listener in self._lossy:
+                        listener.on_gap(gap)
+                for listener in self._lossy:
+                    listener.on_round()
+                if dispatched and frame is None and not items:
+                    break
+        except Exception as exc:  # handed to stop(), as a dispatch failure is
+            if self.error is None:
+                self.error = exc
             self._halt.set()
 
     def _within_duration(self, frames: list[StereoFrame]) -> list[StereoFrame]:

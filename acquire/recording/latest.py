@@ -40,6 +40,8 @@ class Latest(Listener):
         stream; the newest win).
     """
 
+    lossy = True  # a view: the newest frame is enough, and never at the recording's cost
+
     def __init__(self, window_s: float = 10.0, max_records: int = 20_000) -> None:
         self.window_s = window_s
         self.frame: StereoFrame | None = None

@@ -34,7 +34,14 @@ class Listener:
     to a thread of your own, as the live estimator's mailbox does). An exception in a record
     hook stops the acquisition; ``stop`` raises it after every listener's ``on_stop``. A
     listener that cannot go on (e.g. a full disk) calls ``acquisition.halt(reason)``.
+
+    A ``lossy`` listener (a view, the live estimate) gets the newest frame rather than every
+    frame: its record hooks run on the acquisition's live dispatch thread, fed by the readers
+    directly, so it never waits for the file's writer nor holds it back; frames it did not
+    take in time are counted in the acquisition's ``live_skipped``.
     """
+
+    lossy = False  # True: the newest frames only, on a thread apart from the recording
 
     def on_start(self, acquisition: Acquisition) -> None:
         """The rig is open and about to be read.

@@ -4,7 +4,11 @@ Flushes (SWMR) are scheduled on the clock, every half ``flush_interval_s``, so t
 a crash (flush time, queued records and scheduling delays included) stays within it. Free space
 is checked continuously (on the clock and by volume written); below a quarter of
 ``min_free_bytes`` the acquisition is halted and the session finalized. A write failure (full
-disk, I/O error) halts it and leaves the file as of its last flush. At the end the file is
+disk, I/O error) halts it and leaves the file as of its last flush. A writer that falls
+behind (its frame queue a quarter full) stores the frames with the least CPU the compression
+allows until it has caught up (``gzip``: uncompressed deflate blocks; counted in the file's
+``camera_frames_stored``), so that a machine short of CPU costs file size, not frames. At
+the end the file is
 finalized with the drop counters, the devices' final description and, on a simulated rig, the
 per-frame ground truth.
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import re
 import threading
@@ -36,10 +41,13 @@ from vbfe.drivers.streams.records import StreamInfo
 if TYPE_CHECKING:
     from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 
+log = logging.getLogger(__name__)
+
 _SPACE_CHECK_S = 0.25  # free space is read this often, and after every eighth of the stop
 # margin (a quarter of min_free_bytes) written, however fast the frames come
 _MIN_SPACE_CHECK_BYTES = 1 << 20
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
+_BEHIND = 0.25  # camera queue this full: frames are stored with the least CPU until it drains
 
 
 def _is_write_failure(exc: BaseException) -> bool:
@@ -177,9 +185,11 @@ class SessionSink(Listener):
                 step = max(1, self._check_every() // pair_bytes)
             for start in range(0, len(records), step):
                 part = records[start : start + step]
+                behind = False
                 if stream == CAMERA:
                     self._frame_t_device.extend(fr.t_device_ns for fr in part)
-                self._writer.append(stream, part)
+                    behind = self._acquisition.backlog() >= _BEHIND
+                self._writer.append(stream, part, behind)
                 if self._writer.bytes_written - self._checked_at_bytes >= self._check_every():
                     self._check_space()
                     if self._fault is not None:
@@ -248,6 +258,12 @@ class SessionSink(Listener):
 
     def _stop(self, acquisition: Acquisition) -> None:
         writer, stats = self._writer, acquisition.stats
+        if writer.frames_stored:
+            log.warning(
+                "%d of %d frames stored uncompressed: the writer was behind (short of CPU)",
+                writer.frames_stored,
+                writer.counts[CAMERA],
+            )
         if self._error is None:
             with contextlib.suppress(Exception), self._writing():
                 self._write_posted()
@@ -322,7 +338,10 @@ class SessionSink(Listener):
         self, acquisition: Acquisition, end_reason: str | None = None
     ) -> dict[str, Any]:
         stats = acquisition.stats
-        attrs: dict[str, Any] = {"end_reason": end_reason or stats.end_reason}
+        attrs: dict[str, Any] = {
+            "end_reason": end_reason or stats.end_reason,
+            "camera_frames_stored": self._writer.frames_stored,
+        }
         readers = dict(acquisition.rig.streams())
         for stream, device in readers.items():
             attrs[f"{stream}_queue_dropped"] = stats.queue_dropped.get(stream, 0)

@@ -7,7 +7,9 @@ decodes the same way, followed by HDF5's Fletcher-32 checksum, and written with 
 chunk write: a dataset created with ``compression="gzip"`` and ``fletcher32=True`` reads them
 back through its ordinary filter pipeline (h5py, h5dump, MATLAB, HDFView). On the recorder's
 noisy 640x360 frames this is about half the CPU of HDF5's level 1 and compresses slightly
-better (benchmarks/bench_record.py).
+better (benchmarks/bench_record.py). A writer that has fallen behind stores chunks instead
+(``stored=True``: deflate's stored blocks, still decoded by every inflate): about a tenth of
+the CPU for chunks about twice the size, so it catches up rather than lose frames.
 """
 
 from __future__ import annotations
@@ -52,14 +54,19 @@ def fletcher32(data: bytes) -> int:
     return _fletcher32(words, data[-1] if len(data) % 2 else 0, bool(len(data) % 2))
 
 
-def deflate_chunk(image: np.ndarray) -> bytes:
-    """The stored bytes of one image chunk under the pipeline deflate + Fletcher-32."""
-    encoder = zlib.compressobj(1, zlib.DEFLATED, 15, 8, zlib.Z_HUFFMAN_ONLY)
+def deflate_chunk(image: np.ndarray, stored: bool = False) -> bytes:
+    """The stored bytes of one image chunk under the pipeline deflate + Fletcher-32
+    (``stored``: deflate's uncompressed blocks, the least CPU)."""
+    encoder = (
+        zlib.compressobj(0, zlib.DEFLATED, 15, 8)
+        if stored
+        else zlib.compressobj(1, zlib.DEFLATED, 15, 8, zlib.Z_HUFFMAN_ONLY)
+    )
     body = encoder.compress(np.ascontiguousarray(image).data) + encoder.flush()
     return body + fletcher32(body).to_bytes(4, "little")
 
 
-def write_deflated(ds: h5py.Dataset, row: int, image: np.ndarray) -> None:
+def write_deflated(ds: h5py.Dataset, row: int, image: np.ndarray, stored: bool = False) -> None:
     """Store ``image`` as row ``row`` (one chunk) of a dataset created with deflate and
-    Fletcher-32, in that order (h5py's order)."""
-    ds.id.write_direct_chunk((row,) + (0,) * image.ndim, deflate_chunk(image))
+    Fletcher-32, in that order (h5py's order); ``stored``: uncompressed deflate blocks."""
+    ds.id.write_direct_chunk((row,) + (0,) * image.ndim, deflate_chunk(image, stored))

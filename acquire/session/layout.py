@@ -200,13 +200,14 @@ def session_streams(f: h5py.File) -> tuple[StreamSpec, ...]:
 class ImageCodec:
     """How a session stores its camera images: the HDF5 filter of the raw-pixel datasets
     (``keywords``: h5py ``create_dataset`` keywords), who can read them, and (``write_row``)
-    a writer of one image row cheaper than HDF5's own filter, where there is one."""
+    a writer of one image row cheaper than HDF5's own filter, where there is one (its last
+    argument: the writer is behind, spend the least CPU the filter allows)."""
 
     name: str
     keywords: Callable[[], dict[str, Any]]
     reach: str  # who decodes it: "stock HDF5", "with plugin" or "h5py only"
     readers: str
-    write_row: Callable[[h5py.Dataset, int, np.ndarray], None] | None = None
+    write_row: Callable[[h5py.Dataset, int, np.ndarray, bool], None] | None = None
 
 
 def _no_filter() -> dict[str, Any]:

@@ -150,6 +150,7 @@ class SessionWriter:
         self.path = Path(path)
         self.compression = compression
         self.bytes_written = 0  # uncompressed payload bytes
+        self.frames_stored = 0  # frames stored uncompressed because the writer was behind
         encoding = "jpeg" if compression == "mjpeg" else "raw"
         specs = (*core_streams(frame_size, encoding, force_axes), *extra_streams)
         self.streams: dict[str, StreamSpec] = {spec.name: spec for spec in specs}
@@ -235,13 +236,16 @@ class SessionWriter:
             data[blob] = _series(group, blob, np.uint8, (), _JPEG_CHUNK)
         return data
 
-    def append(self, stream: str, records: Sequence[Any]) -> None:
+    def append(self, stream: str, records: Sequence[Any], behind: bool = False) -> None:
         """Append records of a stream (data first, timestamps last, so a reader never sees a
         timestamp whose data is missing).
 
         :param stream: the stream's name.
         :param records: its records (with ``t_device_ns``, ``t_host_ns``, ``seq`` and the
             stream's columns as attributes).
+        :param behind: the caller is falling behind: images are stored with the least CPU
+            the compression allows (``gzip``: uncompressed deflate blocks, every reader
+            reads them as before; counted in ``frames_stored``).
         :raises SessionError: the writer has no such stream.
         :raises OSError: the file cannot be written (e.g. the disk is full).
         """
@@ -254,7 +258,7 @@ class SessionWriter:
                 f"{list(self.streams)}); give its spec to the writer"
             )
         if stream == CAMERA:
-            self._append_images(records)
+            self._append_images(records, behind)
         else:
             data = self._data[stream]
             for column in spec.columns:
@@ -268,7 +272,7 @@ class SessionWriter:
             _append(data[key], np.array([getattr(r, key) for r in records], dtype=np.int64))
         self.counts[stream] += len(records)
 
-    def _append_images(self, frames: Sequence[StereoFrame]) -> None:
+    def _append_images(self, frames: Sequence[StereoFrame], behind: bool) -> None:
         data = self._data[CAMERA]
         if self.compression == "mjpeg":
             for i, eye in enumerate(("left", "right")):
@@ -291,6 +295,8 @@ class SessionWriter:
                     f"expected {expected} (did the camera change size?)"
                 )
         write_row = IMAGE_CODECS[self.compression].write_row
+        if behind and write_row is not None:
+            self.frames_stored += len(frames)
         for eye in ("left", "right"):
             ds = data[eye]
             n = ds.shape[0]
@@ -299,7 +305,7 @@ class SessionWriter:
                 if write_row is None:
                     ds[n + k] = getattr(fr, eye)
                 else:
-                    write_row(ds, n + k, getattr(fr, eye))
+                    write_row(ds, n + k, getattr(fr, eye), behind)
             self.bytes_written += len(frames) * fr.left.nbytes
 
     def append_frames(self, frames: Sequence[StereoFrame]) -> None:

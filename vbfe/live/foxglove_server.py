@@ -33,8 +33,9 @@ import numpy as np
 from foxglove.websocket import ChannelView, Client, ServerListener
 
 from vbfe.common.errors import LiveError
+from vbfe.common.mailbox import Mailbox
+from vbfe.common.priority import yield_to_recording
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
-from vbfe.live.mailbox import Mailbox
 from vbfe.live.outputs import EstimateOutput
 from vbfe.messages import builders
 from vbfe.messages.images import ImageCodec
@@ -292,7 +293,8 @@ class FoxgloveServer(EstimateOutput):
     # -- the sending thread -----------------------------------------------------------------
     def _run(self) -> None:
         """Send until stopped; a failure stops the viewer only (kept in ``error``), never the
-        acquisition."""
+        acquisition (a viewer: at a lower priority than the recording)."""
+        yield_to_recording()
         try:
             self._send_all()
         except Exception as exc:  # noqa: BLE001 - reported by the command, not raised

@@ -30,6 +30,8 @@ class EstimateOutput(Listener):
     """A listener of the acquisition that also receives every estimate and cloud (from the
     estimator's threads: it must not block)."""
 
+    lossy = True  # the newest frames, on the acquisition's live thread (never the file's)
+
     def on_estimate(self, estimate: LiveEstimate) -> None:
         """One new estimate."""
 

@@ -5,6 +5,8 @@ the next stage; a stage slower than the one before it skips (and counts) the ite
 saw, and nothing queues. Throughput is set by the slowest stage, and stages overlap wherever
 their work releases the GIL (OpenCV, numba, torch). Every item put in is, in the end, either
 delivered to the sink, skipped, or dropped by a stage (which returned ``None`` or raised).
+Each stage's thread runs at a lower priority than the recording's
+(:func:`vbfe.common.priority.yield_to_recording`), as do the worker threads it starts.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from vbfe.live.mailbox import Mailbox
+from vbfe.common.mailbox import Mailbox
+from vbfe.common.priority import yield_to_recording
 
 _POLL_S = 0.2  # how often a waiting stage looks at the halt flag
 
@@ -87,6 +90,7 @@ class Pipeline:
             self._flow.notify_all()
 
     def _run(self, k: int, work: Callable[[Any], Any]) -> None:
+        yield_to_recording()
         last = k == len(self.inboxes) - 1
         while not self._halt.is_set():
             item = self.inboxes[k].take(_POLL_S)

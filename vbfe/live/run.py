@@ -181,12 +181,15 @@ class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
     itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
     recorded, each estimate into its ``/estimate`` stream as it comes). The estimator's stages
-    run as a :class:`Pipeline`, each on its own thread.
+    run as a :class:`Pipeline`, each on its own thread at a lower priority than the recording.
 
-    A frame that reaches the run more than ``max_frame_age_s`` after its capture (0: no
-    limit) is skipped: the acquisition is behind (a recorder short of CPU), and estimating
-    it would hold the recorder back further while giving a stale force.
+    The recording comes first: the run is a lossy listener (it takes the newest frame on the
+    acquisition's live thread, never the writer's), and a frame that reaches it more than
+    ``max_frame_age_s`` after its capture (0: no limit) is skipped, the machine being behind.
+    Every frame the estimate did not use is counted in the status's ``skipped``.
     """
+
+    lossy = True
 
     def __init__(
         self,
@@ -197,8 +200,6 @@ class LiveRun(Listener):
         max_frame_age_s: float = 0.25,
     ) -> None:
         acquisition.add(self)
-        # first of the listeners: each frame reaches the estimator before a recorder writes it
-        acquisition.listeners.insert(0, acquisition.listeners.pop())
         for output in outputs:
             acquisition.add(output)
         self.outputs = tuple(outputs)
@@ -347,11 +348,12 @@ class LiveRun(Listener):
         latency = np.array([e.latency_s for e in last]) * 1e3
         recent = sum(e.t_ready_host_ns >= now_ns - 3e9 for e in last)
         window = min(3.0, wall)
+        unseen = self.acquisition.live_skipped  # replaced before the run took them
         return LiveStatus(
             wall_s=wall,
-            frames=self._frames_seen,
+            frames=self._frames_seen + unseen,
             estimates=count,
-            skipped=self._pipeline.skipped + self._frames_late,
+            skipped=self._pipeline.skipped + self._frames_late + unseen,
             rate_hz=recent / window if window > 0 else 0.0,
             latency_p50_ms=float(np.percentile(latency, 50)) if len(latency) else float("nan"),
             latency_p95_ms=float(np.percentile(latency, 95)) if len(latency) else float("nan"),
