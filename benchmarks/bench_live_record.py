@@ -24,12 +24,15 @@ import subprocess
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from benchmarks import smoke
 from benchmarks.bench_live import FPS, REPLAY_FRAMES, rendered_frames, replay_rig, untrained_model
 from vbfe.acquire import SessionReader
 from vbfe.acquire.recording.record import session_recorder
+from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.acquire.session.layout import CAMERA
 from vbfe.common.config import load_config, section
@@ -46,6 +49,37 @@ GROUPS = {  # thread name prefix -> the group it is counted in
     "vbfe-live-": "estimator stages",
 }
 OTHER = "other (main, readers, pools)"
+
+
+def schedstat(tid: int) -> tuple[int, int]:
+    """Nanoseconds thread ``tid`` of this process spent on a CPU and waiting for one."""
+    run_ns, wait_ns, _ = (
+        int(v) for v in Path(f"/proc/self/task/{tid}/schedstat").read_text().split()
+    )
+    return run_ns, wait_ns
+
+
+def time_the_writes(recorder: Recorder) -> list[int]:
+    """Wrap the session sink's record hook: for the camera's frames, the ns it took in all,
+    on a CPU and waiting for one (the rest: blocked on the GIL, a lock or I/O); returned as
+    a list those sums accumulate in."""
+    sums = [0, 0, 0]
+    write = recorder.sink.on_records
+
+    def timed(stream: str, records: Sequence[Any]) -> None:
+        if stream != CAMERA:
+            write(stream, records)
+            return
+        tid = threading.get_native_id()
+        (run0, wait0), t0 = schedstat(tid), time.monotonic_ns()
+        write(stream, records)
+        (run1, wait1), t1 = schedstat(tid), time.monotonic_ns()
+        sums[0] += t1 - t0
+        sums[1] += run1 - run0
+        sums[2] += wait1 - wait0
+
+    recorder.sink.on_records = timed  # type: ignore[method-assign]
+    return sums
 
 
 def thread_times() -> dict[int, tuple[str, int, int, int]]:
@@ -93,6 +127,7 @@ def record_once(config: dict, frames: list, seconds: float, path: Path) -> dict:
     )
     recorder = session_recorder(config, path, rig, streams=(marks_stream(),))
     run = LiveRun(recorder, estimator, max_frame_age_s=settings.max_frame_age_s)
+    writes = time_the_writes(recorder)
     snapshots: list[dict] = [thread_times()]
 
     def sample(status: object) -> None:
@@ -118,6 +153,7 @@ def record_once(config: dict, frames: list, seconds: float, path: Path) -> dict:
         "skipped": status.skipped / max(status.frames, 1),
         "wall": wall,
         "threads": time_by_group(snapshots[0], snapshots[-1]),
+        "writes": [ns / 1e9 for ns in writes],
     }
 
 
@@ -158,6 +194,11 @@ def main(argv: list[str] | None = None) -> None:
                 f"{r['device']:>6} {r['stored']:>10} {r['mb']:6.0f} {r['rate']:6.1f} "
                 f"{r['skipped']:7.0%}",
                 flush=True,
+            )
+            wall, cpu, wait = r["writes"]
+            print(
+                f"    writing the frames: {wall:5.1f} s = on CPU {cpu:5.1f} s + waiting for a CPU "
+                f"{wait:5.1f} s + blocked (GIL, locks, I/O) {wall - cpu - wait:5.1f} s"
             )
             for group, (cpu, wait, n, nices) in sorted(r["threads"].items()):
                 blocked = n * r["wall"] - cpu - wait

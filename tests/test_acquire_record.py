@@ -247,3 +247,32 @@ def test_a_camera_that_is_not_real_time_waits_for_the_writer_instead_of_dropping
         assert s.attrs["camera_queue_dropped"] == 0 and s.n_frames == 400
         np.testing.assert_array_equal(s.stream_times("camera")[2], np.arange(400))
         assert [g for g in s.gaps() if g["stream"] == "camera"] == []
+
+
+def test_frames_stored_while_behind_read_back_unchanged_through_hdf5s_own_filter(tmp_path):
+    from vbfe.acquire import SessionWriter
+    from vbfe.drivers.samples import StereoFrame
+
+    rng = np.random.default_rng(0)
+    frames = [
+        StereoFrame(
+            *(rng.normal(120, 3, (48, 64, 3)).clip(0, 255).astype(np.uint8) for _ in range(2)),
+            t_device_ns=k,
+            t_host_ns=k,
+            seq=k,
+        )
+        for k in range(4)
+    ]
+    writer = SessionWriter(tmp_path / "s.h5", (64, 48), "gzip")
+    for k, frame in enumerate(frames):
+        writer.append("camera", [frame], behind=k % 2 == 0)  # even frames: the writer behind
+    writer.close()
+    assert writer.frames_stored == 2
+    with h5py.File(tmp_path / "s.h5") as f:  # HDF5's deflate and Fletcher-32, not vbfe's code
+        left = f["camera/left"]
+        sizes = [left.id.get_chunk_info(k).size for k in range(4)]
+        for k, frame in enumerate(frames):
+            np.testing.assert_array_equal(left[k], frame.left)
+            np.testing.assert_array_equal(f["camera/right"][k], frame.right)
+    stored, compressed = sizes[0::2], sizes[1::2]
+    assert min(stored) > frames[0].left.nbytes > 1.5 * max(compressed)

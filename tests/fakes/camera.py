@@ -156,6 +156,7 @@ class FakeStereoCamera(OpenCVStereoCamera):
         disconnect_after: int | None = None,
         clock_offset_ns: int = 0,
         clock_drift_ppm: float = 0.0,
+        n_buffers: int = 4,
     ) -> None:
         self.captures: list[FakeStereoCapture] = []
 
@@ -169,6 +170,7 @@ class FakeStereoCamera(OpenCVStereoCamera):
                 disconnect_after,
                 clock_offset_ns,
                 clock_drift_ppm,
+                n_buffers=n_buffers,
             )
             self.captures.append(capture)
             return capture
