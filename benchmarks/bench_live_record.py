@@ -147,7 +147,7 @@ def record_once(config: dict, frames: list, seconds: float, path: Path) -> dict:
         "missing": int(seqs[-1] - seqs[0] + 1 - len(seqs)) if len(seqs) else 0,
         "queue": int(attrs["camera_queue_dropped"]),
         "device": int(attrs["camera_device_dropped"]),
-        "stored": int(attrs["camera_frames_stored"]),
+        "stored": int(attrs.get("camera_frames_stored", 0)),  # older sessions: none
         "mb": path.stat().st_size / 1e6,
         "rate": status.estimates / wall,
         "skipped": status.skipped / max(status.frames, 1),

@@ -182,9 +182,11 @@ def run(args: argparse.Namespace) -> int:
         if server.error:
             print(f"Foxglove: the viewer stopped early ({server.error}); the run went on")
     if args.record:
+        recorded = live.acquisition.stats
         print(
-            f"session with estimate stream: {args.record} (score it: vbfe evaluate --live "
-            f"{args.record})",
+            f"session with estimate stream: {args.record}: {recorded.frames} frames, "
+            f"{recorded.queue_dropped.get('camera', 0)} lost by its writer (the estimate "
+            f"skips frames first; score it: vbfe evaluate --live {args.record})",
             file=sys.stdout,
         )
     return 0
