@@ -5,6 +5,8 @@ sequential, full-featured path."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 import threading
 import time
 
@@ -237,3 +239,24 @@ def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames
     assert [e.frame_seq for e in run.estimates] == [1]
     assert (status.frames, status.estimates, status.skipped) == (2, 1, 1)
     assert not _live_threads()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="a thread has a priority of its own on Linux")
+def test_beside_a_recording_the_stages_run_at_a_lower_priority_than_the_process():
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    nice: dict[bool, list[int]] = {True: [], False: []}
+    for beside in (True, False):
+        done = threading.Event()
+
+        def stage(item: int, beside: bool = beside, done: threading.Event = done) -> int:
+            nice[beside].append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+            done.set()
+            return item
+
+        pipeline = Pipeline([("a", stage), ("b", stage)], lambda item: None, beside)
+        pipeline.start()
+        pipeline.put(1)
+        assert done.wait(WAIT_S)
+        pipeline.stop()
+    assert nice[True] == [min(base + 10, 19)] * 2 and nice[False] == [base] * 2
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base  # caller's kept

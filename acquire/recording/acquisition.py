@@ -447,7 +447,7 @@ class Acquisition:
 
     def stop(self, reason: str | None = None) -> AcquisitionStats:
         """Stop reading, dispatch what is queued, close the rig, then call every listener's
-        ``on_stop`` (idempotent).
+        ``on_stop``, the lossy ones' first (idempotent).
 
         :param reason: the end reason recorded when no end condition gave one.
         :returns: the final statistics.
@@ -484,7 +484,10 @@ class Acquisition:
                     stats.queue_dropped.get(stream, 0),
                 )
         failures = []
-        for listener in self.listeners if self._started else ():
+        # the lossy listeners first: what they hand the others as they end (the live
+        # estimate's last estimates, posted to the file) is still taken
+        in_order = sorted(self.listeners, key=lambda listener: not listener.lossy)
+        for listener in in_order if self._started else ():
             try:
                 listener.on_stop(self)
             except Exception as exc:  # noqa: BLE001 - raised below, after every listener

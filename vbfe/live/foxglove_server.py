@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from foxglove.websocket import ChannelView, Client, ServerListener
 
+from vbfe.acquire.recording.recorder import Recorder
 from vbfe.common.errors import LiveError
 from vbfe.common.mailbox import Mailbox
 from vbfe.common.priority import yield_to_recording
@@ -166,6 +167,7 @@ class FoxgloveServer(EstimateOutput):
         self._channels: dict[str, Any] = {}
         self._subscribers = _Subscribers()
         self._stream_labels: dict[str, tuple[str, ...]] = {}
+        self._beside_recording = False
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> None:
@@ -199,6 +201,7 @@ class FoxgloveServer(EstimateOutput):
         import foxglove
 
         self.open()
+        self._beside_recording = isinstance(acquisition, Recorder)
         self._to_unix_ns = time.time_ns() - time.monotonic_ns()
         image_type = builders.COMPRESSED_IMAGE if self.images.compressed else builders.IMAGE
         suffix = "/compressed" if self.images.compressed else ""
@@ -293,8 +296,9 @@ class FoxgloveServer(EstimateOutput):
     # -- the sending thread -----------------------------------------------------------------
     def _run(self) -> None:
         """Send until stopped; a failure stops the viewer only (kept in ``error``), never the
-        acquisition (a viewer: at a lower priority than the recording)."""
-        yield_to_recording()
+        acquisition (a viewer: beside a recording at a lower priority than it)."""
+        if self._beside_recording:
+            yield_to_recording()
         try:
             self._send_all()
         except Exception as exc:  # noqa: BLE001 - reported by the command, not raised

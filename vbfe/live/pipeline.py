@@ -5,8 +5,9 @@ the next stage; a stage slower than the one before it skips (and counts) the ite
 saw, and nothing queues. Throughput is set by the slowest stage, and stages overlap wherever
 their work releases the GIL (OpenCV, numba, torch). Every item put in is, in the end, either
 delivered to the sink, skipped, or dropped by a stage (which returned ``None`` or raised).
-Each stage's thread runs at a lower priority than the recording's
-(:func:`vbfe.common.priority.yield_to_recording`), as do the worker threads it starts.
+Beside a recording, each stage's thread runs at a lower priority than the recording's
+(``yield_to_recording``: :func:`vbfe.common.priority.yield_to_recording`), as do the worker
+threads it starts.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from vbfe.common.mailbox import Mailbox
-from vbfe.common.priority import yield_to_recording
+from vbfe.common.priority import yield_to_recording as lower_priority
 
 _POLL_S = 0.2  # how often a waiting stage looks at the halt flag
 
@@ -24,16 +25,21 @@ _POLL_S = 0.2  # how often a waiting stage looks at the halt flag
 class Pipeline:
     """``stages`` (name, function) in order; the last result goes to ``sink``. A function
     returning ``None`` drops its item. The first exception of any stage halts the pipeline
-    and is kept in ``error`` (as ``"<stage>: <message>"``)."""
+    and is kept in ``error`` (as ``"<stage>: <message>"``). With ``yield_to_recording`` the
+    stages' threads lower their priority (a recording runs beside them)."""
 
     def __init__(
-        self, stages: Sequence[tuple[str, Callable[[Any], Any]]], sink: Callable[[Any], None]
+        self,
+        stages: Sequence[tuple[str, Callable[[Any], Any]]],
+        sink: Callable[[Any], None],
+        yield_to_recording: bool = False,
     ) -> None:
         if not stages:
             raise ValueError("a pipeline needs at least one stage")
         self.names = tuple(name for name, _ in stages)
         self.inboxes: tuple[Mailbox, ...] = tuple(Mailbox() for _ in stages)
         self._sink = sink
+        self._yield = yield_to_recording
         self._halt = threading.Event()
         self._flow = threading.Condition()  # guards _in_flight
         self._in_flight = 0  # items in a mailbox or in a stage's hands
@@ -90,7 +96,8 @@ class Pipeline:
             self._flow.notify_all()
 
     def _run(self, k: int, work: Callable[[Any], Any]) -> None:
-        yield_to_recording()
+        if self._yield:
+            lower_priority()
         last = k == len(self.inboxes) - 1
         while not self._halt.is_set():
             item = self.inboxes[k].take(_POLL_S)

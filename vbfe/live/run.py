@@ -181,7 +181,7 @@ class LiveRun(Listener):
     """Run the estimator on the newest frames of an acquisition until :meth:`stop` (it adds
     itself as a listener, and ``outputs`` after it; with a :class:`Recorder` the run is
     recorded, each estimate into its ``/estimate`` stream as it comes). The estimator's stages
-    run as a :class:`Pipeline`, each on its own thread at a lower priority than the recording.
+    run as a :class:`Pipeline`, each on its own thread (beside a recording at a lower priority).
 
     The recording comes first: the run is a lossy listener (it takes the newest frame on the
     acquisition's live thread, never the writer's), and a frame that reaches it more than
@@ -216,7 +216,9 @@ class LiveRun(Listener):
             acquisition.sink.add_stream(estimate_stream_spec(outputs_n, STAGES, settings))
         self.estimator, self.model_name = estimator, model_name
         self.target = estimator.model.config.target
-        self._pipeline = Pipeline(self._stages(), self._record)
+        self._pipeline = Pipeline(
+            self._stages(), self._record, yield_to_recording=isinstance(acquisition, Recorder)
+        )
         self._frames_seen = self._frames_late = 0
         self._max_age_ns = max_frame_age_s * 1e9 or float("inf")
         rate = float(acquisition.rig.trocar.rate_hz or 1000.0)
