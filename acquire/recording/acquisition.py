@@ -483,6 +483,12 @@ class Acquisition:
                     dropped,
                     stats.queue_dropped.get(stream, 0),
                 )
+        if stats.live_dropped:
+            log.warning(
+                "%d records of the trocar and other streams dropped for the live views and "
+                "outputs (their queue was full)",
+                stats.live_dropped,
+            )
         failures = []
         # the lossy listeners first: what they hand the others as they end (the live
         # estimate's last estimates, posted to the file) is still taken
