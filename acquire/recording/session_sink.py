@@ -5,10 +5,10 @@ a crash (flush time, queued records and scheduling delays included) stays within
 is checked continuously (on the clock and by volume written); below a quarter of
 ``min_free_bytes`` the acquisition is halted and the session finalized. A write failure (full
 disk, I/O error) halts it and leaves the file as of its last flush. A writer that falls
-behind (its frame queue a quarter full) stores the frames with the least CPU the compression
-allows until it has caught up (``gzip``: uncompressed deflate blocks; counted in the file's
-``camera_frames_stored``), so that a machine short of CPU costs file size, not frames. At
-the end the file is
+behind (its frame queue an eighth full) stores the frames with the least CPU the compression
+allows until it has caught up, its queue empty (``gzip``: uncompressed deflate blocks;
+counted in the file's ``camera_frames_stored``), so that a machine short of CPU costs file
+size, not frames. At the end the file is
 finalized with the drop counters, the devices' final description and, on a simulated rig, the
 per-frame ground truth.
 """
@@ -47,7 +47,7 @@ _SPACE_CHECK_S = 0.25  # free space is read this often, and after every eighth o
 # margin (a quarter of min_free_bytes) written, however fast the frames come
 _MIN_SPACE_CHECK_BYTES = 1 << 20
 _FINALIZE_MIN_FREE_BYTES = 1 << 20  # after a failed write, finalize only with this much room
-_BEHIND = 0.25  # camera queue this full: frames are stored with the least CPU until it drains
+_BEHIND = 0.125  # camera queue this full: frames are stored with the least CPU until it is empty
 
 
 def _is_write_failure(exc: BaseException) -> bool:
@@ -126,6 +126,7 @@ class SessionSink(Listener):
         self._error: BaseException | None = None
         self._fault: str | None = None  # a reason to stop, reported after finalizing
         self._flush_cost_s = 0.0  # longest recent flush
+        self._behind = False  # storing frames with the least CPU until the queue is empty
         self._next_flush = self._next_space_check = 0.0
         self._checked_at_bytes = 0
         self._frame_t_device: list[int] = []
@@ -185,11 +186,11 @@ class SessionSink(Listener):
                 step = max(1, self._check_every() // pair_bytes)
             for start in range(0, len(records), step):
                 part = records[start : start + step]
-                behind = False
                 if stream == CAMERA:
                     self._frame_t_device.extend(fr.t_device_ns for fr in part)
-                    behind = self._acquisition.backlog() >= _BEHIND
-                self._writer.append(stream, part, behind)
+                    backlog = self._acquisition.backlog()
+                    self._behind = backlog >= _BEHIND or (self._behind and backlog > 0)
+                self._writer.append(stream, part, stream == CAMERA and self._behind)
                 if self._writer.bytes_written - self._checked_at_bytes >= self._check_every():
                     self._check_space()
                     if self._fault is not None:
