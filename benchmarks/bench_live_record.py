@@ -140,11 +140,18 @@ def record_once(config: dict, frames: list, seconds: float, path: Path) -> dict:
     if run.error:
         raise SystemExit(f"live run failed: {run.error}")
     with SessionReader(path) as reader:
+        t_host = reader.stream_times(CAMERA)[1][: reader.n_frames]
         seqs = reader.stream_times(CAMERA)[2][: reader.n_frames]
         attrs = dict(reader.attrs)
+        gaps = [  # (seconds into the recording, frames lost)
+            ((gap["t_host_ns"] - t_host[0]) / 1e9, gap["count"])
+            for gap in reader.gaps()
+            if gap["stream"] == CAMERA and len(t_host)
+        ]
     return {
         "frames": len(seqs),
         "missing": int(seqs[-1] - seqs[0] + 1 - len(seqs)) if len(seqs) else 0,
+        "gaps": gaps,
         "queue": int(attrs["camera_queue_dropped"]),
         "device": int(attrs["camera_device_dropped"]),
         "stored": int(attrs.get("camera_frames_stored", 0)),  # older sessions: none
@@ -195,6 +202,8 @@ def main(argv: list[str] | None = None) -> None:
                 f"{r['skipped']:7.0%}",
                 flush=True,
             )
+            for at_s, count in r["gaps"]:
+                print(f"    {count} frames lost at {at_s:.1f} s")
             wall, cpu, wait = r["writes"]
             print(
                 f"    writing the frames: {wall:5.1f} s = on CPU {cpu:5.1f} s + waiting for a CPU "

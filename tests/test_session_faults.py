@@ -383,7 +383,7 @@ def test_live_view_runs_while_a_paced_bench_records_twenty_seconds_without_drops
     try:
         started = time.monotonic()
         path = tmp_path / "paced.h5"
-        config = rig(tmp_path, SMALL_BENCH + "fps = 10.0\n[record]\nqueue_size = 2\n")
+        config = rig(tmp_path, SMALL_BENCH + "fps = 10.0\n[record]\nqueue_size = 2\nqueue_mb = 0\n")
         code, out, err = run_vbfe(
             "record", str(path), "--duration", "20", "--config", config, timeout=400
         )

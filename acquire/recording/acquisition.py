@@ -46,7 +46,8 @@ from vbfe.drivers.samples import ProjectorEvent, StereoFrame
 log = logging.getLogger(__name__)
 
 _READ_TIMEOUT_S = 0.2
-_FRAME_BATCH = 1  # frames dispatched per round (listeners look at their clocks in between)
+_FRAME_BATCH = 8  # at most this many frames a round: a writer behind catches up in batches
+# (fewer rounds, each with the other streams and the listeners' periodic work)
 _PUT_POLL_S = 0.1  # a paced device rechecks the stop flag this often while the queue is full
 _END_GRACE_S = 2.0  # how long a reader may go on after the stop to reach the acquisition's end
 _SAMPLE_QUEUE_FACTOR = 64  # streams other than the camera queue this many more (small) records
@@ -210,6 +211,9 @@ class Acquisition:
     :param queue_size: frames buffered per camera between its reader and the dispatch (other
         streams, and the lossy listeners' records, get proportionally more); a full queue
         drops records, marked as gaps.
+    :param queue_bytes: the camera's queue holds as many frames as fit in this many bytes
+        (uncompressed), when that is more than ``queue_size``: a writer short of CPU for a
+        few seconds catches up instead of losing frames.
     :param listeners: consumers of the records, in dispatch order (more with :meth:`add`).
     :param on_demand: read the camera only when asked (:meth:`demand`, one frame each), for
         consumers in lock-step with the projector (show, then the frames after it).
@@ -223,6 +227,7 @@ class Acquisition:
         queue_size: int = 256,
         listeners: tuple[Listener, ...] = (),
         on_demand: bool = False,
+        queue_bytes: int = 0,
     ) -> None:
         self.rig = rig
         self.pattern, self.pattern_name = pattern, pattern_name
@@ -230,7 +235,7 @@ class Acquisition:
         self.stats = AcquisitionStats()
         self.error: BaseException | None = None  # a record hook's failure, raised by stop()
         self.what = "the acquisition"  # how the Ctrl-C message names what is being finished
-        self._queue_size = queue_size
+        self._queue_size, self._queue_bytes = queue_size, queue_bytes
         self._demand = threading.Semaphore(0) if on_demand else None
         self._queues: dict[str, queue.Queue] = {}
         self._control: queue.Queue = queue.Queue()
@@ -304,6 +309,9 @@ class Acquisition:
         )
         for stream, device in streams.items():
             size = self._queue_size * (1 if stream == CAMERA else _SAMPLE_QUEUE_FACTOR)
+            if stream == CAMERA:
+                frame_bytes = 6 * device.width * device.height  # two BGR images
+                size = max(size, self._queue_bytes // frame_bytes)
             self._queues[stream] = queue.Queue(maxsize=size)
             self._pumps.append(
                 _Pump(
@@ -564,13 +572,14 @@ class Acquisition:
         s.dropped = {p.stream: p.dropped + devices[p.stream].stats.dropped for p in self._pumps}
         return s
 
-    def backlog(self) -> float:
-        """How full the camera's queue to the dispatch is (0 … 1): how far the listeners of
-        every frame (the file's writer) are behind; 0 for a paced camera, which waits."""
+    def backlog(self, handed: int = 0) -> float:
+        """How full the camera's queue to the dispatch is (0 … 1), counting ``handed`` frames
+        taken from it but not yet handled too: how far the listeners of every frame (the
+        file's writer) are behind; 0 for a paced camera, which waits."""
         frames = self._queues.get(CAMERA)
         if frames is None or self.paced:
             return 0.0
-        return frames.qsize() / frames.maxsize
+        return (frames.qsize() + handed) / frames.maxsize
 
     @property
     def live_skipped(self) -> int:

@@ -157,6 +157,7 @@ def session_recorder(
         metadata=metadata,
         calibration_yaml=calibration_yaml,
         queue_size=settings.queue_size,
+        queue_bytes=int(settings.queue_mb * 1e6),
         min_free_bytes=int(settings.min_free_gb * 1e9),
         pattern=make_pattern,
         overwrite=overwrite,

@@ -32,6 +32,7 @@ class Recorder(Acquisition):
         metadata: dict[str, Any] | None = None,
         calibration_yaml: str | None = None,
         queue_size: int = 256,
+        queue_bytes: int = 0,
         min_free_bytes: int = 1 << 30,
         pattern: PatternSource | None = None,
         pattern_name: str = PATTERN_NAME,
@@ -51,7 +52,9 @@ class Recorder(Acquisition):
             on_flush,
             streams,
         )
-        super().__init__(rig, pattern, pattern_name, queue_size, (self.sink, *listeners))
+        super().__init__(
+            rig, pattern, pattern_name, queue_size, (self.sink, *listeners), queue_bytes=queue_bytes
+        )
         self.what = str(self.sink.path)
 
     def start(self, duration_s: float | None = None) -> None:

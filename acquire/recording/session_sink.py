@@ -188,13 +188,29 @@ class SessionSink(Listener):
                 part = records[start : start + step]
                 if stream == CAMERA:
                     self._frame_t_device.extend(fr.t_device_ns for fr in part)
-                    backlog = self._acquisition.backlog()
-                    self._behind = backlog >= _BEHIND or (self._behind and backlog > 0)
-                self._writer.append(stream, part, stream == CAMERA and self._behind)
+                    waiting = len(records) - start - len(part)
+                    for frames, behind in self._by_backlog(part, waiting):
+                        self._writer.append(CAMERA, frames, behind)
+                else:
+                    self._writer.append(stream, part)
                 if self._writer.bytes_written - self._checked_at_bytes >= self._check_every():
                     self._check_space()
                     if self._fault is not None:
                         return
+
+    def _by_backlog(self, frames: Sequence[Any], waiting: int) -> list[tuple[list[Any], bool]]:
+        """``frames`` in runs of those stored with the least CPU (the writer behind: from an
+        eighth of the queue waiting after a frame, ``waiting`` more of this batch included,
+        until none waits) and of those compressed."""
+        runs: list[tuple[list[Any], bool]] = []
+        for k, frame in enumerate(frames):
+            backlog = self._acquisition.backlog(len(frames) - k - 1 + waiting)
+            self._behind = backlog >= _BEHIND or (self._behind and backlog > 0)
+            if runs and runs[-1][1] == self._behind:
+                runs[-1][0].append(frame)
+            else:
+                runs.append(([frame], self._behind))
+        return runs
 
     def on_gap(self, gap: Gap) -> None:
         with self._writing():

@@ -17,6 +17,7 @@ class RecordSettings:
     compression: Literal[COMPRESSIONS] = DEFAULT_COMPRESSION  # type: ignore[valid-type]
     flush_interval_s: float = setting(1.0, gt=0)
     queue_size: int = setting(64, ge=1)
+    queue_mb: float = setting(512.0, ge=0)
     min_free_gb: float = setting(1.0, ge=0)
     tare_samples: int = setting(500, ge=1)
     sync_max_offset_s: float = setting(0.003, gt=0)
