@@ -12,7 +12,7 @@ import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyqtgraph as pg
@@ -23,6 +23,9 @@ from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.session.reader import SessionReader
 from vbfe.drivers.qt_app import dispose_widget, qt_application
 from vbfe.drivers.samples import StereoFrame
+
+if TYPE_CHECKING:
+    from vbfe.drivers.registry import DeviceTables
 
 FORCE_PENS = ("#e6194b", "#3cb44b", "#4363d8")  # x, y, z
 STREAM_PENS = ("#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45", "#469990", "#9a6324")
@@ -258,7 +261,7 @@ def view_session(path: str | Path) -> int:
         return code
 
 
-def view_live(config: dict[str, dict[str, Any]], interval_ms: int = 30) -> int:
+def view_live(config: DeviceTables, interval_ms: int = 30) -> int:
     """Open the camera and trocar of a rig and show them live until the window closes."""
     from vbfe.drivers.registry import FAMILIES, open_rig
 

@@ -1,7 +1,7 @@
 """The ``vbfe calibrate`` commands as Python functions (the CLI only parses and shows progress).
 
-Each takes the rig configuration (``vbfe.common.config.load_config``) for the board and
-thresholds of its ``[calib]`` table.
+Each takes the rig configuration (:class:`~vbfe.calib.options.CalibConfig`, e.g.
+``vbfe.rig_config.load_rig()``) for the board and thresholds of its ``[calib]`` table.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from vbfe.calib.export import export_calibration, export_paths
 from vbfe.calib.gates import GateLimits, stereo_problems
 from vbfe.calib.importers import import_calibration
 from vbfe.calib.mono import MonoResult, calibrate_mono
-from vbfe.calib.options import calib_settings
+from vbfe.calib.options import C, CalibConfig, calib_settings
 from vbfe.calib.pairs import LIST_SUFFIXES
 from vbfe.calib.projector import (
     ProjectorOptions,
@@ -47,37 +47,35 @@ from vbfe.calib.projector_capture import (
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
 from vbfe.calib.views import load_images, load_views
-from vbfe.common.config import section
 from vbfe.common.errors import CalibrationError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 
-Config = dict[str, dict[str, Any]]
+Config = CalibConfig
+
+
+def _calib(config: Config) -> dict[str, Any]:
+    """The ``[calib]`` table, as a fresh dict."""
+    return dict(config.tables["calib"])
 
 
 def board_spec(config: Config, **overrides: Any) -> BoardSpec:
     """The board of the ``[calib]`` table, with overrides (``target``, ``squares_x``,
     ``inner_corners``, ``square_mm``, ...) where they are not ``None``."""
-    table = section(config, "calib")
+    table = _calib(config)
     if overrides.get("inner_corners") is not None and overrides.get("target") is None:
         overrides = {**overrides, "target": "chessboard"}  # only chessboards count inner corners
     table.update({k: v for k, v in overrides.items() if v is not None})
     return BoardSpec.from_config(table)
 
 
-def set_board(config: Config, spec: BoardSpec) -> None:
-    """Put ``spec`` into the config's ``[calib]`` table (:meth:`BoardSpec.calib_table`)."""
-    config.setdefault("calib", {}).update(spec.calib_table())
-
-
-def board_scene(config: Config) -> Config:
+def board_scene(config: C) -> C:
     """``config`` with the simulated bench showing the ``[calib]`` board (moved by hand), as
     capturing views needs; a rig whose camera is not simulated is returned unchanged."""
-    if section(config, "camera").get("backend") != "sim":
+    if config.tables["camera"].get("backend") != "sim":
         return config
     spec = board_spec(config)
     bench = {
-        **section(config, "bench"),
         "scene": "board",
         "board": spec.target,
         "board_squares_x": spec.squares_x,
@@ -87,7 +85,7 @@ def board_scene(config: Config) -> Config:
         "board_dictionary": spec.dictionary,
         "board_legacy": spec.legacy,
     }
-    return {**config, "bench": bench}
+    return config.updated({"bench": bench}, "the board scene")
 
 
 def make_board(config: Config, out_stem: str | Path, **overrides: Any) -> tuple[Path, Path]:
@@ -116,7 +114,7 @@ def capture(
     ``[bench]`` (``seed`` replaces the bench's seed, i.e. the board's poses).
     """
     spec = board_spec(config, **overrides)
-    options = CaptureOptions.from_config(section(config, "calib"))
+    options = CaptureOptions.from_config(_calib(config))
     with frame_feed(open_rig(config, RigOptions(seed=seed), ("camera",))) as frames:
         return capture_views(camera_frames(frames, max_frames), spec, folder, options, on_view)
 
@@ -130,7 +128,7 @@ def projector_capture(
 ) -> list[Path]:
     """Show the Gray-code sequence through the rig's projector at ``n_poses`` board poses and
     write the left camera's images into ``folder`` (``pose_NNN/``, after those already there)."""
-    options = GrayCaptureOptions.from_config(section(config, "calib"))
+    options = GrayCaptureOptions.from_config(_calib(config))
     rig = open_rig(config, RigOptions(seed=seed), ("camera", "projector"))
     with frame_feed(rig) as frames:
         return capture_gray_code(frames, rig.projector, folder, n_poses, options, on_event)
@@ -148,7 +146,7 @@ class StereoOutcome:
 def _calib_table(config: Config, settings: dict[str, Any] | None = None) -> dict[str, Any]:
     """The ``[calib]`` table with ``settings`` (keys of the table, e.g. from command-line
     flags) in place of its values."""
-    return {**section(config, "calib"), **(settings or {})}
+    return {**_calib(config), **(settings or {})}
 
 
 def _gate_table(
@@ -312,7 +310,7 @@ def projector(
         spec,
         calibration,
         projector_size,
-        ProjectorOptions.from_config(section(config, "calib")),
+        ProjectorOptions.from_config(_calib(config)),
     )
     updated = with_projector(calibration, result, projector_size)
     updated.save(out_path or calibration_path)
@@ -322,7 +320,7 @@ def projector(
 def _projector_size(config: Config, captures_folder: str | Path) -> tuple[int, int]:
     """``[calib] projector_width/height``, else the size the captures were made for, else the
     configured projector's."""
-    table = calib_settings(section(config, "calib"))
+    table = config.calib
     if table.projector_width and table.projector_height:
         return table.projector_width, table.projector_height
     size = captured_projector_size(captures_folder)

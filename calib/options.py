@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, Protocol, TypeVar
 
 from vbfe.common.config import default_config
 from vbfe.common.settings import limits, parse_table
+from vbfe.drivers.registry import DeviceTables
 
 T = TypeVar("T")
+C = TypeVar("C", bound="CalibConfig")
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,17 @@ class CalibSettings:
     projector_change_level: float = dataclasses.field(metadata=limits(ge=0))
     projector_still_frames: int = dataclasses.field(metadata=limits(ge=1))
     projector_pose_timeout_s: float = dataclasses.field(metadata=limits(gt=0))
+
+
+class CalibConfig(DeviceTables, Protocol):
+    """What calibrating reads of a rig configuration (:class:`vbfe.rig_config.RigConfig` is
+    one): the device tables (its ``[calib]`` table for settings given as keys), the checked
+    ``[calib]`` settings, and a copy with changed values (the bench's board scene)."""
+
+    @property
+    def calib(self) -> CalibSettings: ...
+
+    def updated(self: C, changes: dict[str, dict[str, Any]], where: str = ...) -> C: ...
 
 
 def calib_settings(calib_table: dict[str, Any]) -> CalibSettings:

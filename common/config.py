@@ -30,11 +30,12 @@ def default_config() -> dict[str, dict[str, Any]]:
     return tomllib.loads(text)
 
 
-def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+def merge_tables(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """``override`` merged over a copy of ``base``, table by table."""
     out = copy.deepcopy(base)
     for key, value in override.items():
         if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
+            out[key] = merge_tables(out[key], value)
         else:
             out[key] = value
     return out
@@ -66,7 +67,7 @@ def over_defaults(user: dict[str, Any], where: str = "rig config") -> dict[str, 
             f"{where} has unknown table(s) {sorted(unknown)}; known: {sorted(config)}"
         )
     log.info("%s read: tables %s", where, ", ".join(sorted(user)))
-    return _merge(config, user)
+    return merge_tables(config, user)
 
 
 def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:

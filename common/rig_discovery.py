@@ -40,6 +40,8 @@ class RigSource:
 
     def describe(self) -> str:
         """One line: the rig file and how it was found, or that the simulated bench runs."""
+        if self.path is None and not self.searched:
+            return f"{SIMULATED}: no rig file (the built-in configuration)"
         if self.path is None:
             return f"{SIMULATED}: no rig file (searched {', '.join(self.searched)})"
         return f"rig file {self.path} (from {self.found_by})"

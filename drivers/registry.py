@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from typing import Any
+from typing import Any, Protocol
 
 from vbfe.common.errors import DeviceError
 from vbfe.common.settings import parse_kwargs
@@ -40,6 +40,15 @@ BACKENDS: dict[str, dict[str, str]] = {
 SHARED: dict[str, str] = {"sim": "vbfe.drivers.sim.backend:SimBackend"}
 DEFAULT_BACKEND = "sim"
 FAMILIES = tuple(BACKENDS)
+
+
+class DeviceTables(Protocol):
+    """What :func:`open_rig` reads of a rig configuration: its merged tables, checked
+    (:class:`vbfe.rig_config.RigConfig` is one); the device tables are checked again against
+    their backends here."""
+
+    @property
+    def tables(self) -> dict[str, dict[str, Any]]: ...
 
 
 def _load(target: str) -> Any:
@@ -70,15 +79,16 @@ def device_options(family: str, table: dict[str, Any]) -> tuple[str, dict[str, A
 
 
 def open_rig(
-    config: dict[str, dict[str, Any]],
+    rig_config: DeviceTables,
     options: RigOptions = RigOptions(),
     families: tuple[str, ...] = FAMILIES,
 ) -> Rig:
-    """The rig of ``families`` a config names, built but not opened (``with open_rig(...) as
-    rig:`` opens every device, rolling back on failure, and closes them all). Every device
-    table is checked against its backend before anything is built. The whole rig also has the
-    ``[streams]`` (LSL streams, named by their keys), and then runs in real time: their samples
-    come on the host's own clock."""
+    """The rig of ``families`` a rig configuration names, built but not opened (``with
+    open_rig(...) as rig:`` opens every device, rolling back on failure, and closes them all).
+    Every device table is checked against its backend before anything is built. The whole rig
+    also has the ``[streams]`` (LSL streams, named by their keys), and then runs in real time:
+    their samples come on the host's own clock."""
+    config = rig_config.tables
     unknown = sorted(set(families) - set(FAMILIES))
     if unknown:
         raise DeviceError(f"unknown device families {unknown}; known: {list(FAMILIES)}")

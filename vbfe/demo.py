@@ -11,7 +11,6 @@ train on both → evaluate held-out paper sessions and held-out freehand trials 
 
 from __future__ import annotations
 
-import copy
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -20,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.common.config import load_config
 from vbfe.common.errors import TruthError
 from vbfe.drivers.sim.freehand import RELEASE
 from vbfe.drivers.sim.mechanics import HOLD, PULL
+from vbfe.rig_config import RigConfig, builtin_rig
 
 StageFn = Callable[[str, int], Callable[[int], None]]  # (stage name, total) -> step(n)
 
@@ -180,18 +179,17 @@ def _truth(reader: Any, name: str) -> np.ndarray:
     return values
 
 
-def demo_config(plan: DemoPlan) -> dict[str, dict[str, Any]]:
-    """The default (simulated) rig configuration sized for ``plan``."""
-    config = load_config(None)
-    config["bench"].update(width=plan.width, height=plan.height, fps=plan.fps, hold_s=plan.hold_s)
-    return config
+def demo_config(plan: DemoPlan) -> RigConfig:
+    """The built-in (simulated) rig configuration sized for ``plan``."""
+    bench = {"width": plan.width, "height": plan.height, "fps": plan.fps, "hold_s": plan.hold_s}
+    return builtin_rig({"bench": bench})
 
 
 def _relative_error(estimate: float, truth: float) -> float:
     return float(abs(estimate - truth) / abs(truth))
 
 
-def calibrate_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
+def calibrate_stage(config: RigConfig, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
     """Board, capture, stereo and projector calibration; errors against the bench's true rig."""
     from vbfe.calib import commands
     from vbfe.truth import board_config, true_rig
@@ -254,7 +252,7 @@ FREEHAND_FIRST_SEED = 101
 
 
 def record_stage(
-    config: dict, out: Path, plan: DemoPlan, calibration_yaml: str, stage: StageFn
+    config: RigConfig, out: Path, plan: DemoPlan, calibration_yaml: str, stage: StageFn
 ) -> list[Path]:
     """One session per paper condition and repeat, then the freehand trials; each a new trial
     (seed). The freehand trials' tissue is textured (vessels, mottling), as real tissue is:
@@ -292,8 +290,7 @@ def record_stage(
     ]
     step = stage("record sessions", len(runs))
     for bench, name, notes in runs:
-        run_config = copy.deepcopy(config)
-        run_config["bench"].update(bench)
+        run_config = config.updated({"bench": bench}, "the demo")
         path = folder / f"{name}.h5"
         path.unlink(missing_ok=True)
         record_session(
@@ -315,7 +312,7 @@ def is_freehand(session: Path) -> bool:
 
 
 def sync_stage(
-    sessions: list[Path], out: Path, stage: StageFn, config: dict | None = None
+    sessions: list[Path], out: Path, stage: StageFn, config: RigConfig | None = None
 ) -> dict[str, Any]:
     """verify-sync on every session (the paper's pull-hold sessions and the freehand trials);
     measured offset against the bench's true offset, overall and per protocol."""
@@ -323,7 +320,9 @@ def sync_stage(
     from vbfe.acquire.sync.check import verify_sync
     from vbfe.acquire.sync.protocol import ProtocolSettings
 
-    settings = ProtocolSettings.from_config(config or {})  # the camera's exposure
+    settings = (  # the camera's exposure
+        ProtocolSettings.from_record(config.record) if config is not None else ProtocolSettings()
+    )
     rows: list[dict[str, Any]] = []
     (out / "sync").mkdir(exist_ok=True)
     step = stage("verify sync", len(sessions))
@@ -376,7 +375,7 @@ def sync_stage(
 PROTOCOL_BENCH = {"width": 320, "height": 180, "fps": 30.0}  # taps need 30 fps; small is quick
 
 
-def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
+def protocol_stage(config: RigConfig, out: Path, plan: DemoPlan, stage: StageFn) -> dict[str, Any]:
     """One sync protocol session on the rig: offset from the taps and flash latency against
     the bench's truth, verdict before and after ``--apply``."""
     from vbfe.acquire import SessionReader, record_session
@@ -385,8 +384,7 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     from vbfe.acquire.sync.protocol import ProtocolSettings
 
     step = stage("sync protocol session", 1)
-    run_config = copy.deepcopy(config)
-    run_config["bench"].update(PROTOCOL_BENCH)
+    run_config = config.updated({"bench": PROTOCOL_BENCH}, "the demo")
     path = out / "sessions" / "sync_protocol.h5"
     path.unlink(missing_ok=True)
     events = int(plan.protocol_s)
@@ -397,7 +395,8 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
         notes="sync protocol session",
         protocol=SyncProtocol(taps=events, flashes=events, duration_s=plan.protocol_s, seed=0),
     )
-    limits, settings = SyncLimits.from_config(run_config), ProtocolSettings.from_config(run_config)
+    limits = SyncLimits.from_record(run_config.record)
+    settings = ProtocolSettings.from_record(run_config.record)
     before = verify_sync(
         path, limits, settings=settings, plot_path=out / "sync" / "sync_protocol.png"
     )
@@ -405,7 +404,7 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
     after = verify_sync(path, limits, settings=settings)
     with SessionReader(path) as reader:
         true_s = float(np.median(_truth(reader, "image_minus_force_host_offset_ns"))) / 1e9
-    bench = run_config["bench"]
+    bench = run_config.tables["bench"]
     p = before.protocol
     assert p is not None and p.offset is not None  # a sync protocol session with taps
     step(1)
@@ -431,21 +430,20 @@ def protocol_stage(config: dict, out: Path, plan: DemoPlan, stage: StageFn) -> d
 
 
 def reconstruct_stage(
-    sessions: list[Path], plan: DemoPlan, config: dict, stage: StageFn
+    sessions: list[Path], plan: DemoPlan, config: RigConfig, stage: StageFn
 ) -> dict[str, Any]:
     """Point clouds for every session; a few frames per session scored against true depth."""
     from vbfe.acquire import SessionReader
     from vbfe.calib.calibration import stored_calibration
-    from vbfe.recon import CloudReader, Reconstructor, SgbmParams, reconstruct_session
-    from vbfe.recon.quality import ReconSettings, summary_line
+    from vbfe.recon import CloudReader, Reconstructor, reconstruct_session
+    from vbfe.recon.quality import summary_line
     from vbfe.truth import evaluate_against_truth, rectified_truth, session_bench
 
     total = 0
     for path in sessions:
         with SessionReader(path) as reader:
             total += reader.n_frames
-    params = SgbmParams.from_config(config["sgbm"])
-    settings = ReconSettings.from_config(config.get("recon", {}))
+    params, settings = config.sgbm, config.recon
     step = stage("reconstruct", total)
     quality = []
     for path in sessions:
@@ -493,7 +491,7 @@ def reconstruct_stage(
 
 
 def estimate_stage(
-    sessions: list[Path], out: Path, plan: DemoPlan, config: dict, stage: StageFn
+    sessions: list[Path], out: Path, plan: DemoPlan, config: RigConfig, stage: StageFn
 ) -> dict[str, Any]:
     """Train on most paper sessions and freehand trials; evaluate every method the evaluation
     returns on the held-out paper sessions and, apart, on the held-out freehand trials."""
@@ -506,7 +504,7 @@ def estimate_stage(
     held_out = [s for s in paper if s.stem.endswith(f"_r{plan.repeats - 1}")]
     held_out_freehand = [s for s in sessions if is_freehand(s)][plan.freehand_trials :]
     training = [s for s in sessions if s not in held_out + held_out_freehand]
-    train_config = TrainConfig.from_table(config["train"], **plan.train_options())
+    train_config = TrainConfig.from_table(config.tables["train"], **plan.train_options())
     use_threads(train_config.threads)
     bars: dict[str, tuple[Callable[[int], None], list[int]]] = {}
 

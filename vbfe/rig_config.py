@@ -19,7 +19,7 @@ from typing import Any
 from vbfe.acquire.recording.settings import RecordSettings, record_settings
 from vbfe.batch.settings import BatchSettings
 from vbfe.calib.options import CalibSettings, calib_settings
-from vbfe.common.config import default_config, over_defaults, read_toml
+from vbfe.common.config import default_config, merge_tables, over_defaults, read_toml
 from vbfe.common.errors import ConfigError
 from vbfe.common.rig_discovery import RigSource, find_rig_file
 from vbfe.common.rig_writeback import WriteBack, write_back
@@ -66,6 +66,14 @@ class RigConfig:
             return f"{self.source.describe()}: simulated bench"
         return self.source.describe()
 
+    def updated(self, changes: dict[str, dict[str, Any]], where: str = "changed") -> RigConfig:
+        """This configuration with ``changes`` (table -> key -> value) merged in and every
+        table checked again (a bad value: ConfigError naming the key); the changed keys' origin
+        is ``where``. Nothing is written (:func:`settle` writes a rig file)."""
+        tables = merge_tables(self.tables, changes)
+        origins = {**self.origins, **{(t, k): where for t, v in changes.items() for k in v}}
+        return RigConfig(self.source, tables, origins, **check_tables(tables, changes))
+
 
 def check_tables(tables: dict[str, dict[str, Any]], user: dict[str, Any] | None = None) -> Any:
     """Parse every non-device table of ``tables`` (the merged configuration); device tables
@@ -98,6 +106,16 @@ def check_tables(tables: dict[str, dict[str, Any]], user: dict[str, Any] | None 
 
         streams_from_config(tables)
     return sections
+
+
+def builtin_rig(changes: dict[str, dict[str, Any]] | None = None) -> RigConfig:
+    """The built-in configuration (the simulated bench), no rig file searched, with
+    ``changes`` (table -> key -> value) merged in; for code that builds its rig in code
+    (the demo, tests, benchmarks). A bad value is a ConfigError naming the key."""
+    source = RigSource(None, "", ())
+    tables = default_config()
+    rig = RigConfig(source, tables, _origins({}, ""), **check_tables(tables, {}))
+    return rig.updated(changes, "built in") if changes else rig
 
 
 def _origins(user: dict[str, Any], where: str) -> dict[tuple[str, str], str]:

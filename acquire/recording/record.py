@@ -10,7 +10,7 @@ from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
 from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.recorder import Recorder
-from vbfe.acquire.recording.settings import record_settings
+from vbfe.acquire.recording.settings import RecordConfig
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.layout import StreamSpec
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 
 def record_session(
-    config: dict[str, dict[str, Any]],
+    config: RecordConfig,
     path: str | Path,
     duration_s: float | None = None,
     operator: str = "",
@@ -41,7 +41,6 @@ def record_session(
     calibration_name: str = "the calibration",
     on_warning: Callable[[str], None] | None = None,
     listeners: tuple[Listener, ...] = (),
-    rig_source: str = "",
 ) -> AcquisitionStats:
     """Record stereo video, force and projector events into ``path`` until ``duration_s``
     seconds of frames are in, a device is gone, or Ctrl-C. With ``tare`` the unloaded trocar
@@ -54,9 +53,9 @@ def record_session(
     (the session's metadata says ``protocol.kind = "sync"``; otherwise ``"traction"``). A
     non-zero ``[record] frame_time_correction_s`` is stored as the session's frame-time
     correction. ``on_warning`` hears of each optional ``[streams]`` entry that was not found;
-    further ``listeners`` (e.g. a live viewer) follow the recorder's. ``rig_source`` (which rig
-    file, or that the simulated bench ran) is stored in the session's metadata."""
-    settings = record_settings(config)
+    further ``listeners`` (e.g. a live viewer) follow the recorder's. Which rig file
+    ``config`` came from (or that the simulated bench ran) is stored in the session."""
+    settings = config.record
     options = RigOptions()
     if protocol is not None:
         options, duration_s = protocol.rig_options(), protocol.duration_s
@@ -78,7 +77,6 @@ def record_session(
         calibration_yaml,
         overwrite,
         listeners,
-        rig_source=rig_source,
     )
     if protocol is not None:
         recorder.metadata["protocol"] = protocol.describe()
@@ -96,10 +94,10 @@ def record_session(
     return stats
 
 
-def store_frame_correction(config: dict[str, dict[str, Any]], path: str | Path) -> None:
+def store_frame_correction(config: RecordConfig, path: str | Path) -> None:
     """Store a non-zero ``[record] frame_time_correction_s`` as the finalized session's
     frame-time correction."""
-    correction_s = record_settings(config).frame_time_correction_s
+    correction_s = config.record.frame_time_correction_s
     if correction_s:
         store_analysis(path, {FRAME_CORRECTION_ATTR: int(round(correction_s * 1e9))})
 
@@ -120,7 +118,7 @@ def check_camera_size(
 
 
 def session_recorder(
-    config: dict[str, dict[str, Any]],
+    config: RecordConfig,
     path: str | Path,
     rig: Rig,
     operator: str = "",
@@ -133,12 +131,12 @@ def session_recorder(
     streams: tuple[StreamSpec, ...] = (),
     participant: str = "",
     task: str = "",
-    rig_source: str = "",
 ) -> Recorder:
     """The recorder :func:`record_session` uses (``[record]`` settings, the structured-light
-    pattern, a traction session's metadata: operator, participant, task, notes, conditions)
-    over ``rig``, with further ``listeners`` and extra ``streams``; not started yet."""
-    settings = record_settings(config)
+    pattern, a traction session's metadata: operator, participant, task, notes, conditions,
+    the rig file ``config`` came from) over ``rig``, with further ``listeners`` and extra
+    ``streams``; not started yet."""
+    settings = config.record
     metadata: dict[str, Any] = {
         "operator": operator,
         "participant": participant,
@@ -146,9 +144,8 @@ def session_recorder(
         "notes": notes,
         "conditions": dict(conditions or {}),
         "protocol": {"kind": "traction"},
+        "rig": config.banner(),
     }
-    if rig_source:
-        metadata["rig"] = rig_source
     return Recorder(
         rig,
         path,

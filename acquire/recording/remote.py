@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from vbfe.acquire.recording.record import check_camera_size, session_recorder
+from vbfe.acquire.recording.settings import RecordConfig
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.common.errors import SessionError, VbfeError
 from vbfe.drivers.registry import open_rig
@@ -126,7 +127,7 @@ class RemoteRecording:
 
     def __init__(
         self,
-        config: dict[str, dict[str, Any]],
+        config: RecordConfig,
         path: Path,
         calibration_size: tuple[int, int] | None = None,
         calibration_name: str = "the calibration",

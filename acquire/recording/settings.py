@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from vbfe.acquire.session.layout import COMPRESSIONS, DEFAULT_COMPRESSION
 from vbfe.common.settings import parse_table, setting
+from vbfe.drivers.registry import DeviceTables
 
 
 @dataclass(frozen=True)
@@ -33,3 +34,14 @@ class RecordSettings:
 def record_settings(config: dict[str, dict[str, Any]]) -> RecordSettings:
     """The ``[record]`` table of a rig configuration, checked."""
     return parse_table(RecordSettings, config.get("record", {}), "record")
+
+
+class RecordConfig(DeviceTables, Protocol):
+    """What recording reads of a rig configuration (:class:`vbfe.rig_config.RigConfig` is
+    one): the device tables, the ``[record]`` settings and the line saying which rig file it
+    came from (stored in every session)."""
+
+    @property
+    def record(self) -> RecordSettings: ...
+
+    def banner(self) -> str: ...

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from vbfe.acquire.recording.settings import RecordSettings, record_settings
+from vbfe.acquire.recording.settings import RecordSettings
 from vbfe.acquire.session.annotate import store_analysis
 from vbfe.acquire.session.audit import StreamAudit, audit_sequence
 from vbfe.acquire.session.layout import CAMERA, FORCE
@@ -60,11 +60,6 @@ class SyncLimits:
     max_ci_halfwidth_s: float = 0.005  # the offset must be known at least this well
     max_frame_drop: float = 0.05
     max_force_drop: float = 0.05
-
-    @classmethod
-    def from_config(cls, config: dict[str, dict[str, Any]]) -> SyncLimits:
-        """Limits from a rig configuration's ``[record]`` table."""
-        return cls.from_record(record_settings(config))
 
     @classmethod
     def from_record(cls, table: RecordSettings) -> SyncLimits:

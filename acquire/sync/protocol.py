@@ -26,7 +26,6 @@ their errors; the 95% interval is Student's t with ``n − 1`` degrees of freedo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
@@ -65,16 +64,6 @@ class ProtocolSettings:
     exposure_s: float = 0.0
     line_time_s: float = 0.0  # rolling shutter: delay between consecutive sensor rows
     projector_latency_s: float = 0.0  # known command-to-light delay of the projector
-
-    @classmethod
-    def from_config(cls, config: dict[str, dict[str, Any]]) -> ProtocolSettings:
-        """Settings from a rig configuration's ``[record]`` table (absent keys: 0)."""
-        table = config.get("record", {})
-        return cls(
-            float(table.get("sync_exposure_s", 0.0)),
-            float(table.get("sync_line_time_s", 0.0)),
-            float(table.get("sync_projector_latency_s", 0.0)),
-        )
 
     @classmethod
     def from_record(cls, table: RecordSettings) -> ProtocolSettings:

@@ -24,7 +24,6 @@ from vbfe.cli.common import (
     add_config_option,
     add_settle_option,
     check_settle,
-    config_from,
     positive,
     progress,
     rig_from,
@@ -32,6 +31,7 @@ from vbfe.cli.common import (
 )
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import CalibrationError
+from vbfe.rig_config import RigConfig
 
 _BOARD_KEYS = (
     "target",
@@ -233,9 +233,9 @@ def _layout_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _config_and_board(args: argparse.Namespace) -> tuple[dict, dict[str, Any]]:
+def _config_and_board(args: argparse.Namespace) -> tuple[RigConfig, dict[str, Any]]:
     """The rig config and board overrides, the board checked before any work starts."""
-    config, board = config_from(args), _board(args)
+    config, board = rig_from(args), _board(args)
     commands.board_spec(config, **board)
     return config, board
 
@@ -709,7 +709,7 @@ def run_import(args: argparse.Namespace) -> int:
             )
         size = (int(m[1]), int(m[2]))
     calibration, fmt = commands.import_files(
-        config_from(args), args.files, args.out, size, args.unit_mm, _settings(args)
+        rig_from(args), args.files, args.out, size, args.unit_mm, _settings(args)
     )
     print(f"read {fmt} calibration; wrote {args.out}")
     _print_rows(summary_rows(calibration))
@@ -727,7 +727,7 @@ def run_projector_capture(args: argparse.Namespace) -> int:
                 bar.update(1)
 
         written = commands.projector_capture(
-            config_from(args), args.out, args.poses, args.seed, on_event
+            rig_from(args), args.out, args.poses, args.seed, on_event
         )
     print(
         f"wrote {len(written)} poses into {args.out}; calibrate with "
@@ -778,7 +778,7 @@ def run_color(args: argparse.Namespace) -> int:
     _check_update(args, [])
     calibration = load_calibration(args.calibration)
     settle_s = rig_from(args).calib.projector_settle_s
-    rig = open_rig(rig_from(args).tables, families=("camera", "projector"))
+    rig = open_rig(rig_from(args), families=("camera", "projector"))
     with frame_feed(rig) as frames:
         model = capture_color_model(frames, rig.projector, frames=args.frames, settle_s=settle_s)
     out = model.apply_to(calibration).save(args.out or args.calibration)

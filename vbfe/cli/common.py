@@ -94,11 +94,6 @@ def rig_from(args: argparse.Namespace) -> RigConfig:
     return rig
 
 
-def config_from(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
-    """The rig configuration's merged tables (for library code that still takes the dict)."""
-    return rig_from(args).tables
-
-
 def progress(total: int | None = None, desc: str = "", unit: str = "it") -> tqdm:
     """A progress bar on stderr; quiet when stderr is not a terminal and CI is set."""
     return tqdm(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vbfe.cli.common import add_config_option, config_from, positive, rig_from
+from vbfe.cli.common import add_config_option, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
 from vbfe.console import TAB_NAMES
@@ -96,14 +96,14 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(shots, [args.calib, args.model], args.overwrite)
     if not args.out.is_dir():
         raise VbfeError(f"--out {args.out}: no such folder; make it first")
-    config = config_from(args)
+    config = rig_from(args)
     calibration: Calibration | None = load_calibration(args.calib) if args.calib else None
     estimator = None
     if args.model and calibration is not None:  # --model without --calib is refused above
         from vbfe.estimate.model_file import load_model
         from vbfe.live.run import live_estimator
 
-        estimator = live_estimator(config, rig_from(args).live, load_model(args.model), calibration)
+        estimator = live_estimator(config, load_model(args.model), calibration)
     station = Station(config, calibration, args.calib or "the calibration", estimator, args.model)
     station.model_path = Path(args.model) if args.model else None
     headless = (
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.calib) if args.calib else None,
         args.overwrite,
         headless is None,
-        rig_from(args).source.path,  # what the operator settles is kept there
+        config.source.path,  # what the operator settles is kept there
     )
     code, _ = run_console(station, options, headless, args.record, args.remote, args.remote_bind)
     finished = station.last_session

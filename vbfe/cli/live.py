@@ -121,7 +121,6 @@ def run(args: argparse.Namespace) -> int:
             raise LiveError(f"give {option}: the rig file sets no {key} ({rig.banner()})")
     check_outputs([args.record], [args.model, args.calib], writes="session")  # a new file
     check_settle(args)
-    config = rig.tables
     udp = udp_address(args.udp) if args.udp is not None else None
     for option, value in (("--scale", args.scale), ("--row-scale", args.row_scale)):
         if value is not None and value > 1:
@@ -140,8 +139,7 @@ def run(args: argparse.Namespace) -> int:
     server = foxglove_server(args, model.config.target)
     print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(
-        config,
-        settings,
+        rig,
         model,
         calibration,
         args.scale,
@@ -157,9 +155,7 @@ def run(args: argparse.Namespace) -> int:
         outputs.append(UdpOutput(udp, model.config.target))
     if server is not None:
         outputs.append(server)
-    live = live_run(
-        config, estimator, calibration, args.calib, args.record, str(args.model), outputs
-    )
+    live = live_run(rig, estimator, calibration, args.calib, args.record, str(args.model), outputs)
     live.start(args.duration if args.record else None)
     if args.headless:
         status = run_headless(

@@ -16,7 +16,7 @@ from vbfe.acquire.recording.remote import (
 )
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.layout import COMPRESSIONS
-from vbfe.cli.common import add_config_option, config_from, progress, rig_from
+from vbfe.cli.common import add_config_option, progress, rig_from
 from vbfe.cli.foxglove_options import add_foxglove_options, foxglove_server
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 from vbfe.common.errors import VbfeError
@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         stats = record_session(
-            config_from(args),
+            rig_from(args),
             args.output,
             args.duration,
             operator=args.operator,
@@ -190,7 +190,6 @@ def run(args: argparse.Namespace) -> int:
             calibration_name=args.calib,
             on_warning=lambda w: bar.write(f"vbfe record: warning: {w}", file=sys.stderr),
             listeners=(server,) if server is not None else (),
-            rig_source=rig_from(args).banner(),
         )
         show(stats)
     finally:
@@ -237,7 +236,7 @@ def _run_remote(
     """Serve LabRecorder's commands: each start..stop records one session."""
     begin = partial(
         RemoteRecording,
-        config_from(args),
+        rig_from(args),
         operator=args.operator,
         notes=args.notes,
         conditions=parse_conditions(args.condition),
@@ -246,7 +245,6 @@ def _run_remote(
         calibration_size=calibration_size,
         calibration_name=args.calib,
         overwrite=args.overwrite,
-        rig_source=rig_from(args).banner(),
     )
     sessions = RemoteSessions(begin, args.overwrite, on_message=lambda m: print(m, flush=True))
     server = RemoteControl(sessions, args.remote, args.remote_bind)

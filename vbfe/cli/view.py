@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from vbfe.cli.common import add_config_option, config_from
+from vbfe.cli.common import add_config_option, rig_from
 from vbfe.common.errors import VbfeError
 
 
@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from vbfe.acquire.viewer import view_live, view_session  # Qt loads only for this command
 
     if args.live:
-        return view_live(config_from(args))
+        return view_live(rig_from(args))
     if args.session is None:
         raise VbfeError("give a SESSION.h5 to replay, or --live")
     return view_session(args.session)

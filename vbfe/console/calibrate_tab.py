@@ -16,9 +16,8 @@ from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
 from vbfe.calib.board import TARGETS, BoardSpec
 from vbfe.calib.capture import annotate, coverage_text
-from vbfe.calib.commands import board_spec, set_board
+from vbfe.calib.commands import board_spec
 from vbfe.calib.report import gate_lines, summary_rows
-from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
 from vbfe.console.desks import CalibrationOutcome, LiveCapture, calibrate
 from vbfe.console.widgets import ImagePane, Tab, form, value_label, with_picker
@@ -79,7 +78,7 @@ class BoardForm(QtWidgets.QWidget):
         self.dictionary.setCurrentText(spec.dictionary)
         self.min_views = QtWidgets.QSpinBox()
         self.min_views.setRange(1, 999)
-        self.min_views.setValue(int(section(tab.station.config, "calib")["min_views"]))
+        self.min_views.setValue(tab.station.config.calib.min_views)
         squares = QtWidgets.QHBoxLayout()
         squares.addWidget(self.squares_x)
         squares.addWidget(QtWidgets.QLabel("×"))
@@ -113,7 +112,7 @@ class BoardForm(QtWidgets.QWidget):
             square_m=self.square_mm.value() * 1e-3,
             marker_m=self.marker_mm.value() * 1e-3,
             dictionary=self.dictionary.currentText(),
-            legacy=bool(section(self.tab.station.config, "calib").get("legacy", False)),
+            legacy=self.tab.station.config.calib.legacy,
             target=self.target.currentText(),
         )
 
@@ -136,10 +135,9 @@ class BoardForm(QtWidgets.QWidget):
             f"inner corners = squares − 1: {nx} × {ny}"
             + ("" if charuco else " (what a chessboard detector counts, e.g. 9 × 6)")
         )
-        config = self.tab.station.config
-        config.setdefault("calib", {})["min_views"] = self.min_views.value()
         try:
-            set_board(config, self.spec())
+            calib = {**self.spec().calib_table(), "min_views": self.min_views.value()}
+            self.tab.station.reconfigure({"calib": calib})
         except VbfeError as exc:
             self.tab.console.message(f"board: {exc}", True)
 

@@ -20,14 +20,14 @@ from vbfe.calib import commands
 from vbfe.calib.capture import CaptureOptions, Verdict, ViewCollector, rejection_kind
 from vbfe.calib.check import CheckResult
 from vbfe.calib.views import load_views, save_views
-from vbfe.common.config import default_config, section
+from vbfe.common.config import default_config
 from vbfe.drivers.samples import StereoFrame
+from vbfe.rig_config import RigConfig
 
-Config = dict[str, dict[str, object]]
 _IDLE_WAIT_S = 0.02
 
 
-def save_rig_file(config: Config, path: Path) -> Path:
+def save_rig_file(config: RigConfig, path: Path) -> Path:
     """Write ``config`` as a new rig file: the built-in one with its comments, each value
     that ``config`` changes set (an existing file is refused: it is kept as it is)."""
     import tomlkit
@@ -38,7 +38,7 @@ def save_rig_file(config: Config, path: Path) -> Path:
     text = resources.files("vbfe").joinpath("default_rig.toml").read_text(encoding="utf-8")
     doc = tomlkit.parse(text)
     defaults = default_config()
-    for table, values in config.items():
+    for table, values in config.tables.items():
         for key, value in values.items():
             if defaults.get(table, {}).get(key) != value:
                 doc[table][key] = str(value) if isinstance(value, Path) else value
@@ -54,10 +54,10 @@ class LiveCapture:
     :param folder: where kept views are written as PNG pairs.
     """
 
-    def __init__(self, config: Config, folder: Path) -> None:
+    def __init__(self, config: RigConfig, folder: Path) -> None:
         self.folder = Path(folder)
         self.collector = ViewCollector(
-            commands.board_spec(config), CaptureOptions.from_config(section(config, "calib"))
+            commands.board_spec(config), CaptureOptions.from_config(config.tables["calib"])
         )
         if self.folder.is_dir() and any(self.folder.glob("*_left.png")):
             for left, right in load_views(self.folder).pairs:
@@ -129,7 +129,7 @@ class CalibrationOutcome:
 
 
 def calibrate(
-    config: Config,
+    config: RigConfig,
     folder: Path,
     out_path: Path,
     stored: Path | None = None,
@@ -161,23 +161,23 @@ class SyncOutcome:
         return (self.after or self.report).verdict
 
 
-def check_sync(config: Config, session: Path) -> SyncOutcome:
+def check_sync(config: RigConfig, session: Path) -> SyncOutcome:
     """``verify-sync`` of a sync protocol session (its plot beside it, as the CLI)."""
     report = verify_sync(
         session,
-        SyncLimits.from_config(config),
+        SyncLimits.from_record(config.record),
         plot_path=session.with_suffix(".sync.png"),
-        settings=ProtocolSettings.from_config(config),
+        settings=ProtocolSettings.from_record(config.record),
     )
     return SyncOutcome(report)
 
 
-def apply_sync(config: Config, checked: SyncOutcome) -> SyncOutcome:
+def apply_sync(config: RigConfig, checked: SyncOutcome) -> SyncOutcome:
     """``verify-sync --apply`` on the session ``checked``: store the measured offset as its
-    frame-time correction and put it in the config's ``[record]`` so that new recordings are
-    corrected; the session is checked again with it."""
-    limits, settings = SyncLimits.from_config(config), ProtocolSettings.from_config(config)
+    frame-time correction (``applied.correction_s``: the ``[record]`` value for new
+    recordings); the session is checked again with it."""
+    limits = SyncLimits.from_record(config.record)
+    settings = ProtocolSettings.from_record(config.record)
     session = checked.report.path
     applied = verify_sync(session, limits, apply_correction=True, settings=settings)
-    config.setdefault("record", {})["frame_time_correction_s"] = applied.correction_s
     return SyncOutcome(checked.report, applied, verify_sync(session, limits, settings=settings))

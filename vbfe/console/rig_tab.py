@@ -110,7 +110,7 @@ class RigTab(Tab):
         simulated = [
             name
             for name in ("camera", "trocar", "projector")
-            if config.get(name, {}).get("backend") == "sim"
+            if config.tables[name].get("backend") == "sim"
         ]
         self.simulated.setText(
             f"simulated bench: {', '.join(simulated)} simulated (set real backends in the rig file)"

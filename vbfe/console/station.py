@@ -30,17 +30,15 @@ from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.commands import board_scene
-from vbfe.common.config import section
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
+from vbfe.rig_config import RigConfig
 
 if TYPE_CHECKING:  # the live estimate (torch) is imported only when a model is loaded
     from vbfe.live.estimator import FrameEstimator
     from vbfe.live.run import LiveRun, LiveStatus
-
-Config = dict[str, dict[str, Any]]
 
 
 @dataclass(frozen=True)
@@ -76,8 +74,9 @@ class Finished:
 class Station:
     """The rig of ``config`` and its one acquisition at a time.
 
-    :param config: the rig config (``vbfe.common.config.load_config``); ``[record]`` settings
-        apply to recordings as in ``vbfe record``.
+    :param config: the rig configuration (:func:`vbfe.rig_config.load_rig`); ``[record]``
+        settings apply to recordings as in ``vbfe record``, and every session stores which
+        rig file it came from. What the operator changes replaces it (:meth:`reconfigure`).
     :param calibration: stored with every recording, and checked against the camera's mode.
     :param estimator: with one, every live view and recording runs the live estimate too.
     :param model_name: how the estimate stream names the model.
@@ -87,12 +86,12 @@ class Station:
 
     def __init__(
         self,
-        config: Config,
+        config: RigConfig,
         calibration: Calibration | None = None,
         calibration_name: str = "the calibration",
         estimator: FrameEstimator | None = None,
         model_name: str = "",
-        rig_factory: Callable[[Config, RigOptions], Rig] = open_rig,
+        rig_factory: Callable[[RigConfig, RigOptions], Rig] = open_rig,
     ) -> None:
         self.config = config
         self._rig_factory = rig_factory
@@ -115,6 +114,12 @@ class Station:
         self._runner: threading.Thread | None = None
         self._run_error: BaseException | None = None
         self._ops = ThreadPoolExecutor(1, thread_name_prefix="vbfe-console-rig")
+
+    def reconfigure(self, changes: dict[str, dict[str, Any]], where: str = "this window") -> None:
+        """Use the configuration with ``changes`` (table -> key -> value) from the next
+        acquisition on; checked first (a bad value: ConfigError naming the key, nothing
+        changed)."""
+        self.config = self.config.updated(changes, where)
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future:
         """Run ``fn(*args)`` on the rig's worker thread, after what was submitted before."""
@@ -280,10 +285,8 @@ class Station:
     def _estimator(self, path: Path, calibration: Calibration) -> FrameEstimator:
         from vbfe.estimate.model_file import load_model
         from vbfe.live.run import live_estimator
-        from vbfe.live.settings import live_settings
 
-        settings = live_settings(section(self.config, "live"))
-        return live_estimator(self.config, settings, load_model(path), calibration)
+        return live_estimator(self.config, load_model(path), calibration)
 
     def _not_recording(self, what: str) -> None:
         if self.recording is not None:
@@ -309,7 +312,7 @@ class Station:
         estimating = self.estimator is not None and self.estimate_on
         return RigOptions(realtime=True) if estimating else RigOptions()
 
-    def _open_rig(self, options: RigOptions, config: Config | None = None) -> Rig:
+    def _open_rig(self, options: RigOptions, config: RigConfig | None = None) -> Rig:
         config = config if config is not None else self.config
         self.board_scene = config is not self.config
         self.rig = self._rig_factory(config, options)
@@ -322,13 +325,12 @@ class Station:
         live = None
         if self.estimator is not None and estimate and self.estimate_on:
             from vbfe.live.run import LiveRun
-            from vbfe.live.settings import live_settings
 
             live = LiveRun(
                 acquisition,
                 self.estimator,
                 self.model_name,
-                max_frame_age_s=live_settings(section(self.config, "live")).max_frame_age_s,
+                max_frame_age_s=self.config.live.max_frame_age_s,
             )
         try:
             (live.start if live is not None else acquisition.start)(duration_s)

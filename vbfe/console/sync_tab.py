@@ -12,9 +12,10 @@ from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.common.errors import VbfeError
-from vbfe.console.desks import Config, SyncOutcome, apply_sync, check_sync
+from vbfe.console.desks import SyncOutcome, apply_sync, check_sync
 from vbfe.console.station import Finished
 from vbfe.console.widgets import Tab, form, value_label, with_picker
+from vbfe.rig_config import RigConfig
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
@@ -128,7 +129,7 @@ class SyncTab(Tab):
         self.apply_button.setEnabled(False)
         self._work("applying the correction and checking again", apply_sync, self.outcome)
 
-    def _work(self, what: str, fn: Callable[[Config, Any], SyncOutcome], arg: Any) -> None:
+    def _work(self, what: str, fn: Callable[[RigConfig, Any], SyncOutcome], arg: Any) -> None:
         self.working = what
         self._clock.start()
         self.busy_bar.show()

@@ -15,8 +15,6 @@ from typing import Any
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
 from vbfe.calib.board import BoardSpec
-from vbfe.calib.commands import set_board
-from vbfe.common.config import section
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import error_line
 from vbfe.console import TAB_NAMES
@@ -169,14 +167,18 @@ class ConsoleWindow(QtWidgets.QMainWindow):
             self.errors.append(text)
 
     def use_rig_file(self, path: Path) -> None:
-        """Keep what the operator settles in ``path`` from now on."""
+        """Keep what the operator settles in ``path`` from now on (the rig configuration is
+        read from it: new sessions name it as their rig file)."""
+        from vbfe.rig_config import load_rig
+
+        self.station.config = load_rig(path)
         self.options = dataclasses.replace(self.options, rig_file=path)
 
     def load_settled(self) -> None:
         """Load the calibration and model the rig file names (settled on an earlier day)."""
         live = self.live_tab
-        calibration = str(section(self.station.config, "calib").get("calibration") or "")
-        model = str(section(self.station.config, "live").get("model") or "")
+        calibration = self.station.config.calib.calibration
+        model = self.station.config.live.model
         if calibration and self.station.calibration is None:
             live.calibration.setText(calibration)
             live.load_calibration()
@@ -204,18 +206,24 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         correction_s: float | None = None,
         model: Path | None = None,
     ) -> None:
-        """Write what the operator settled into the rig file (comments kept, the previous file
-        backed up), so that the next window starts there; without a rig file, say so."""
+        """Use what the operator settled from now on, and write it into the rig file (comments
+        kept, the previous file backed up), so that the next window starts there; without a
+        rig file, say so."""
         changes: dict[str, dict[str, Any]] = {}
         if board is not None:
-            set_board(changes, board)
+            changes["calib"] = board.calib_table()
         if calibration is not None:
-            changes.setdefault("calib", {})["calibration"] = calibration.absolute()
+            changes.setdefault("calib", {})["calibration"] = str(calibration.absolute())
         if correction_s is not None:
             changes["record"] = {"frame_time_correction_s": correction_s}
         if model is not None:
-            changes["live"] = {"model": model.absolute()}
+            changes["live"] = {"model": str(model.absolute())}
         if not changes:
+            return
+        try:
+            self.station.reconfigure(changes)
+        except VbfeError as exc:
+            self.message(f"not used: {error_line(exc)}", True)
             return
         rig_file = self.options.rig_file
         if rig_file is None:

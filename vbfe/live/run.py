@@ -32,7 +32,6 @@ from vbfe.acquire.session.estimates import EstimateRecord, estimate_stream_spec
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.acquire.session.layout import CAMERA
 from vbfe.calib.calibration import Calibration
-from vbfe.common.config import section
 from vbfe.common.errors import LiveError
 from vbfe.common.signals import Terminated
 from vbfe.drivers.projector.pattern import make_pattern
@@ -44,8 +43,7 @@ from vbfe.estimate.preparation import force_target
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
 from vbfe.live.outputs import EstimateOutput
 from vbfe.live.pipeline import Pipeline
-from vbfe.live.settings import LiveSettings, live_settings
-from vbfe.recon.matching import SgbmParams
+from vbfe.live.settings import LiveConfig, LiveSettings
 
 FORCE_HISTORY_S = 30.0
 
@@ -103,8 +101,7 @@ def use_threads(settings: LiveSettings) -> None:
 
 
 def live_estimator(
-    config: dict[str, dict[str, Any]],
-    settings: LiveSettings,
+    config: LiveConfig,
     model: ForceModel,
     calibration: Calibration,
     scale: float | None = None,
@@ -117,6 +114,7 @@ def live_estimator(
     and OpenCV's thread counts."""
     import torch
 
+    settings = config.live
     device = device or settings.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -126,7 +124,7 @@ def live_estimator(
     return FrameEstimator(
         model,
         calibration,
-        SgbmParams.from_config(section(config, "sgbm")),
+        config.sgbm,
         verify=verify and settings.verify,
         scale=scale or settings.scale,
         device=device,
@@ -137,7 +135,7 @@ def live_estimator(
 
 
 def live_run(
-    config: dict[str, dict[str, Any]],
+    config: LiveConfig,
     estimator: FrameEstimator,
     calibration: Calibration,
     calibration_name: str,
@@ -173,7 +171,7 @@ def live_run(
         estimator,
         model_name,
         outputs,
-        live_settings(section(config, "live")).max_frame_age_s,
+        config.live.max_frame_age_s,
     )
 
 

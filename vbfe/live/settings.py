@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
+from vbfe.acquire.recording.settings import RecordConfig
 from vbfe.common.settings import parse_table, setting
+from vbfe.recon.matching import SgbmParams
 
 
 @dataclass(frozen=True)
@@ -28,3 +30,14 @@ class LiveSettings:
 def live_settings(table: dict[str, Any]) -> LiveSettings:
     """The ``[live]`` table, checked."""
     return parse_table(LiveSettings, table, "live")
+
+
+class LiveConfig(RecordConfig, Protocol):
+    """What a live run reads of a rig configuration (:class:`vbfe.rig_config.RigConfig` is
+    one): what a recording reads, the ``[live]`` settings and the ``[sgbm]`` matcher's."""
+
+    @property
+    def live(self) -> LiveSettings: ...
+
+    @property
+    def sgbm(self) -> SgbmParams: ...

@@ -2,22 +2,21 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from vbfe.acquire import SessionReader
 from vbfe.common.errors import TruthError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.rig import StereoRig
+from vbfe.rig_config import RigConfig
 
 
-def true_rig(config: dict[str, dict[str, Any]]) -> StereoRig:
+def true_rig(config: RigConfig) -> StereoRig:
     """The true rig of the bench a rig configuration's ``[bench]`` table describes."""
-    return SimBench.from_config(config.get("bench", {})).rig
+    return SimBench.from_config(config.tables["bench"]).rig
 
 
-def trial_duration_s(config: dict[str, dict[str, Any]]) -> float:
+def trial_duration_s(config: RigConfig) -> float:
     """How long the trial of the configuration's bench lasts (no bench is built)."""
-    return SimBench.duration_from_config(config.get("bench", {}))
+    return SimBench.duration_from_config(config.tables["bench"])
 
 
 def session_bench(reader: SessionReader) -> SimBench:

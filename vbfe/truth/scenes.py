@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
-Config = dict[str, dict[str, Any]]
+from vbfe.rig_config import RigConfig
 
 # The board moved by hand: a new pose every frame, some held still, some blurred.
 HAND_HELD = {"scene": "board", "board_hold_s": 0.0}
@@ -22,12 +21,13 @@ ON_A_STAND = {
 }
 
 
-def board_config(config: Config, on_a_stand: bool = False, **bench: Any) -> Config:
+def board_config(config: RigConfig, on_a_stand: bool = False, **bench: Any) -> RigConfig:
     """``config`` with the bench showing the board (hand-held, or ``on_a_stand`` for projector
     calibration) and ``bench`` keys set. The simulated camera shows a new pattern from the next
     frame on, so the Gray-code capture needs no settle time there."""
-    config = copy.deepcopy(config)
-    config["bench"].update(ON_A_STAND if on_a_stand else HAND_HELD, **bench)
+    changes: dict[str, dict[str, Any]] = {
+        "bench": {**(ON_A_STAND if on_a_stand else HAND_HELD), **bench}
+    }
     if on_a_stand:
-        config["calib"]["projector_settle_s"] = 0.0
-    return config
+        changes["calib"] = {"projector_settle_s": 0.0}
+    return config.updated(changes, "the board scene")
