@@ -22,12 +22,12 @@ from vbfe.acquire import (
     recover_session,
 )
 from vbfe.acquire.session.layout import marker_stream, vector_stream
-from vbfe.common.config import load_config
 from vbfe.common.errors import DeviceError
 from vbfe.drivers.device import SampleStream
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import Rig, RigOptions
+from vbfe.rig_config import builtin_rig
 
 
 class FrameCounter(Listener):
@@ -68,8 +68,7 @@ def test_a_failing_listener_stops_the_acquisition_and_the_session_is_finalized(t
 
 
 def test_a_simulated_rig_is_an_ordinary_rig_with_truth_and_options():
-    config = load_config()
-    config["bench"].update(width=160, height=90, fps=20.0)
+    config = builtin_rig({"bench": dict(width=160, height=90, fps=20.0)})
     rig = open_rig(config, RigOptions(seed=3, realtime=False))
     described = rig.describe()
     assert described["bench"]["seed"] == 3 and described["conditions"]["seed"] == 3

@@ -9,7 +9,7 @@ from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.sync.check import verify_sync
 from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD
 from vbfe.cli.main import main
-from vbfe.common.config import load_config
+from vbfe.rig_config import load_rig
 
 RIG = """
 [bench]
@@ -30,7 +30,7 @@ def sim_session(tmp_path_factory):
     rig.write_text(RIG)
     path = folder / "sim.h5"
     stats = record_session(
-        load_config(rig), path, 3.0, operator="bench", notes="sim", conditions={"grasp": "2"}
+        load_rig(rig), path, 3.0, operator="bench", notes="sim", conditions={"grasp": "2"}
     )
     return path, stats
 

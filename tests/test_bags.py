@@ -20,7 +20,7 @@ from vbfe.acquire import (
 )
 from vbfe.calib.calibration import Calibration
 from vbfe.cli.main import main
-from vbfe.common.config import default_config
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 CORRECTION_NS = 7_000_000
@@ -31,8 +31,7 @@ def sessions(tmp_path_factory):
     """A raw (lzf) session with a stored frame-time correction and live estimates (with their
     interval and flag), and an mjpeg one: 160x90 at 15 fps for 2 s."""
     folder = tmp_path_factory.mktemp("bags")
-    config = default_config()
-    config["bench"].update(width=160, height=90, fps=15.0)
+    config = builtin_rig({"bench": dict(width=160, height=90, fps=15.0)})
     calibration = calibration_from_rig(true_rig(config))
     paths = {}
     for name, compression in (("raw", "lzf"), ("jpeg", "mjpeg")):
@@ -559,8 +558,7 @@ def bench_640(tmp_path_factory):
     """1 s of the bench at 640x360 (the sizes scale with the frame count: the ratios are an
     8 s session's)."""
     path = tmp_path_factory.mktemp("codecs") / "bench.h5"
-    config = default_config()
-    config["bench"].update(width=640, height=360)
+    config = builtin_rig({"bench": dict(width=640, height=360)})
     record_session(config, path, duration_s=1.0)
     return path
 
@@ -693,8 +691,7 @@ def test_layout_names_only_topics_the_export_and_the_live_server_write(sessions,
             value = value[int(index.rstrip("]"))] if index else value
         assert isinstance(value, float), path
     # the live server (a live run's: with estimates and clouds) over the bench
-    config = default_config()
-    config["bench"].update(width=160, height=90, fps=15.0)
+    config = builtin_rig({"bench": dict(width=160, height=90, fps=15.0)})
     server = FoxgloveServer(0, target="magnitude")
     acquisition = Acquisition(open_rig(config, RigOptions(realtime=True)), listeners=(server,))
     acquisition.start()

@@ -12,8 +12,8 @@ from vbfe.acquire import record_session
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.manifest import read_manifest
-from vbfe.common.config import load_config
 from vbfe.recon import CloudReader, sidecar_path
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 CONDITIONS = [(40.0, 0.01), (80.0, 0.005), (200.0, 0.002)]
@@ -25,15 +25,18 @@ def dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("dataset")
     sessions = []
     for k, (stiffness, speed) in enumerate(CONDITIONS):
-        config = load_config()
-        config["bench"].update(
-            width=320,
-            height=180,
-            fps=10.0,
-            seed=k,
-            distortion=False,
-            stiffness_n_per_m=stiffness,
-            pull_speed_m_per_s=speed,
+        config = builtin_rig(
+            {
+                "bench": dict(
+                    width=320,
+                    height=180,
+                    fps=10.0,
+                    seed=k,
+                    distortion=False,
+                    stiffness_n_per_m=stiffness,
+                    pull_speed_m_per_s=speed,
+                )
+            }
         )
         calibration = calibration_from_rig(true_rig(config))
         folder = root / f"day{k % 2}"
@@ -110,16 +113,19 @@ def pulls(tmp_path_factory):
     folder = tmp_path_factory.mktemp("pulls")
     paths = []
     for seed in (1, 2):
-        config = load_config()
-        config["bench"].update(
-            width=320,
-            height=180,
-            fps=15.0,
-            seed=seed,
-            distortion=False,
-            stiffness_n_per_m=200.0,
-            pull_speed_m_per_s=0.01,
-            hold_s=1.0,
+        config = builtin_rig(
+            {
+                "bench": dict(
+                    width=320,
+                    height=180,
+                    fps=15.0,
+                    seed=seed,
+                    distortion=False,
+                    stiffness_n_per_m=200.0,
+                    pull_speed_m_per_s=0.01,
+                    hold_s=1.0,
+                )
+            }
         )
         paths.append(folder / f"pull{seed}.h5")
         record_session(config, paths[-1], duration_s=3.0)

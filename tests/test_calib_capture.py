@@ -11,10 +11,10 @@ from vbfe.calib.board import BoardSpec
 from vbfe.calib.capture import ViewCollector, coverage_text
 from vbfe.calib.views import load_views
 from vbfe.cli.main import main
-from vbfe.common.config import load_config
 from vbfe.drivers.sim.board_scene import motion_blur
 from vbfe.drivers.sim.charuco_scene import render_board_views
 from vbfe.drivers.sim.rig import default_rig
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import board_config, true_rig
 
 SPEC = BoardSpec()
@@ -51,8 +51,8 @@ def test_blurred_and_repeated_views_are_refused_and_new_ones_kept():
 
 
 def test_capture_from_the_simulated_bench_saves_pairs_that_calibrate(tmp_path):
-    config = board_config(load_config(None), seed=4, board_p_blur=0.2)
-    config["calib"].update(capture_views=8, capture_max_views=8)
+    config = board_config(builtin_rig(), seed=4, board_p_blur=0.2)
+    config = config.updated({"calib": {"capture_views": 8, "capture_max_views": 8}})
     updates = []
     result = commands.capture(
         config,
@@ -75,7 +75,7 @@ def test_capture_from_the_simulated_bench_saves_pairs_that_calibrate(tmp_path):
     cal = calibrate_stereo(views, SPEC).calibration
     assert abs(cal.B / true_rig(config).baseline_m - 1) < 0.02
     # resuming into the same folder keeps the old views and numbers new ones after them
-    config["calib"].update(capture_views=10, capture_max_views=10)
+    config = config.updated({"calib": {"capture_views": 10, "capture_max_views": 10}})
     more = commands.capture(config, tmp_path / "views", max_frames=6, seed=9)
     assert all(int(n.split("_")[1]) >= 8 for n in more.names)
     assert len(load_views(tmp_path / "views")) == 8 + len(more.names)
@@ -145,8 +145,9 @@ def test_preview_window_shows_corners_and_coverage(tmp_path, capsys):
 
 
 def test_capture_of_a_simulated_chessboard_calibrates(tmp_path):
-    config = board_config(load_config(None), seed=6, board="chessboard", board_p_blur=0.0)
-    config["calib"].update(target="chessboard", capture_views=8, capture_max_views=8)
+    config = board_config(builtin_rig(), seed=6, board="chessboard", board_p_blur=0.0)
+    calib = {"target": "chessboard", "capture_views": 8, "capture_max_views": 8}
+    config = config.updated({"calib": calib})
     result = commands.capture(config, tmp_path / "views", max_frames=30)
     assert result.enough and len(result.names) == 8
     from vbfe.calib.stereo import calibrate_stereo

@@ -17,12 +17,12 @@ from vbfe.calib.projector import (
     save_captures,
     with_projector,
 )
-from vbfe.common.config import load_config
 from vbfe.common.errors import CalibrationError
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import board_config, calibration_from_rig, true_rig
 
 SPEC = BoardSpec()
-CONFIG = board_config(load_config(None), on_a_stand=True, fps=10.0, seed=0)
+CONFIG = board_config(builtin_rig(), on_a_stand=True, fps=10.0, seed=0)
 RIG = true_rig(CONFIG)
 N_POSES = 8
 

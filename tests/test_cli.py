@@ -6,8 +6,8 @@ import sys
 import pytest
 
 from vbfe.cli.main import build_parser, main
-from vbfe.common.config import load_config
 from vbfe.common.errors import ConfigError
+from vbfe.rig_config import load_rig
 
 SUBCOMMANDS = [
     "devices",
@@ -46,7 +46,7 @@ def test_unknown_config_table_is_named(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text("[camra]\nbackend='v4l2'\n")
     with pytest.raises(ConfigError, match="camra"):
-        load_config(rig)
+        load_rig(rig)
 
 
 def test_bad_config_is_a_one_line_error_with_exit_status_2(tmp_path, capsys):

@@ -19,11 +19,11 @@ from pyqtgraph.Qt import QtCore
 from vbfe.acquire import SessionReader
 from vbfe.acquire.recording.remote import send_command
 from vbfe.calib.report import gate_lines
-from vbfe.common.config import load_config
 from vbfe.console import TAB_NAMES
 from vbfe.console.station import Station
 from vbfe.console.window import ConsoleOptions, ConsoleWindow
 from vbfe.drivers.qt_app import dispose_widget
+from vbfe.rig_config import RigConfig, builtin_rig
 from vbfe.truth import true_rig
 from vbfe.truth.scenes import board_config
 
@@ -31,10 +31,8 @@ CALIB_F_LIMIT, CALIB_B_LIMIT = 0.005, 0.01  # the demo's (vbfe/demo_report.py)
 WAIT_MS = 60_000  # generous: the machine may be shared; passing runs take seconds
 
 
-def bench_config(**bench) -> dict:
-    config = load_config()
-    config["bench"].update({"width": 192, "height": 108, "fps": 30.0, **bench})
-    return config
+def bench_config(**bench) -> RigConfig:
+    return builtin_rig({"bench": {"width": 192, "height": 108, "fps": 30.0, **bench}})
 
 
 @pytest.fixture
@@ -43,7 +41,7 @@ def open_console(qtbot, tmp_path):
     recording finalized) at the end of the test."""
     windows = []
 
-    def make(config: dict, live: bool = True) -> ConsoleWindow:
+    def make(config: RigConfig, live: bool = True) -> ConsoleWindow:
         window = ConsoleWindow(Station(config), ConsoleOptions(tmp_path), interval_ms=50)
         window.show()
         windows.append(window)
@@ -161,13 +159,11 @@ def test_the_de_bruijn_overlay_colours_the_decoded_fringes(qtbot, open_console):
 
 
 def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
-    from vbfe.common.config import section
     from vbfe.estimate.candidates import NetworkEstimator
     from vbfe.estimate.model_file import ForceModel
     from vbfe.estimate.pointnet import PointNetRegressor
     from vbfe.estimate.train_config import TrainConfig
     from vbfe.live.estimator import FrameEstimator
-    from vbfe.recon import SgbmParams
     from vbfe.truth import calibration_from_rig
 
     config = bench_config()
@@ -183,9 +179,7 @@ def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
         estimators={"pointnet": NetworkEstimator(network.eval(), train.n_points)},
     )
     calibration = calibration_from_rig(true_rig(config))
-    estimator = FrameEstimator(
-        model, calibration, SgbmParams.from_config(section(config, "sgbm")), scale=0.5
-    )
+    estimator = FrameEstimator(model, calibration, config.sgbm, scale=0.5)
     station = Station(config, calibration, estimator=estimator, model_name="untrained")
     window = ConsoleWindow(station, ConsoleOptions(tmp_path), interval_ms=50)
     window.show()
@@ -207,8 +201,7 @@ def test_the_live_tab_shows_the_estimate_of_a_loaded_model(qtbot, tmp_path):
 
 
 def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open_console, tmp_path):
-    config = bench_config()
-    config["record"]["min_free_gb"] = 1e9  # no disk has that much room: refused as full
+    config = bench_config().updated({"record": {"min_free_gb": 1e9}})  # no disk has that room
     window = open_console(config)
     window.record_tab.root.setText(str(tmp_path))
     click(qtbot, window.record_tab.start_button)
@@ -216,8 +209,7 @@ def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open
     assert "free space or record elsewhere" in window.errors[-1]
     assert not list(tmp_path.glob("*.h5"))
 
-    config = bench_config()
-    config["camera"] = {"backend": "opencv", "device": "/dev/video99"}
+    config = bench_config().updated({"camera": {"backend": "opencv", "device": "/dev/video99"}})
     window = open_console(config, live=False)
     click(qtbot, window.rig_tab.open_button)
     qtbot.waitUntil(lambda: bool(window.errors), timeout=WAIT_MS)
@@ -231,8 +223,10 @@ def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open
 
 @pytest.mark.slow
 def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_console, tmp_path):
-    config = board_config(bench_config(width=480, height=270))
-    config["calib"]["capture_views"] = 8  # the issue's minimum (the default 20 took 2 min on CI)
+    # the issue's minimum of views (the default 20 took 2 min on CI)
+    config = board_config(bench_config(width=480, height=270)).updated(
+        {"calib": {"capture_views": 8}}
+    )
     window = open_console(config)
     tab = window.calibrate_tab
     window.tabs.setCurrentWidget(tab)
@@ -243,7 +237,7 @@ def test_capture_board_views_and_calibrate_within_the_bench_truth(qtbot, open_co
         lambda: not tab.capture_button.isChecked() or bool(window.errors), timeout=120_000
     )
     assert not window.errors
-    kept = config["calib"]["capture_views"]  # as `calibrate capture`: enough views, full bars
+    kept = config.calib.capture_views  # as `calibrate capture`: enough views, full bars
     assert tab.capture.kept >= kept
     assert len(list((tmp_path / "calib-views").glob("*_left.png"))) == tab.capture.kept
     assert tab.capture.collector.coverage_map((480, 270)).sum() > 0

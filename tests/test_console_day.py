@@ -16,7 +16,6 @@ import pytest
 from pyqtgraph.Qt import QtCore
 
 from vbfe.acquire import SessionReader
-from vbfe.common.config import load_config
 from vbfe.console import TAB_NAMES
 from vbfe.console.app import grab_tab
 from vbfe.console.station import Station
@@ -25,6 +24,7 @@ from vbfe.drivers.qt_app import dispose_widget
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
+from vbfe.rig_config import RigConfig, builtin_rig, load_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 SAMPLE = Path(__file__).parent / "data" / "opencv_stereo"
@@ -67,7 +67,7 @@ def click(qtbot, button) -> None:
     qtbot.mouseClick(button, QtCore.Qt.MouseButton.LeftButton)
 
 
-def open_window(qtbot, config: dict, options: ConsoleOptions) -> ConsoleWindow:
+def open_window(qtbot, config: RigConfig, options: ConsoleOptions) -> ConsoleWindow:
     """A console window over ``config``'s rig, live (as ``vbfe console`` opens)."""
     window = ConsoleWindow(Station(config), options, interval_ms=50)
     window.show()
@@ -102,8 +102,7 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
     data = tmp_path / "data"
     data.mkdir()
     rig_file = tmp_path / "vbfe-rig.toml"
-    config = load_config()
-    config["bench"].update(width=SIZE[0], height=SIZE[1], fps=30.0)
+    config = builtin_rig({"bench": {"width": SIZE[0], "height": SIZE[1], "fps": 30.0}})
     window = open_window(qtbot, config, ConsoleOptions(data))
 
     # Rig: the running rig saved as the rig file; settled values go there from now on
@@ -112,7 +111,7 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
     rig_tab.rig_file.setText(str(rig_file))
     click(qtbot, rig_tab.save_button)
     assert window.options.rig_file == rig_file and not window.errors
-    assert load_config(rig_file)["bench"]["width"] == SIZE[0]
+    assert load_rig(rig_file).tables["bench"]["width"] == SIZE[0]
 
     # Calibrate: another lab's folder, eyes exchanged, a chessboard of 9x6 inner corners
     tab = window.calibrate_tab
@@ -172,16 +171,16 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
     dispose_widget(window)
 
     # the next day: a new window on the rig file finds the board, calibration and correction
-    settled = load_config(rig_file)
-    assert settled["record"]["frame_time_correction_s"] == pytest.approx(measured)
-    assert Path(settled["calib"]["calibration"]) == (data / "endoscope.yaml").absolute()
+    settled = load_rig(rig_file)
+    assert settled.record.frame_time_correction_s == pytest.approx(measured)
+    assert Path(settled.calib.calibration) == (data / "endoscope.yaml").absolute()
     window = open_window(qtbot, settled, ConsoleOptions(data, rig_file=rig_file))
     try:
         wait_for(qtbot, window, lambda: window.station.calibration is not None)
         assert window.station.calibration.image_size == SIZE
         board = window.calibrate_tab.board
         assert board.spec().describe() == "chessboard, 9x6 inner corners, 1 mm squares"
-        assert window.live_tab.calibration.text() == settled["calib"]["calibration"]
+        assert window.live_tab.calibration.text() == settled.calib.calibration
 
         # Record: a trial with participant, task and a marker, the correction applied
         record = window.record_tab
@@ -245,7 +244,7 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
         assert live.magnitude_plot.isVisible() and len(estimate) >= 1
         assert np.all(lo <= estimate[-len(lo) :]) and np.all(estimate[-len(hi) :] <= hi)
         assert live.trocar_curve.getData()[1] is not None
-        assert load_config(rig_file)["live"]["model"] == str((tmp_path / "model.pt").absolute())
+        assert load_rig(rig_file).live.model == str((tmp_path / "model.pt").absolute())
         shoot(window, *(name for name in TAB_NAMES if name not in ("Calibrate", "Sync")))
         window.tabs.setCurrentWidget(live)
         live.estimate.setChecked(False)  # switched off: the live view runs without it

@@ -15,19 +15,17 @@ from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.recording.remote import first_free_run, session_path
 from vbfe.calib.board import BoardDetector, BoardSpec
 from vbfe.calib.capture import CaptureOptions, ViewCollector
-from vbfe.common.config import load_config
 from vbfe.common.errors import SessionError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
+from vbfe.rig_config import RigConfig, builtin_rig
 
 SAMPLE = Path(__file__).parent / "data" / "opencv_stereo"
 SMALL_BENCH = {"width": 160, "height": 90, "fps": 30.0}
 
 
-def small_config() -> dict:
-    config = load_config()
-    config["bench"].update(SMALL_BENCH)
-    return config
+def small_config() -> RigConfig:
+    return builtin_rig({"bench": dict(SMALL_BENCH)})
 
 
 def test_latest_keeps_the_newest_frame_the_last_seconds_and_the_rates():
@@ -52,8 +50,7 @@ def test_latest_keeps_the_newest_frame_the_last_seconds_and_the_rates():
 
 
 def test_probe_names_the_device_that_does_not_open_with_the_cli_reason():
-    config = small_config()
-    config["camera"] = {"backend": "opencv", "device": "/dev/video99"}
+    config = small_config().updated({"camera": {"backend": "opencv", "device": "/dev/video99"}})
     rig = open_rig(config)
     problems = rig.probe()
     assert problems["trocar"] is None and problems["projector"] is None
@@ -99,11 +96,9 @@ def test_the_station_records_marks_and_stops_without_qt(tmp_path):
         f"""
         import sys, time
         from pathlib import Path
-        from vbfe.common.config import load_config
         from vbfe.console.station import SessionRequest, Station
-        config = load_config()
-        config["bench"].update({SMALL_BENCH!r})
-        station = Station(config)
+        from vbfe.rig_config import RigConfig, builtin_rig
+        station = Station(builtin_rig({{"bench": {SMALL_BENCH!r}}}))
         station.submit(station.go_live).result()
         station.submit(station.start_recording, SessionRequest(Path({str(session)!r}),
                        operator="op", notes="n", conditions={{"k": 2.0}})).result()

@@ -15,6 +15,7 @@ from vbfe.common.errors import DeviceError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.trocar.can_trocar import CanTrocar
 from vbfe.drivers.trocar.dbc import checksum, default_dbc_path, load_frame_format
+from vbfe.rig_config import builtin_rig
 
 _channels = itertools.count()
 
@@ -182,18 +183,20 @@ def test_rig_config_with_own_dbc_lacking_counter_and_checksum(tmp_path):
     )
     channel = _channel()
     trocar = open_rig(
-        {
-            "trocar": {
-                "backend": "can",
-                "interface": "virtual",
-                "channel": channel,
-                "dbc": str(own),
-                "message": "Plain",
-                "counter_signal": "",
-                "checksum_signal": "",
-                "rate_hz": 500.0,
+        builtin_rig(
+            {
+                "trocar": {
+                    "backend": "can",
+                    "interface": "virtual",
+                    "channel": channel,
+                    "dbc": str(own),
+                    "message": "Plain",
+                    "counter_signal": "",
+                    "checksum_signal": "",
+                    "rate_hz": 500.0,
+                }
             }
-        },
+        ),
         families=("trocar",),
     ).trocar
     plain = load_frame_format(own, "Plain", counter_signal=None, checksum_signal=None)

@@ -7,11 +7,11 @@ import pytest
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
-from vbfe.common.config import default_config
 from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.recon import reconstruct_session
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 CONDITIONS = [(200.0, 0.01, 1), (80.0, 0.02, 2)]  # fast pulls: force rises within a second
@@ -22,16 +22,19 @@ def sessions(tmp_path_factory):
     folder = tmp_path_factory.mktemp("recorded")
     paths = []
     for stiffness, speed, seed in CONDITIONS:
-        config = default_config()
-        config["bench"].update(
-            width=320,
-            height=180,
-            fps=8.0,
-            stiffness_n_per_m=stiffness,
-            pull_speed_m_per_s=speed,
-            rest_s=0.1,
-            hold_s=0.3,
-            seed=seed,
+        config = builtin_rig(
+            {
+                "bench": dict(
+                    width=320,
+                    height=180,
+                    fps=8.0,
+                    stiffness_n_per_m=stiffness,
+                    pull_speed_m_per_s=speed,
+                    rest_s=0.1,
+                    hold_s=0.3,
+                    seed=seed,
+                )
+            }
         )
         calibration = calibration_from_rig(true_rig(config))
         path = folder / f"pull_k{stiffness:g}.h5"

@@ -11,7 +11,6 @@ import torch
 
 from vbfe.acquire import SessionReader, record_session
 from vbfe.cli.main import main
-from vbfe.common.config import default_config
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.dataset import prepare_sessions
 from vbfe.estimate.evaluation import evaluate
@@ -25,6 +24,7 @@ from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import select, train, training_folds
 from vbfe.live.estimator import FrameEstimator
 from vbfe.recon import reconstruct_session
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 FAST = dict(
@@ -351,16 +351,19 @@ def test_ninety_percent_intervals_cover_ninety_percent_of_new_trials(tmp_path):
 def _record_trial(folder, name, seed, stiffness, speed, hold_s):
     """A traction trial on the simulated bench at 320×180, 4 fps, reconstructed; and its
     calibration."""
-    config = default_config()
-    config["bench"].update(
-        width=320,
-        height=180,
-        fps=4.0,
-        seed=seed,
-        stiffness_n_per_m=stiffness,
-        pull_speed_m_per_s=speed,
-        rest_s=0.1,
-        hold_s=hold_s,
+    config = builtin_rig(
+        {
+            "bench": dict(
+                width=320,
+                height=180,
+                fps=4.0,
+                seed=seed,
+                stiffness_n_per_m=stiffness,
+                pull_speed_m_per_s=speed,
+                rest_s=0.1,
+                hold_s=hold_s,
+            )
+        }
     )
     calibration = calibration_from_rig(true_rig(config))
     path = folder / f"{name}.h5"

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import SessionReader
-from vbfe.common.config import load_config
 from vbfe.common.mailbox import Mailbox
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
@@ -20,6 +19,7 @@ from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
 from vbfe.live.estimator import STAGES
 from vbfe.recon import Reconstructor, make_pattern
+from vbfe.rig_config import builtin_rig, load_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 
@@ -90,8 +90,7 @@ def rig(tmp_path_factory):
             f"{k} = {str(v).lower() if isinstance(v, bool) else v}\n" for k, v in bench.items()
         )
     )
-    config = load_config()
-    config["bench"].update(bench)
+    config = builtin_rig({"bench": dict(bench)})
     calib = calibration_from_rig(true_rig(config)).save(folder / "calib.yaml")
     return folder, model, calib, toml
 
@@ -313,7 +312,7 @@ def test_the_m_key_marks_the_live_recording(rig, tmp_path):
     folder, model, calib, toml = rig
     calibration = load_calibration(calib)
     estimator = FrameEstimator(load_model(model), calibration, scale=0.5)
-    run = live_run(load_config(toml), estimator, calibration, str(calib), tmp_path / "m.h5")
+    run = live_run(load_rig(toml), estimator, calibration, str(calib), tmp_path / "m.h5")
     run.start(1.5)
     window = LiveEstimateWindow(run, None)
     t_before = time.monotonic_ns()
@@ -443,8 +442,7 @@ def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
     from vbfe.live.foxglove_server import BACKLOG, FoxgloveServer
     from vbfe.messages.images import ImageCodec
 
-    config = load_config()
-    config["bench"].update(width=320, height=180, fps=10.0)
+    config = builtin_rig({"bench": dict(width=320, height=180, fps=10.0)})
     server = FoxgloveServer(0, ImageCodec("raw"))
     acquisition = Acquisition(open_rig(config, RigOptions(realtime=True)), listeners=(server,))
     acquisition.start()

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from vbfe.acquire import Acquisition
-from vbfe.common.config import load_config
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
 from vbfe.drivers.samples import StereoFrame
@@ -34,6 +33,7 @@ from vbfe.live.pipeline import Pipeline
 from vbfe.live.run import LiveRun
 from vbfe.recon import Reconstructor, make_pattern
 from vbfe.recon.maps import depth_map_m
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig
 
 WAIT_S = 10.0  # generous: only a hung thread takes this long
@@ -223,7 +223,7 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
 def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames):
     frames, calibration = bench_frames
     run = LiveRun(
-        Acquisition(open_rig(load_config(), RigOptions(realtime=False))),
+        Acquisition(open_rig(builtin_rig(), RigOptions(realtime=False))),
         FrameEstimator(_pointnet(), calibration),
         max_frame_age_s=0.25,
     )

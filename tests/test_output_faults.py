@@ -15,9 +15,9 @@ import pytest
 
 from vbfe.acquire import SessionReader, record_session, store_analysis
 from vbfe.cli.main import main
-from vbfe.common.config import load_config
 from vbfe.common.errors import OutputError
 from vbfe.common.files import atomic_path
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,8 +52,7 @@ def leftovers(folder: Path) -> list[str]:
 def session(tmp_path_factory) -> Path:
     """A 6 s bench session (320x180, 10 fps) with its calibration stored, and as cal.yaml."""
     folder = tmp_path_factory.mktemp("faults")
-    config = load_config()
-    config["bench"].update(width=320, height=180, fps=10.0, seed=3, distortion=False)
+    config = builtin_rig({"bench": dict(width=320, height=180, fps=10.0, seed=3, distortion=False)})
     calibration = calibration_from_rig(true_rig(config))
     calibration.save(folder / "cal.yaml")
     path = folder / "run.h5"

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from vbfe.common.config import load_config
 from vbfe.common.errors import ConfigError
 from vbfe.common.rig_writeback import write_back
+from vbfe.rig_config import load_rig
 
 RIG = """\
 # the lab's rig (hand-written)
@@ -36,9 +36,9 @@ def test_write_back_keeps_comments_and_a_dated_backup(tmp_path: Path) -> None:
     assert done.backup.read_text() == RIG
     for comment in ("# the lab's rig", "# keep lzf: mjpeg", "# measured with calipers"):
         assert comment in text
-    config = load_config(rig)
-    assert config["record"]["frame_time_correction_s"] == 0.037
-    assert config["live"]["model"] == str(tmp_path / "m.pt")
+    config = load_rig(rig)
+    assert config.record.frame_time_correction_s == 0.037
+    assert config.live.model == str(tmp_path / "m.pt")
     assert done.changes[0] == ("record", "frame_time_correction_s", 0.0, 0.037)
     assert "(was 0.0)" in done.text() and str(done.backup) in done.text()
     # the same values again: nothing written, no second backup

@@ -24,8 +24,8 @@ from vbfe.acquire.recording.listener import Listener
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.inspect import inspect_session
 from vbfe.cli.main import main
-from vbfe.common.config import load_config
 from vbfe.drivers.registry import open_rig
+from vbfe.rig_config import load_rig
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL_BENCH = "[bench]\nwidth = 320\nheight = 180\n"  # small and quick to render
@@ -253,10 +253,9 @@ def test_a_backlog_of_frames_does_not_outrun_the_free_space_guard(tmp_path, smal
     disk, limit = small_disk
     if limit is not None:
         pytest.skip("free space is only measurable on a real small file system")
-    config = load_config(
+    config = load_rig(
         rig(tmp_path, '[bench]\nwidth = 640\nheight = 360\n[record]\ncompression = "none"\n')
-    )
-    config["record"]["min_free_gb"] = 0.04
+    ).updated({"record": {"min_free_gb": 0.04}})
     path = disk / "backlog.h5"
     stall = _StallOnce()
     recorder = session_recorder(config, path, open_rig(config), listeners=(stall,))
@@ -350,7 +349,7 @@ def test_ctrl_c_twice_and_sigterm_stop_and_finalize(tmp_path, signals, reason):
 
 
 def test_a_second_ctrl_c_while_stopping_is_ignored_with_a_message(tmp_path, capsys):
-    config = load_config(rig(tmp_path, SMALL_BENCH))
+    config = load_rig(rig(tmp_path, SMALL_BENCH))
     path = tmp_path / "s.h5"
     recorder = session_recorder(config, path, open_rig(config))
     sent: list[int] = []

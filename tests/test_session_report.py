@@ -20,8 +20,8 @@ from vbfe.acquire import (
     store_estimates,
 )
 from vbfe.cli.main import main
-from vbfe.common.config import default_config
 from vbfe.drivers.samples import ForceSample, StereoFrame
+from vbfe.rig_config import builtin_rig
 from vbfe.session_report import SECTIONS
 from vbfe.truth import calibration_from_rig, true_rig
 
@@ -40,8 +40,7 @@ def dataset(tmp_path_factory):
     """A bench session with calibration, sync verdict, live estimates and clouds, and a
     synthetic one with a force sequence drop and a recorder gap."""
     folder = tmp_path_factory.mktemp("report")
-    config = default_config()
-    config["bench"].update(width=160, height=90, fps=15.0)
+    config = builtin_rig({"bench": dict(width=160, height=90, fps=15.0)})
     calibration = calibration_from_rig(true_rig(config))
     bench = folder / "bench.h5"
     record_session(config, bench, duration_s=2.0, calibration_yaml=calibration.to_yaml_text())

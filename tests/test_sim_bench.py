@@ -6,10 +6,10 @@ import time
 import numpy as np
 import pytest
 
-from vbfe.common.config import load_config
 from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.sim import SimBench
+from vbfe.rig_config import builtin_rig
 
 
 def small_bench(**kw) -> SimBench:
@@ -118,12 +118,12 @@ def test_render_truth_matches_the_rig():
 
 
 def test_config_builds_the_bench_and_refuses_unknown_keys():
-    config = load_config()
+    config = builtin_rig()
     rig = open_rig(config)
     assert isinstance(rig.truth, SimBench)
     assert (rig.camera.width, rig.camera.height) == (
-        config["bench"]["width"],
-        config["bench"]["height"],
+        config.tables["bench"]["width"],
+        config.tables["bench"]["height"],
     )
     assert rig.truth.duration_s() > 5.0
     assert rig.describe()["conditions"]["simulated"] is True

@@ -8,9 +8,9 @@ import h5py
 import numpy as np
 
 from vbfe.acquire import Recorder, SessionReader
-from vbfe.common.config import load_config
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
+from vbfe.rig_config import RigConfig, load_rig
 
 RIG = """
 [bench]
@@ -26,7 +26,7 @@ min_free_gb = 0.0
 """
 
 
-def _record(config: dict, path, slow_writer: bool) -> None:
+def _record(config: RigConfig, path, slow_writer: bool) -> None:
     """Record 1.2 s; ``slow_writer`` stalls the writer at every flush to shift thread timing."""
     devices = open_rig(config)
     stall = (lambda stats: time.sleep(0.15)) if slow_writer else None
@@ -60,7 +60,7 @@ def _datasets(path) -> dict[str, bytes]:
 def test_two_recordings_of_one_bench_config_are_bit_identical(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
-    config = load_config(rig)
+    config = load_rig(rig)
     first, second = tmp_path / "a.h5", tmp_path / "b.h5"
     _record(config, first, slow_writer=False)
     _record(config, second, slow_writer=True)

@@ -1,7 +1,6 @@
 """The passive sync estimate from a viscoelastic model of the whole session, its honest verdict,
 and the dataset view that flags a step in the offset between sessions."""
 
-import copy
 import csv
 
 import numpy as np
@@ -14,8 +13,8 @@ from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, SyncLimits, verify
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.acquire.sync.pullhold import METHOD as PULL_HOLD
 from vbfe.acquire.sync.viscoelastic import METHOD
-from vbfe.common.config import load_config
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import trial_duration_s
 
 
@@ -72,19 +71,22 @@ def test_a_passive_verdict_is_pass_or_fail_only_when_the_whole_interval_says_so(
 
 
 def _freehand_session(folder, seed):
-    config = load_config(None)
-    config["record"]["min_free_gb"] = 0.0
-    config["bench"].update(
-        width=320,
-        height=180,
-        fps=10.0,
-        protocol="freehand",
-        freehand_duration_s=15.0,
-        textured=True,
-        seed=seed,
+    config = builtin_rig(
+        {
+            "record": {"min_free_gb": 0.0},
+            "bench": dict(
+                width=320,
+                height=180,
+                fps=10.0,
+                protocol="freehand",
+                freehand_duration_s=15.0,
+                textured=True,
+                seed=seed,
+            ),
+        }
     )
     path = folder / f"freehand{seed}.h5"
-    record_session(copy.deepcopy(config), path, duration_s=trial_duration_s(config))
+    record_session(config, path, duration_s=trial_duration_s(config))
     return path
 
 
@@ -95,7 +97,9 @@ def test_freehand_trial_offset_is_within_2_ms_with_an_interval_that_holds_it(tmp
     path = _freehand_session(tmp_path, seed)
     with SessionReader(path) as reader:
         true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-    settings = ProtocolSettings.from_config(load_config(None))  # the exposure, as the CLI reads it
+    settings = ProtocolSettings.from_record(
+        builtin_rig().record
+    )  # the exposure, as the CLI reads it
     e = verify_sync(path, settings=settings, store=False).estimate
     assert e.method == METHOD
     assert abs(e.offset_s - true_s) <= 0.002
@@ -108,17 +112,16 @@ def test_a_pull_hold_session_is_measured_from_both_whole_records(tmp_path):
     grasp's window in the left camera alone erred by -4.3 ms, whole-frame components by -4.4 ms
     (and by 11.7 ms on seed 9); both cameras' windows: -2.2 ms.
     benchmarks/bench_sync.py --protocols --fps 10 --freehand 0 measures all 18."""
-    config = load_config(None)
-    config["record"]["min_free_gb"] = 0.0
     k, v = list(PAPER_CONDITIONS.items())[(15 - 1) // 6]  # the demo's pairing of seed and condition
-    config["bench"].update(
+    bench = dict(
         width=640, height=360, fps=10.0, stiffness_n_per_m=k, pull_speed_m_per_s=v, seed=15
     )
+    config = builtin_rig({"record": {"min_free_gb": 0.0}, "bench": bench})
     path = tmp_path / "pullhold.h5"
-    record_session(copy.deepcopy(config), path, duration_s=trial_duration_s(config))
+    record_session(config, path, duration_s=trial_duration_s(config))
     with SessionReader(path) as reader:
         true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
-    settings = ProtocolSettings.from_config(config)
+    settings = ProtocolSettings.from_record(config.record)
     e = verify_sync(path, settings=settings, store=False).estimate
     assert e.method == PULL_HOLD
     assert abs(e.offset_s - true_s) <= 0.003

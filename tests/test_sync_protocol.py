@@ -16,20 +16,29 @@ from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
-from vbfe.common.config import load_config, read_toml
+from vbfe.common.config import read_toml
 from vbfe.drivers import registry
+from vbfe.rig_config import RigConfig, builtin_rig
 
 SEEDS = [1, 2, 3]  # each protocol session records 20 s in real time; benchmarks/bench_sync.py
 # measures the offset error over more sessions
 
 
-def bench_config(seed: int, **bench: object) -> dict:
+def bench_config(seed: int, **bench: object) -> RigConfig:
     """The default rig at 320x180, 30 fps (the renderer's cheapest size for the taps)."""
-    config = load_config(None)
-    config["bench"].update(
-        {"width": 320, "height": 180, "fps": 30.0, "distortion": False, "seed": seed, **bench}
+    config = builtin_rig(
+        {
+            "bench": {
+                "width": 320,
+                "height": 180,
+                "fps": 30.0,
+                "distortion": False,
+                "seed": seed,
+                **bench,
+            },
+            "record": {"min_free_gb": 0.0},
+        }
     )
-    config["record"]["min_free_gb"] = 0.0
     return config
 
 
@@ -51,7 +60,7 @@ def test_protocol_session_measures_37_ms_and_passes_once_corrected(tmp_path, see
     path = tmp_path / "sync.h5"
     record_protocol(path, config, seed)
     truth = true_offset_s(path)
-    settings = ProtocolSettings.from_config(config)
+    settings = ProtocolSettings.from_record(config.record)
     report = verify_sync(path, settings=settings)
     p = report.protocol
     assert truth == pytest.approx(0.037)
@@ -85,7 +94,7 @@ def test_synchronised_rig_passes_directly(tmp_path, seed):
     config = bench_config(seed + 10, force_latency_ms=45.0)
     path = tmp_path / "sync.h5"
     record_protocol(path, config, seed)
-    report = verify_sync(path, settings=ProtocolSettings.from_config(config), store=False)
+    report = verify_sync(path, settings=ProtocolSettings.from_record(config.record), store=False)
     assert true_offset_s(path) == 0.0
     assert abs(report.estimate.offset_s) <= 0.001
     assert report.verdict == PASS or only_device_skips(report), report.reasons
@@ -113,7 +122,7 @@ def test_a_one_frame_latency_jump_halfway_is_reported(tmp_path, monkeypatch):
     monkeypatch.setattr(record_module, "open_rig", lagging_rig)
     path = tmp_path / "jump.h5"
     record_protocol(path, config, 7)
-    report = verify_sync(path, settings=ProtocolSettings.from_config(config), store=False)
+    report = verify_sync(path, settings=ProtocolSettings.from_record(config.record), store=False)
     drift = report.protocol.latency_drift
     assert drift.change_s == pytest.approx(1 / 30, abs=0.003)
     assert drift.ci95_s[0] > 0.02
