@@ -19,8 +19,8 @@ from benchmarks import smoke
 from vbfe.acquire import record_session
 from vbfe.batch.executors import run_tasks
 from vbfe.batch.tasks import ReconstructTask
-from vbfe.common.config import load_config
 from vbfe.recon import SgbmParams
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 
@@ -28,8 +28,7 @@ def record_sessions(folder: Path, n: int, seconds: float) -> list[str]:
     """``n`` bench sessions of ``seconds`` at 320×180, 15 fps, one seed each."""
     paths = []
     for seed in range(n):
-        config = load_config()
-        config["bench"].update(width=320, height=180, fps=15.0, seed=seed)
+        config = builtin_rig({"bench": dict(width=320, height=180, fps=15.0, seed=seed)})
         calibration = calibration_from_rig(true_rig(config))
         path = folder / f"s{seed}.h5"
         record_session(

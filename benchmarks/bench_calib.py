@@ -44,10 +44,10 @@ from vbfe.calib.gates import GateLimits
 from vbfe.calib.projector import calibrate_projector, load_captures
 from vbfe.calib.stereo import StereoOptions, calibrate_stereo
 from vbfe.calib.views import ViewSet
-from vbfe.common.config import load_config
 from vbfe.drivers.sim.board_scene import DISTANCE_M
 from vbfe.drivers.sim.charuco_scene import random_board_poses, render_board_views
 from vbfe.drivers.sim.rig import StereoRig, default_rig
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import board_config, calibration_from_rig
 
 
@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> None:
         size = (rig.projector.width, rig.projector.height)
         for seed in range(args.seeds):
             start = time.perf_counter()
-            config = board_config(load_config(None), on_a_stand=True, fps=10.0, seed=200 + seed)
+            config = board_config(builtin_rig(), on_a_stand=True, fps=10.0, seed=200 + seed)
             with tempfile.TemporaryDirectory() as folder:
                 projector_capture(config, folder, args.poses)
                 captures = load_captures(folder)

@@ -28,13 +28,11 @@ sys.path[:0] = [str(Path(__file__).parent), str(Path(__file__).parent.parent)]  
 from bench_live import busy_processes, rendered_frames, replay_rig, untrained_model  # noqa: E402
 
 from benchmarks import smoke  # noqa: E402
-from vbfe.common.config import load_config, section  # noqa: E402
 from vbfe.console.station import SessionRequest, Station  # noqa: E402
 from vbfe.console.window import ConsoleOptions, ConsoleWindow  # noqa: E402
 from vbfe.drivers.qt_app import dispose_widget, qt_application  # noqa: E402
 from vbfe.live.run import use_threads  # noqa: E402
-from vbfe.live.settings import live_settings  # noqa: E402
-from vbfe.recon import SgbmParams  # noqa: E402
+from vbfe.rig_config import RigConfig, builtin_rig  # noqa: E402
 from vbfe.truth import calibration_from_rig, true_rig  # noqa: E402
 
 PROBE_MS = 10
@@ -58,18 +56,18 @@ def probe_latency(seconds: float, until=None) -> np.ndarray:
     return np.maximum(np.diff(ticks) * 1e3 - PROBE_MS, 0.0)
 
 
-def console_run(config: dict, frames: list[np.ndarray], seconds: float, folder: Path) -> dict:
+def console_run(config: RigConfig, frames: list[np.ndarray], seconds: float, folder: Path) -> dict:
     """Record ``seconds`` with the live estimate in the console; the probe's latencies and
     what the recording and the estimate achieved."""
     from vbfe.live.estimator import FrameEstimator
 
-    settings = live_settings(section(config, "live"))
+    settings = config.live
     use_threads(settings)
     calibration = calibration_from_rig(true_rig(config))
     estimator = FrameEstimator(
         untrained_model([32, 64, 256]),
         calibration,
-        SgbmParams.from_config(section(config, "sgbm")),
+        config.sgbm,
         scale=settings.scale,
         row_scale=settings.row_scale,
         depth_margin_mm=settings.depth_margin_mm,
@@ -109,8 +107,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--background-load", type=int, default=0, metavar="N")
     args = smoke.parse(parser, argv, seconds=1.0, background_load=0)
-    config = load_config()
-    config["bench"].update(width=640, height=360, fps=FPS)
+    config = builtin_rig({"bench": dict(width=640, height=360, fps=FPS)})
     frames = rendered_frames(config, 60)
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; console recording "

@@ -177,17 +177,16 @@ def training_throughput(
 def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: int) -> list[Path]:
     """Record and reconstruct simulated-bench sessions for every stiffness × speed condition."""
     from vbfe.acquire import record_session
-    from vbfe.common.config import default_config
     from vbfe.drivers.sim import SimBench
     from vbfe.recon import reconstruct_session
+    from vbfe.rig_config import builtin_rig
     from vbfe.truth import calibration_from_rig
 
     paths = []
     for k in STIFFNESSES_N_PER_M:
         for v in SPEEDS_M_PER_S:
             for r in range(repeats):
-                config = default_config()
-                config["bench"].update(
+                trial = dict(
                     width=width,
                     height=height,
                     fps=fps,
@@ -195,7 +194,8 @@ def record_sim_bench(out: Path, repeats: int, fps: float, width: int, height: in
                     stiffness_n_per_m=k,
                     pull_speed_m_per_s=v,
                 )
-                bench = SimBench.from_config(config["bench"])
+                config = builtin_rig({"bench": trial})
+                bench = SimBench.from_config(config.tables["bench"])
                 duration_s = 3.0 / (k * v) + bench.describe()["hold_s"] + 1.0
                 path = out / f"sim_k{k:g}_v{v:g}_r{r}.h5"
                 if not path.with_name(path.stem + ".clouds.h5").exists():

@@ -33,8 +33,8 @@ from mcap_ros2.decoder import DecoderFactory
 from benchmarks import smoke
 from vbfe.acquire import SessionReader, record_session
 from vbfe.bags.export import export_mcap
-from vbfe.common.config import load_config
 from vbfe.messages.images import image_codec
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 
@@ -244,8 +244,7 @@ def main(argv: list[str] | None = None) -> None:
     args = smoke.parse(parser, argv, seconds=0.5, width=320, height=180, repeats=1, every=4)
     with tempfile.TemporaryDirectory() as tmp:
         session = Path(tmp) / "session.h5"
-        config = load_config()
-        config["bench"].update(width=args.width, height=args.height)
+        config = builtin_rig({"bench": dict(width=args.width, height=args.height)})
         start = time.perf_counter()
         record_session(
             config,

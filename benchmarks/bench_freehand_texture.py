@@ -22,7 +22,6 @@ a change of the measures: they are kept beside each session).
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import tempfile
 import time
@@ -39,8 +38,7 @@ from vbfe.estimate.preparation import FramePreparer
 from vbfe.estimate.sources import open_source
 from vbfe.estimate.texture_motion import TextureMotion
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.recon import CloudReader, SgbmParams, reconstruct_session
-from vbfe.recon.quality import ReconSettings
+from vbfe.recon import CloudReader, reconstruct_session
 from vbfe.truth import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
 
@@ -49,20 +47,19 @@ def record(folder: Path, trials: list[int], plan: DemoPlan) -> None:
     """Record and reconstruct the textured freehand trials not yet in ``folder``."""
     config = demo_config(plan)
     yaml_text = calibration_from_rig(true_rig(config)).to_yaml_text()
-    params = SgbmParams.from_config(config["sgbm"])
-    settings = ReconSettings.from_config(config.get("recon", {}))
+    params, settings = config.sgbm, config.recon
     folder.mkdir(parents=True, exist_ok=True)
     for r in trials:
         path = folder / f"{FREEHAND}_r{r}.h5"
         if path.with_name(path.stem + ".clouds.h5").exists():
             continue
-        trial = copy.deepcopy(config)
-        trial["bench"].update(
+        bench = dict(
             protocol=FREEHAND,
             freehand_duration_s=plan.freehand_s,
             seed=FREEHAND_FIRST_SEED + r,
             textured=True,
         )
+        trial = config.updated({"bench": bench})
         path.unlink(missing_ok=True)
         record_session(
             trial,

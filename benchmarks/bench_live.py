@@ -54,7 +54,6 @@ from tests.foxglove_client import FoxgloveClient
 from vbfe.acquire import Acquisition, SessionReader
 from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.session.extra_streams import marks_stream
-from vbfe.common.config import load_config, section
 from vbfe.drivers.camera.opencv import OpenCVStereoCamera
 from vbfe.drivers.pacing import sleep_until
 from vbfe.drivers.projector.pattern import make_pattern
@@ -69,8 +68,7 @@ from vbfe.estimate.train_config import TrainConfig
 from vbfe.live.estimator import STAGES, FrameEstimator
 from vbfe.live.foxglove_server import LIVE_IMAGES, FoxgloveServer
 from vbfe.live.run import LiveRun, run_headless, use_threads
-from vbfe.live.settings import live_settings
-from vbfe.recon import SgbmParams
+from vbfe.rig_config import RigConfig, builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 SIZES = ((640, 360), (1280, 720))
@@ -117,14 +115,14 @@ class ReplayCapture:
         pass
 
 
-def rendered_frames(config: dict, n: int) -> list[np.ndarray]:
+def rendered_frames(config: RigConfig, n: int) -> list[np.ndarray]:
     """``n`` side-by-side frames of the bench's trial, rendered as fast as the bench can."""
     with open_rig(config, RigOptions(realtime=False), ("camera",)) as rig:
         frames = [rig.camera.read(5.0) for _ in range(n)]
     return [np.hstack([f.left, f.right]) for f in frames]
 
 
-def replay_rig(config: dict, frames: list[np.ndarray]) -> Rig:
+def replay_rig(config: RigConfig, frames: list[np.ndarray]) -> Rig:
     """The bench's trocar and projector with a replaying endoscope in place of its camera."""
     rig = open_rig(config, RigOptions(realtime=True))
     height, width = frames[0].shape[0], frames[0].shape[1] // 2
@@ -201,7 +199,7 @@ def watching(server: FoxgloveServer) -> Iterator[dict[str, int]]:
 
 
 def measure(
-    config: dict,
+    config: RigConfig,
     frames: list[np.ndarray] | None,
     seconds: float,
     scale: float,
@@ -223,7 +221,7 @@ def measure(
     estimator = FrameEstimator(
         model,
         calibration,
-        SgbmParams.from_config(section(config, "sgbm")),
+        config.sgbm,
         scale=scale,
         row_scale=row_scale,
         depth_margin_mm=depth_margin_mm,
@@ -238,7 +236,7 @@ def measure(
         acquisition,
         estimator,
         outputs=(server,) if server is not None else (),
-        max_frame_age_s=live_settings(section(config, "live")).max_frame_age_s,
+        max_frame_age_s=config.live.max_frame_age_s,
     )
     run.start()
     with watching(server) if server is not None else nullcontext({}) as viewer:
@@ -347,7 +345,7 @@ def main(argv: list[str] | None = None) -> None:
         help="default: [live] opencv_threads (0: one per core)",
     )
     args = smoke.parse(parser, argv, seconds=4.0, sizes="320x180", repeats=1)
-    settings = live_settings(section(load_config(), "live"))
+    settings = builtin_rig().live
     args.scale = args.scale or settings.scale
     args.row_scale = args.row_scale or settings.row_scale
     if args.depth_margin_mm is None:
@@ -357,7 +355,7 @@ def main(argv: list[str] | None = None) -> None:
     use_threads(settings)
     channels = [64, 128, 1024] if args.paper_network else [32, 64, 256]
     sizes = [tuple(int(v) for v in size.split("x")) for size in args.sizes.split(",")]
-    compression = args.compression or section(load_config(), "record")["compression"]
+    compression = args.compression or builtin_rig().record.compression
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
         + (
@@ -389,11 +387,10 @@ def main(argv: list[str] | None = None) -> None:
     loads = [0] + ([args.background_load] if args.background_load else [])
     with tempfile.TemporaryDirectory() as folder:
         for width, height in sizes:
-            config = load_config()
-            config["bench"].update(width=width, height=height, fps=FPS)
+            bench = dict(width=width, height=height, fps=FPS)
             if args.model == "hooke_texture":
-                config["bench"]["textured"] = True
-            config["record"]["compression"] = compression
+                bench["textured"] = True
+            config = builtin_rig({"bench": bench, "record": {"compression": compression}})
             frames = None if args.render_live else rendered_frames(config, REPLAY_FRAMES)
             foxglove = [False, True] * args.repeats if args.foxglove else [False]
             for record in [False] + ([True] if args.record else []):

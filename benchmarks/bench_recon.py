@@ -19,14 +19,13 @@ import cv2
 import numpy as np
 
 from benchmarks import smoke
-from vbfe.common.config import default_config, section
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
-from vbfe.recon import Reconstructor, SgbmParams, kernels, make_pattern
+from vbfe.recon import Reconstructor, kernels, make_pattern
 from vbfe.recon.matching import sgbm_disparity
-from vbfe.recon.quality import ReconSettings
 from vbfe.recon.verify import coded_grid, verify_disparity
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, evaluate_against_truth
 
 WORKING_DISTANCE_M = 0.06
@@ -105,8 +104,7 @@ def bench_size(width: int, height: int, repeats: int) -> None:
         rig, surface, make_pattern(rig.projector.width, rig.projector.height), rng=rng
     )
     calibration = calibration_from_rig(rig)
-    params = SgbmParams.from_config(section(default_config(), "sgbm"))
-    settings = ReconSettings.from_config(section(default_config(), "recon"))
+    params, settings = builtin_rig().sgbm, builtin_rig().recon
     verified = Reconstructor(calibration, params, verify=True, settings=settings)
     bare = Reconstructor(calibration, params, verify=False, settings=settings)
     matcher = verified.params.create(3)  # the same (derived) disparity range

@@ -21,7 +21,6 @@ Recordings are kept in ``--sessions`` and reused. Run:
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -32,8 +31,7 @@ from vbfe.acquire import record_session
 from vbfe.calib import load_calibration
 from vbfe.demo import FREEHAND, DemoPlan, demo_config, run_demo
 from vbfe.estimate.evaluation import evaluate
-from vbfe.recon import SgbmParams, reconstruct_session
-from vbfe.recon.quality import ReconSettings
+from vbfe.recon import reconstruct_session
 from vbfe.truth import trial_duration_s
 
 FIRST_SEED = 201
@@ -65,14 +63,12 @@ def record(
     path = folder / f"{name}.h5"
     if path.with_name(path.stem + ".clouds.h5").exists():
         return path
-    config = demo_config(DemoPlan.quick())
-    config["bench"].update(
-        protocol=FREEHAND, freehand_duration_s=seconds, seed=seed, textured=True, **knobs
-    )
+    trial = dict(protocol=FREEHAND, freehand_duration_s=seconds, seed=seed, textured=True)
+    config = demo_config(DemoPlan.quick()).updated({"bench": {**trial, **knobs}})
     folder.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
     record_session(
-        copy.deepcopy(config),
+        config,
         path,
         duration_s=trial_duration_s(config),
         operator="bench",
@@ -82,8 +78,8 @@ def record(
     reconstruct_session(
         path,
         workers=1,
-        sgbm_params=SgbmParams.from_config(config["sgbm"]),
-        settings=ReconSettings.from_config(config.get("recon", {})),
+        sgbm_params=config.sgbm,
+        settings=config.recon,
     )
     print(f"recorded {path.name}", flush=True)
     return path

@@ -29,7 +29,7 @@ import pylsl
 from benchmarks import smoke
 from tests.fakes.lsl_outlets import FakeRobot, MarkerOutlet, unique
 from vbfe.acquire import SessionReader
-from vbfe.common.config import load_config
+from vbfe.rig_config import builtin_rig
 
 BENCH = {"width": 320, "height": 180, "fps": 10.0, "distortion": False, "realtime": True, "seed": 3}
 
@@ -110,8 +110,7 @@ def _model(folder: Path) -> tuple[Path, Path]:
             threads=1,
         ),
     )
-    config = load_config()
-    config["bench"].update(BENCH)
+    config = builtin_rig({"bench": dict(BENCH)})
     return model, calibration_from_rig(true_rig(config)).save(folder / "calib.yaml")
 
 

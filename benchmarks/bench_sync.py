@@ -27,7 +27,6 @@ session's frames once.
 from __future__ import annotations
 
 import argparse
-import copy
 import tempfile
 import time
 from pathlib import Path
@@ -39,9 +38,9 @@ from vbfe.acquire import SessionReader, record_session
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.sync.check import verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
-from vbfe.common.config import load_config
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import trial_duration_s
 
 
@@ -55,12 +54,15 @@ def _read_time(path: Path) -> float:
 
 def protocol_sweep(events: list[int], seeds: int) -> None:
     """Error and 95% half-width of the tap offset and flash latency against the event count."""
-    config = load_config(None)
-    config["bench"].update(width=320, height=180, fps=30.0, distortion=False)
-    config["record"]["min_free_gb"] = 0.0
-    settings = ProtocolSettings.from_config(config)
+    config = builtin_rig(
+        {
+            "bench": dict(width=320, height=180, fps=30.0, distortion=False),
+            "record": {"min_free_gb": 0.0},
+        }
+    )
+    settings = ProtocolSettings.from_record(config.record)
     true_latency = 1e-3 * (
-        config["bench"]["image_latency_ms"] + config["bench"]["projector_latency_ms"]
+        config.tables["bench"]["image_latency_ms"] + config.tables["bench"]["projector_latency_ms"]
     )
     print(
         f"{'events':>6} {'|offset error| mean/max (ms)':>29} {'half-width (ms)':>16} "
@@ -71,8 +73,7 @@ def protocol_sweep(events: list[int], seeds: int) -> None:
         for n in events:
             rows = []
             for seed in range(1, seeds + 1):
-                run = copy.deepcopy(config)
-                run["bench"]["seed"] = 100 * n + seed
+                run = config.updated({"bench": {"seed": 100 * n + seed}})
                 path = Path(folder) / f"n{n}_s{seed}.h5"
                 record_session(
                     run,
@@ -111,24 +112,29 @@ def protocol_sweep(events: list[int], seeds: int) -> None:
 
 def passive(args: argparse.Namespace) -> None:
     """The passive estimate on traction sessions over the paper's conditions."""
-    config = load_config(None)
-    config["bench"].update(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold)
-    config["record"]["min_free_gb"] = 0.0
+    config = builtin_rig(
+        {
+            "bench": dict(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold),
+            "record": {"min_free_gb": 0.0},
+        }
+    )
     errors, covered, drift_errors = [], [], []
     with tempfile.TemporaryDirectory() as folder:
         for n, (stiffness, speed) in enumerate(
             [(k, v) for k, v in PAPER_CONDITIONS.items() for _ in range(args.seeds)]
         ):
-            run = copy.deepcopy(config)
-            run["bench"].update(stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed, seed=n + 1)
-            bench = SimBench.from_config(run["bench"])
+            trial = dict(stiffness_n_per_m=stiffness, pull_speed_m_per_s=speed, seed=n + 1)
+            run = config.updated({"bench": trial})
+            bench = SimBench.from_config(run.tables["bench"])
             path = Path(folder) / f"s{n}.h5"
             record_session(run, path, duration_s=bench.duration_s())
             with SessionReader(path) as reader:
                 true_s = float(np.median(reader.truth("image_minus_force_host_offset_ns"))) / 1e9
             read_s = _read_time(path)
             start = time.perf_counter()
-            report = verify_sync(path, settings=ProtocolSettings.from_config(run), store=False)
+            report = verify_sync(
+                path, settings=ProtocolSettings.from_record(run.record), store=False
+            )
             verify_s = time.perf_counter() - start
             e = report.estimate
             errors.append(e.offset_s - true_s)
@@ -178,9 +184,12 @@ def _passive_row(path: Path, settings: ProtocolSettings) -> tuple[float, float, 
 def protocols(args: argparse.Namespace) -> None:
     """Per protocol (freehand trials, the paper's pull-hold sessions), the passive offset's
     error, 95% half-width and coverage, as the demo records them (textured freehand trials)."""
-    config = load_config(None)
-    config["bench"].update(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold)
-    config["record"]["min_free_gb"] = 0.0
+    config = builtin_rig(
+        {
+            "bench": dict(width=args.width, height=args.height, fps=args.fps, hold_s=args.hold),
+            "record": {"min_free_gb": 0.0},
+        }
+    )
     runs = {
         "freehand": [
             {
@@ -206,12 +215,11 @@ def protocols(args: argparse.Namespace) -> None:
         for name, benches in runs.items():
             rows, times = [], []
             for i, bench in enumerate(benches):
-                run = copy.deepcopy(config)
-                run["bench"].update(bench)
+                run = config.updated({"bench": bench})
                 path = Path(folder) / f"{name}{i}.h5"
                 record_session(run, path, duration_s=trial_duration_s(run))
                 start = time.perf_counter()
-                rows.append(_passive_row(path, ProtocolSettings.from_config(run)))
+                rows.append(_passive_row(path, ProtocolSettings.from_record(run.record)))
                 times.append(time.perf_counter() - start)
                 err, half, covers, method = rows[-1]
                 print(

@@ -21,22 +21,20 @@ import numpy as np
 from benchmarks import smoke
 from benchmarks.bench_live import rendered_frames
 from tests.texture_reference import reference_peak
-from vbfe.common.config import load_config, section
 from vbfe.estimate.texture_motion import TextureMotion
-from vbfe.live.settings import live_settings
-from vbfe.recon import Reconstructor, SgbmParams
+from vbfe.recon import Reconstructor
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 
 def live_clouds(size: tuple[int, int], n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(points, colours) of ``n`` textured bench frames reconstructed as ``vbfe live`` does."""
-    config = load_config()
-    config["bench"].update(width=size[0], height=size[1], textured=True)
-    settings = live_settings(section(config, "live"))
+    config = builtin_rig({"bench": dict(width=size[0], height=size[1], textured=True)})
+    settings = config.live
     calibration = calibration_from_rig(true_rig(config)).scaled(
         settings.scale, settings.scale * settings.row_scale
     )
-    reconstructor = Reconstructor(calibration, SgbmParams.from_config(section(config, "sgbm")))
+    reconstructor = Reconstructor(calibration, config.sgbm)
     clouds = []
     for frame in rendered_frames(config, n):
         left, right = np.hsplit(frame, 2)

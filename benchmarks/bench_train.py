@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from vbfe.common.config import load_config, section
 from vbfe.demo import DemoPlan
 from vbfe.estimate.dataset import FrameBatches, prepare_sessions
 from vbfe.estimate.evaluation import evaluate
@@ -37,6 +36,7 @@ from vbfe.estimate.stage_times import cpu_seconds
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import make_split, train, use_threads
+from vbfe.rig_config import load_rig
 
 
 def load() -> str:
@@ -119,7 +119,7 @@ def main() -> None:
     for part in ("train", "val", "test"):
         parser.add_argument(f"--{part}", metavar="START:STOP", help=f"{part} frames (time split)")
     args = parser.parse_args()
-    table = section(load_config(args.config), "train") if args.config else {}
+    table = load_rig(args.config).tables["train"] if args.config else {}
     overrides: dict[str, Any] = {}
     for part in ("train", "val", "test"):
         text = getattr(args, part)

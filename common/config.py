@@ -68,17 +68,3 @@ def over_defaults(user: dict[str, Any], where: str = "rig config") -> dict[str, 
         )
     log.info("%s read: tables %s", where, ", ".join(sorted(user)))
     return merge_tables(config, user)
-
-
-def load_config(path: str | Path | None = None) -> dict[str, dict[str, Any]]:
-    """Load a rig TOML file over the defaults; ``None`` gives the defaults (simulated bench)."""
-    if path is None:
-        return default_config()
-    return over_defaults(read_toml(path, "rig config"), f"rig config {path}")
-
-
-def section(config: dict[str, dict[str, Any]], name: str) -> dict[str, Any]:
-    """One table of the configuration, as a fresh dict (callers may pop from it)."""
-    if name not in config:
-        raise ConfigError(f"rig config has no [{name}] table")
-    return copy.deepcopy(config[name])

@@ -131,10 +131,10 @@ def test_images_of_another_size_are_a_clear_error(scene):
 
 
 def test_sgbm_settings_come_from_the_rig_table():
-    from vbfe.common.config import default_config, section
     from vbfe.common.errors import ConfigError
+    from vbfe.rig_config import builtin_rig
 
-    params = SgbmParams.from_config(section(default_config(), "sgbm"))
+    params = builtin_rig().sgbm
     assert params.num_disparities % 16 == 0 and params.block_size % 2 == 1
     with pytest.raises(ReconError, match="num_disparities"):
         SgbmParams.from_config({"num_disparities": 100})
