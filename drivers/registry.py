@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+from dataclasses import dataclass
 from typing import Any, Protocol
 
-from vbfe.common.errors import DeviceError
+from vbfe.common.errors import DeviceError, VbfeError
 from vbfe.common.settings import parse_kwargs
 from vbfe.drivers.rig import Rig, RigOptions, SharedBackend
 from vbfe.drivers.streams.opening import streams_from_config
+from vbfe.drivers.streams.settings import stream_sources
 
 BACKENDS: dict[str, dict[str, str]] = {
     "camera": {
@@ -119,3 +121,46 @@ def open_rig(
     # first device opens, and its trocar would deliver that second as a backlog
     rig.devices = {**streams, **rig.devices}
     return rig
+
+
+@dataclass(frozen=True)
+class ConfiguredDevice:
+    """A device the rig configuration names: ``name`` (a device family or a ``[streams]``
+    key), its ``backend`` and its settings on one line (``key=value``)."""
+
+    name: str
+    backend: str
+    settings: str
+
+
+def configured_devices(rig_config: DeviceTables) -> list[ConfiguredDevice]:
+    """The rig's devices as its configuration names them: camera, trocar, projector, then each
+    ``[streams]`` entry (a bad table: ConfigError naming it)."""
+    tables = rig_config.tables
+    out = []
+    for family in FAMILIES:
+        options = dict(tables.get(family, {}))
+        backend = str(options.pop("backend", DEFAULT_BACKEND))
+        text = ", ".join(f"{k}={v}" for k, v in options.items())
+        out.append(ConfiguredDevice(family, backend, text or "backend defaults"))
+    for s in stream_sources(tables):
+        required = "required" if s.required else "optional"
+        out.append(ConfiguredDevice(s.key, s.backend, f"{s.predicate()} ({required})"))
+    return out
+
+
+def check_open(rig_config: DeviceTables, name: str) -> str | None:
+    """Open and close the device ``name`` (a family or a ``[streams]`` key) on its own through
+    its driver: ``None`` when it opens, else the one-line reason (a bad table included)."""
+    try:
+        if name in FAMILIES:
+            rig = open_rig(rig_config, families=(name,))
+        else:
+            streams = streams_from_config(rig_config.tables)
+            if name not in streams:
+                raise DeviceError(f"the rig has no device {name!r}")
+            rig = Rig(others={name: streams[name]})
+    except VbfeError as exc:
+        return " ".join(str(exc).split())
+    # an optional stream that is not found opens, unread: its warning is the reason
+    return rig.probe()[name] or getattr(rig.devices[name], "missing", None) or None

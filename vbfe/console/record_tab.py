@@ -1,6 +1,8 @@
 """Record tab: the session's file name (a LabRecorder template with a running number; an
-existing file is refused, never overwritten), operator, notes, conditions; Start/Stop, a marker
-button (and the M key); elapsed time, MB/s, free disk, drops; remote control while it runs."""
+existing file is refused, never overwritten), operator, notes, conditions; the streams a
+recording holds (from the rig configuration) with their records while it runs; Start/Stop, a
+marker button (and the M key); elapsed time, MB/s, free disk, drops; remote control while it
+runs."""
 
 from __future__ import annotations
 
@@ -18,6 +20,8 @@ from vbfe.acquire.recording.remote import (
     session_path,
 )
 from vbfe.acquire.recording.storage import free_bytes
+from vbfe.acquire.session.estimates import GROUP as ESTIMATE
+from vbfe.acquire.session.extra_streams import MARKS
 from vbfe.common.errors import SessionError, VbfeError
 from vbfe.common.files import error_line, stale_locks
 from vbfe.common.settings import parse_conditions
@@ -28,6 +32,7 @@ if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 DEFAULT_TEMPLATE = "%p_%b_run-%n.h5"
+STREAM_COLUMNS = ("stream", "records", "from")
 
 
 def make_session_folder(root: Path, path: Path) -> Path | None:
@@ -97,6 +102,13 @@ class RecordTab(Tab):
                 ]
             )
         )
+        self.streams = QtWidgets.QTableWidget(0, len(STREAM_COLUMNS))
+        self.streams.setHorizontalHeaderLabels(STREAM_COLUMNS)
+        self.streams.horizontalHeader().setStretchLastSection(True)
+        self.streams.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.streams.verticalHeader().hide()
+        layout.addWidget(QtWidgets.QLabel("streams recorded (from the rig configuration)"))
+        layout.addWidget(self.streams, 1)
         buttons = QtWidgets.QHBoxLayout()
         self.start_button = QtWidgets.QPushButton("Start")
         self.stop_button = QtWidgets.QPushButton("Stop")
@@ -121,7 +133,6 @@ class RecordTab(Tab):
         self.stale.setStyleSheet("color: #c00000")
         layout.addWidget(self.stale)
         self.root.editingFinished.connect(self.check_stale)
-        layout.addStretch(1)
         self.remote: RemoteControl | None = None
         self.remote_sessions: RemoteSessions | None = None
         # the form as remote control's recordings take it (read by its threads, which must
@@ -249,6 +260,7 @@ class RecordTab(Tab):
             self.next_file.setText(str(self.next_path()))
         except VbfeError as exc:
             self.next_file.setText(str(exc))
+        self.show_streams(recording is not None)
         stats = self.station.stats()
         if self.stopping:
             self.numbers.setText(f"stopping: finalizing {recording or 'the session'}…")
@@ -272,6 +284,28 @@ class RecordTab(Tab):
             f"{free:.1f} GB | dropped {sum(stats.dropped.values())} | "
             f"markers {self.station.marks}"
         )
+
+    def show_streams(self, recording: bool) -> None:
+        """The streams a recording holds; their records so far while one runs."""
+        station = self.station
+        status = station.live_status()
+        counts = {MARKS: station.marks, ESTIMATE: status.estimates if status else 0}
+        rows = [
+            (
+                p.name,
+                str(counts.get(p.name, station.latest.view(p.name).count)) if recording else "-",
+                p.source,
+            )
+            for p in station.planned_streams()
+        ]
+        self.streams.setRowCount(len(rows))
+        for r, row in enumerate(rows):
+            for c, text in enumerate(row):
+                item = self.streams.item(r, c)
+                if item is None:
+                    self.streams.setItem(r, c, QtWidgets.QTableWidgetItem(text))
+                elif item.text() != text:
+                    item.setText(text)
 
     def on_finished(self, finished: Finished) -> None:
         self.stopping = False

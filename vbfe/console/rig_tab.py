@@ -1,23 +1,28 @@
-"""Rig tab: every device of the rig with its state, rate, drops and clock offset, live; a
-device that failed to open with the one-line reason; the simulated bench named as such; the
-rig file the window keeps what the operator settles in (saved here as a new file)."""
+"""Rig tab: the devices the rig configuration names, each with a "Test open" that opens it
+through its driver and says OK or the one-line reason; every device of the running rig with
+its state, rate, drops and clock offset, live; a device that failed to open with the one-line
+reason; the simulated bench named as such; the rig file the window keeps what the operator
+settles in (saved here as a new file)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pyqtgraph.Qt import QtWidgets
+from pyqtgraph.Qt import QtGui, QtWidgets
 
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import error_line
 from vbfe.console.desks import save_rig_file
 from vbfe.console.widgets import Tab, value_label, with_picker
+from vbfe.drivers.registry import FAMILIES, configured_devices
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
 COLUMNS = ("device", "kind", "state", "rate", "records", "dropped", "clock offset")
+CONFIGURED = ("device", "backend", "settings", "", "test result")
+OPENS = "OK: opens and closes"
 
 
 class RigTab(Tab):
@@ -41,6 +46,16 @@ class RigTab(Tab):
         layout.addLayout(file_row)
         self.file_state = value_label()
         layout.addWidget(self.file_state)
+        layout.addWidget(QtWidgets.QLabel("devices of the rig configuration"))
+        self.devices = QtWidgets.QTableWidget(0, len(CONFIGURED))
+        self.devices.setHorizontalHeaderLabels(CONFIGURED)
+        self.devices.horizontalHeader().setStretchLastSection(True)
+        self.devices.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        layout.addWidget(self.devices, 1)
+        self.test_buttons: dict[str, QtWidgets.QPushButton] = {}
+        self.test_results: dict[str, str] = {}  # device -> OPENS or why it does not open
+        self._listed: object = None  # the device tables the list shows
+        layout.addWidget(QtWidgets.QLabel("the running rig"))
         self.table = QtWidgets.QTableWidget(0, len(COLUMNS))
         self.table.setHorizontalHeaderLabels(COLUMNS)
         self.table.horizontalHeader().setStretchLastSection(True)
@@ -67,6 +82,58 @@ class RigTab(Tab):
             return
         self.console.use_rig_file(path)
         self.console.message(f"saved the rig file {path}")
+
+    def list_devices(self) -> None:
+        """One row per device of the rig configuration, with its Test open button."""
+        config = self.station.config
+        self._listed = self._device_tables()
+        try:
+            devices = configured_devices(config)
+        except VbfeError as exc:
+            self.console.message(f"rig configuration: {error_line(exc)}", True)
+            devices = []
+        self.devices.setRowCount(len(devices))
+        self.test_buttons, self.test_results = {}, {}
+        for r, device in enumerate(devices):
+            for c, text in enumerate((device.name, device.backend, device.settings)):
+                self.devices.setItem(r, c, QtWidgets.QTableWidgetItem(text))
+            button = QtWidgets.QPushButton("Test open")
+            button.clicked.connect(lambda _=False, name=device.name: self.test_open(name))
+            self.devices.setCellWidget(r, 3, button)
+            self.devices.setItem(r, 4, QtWidgets.QTableWidgetItem("-"))
+            self.test_buttons[device.name] = button
+        self.devices.resizeColumnsToContents()
+
+    def _device_tables(self) -> object:
+        tables = self.station.config.tables
+        return [tables.get(name) for name in (*FAMILIES, "streams")]
+
+    def test_open(self, name: str) -> None:
+        """Open and close ``name`` through its driver on the rig's thread; say OK or why not."""
+        button = self.test_buttons[name]
+        button.setEnabled(False)
+        self._show_result(name, "opening…")
+
+        def done(problem: str | None) -> None:
+            button.setEnabled(True)
+            self.test_results[name] = OPENS if problem is None else problem
+            self._show_result(name, self.test_results[name])
+
+        def failed() -> None:
+            button.setEnabled(True)
+            self._show_result(name, "not tested: see the message below")
+
+        self.console.rig_op(
+            self.station.test_open, name, on_done=done, what=f"test {name}", on_error=failed
+        )
+
+    def _show_result(self, name: str, text: str) -> None:
+        row = list(self.test_buttons).index(name)
+        item = QtWidgets.QTableWidgetItem(text)
+        item.setToolTip(text)
+        if text not in (OPENS, "opening…"):
+            item.setForeground(QtGui.QColor("#c00000"))
+        self.devices.setItem(row, 4, item)
 
     def open_rig(self) -> None:
         """Start the live view (again)."""
@@ -107,6 +174,8 @@ class RigTab(Tab):
 
     def refresh(self) -> None:
         config = self.station.config
+        if self._device_tables() != self._listed:
+            self.list_devices()
         simulated = [
             name
             for name in ("camera", "trocar", "projector")

@@ -27,12 +27,14 @@ from vbfe.acquire.recording.record import (
 )
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.sync_session import SyncProtocol
-from vbfe.acquire.session.extra_streams import marks_stream
+from vbfe.acquire.session.estimates import GROUP as ESTIMATE
+from vbfe.acquire.session.extra_streams import MARKS, marks_stream
+from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
 from vbfe.calib.calibration import Calibration, load_calibration
 from vbfe.calib.commands import board_scene
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
-from vbfe.drivers.registry import open_rig
+from vbfe.drivers.registry import check_open, configured_devices, open_rig
 from vbfe.drivers.rig import Rig, RigOptions
 from vbfe.rig_config import RigConfig
 
@@ -52,6 +54,23 @@ class SessionRequest:
     duration_s: float | None = None
     participant: str = ""
     task: str = ""
+
+
+@dataclass(frozen=True)
+class PlannedStream:
+    """A stream a recording started now holds: its session name and where it comes from."""
+
+    name: str
+    source: str
+
+
+def _camera_mode(tables: dict[str, dict[str, Any]]) -> str:
+    """The camera's mode as the rig configuration sets it (the bench's for a simulated one)."""
+    table = tables["bench"] if tables["camera"].get("backend") == "sim" else tables["camera"]
+    if "width" not in table:
+        return "the camera's default mode"
+    fps = f" at {float(table['fps']):g} fps" if "fps" in table else ""
+    return f"{table['width']}x{table['height']} per eye{fps}"
 
 
 @dataclass(frozen=True)
@@ -135,6 +154,24 @@ class Station:
         """The running acquisition's statistics (updated by its thread), if one runs."""
         acquisition = self.acquisition
         return None if acquisition is None else acquisition.stats
+
+    def planned_streams(self) -> list[PlannedStream]:
+        """What a recording started now holds, from the rig configuration: the camera's
+        frames, the trocar's force, the projector's commands, each ``[streams]`` entry, the
+        operator's markers and, with a model loaded and on, the live estimate."""
+        what = {
+            "camera": (CAMERA, f"stereo frames, {_camera_mode(self.config.tables)}"),
+            "trocar": (FORCE, "force samples of the trocar"),
+            "projector": (PROJECTOR, "pattern and flash commands to the projector"),
+        }
+        out = []
+        for device in configured_devices(self.config):
+            name, source = what.get(device.name, (device.name, f"LSL stream {device.settings}"))
+            out.append(PlannedStream(name, f"{source} ({device.backend})"))
+        out.append(PlannedStream(MARKS, "operator markers: the Marker button or the M key"))
+        if self.estimator is not None and self.estimate_on:
+            out.append(PlannedStream(ESTIMATE, f"live force estimate of {self.model_name}"))
+        return out
 
     def live_status(self) -> LiveStatus | None:
         """The live estimate's status, when a model runs."""
@@ -241,6 +278,21 @@ class Station:
             return self.submit(end).result()
         finally:
             self._ops.shutdown(wait=True)
+
+    def test_open(self, name: str) -> str | None:
+        """Open and close the rig's device ``name`` on its own through its driver
+        (:func:`~vbfe.drivers.registry.check_open`): ``None`` when it opens, else the one-line
+        reason. A live view is closed for it (a real device opens once) and reopened after;
+        refused while recording."""
+        self._not_recording(f"test the {name}")
+        live = self.acquisition is not None
+        if live:
+            self._end_current("device test")
+        try:
+            return check_open(self.config, name)
+        finally:
+            if live:
+                self.go_live(self.pattern_on, self.board_scene)
 
     def use_calibration(self, path: Path | None) -> None:
         """Use the calibration file ``path`` (``None``: none) for recordings and the live
