@@ -84,6 +84,12 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
     qtbot.keyClick(window, QtCore.Qt.Key.Key_M)
     click(qtbot, tab.mark_button)
     qtbot.waitUntil(lambda: "MB/s" in tab.numbers.text() and "markers 2" in tab.numbers.text())
+    streams = {  # the streams a recording holds, from the rig configuration, counting
+        tab.streams.item(r, 0).text(): tab.streams.item(r, 1).text()
+        for r in range(tab.streams.rowCount())
+    }
+    assert list(streams) == ["camera", "force", "projector", "marks"]
+    assert streams["marks"] == "2" and int(streams["force"]) > 0
     asked = []  # closing the window while recording asks first; "no" keeps it recording
     window.ask = lambda question: asked.append(question) or False
     window.close()
@@ -103,6 +109,7 @@ def test_record_with_markers_and_remote_control_then_refuse_an_existing_file(
             "P007",
             "traction",
         )
+        assert meta["rig"] == "simulated bench: no rig file (the built-in configuration)"
         conditions = reader.metadata["conditions"]  # the operator's, beside the bench's own
         assert (conditions["stiffness"], conditions["tissue"]) == (80.0, "hose")
     qtbot.waitUntil(lambda: tab.next_file.text().endswith("run-002.h5"))
@@ -219,6 +226,42 @@ def test_a_full_disk_and_a_missing_device_are_messages_in_the_window(qtbot, open
     states = {row[0]: row[2] for row in window.rig_tab.rows()}
     assert states["camera"].startswith("failed: cannot open camera")
     assert states["trocar"] == "closed"
+    # each device of the rig configuration opened on its own through its driver
+    rig_tab = window.rig_tab
+    for name in ("camera", "trocar"):
+        click(qtbot, rig_tab.test_buttons[name])
+    qtbot.waitUntil(lambda: len(rig_tab.test_results) == 2, timeout=WAIT_MS)
+    assert rig_tab.test_results["trocar"] == "OK: opens and closes"
+    assert rig_tab.test_results["camera"].startswith("cannot open camera /dev/video99")
+    assert "\n" not in rig_tab.test_results["camera"]
+    results = {rig_tab.devices.item(r, 0).text(): rig_tab.devices.item(r, 4).text() for r in (0, 1)}
+    assert results == rig_tab.test_results
+
+
+def test_a_rig_file_with_a_typo_is_one_line_and_changes_nothing(qtbot, open_console, tmp_path):
+    rig_file = tmp_path / "vbfe-rig.toml"
+    rig_file.write_text("[bench]\nwidth = 192\nheight = 108\n[calib]\nsquares_xx = 9\n")
+    before = rig_file.read_bytes()
+    window = open_console(bench_config(), live=False)
+    running = window.station.config
+    window.rig_tab.rig_file.setText(str(rig_file))
+    click(qtbot, window.rig_tab.open_file_button)
+    assert len(window.errors) == 1 and "\n" not in window.errors[0]
+    assert window.errors[0].startswith(f"rig file not opened: rig config {rig_file}")
+    assert "squares_xx" in window.errors[0] and "Traceback" not in window.errors[0]
+    assert window.station.config is running and window.options.rig_file is None
+    # a rig file that gets a typo while the window keeps settled values in it: not written
+    good = tmp_path / "good.toml"
+    good.write_text("[bench]\nwidth = 192\nheight = 108\n")
+    window.rig_tab.rig_file.setText(str(good))
+    click(qtbot, window.rig_tab.open_file_button)
+    assert window.options.rig_file == good and window.station.config.source.path == good
+    good.write_text(before.decode())
+    window.settled(correction_s=0.012)
+    assert (
+        window.errors[-1].startswith("rig file not updated:") and "squares_xx" in window.errors[-1]
+    )
+    assert good.read_bytes() == before and sorted(tmp_path.iterdir()) == [good, rig_file]
 
 
 @pytest.mark.slow

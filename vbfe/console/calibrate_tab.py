@@ -116,14 +116,33 @@ class BoardForm(QtWidgets.QWidget):
             target=self.target.currentText(),
         )
 
-    def set_spec(self, spec: BoardSpec) -> None:
-        """Show ``spec`` in the fields (and so in the config)."""
+    def show_config(self) -> None:
+        """Show the rig configuration's board and fewest views in the fields (one change)."""
+        spec, fields = board_spec(self.tab.station.config), self.fields()
+        for field in fields:
+            field.blockSignals(True)
         self.target.setCurrentText(spec.target)
         self.squares_x.setValue(spec.squares_x)
         self.squares_y.setValue(spec.squares_y)
         self.square_mm.setValue(spec.square_m * 1e3)
         self.marker_mm.setValue(spec.marker_m * 1e3)
         self.dictionary.setCurrentText(spec.dictionary)
+        self.min_views.setValue(self.tab.station.config.calib.min_views)
+        for field in fields:
+            field.blockSignals(False)
+        self.changed()
+
+    def fields(self) -> tuple[QtWidgets.QWidget, ...]:
+        """The board's input fields."""
+        return (
+            self.target,
+            self.squares_x,
+            self.squares_y,
+            self.square_mm,
+            self.marker_mm,
+            self.dictionary,
+            self.min_views,
+        )
 
     def changed(self) -> None:
         """Put the fields into the rig config's ``[calib]``; say what is wrong with them."""

@@ -40,6 +40,9 @@ class RigTab(Tab):
         )
         file_row.addWidget(QtWidgets.QLabel("rig file"))
         file_row.addWidget(with_picker(self.rig_file, "save", "rig file"), 1)
+        self.open_file_button = QtWidgets.QPushButton("Open rig file")
+        self.open_file_button.clicked.connect(self.open_file)
+        file_row.addWidget(self.open_file_button)
         self.save_button = QtWidgets.QPushButton("Save rig file")
         self.save_button.clicked.connect(self.save)
         file_row.addWidget(self.save_button)
@@ -51,6 +54,7 @@ class RigTab(Tab):
         self.devices.setHorizontalHeaderLabels(CONFIGURED)
         self.devices.horizontalHeader().setStretchLastSection(True)
         self.devices.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.devices.verticalHeader().hide()
         layout.addWidget(self.devices, 1)
         self.test_buttons: dict[str, QtWidgets.QPushButton] = {}
         self.test_results: dict[str, str] = {}  # device -> OPENS or why it does not open
@@ -67,6 +71,20 @@ class RigTab(Tab):
         self.open_button = QtWidgets.QPushButton("Open rig (live view)")
         self.open_button.clicked.connect(self.open_rig)
         layout.addWidget(self.open_button)
+
+    def open_file(self) -> None:
+        """Run the rig the file in 'rig file' describes, and keep settled values there; a file
+        that is missing or has a bad key is refused in one line naming it (nothing changes)."""
+        path = Path(self.rig_file.text().strip())
+        if self.station.recording is not None:
+            self.console.message("stop the recording before opening another rig file", True)
+            return
+        try:
+            self.console.use_rig_file(path)
+        except VbfeError as exc:
+            self.console.message(f"rig file not opened: {error_line(exc)}", True)
+            return
+        self.console.message(f"opened the rig file {path}; reopen the rig to run it")
 
     def save(self) -> None:
         """Write the rig as it runs now into a new rig file; settled values go there from now
@@ -182,9 +200,12 @@ class RigTab(Tab):
             if config.tables[name].get("backend") == "sim"
         ]
         self.simulated.setText(
-            f"simulated bench: {', '.join(simulated)} simulated (set real backends in the rig file)"
-            if simulated
-            else "real devices"
+            f"{config.banner()}\n"
+            + (
+                f"{', '.join(simulated)} simulated (set real backends in the rig file)"
+                if simulated
+                else "real devices"
+            )
         )
         rig_file = self.console.options.rig_file
         self.file_state.setText(

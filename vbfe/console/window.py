@@ -167,12 +167,19 @@ class ConsoleWindow(QtWidgets.QMainWindow):
             self.errors.append(text)
 
     def use_rig_file(self, path: Path) -> None:
-        """Keep what the operator settles in ``path`` from now on (the rig configuration is
-        read from it: new sessions name it as their rig file)."""
+        """Run the rig configuration of ``path`` from the next acquisition on (new sessions
+        name it as their rig file), show its board, load the calibration and model it settled,
+        and keep what the operator settles there.
+
+        :raises ConfigError: the file is missing or has a bad key (nothing changed).
+        """
         from vbfe.rig_config import load_rig
 
-        self.station.config = load_rig(path)
+        config = load_rig(path)
+        self.station.config = config
         self.options = dataclasses.replace(self.options, rig_file=path)
+        self.calibrate_tab.board.show_config()
+        self.load_settled()
 
     def load_settled(self) -> None:
         """Load the calibration and model the rig file names (settled on an earlier day)."""
