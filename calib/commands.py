@@ -46,7 +46,7 @@ from vbfe.calib.projector_capture import (
 )
 from vbfe.calib.report import write_report
 from vbfe.calib.stereo import StereoOptions, StereoResult, calibrate_stereo
-from vbfe.calib.views import load_images, load_views
+from vbfe.calib.views import ViewSet, load_images, load_views
 from vbfe.common.errors import CalibrationError
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
@@ -136,11 +136,13 @@ def projector_capture(
 
 @dataclass
 class StereoOutcome:
-    """What :func:`stereo` wrote."""
+    """What :func:`stereo` wrote, the board and the views it calibrated from."""
 
     result: StereoResult
     yaml_path: Path
     report_paths: tuple[Path, Path] | None
+    spec: BoardSpec
+    views: ViewSet
 
 
 def _calib_table(config: Config, settings: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -221,7 +223,7 @@ def stereo(
         from vbfe.acquire import store_calibration
 
         store_calibration(store_in_session, result.calibration.to_yaml_text())
-    return StereoOutcome(result, out_path, reports)
+    return StereoOutcome(result, out_path, reports, spec, views)
 
 
 def camera(

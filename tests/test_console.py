@@ -27,6 +27,7 @@ from vbfe.rig_config import RigConfig, builtin_rig
 from vbfe.truth import true_rig
 from vbfe.truth.scenes import board_config
 
+SAMPLE = Path(__file__).parent / "data" / "opencv_stereo"  # OpenCV's stereo sample (BSD)
 CALIB_F_LIMIT, CALIB_B_LIMIT = 0.005, 0.01  # the demo's (vbfe/demo_report.py)
 WAIT_MS = 60_000  # generous: the machine may be shared; passing runs take seconds
 
@@ -321,6 +322,46 @@ def test_a_board_that_is_not_found_is_a_message(qtbot, open_console, tmp_path):
     qtbot.waitUntil(lambda: bool(window.errors), timeout=WAIT_MS)
     assert window.errors[-1].startswith("calibration refused:")
     assert not (tmp_path / "endoscope.yaml").exists()
+
+
+def test_click_a_refused_calibration_view_to_see_it_and_why(qtbot, open_console, tmp_path):
+    """OpenCV's stereo sample (9x6 inner corners) and a pair without the board."""
+    views = tmp_path / "views"
+    views.mkdir()
+    for k in range(1, 9):  # 8 of the sample's pairs: enough for a calibration, and quick
+        for eye in ("left", "right"):
+            shutil.copy(SAMPLE / f"{eye}{k:02d}.jpg", views)
+    blank = np.full((480, 640, 3), 128, np.uint8)
+    for eye in ("left", "right"):
+        cv2.imwrite(str(views / f"{eye}15.jpg"), blank)
+    window = open_console(bench_config(), live=False)
+    tab = window.calibrate_tab
+    window.tabs.setCurrentWidget(tab)
+    tab.board.target.setCurrentText("chessboard")
+    tab.board.squares_x.setValue(10)
+    tab.board.squares_y.setValue(7)
+    tab.folder.setText(str(views))
+    tab.out.setText(str(tmp_path / "sample.yaml"))
+    click(qtbot, tab.calibrate_button)
+    qtbot.waitUntil(lambda: tab.outcome is not None or bool(window.errors), timeout=120_000)
+    assert not window.errors
+    rows = {tab.views.item(r, 0).text(): r for r in range(tab.views.rowCount())}
+    assert len(rows) == 9
+    status = {name: tab.views.item(r, 2).text() for name, r in rows.items()}
+    refused = [name for name, text in status.items() if text != "used"]
+    assert refused == ["15"] and status["15"].startswith("refused: too few corners (left 0")
+    used_rms = [float(v) for v in tab.views.item(rows["01"], 1).text().split(" / ")]
+    assert len(used_rms) == 3 and 0 < max(used_rms) < 1.0  # px; the sample's fit is sub-pixel
+    tab.views.cellClicked.emit(rows["15"], 0)  # the refused view and why, on the view pane
+    assert tab.pages.currentIndex() == 0
+    assert tab.capture_text.text() == f"view 15: {status['15']}"
+    shown = tab.view.items[0].image
+    assert shown.shape[1] > 2 * shown.shape[0] and np.all(shown == 128)  # both eyes, no corners
+    tab.views.cellClicked.emit(rows["01"], 0)  # a used view: its corners drawn in both eyes
+    assert tab.capture_text.text().startswith("view 01: used; RMS left ")
+    assert (tab.view.items[0].image != 128).any()
+    window.refresh()  # the refresh keeps the view's line
+    assert tab.capture_text.text().startswith("view 01: used")
 
 
 def vbfe(*args, env=None, timeout=180):

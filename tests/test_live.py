@@ -128,6 +128,7 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
         stream = reader.estimates()
         seqs = set(reader.stream_times("camera")[2].tolist())
         assert reader.attrs["schema_version"] == 2
+        assert reader.metadata["rig"] == f"rig file {toml} (from --config): simulated bench"
     n, seen, skipped = len(stream), stream.attrs["frames_seen"], stream.attrs["skipped_frames"]
     assert n >= 10, f"only {n} estimates in 4 s"
     # every delivered frame was estimated or skipped (the frames in flight at the stop drain)

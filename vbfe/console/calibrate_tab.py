@@ -25,6 +25,7 @@ from vbfe.console.widgets import ImagePane, Tab, form, value_label, with_picker
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
 
+VIEW_COLUMNS = ("view", "RMS left / right / stereo (px)", "status")
 DICTIONARIES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
 _CELL_PX = 60  # the coverage map's cells as drawn
 
@@ -228,7 +229,18 @@ class CalibrateTab(Tab):
         scroll = QtWidgets.QScrollArea()  # the result's rows scroll; the panes keep their room
         scroll.setWidgetResizable(True)
         scroll.setWidget(self.result_text)
-        layout.addWidget(scroll, 2)
+        results = QtWidgets.QHBoxLayout()
+        results.addWidget(scroll, 3)
+        self.views = QtWidgets.QTableWidget(0, len(VIEW_COLUMNS))  # per view: click to see it
+        self.views.setHorizontalHeaderLabels(VIEW_COLUMNS)
+        self.views.horizontalHeader().setStretchLastSection(True)
+        self.views.verticalHeader().hide()
+        self.views.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.views.setSelectionBehavior(QtWidgets.QAbstractItemView.SelectionBehavior.SelectRows)
+        self.views.setToolTip("click a view to see it with its corners, and why it was refused")
+        self.views.cellClicked.connect(lambda row, _: self.show_view(row))
+        results.addWidget(self.views, 2)
+        layout.addLayout(results, 2)
         self.capture: LiveCapture | None = None
         self.outcome: CalibrationOutcome | None = None
         self._shown: object = None  # the verdict on view
@@ -358,9 +370,40 @@ class CalibrateTab(Tab):
         else:
             lines.append("GO/NO-GO: no stored calibration (load one on the Live tab)")
         self.result_text.setText("\n".join(lines))
+        self.show_view_rows(outcome)
         self.show_figures(outcome)
         self.console.message(f"calibrated: {outcome.outcome.yaml_path}")
         self.console.settled(calibration=outcome.outcome.yaml_path, board=self.board.spec())
+
+    def show_view_rows(self, outcome: CalibrationOutcome) -> None:
+        """One row per view of the folder: its errors when used, else why it was refused."""
+        rows = outcome.view_rows()
+        self.views.setRowCount(len(rows))
+        for r, row in enumerate(rows):
+            rms = " / ".join(f"{v:.2f}" for v in row.rms_px) if row.rms_px else "-"
+            for c, text in enumerate((row.name, rms, row.status)):
+                item = QtWidgets.QTableWidgetItem(text)
+                item.setToolTip(text)
+                if row.rms_px is None:
+                    item.setForeground(QtGui.QColor("#c00000"))
+                self.views.setItem(r, c, item)
+        self.views.resizeColumnsToContents()
+
+    def show_view(self, row: int) -> None:
+        """The clicked view with the corners found in each eye, and its errors or why it was
+        refused."""
+        if self.outcome is None:
+            return
+        view = self.outcome.view_rows()[row]
+        self.view.show_bgr(0, self.outcome.view_picture(view.name))
+        rms = (
+            f"RMS left {view.rms_px[0]:.2f}, right {view.rms_px[1]:.2f}, stereo "
+            f"{view.rms_px[2]:.2f} px"
+            if view.rms_px
+            else ""
+        )
+        self.capture_text.setText(f"view {view.name}: {view.status}" + (f"; {rms}" if rms else ""))
+        self.pages.setCurrentIndex(0)
 
     def show_figures(self, outcome: CalibrationOutcome) -> None:
         """The report's figures (per-view error, corner coverage, rectified pair; depth
@@ -394,7 +437,7 @@ class CalibrateTab(Tab):
         if self.capture_button.isChecked() and not running and not self._starting:
             self.capture_button.setChecked(False)  # enough views
         if capture is None or not self.isVisible():
-            if capture is None:
+            if capture is None and self.outcome is None:
                 self.capture_text.setText(
                     "no views captured yet: show the board and press Capture views, or give a "
                     "folder of views and press Calibrate"

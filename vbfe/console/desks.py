@@ -127,6 +127,48 @@ class CalibrationOutcome:
         fit = self.outcome.result.left
         return dict(zip(self.outcome.result.names, map(float, fit.per_view_rms_px), strict=False))
 
+    def view_rows(self) -> list[ViewRow]:
+        """Every view of the folder: its reprojection RMS (left, right, stereo) when the
+        calibration used it, else why it was left out."""
+        result = self.outcome.result
+        rms = result.calibration.per_view_rms_px
+        used = {
+            name: tuple(map(float, rms[k])) if rms is not None else None
+            for k, name in enumerate(result.names)
+        }
+        rows = []
+        for name in self.outcome.views.names:
+            if name in used:
+                rows.append(ViewRow(name, used[name], "used"))
+            else:
+                why = result.dropped.get(name, "not used by the calibration")
+                rows.append(ViewRow(name, None, f"refused: {why}"))
+        return rows
+
+    def view_picture(self, name: str) -> np.ndarray:
+        """View ``name``'s left and right image side by side with the board corners found in
+        each (detected again, as the calibration's detector does)."""
+        from vbfe.calib.board import BoardDetector
+        from vbfe.calib.capture import annotate
+
+        views = self.outcome.views
+        left, right = views.pairs[views.names.index(name)]
+        detector = BoardDetector(self.outcome.spec)
+        shown = [annotate(image, detector.detect(image), {}) for image in (left, right)]
+        height = max(image.shape[0] for image in shown)
+        padded = [np.pad(i, ((0, height - i.shape[0]), (0, 0), (0, 0))) for i in shown]
+        return np.hstack(padded)
+
+
+@dataclass(frozen=True)
+class ViewRow:
+    """One calibration view: its RMS (left, right, stereo, px) when used, and its status
+    (``"used"`` or ``"refused: why"``)."""
+
+    name: str
+    rms_px: tuple[float, ...] | None
+    status: str
+
 
 def calibrate(
     config: RigConfig,
