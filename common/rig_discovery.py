@@ -51,8 +51,10 @@ def find_rig_file(
     explicit: str | Path | None = None,
     environ: Mapping[str, str] | None = None,
     cwd: str | Path | None = None,
+    named_by: str = "--config",
 ) -> RigSource:
-    """The rig file to use (see the module docstring).
+    """The rig file to use (see the module docstring); ``named_by`` says who named
+    ``explicit`` (e.g. the console's Rig tab).
 
     :raises ConfigError: ``--config`` or ``$VBFE_RIG`` names a file that does not exist.
     """
@@ -63,7 +65,7 @@ def find_rig_file(
         if not path.is_file():
             what = "is a folder; give the TOML file" if path.is_dir() else "does not exist"
             raise ConfigError(f"rig config {path} {what}")
-        return RigSource(path, "--config", ("--config",))
+        return RigSource(path, named_by, (named_by,))
     named = environ.get(ENV_VAR, "")
     if named:
         path = Path(named)

@@ -127,14 +127,15 @@ def _origins(user: dict[str, Any], where: str) -> dict[tuple[str, str], str]:
     return out
 
 
-def load_rig(explicit: str | Path | None = None) -> RigConfig:
-    """The rig configuration a command uses: ``--config`` (``explicit``), ``$VBFE_RIG``,
-    ``./vbfe-rig.toml``, the user config folder, else the simulated bench; every table checked.
+def load_rig(explicit: str | Path | None = None, named_by: str = "--config") -> RigConfig:
+    """The rig configuration a command uses: ``--config`` (``explicit``; ``named_by`` says
+    who named it), ``$VBFE_RIG``, ``./vbfe-rig.toml``, the user config folder, else the
+    simulated bench; every table checked.
 
     :raises ConfigError: the file is missing, not TOML, or has an unknown key or a bad value
         (the message names the key and the file).
     """
-    source = find_rig_file(explicit)
+    source = find_rig_file(explicit, named_by=named_by)
     user: dict[str, Any] = {}
     if source.path is not None:
         user = read_toml(source.path, "rig config")

@@ -388,6 +388,11 @@ class CalibrateTab(Tab):
                     item.setForeground(QtGui.QColor("#c00000"))
                 self.views.setItem(r, c, item)
         self.views.resizeColumnsToContents()
+        refused = sum(row.rms_px is None for row in rows)
+        self.capture_text.setText(
+            f"{refused} of {len(rows)} views refused; click a view (right) to see it with the "
+            "corners found and its error, or why it was refused"
+        )
 
     def show_view(self, row: int) -> None:
         """The clicked view with the corners found in each eye, and its errors or why it was

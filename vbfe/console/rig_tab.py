@@ -64,6 +64,7 @@ class RigTab(Tab):
         self.table.setHorizontalHeaderLabels(COLUMNS)
         self.table.horizontalHeader().setStretchLastSection(True)
         self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.table.verticalHeader().hide()
         layout.addWidget(self.table, 1)
         self.problem = value_label()
         self.problem.setStyleSheet("color: #c00000")

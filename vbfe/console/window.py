@@ -175,7 +175,7 @@ class ConsoleWindow(QtWidgets.QMainWindow):
         """
         from vbfe.rig_config import load_rig
 
-        config = load_rig(path)
+        config = load_rig(path, named_by="the Rig tab")
         self.station.config = config
         self.options = dataclasses.replace(self.options, rig_file=path)
         self.calibrate_tab.board.show_config()
