@@ -91,7 +91,9 @@ def console_run(config: RigConfig, frames: list[np.ndarray], seconds: float, fol
             statuses.append(status)
         return bool(finished)
 
-    window.rig_op(station.start_recording, SessionRequest(folder / "console.h5", seconds))
+    window.confirm_close = False  # nobody to ask: the benchmark closes the window itself
+    request = SessionRequest(folder / "console.h5", duration_s=seconds)
+    window.rig_op(station.start_recording, request)
     probe_latency(30.0, until=lambda: station.recording is not None)
     probe_latency(1.0)  # warm-up: the estimator's first frames
     latency = probe_latency(seconds + 30.0, until=ended)
