@@ -89,3 +89,20 @@ def test_rig_init_writes_a_rig_file_commands_find_and_never_over_one(no_rig: Pat
     again = vbfe_here(capsys, "rig", "init")
     assert again.returncode == 2 and "pass --overwrite" in again.stderr
     assert (no_rig / "vbfe-rig.toml").read_text() == text
+
+
+def test_a_changed_configuration_is_checked_again_and_says_where_values_came_from() -> None:
+    from vbfe.common.errors import ConfigError
+    from vbfe.rig_config import builtin_rig
+
+    rig = builtin_rig({"bench": {"width": 320}})
+    assert rig.banner() == "simulated bench: no rig file (the built-in configuration)"
+    moved = rig.updated({"record": {"min_free_gb": 0.5}}, "the window")
+    assert moved.record.min_free_gb == 0.5 and rig.record.min_free_gb != 0.5  # a copy
+    assert moved.tables["bench"]["width"] == 320  # the other values kept
+    assert moved.origins[("record", "min_free_gb")] == "the window"
+    assert moved.origins[("bench", "width")] == "built in"
+    with pytest.raises(ConfigError, match="min_free_gbb"):
+        rig.updated({"record": {"min_free_gbb": 1.0}})
+    with pytest.raises(ConfigError, match=r"\[bench\]"):  # device tables against the backend
+        rig.updated({"bench": {"widht": 320}})
