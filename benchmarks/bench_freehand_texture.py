@@ -37,7 +37,6 @@ from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.preparation import FramePreparer
 from vbfe.estimate.sources import open_source
 from vbfe.estimate.texture_motion import TextureMotion
-from vbfe.estimate.train_config import TrainConfig
 from vbfe.recon import CloudReader, reconstruct_session
 from vbfe.truth import session_bench, trial_duration_s, true_rig
 from vbfe.truth.calibration import calibration_from_rig
@@ -114,7 +113,7 @@ def measure(path: Path, remeasure: bool = False) -> dict[str, np.ndarray]:
 def feature_seconds(path: Path, frames: int = 40) -> tuple[float, float]:
     """Seconds per frame of the whole frame preparation (``FramePreparer.features``, demo's
     ``[train]`` settings) with and without the texture tracking, on one trial."""
-    config = TrainConfig.from_table(demo_config(DemoPlan.full())["train"])
+    config = demo_config(DemoPlan.full()).train
     pool = config.pool_factor * config.n_points
     with CloudReader(path.with_name(path.stem + ".clouds.h5")) as clouds:
         loaded = [clouds.cloud(i) for i in range(min(frames, clouds.n_frames))]
