@@ -35,11 +35,9 @@ from vbfe.acquire.recording.record import session_recorder
 from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.acquire.session.layout import CAMERA
-from vbfe.common.config import load_config, section
 from vbfe.live.estimator import FrameEstimator
 from vbfe.live.run import LiveRun, run_headless, use_threads
-from vbfe.live.settings import live_settings
-from vbfe.recon import SgbmParams
+from vbfe.rig_config import RigConfig, builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
 GROUPS = {  # thread name prefix -> the group it is counted in
@@ -111,16 +109,16 @@ def time_by_group(
     return out
 
 
-def record_once(config: dict, frames: list, seconds: float, path: Path) -> dict:
+def record_once(config: RigConfig, frames: list, seconds: float, path: Path) -> dict:
     """One recording with the live estimate; what the file holds and lost, the estimate's
     rate and skips, the threads' time by group."""
     rig = replay_rig(config, frames)
     calibration = calibration_from_rig(true_rig(config))
-    settings = live_settings(section(config, "live"))
+    settings = config.live
     estimator = FrameEstimator(
         untrained_model([32, 64, 256]),
         calibration,
-        SgbmParams.from_config(section(config, "sgbm")),
+        config.sgbm,
         scale=settings.scale,
         row_scale=settings.row_scale,
         depth_margin_mm=settings.depth_margin_mm,
@@ -172,10 +170,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--size", default="640x360")
     args = smoke.parse(parser, argv, seconds=3.0, runs=1, size="320x180")
     width, height = (int(v) for v in args.size.split("x"))
-    config = load_config()
-    config["bench"].update(width=width, height=height, fps=FPS)
-    use_threads(live_settings(section(config, "live")))
-    compression = section(config, "record")["compression"]
+    config = builtin_rig({"bench": {"width": width, "height": height, "fps": FPS}})
+    use_threads(config.live)
+    compression = config.record.compression
     frames = rendered_frames(config, REPLAY_FRAMES)
     print(
         f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; {width}x{height} "
