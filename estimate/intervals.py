@@ -14,8 +14,11 @@ When the calibration frames come from several protocols (pull-and-hold trials an
 ones, whose errors differ), each protocol also gets its own quantile from its own frames
 (Mondrian conformal prediction: coverage holds within each protocol, not only over their
 mix), when they come from at least ``MIN_PROTOCOL_SESSIONS`` sessions: trials of a protocol
-differ (tissue, speed), and one trial cannot stand for the others. A frame of a protocol
-without its own quantile (too few sessions or frames, or not stated) gets the pooled one.
+differ (tissue, speed), and one trial cannot stand for the others. A protocol of fewer
+sessions whose frames erred more than the pooled quantile allows gets the wider of the two
+(its trials are too few to trust their own, and say the pooled one is too narrow for them).
+A frame of a protocol without its own quantile (too few frames, or not stated) gets the
+pooled one.
 """
 
 from __future__ import annotations
@@ -135,14 +138,19 @@ def calibrate(
     by_protocol: dict[str, np.ndarray] = {}
     labels = np.asarray(protocols if protocols is not None else [""] * n, dtype=object)
     trials = np.asarray(sessions if sessions is not None else np.arange(n), dtype=object)
+    pooled = _quantile(scores, coverage)
     if len(set(labels)) > 1:
         for name in sorted(set(labels)):
             q = _quantile(scores[labels == name], coverage)
-            if np.isfinite(q).all() and len(set(trials[labels == name])) >= MIN_PROTOCOL_SESSIONS:
+            if not np.isfinite(q).all():
+                continue
+            if len(set(trials[labels == name])) >= MIN_PROTOCOL_SESSIONS:
                 by_protocol[str(name)] = q
+            elif (q > pooled).any():  # too few trials to trust, too many errors to ignore
+                by_protocol[str(name)] = np.maximum(q, pooled)
     return ConformalInterval(
         coverage,
-        _quantile(scores, coverage),
+        pooled,
         scale,
         interval.floor_n,
         n,

@@ -5,7 +5,11 @@ image pooled to ``THUMB_CELLS`` × ``THUMB_CELLS`` cells (mean change per cell),
 from the largest change down (how much of the surface moved how far, wherever the grasp sits:
 trials differ in where the tissue is taken, not only in how it deforms), the peak surface
 displacement and, when the training frames had one, the peak displacement tracked in the
-texture. Its novelty is the distance to its ``K``-th nearest training frame. The threshold is
+texture, and how densely the surface was reconstructed (the log of the points in the region
+of interest: a wet, glossy or cross-lit surface loses matches before it misleads an estimator).
+Each feature but the image's is weighted so that its spread over the training frames equals the
+image cells' (distances stay in metres of depth change, and no feature drowns the others). Its
+novelty is the distance to its ``K``-th nearest training frame. The threshold is
 the ``QUANTILE`` of the same distance for the training frames themselves, each measured against
 the training frames of *other* groups (other sessions; one session: other blocks in time), so
 a frame of a new trial like the training ones passes about as often as a training frame does,
@@ -39,8 +43,9 @@ def _vectors(
     image_count: np.ndarray,
     displacement_m: np.ndarray,
     texture_m: np.ndarray | None,
+    density: bool,
 ) -> np.ndarray:
-    """Frames × features (see the module's description)."""
+    """Frames × features (see the module's description), unweighted."""
     total = np.asarray(image_sum, np.float64)
     count = np.asarray(image_count, np.float64)
     cells = total.shape[-1]
@@ -56,7 +61,21 @@ def _vectors(
     ]
     if texture_m is not None:
         columns.append(np.asarray(texture_m, np.float64)[:, None])  # NaN kept: lost texture
+    if density:
+        points = np.asarray(image_count, np.float64).reshape(len(total), -1).sum(axis=1)
+        columns.append(np.log(np.maximum(points, 1.0))[:, None])
     return np.concatenate(columns, axis=1)
+
+
+def _weights(vectors: np.ndarray) -> np.ndarray:
+    """Per feature: 1 for the image's cells, else the cells' spread over its own (see the
+    module's description; 1 for a feature that never varies)."""
+    cells = THUMB_CELLS * THUMB_CELLS
+    spread = np.nanstd(vectors, axis=0)
+    scale = float(np.nanstd(vectors[:, :cells]))
+    weights = np.where(spread > 0, scale / np.where(spread > 0, spread, 1.0), 1.0)
+    weights[:cells] = 1.0
+    return weights
 
 
 def _kth_distance(queries: np.ndarray, reference: np.ndarray, k: int) -> np.ndarray:
@@ -79,19 +98,27 @@ class NoveltyFlag:
     """Distance of a frame's features to the training frames and the threshold over which a
     frame is flagged as outside the training data."""
 
-    reference: np.ndarray  # training frames × features
+    reference: np.ndarray  # training frames × features, weighted
     threshold: float  # metres
     texture: bool  # the features include the texture's displacement
     k: int = K
+    density: bool = False  # the features include the reconstruction's density
+    weights: np.ndarray | None = None  # per feature (None: all 1)
 
     def session_features(self, session: PreparedSession, positions: np.ndarray) -> np.ndarray:
-        """Feature vectors of a prepared session's used frames at ``positions``."""
-        return _vectors(
-            session.image_sum[positions],
-            session.image_count[positions],
-            session.displacement_m[positions],
-            session.texture_displacement_m[positions] if self.texture else None,
+        """Weighted feature vectors of a prepared session's used frames at ``positions``."""
+        return self._weighted(
+            _vectors(
+                session.image_sum[positions],
+                session.image_count[positions],
+                session.displacement_m[positions],
+                session.texture_displacement_m[positions] if self.texture else None,
+                self.density,
+            )
         )
+
+    def _weighted(self, vectors: np.ndarray) -> np.ndarray:
+        return vectors if self.weights is None else vectors * self.weights
 
     def frame_distance(self, features: FrameFeatures) -> float:
         """Novelty (m) of one frame's features (``vbfe live``)."""
@@ -100,8 +127,9 @@ class NoveltyFlag:
             features.image_count[None],
             np.array([features.displacement_m]),
             np.array([features.texture_displacement_m]) if self.texture else None,
+            self.density,
         )
-        return float(_kth_distance(vector, self.reference, self.k)[0])
+        return float(_kth_distance(self._weighted(vector), self.reference, self.k)[0])
 
     def distances(self, session: PreparedSession, positions: np.ndarray) -> np.ndarray:
         """Novelty (m) of the frames at ``positions``."""
@@ -113,6 +141,8 @@ class NoveltyFlag:
             "threshold_m": self.threshold,
             "texture": self.texture,
             "k": self.k,
+            "density": self.density,
+            **({} if self.weights is None else {"weights": [float(w) for w in self.weights]}),
         }
 
     @classmethod
@@ -120,8 +150,16 @@ class NoveltyFlag:
         reference = d["reference"]
         if not isinstance(reference, torch.Tensor) or reference.ndim != 2:
             raise EstimateError("the novelty reference is not a frames × features tensor")
+        weights = np.asarray(d["weights"], np.float64) if "weights" in d else None
+        if weights is not None and weights.shape != (reference.shape[1],):
+            raise EstimateError("the novelty weights do not match its reference's features")
         return cls(
-            reference.double().numpy(), float(d["threshold_m"]), bool(d["texture"]), int(d["k"])
+            reference.double().numpy(),
+            float(d["threshold_m"]),
+            bool(d["texture"]),
+            int(d["k"]),
+            bool(d.get("density", False)),  # model files before it: without
+            weights,
         )
 
 
@@ -131,8 +169,10 @@ def fit_novelty(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> NoveltyF
     texture = bool(
         np.concatenate([np.isfinite(s.texture_displacement_m[p]) for s, p in parts]).all()
     )
-    probe = NoveltyFlag(np.zeros((0, 0)), np.inf, texture)
-    vectors = np.concatenate([probe.session_features(s, p) for s, p in parts])
+    probe = NoveltyFlag(np.zeros((0, 0)), np.inf, texture, density=True)
+    raw = np.concatenate([probe.session_features(s, p) for s, p in parts])
+    probe.weights = _weights(raw)
+    vectors = probe._weighted(raw)
     if len(parts) >= 2:
         groups = np.concatenate([np.full(len(p), g) for g, (_, p) in enumerate(parts)])
     else:
@@ -146,4 +186,10 @@ def fit_novelty(parts: Sequence[tuple[PreparedSession, np.ndarray]]) -> NoveltyF
     if not len(finite):
         return None
     keep = np.linspace(0, len(vectors) - 1, min(len(vectors), MAX_REFERENCE)).round().astype(int)
-    return NoveltyFlag(vectors[keep], float(np.quantile(finite, QUANTILE)), texture)
+    return NoveltyFlag(
+        vectors[keep],
+        float(np.quantile(finite, QUANTILE)),
+        texture,
+        density=True,
+        weights=probe.weights,
+    )

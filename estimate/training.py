@@ -378,7 +378,10 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
     nothing to fit)."""
     if len(parts) >= 2:
         n = min(folds, len(parts))
-        fold_of = np.arange(len(parts)) % n
+        # dealt in order of protocol and condition: every fold holds a share of each
+        order = sorted(range(len(parts)), key=lambda i: (parts[i][0].protocol, parts[i][0].condition))
+        fold_of = np.empty(len(parts), dtype=np.int64)
+        fold_of[order] = np.arange(len(parts)) % n
         return [
             (
                 [p for p, f in zip(parts, fold_of, strict=True) if f != k],
@@ -409,16 +412,27 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
     return out
 
 
+def by_session(parts: Parts) -> Parts:
+    """One (session, positions) per session: the positions of all its parts, in order (the
+    training and validation ranges of a time split are one recording to fold)."""
+    merged: dict[str, tuple[PreparedSession, list[np.ndarray]]] = {}
+    for session, positions in parts:
+        merged.setdefault(session.name, (session, []))[1].append(positions)
+    return [(s, np.unique(np.concatenate(p))) for s, p in merged.values()]
+
+
 def _out_of_fold(
     names: list[str],
     train_parts: Parts,
     config: TrainConfig,
     stop_after: dict[str, int] | None = None,
     times: StageTimes | None = None,
+    what: str = "the training part",
 ) -> tuple[dict[str, np.ndarray], Parts, str]:
-    """Every method's out-of-fold predictions over blocked folds of the training part, the
-    held-out frames in the same order and a line saying what was done. ``stop_after``: per
-    network, the epochs each fold trains (:func:`best_epochs` of the fit with validation)."""
+    """Every method's out-of-fold predictions over blocked folds of ``train_parts`` (``what``
+    they are, for the line), the held-out frames in the same order and a line saying what was
+    done. ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs` of
+    the fit with validation)."""
     folds = training_folds(train_parts, config.select_folds, config.gap_frames)
     predicted: dict[str, list[np.ndarray]] = {}
     held_parts: Parts = []
@@ -432,7 +446,7 @@ def _out_of_fold(
     n = len(folds)
     complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
     kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
-    where = f"{n} blocked folds of the training part ({kind})"
+    where = f"{n} blocked folds of {what} ({kind})"
     return complete, held_parts, where
 
 
@@ -512,9 +526,11 @@ def fit_split(
         n_val < config.select_min_val_frames or len(val_parts) < 2
     ):
         fold_times = StageTimes()
+        fitting = by_session(train_parts + val_parts)  # every session the fit saw
+        what = "the training and validation sessions" if val_parts else "the training part"
         with times.stage("selection folds"):
             held, held_parts, where = _out_of_fold(
-                names, train_parts, config, best_epochs(histories), fold_times
+                names, fitting, config, best_epochs(histories), fold_times, what
             )
         times.seconds.update({f"selection folds: {k}": v for k, v in fold_times.seconds.items()})
         notes.append(
@@ -750,7 +766,9 @@ def train(
         estimators=fit.estimators,
         selected=fit.selected,
         record=record,
-        novelty=fit_novelty(fit.split.frames("train", prepared)),
+        novelty=fit_novelty(
+            by_session(fit.split.frames("train", prepared) + fit.split.frames("val", prepared))
+        ),
     )
     path = save_model(out, model)
     return TrainResult(

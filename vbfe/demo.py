@@ -55,9 +55,6 @@ class DemoPlan:
     freehand_trials: int  # freehand trials trained on
     freehand_test_trials: int  # freehand trials held out (reported apart)
     freehand_s: float  # length of a freehand trial
-    # selection on blocked folds of the training part when validation has fewer frames
-    # (``[train] select_min_val_frames``; 0: always on the validation part)
-    select_min_val_frames: int
     # the intervals' width: freehand forces range over several newtons and the errors with
     # them ("force": floor + |F|; see estimate/intervals.py)
     interval_scale: str
@@ -98,7 +95,6 @@ class DemoPlan:
             freehand_trials=6,
             freehand_test_trials=3,
             freehand_s=15.0,
-            select_min_val_frames=300,
             interval_scale="force",
         )
 
@@ -117,7 +113,6 @@ class DemoPlan:
             split=self.split,
             gap_frames=self.gap_frames,
             val_fraction=self.val_fraction,
-            select_min_val_frames=self.select_min_val_frames,
             interval_scale=self.interval_scale,
         )
 
@@ -151,7 +146,6 @@ class DemoPlan:
             freehand_trials=2,
             freehand_test_trials=1,
             freehand_s=6.0,
-            select_min_val_frames=0,  # five folds of every candidate would take minutes
         )
 
 
