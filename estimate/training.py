@@ -3,9 +3,13 @@
 ``train`` prepares the sessions, splits them (``splits.py``: by session, by time, by stated
 frame ranges), fits the baselines and every candidate (``candidates.py``) on the training
 frames, scores all of them on the validation frames (MAE of the force error vector) or, when
-the validation part is small (``[train] select_min_val_frames``, or one session), on blocked
-folds of the training part (``training_folds``: whole sessions, or blocks in time of a single
-session with a gap of at least the force's autocorrelation time), selects the method with the
+the validation part is small (``[train] select_min_val_frames``, or one session), on the
+out-of-fold predictions of blocked folds of every session the fit saw, training and validation
+(``training_folds``: whole sessions, or blocks in time of a single session with a gap of at
+least the force's autocorrelation time; each frame predicted by models fitted without its
+session, the networks stopping at the epochs validation chose: no frame that selects or
+calibrates a method was fitted, or stopped the fit, of the model predicting it; only the epoch
+count comes from the validation sessions), selects the method with the
 lowest held-out MAE, each protocol's frames weighted equally, among those no worse than the mean
 predictor on any protocol's held-out trials (``[train] model = "auto"``; a baseline that beats
 every candidate ships instead, and says so) or the one forced (with a warning when it loses to
@@ -379,7 +383,9 @@ def training_folds(parts: Parts, folds: int, gap_frames: int) -> list[tuple[Part
     if len(parts) >= 2:
         n = min(folds, len(parts))
         # dealt in order of protocol and condition: every fold holds a share of each
-        order = sorted(range(len(parts)), key=lambda i: (parts[i][0].protocol, parts[i][0].condition))
+        order = sorted(
+            range(len(parts)), key=lambda i: (parts[i][0].protocol, parts[i][0].condition)
+        )
         fold_of = np.empty(len(parts), dtype=np.int64)
         fold_of[order] = np.arange(len(parts)) % n
         return [

@@ -108,11 +108,19 @@ def test_each_protocol_gets_the_coverage_from_its_own_frames():
     # a protocol the calibration did not see gets the pooled quantile
     lo, hi = interval.bounds(predicted[:1], "sync")
     assert hi[0, 0] == pytest.approx(interval.quantile[0])
-    # frames of two freehand trials cannot stand for a protocol's trials: pooled for them
+    # frames of two trials cannot stand for a protocol's trials: the pooled quantile for the
+    # traction frames (they erred less), the wider of the two for the freehand ones
     predicted, measured, protocol = frames(2000)
+    sessions = np.where(protocol == "freehand", 10 + np.arange(2000) % 5, np.arange(2000) % 2)
+    interval = calibrate(predicted, measured, 0.9, "none", "validation", protocol, sessions)
+    assert list(interval.protocols) == ["freehand"]
+    own = calibrate(*(a[protocol == "traction"] for a in (predicted, measured)), 0.9)
+    assert own.quantile[0] < interval.quantile[0]  # its own quantile was narrower
     sessions = np.where(protocol == "freehand", np.arange(2000) % 2, 10 + np.arange(2000) % 5)
     interval = calibrate(predicted, measured, 0.9, "none", "validation", protocol, sessions)
-    assert list(interval.protocols) == ["traction"]
+    alone = calibrate(*(a[protocol == "freehand"] for a in (predicted, measured)), 0.9)
+    assert interval.protocols["freehand"][0] == pytest.approx(alone.quantile[0])
+    assert interval.protocols["freehand"][0] > interval.quantile[0]
 
 
 def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
