@@ -291,6 +291,16 @@ def test_evaluate_reports_coverage_and_flags_a_tissue_outside_the_training_range
     assert (
         f"outside the training data: {report.out_of_distribution['overall']['flagged']} of" in text
     )
+    # the same surface reconstructed with a third of its points (a glossy or wet surface
+    # losing matches): the same depth change, flagged
+    flag = load_model(model_path).novelty
+    (session,) = prepare_sessions(held_out[:1], load_model(model_path).config, texture=False)
+    every = np.arange(session.n_used)
+    assert not (flag.distances(session, every) > flag.threshold).any()
+    sparse = dataclasses.replace(
+        session, image_sum=session.image_sum / 3, image_count=session.image_count / 3
+    )
+    assert (flag.distances(sparse, every) > flag.threshold).all()
 
 
 def test_model_files_without_intervals_or_flag_still_load(tmp_path):
