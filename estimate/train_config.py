@@ -92,6 +92,9 @@ class TrainConfig:
     # with a validation part, the methods quick to refit (baselines, ridge, Hooke on the
     # texture) also calibrate their intervals on those folds' out-of-fold residuals
     interval_folds: bool = True
+    # the networks stop early on the validation part's loss; false: they run every epoch
+    # (the cosine schedule ends them) and the validation part only selects and calibrates
+    early_stopping: bool = True
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:

@@ -515,8 +515,19 @@ def fit_split(
         val_parts = []
     names = candidate_names(config.model, config.temporal_frames > 0)
     times = times or StageTimes()
+    if val_parts and not config.early_stopping:
+        notes.append(
+            "no early stopping ([train] early_stopping = false): every network runs its "
+            "epochs; the validation sessions only select and calibrate"
+        )
     estimators, histories, seconds = _fit_estimators(
-        names, train_parts, val_parts, config, progress, notes, times=times
+        names,
+        train_parts,
+        val_parts if config.early_stopping else [],
+        config,
+        progress,
+        notes,
+        times=times,
     )
     check = val_parts or train_parts
     val_mae = {
