@@ -139,7 +139,7 @@ def retrain(demo: Path) -> None:
     sessions = [p for p in recorded if not p.stem.startswith(FREEHAND)]
     sessions += [p for p in recorded if p.stem.startswith(FREEHAND)]
     numbers = json.loads((demo / "results.json").read_text())
-    (demo / "model.pt").unlink()
+    (demo / "model.pt").unlink(missing_ok=True)
     numbers["force"] = estimate_stage(sessions, demo, plan, demo_config(plan), _quiet)
     (demo / "results.json").write_text(json.dumps(numbers, indent=2, default=str))
 
