@@ -1,6 +1,7 @@
 """Live force estimation: the newest-frame mailbox, reduced-resolution reconstruction, and
 `vbfe live` on the bench with a model trained here, recording its estimate stream."""
 
+import csv
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from vbfe.common.mailbox import Mailbox
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
+from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import train
@@ -35,6 +37,11 @@ def test_mailbox_gives_the_newest_item_and_counts_the_skipped():
     box.put(7)
     consumer.join()
     assert got == [7] and box.skipped == 4
+    box.put(10, pinned=True)  # a pinned item is never replaced, and taken first
+    box.put(11)
+    box.put(12)
+    assert [box.take(0.01), box.take(0.01), box.take(0.01)] == [10, 12, None]
+    assert box.skipped == 5
 
 
 def test_half_resolution_reconstruction_sees_the_same_depth():
@@ -105,8 +112,12 @@ def vbfe(*args):
 
 
 def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
-    folder, model, calib, toml = rig
+    folder, model, calib, bench_toml = rig
     session = folder / "live.h5"
+    # every row, the whole depth range: live reconstructs each frame as `vbfe reconstruct`
+    # does, so its estimates can be compared with the offline evaluation's below
+    toml = folder / "rig-full-rows.toml"
+    toml.write_text(bench_toml.read_text() + "[live]\nrow_scale = 1.0\ndepth_margin_mm = 0.0\n")
     result = vbfe(
         "live",
         "--model",
@@ -126,7 +137,8 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     assert len(status_lines) >= 2 and "est/s" in status_lines[-1]
     with SessionReader(session) as reader:
         stream = reader.estimates()
-        seqs = set(reader.stream_times("camera")[2].tolist())
+        seqs_in_order = reader.stream_times("camera")[2][: reader.n_frames]
+        seqs = set(seqs_in_order.tolist())
         assert reader.attrs["schema_version"] == 2
         assert reader.metadata["rig"] == f"rig file {toml} (from --config): simulated bench"
     n, seen, skipped = len(stream), stream.attrs["frames_seen"], stream.attrs["skipped_frames"]
@@ -153,6 +165,23 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     assert np.isfinite(mae) and mae >= 0
     assert (folder / "eval" / "live_metrics.json").is_file()
     assert (folder / "eval" / "live_force.png").is_file()
+    # the same frames reconstructed and evaluated offline give the same estimates: live's rest
+    # reference is the recording's first frame however late it reached the estimator
+    assert vbfe("reconstruct", session).returncode == 0
+    offline = vbfe("evaluate", model, session, "--out", folder / "offline")
+    assert offline.returncode == 0, offline.stderr
+    with open(folder / "offline" / "predictions.csv") as rows:
+        selected = load_model(model).selected
+        by_frame = {int(r["frame"]): float(r[f"{selected}_n"]) for r in csv.DictReader(rows)}
+    frame_of = {int(seq): i for i, seq in enumerate(seqs_in_order)}
+    pairs = zip(stream.frame_seq, stream.force_n, strict=True)
+    live = {frame_of[int(q)]: float(f[0]) for q, f in pairs}
+    assert min(live) == 0  # the first frame was estimated: the rest reference
+    both = sorted(set(live) & set(by_frame))
+    assert len(both) == n
+    np.testing.assert_allclose(
+        [live[i] for i in both], [by_frame[i] for i in both], rtol=1e-5, atol=1e-6
+    )
 
 
 @pytest.mark.slow  # real time

@@ -220,7 +220,9 @@ def test_row_halved_reconstruction_sees_the_same_surface(bench_frames):
         assert abs(lo_h - lo_f) < 0.01 * (hi_f - lo_f) and abs(hi_h - hi_f) < 0.01 * (hi_f - lo_f)
 
 
-def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames):
+def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated_but_the_rest_never(
+    bench_frames,
+):
     frames, calibration = bench_frames
     run = LiveRun(
         Acquisition(open_rig(builtin_rig(), RigOptions(realtime=False))),
@@ -228,16 +230,18 @@ def test_a_frame_reaching_the_run_too_late_is_skipped_not_estimated(bench_frames
         max_frame_age_s=0.25,
     )
     now = time.monotonic_ns()
-    late, fresh = (
-        dataclasses.replace(frames[k], t_host_ns=t) for k, t in ((0, now - 10**9), (1, now))
+    first, late, fresh = (
+        dataclasses.replace(frames[k], t_host_ns=t)
+        for k, t in ((0, now - 10**9), (1, now - 10**9), (2, now))
     )
     run.on_start(run.acquisition)
+    run.on_frames([first])  # late too, but the rest reference: estimated all the same
     run.on_frames([late])
     run.on_frames([fresh])
-    run.on_stop(run.acquisition)  # the frame in flight drains
+    run.on_stop(run.acquisition)  # the frames in flight drain
     status = run.status()
-    assert [e.frame_seq for e in run.estimates] == [1]
-    assert (status.frames, status.estimates, status.skipped) == (2, 1, 1)
+    assert [e.frame_seq for e in run.estimates] == [0, 2]
+    assert (status.frames, status.estimates, status.skipped) == (3, 2, 1)
     assert not _live_threads()
 
 

@@ -589,8 +589,8 @@ class Acquisition:
     def _offer_live(self, stream: str | None, item: Any) -> None:
         """Hand a record (``stream`` ``None``: a :class:`Gap`) to the lossy listeners' thread;
         never waits."""
-        if stream == CAMERA:
-            self._live_frames.put(item)
+        if stream == CAMERA:  # the first frame is pinned: a live run's rest reference
+            self._live_frames.put(item, pinned=not self._live_frames.put_count)
             return
         try:
             self._live_records.put_nowait((stream, item))

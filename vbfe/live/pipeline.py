@@ -5,6 +5,8 @@ the next stage; a stage slower than the one before it skips (and counts) the ite
 saw, and nothing queues. Throughput is set by the slowest stage, and stages overlap wherever
 their work releases the GIL (OpenCV, numba, torch). Every item put in is, in the end, either
 delivered to the sink, skipped, or dropped by a stage (which returned ``None`` or raised).
+An item put ``pinned`` (a live run's first frame: its rest reference) is never skipped: each
+stage takes it before the newest.
 Beside a recording, each stage's thread runs at a lower priority than the recording's
 (``yield_to_recording``: :func:`vbfe.common.priority.yield_to_recording`), as do the worker
 threads it starts.
@@ -56,9 +58,10 @@ class Pipeline:
         for thread in self._threads:
             thread.start()
 
-    def put(self, item: Any) -> None:
-        """Hand an item to the first stage (replacing one it has not taken yet)."""
-        self._hand_on(0, item, entering=True)
+    def put(self, item: Any, pinned: bool = False) -> None:
+        """Hand an item to the first stage (replacing one it has not taken yet, unless it or
+        the waiting one is ``pinned``)."""
+        self._hand_on(0, (item, pinned), entering=True)
 
     @property
     def skipped(self) -> int:
@@ -75,15 +78,16 @@ class Pipeline:
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join()
 
-    def _hand_on(self, k: int, item: Any, entering: bool = False) -> None:
-        """Put ``item`` in stage ``k``'s mailbox (the sink's after the last stage)."""
+    def _hand_on(self, k: int, entry: tuple[Any, bool], entering: bool = False) -> None:
+        """Put ``entry`` (item, pinned) in stage ``k``'s mailbox (the sink's after the last
+        stage)."""
         with self._flow:
             if k == len(self.inboxes):
                 self._in_flight -= 1
             else:
                 box = self.inboxes[k]
                 before = box.skipped
-                box.put(item)
+                box.put(entry, pinned=entry[1])
                 if entering and box.skipped == before:
                     self._in_flight += 1
                 elif not entering and box.skipped != before:
@@ -100,9 +104,10 @@ class Pipeline:
             lower_priority()
         last = k == len(self.inboxes) - 1
         while not self._halt.is_set():
-            item = self.inboxes[k].take(_POLL_S)
-            if item is None:
+            entry = self.inboxes[k].take(_POLL_S)
+            if entry is None:
                 continue
+            item, pinned = entry
             try:
                 result = work(item)
                 if result is None:
@@ -110,7 +115,7 @@ class Pipeline:
                     continue
                 if last:
                     self._sink(result)
-                self._hand_on(k + 1, result)
+                self._hand_on(k + 1, (result, pinned))
             except Exception as exc:  # noqa: BLE001 - kept for the run to report
                 if self.error is None:
                     self.error = f"{self.names[k]}: {exc}"

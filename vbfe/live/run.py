@@ -184,7 +184,9 @@ class LiveRun(Listener):
     The recording comes first: the run is a lossy listener (it takes the newest frame on the
     acquisition's live thread, never the writer's), and a frame that reaches it more than
     ``max_frame_age_s`` after its capture (0: no limit) is skipped, the machine being behind.
-    Every frame the estimate did not use is counted in the status's ``skipped``.
+    Every frame the estimate did not use is counted in the status's ``skipped``; the first
+    frame never is (the acquisition and the pipeline pin it): it is the estimator's rest
+    reference, as the first frame of the recording is offline.
     """
 
     lossy = True
@@ -286,7 +288,9 @@ class LiveRun(Listener):
     def on_frames(self, frames: Sequence[StereoFrame]) -> None:
         for frame in frames:
             self._frames_seen += 1
-            if time.monotonic_ns() - frame.t_host_ns > self._max_age_ns:
+            if self._frames_seen == 1:  # the rest reference: never skipped, however late
+                self._pipeline.put(FrameWork(frame), pinned=True)
+            elif time.monotonic_ns() - frame.t_host_ns > self._max_age_ns:
                 self._frames_late += 1
             else:
                 self._pipeline.put(FrameWork(frame))
