@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 ARCHITECTURE = "pointnet-regressor"
@@ -73,6 +74,26 @@ def _shared_mlp(channels: Sequence[int], n_in: int) -> nn.Sequential:
     for c_in, c_out in zip([n_in, *channels[:-1]], channels, strict=False):
         layers += [nn.Conv1d(c_in, c_out, kernel_size=1), nn.BatchNorm1d(c_out), nn.ELU()]
     return nn.Sequential(*layers)
+
+
+def shared_mlp_pooled(mlp: nn.Sequential, points: torch.Tensor) -> torch.Tensor:
+    """The shared per-point MLP on clouds B×N×C, max-pooled over the points (B×C_out).
+
+    Points last: every 1×1 ``Conv1d`` is one matrix product over all B·N points with the
+    convolution's own weights, batch norm sees (B·N)×C (the same per-channel statistics as on
+    B×C×N) and ELU works in place: the same network (and state dict) as ``mlp`` applied to
+    B×C×N, faster on a CPU (no transposes, one GEMM per layer, one tensor less per ELU).
+    """
+    b, n = points.shape[:2]
+    x = points.reshape(b * n, -1)
+    for layer in mlp:
+        if isinstance(layer, nn.Conv1d):
+            x = F.linear(x, layer.weight.squeeze(-1), layer.bias)
+        elif isinstance(layer, nn.ELU):
+            x = F.elu(x, layer.alpha, inplace=True)
+        else:
+            x = layer(x)
+    return x.reshape(b, n, -1).amax(dim=1)
 
 
 def _head(n_in: int, channels: Sequence[int], dropout: float, n_outputs: int) -> nn.Sequential:
@@ -151,7 +172,7 @@ class PointNetRegressor(nn.Module):
         normalized, features = normalize_clouds(points[..., :3])
         if self.rest_depth:
             normalized = torch.cat([normalized, points[..., 3:4] / self.depth_scale], dim=-1)
-        pooled = self.features(normalized.transpose(1, 2)).amax(dim=2)
+        pooled = shared_mlp_pooled(self.features, normalized)
         if self.global_features:
             pooled = torch.cat([pooled, (features - self.feature_mean) / self.feature_std], dim=1)
         return pooled

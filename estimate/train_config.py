@@ -70,7 +70,7 @@ class TrainConfig:
     # after this wall time (0 = no limit); training is otherwise the same on any machine
     threads: int = setting(2, ge=1)  # torch CPU threads while training (fixed: determinism)
     # "auto" (CUDA when torch sees it), "cpu" or "cuda"
-    device: Literal[DEVICES] = "cpu"  # type: ignore[valid-type]
+    device: Literal[DEVICES] = "auto"  # type: ignore[valid-type]
     temporal_frames: int = setting(0, ge=0)  # temporal model: k frames in its causal window
     temporal_span_frames: int = setting(10, ge=1)  # oldest to newest frame of the window
     temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it

@@ -11,6 +11,7 @@ from vbfe.estimate.pointnet import (
     TemporalPointNet,
     diameter,
     normalize_clouds,
+    shared_mlp_pooled,
     weighted_centroid,
 )
 from vbfe.estimate.rest_depth import RestDepth
@@ -61,6 +62,25 @@ def test_network_output_does_not_depend_on_point_order(clouds):
     out = net(clouds)
     assert out.shape == (4, 3)
     torch.testing.assert_close(out, net(shuffled), rtol=1e-5, atol=1e-5)
+
+
+def test_points_last_shared_mlp_is_the_convolutions_with_their_gradients(clouds):
+    torch.manual_seed(1)
+    net = PointNetRegressor(n_outputs=1, conv_channels=(16, 32), head_channels=(16,))
+    twin = PointNetRegressor(n_outputs=1, conv_channels=(16, 32), head_channels=(16,))
+    twin.load_state_dict(net.state_dict())
+    net, twin, clouds = net.double(), twin.double(), clouds.double()  # no near ties at the max
+    for training in (True, False):
+        net.train(training), twin.train(training)
+        fast = shared_mlp_pooled(net.features, clouds)
+        conv = twin.features(clouds.transpose(1, 2)).amax(dim=2)  # B×C×N through Conv1d
+        torch.testing.assert_close(fast, conv)
+        fast.square().sum().backward(), conv.square().sum().backward()
+    for a, b in zip(net.features.parameters(), twin.features.parameters(), strict=True):
+        assert a.grad is not None and a.grad.abs().sum() > 0
+        torch.testing.assert_close(a.grad, b.grad)
+    for a, b in zip(net.features.buffers(), twin.features.buffers(), strict=True):
+        torch.testing.assert_close(a, b)  # batch norm's running statistics
 
 
 def test_global_features_carry_the_size_that_normalisation_removes(clouds):

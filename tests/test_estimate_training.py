@@ -16,6 +16,7 @@ from vbfe.estimate.dataset import prepare_session
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.inference import FramePredictor
 from vbfe.estimate.model_file import load_model
+from vbfe.estimate.network_training import resolve_device
 from vbfe.estimate.synthetic import synthetic_session, synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
 from vbfe.estimate.training import best_epochs, train
@@ -252,6 +253,15 @@ def test_without_validation_data_training_says_so_and_runs_the_fixed_epochs(tmp_
     )
     assert any("too little data for a validation set" in n for n in result.notes)
     assert result.epochs_run == result.best_epoch == 4
+
+
+def test_auto_device_is_the_gpu_torch_sees_else_the_cpu(monkeypatch):
+    assert TrainConfig().device == "auto"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == resolve_device("cpu") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == resolve_device("cuda") == torch.device("cuda")
+    assert resolve_device("cpu") == torch.device("cpu")  # asked for: the CPU even with a GPU
 
 
 def test_cuda_request_without_a_gpu_is_refused(tmp_path):

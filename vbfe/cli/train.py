@@ -100,8 +100,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--device",
         metavar="auto|cpu|cuda",
-        help="where the networks train: cpu (default), cuda, or auto (cuda when torch sees a "
-        "GPU; the last line says which)",
+        help="where the networks train: auto (default: cuda when torch sees a GPU, else cpu; "
+        "the last line says which), cpu or cuda",
     )
     parser.add_argument(
         "--time-limit",
