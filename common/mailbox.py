@@ -42,8 +42,9 @@ class Mailbox(Generic[T]):
         with self._ready:
             if self._item is None and self._pinned is None:
                 self._ready.wait(timeout_s)
+            item: T | None
             if self._pinned is not None:
                 item, self._pinned = self._pinned, None
-                return item
-            item, self._item = self._item, None
+            else:
+                item, self._item = self._item, None
             return item
