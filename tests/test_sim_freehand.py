@@ -7,6 +7,7 @@ from vbfe.common.errors import ConfigError, DeviceError
 from vbfe.drivers.sim import SimBench
 from vbfe.drivers.sim.freehand import RELEASE, FreehandProtocol
 from vbfe.drivers.sim.mechanics import HOLD, PAPER_CONDITIONS, PULL, REST, TractionProtocol
+from vbfe.rig_config import builtin_rig
 from vbfe.truth import trial_duration_s
 
 T = np.arange(0.0, 15.0, 0.01)
@@ -64,7 +65,7 @@ def test_trials_differ_in_stiffness_thickness_and_grasp():
     assert {c["protocol"] for c in conditions} == {"freehand"}
     for seed, bench in enumerate(benches):
         table = {"protocol": "freehand", "seed": seed}
-        assert trial_duration_s({"bench": table}) == bench.duration_s()
+        assert trial_duration_s(builtin_rig({"bench": table})) == bench.duration_s()
     again = SimBench.from_description(benches[1].describe())
     assert again.trial.protocol == benches[1].trial.protocol
 
