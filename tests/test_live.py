@@ -111,6 +111,7 @@ def vbfe(*args):
     )
 
 
+@pytest.mark.slow  # real time, then reconstruct and evaluate its session
 def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     folder, model, calib, bench_toml = rig
     session = folder / "live.h5"

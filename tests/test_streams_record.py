@@ -22,6 +22,8 @@ from vbfe.acquire import SessionReader
 BENCH = "[bench]\nwidth = 320\nheight = 180\nfps = 10.0\ndistortion = false\nrealtime = true\n"
 RECORD_S = 10.0
 
+pytestmark = pytest.mark.slow  # real-time recordings of the bench with LSL outlets, 10 s and more
+
 
 def vbfe(*args: object) -> list[str]:
     return [sys.executable, "-m", "vbfe.cli.main", *map(str, args)]
