@@ -288,7 +288,10 @@ def test_record_serves_foxglove_the_streams_while_recording_every_frame(tmp_path
     np.testing.assert_allclose(got_values, robot.value(due[index]))
     assert len(got["/trocar/wrench"]) >= 1500
     images = got["/stereo/left/image_raw/compressed"]
-    assert len(images) >= 10
+    # 2 s of a 10 fps camera: the viewer yields to the recording (nice +10, newest frame only)
+    # and skips frames on a busy machine (7 of 20 beside two busy processes); its rate is
+    # bench_live's to measure, the file keeps every frame (below)
+    assert len(images) >= 3
     with SessionReader(path) as reader:
         recorded = [reader.frame(i).left for i in range(reader.n_frames)]
         attrs = reader.attrs
