@@ -107,7 +107,8 @@ def test_the_whole_day_through_the_window(qtbot, tmp_path):
 
     # Rig: the running rig saved as the rig file; settled values go there from now on
     rig_tab = window.rig_tab
-    assert rig_tab.simulated.text().startswith("simulated bench")
+    # (the tab fills its labels on the window's first refresh tick)
+    qtbot.waitUntil(lambda: rig_tab.simulated.text().startswith("simulated bench"))
     rig_tab.rig_file.setText(str(rig_file))
     click(qtbot, rig_tab.save_button)
     assert window.options.rig_file == rig_file and not window.errors
