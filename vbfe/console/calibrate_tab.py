@@ -20,7 +20,7 @@ from vbfe.calib.commands import board_spec
 from vbfe.calib.report import gate_lines, summary_rows
 from vbfe.common.errors import VbfeError
 from vbfe.console.desks import CalibrationOutcome, LiveCapture, calibrate
-from vbfe.console.widgets import ImagePane, Tab, form, value_label, with_picker
+from vbfe.console.widgets import ImagePane, Tab, form, readonly_table, value_label, with_picker
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
@@ -231,11 +231,7 @@ class CalibrateTab(Tab):
         scroll.setWidget(self.result_text)
         results = QtWidgets.QHBoxLayout()
         results.addWidget(scroll, 3)
-        self.views = QtWidgets.QTableWidget(0, len(VIEW_COLUMNS))  # per view: click to see it
-        self.views.setHorizontalHeaderLabels(VIEW_COLUMNS)
-        self.views.horizontalHeader().setStretchLastSection(True)
-        self.views.verticalHeader().hide()
-        self.views.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.views = readonly_table(VIEW_COLUMNS)  # per view: click to see it
         self.views.setSelectionBehavior(QtWidgets.QAbstractItemView.SelectionBehavior.SelectRows)
         self.views.setToolTip("click a view to see it with its corners, and why it was refused")
         self.views.cellClicked.connect(lambda row, _: self.show_view(row))

@@ -26,7 +26,7 @@ from vbfe.common.errors import SessionError, VbfeError
 from vbfe.common.files import error_line, stale_locks
 from vbfe.common.settings import parse_conditions
 from vbfe.console.station import Finished, SessionRequest
-from vbfe.console.widgets import Tab, form, value_label, with_picker
+from vbfe.console.widgets import Tab, form, readonly_table, show_rows, value_label, with_picker
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow
@@ -102,11 +102,7 @@ class RecordTab(Tab):
                 ]
             )
         )
-        self.streams = QtWidgets.QTableWidget(0, len(STREAM_COLUMNS))
-        self.streams.setHorizontalHeaderLabels(STREAM_COLUMNS)
-        self.streams.horizontalHeader().setStretchLastSection(True)
-        self.streams.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.streams.verticalHeader().hide()
+        self.streams = readonly_table(STREAM_COLUMNS)
         layout.addWidget(QtWidgets.QLabel("streams recorded (from the rig configuration)"))
         layout.addWidget(self.streams, 1)
         buttons = QtWidgets.QHBoxLayout()
@@ -298,14 +294,7 @@ class RecordTab(Tab):
             )
             for p in station.planned_streams()
         ]
-        self.streams.setRowCount(len(rows))
-        for r, row in enumerate(rows):
-            for c, text in enumerate(row):
-                item = self.streams.item(r, c)
-                if item is None:
-                    self.streams.setItem(r, c, QtWidgets.QTableWidgetItem(text))
-                elif item.text() != text:
-                    item.setText(text)
+        show_rows(self.streams, rows)
 
     def on_finished(self, finished: Finished) -> None:
         self.stopping = False

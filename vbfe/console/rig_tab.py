@@ -14,7 +14,7 @@ from pyqtgraph.Qt import QtGui, QtWidgets
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import error_line
 from vbfe.console.desks import save_rig_file
-from vbfe.console.widgets import Tab, value_label, with_picker
+from vbfe.console.widgets import Tab, readonly_table, show_rows, value_label, with_picker
 from vbfe.drivers.registry import FAMILIES, configured_devices
 
 if TYPE_CHECKING:
@@ -50,21 +50,13 @@ class RigTab(Tab):
         self.file_state = value_label()
         layout.addWidget(self.file_state)
         layout.addWidget(QtWidgets.QLabel("devices of the rig configuration"))
-        self.devices = QtWidgets.QTableWidget(0, len(CONFIGURED))
-        self.devices.setHorizontalHeaderLabels(CONFIGURED)
-        self.devices.horizontalHeader().setStretchLastSection(True)
-        self.devices.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.devices.verticalHeader().hide()
+        self.devices = readonly_table(CONFIGURED)
         layout.addWidget(self.devices, 1)
         self.test_buttons: dict[str, QtWidgets.QPushButton] = {}
         self.test_results: dict[str, str] = {}  # device -> OPENS or why it does not open
         self._listed: object = None  # the device tables the list shows
         layout.addWidget(QtWidgets.QLabel("the running rig"))
-        self.table = QtWidgets.QTableWidget(0, len(COLUMNS))
-        self.table.setHorizontalHeaderLabels(COLUMNS)
-        self.table.horizontalHeader().setStretchLastSection(True)
-        self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.table.verticalHeader().hide()
+        self.table = readonly_table(COLUMNS)
         layout.addWidget(self.table, 1)
         self.problem = value_label()
         self.problem.setStyleSheet("color: #c00000")
@@ -214,14 +206,6 @@ class RigTab(Tab):
             if rig_file is not None
             else "no rig file: settled values are lost when the window closes; save one here"
         )
-        rows = self.rows()
-        self.table.setRowCount(len(rows))
-        for r, row in enumerate(rows):
-            for c, text in enumerate(row):
-                item = self.table.item(r, c)
-                if item is None:
-                    self.table.setItem(r, c, QtWidgets.QTableWidgetItem(text))
-                elif item.text() != text:
-                    item.setText(text)
+        show_rows(self.table, self.rows())
         failed = {k: v for k, v in self.station.device_errors.items() if v}
         self.problem.setText("".join(f"{name}: {why}\n" for name, why in failed.items()).strip())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import cv2
@@ -85,6 +86,29 @@ def value_label() -> QtWidgets.QLabel:
     label.setWordWrap(True)
     label.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
     return label
+
+
+def readonly_table(columns: Sequence[str]) -> QtWidgets.QTableWidget:
+    """A table of ``columns`` the operator reads but does not edit, without row numbers."""
+    table = QtWidgets.QTableWidget(0, len(columns))
+    table.setHorizontalHeaderLabels(list(columns))
+    table.horizontalHeader().setStretchLastSection(True)
+    table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+    table.verticalHeader().hide()
+    return table
+
+
+def show_rows(table: QtWidgets.QTableWidget, rows: Sequence[Sequence[str]]) -> None:
+    """Show ``rows`` of texts in ``table``, touching only the cells whose text changed (a
+    refresh tick does not repaint an unchanged table)."""
+    table.setRowCount(len(rows))
+    for r, row in enumerate(rows):
+        for c, text in enumerate(row):
+            item = table.item(r, c)
+            if item is None:
+                table.setItem(r, c, QtWidgets.QTableWidgetItem(text))
+            elif item.text() != text:
+                item.setText(text)
 
 
 class Tab(QtWidgets.QWidget):
