@@ -70,6 +70,9 @@ class FoxgloveClient:
         )
         self.channels: dict[int, dict[str, Any]] = {}  # advertised, by channel id
         self.server_info: dict[str, Any] = {}
+        self.statuses: list[dict[str, Any]] = []  # the server's status messages, as read
+        host, port = self._sock.getsockname()[:2]
+        self.address = f"{host}:{port}"  # as the server sees this client
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
         self.closed = False  # the server closed the connection
 
@@ -147,6 +150,8 @@ class FoxgloveClient:
                 self.channels.pop(channel_id, None)
         elif message.get("op") == "serverInfo":
             self.server_info = message
+        elif message.get("op") == "status":
+            self.statuses.append(message)
 
     def wait_for_topics(self, topics: set[str], timeout_s: float = 30.0) -> dict[str, dict]:
         """The advertised channels of ``topics`` (by topic), once all are advertised."""

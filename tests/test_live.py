@@ -461,9 +461,9 @@ def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
     """A client that subscribes to the raw images and the trocar's wrench and stops reading,
     beside one that reads the wrench: the fast one gets all it was handed; the slow one, once
     the socket's buffers are full of images, gets less than it was handed (foxglove-sdk
-    dropped the oldest for it) and the closing line names both clients' shares and that a
-    slow client loses the oldest; the server does not wait for it at the end (foxglove-sdk's
-    stop would, forever)."""
+    dropped the oldest for it) and the closing line names both clients' shares and the slow
+    client as fallen behind, as the status every client is sent does; the server does not
+    wait for it at the end (foxglove-sdk's stop would, forever)."""
     import re
 
     from tests.foxglove_client import FoxgloveClient
@@ -498,6 +498,11 @@ def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
     assert received in shares  # the fast client got every message handed for it
     slow_share = max(shares) if received == min(shares) else min(shares)
     assert late < slow_share - 500  # the slow one lost the oldest (fewer than handed)
+    # foxglove-sdk's report of the overflow names the slow client, in the line and in the
+    # status every client is sent (the fast one read it), never the fast one
+    assert f"fell behind (queue full, oldest dropped): {slow.address};" in line, line
+    told = [s["message"] for s in fast.statuses if "fell behind" in s["message"]]
+    assert told and slow.address in told[0] and fast.address not in told[0], fast.statuses
     assert line.endswith("a client that stopped reading was left behind at the end")
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import queue
 import threading
@@ -37,6 +38,7 @@ from vbfe.common.errors import LiveError
 from vbfe.common.mailbox import Mailbox
 from vbfe.common.priority import yield_to_recording
 from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.live.foxglove_overflow import Overflows
 from vbfe.live.outputs import EstimateOutput
 from vbfe.messages import builders
 from vbfe.messages.images import ImageCodec
@@ -45,6 +47,8 @@ from vbfe.messages.topics import TOPICS, schema_text
 if TYPE_CHECKING:
     from vbfe.acquire import Acquisition
     from vbfe.live.estimator import LiveEstimate
+
+log = logging.getLogger(__name__)
 
 LIVE_IMAGES = ImageCodec("jpeg", 90)
 STREAM_TOPIC = "/vbfe/streams/"  # + the stream's name
@@ -166,6 +170,7 @@ class FoxgloveServer(EstimateOutput):
         self._context: Any = None
         self._channels: dict[str, Any] = {}
         self._subscribers = _Subscribers()
+        self._overflows = Overflows()
         self._stream_labels: dict[str, tuple[str, ...]] = {}
         self._beside_recording = False
 
@@ -180,6 +185,7 @@ class FoxgloveServer(EstimateOutput):
         if self._server is not None:
             return
         self._context = foxglove.Context()
+        self._overflows.attach()
         try:
             self._server = foxglove.start_server(
                 name="vbfe",
@@ -190,6 +196,7 @@ class FoxgloveServer(EstimateOutput):
                 message_backlog_size=BACKLOG,
             )
         except Exception as exc:  # noqa: BLE001 - the SDK's own error types vary by version
+            self._overflows.detach()
             raise LiveError(
                 f"--foxglove {self.port}: cannot serve on {self.host}:{self.port} ({exc}); "
                 "give another port"
@@ -259,6 +266,7 @@ class FoxgloveServer(EstimateOutput):
             stopping.join(STOP_WAIT_S)
             self.stalled = stopping.is_alive()
             self._server = None
+            self._overflows.detach()
         self.frames_skipped = self._frames.skipped
 
     # -- listener hooks: hand over, never wait ----------------------------------------------
@@ -306,6 +314,7 @@ class FoxgloveServer(EstimateOutput):
 
     def _send_all(self) -> None:
         while not self._halt.is_set():
+            self._tell_overflows()
             frame = self._frames.take(_POLL_S)
             if frame is not None:
                 self._send_frame(frame)
@@ -321,6 +330,20 @@ class FoxgloveServer(EstimateOutput):
                 except queue.Empty:
                     break
                 self._send_record(kind, item)
+
+    def _tell_overflows(self) -> None:
+        """A client foxglove-sdk reports fallen behind: said in the log and, as a warning,
+        in every client's status (the Foxglove app shows it under its problems)."""
+        from foxglove.websocket import StatusLevel
+
+        for client in self._overflows.new():
+            text = (
+                f"Foxglove client {client} fell behind: its queue of {BACKLOG} messages is "
+                "full and the oldest are dropped for it (the recording loses nothing)"
+            )
+            log.warning(text)
+            if self._server is not None:
+                self._server.publish_status(text, StatusLevel.Warning, id="vbfe-fell-behind")
 
     def _log(self, topic: str, t_ns: int, data: Any) -> None:
         channel = self._channels[topic]
@@ -345,6 +368,11 @@ class FoxgloveServer(EstimateOutput):
             f"count them); {self.frames_skipped} frames skipped for the viewer"
             + (" (none for the file)" if recording else "")
             + f", {self.records_dropped} records dropped for the viewer"
+            + (
+                "; fell behind (queue full, oldest dropped): " + ", ".join(self._overflows.clients)
+                if self._overflows.clients
+                else ""
+            )
             + ("; a client that stopped reading was left behind at the end" if self.stalled else "")
         )
 
