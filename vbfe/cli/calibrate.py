@@ -145,6 +145,10 @@ def _fraction(text: str) -> float:
     return value
 
 
+def _alpha(text: str) -> float:
+    return -1.0 if text.strip() == "-1" else _fraction(text)
+
+
 _STEREO_FLAGS: dict[str, GateFlag] = {
     "min_baseline_mm": (
         "--min-baseline-mm",
@@ -168,9 +172,11 @@ _STEREO_FLAGS: dict[str, GateFlag] = {
     ),
     "rectify_alpha": (
         "--rectify-alpha",
-        _fraction,
+        _alpha,
         "ALPHA",
-        "stereoRectify's free scaling: 0 = only valid pixels, 1 = the whole camera image "
+        "-1: no free scaling (the rectified focal length is the eyes' fy, each eye's principal "
+        "point stays put); 0-1: stereoRectify's free scaling, 0 = only valid pixels, 1 = the "
+        "whole camera image "
         "(default: [calib] rectify_alpha)",
     ),
     "zero_disparity": (
