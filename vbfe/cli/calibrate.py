@@ -146,7 +146,13 @@ def _fraction(text: str) -> float:
 
 
 def _alpha(text: str) -> float:
-    return -1.0 if text.strip() == "-1" else _fraction(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if value != -1 and not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be -1 or within [0, 1], got {text}")
+    return value
 
 
 _STEREO_FLAGS: dict[str, GateFlag] = {
