@@ -126,7 +126,8 @@ def rectification_cause(cal: Calibration, min_fraction: float) -> str:
     each candidate cause (zero disparity with the principal-point offset between the eyes, the
     distortion, the rotation between the eyes). Only a cause whose removal keeps
     :data:`_SUPPORTED` more is named, and only remedies whose recomputed share reaches
-    ``min_fraction`` are offered, each with the options that give it."""
+    ``min_fraction`` are offered (also for a cause below that), each with the options that
+    give it."""
     size = cal.image_size
     alpha = float(cal.info.get("rectify_alpha", 0.0))
     zero = abs(cal.doffs) < 1e-6
@@ -201,7 +202,7 @@ def rectification_cause(cal: Calibration, min_fraction: float) -> str:
         text = "the cause is " + " and ".join(names[k] for k in causes)
     fixes = [
         f"{said} (recomputed: {share * 100:.0f} %)"
-        for k in causes
+        for k in [*causes, *(k for k in remedies if k not in causes)]
         for said, (share, _) in remedies[k]
         if share >= min_fraction and said
     ]
@@ -272,7 +273,7 @@ def stereo_gates(
         Gate(
             "rectified image kept",
             " / ".join(f"{eye} {min(f) * 100:.0f} %" for eye, f in fractions.items())
-            + (f" (--rectify-alpha {alpha:g})" if alpha else ""),
+            + (f" (--rectify-alpha {alpha:g})" if alpha >= 0 else ""),
             f">= {limits.min_rectified_fraction * 100:g} % (--min-rectified-fraction)",
             UNCHECKED if not geometry else FAIL if low else PASS,
             None

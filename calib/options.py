@@ -48,7 +48,7 @@ class CalibSettings:
     min_rectified_fraction: float = dataclasses.field(metadata=limits(ge=0, le=1))
     desync_min_px: float = dataclasses.field(metadata=limits(ge=0))
     reject_desync: bool
-    rectify_alpha: float = dataclasses.field(metadata=limits(ge=0, le=1))
+    rectify_alpha: float = dataclasses.field(metadata=limits(ge=-1, le=1))
     zero_disparity: Literal["auto", "on", "off"]
     working_distance_mm: float = dataclasses.field(metadata=limits(gt=0))
     capture_views: int = dataclasses.field(metadata=limits(ge=1))

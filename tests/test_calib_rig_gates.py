@@ -106,12 +106,16 @@ def test_fixed_intrinsics_solve_and_rectify_as_plain_opencv(tmp_path):
     )  # fmt: skip
     assert np.allclose(cal.R, R, atol=1e-9) and np.allclose(cal.T, T.ravel(), atol=1e-9)
     assert cal.rms_stereo_px == pytest.approx(rms, rel=1e-6)
-    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-        left.K, left.D, right.K, right.D, (640, 480), R, T,
-        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0,
+    R1, R2, _, P2, _, _, _ = cv2.stereoRectify(
+        left.K, left.D, right.K, right.D, (640, 480), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
     )  # fmt: skip
-    for ours, theirs in ((cal.R1, R1), (cal.R2, R2), (cal.P1, P1), (cal.P2, P2)):
-        assert np.allclose(ours, theirs, atol=1e-6)
+    assert np.allclose(cal.R1, R1, atol=1e-9) and np.allclose(cal.R2, R2, atol=1e-9)
+    assert cal.B == pytest.approx(-P2[0, 3] / P2[0, 0], rel=1e-9)
+    # no free scaling: the smaller fy, the eyes' principal rays at their principal points' mean
+    assert cal.f == cal.fy == min(left.K[1, 1], right.K[1, 1]) and cal.doffs == 0
+    rays = [P[:, :3] @ Rk[:, 2] for P, Rk in ((cal.P1, R1), (cal.P2, R2))]
+    landed = np.mean([ray[:2] / ray[2] for ray in rays], axis=0)
+    assert landed == pytest.approx((left.K[:2, 2] + right.K[:2, 2]) / 2, abs=1e-9)
     assert 0 <= cal.cx < 640 and 0 <= cal.cy < 480
 
 

@@ -145,6 +145,16 @@ def _fraction(text: str) -> float:
     return value
 
 
+def _alpha(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if value != -1 and not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be -1 or within [0, 1], got {text}")
+    return value
+
+
 _STEREO_FLAGS: dict[str, GateFlag] = {
     "min_baseline_mm": (
         "--min-baseline-mm",
@@ -168,9 +178,11 @@ _STEREO_FLAGS: dict[str, GateFlag] = {
     ),
     "rectify_alpha": (
         "--rectify-alpha",
-        _fraction,
+        _alpha,
         "ALPHA",
-        "stereoRectify's free scaling: 0 = only valid pixels, 1 = the whole camera image "
+        "-1: no free scaling (the rectified focal length is the eyes' fy, each eye's principal "
+        "point stays put); 0-1: stereoRectify's free scaling, 0 = only valid pixels, 1 = the "
+        "whole camera image "
         "(default: [calib] rectify_alpha)",
     ),
     "zero_disparity": (
