@@ -7,8 +7,9 @@ RMSE from a block bootstrap over time (``bootstrap_intervals``: neighbouring fra
 copies of each other, so frames are resampled in contiguous blocks, the same blocks for every
 method). Every method's prediction of every scored frame is written to ``predictions.csv``
 with its prediction interval (``intervals.py``: empirical coverage and mean width per method
-and condition) and whether the frame lies outside the training data (``novelty.py``: flagged
-frames counted per condition).
+and condition) and whether the frame is flagged (flagged frames counted per condition): it lies
+outside the training data (``novelty.py``) or the shipped model parts ways with Hooke's law
+(``disagreement.py``).
 """
 
 from __future__ import annotations
