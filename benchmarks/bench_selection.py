@@ -12,7 +12,9 @@
    and above the training range): per condition the shipped model's MAE and interval
    coverage and the flagged share; the flag's hit rate (frames flagged among those whose
    error exceeds the shipped model's interval) and its false-alarm rate (flagged frames of the
-   standard trials of 2.).
+   standard trials of 2.), with what each of its two tests flags alone: the frame's distance
+   from the training data (``novelty.py``) and the shipped model's disagreement with Hooke's
+   law (``disagreement.py``).
 
 Recordings are kept in ``--sessions`` and reused. ``--retrain`` trains the demo's model again
 from its recorded sessions with the current code (the demo's estimate stage; its evaluations and
@@ -33,6 +35,7 @@ from vbfe.acquire import record_session
 from vbfe.calib import load_calibration
 from vbfe.demo import FREEHAND, DemoPlan, demo_config, estimate_stage, run_demo
 from vbfe.estimate.evaluation import evaluate
+from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.recon import reconstruct_session
 from vbfe.truth import trial_duration_s
 
@@ -90,13 +93,26 @@ def record(
 def frames_of(report: Any, selected: str) -> dict[str, np.ndarray]:
     """The shipped model's and the mean predictor's frames of an evaluation, concatenated."""
     rows = list(report.frames.values())
-    keys = ("measured_n", selected, f"{selected}_lo", f"{selected}_hi", "mean", "ood")
+    keys = (
+        "measured_n",
+        selected,
+        f"{selected}_lo",
+        f"{selected}_hi",
+        "mean",
+        "ood",
+        "novelty_m",
+        "disagreement_n",
+    )
     return {k: np.concatenate([r[k] for r in rows]) for k in keys if k in rows[0]}
 
 
-def scored(frames: dict[str, np.ndarray], selected: str) -> dict[str, Any]:
-    """MAE of the shipped model and the mean predictor, coverage, flagged share, outside."""
+def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> dict[str, Any]:
+    """MAE of the shipped model and the mean predictor, coverage, flagged share, outside,
+    and which frames each test of the flag marks alone."""
     truth = frames["measured_n"]
+    novelty = model.novelty.threshold if model.novelty is not None else np.inf
+    check = model.disagreement.threshold_n if model.disagreement is not None else np.inf
+    width = frames[f"{selected}_hi"][:, 0] - frames[f"{selected}_lo"][:, 0]
     error = np.linalg.norm(frames[selected] - truth, axis=1)
     outside = ~((truth >= frames[f"{selected}_lo"]) & (truth <= frames[f"{selected}_hi"])).all(1)
     return {
@@ -107,6 +123,8 @@ def scored(frames: dict[str, np.ndarray], selected: str) -> dict[str, Any]:
         "flagged": float(frames["ood"].mean()),
         "outside": outside,
         "ood": frames["ood"].astype(bool),
+        "novel": frames["novelty_m"] > novelty,
+        "off_hooke": frames["disagreement_n"] > np.fmax(check, width),
     }
 
 
@@ -173,7 +191,8 @@ def main() -> None:
         for r in range(args.trials)
     ]
     report = evaluate(model, standard, args.sessions / "eval-standard")
-    new = scored(frames_of(report, report.selected), report.selected)
+    shipped = load_model(model)
+    new = scored(frames_of(report, report.selected), report.selected, shipped)
     print(
         f"{args.trials} new freehand trials ({new['frames']} frames): shipped "
         f"{report.selected} MAE {new['mae']:.3f} N, mean predictor {new['mean_mae']:.3f} N, "
@@ -181,7 +200,7 @@ def main() -> None:
     )
     if not args.conditions:
         return
-    outside, flagged = [], []
+    outside, flagged, novel, off_hooke = [], [], [], []
     print("conditions the training did not use (one trial each):")
     for k, (label, knobs) in enumerate(CONDITIONS.items()):
         name = "cond_" + "".join(c if c.isalnum() else "_" for c in label)
@@ -189,12 +208,15 @@ def main() -> None:
             continue
         path = record(args.sessions, name, FIRST_SEED + 50 + k, args.seconds, calibration, knobs)
         result = evaluate(model, [path], args.sessions / f"eval-{name}")
-        row = scored(frames_of(result, result.selected), result.selected)
+        row = scored(frames_of(result, result.selected), result.selected, shipped)
         outside.append(row["outside"])
         flagged.append(row["ood"])
+        novel.append(row["novel"])
+        off_hooke.append(row["off_hooke"])
         print(
             f"  {label:22s} MAE {row['mae']:.3f} N (mean {row['mean_mae']:.3f}), covered "
-            f"{100 * row['covered']:5.1f} %, flagged {100 * row['flagged']:5.1f} %"
+            f"{100 * row['covered']:5.1f} %, flagged {100 * row['flagged']:5.1f} % (novel "
+            f"{100 * row['novel'].mean():5.1f} %, off Hooke {100 * row['off_hooke'].mean():5.1f} %)"
         )
     miss, ood = np.concatenate(outside), np.concatenate(flagged)
     print(
@@ -203,6 +225,16 @@ def main() -> None:
         f"flagged where inside: {100 * ood[~miss].mean():.1f} %; false alarms on the standard "
         f"trials: {100 * new['flagged']:.1f} %"
     )
+    for name, (alone, standard_alone) in {
+        "distance from the training data": (novel, new["novel"]),
+        "disagreement with Hooke's law": (off_hooke, new["off_hooke"]),
+    }.items():
+        hit = np.concatenate(alone)
+        print(
+            f"  {name} alone: hit rate {100 * hit[miss].mean() if miss.any() else 0:.1f} %, "
+            f"flagged where inside {100 * hit[~miss].mean():.1f} %, false alarms "
+            f"{100 * standard_alone.mean():.1f} %"
+        )
 
 
 if __name__ == "__main__":

@@ -7,8 +7,9 @@ RMSE from a block bootstrap over time (``bootstrap_intervals``: neighbouring fra
 copies of each other, so frames are resampled in contiguous blocks, the same blocks for every
 method). Every method's prediction of every scored frame is written to ``predictions.csv``
 with its prediction interval (``intervals.py``: empirical coverage and mean width per method
-and condition) and whether the frame lies outside the training data (``novelty.py``: flagged
-frames counted per condition).
+and condition) and whether the frame is flagged (flagged frames counted per condition): it lies
+outside the training data (``novelty.py``) or the shipped model parts ways with Hooke's law
+(``disagreement.py``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from vbfe.common.files import atomic_path
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import reads_texture
 from vbfe.estimate.dataset import PreparedSession, ProgressFn, prepare_sessions, skipped_counts
+from vbfe.estimate.disagreement import QUANTILE as DISAGREEMENT_QUANTILE
 from vbfe.estimate.intervals import coverage_width
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.estimate.novelty import QUANTILE as NOVELTY_QUANTILE
@@ -123,9 +125,10 @@ def _held_out_positions(model: ForceModel, session: PreparedSession) -> tuple[np
 def write_predictions_csv(
     path: Path, frames: dict[str, dict[str, np.ndarray]], methods: Sequence[str], n_outputs: int
 ) -> Path:
-    """One row per scored frame: session, frame, time, whether it is outside the training data
-    (``ood`` 1/0, its ``novelty_m``), measured and every method's force with, when the model
-    has one, its interval (``<method>_lo_n``, ``<method>_hi_n``)."""
+    """One row per scored frame: session, frame, time, whether it is flagged (``ood`` 1/0:
+    outside the training data, its ``novelty_m``, or off Hooke's law, ``disagreement_n``),
+    measured and every method's force with, when the model has one, its interval
+    (``<method>_lo_n``, ``<method>_hi_n``)."""
     columns = [f"_{k}" for k in range(n_outputs)] if n_outputs > 1 else [""]
     first = next(iter(frames.values()), {})
     keys = ["measured"]
@@ -140,6 +143,7 @@ def write_predictions_csv(
                 "time_s",
                 "ood",
                 "novelty_m",
+                "disagreement_n",
                 *(f"{key}{c}_n" for key in keys for c in columns),
             ]
         )
@@ -154,6 +158,7 @@ def write_predictions_csv(
                         f"{(data['times_ns'][i] - t0) / 1e9:.6f}",
                         int(data["ood"][i]),
                         f"{data['novelty_m'][i]:.6g}",
+                        f"{data['disagreement_n'][i]:.6g}",
                         *(f"{v:.6g}" for v in values),
                     ]
                 )
@@ -178,6 +183,16 @@ def _novelty(model: ForceModel, session: PreparedSession, positions: np.ndarray)
     if model.novelty is None:
         return np.full(len(positions), np.nan)
     return model.novelty.distances(session, positions)
+
+
+def _disagreement(model: ForceModel, per_method: dict[str, np.ndarray]) -> np.ndarray:
+    """Each scored frame's difference between the shipped model and the check's reference
+    (N; NaN: the model has no check)."""
+    selected = per_method[model.selected]
+    check = model.disagreement
+    if check is None:
+        return np.full(len(selected), np.nan)
+    return check.distances(selected, per_method[check.reference])
 
 
 def _stats(
@@ -251,12 +266,13 @@ def evaluate(
             predictions[method].append(force)
         measured.append(session.targets_n[positions])
         novelty = _novelty(model, session, positions)
-        flagged = novelty > (model.novelty.threshold if model.novelty else np.inf)
+        flagged = model.flagged(novelty, per_method)
         frames[session.name] = {
             "times_ns": session.times_ns[positions],
             "frame_index": session.frame_index[positions],
             "measured_n": session.targets_n[positions],
             "novelty_m": novelty,
+            "disagreement_n": _disagreement(model, per_method),
             "ood": flagged,
             **per_method,
         }
@@ -339,15 +355,24 @@ def evaluate(
         )
     if model.novelty is not None:
         overall = flags["overall"]
+        check = model.disagreement
         notes.append(
-            f"outside the training data: {overall['flagged']} of {overall['n_frames']} frames "
-            f"flagged ({100 * overall['share']:.1f} %; "
+            f"flagged (outside the training data{', or off Hooke' if check else ''}): "
+            f"{overall['flagged']} of {overall['n_frames']} frames "
+            f"({100 * overall['share']:.1f} %; "
             + ", ".join(
                 f"{c} {v['flagged']}/{v['n_frames']}" for c, v in flags["per_condition"].items()
             )
             + f"); a frame is flagged when its distance from the training frames exceeds "
             f"{model.novelty.threshold * 1e3:.3f} mm (the {NOVELTY_QUANTILE:g} quantile of "
             "the training frames' own)"
+            + (
+                f" or when {model.selected} and {check.reference} differ by more than "
+                f"{model.selected}'s interval width at the frame and {check.threshold_n:.3f} N "
+                f"(the {DISAGREEMENT_QUANTILE:g} quantile of their difference on held-out frames)"
+                if check
+                else ""
+            )
         )
     else:
         notes.append("no flag of frames outside the training data (model file without one)")

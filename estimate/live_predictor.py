@@ -6,10 +6,11 @@ random draws, same causal window): a network (PointNet or the temporal model) re
 frame's point pool, so the live path skips the peak displacement and the depth-change image the
 other estimators read, and draws the pool (the one draw, ``preparation.sample_points``) straight
 from a cloud whose points are all finite (``roi = "all"``) instead of copying the cloud first.
-When the model carries a flag of frames outside the training data (``estimate.novelty``) every
-frame's full features are computed, since the flag reads the depth-change image and the
-displacement. Likewise Hooke's law on the texture's displacement (without the flag) reads only
-that: the live path computes it alone, by the same ``TextureMotion`` as in training.
+When the model carries a flag of frames outside the training data (``estimate.novelty``) or a
+check against Hooke's law (``estimate.disagreement``) every frame's full features are computed,
+since the flag reads the depth-change image and the displacement, the check the displacement.
+Likewise Hooke's law on the texture's displacement (without either) reads only that: the live
+path computes it alone, by the same ``TextureMotion`` as in training.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 import torch
 
 from vbfe.common.errors import EstimateError
+from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
@@ -54,10 +56,9 @@ class LivePredictor:
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window
         estimator = model.estimators[model.selected]
         network = isinstance(estimator, NetworkEstimator)
-        self._pool_only = network and model.novelty is None
-        self._texture_only = (
-            getattr(estimator, "feature", None) == TEXTURE_FEATURE and model.novelty is None
-        )
+        flags = model.novelty is not None or model.disagreement is not None
+        self._pool_only = network and not flags
+        self._texture_only = getattr(estimator, "feature", None) == TEXTURE_FEATURE and not flags
         # a single-frame network reads the newest pool alone: called directly
         self._network: torch.nn.Module | None = None
         self._device: torch.device | None = None
@@ -119,10 +120,26 @@ class LivePredictor:
             return np.full_like(force_n, np.nan), np.full_like(force_n, np.nan)
         return self._interval.bounds(force_n, self.protocol)
 
-    def novelty(self, features: FrameFeatures) -> tuple[float, bool]:
+    def novelty(self, features: FrameFeatures, force_n: np.ndarray) -> tuple[float, bool]:
         """A frame's distance from the training data (m; NaN: the model has no flag) and
-        whether it is outside it."""
-        if self.model.novelty is None:
-            return float("nan"), False
-        distance = self.model.novelty.frame_distance(features)
-        return distance, bool(distance > self.model.novelty.threshold)
+        whether its estimate ``force_n`` is flagged (:meth:`ForceModel.flagged`: outside the
+        training data, or off Hooke's law)."""
+        model = self.model
+        distance = float("nan") if model.novelty is None else model.novelty.frame_distance(features)
+        force = np.asarray(force_n, np.float64)
+        lo, hi = self.bounds(force)
+        forces = {
+            model.selected: force[None],
+            f"{model.selected}_lo": lo[None],
+            f"{model.selected}_hi": hi[None],
+        }
+        check = model.disagreement
+        if check is not None:
+            reference = model.estimators[check.reference]
+            if not isinstance(reference, AffineBaseline):
+                raise EstimateError(f"the check's reference {check.reference} is not affine")
+            displacement = np.array([getattr(features, reference.feature)])
+            forces[check.reference] = physical_estimate(
+                reference.predict(displacement), model.config.target
+            )
+        return distance, bool(model.flagged(np.array([distance]), forces)[0])

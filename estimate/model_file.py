@@ -5,8 +5,9 @@ name and version, the vbfe version, the training config, every fitted estimator 
 baselines, each as its ``to_dict``: networks as hyper-parameters and weights), the name of the
 selected one, a training record (split as frame ranges, every method's validation MAE, the
 selection and its warnings, every method's prediction interval, histories, skipped-frame
-counts, cross-validation when run) and the flag of frames outside the training data. Files
-written before the intervals and the flag load without them.
+counts, cross-validation when run), the flag of frames outside the training data and the check
+of the shipped model against Hooke's law (``disagreement.py``). Files written before the
+intervals, the flag or the check load without them.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from vbfe.common.settings import parse_table
 from vbfe.common.version import __version__
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
 from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.disagreement import DisagreementCheck
 from vbfe.estimate.intervals import ConformalInterval
 from vbfe.estimate.novelty import NoveltyFlag
 from vbfe.estimate.preparation import physical_estimate
@@ -44,6 +46,7 @@ class ForceModel:
     selected: str  # the method name shipped (used by evaluate's summary and vbfe live)
     record: dict[str, Any] = field(default_factory=dict)
     novelty: NoveltyFlag | None = None  # flags frames outside the training data
+    disagreement: DisagreementCheck | None = None  # flags the shipped model off Hooke's law
 
     def interval(self, method: str | None = None) -> ConformalInterval | None:
         """The prediction interval of the selected (or the named) method, if calibrated."""
@@ -76,6 +79,23 @@ class ForceModel:
         force = self.estimators[name].predict_session(session, positions)
         return physical_estimate(force, self.config.target)
 
+    def flagged(self, novelty_m: np.ndarray, forces: dict[str, np.ndarray]) -> np.ndarray:
+        """Per frame, whether its estimate is flagged: the frame lies outside the training
+        data (``novelty_m`` over the flag's threshold) or the shipped model disagrees with
+        Hooke's law (``forces``: frames × outputs of the selected method, its interval
+        ``<selected>_lo``/``_hi`` when it has one, and the check's reference)."""
+        novelty = np.asarray(novelty_m, np.float64)
+        out = novelty > (self.novelty.threshold if self.novelty is not None else np.inf)
+        if self.disagreement is not None:
+            check, name = self.disagreement, self.selected
+            out |= check.flags(
+                forces[name],
+                forces[check.reference],
+                forces.get(f"{name}_lo"),
+                forces.get(f"{name}_hi"),
+            )
+        return out
+
 
 def save_model(path: str | Path, model: ForceModel) -> Path:
     """Write the model file atomically (a temporary file renamed into place)."""
@@ -92,6 +112,8 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
     }
     if model.novelty is not None:
         payload["novelty"] = model.novelty.to_dict()
+    if model.disagreement is not None:
+        payload["disagreement"] = model.disagreement.to_dict()
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
@@ -163,10 +185,18 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
     record["vbfe_version"] = payload.get("vbfe_version")
     try:
         novelty = NoveltyFlag.from_dict(payload["novelty"]) if "novelty" in payload else None
-        model = ForceModel(config, estimators, payload["selected"], record, novelty)
+        check = (
+            DisagreementCheck.from_dict(payload["disagreement"])
+            if "disagreement" in payload
+            else None
+        )
+        if check is not None and check.reference not in estimators:
+            raise EstimateError(f"its reference {check.reference!r} is not among the estimators")
+        model = ForceModel(config, estimators, payload["selected"], record, novelty, check)
         model.interval()
     except (EstimateError, KeyError, TypeError, ValueError) as exc:
         raise EstimateError(
-            f"{path}: the intervals or the novelty flag are damaged ({exc}); {retrain}"
+            f"{path}: the intervals, the novelty flag or the disagreement check are damaged "
+            f"({exc}); {retrain}"
         ) from None
     return model

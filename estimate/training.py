@@ -58,6 +58,7 @@ from vbfe.estimate.dataset import (
     prepare_sessions,
     skipped_counts,
 )
+from vbfe.estimate.disagreement import DisagreementCheck, fit_disagreement
 from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.intervals import ConformalInterval, calibrate, coverage_width
 from vbfe.estimate.model_file import ForceModel, save_model
@@ -98,6 +99,7 @@ class SplitFit:
     fit_seconds: dict[str, float]  # wall time of each fit (baselines: all together)
     selection_mae_n: dict[str, float] = field(default_factory=dict)  # what selection read
     intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
+    disagreement: DisagreementCheck | None = None  # shipped model against Hooke's law
 
 
 @dataclass
@@ -595,8 +597,18 @@ def fit_split(
         ).to_dict()
         for name, (p, m, rows, source) in residuals.items()
     }
+    disagreement = fit_disagreement(selected, held) if selected in intervals else None
     return SplitFit(
-        split, estimators, val_mae, selected, notes, histories, seconds, scores, intervals
+        split,
+        estimators,
+        val_mae,
+        selected,
+        notes,
+        histories,
+        seconds,
+        scores,
+        intervals,
+        disagreement,
     )
 
 
@@ -786,6 +798,7 @@ def train(
         novelty=fit_novelty(
             by_session(fit.split.frames("train", prepared) + fit.split.frames("val", prepared))
         ),
+        disagreement=fit.disagreement,
     )
     path = save_model(out, model)
     return TrainResult(

@@ -150,7 +150,7 @@ def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
     lo, hi = predictor.bounds(force)
     half = model.interval().quantile
     np.testing.assert_allclose([lo, hi], [force - half, force + half])
-    distance, flagged = predictor.novelty(features)
+    distance, flagged = predictor.novelty(features, force)
     assert distance < model.novelty.threshold and not flagged  # a training frame
 
 
@@ -289,7 +289,8 @@ def test_evaluate_reports_coverage_and_flags_a_tissue_outside_the_training_range
     text = (out / "report.md").read_text()
     assert "Prediction intervals: coverage" in text
     assert (
-        f"outside the training data: {report.out_of_distribution['overall']['flagged']} of" in text
+        f"flagged (outside the training data, or off Hooke): "
+        f"{report.out_of_distribution['overall']['flagged']} of" in text
     )
     # the same surface reconstructed with a third of its points (a glossy or wet surface
     # losing matches): the same depth change, flagged
@@ -303,18 +304,70 @@ def test_evaluate_reports_coverage_and_flags_a_tissue_outside_the_training_range
     assert (flag.distances(sparse, every) > flag.threshold).all()
 
 
+def pressed(session):
+    """The trial with its surface pushed away from the camera instead of lifted towards it
+    (every frame's depth change mirrored about the rest frame's)."""
+    rest = session.clouds[0]
+    clouds = [rest] + [
+        np.column_stack([c[:, :2], 2 * rest[:, 2] - c[:, 2]]) for c in session.clouds[1:]
+    ]
+    return dataclasses.replace(session, name=f"{session.name}_pressed", clouds=clouds)
+
+
+def test_frames_where_the_shipped_model_parts_ways_with_hooke_are_flagged(tmp_path):
+    """Pressed instead of pulled, the peak displacement (Hooke's law reads its size) is
+    the same while the depth-change image the shipped ridge reads has the other sign: the
+    ridge errs, the check against Hooke fires. On new trials like the training ones it
+    stays quiet."""
+    rng = np.random.default_rng(8)
+    model_path = tmp_path / "m.pt"
+    train(trials(rng, 10, "fit", fps=4), model_path, TrainConfig(model="ridge", **FAST))
+    model = load_model(model_path)
+    check = model.disagreement
+    assert check.reference == "hooke" and 0 < check.threshold_n < np.inf
+    new = trials(rng, 4, "new", fps=4)
+    report = evaluate(model_path, new + [pressed(s) for s in new], tmp_path / "eval")
+    hits, misses = 0, 0
+    for name, frames in report.frames.items():
+        measured, shipped = frames["measured_n"], frames["ridge_height_map"]
+        hooke_error = np.abs(frames["hooke"] - measured).mean()
+        lo, hi = frames["ridge_height_map_lo"], frames["ridge_height_map_hi"]
+        # over the interval's width at the frame and the held-out frames' 0.99 quantile
+        fires = frames["disagreement_n"] > np.maximum(check.threshold_n, (hi - lo)[:, 0])
+        assert (frames["ood"] >= fires).all()  # the check's frames are flagged
+        if name.endswith("_pressed"):
+            outside = ~((measured >= lo) & (measured <= hi)).all(axis=1)
+            assert np.abs(shipped - measured).mean() > 2 * hooke_error
+            hits, misses = hits + fires[outside].sum(), misses + outside.sum()
+        else:
+            assert np.abs(shipped - measured).mean() < hooke_error
+            assert not frames["ood"].any()
+    # most frames the pressed trials' interval misses (the first ones, under 1 N, are not)
+    assert misses > 25 and hits >= 0.7 * misses
+    rows = list(csv.DictReader(open(tmp_path / "eval" / "predictions.csv")))
+    written = [float(r["disagreement_n"]) for r in rows if r["session"] == "new00_pressed"]
+    np.testing.assert_allclose(written, report.frames["new00_pressed"]["disagreement_n"], rtol=1e-5)
+    # vbfe live: the same check, frame by frame
+    predictor = LivePredictor(model)
+    live = []
+    for cloud in pressed(new[0]).clouds:
+        features = predictor.prepare(cloud)
+        live.append(predictor.novelty(features, predictor.model_force(features))[1])
+    assert live == report.frames[f"{new[0].name}_pressed"]["ood"].tolist()
+
+
 def test_model_files_without_intervals_or_flag_still_load(tmp_path):
     rng = np.random.default_rng(9)
     sessions = trials(rng, 6, "old")
     path = train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST)).model_path
     payload = torch.load(path, weights_only=True)
-    del payload["novelty"], payload["record"]["intervals"]
+    del payload["novelty"], payload["disagreement"], payload["record"]["intervals"]
     for key in ("interval_coverage", "interval_scale", "select_min_val_frames", "select_folds"):
         del payload["config"][key]  # written before these settings existed
     old = tmp_path / "old.pt"
     torch.save(payload, old)
     model = load_model(old)
-    assert model.interval() is None and model.novelty is None
+    assert model.interval() is None and model.novelty is None and model.disagreement is None
     predictor = LivePredictor(model)
     force = predictor.model_force(predictor.prepare(sessions[0].clouds[3]))
     assert np.isnan(predictor.bounds(force)[0]).all()

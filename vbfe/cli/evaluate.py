@@ -102,7 +102,10 @@ def run(args: argparse.Namespace) -> int:
             )
         )
     flags = report.out_of_distribution["overall"]
-    print(f"outside the training data: {flags['flagged']} of {flags['n_frames']} frames flagged")
+    print(
+        f"flagged (outside the training data, or off Hooke's law): {flags['flagged']} of "
+        f"{flags['n_frames']} frames"
+    )
     print(report.split_description)
     if report.seen_in_training:
         print(f"warning: {len(report.seen_in_training)} session(s) were used in training")
