@@ -275,6 +275,12 @@ def main(argv: list[str] | None = None) -> None:
         threads=args.threads,
         temporal_frames=args.temporal_frames,
         temporal_span_frames=2 * args.temporal_frames,
+        # the smoke run: every candidate still trained and evaluated, each as briefly as it can
+        **(
+            dict(cnn_epochs=args.epochs, interval_folds=False, select_min_val_frames=0)
+            if args.smoke
+            else {}
+        ),
     )
     print(
         f"{n_total} sessions; training {config.conv_channels} / {config.head_channels}, "

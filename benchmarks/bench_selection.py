@@ -19,18 +19,20 @@
 Recordings are kept in ``--sessions`` and reused. ``--retrain`` trains the demo's model again
 from its recorded sessions with the current code (the demo's estimate stage; its evaluations and
 ``results.json`` rewritten) instead of running the whole demo again. Run:
-``python benchmarks/bench_selection.py --demo /tmp/quick --sessions /tmp/new --conditions``.
+``python -m benchmarks.bench_selection --demo /tmp/quick --sessions /tmp/new --conditions``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from benchmarks import smoke
 from vbfe.acquire import record_session
 from vbfe.calib import load_calibration
 from vbfe.demo import FREEHAND, DemoPlan, demo_config, estimate_stage, run_demo
@@ -166,10 +168,10 @@ def _quiet(stage: str, total: int) -> Any:
     return lambda n=1: None
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--demo", type=Path, required=True)
-    parser.add_argument("--sessions", type=Path, required=True)
+    parser.add_argument("--demo", type=Path, help="the quick demo's folder (--smoke: a new one)")
+    parser.add_argument("--sessions", type=Path, help="the new trials' folder (--smoke: a new one)")
     parser.add_argument("--trials", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=15.0)
     parser.add_argument("--conditions", action="store_true")
@@ -177,7 +179,12 @@ def main() -> None:
     parser.add_argument(
         "--recorded-only", action="store_true", help="conditions: only those already recorded"
     )
-    args = parser.parse_args()
+    args = smoke.parse(parser, argv, trials=1, seconds=4.0)
+    if args.smoke:  # a quick demo of its own and one short new trial
+        scratch = Path(tempfile.mkdtemp(prefix="vbfe-smoke-"))
+        args.demo, args.sessions = scratch / "demo", scratch / "new"
+    if args.demo is None or args.sessions is None:
+        parser.error("--demo and --sessions are needed (or --smoke)")
     if not (args.demo / "results.json").exists():
         run_demo(args.demo, quick=True)
     elif args.retrain:
