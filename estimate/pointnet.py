@@ -82,18 +82,78 @@ def shared_mlp_pooled(mlp: nn.Sequential, points: torch.Tensor) -> torch.Tensor:
     Points last: every 1×1 ``Conv1d`` is one matrix product over all B·N points with the
     convolution's own weights, batch norm sees (B·N)×C (the same per-channel statistics as on
     B×C×N) and ELU works in place: the same network (and state dict) as ``mlp`` applied to
-    B×C×N, faster on a CPU (no transposes, one GEMM per layer, one tensor less per ELU).
+    B×C×N, faster on a CPU (no transposes, one GEMM per layer, one tensor less per ELU). The
+    last block (convolution, batch norm, ELU) is pooled first: see :func:`_pooled_block`.
     """
     b, n = points.shape[:2]
     x = points.reshape(b * n, -1)
-    for layer in mlp:
+    *body, conv, norm, elu = mlp
+    for layer in body:
         if isinstance(layer, nn.Conv1d):
             x = F.linear(x, layer.weight.squeeze(-1), layer.bias)
         elif isinstance(layer, nn.ELU):
             x = F.elu(x, layer.alpha, inplace=True)
         else:
             x = layer(x)
-    return x.reshape(b, n, -1).amax(dim=1)
+    assert isinstance(conv, nn.Conv1d) and isinstance(norm, nn.BatchNorm1d)
+    assert isinstance(elu, nn.ELU)
+    return _pooled_block(conv, norm, elu.alpha, x.reshape(b, n, -1))
+
+
+def _batch_statistics(
+    norm: nn.BatchNorm1d, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and (biased) variance over the points of ``x @ weight.T + bias`` (x: M×C_in),
+    from the mean and covariance of ``x`` (C_in² numbers, not M×C_out), batch norm's running
+    statistics updated as ``nn.BatchNorm1d`` updates them."""
+    mean_in = x.mean(0)
+    centred = x - mean_in
+    mean = weight @ mean_in + (bias if bias is not None else 0.0)
+    var = ((weight @ (centred.T @ centred / len(x))) * weight).sum(1)
+    if norm.training and norm.track_running_stats and norm.running_mean is not None:
+        assert norm.running_var is not None and norm.num_batches_tracked is not None
+        with torch.no_grad():
+            norm.num_batches_tracked.add_(1)
+            factor = (
+                1.0 / float(norm.num_batches_tracked) if norm.momentum is None else norm.momentum
+            )
+            norm.running_mean.lerp_(mean, factor)
+            norm.running_var.lerp_(var * len(x) / max(len(x) - 1, 1), factor)
+    return mean, var
+
+
+def _pooled_block(
+    conv: nn.Conv1d, norm: nn.BatchNorm1d, alpha: float, x: torch.Tensor
+) -> torch.Tensor:
+    """``max over points of ELU(norm(conv(x)))`` for x B×N×C_in, the same as computing it
+    point by point (forward, gradients and batch norm's statistics): batch norm is an affine
+    map per channel and ELU rises, so the maximum comes from the point where the convolution's
+    output is largest (smallest where the batch norm's scale is negative). The convolution over
+    all points runs once without gradients to find those points; batch norm's statistics come
+    from the input's covariance; only the chosen points' outputs (B×C_out) carry gradients.
+    On the paper's network this skips batch norm and ELU on B·N×1024 values and the backward
+    matrix products of the widest layer."""
+    b, n, c_in = x.shape
+    weight, bias = conv.weight.squeeze(-1), conv.bias
+    if norm.training or norm.running_mean is None:
+        mean, var = _batch_statistics(norm, x.reshape(b * n, c_in), weight, bias)
+    else:
+        assert norm.running_var is not None
+        mean, var = norm.running_mean, norm.running_var
+    scale = torch.rsqrt(var + norm.eps)
+    if norm.weight is not None:
+        scale = scale * norm.weight
+    shift = -mean * scale + (norm.bias if norm.bias is not None else 0.0)
+    with torch.no_grad():  # B×C_out×N without the bias (the same per point): points last
+        y = torch.bmm(weight.expand(b, -1, -1), x.mT)
+        chosen = y.argmax(dim=-1)  # B×C_out
+        falling = (scale < 0).nonzero().squeeze(1)
+        if len(falling):
+            chosen[:, falling] = y[:, falling].argmin(dim=-1)
+        del y
+    rows = x.gather(1, chosen.unsqueeze(-1).expand(-1, -1, c_in))  # B×C_out×C_in
+    value = (rows * weight).sum(-1) + (bias if bias is not None else 0.0)
+    return F.elu(value * scale + shift, alpha)
 
 
 def _head(n_in: int, channels: Sequence[int], dropout: float, n_outputs: int) -> nn.Sequential:
