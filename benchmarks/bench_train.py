@@ -18,12 +18,6 @@ the defaults (the paper's network) are used, or, with ``--demo-like``, the quick
 
 from __future__ import annotations
 
-# first: vbfe's thread-pool settings (passive OpenMP waits) must precede numpy and torch, as
-# in `vbfe train`; loaded after torch, every small op's threads spin: a 2,000-step baseline MLP
-# fit took 62 s of CPU instead of 2 s at load 13
-import vbfe  # noqa: F401
-
-# isort: split
 import argparse
 import os
 import statistics
