@@ -490,7 +490,7 @@ def model_mutations(valid: Path, out: Callable[[], Path]) -> Iterator[tuple[str,
 
     for key in payload:
         # metadata, and what model files written before intervals and flags lack
-        optional = key in ("vbfe_version", "created_unix_ns", "interval", "novelty")
+        optional = key in ("vbfe_version", "created_unix_ns", "interval", "novelty", "disagreement")
         yield f"delete {key}", save({k: v for k, v in payload.items() if k != key}), not optional
     estimators = payload["estimators"]
 
