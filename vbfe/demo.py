@@ -414,6 +414,7 @@ def protocol_stage(config: RigConfig, out: Path, plan: DemoPlan, stage: StageFn)
     after = verify_sync(path, limits, settings=settings)
     with SessionReader(path) as reader:
         true_s = float(np.median(_truth(reader, "image_minus_force_host_offset_ns"))) / 1e9
+        device_dropped = int(reader.attrs.get("camera_device_dropped", 0))
     bench = run_config.tables["bench"]
     p = before.protocol
     assert p is not None and p.offset is not None  # a sync protocol session with taps
@@ -425,6 +426,7 @@ def protocol_stage(config: RigConfig, out: Path, plan: DemoPlan, stage: StageFn)
         "error_s": before.estimate.offset_s - true_s,
         "taps_used": p.offset.n_used,
         "taps_found": p.taps_found,
+        "camera_device_dropped": device_dropped,  # frames the simulated camera never delivered
         "flash_latency_s": p.flash_latency.value_s if p.flash_latency else None,
         "flash_ci95_s": list(p.flash_latency.ci95_s) if p.flash_latency else None,
         "true_flash_latency_s": 1e-3 * (bench["image_latency_ms"] + bench["projector_latency_ms"]),
