@@ -33,7 +33,8 @@ class DisagreementCheck:
     reference: str
     threshold_n: float
 
-    def distances(self, selected_n: np.ndarray, reference_n: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def distances(selected_n: np.ndarray, reference_n: np.ndarray) -> np.ndarray:
         """Per frame (frames × outputs each), the length of the forces' difference (N)."""
         return np.linalg.norm(np.asarray(selected_n) - np.asarray(reference_n), axis=-1)
 
@@ -72,6 +73,5 @@ def fit_disagreement(selected: str, held: dict[str, np.ndarray]) -> Disagreement
         return None
     if not len(held[selected]):
         return None
-    check = DisagreementCheck(REFERENCE, 0.0)
-    spread = check.distances(held[selected], held[REFERENCE])
+    spread = DisagreementCheck.distances(held[selected], held[REFERENCE])
     return DisagreementCheck(REFERENCE, float(np.quantile(spread, QUANTILE)))

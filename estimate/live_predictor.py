@@ -120,18 +120,19 @@ class LivePredictor:
             return np.full_like(force_n, np.nan), np.full_like(force_n, np.nan)
         return self._interval.bounds(force_n, self.protocol)
 
-    def novelty(self, features: FrameFeatures, force_n: np.ndarray) -> tuple[float, bool]:
+    def novelty(
+        self, features: FrameFeatures, force_n: np.ndarray, lo_n: np.ndarray, hi_n: np.ndarray
+    ) -> tuple[float, bool]:
         """A frame's distance from the training data (m; NaN: the model has no flag) and
-        whether its estimate ``force_n`` is flagged (:meth:`ForceModel.flagged`: outside the
-        training data, or off Hooke's law)."""
+        whether its estimate ``force_n`` with its interval ``lo_n``..``hi_n`` (:meth:`bounds`)
+        is flagged (:meth:`ForceModel.flagged`: outside the training data, or off Hooke's
+        law)."""
         model = self.model
         distance = float("nan") if model.novelty is None else model.novelty.frame_distance(features)
-        force = np.asarray(force_n, np.float64)
-        lo, hi = self.bounds(force)
         forces = {
-            model.selected: force[None],
-            f"{model.selected}_lo": lo[None],
-            f"{model.selected}_hi": hi[None],
+            model.selected: np.asarray(force_n, np.float64)[None],
+            f"{model.selected}_lo": np.asarray(lo_n)[None],
+            f"{model.selected}_hi": np.asarray(hi_n)[None],
         }
         check = model.disagreement
         if check is not None:

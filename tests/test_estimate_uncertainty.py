@@ -150,7 +150,7 @@ def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
     lo, hi = predictor.bounds(force)
     half = model.interval().quantile
     np.testing.assert_allclose([lo, hi], [force - half, force + half])
-    distance, flagged = predictor.novelty(features, force)
+    distance, flagged = predictor.novelty(features, force, *predictor.bounds(force))
     assert distance < model.novelty.threshold and not flagged  # a training frame
 
 
@@ -352,7 +352,8 @@ def test_frames_where_the_shipped_model_parts_ways_with_hooke_are_flagged(tmp_pa
     live = []
     for cloud in pressed(new[0]).clouds:
         features = predictor.prepare(cloud)
-        live.append(predictor.novelty(features, predictor.model_force(features))[1])
+        force = predictor.model_force(features)
+        live.append(predictor.novelty(features, force, *predictor.bounds(force))[1])
     assert live == report.frames[f"{new[0].name}_pressed"]["ood"].tolist()
 
 

@@ -217,7 +217,7 @@ class FrameEstimator:
         )
         lo, hi = self._predictor.bounds(force)
         novelty, ood = (
-            self._predictor.novelty(work.features, force)
+            self._predictor.novelty(work.features, force, lo, hi)
             if work.features is not None
             else (float("nan"), False)
         )
