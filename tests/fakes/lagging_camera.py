@@ -2,7 +2,9 @@
 
 Wraps any stereo camera; frames keep their own sequence numbers and timestamps, so the clock
 fit sees nothing wrong while the picture is one frame period late: a one-frame latency jump,
-as when a capture queue grows by one buffer.
+as when a capture queue grows by one buffer. A frame whose predecessor the wrapped camera
+never delivered (a starved simulator skips frames) is withheld too, a device-side drop, so the
+picture is always exactly one frame period late.
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ class LaggingCamera:
 
     def read(self, timeout_s: float = 1.0) -> StereoFrame | None:
         """The wrapped camera's next frame, with the previous frame's images once lagging."""
-        frame = self._camera.read(timeout_s)
-        if frame is None:
-            return None
-        shown = frame
-        if frame.seq >= self.from_seq and self._previous is not None:
-            shown = replace(frame, left=self._previous.left, right=self._previous.right)
-        self._previous = frame
-        return shown
+        while True:
+            frame = self._camera.read(timeout_s)
+            if frame is None:
+                return None
+            if frame.seq < self.from_seq:
+                self._previous = frame
+                return frame
+            previous, self._previous = self._previous, frame
+            if previous is not None and previous.seq == frame.seq - 1:
+                return replace(frame, left=previous.left, right=previous.right)
