@@ -255,7 +255,7 @@ CORNER_SETS: dict[str, CornerSet] = {
         image_sets.ENDOSCOPE_SQUARE_MM,
         image_sets.endoscope_rig(),
     ),
-    "endoscope-test": (  # the set of tests/test_calib_corner_choice.py
+    "endoscope-test": (  # the set of tests/calib/test_calib_corner_choice.py
         functools.partial(image_sets.endoscope, n=8, seed=3),
         image_sets.ENDOSCOPE_INNER,
         image_sets.ENDOSCOPE_SQUARE_MM,

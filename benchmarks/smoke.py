@@ -1,5 +1,5 @@
 """``--smoke``: every benchmark's smallest setting (one size, one repeat, the shortest run),
-which CI's slow tier runs (tests/test_benchmarks.py) so that no benchmark stops working unseen.
+which CI's slow tier runs (tests/app/test_benchmarks.py) so that no benchmark stops working unseen.
 Its figures mean nothing; the defaults give the documented ones."""
 
 from __future__ import annotations

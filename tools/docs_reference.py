@@ -1,7 +1,7 @@
 """The generated reference pages of the manual: every command and option of the real ``vbfe``
 argument parser, and every rig-file key of ``vbfe/default_rig.toml`` with its default and
 comment. mkdocs calls :func:`on_page_markdown` (``hooks`` in mkdocs.yml) for the pages that
-hold a marker; tests/test_docs_reference.py checks that nothing is left out."""
+hold a marker; tests/app/test_docs_reference.py checks that nothing is left out."""
 
 from __future__ import annotations
 

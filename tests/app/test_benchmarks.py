@@ -1,0 +1,34 @@
+"""Every benchmark runs at its smallest setting (``--smoke``), as users run it
+(``python -m benchmarks.NAME``), so that none stops working unseen; the figures are the
+benchmarks' own business (their defaults), not checked here."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests import paths
+
+ROOT = paths.REPO
+BENCHMARKS = sorted(p.stem for p in (ROOT / "benchmarks").glob("bench_*.py"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", BENCHMARKS)
+def test_benchmark_runs_at_its_smallest_setting(name):
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "MPLBACKEND": "Agg"}
+    run = subprocess.run(
+        [sys.executable, "-m", f"benchmarks.{name}", "--smoke"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=env,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Traceback" not in run.stderr
+    printed = run.stdout.splitlines()
+    assert printed and any(char.isdigit() for line in printed for char in line), run.stdout
