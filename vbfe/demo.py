@@ -507,10 +507,8 @@ def estimate_stage(
 ) -> dict[str, Any]:
     """Train on most paper sessions and freehand trials; evaluate every method the evaluation
     returns on the held-out paper sessions and, apart, on the held-out freehand trials."""
-    from vbfe.estimate.evaluation import evaluate
+    from vbfe.estimate import TrainConfig, evaluate, train, use_threads
     from vbfe.estimate.stage_times import STATUS_SEPARATOR
-    from vbfe.estimate.train_config import TrainConfig
-    from vbfe.estimate.training import train, use_threads
 
     paper = [s for s in sessions if not is_freehand(s)]
     held_out = [s for s in paper if s.stem.endswith(f"_r{plan.repeats - 1}")]

@@ -24,9 +24,9 @@ from vbfe.common.errors import ConfigError
 from vbfe.common.rig_discovery import RigSource, find_rig_file
 from vbfe.common.rig_writeback import WriteBack, write_back
 from vbfe.common.settings import parse_kwargs, parse_table
-from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate import TrainConfig
 from vbfe.live.settings import LiveSettings, live_settings
-from vbfe.recon.matching import SgbmParams
+from vbfe.recon import SgbmParams
 from vbfe.recon.quality import ReconSettings
 
 DEVICE_TABLES = ("camera", "trocar", "projector", "bench", "streams")

@@ -372,7 +372,7 @@ def _calibration(page: HtmlReport, r: SessionReader) -> None:
             "`reconstruct --calib`."
         )
         return
-    from vbfe.calib.calibration import Calibration
+    from vbfe.calib import Calibration
     from vbfe.calib.report import summary_rows
     from vbfe.common.errors import CalibrationError
 
@@ -388,7 +388,7 @@ def _reconstruction(page: HtmlReport, clouds_path: Path | None, t0: int) -> None
         page.paragraph("No clouds file: `vbfe reconstruct SESSION.h5` writes SESSION.clouds.h5.")
         return
     from vbfe.common.errors import ReconError
-    from vbfe.recon.clouds import CloudReader
+    from vbfe.recon import CloudReader
 
     try:
         with CloudReader(clouds_path) as clouds:
@@ -483,7 +483,7 @@ def _estimates(page: HtmlReport, r: SessionReader, t0: int) -> None:
 
 def session_page(session_path: str | Path, clouds_path: str | Path | None = None) -> HtmlReport:
     """The report page of one session (clouds default: the sidecar beside it)."""
-    from vbfe.recon.clouds import sidecar_path
+    from vbfe.recon import sidecar_path
 
     clouds = Path(clouds_path) if clouds_path is not None else sidecar_path(session_path)
     with SessionReader(session_path) as r:

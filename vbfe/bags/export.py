@@ -67,7 +67,7 @@ class ExportSummary:
 def _camera_infos(calibration_yaml: str | None, size: tuple[int, int]) -> dict[str, dict] | None:
     if calibration_yaml is None:
         return None
-    from vbfe.calib.calibration import Calibration
+    from vbfe.calib import Calibration
     from vbfe.calib.export import ros_distortion_model
 
     cal = Calibration.from_yaml_text(calibration_yaml, source="the session's calibration")
@@ -444,7 +444,7 @@ def _write_all(
             ),
         ]
         if clouds_path is not None:
-            from vbfe.recon.clouds import CloudReader
+            from vbfe.recon import CloudReader
 
             clouds = stack.enter_context(CloudReader(clouds_path))
             cloud_t = to_unix(clouds.frame_table("t_host_ns"))

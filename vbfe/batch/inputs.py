@@ -22,7 +22,7 @@ def command_inputs(inputs: Iterable[str | Path | None], sidecars: bool = True) -
     # imported here: every command imports this module, few name a manifest or a session
     from vbfe.batch.manifest import MANIFEST_SUFFIX, read_manifest
     from vbfe.common.errors import BatchError
-    from vbfe.recon.clouds import sidecar_path
+    from vbfe.recon import sidecar_path
 
     out: list[Path] = []
     for item in (Path(p) for p in inputs if p is not None):

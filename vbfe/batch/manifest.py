@@ -15,12 +15,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from vbfe.acquire import SessionReader
 from vbfe.acquire.session.inspect import inspect_session
-from vbfe.acquire.session.reader import SessionReader
 from vbfe.common.errors import BatchError, SessionError
 from vbfe.common.files import atomic_path
+from vbfe.recon import SgbmParams
 from vbfe.recon.freshness import clouds_status, text_hash
-from vbfe.recon.matching import SgbmParams
 
 MANIFEST_SUFFIX = ".csv"
 SIDECAR_SUFFIXES = (".clouds.h5", ".partial")

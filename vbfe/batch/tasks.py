@@ -9,16 +9,14 @@ from typing import Any
 
 import cv2
 
-from vbfe.acquire.session.reader import SessionReader
+from vbfe.acquire import SessionReader
 from vbfe.acquire.sync.check import SYNC_ESTIMATOR, SyncLimits, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.common.errors import BatchError
 from vbfe.common.files import check_outputs
-from vbfe.recon.clouds import CloudReader, sidecar_path
+from vbfe.recon import CloudReader, SgbmParams, reconstruct_session, sidecar_path
 from vbfe.recon.freshness import clouds_status
-from vbfe.recon.matching import SgbmParams
 from vbfe.recon.quality import ReconSettings, summary_line
-from vbfe.recon.session_recon import reconstruct_session
 
 
 @dataclass(frozen=True)

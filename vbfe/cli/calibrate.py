@@ -783,7 +783,7 @@ def run_check(args: argparse.Namespace) -> int:
 def run_color(args: argparse.Namespace) -> int:
     """Project flat colours, fit the crosstalk model and store it in the calibration."""
     from vbfe.acquire import frame_feed
-    from vbfe.calib.calibration import load_calibration
+    from vbfe.calib import load_calibration
     from vbfe.drivers.registry import open_rig
     from vbfe.recon.color import capture_color_model
 

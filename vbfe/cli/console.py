@@ -79,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Open the console; in a headless run, exit when done (2 when an error was shown)."""
-    from vbfe.calib.calibration import Calibration, load_calibration
+    from vbfe.calib import Calibration, load_calibration
     from vbfe.console.app import Headless, run_console
     from vbfe.console.station import Station
     from vbfe.console.window import ConsoleOptions
@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     calibration: Calibration | None = load_calibration(args.calib) if args.calib else None
     estimator = None
     if args.model and calibration is not None:  # --model without --calib is refused above
-        from vbfe.estimate.model_file import load_model
+        from vbfe.estimate import load_model
         from vbfe.live.run import live_estimator
 
         estimator = live_estimator(config, load_model(args.model), calibration)

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _inspect_clouds(path: str) -> int:
     """Summary line and per-frame quality of a cloud file."""
-    from vbfe.recon.clouds import CloudReader
+    from vbfe.recon import CloudReader
     from vbfe.recon.quality import frame_lines, summary_line
 
     with CloudReader(path) as clouds:

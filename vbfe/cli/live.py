@@ -103,9 +103,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run live estimation and print the summary."""
-    from vbfe.calib.calibration import load_calibration
+    from vbfe.calib import load_calibration
     from vbfe.common.errors import LiveError
-    from vbfe.estimate.model_file import load_model
+    from vbfe.estimate import load_model
     from vbfe.live.outputs import EstimateOutput, LslOutput, UdpOutput, udp_address
     from vbfe.live.run import live_estimator, live_run, run_headless
 

@@ -15,7 +15,7 @@ from vbfe.cli.common import LazyProgress, add_config_option, positive, rig_from
 from vbfe.cli.outputs import add_overwrite_option, check_outputs
 
 if TYPE_CHECKING:
-    from vbfe.recon.matching import SgbmParams
+    from vbfe.recon import SgbmParams
     from vbfe.recon.quality import ReconSettings
 
 SESSION_SUFFIXES = (".h5", ".hdf5")
@@ -273,10 +273,9 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the quality summary, warnings and truth scores, and say where the
     clouds went."""
     from vbfe.common.errors import ReconError
-    from vbfe.recon.clouds import CloudReader, export_ply, sidecar_path
+    from vbfe.recon import CloudReader, SgbmParams, export_ply, sidecar_path
     from vbfe.recon.inputs import image_pairs, pair_calibration
     from vbfe.recon.maps import MapOutput
-    from vbfe.recon.matching import SgbmParams
     from vbfe.recon.quality import quality_warnings, summary_line
     from vbfe.recon.scoring import score_disparity, truth_disparity
     from vbfe.recon.session_recon import reconstruct_images, reconstruct_session

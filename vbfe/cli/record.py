@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     )
     calibration, calibration_size = None, None
     if args.calib:
-        from vbfe.calib.calibration import Calibration  # checked before anything is recorded
+        from vbfe.calib import Calibration  # checked before anything is recorded
 
         loaded = Calibration.load(args.calib)
         calibration, calibration_size = loaded.to_yaml_text(), loaded.image_size

@@ -128,8 +128,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train; print the split as frame ranges, every method's validation MAE and what ships."""
     from vbfe.batch.manifest import expand_sessions
+    from vbfe.estimate import TrainConfig
     from vbfe.estimate.splits import parse_range
-    from vbfe.estimate.train_config import TrainConfig
 
     overrides = {
         key: getattr(args, key)
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs([args.out], args.sessions, args.overwrite)
     check_settle(args)
     require_free_space(Path(args.out).absolute().parent, MODEL_FREE_BYTES, f"the model {args.out}")
-    from vbfe.estimate.training import train  # torch loads once the inputs are checked
+    from vbfe.estimate import train  # torch loads once the inputs are checked
 
     bars = StageProgress()
     try:

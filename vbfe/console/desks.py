@@ -16,12 +16,10 @@ from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.sync.check import SyncLimits, SyncReport, verify_sync
 from vbfe.acquire.sync.protocol import ProtocolSettings
 from vbfe.batch.inputs import check_outputs
-from vbfe.calib import commands
+from vbfe.calib import CheckResult, commands, load_views, save_views
 from vbfe.calib.capture import CaptureOptions, Verdict, ViewCollector, rejection_kind
-from vbfe.calib.check import CheckResult
-from vbfe.calib.views import load_views, save_views
 from vbfe.common.config import default_config
-from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers import StereoFrame
 from vbfe.rig_config import RigConfig
 
 _IDLE_WAIT_S = 0.02
@@ -148,7 +146,7 @@ class CalibrationOutcome:
     def view_picture(self, name: str) -> np.ndarray:
         """View ``name``'s left and right image side by side with the board corners found in
         each (detected again, as the calibration's detector does)."""
-        from vbfe.calib.board import BoardDetector
+        from vbfe.calib import BoardDetector
         from vbfe.calib.capture import annotate
 
         views = self.outcome.views

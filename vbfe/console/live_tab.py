@@ -15,7 +15,7 @@ from pyqtgraph.Qt import QtWidgets
 
 from vbfe.acquire.viewer import FORCE_PENS, STREAM_PENS
 from vbfe.console.widgets import ImagePane, Tab, value_label, with_picker
-from vbfe.drivers.samples import StereoFrame
+from vbfe.drivers import StereoFrame
 
 if TYPE_CHECKING:
     from vbfe.console.window import ConsoleWindow

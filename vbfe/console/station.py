@@ -18,19 +18,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from vbfe.acquire.recording.acquisition import Acquisition, AcquisitionStats
+from vbfe.acquire import Acquisition, AcquisitionStats, Recorder
 from vbfe.acquire.recording.latest import Latest
 from vbfe.acquire.recording.record import (
     check_camera_size,
     session_recorder,
     store_frame_correction,
 )
-from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.estimates import GROUP as ESTIMATE
 from vbfe.acquire.session.extra_streams import MARKS, marks_stream
 from vbfe.acquire.session.layout import CAMERA, FORCE, PROJECTOR
-from vbfe.calib.calibration import Calibration, load_calibration
+from vbfe.calib import Calibration, load_calibration
 from vbfe.calib.commands import board_scene
 from vbfe.common.errors import DeviceError, SessionError
 from vbfe.drivers.projector.pattern import make_pattern
@@ -335,7 +334,7 @@ class Station:
             self._restart_live()
 
     def _estimator(self, path: Path, calibration: Calibration) -> FrameEstimator:
-        from vbfe.estimate.model_file import load_model
+        from vbfe.estimate import load_model
         from vbfe.live.run import live_estimator
 
         return live_estimator(self.config, load_model(path), calibration)

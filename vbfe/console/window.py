@@ -14,7 +14,7 @@ from typing import Any
 
 from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
-from vbfe.calib.board import BoardSpec
+from vbfe.calib import BoardSpec
 from vbfe.common.errors import VbfeError
 from vbfe.common.files import error_line
 from vbfe.console import TAB_NAMES

@@ -19,14 +19,12 @@ import cv2
 import numpy as np
 import torch
 
-from vbfe.calib.calibration import Calibration
+from vbfe.calib import Calibration
 from vbfe.common.errors import EstimateError
-from vbfe.drivers.samples import StereoFrame
-from vbfe.estimate import LivePredictor
-from vbfe.estimate.model_file import ForceModel
+from vbfe.drivers import StereoFrame
+from vbfe.estimate import ForceModel, LivePredictor
 from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures
-from vbfe.recon.matching import SgbmParams
-from vbfe.recon.triangulate import Reconstructor
+from vbfe.recon import Reconstructor, SgbmParams
 
 STAGES = ("scale", "reconstruct", "prepare", "model")
 REST_DEPTH_PERCENTILES = (0.5, 99.5)  # the rest cloud's depth span (a few stray matches aside)

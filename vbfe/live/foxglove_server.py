@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from foxglove.websocket import ChannelView, Client, ServerListener
 
-from vbfe.acquire.recording.recorder import Recorder
+from vbfe.acquire import Recorder
 from vbfe.common.errors import LiveError
 from vbfe.common.mailbox import Mailbox
 from vbfe.common.priority import yield_to_recording
-from vbfe.drivers.samples import ForceSample, ProjectorEvent, StereoFrame
+from vbfe.drivers import ForceSample, ProjectorEvent, StereoFrame
 from vbfe.live.foxglove_overflow import Overflows
 from vbfe.live.outputs import EstimateOutput
 from vbfe.messages import builders

@@ -15,7 +15,7 @@ import numpy as np
 
 from vbfe.acquire import Listener
 from vbfe.common.errors import LiveError
-from vbfe.drivers.samples import ForceSample
+from vbfe.drivers import ForceSample
 from vbfe.drivers.streams.lsl import pylsl
 
 if TYPE_CHECKING:

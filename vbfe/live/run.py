@@ -21,24 +21,23 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vbfe.acquire import Acquisition, Listener, SessionReader
+from vbfe.acquire import Acquisition, Listener, Recorder, SessionReader
 from vbfe.acquire.image_size import size_mismatch
 from vbfe.acquire.recording.record import session_recorder
-from vbfe.acquire.recording.recorder import Recorder
 from vbfe.acquire.resample import resample_at
 from vbfe.acquire.session.annotate import store_estimate_counts
 from vbfe.acquire.session.estimates import GROUP as ESTIMATES
 from vbfe.acquire.session.estimates import EstimateRecord, estimate_stream_spec
 from vbfe.acquire.session.extra_streams import marks_stream
 from vbfe.acquire.session.layout import CAMERA
-from vbfe.calib.calibration import Calibration
+from vbfe.calib import Calibration
 from vbfe.common.errors import LiveError
 from vbfe.common.signals import Terminated
+from vbfe.drivers import ForceSample, StereoFrame
 from vbfe.drivers.projector.pattern import make_pattern
 from vbfe.drivers.registry import open_rig
 from vbfe.drivers.rig import RigOptions
-from vbfe.drivers.samples import ForceSample, StereoFrame
-from vbfe.estimate.model_file import ForceModel
+from vbfe.estimate import ForceModel
 from vbfe.estimate.preparation import force_target
 from vbfe.live.estimator import STAGES, FrameEstimator, FrameWork, LiveEstimate
 from vbfe.live.outputs import EstimateOutput

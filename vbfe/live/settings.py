@@ -7,7 +7,7 @@ from typing import Any, Literal, Protocol
 
 from vbfe.acquire.recording.settings import RecordConfig
 from vbfe.common.settings import parse_table, setting
-from vbfe.recon.matching import SgbmParams
+from vbfe.recon import SgbmParams
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,9 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from vbfe.calib.calibration import Calibration
+from vbfe.calib import Calibration
 from vbfe.common.errors import ReconError
-from vbfe.recon.triangulate import FrameCloud
+from vbfe.recon import FrameCloud
 
 BAD_PIXEL_PX = 1.0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from vbfe.calib.calibration import Calibration
+from vbfe.calib import Calibration
 from vbfe.drivers.sim.rig import StereoRig
 
 
