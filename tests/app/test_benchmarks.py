@@ -17,6 +17,7 @@ BENCHMARKS = sorted(p.stem for p in (ROOT / "benchmarks").glob("bench_*.py"))
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # a hang guard: bench_selection's smoke runs a quick demo of its own
 @pytest.mark.parametrize("name", BENCHMARKS)
 def test_benchmark_runs_at_its_smallest_setting(name):
     env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "MPLBACKEND": "Agg"}
@@ -26,7 +27,7 @@ def test_benchmark_runs_at_its_smallest_setting(name):
         text=True,
         cwd=ROOT,
         env=env,
-        timeout=600,
+        timeout=1700,
     )
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr

@@ -9,7 +9,9 @@ import pytest
 from tests.estimate_methods import EVALUATED
 from vbfe.cli.main import main
 
-pytestmark = pytest.mark.slow  # the whole pipeline: about three minutes
+# the whole pipeline: about five minutes quiet, over ten beside busy processes (the 600 s hang
+# guard of pyproject cut it off there)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 
 
 @pytest.fixture(scope="module")
