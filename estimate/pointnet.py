@@ -160,7 +160,7 @@ def _pooled_block(
         scale = scale * norm.weight
     shift = -mean * scale + (norm.bias if norm.bias is not None else 0.0)
     with torch.no_grad():  # C_out×N per cloud without the bias (the same per point): each
-        # cloud's product is searched while it is in the cache (a third faster than one B×C_out×N)
+        # cloud's product is searched while it is in the cache (a paper-sized step 0.89x)
         chosen = torch.stack([weight.mm(cloud.T).argmax(dim=-1) for cloud in x])  # B×C_out
         falling = (scale < 0).nonzero().squeeze(1)
         if len(falling):
