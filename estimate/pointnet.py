@@ -100,6 +100,21 @@ def shared_mlp_pooled(mlp: nn.Sequential, points: torch.Tensor) -> torch.Tensor:
     return _pooled_block(conv, norm, elu.alpha, x.reshape(b, n, -1))
 
 
+class _Covariance(torch.autograd.Function):
+    """``centred.T @ centred / M`` of centred M×C rows, its gradient in one matrix product
+    (``centred @ (G + G.T) / M``; autograd's product rule takes two and a transpose of M×C)."""
+
+    @staticmethod
+    def forward(ctx: torch.autograd.function.FunctionCtx, centred: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(centred)
+        return centred.T @ centred / len(centred)
+
+    @staticmethod
+    def backward(ctx: torch.autograd.function.FunctionCtx, grad: torch.Tensor) -> torch.Tensor:
+        (centred,) = ctx.saved_tensors  # type: ignore[attr-defined]
+        return centred @ ((grad + grad.T) / len(centred))
+
+
 def _batch_statistics(
     norm: nn.BatchNorm1d, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -109,7 +124,7 @@ def _batch_statistics(
     mean_in = x.mean(0)
     centred = x - mean_in
     mean = weight @ mean_in + (bias if bias is not None else 0.0)
-    var = ((weight @ (centred.T @ centred / len(x))) * weight).sum(1)
+    var = ((weight @ _Covariance.apply(centred)) * weight).sum(1)
     if norm.training and norm.track_running_stats and norm.running_mean is not None:
         assert norm.running_var is not None and norm.num_batches_tracked is not None
         with torch.no_grad():
@@ -144,13 +159,14 @@ def _pooled_block(
     if norm.weight is not None:
         scale = scale * norm.weight
     shift = -mean * scale + (norm.bias if norm.bias is not None else 0.0)
-    with torch.no_grad():  # B×C_out×N without the bias (the same per point): points last
-        y = torch.bmm(weight.expand(b, -1, -1), x.mT)
-        chosen = y.argmax(dim=-1)  # B×C_out
+    with torch.no_grad():  # C_out×N per cloud without the bias (the same per point): each
+        # cloud's product is searched while it is in the cache (a paper-sized step 0.89x)
+        chosen = torch.stack([weight.mm(cloud.T).argmax(dim=-1) for cloud in x])  # B×C_out
         falling = (scale < 0).nonzero().squeeze(1)
         if len(falling):
-            chosen[:, falling] = y[:, falling].argmin(dim=-1)
-        del y
+            chosen[:, falling] = torch.stack(
+                [weight[falling].mm(cloud.T).argmin(dim=-1) for cloud in x]
+            )
     rows = x.gather(1, chosen.unsqueeze(-1).expand(-1, -1, c_in))  # B×C_out×C_in
     value = (rows * weight).sum(-1) + (bias if bias is not None else 0.0)
     return F.elu(value * scale + shift, alpha)

@@ -88,7 +88,9 @@ class TrainConfig:
     # from at least two sessions; else on blocked folds of the training part (0: always on
     # the validation part)
     select_min_val_frames: int = setting(300, ge=0)
-    select_folds: int = setting(5, ge=3)  # those blocked folds (sessions, or blocks in time)
+    # those blocked folds (sessions, or blocks in time); PointNet and the temporal model are
+    # refitted on at most 3 (minutes per refit; each frame still held out once)
+    select_folds: int = setting(5, ge=3)
     # with a validation part, the methods quick to refit (baselines, ridge, Hooke on the
     # texture) also calibrate their intervals on those folds' out-of-fold residuals
     interval_folds: bool = True

@@ -84,6 +84,8 @@ MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 Parts = list[tuple[PreparedSession, np.ndarray]]
 # candidates refitted per fold for their intervals (the baselines always are): seconds each
 QUICK_TO_REFIT = (CANDIDATES["ridge"], CANDIDATES["hooke_texture"])
+NETWORKS = (CANDIDATES["pointnet"], CANDIDATES["temporal"])  # minutes per refit
+NETWORK_FOLDS = 3  # selection folds of the networks (at most ``select_folds``)
 
 
 @dataclass
@@ -288,18 +290,21 @@ def _fit_estimators(
     notes: list[str],
     stop_after: dict[str, int] | None = None,
     times: StageTimes | None = None,
+    baselines: bool = True,
 ) -> tuple[dict[str, AnyEstimator], dict[str, Any], dict[str, float]]:
-    """Baselines and the candidates ``names`` fitted on ``train_parts`` (``val_parts``: early
-    stopping; ``stop_after``: per network, the epochs of a refit, see :func:`best_epochs`);
-    a candidate that cannot be fitted is taken out of ``names`` with a note."""
+    """The baselines (unless not ``baselines``) and the candidates ``names`` fitted on
+    ``train_parts`` (``val_parts``: early stopping; ``stop_after``: per network, the epochs of
+    a refit, see :func:`best_epochs`); a candidate that cannot be fitted is taken out of
+    ``names`` with a note."""
     times = times or StageTimes()
     stop_after = stop_after or {}
-    clock = time.perf_counter()
-    with times.stage("baselines"):
-        estimators: dict[str, AnyEstimator] = dict(
-            fit_baselines(train_parts, config.history_window, config.seed)
-        )
-    seconds = {"baselines": time.perf_counter() - clock}
+    estimators: dict[str, AnyEstimator] = {}
+    seconds: dict[str, float] = {}
+    if baselines:
+        clock = time.perf_counter()
+        with times.stage("baselines"):
+            estimators.update(fit_baselines(train_parts, config.history_window, config.seed))
+        seconds["baselines"] = time.perf_counter() - clock
     histories: dict[str, Any] = {}
     if {"pointnet", "temporal"} & set(names):
         networks, histories = _fit_networks(
@@ -438,24 +443,56 @@ def _out_of_fold(
     what: str = "the training part",
 ) -> tuple[dict[str, np.ndarray], Parts, str]:
     """Every method's out-of-fold predictions over blocked folds of ``train_parts`` (``what``
-    they are, for the line), the held-out frames in the same order and a line saying what was
-    done. ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs` of
-    the fit with validation)."""
-    folds = training_folds(train_parts, config.select_folds, config.gap_frames)
-    predicted: dict[str, list[np.ndarray]] = {}
+    they are, for the line), the held-out frames in the same order (by session, then frame)
+    and a line saying what was done. The baselines and the candidates quick to refit take
+    ``select_folds`` folds; PointNet and the temporal model at most ``NETWORK_FOLDS`` (each
+    frame still held out once). ``stop_after``: per network, the epochs each fold trains
+    (:func:`best_epochs` of the fit with validation)."""
+    networks = [n for n in names if n in NETWORKS]
+    groups = [(config.select_folds, [n for n in names if n not in NETWORKS], True)]
+    if networks:
+        groups.append((min(config.select_folds, NETWORK_FOLDS), networks, False))
     held_parts: Parts = []
-    for fold_train, held in folds:
-        estimators, _, _ = _fit_estimators(
-            list(names), fold_train, [], config, None, [], stop_after, times
-        )
-        for name, estimator in estimators.items():
-            predicted.setdefault(name, []).append(_predictions(estimator, held, config))
-        held_parts += held
-    n = len(folds)
-    complete = {m: np.concatenate(p) for m, p in predicted.items() if len(p) == n}
+    order: dict[tuple[str, int], int] = {}
+    predicted: dict[str, np.ndarray] = {}
+    counts = []
+    for n_folds, group, baselines in groups:
+        folds = training_folds(train_parts, n_folds, config.gap_frames)
+        counts.append(len(folds))
+        if not held_parts:  # the frames the first group holds out, by session and frame
+            held_parts = by_session([part for _, held in folds for part in held])
+            order = {key: k for k, key in enumerate(_frame_keys(held_parts))}
+        fold_predictions: dict[str, list[np.ndarray]] = {}
+        keys: list[tuple[str, int]] = []
+        for k, (fold_train, held) in enumerate(folds):
+            clock = time.perf_counter()
+            estimators, _, _ = _fit_estimators(
+                list(group), fold_train, [], config, None, [], stop_after, times, baselines
+            )
+            for name, estimator in estimators.items():
+                fold_predictions.setdefault(name, []).append(_predictions(estimator, held, config))
+            keys += _frame_keys(held)
+            log.debug(
+                "fold %d/%d of %s: %.1f s", k + 1, len(folds), group, time.perf_counter() - clock
+            )
+        rows = np.array([order.get(key, -1) for key in keys])
+        if len(rows) != len(order) or (rows < 0).any():
+            continue  # these folds held out other frames: not comparable
+        for name, parts in fold_predictions.items():
+            if len(parts) == len(folds):
+                stacked = np.concatenate(parts)
+                predicted[name] = np.empty_like(stacked)
+                predicted[name][rows] = stacked
     kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
-    where = f"{n} blocked folds of {what} ({kind})"
-    return complete, held_parts, where
+    where = f"{counts[0]} blocked folds of {what} ({kind})"
+    if len(counts) > 1 and counts[1] != counts[0]:
+        where += f", {counts[1]} for the networks"
+    return predicted, held_parts, where
+
+
+def _frame_keys(parts: Parts) -> list[tuple[str, int]]:
+    """(session, position) of every frame of ``parts``, in order."""
+    return [(s.name, int(p)) for s, positions in parts for p in positions]
 
 
 # per method: predicted, measured, the frames' (protocol, session) rows and where they came from

@@ -154,6 +154,29 @@ def test_small_validation_selects_and_calibrates_on_training_folds(tmp_path):
     assert distance < model.novelty.threshold and not flagged  # a training frame
 
 
+def test_networks_select_on_three_folds_each_frame_predicted_once(tmp_path):
+    rng = np.random.default_rng(5)
+    sessions = trials(rng, 6, "fit")
+    n_frames = sum(len(s.clouds) for s in sessions)
+    records = {}
+    for folds in (5, 3):
+        config = TrainConfig(model="pointnet", select_folds=folds, **FAST)
+        result = train(sessions, tmp_path / f"m{folds}.pt", config)
+        model = load_model(result.model_path)
+        records[folds] = model.record["selection_mae_n"]
+        where = "3 blocked folds of the training part (sessions)"
+        if folds == 5:  # PointNet on 3 folds (minutes per refit), the others on 5
+            where = "5 blocked folds of the training part (sessions), 3 for the networks"
+        assert any(n.startswith("validation part small") and where in n for n in result.notes)
+        for method in model.estimators:
+            interval = model.interval(method)
+            assert interval.source == where and interval.n_calibration == n_frames
+    # PointNet's out-of-fold predictions are the same whatever the other methods' folds: each
+    # set against its own frame's force (an order mixed up changes the error)
+    assert records[5]["pointnet"] == pytest.approx(records[3]["pointnet"], rel=1e-9)
+    assert records[5]["hooke"] != pytest.approx(records[3]["hooke"], rel=1e-6)
+
+
 def _one_protocol(scores):
     return {name: {"pull-hold": v} for name, v in scores.items()}
 
