@@ -476,8 +476,9 @@ def _out_of_fold(
                 "fold %d/%d of %s: %.1f s", k + 1, len(folds), group, time.perf_counter() - clock
             )
         rows = np.array([order.get(key, -1) for key in keys])
-        if len(rows) != len(order) or (rows < 0).any():
-            continue  # these folds held out other frames: not comparable
+        if len(rows) != len(order) or (rows < 0).any():  # other frames held out: not comparable
+            log.warning("%s: its %d folds held out other frames; left out", group, len(folds))
+            continue
         for name, parts in fold_predictions.items():
             if len(parts) == len(folds):
                 stacked = np.concatenate(parts)
