@@ -5,6 +5,7 @@ sequential, full-featured path."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import sys
 import threading
@@ -264,3 +265,23 @@ def test_beside_a_recording_the_stages_run_at_a_lower_priority_than_the_process(
         pipeline.stop()
     assert nice[True] == [min(base + 10, 19)] * 2 and nice[False] == [base] * 2
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base  # caller's kept
+
+
+def test_foxglove_overflow_lines_name_each_client_once_and_detach_restores_the_logger():
+    from vbfe.live.foxglove_overflow import SDK_LOGGER, Overflows
+
+    logger = logging.getLogger(SDK_LOGGER)
+    logger.setLevel(logging.WARNING)
+    overflows = Overflows()
+    overflows.attach()
+    try:
+        assert logger.level == logging.INFO  # pyo3-log passes INFO lines on only then
+        for address in ("127.0.0.1:5001", "127.0.0.1:5002", "127.0.0.1:5001"):
+            logger.info("outbox for client %s full", address)
+        logger.info("client 127.0.0.1:5003 connected")
+        assert overflows.new() == ["127.0.0.1:5001", "127.0.0.1:5002"]
+        assert overflows.new() == []
+    finally:
+        overflows.detach()
+    assert logger.level == logging.WARNING and overflows not in logger.handlers
+    logger.setLevel(logging.NOTSET)

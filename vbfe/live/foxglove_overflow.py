@@ -27,6 +27,7 @@ class Overflows(logging.Handler):
         self.clients: list[str] = []
         self._told = 0
         self._lock_clients = threading.Lock()
+        self._level = logging.NOTSET  # the SDK logger's own level, put back on detach
 
     def emit(self, record: logging.LogRecord) -> None:
         match = _LINE.search(record.getMessage())
@@ -46,8 +47,12 @@ class Overflows(logging.Handler):
         """Listen to foxglove-sdk's overflow lines (its logger set to INFO: pyo3-log passes a
         Rust line on only where the Python logger is enabled for its level)."""
         logger = logging.getLogger(SDK_LOGGER)
+        self._level = logger.level
         logger.setLevel(logging.INFO)
         logger.addHandler(self)
 
     def detach(self) -> None:
-        logging.getLogger(SDK_LOGGER).removeHandler(self)
+        """Stop listening; the SDK logger gets its own level back."""
+        logger = logging.getLogger(SDK_LOGGER)
+        logger.removeHandler(self)
+        logger.setLevel(self._level)
