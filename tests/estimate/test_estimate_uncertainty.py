@@ -377,8 +377,8 @@ def test_frames_where_the_shipped_model_parts_ways_with_hooke_are_flagged(tmp_pa
         measured, shipped = frames["measured_n"], frames["ridge_height_map"]
         hooke_error = np.abs(frames["hooke"] - measured).mean()
         lo, hi = frames["ridge_height_map_lo"], frames["ridge_height_map_hi"]
-        # over the interval's width at the frame and the held-out frames' 0.99 quantile
-        fires = frames["disagreement_n"] > np.maximum(check.threshold_n, (hi - lo)[:, 0])
+        # over the interval's half-width at the frame and the held-out frames' 0.99 quantile
+        fires = frames["disagreement_n"] > np.maximum(check.threshold_n, (hi - lo)[:, 0] / 2)
         assert (frames["ood"] >= fires).all()  # the check's frames are flagged
         if name.endswith("_pressed"):
             outside = ~((measured >= lo) & (measured <= hi)).all(axis=1)
