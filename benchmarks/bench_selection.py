@@ -114,7 +114,7 @@ def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> d
     truth = frames["measured_n"]
     novelty = model.novelty.threshold if model.novelty is not None else np.inf
     check = model.disagreement.threshold_n if model.disagreement is not None else np.inf
-    width = frames[f"{selected}_hi"][:, 0] - frames[f"{selected}_lo"][:, 0]
+    half = (frames[f"{selected}_hi"][:, 0] - frames[f"{selected}_lo"][:, 0]) / 2
     error = np.linalg.norm(frames[selected] - truth, axis=1)
     outside = ~((truth >= frames[f"{selected}_lo"]) & (truth <= frames[f"{selected}_hi"])).all(1)
     return {
@@ -126,7 +126,7 @@ def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> d
         "outside": outside,
         "ood": frames["ood"].astype(bool),
         "novel": frames["novelty_m"] > novelty,
-        "off_hooke": frames["disagreement_n"] > np.fmax(check, width),
+        "off_hooke": frames["disagreement_n"] > np.fmax(check, half),
     }
 
 

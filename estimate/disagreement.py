@@ -5,11 +5,13 @@ surface is as densely reconstructed and as deformed as in training while what th
 model reads of it misleads it (specular highlights, vignetting, motion blur). There the
 shipped model and the physical estimate — Hooke's law on the peak surface displacement, one
 stiffness fitted on the training frames — part ways. A frame is flagged when the two forces
-differ (length of the difference vector) by more than the shipped model's interval width at
-that frame (they disagree by more than its own uncertainty allows), and by more than
-``QUANTILE`` of the same difference over the held-out frames that selected the model and
-calibrated its interval (frames no model predicting them was fitted on: a new trial like them
-passes about as often).
+differ (length of the difference vector) by more than the half-width of the shipped model's
+interval at that frame (were Hooke's law right, the model's error would lie outside its
+interval), and by more than ``QUANTILE`` of the same difference over the held-out frames that
+selected the model (frames no model predicting them was fitted on: a new trial like them
+passes about as often). With the full width as the limit, the quick demo's ensemble, its
+interval calibrated to cover new trials (1.5 N wide), was never flagged on 16 bench conditions
+the training did not use; with the half-width, 43 % of the frames outside its interval.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ QUANTILE = 0.99
 @dataclass(frozen=True)
 class DisagreementCheck:
     """Flags frames where the shipped model's force and ``reference``'s differ by more than
-    the shipped model's interval width at the frame and ``threshold_n`` newtons."""
+    the half-width of the shipped model's interval at the frame and ``threshold_n`` newtons."""
 
     reference: str
     threshold_n: float
@@ -46,12 +48,12 @@ class DisagreementCheck:
         hi_n: np.ndarray | None = None,
     ) -> np.ndarray:
         """Per frame, whether the two forces disagree by more than the threshold and the
-        interval ``lo_n``..``hi_n`` of the shipped estimate is wide (its length over the
-        outputs; none, or NaN: the threshold alone)."""
+        half-width of the interval ``lo_n``..``hi_n`` of the shipped estimate (its length over
+        the outputs; none, or NaN: the threshold alone)."""
         limit = np.full(len(np.atleast_2d(selected_n)), self.threshold_n)
         if lo_n is not None and hi_n is not None:
-            width = np.linalg.norm(np.asarray(hi_n) - np.asarray(lo_n), axis=-1)
-            limit = np.fmax(limit, width)
+            half = np.linalg.norm(np.asarray(hi_n) - np.asarray(lo_n), axis=-1) / 2
+            limit = np.fmax(limit, half)
         return self.distances(selected_n, reference_n) > limit
 
     def to_dict(self) -> dict[str, Any]:

@@ -367,7 +367,7 @@ def evaluate(
             f"{model.novelty.threshold * 1e3:.3f} mm (the {NOVELTY_QUANTILE:g} quantile of "
             "the training frames' own)"
             + (
-                f" or when {model.selected} and {check.reference} differ by more than "
+                f" or when {model.selected} and {check.reference} differ by more than half "
                 f"{model.selected}'s interval width at the frame and {check.threshold_n:.3f} N "
                 f"(the {DISAGREEMENT_QUANTILE:g} quantile of their difference on held-out frames)"
                 if check

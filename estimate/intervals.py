@@ -1,8 +1,9 @@
 """Prediction intervals calibrated on held-out residuals (split conformal).
 
 Every method's interval comes from its errors on frames it was not fitted on: the validation
-part, or (when that is small) the out-of-fold predictions of blocked folds of the training
-part (``training.py``); folds and parts hold out whole sessions or contiguous blocks in time,
+part, or the out-of-fold predictions of blocked folds of the sessions the fit saw (when the
+validation part is small, and for the methods quick to refit: ``training.py``); folds and
+parts hold out whole sessions or contiguous blocks in time,
 never single frames, so the residuals are as far from the fit as a new trial is. The score of
 a frame is ``|measured − predicted| / difficulty`` per output; the interval of a new frame is
 ``predicted ± q · difficulty`` with ``q`` the ``⌈(n + 1)·coverage⌉``-th smallest of the ``n``
@@ -15,10 +16,11 @@ ones, whose errors differ), each protocol also gets its own quantile from its ow
 (Mondrian conformal prediction: coverage holds within each protocol, not only over their
 mix), when they come from at least ``MIN_PROTOCOL_SESSIONS`` sessions: trials of a protocol
 differ (tissue, speed), and one trial cannot stand for the others. A protocol of fewer
-sessions whose frames erred more than the pooled quantile allows gets the wider of the two
-(its trials are too few to trust their own, and say the pooled one is too narrow for them).
-A frame of a protocol without its own quantile (too few frames, or not stated) gets the
-pooled one.
+sessions gets the largest of its sessions' own quantiles: trials exchangeable, a new trial's
+quantile exceeds the largest of ``m`` trials' with probability ``1/(m + 1)`` (the pooled one is
+no guide: other protocols' held-out sessions may be of conditions no other session shows, their
+errors those of an extrapolation). A frame of a protocol without its own quantile (too few
+frames, or not stated) gets the pooled one.
 """
 
 from __future__ import annotations
@@ -141,13 +143,15 @@ def calibrate(
     pooled = _quantile(scores, coverage)
     if len(set(labels)) > 1:
         for name in sorted(set(labels)):
-            q = _quantile(scores[labels == name], coverage)
-            if not np.isfinite(q).all():
-                continue
-            if len(set(trials[labels == name])) >= MIN_PROTOCOL_SESSIONS:
+            rows = labels == name
+            q = _quantile(scores[rows], coverage)
+            if len(set(trials[rows])) < MIN_PROTOCOL_SESSIONS:  # too few to pool: the worst
+                q = np.max(
+                    [_quantile(scores[rows & (trials == t)], coverage) for t in set(trials[rows])],
+                    axis=0,
+                )
+            if np.isfinite(q).all():
                 by_protocol[str(name)] = q
-            elif (q > pooled).any():  # too few trials to trust, too many errors to ignore
-                by_protocol[str(name)] = np.maximum(q, pooled)
     return ConformalInterval(
         coverage,
         pooled,

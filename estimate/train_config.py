@@ -91,8 +91,9 @@ class TrainConfig:
     # those blocked folds (sessions, or blocks in time); PointNet and the temporal model are
     # refitted on at most 3 (minutes per refit; each frame still held out once)
     select_folds: int = setting(5, ge=3)
-    # with a validation part, the methods quick to refit (baselines, ridge, Hooke on the
-    # texture) also calibrate their intervals on those folds' out-of-fold residuals
+    # with a validation part, the methods quick to refit (baselines, ridge, the CNN and its
+    # ensemble, Hooke on the texture) calibrate their intervals on the out-of-fold residuals of
+    # folds of the training and validation sessions, each holding out as many as validation
     interval_folds: bool = True
     # the networks stop early on the validation part's loss; false: they run every epoch
     # (the cosine schedule ends them) and the validation part only selects and calibrates

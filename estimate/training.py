@@ -14,11 +14,13 @@ lowest held-out MAE, each protocol's frames weighted equally, among those no wor
 predictor on any protocol's held-out trials (``[train] model = "auto"``; a baseline that beats
 every candidate ships instead, and says so) or the one forced (with a warning when it loses to
 a baseline), calibrates every method's prediction interval on the same held-out
-residuals (``intervals.py``), fits the flag of frames outside the training data
-(``novelty.py``) and writes everything to a model file (``model_file.py``). With ``folds``
-≥ 3 it first runs blocked cross-validation in time (``splits.split_folds``): the whole
-procedure, selection included, per fold, every method scored (MAE, interval coverage and
-width) on the fold's test block; the mean ± sd per method is printed and stored.
+residuals (``intervals.py``; with a validation part, the methods quick to refit on the
+out-of-fold residuals of folds of every session the fit saw instead), fits the flag of
+frames outside the training data (``novelty.py``) and writes everything to a model file
+(``model_file.py``). With ``folds`` ≥ 3 it first runs blocked cross-validation in time
+(``splits.split_folds``): the whole procedure, selection included, per fold, every method
+scored (MAE, interval coverage and width) on the fold's test block; the mean ± sd per method
+is printed and stored.
 
 Reproducible: epochs and seeds are fixed by the config and torch runs on ``threads`` CPU
 threads while training (its reductions are then the same on a loaded or a quiet machine), so
@@ -28,6 +30,7 @@ stops a network, a warning says so.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -83,7 +86,8 @@ MIN_VAL_FRAMES = 8  # fewer validation frames than this: no early stopping
 
 Parts = list[tuple[PreparedSession, np.ndarray]]
 # candidates refitted per fold for their intervals (the baselines always are): seconds each
-QUICK_TO_REFIT = (CANDIDATES["ridge"], CANDIDATES["hooke_texture"])
+# (the CNN reads a small depth-change image; the ensemble is its mean with Hooke's law)
+QUICK_TO_REFIT = tuple(CANDIDATES[k] for k in ("ridge", "hooke_texture", "cnn", "ensemble"))
 NETWORKS = (CANDIDATES["pointnet"], CANDIDATES["temporal"])  # minutes per refit
 NETWORK_FOLDS = 3  # selection folds of the networks (at most ``select_folds``)
 
@@ -502,29 +506,27 @@ Residuals = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]]
 
 def _with_out_of_fold(
     names: list[str],
-    train_parts: Parts,
+    fitting: Parts,
+    n_val_sessions: int,
     config: TrainConfig,
-    validation: Residuals,
+    stop_after: dict[str, int],
     times: StageTimes | None = None,
 ) -> Residuals:
-    """The validation residuals of the methods quick to refit (baselines, ridge, Hooke on the
-    texture) joined by their out-of-fold residuals over blocked folds of the training part:
-    (predicted, measured, labels, source) per method. A validation part holds few
-    sessions of each protocol; these hold every training session once, as a new trial."""
+    """The out-of-fold residuals of the methods quick to refit (baselines, ridge, the CNN and
+    its ensemble, Hooke on the texture) over folds of whole sessions of every session the fit
+    saw (``fitting``: training and validation), each session once: (predicted, measured,
+    labels, source) per method. A validation part holds few sessions of each protocol (the
+    quick demo one freehand trial: its interval covered 65-86 % of new trials' frames); folds
+    holding out about as many sessions as validation does (at least 3 folds) fit each model on
+    about as many sessions as the shipped one, so that its errors are those of a new trial.
+    ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs`)."""
+    n_folds = max(3, round(len(fitting) / max(n_val_sessions, 1)))
+    folds = dataclasses.replace(config, select_folds=min(config.select_folds, n_folds))
     quick = [n for n in names if n in QUICK_TO_REFIT]
-    held, held_parts, where = _out_of_fold(quick, train_parts, config, times=times)
+    what = "the training and validation sessions"
+    held, held_parts, where = _out_of_fold(quick, fitting, folds, stop_after, times, what)
     measured, labels = _measured(held_parts), _frame_labels(held_parts)
-    joined: Residuals = {}
-    for name, predicted in held.items():
-        if name in validation:
-            p, m, known, source = validation[name]
-            joined[name] = (
-                np.concatenate([p, predicted]),
-                np.concatenate([m, measured]),
-                np.concatenate([known, labels], axis=1),
-                f"{source} and {where}",
-            )
-    return joined
+    return {name: (predicted, measured, labels, where) for name, predicted in held.items()}
 
 
 def fit_split(
@@ -628,7 +630,14 @@ def fit_split(
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
         with times.stage("interval folds"):
-            residuals.update(_with_out_of_fold(names, train_parts, config, residuals))
+            refitted = _with_out_of_fold(
+                names,
+                by_session(train_parts + val_parts),
+                len({s.name for s, _ in val_parts}),
+                config,
+                best_epochs(histories),
+            )
+        residuals.update({n: r for n, r in refitted.items() if n in residuals})
     intervals = {
         name: calibrate(
             p, m, config.interval_coverage, config.interval_scale, source, *rows
