@@ -113,8 +113,6 @@ def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> d
     and which frames each test of the flag marks alone."""
     truth = frames["measured_n"]
     novelty = model.novelty.threshold if model.novelty is not None else np.inf
-    check = model.disagreement.threshold_n if model.disagreement is not None else np.inf
-    half = (frames[f"{selected}_hi"][:, 0] - frames[f"{selected}_lo"][:, 0]) / 2
     error = np.linalg.norm(frames[selected] - truth, axis=1)
     outside = ~((truth >= frames[f"{selected}_lo"]) & (truth <= frames[f"{selected}_hi"])).all(1)
     return {
@@ -126,7 +124,13 @@ def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> d
         "outside": outside,
         "ood": frames["ood"].astype(bool),
         "novel": frames["novelty_m"] > novelty,
-        "off_hooke": frames["disagreement_n"] > np.fmax(check, half),
+        "off_hooke": (
+            model.disagreement.exceeds(
+                frames["disagreement_n"], frames[f"{selected}_lo"], frames[f"{selected}_hi"]
+            )
+            if model.disagreement is not None
+            else np.zeros(len(truth), bool)
+        ),
     }
 
 

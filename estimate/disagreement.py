@@ -50,11 +50,18 @@ class DisagreementCheck:
         """Per frame, whether the two forces disagree by more than the threshold and the
         half-width of the interval ``lo_n``..``hi_n`` of the shipped estimate (its length over
         the outputs; none, or NaN: the threshold alone)."""
-        limit = np.full(len(np.atleast_2d(selected_n)), self.threshold_n)
+        return self.exceeds(self.distances(selected_n, reference_n), lo_n, hi_n)
+
+    def exceeds(
+        self, distance_n: np.ndarray, lo_n: np.ndarray | None = None, hi_n: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Per frame, whether the forces' difference ``distance_n`` (:meth:`distances`) is over
+        the limit of :meth:`flags`."""
+        limit = np.full(len(np.atleast_1d(distance_n)), self.threshold_n)
         if lo_n is not None and hi_n is not None:
             half = np.linalg.norm(np.asarray(hi_n) - np.asarray(lo_n), axis=-1) / 2
             limit = np.fmax(limit, half)
-        return self.distances(selected_n, reference_n) > limit
+        return np.asarray(distance_n) > limit
 
     def to_dict(self) -> dict[str, Any]:
         return {"reference": self.reference, "threshold_n": self.threshold_n}

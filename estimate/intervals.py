@@ -144,11 +144,12 @@ def calibrate(
     if len(set(labels)) > 1:
         for name in sorted(set(labels)):
             rows = labels == name
-            q = _quantile(scores[rows], coverage)
-            if len(set(trials[rows])) < MIN_PROTOCOL_SESSIONS:  # too few to pool: the worst
+            seen = set(trials[rows])
+            if len(seen) >= MIN_PROTOCOL_SESSIONS:
+                q = _quantile(scores[rows], coverage)
+            else:  # too few to pool: the worst
                 q = np.max(
-                    [_quantile(scores[rows & (trials == t)], coverage) for t in set(trials[rows])],
-                    axis=0,
+                    [_quantile(scores[rows & (trials == t)], coverage) for t in seen], axis=0
                 )
             if np.isfinite(q).all():
                 by_protocol[str(name)] = q
