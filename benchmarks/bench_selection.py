@@ -209,6 +209,12 @@ def main(argv: list[str] | None = None) -> None:
         f"{report.selected} MAE {new['mae']:.3f} N, mean predictor {new['mean_mae']:.3f} N, "
         f"90 % interval covers {100 * new['covered']:.1f} %, flagged {100 * new['flagged']:.1f} %"
     )
+    mae = {m: v["overall"]["mae_n"] for m, v in report.metrics.items()}
+    best = min(mae, key=mae.__getitem__)
+    print(
+        f"  shipped/best {mae[report.selected] / max(mae[best], 1e-9):.2f} (best {best}); every "
+        "method: " + ", ".join(f"{m} {v:.3f}" for m, v in sorted(mae.items()))
+    )
     if not args.conditions:
         return
     outside, flagged, novel, off_hooke = [], [], [], []

@@ -288,13 +288,14 @@ def tap_lag(
 ) -> tuple[float, float] | None:
     """Lag (s) of the image motion behind the force over one tap, and its standard error: the
     frames' components in ``window`` fitted by a quadratic in the delayed force template. The
-    frames are chosen by their times before ``correction_s`` (already in ``t_frames``), so a
-    stored correction shifts the lag by itself and changes nothing else."""
+    frames are chosen, and the lags searched, on their times before ``correction_s`` (already
+    in ``t_frames``), so a stored correction shifts the lag by itself and changes nothing else
+    (the grid moves with it: the fit's sub-step interpolation and interval are the same)."""
     inside = (t_frames + correction_s >= window[0]) & (t_frames + correction_s <= window[1])
     if inside.sum() < 10:
         return None
     t, c = t_frames[inside], components[inside]
-    lags = np.arange(-max_lag_s, max_lag_s + 1e-9, _LAG_STEP_S)
+    lags = np.arange(-max_lag_s, max_lag_s + 1e-9, _LAG_STEP_S) - correction_s
     x = np.interp(t[None, :] - lags[:, None], t_force, template)
     design = np.stack([np.ones_like(x), x, x * x], axis=2)
     normal = np.einsum("gnp,gnq->gpq", design, design) + 1e-9 * np.eye(3)

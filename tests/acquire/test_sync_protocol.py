@@ -16,7 +16,7 @@ from vbfe.acquire.recording import record as record_module
 from vbfe.acquire.recording.sync_session import SyncProtocol
 from vbfe.acquire.session.reader import FRAME_CORRECTION_ATTR
 from vbfe.acquire.sync.check import FAIL, INCONCLUSIVE, PASS, verify_sync
-from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant
+from vbfe.acquire.sync.protocol import ProtocolSettings, flash_instant, tap_lag
 from vbfe.common.config import read_toml
 from vbfe.drivers import registry
 from vbfe.rig_config import RigConfig, builtin_rig
@@ -84,10 +84,10 @@ def test_protocol_session_measures_37_ms_and_passes_once_corrected(tmp_path, see
     again = verify_sync(path, settings=settings)  # the reader applies the stored correction
     assert again.verdict == PASS or only_device_skips(again), again.reasons
     # the correction shifts the frames' times and nothing else: the same taps and frames are
-    # fitted, so the re-measured offset is the first one less the correction (to the lag grid's
-    # sub-step interpolation)
+    # fitted on a lag grid moved with them, so the re-measured offset is the first one less the
+    # correction
     assert again.estimate.offset_s == pytest.approx(
-        report.estimate.offset_s - applied.correction_s, abs=1e-4
+        report.estimate.offset_s - applied.correction_s, abs=1e-9
     )
     assert again.protocol.flash_latency.value_s == pytest.approx(0.070, abs=0.001)
     with SessionReader(path) as reader:
@@ -173,6 +173,29 @@ def test_flash_between_exposures_is_known_to_the_gap():
     gap = (1 / 30) - 0.010  # between the exposure ending at 0.0840 and the next at 0.1073
     assert value == pytest.approx((0.0840 + 0.1073) / 2, abs=0.0003)
     assert std == pytest.approx(gap / np.sqrt(12), rel=0.05)
+
+
+def test_a_stored_correction_shifts_a_taps_lag_by_itself():
+    # one tap: the image motion follows the force 37.3 ms late, frames at 30 fps with noise
+    t_force = np.arange(0.0, 2.0, 0.001)
+    force = np.where((t_force > 0.8) & (t_force < 1.1), np.sin((t_force - 0.8) / 0.3 * np.pi), 0)
+    t_frames = np.arange(0.01, 2.0, 1 / 30)
+    motion = np.interp(t_frames - 0.0373, t_force, force)
+    noise = np.random.default_rng(3).normal(0.0, 0.02, (len(t_frames), 2))
+    components = np.stack([motion, 0.5 * motion], axis=1) + noise
+    window = (0.6, 1.4)
+    lag, std = tap_lag(t_frames, components, t_force, force, window, 0.3)
+    assert lag == pytest.approx(0.0373, abs=0.002)
+    # the reader subtracts a correction c from the frame times (analyse_protocol counts times
+    # from the first frame, so the force's times and windows move by +c): off the lag grid's
+    # 0.25 ms steps too, the lag moves by c alone, its standard error not at all
+    for c in (0.0371392, 0.0123457, -0.0051):
+        shifted = tap_lag(
+            t_frames, components, t_force + c, force, (window[0] + c, window[1] + c), 0.3, c
+        )
+        assert shifted is not None
+        assert shifted[0] == pytest.approx(lag - c, abs=1e-9)
+        assert shifted[1] == pytest.approx(std, abs=1e-12)
 
 
 def test_traction_session_is_inconclusive_not_failed_once_corrected(tmp_path):

@@ -495,8 +495,12 @@ def test_the_closing_line_counts_each_clients_share_beside_a_slow_client():
     shares = [int(n) for n in re.findall(r"client \d+: (\d+)", line)]
     assert len(shares) == 2 and f"beyond {BACKLOG} queued" in line, line
     assert min(shares) >= 3000  # ~4 s of the 1 kHz trocar each
-    assert received in shares  # the fast client got every message handed for it
-    slow_share = max(shares) if received == min(shares) else min(shares)
+    # the fast client got every message handed for it: foxglove-sdk subscribes it before it
+    # tells vbfe, so what it logged in between (35 at 1 kHz beside two busy processes) reached
+    # the client uncounted; 0.2 s of wrench messages is the most that wait is allowed
+    fast_share = min(shares, key=lambda n: abs(n - received))
+    assert fast_share <= received <= fast_share + 200, (received, shares)
+    slow_share = sum(shares) - fast_share
     assert late < slow_share - 500  # the slow one lost the oldest (fewer than handed)
     # foxglove-sdk's report of the overflow names the slow client, in the line and in the
     # status every client is sent (the fast one read it), never the fast one

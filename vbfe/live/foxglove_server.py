@@ -355,7 +355,10 @@ class FoxgloveServer(EstimateOutput):
         """The closing line: messages sent, each client's share, what was skipped or dropped
         for the viewer (``recording``: none for the file). foxglove-sdk queues at most
         ``BACKLOG`` messages per client and drops the oldest for one that reads slower,
-        without telling how many: a client's share is what it was handed, not what it got."""
+        without telling how many: a client's share is what it was handed, not what it got.
+        The SDK starts sending on a channel before it tells of the subscription (its
+        ``on_subscribe`` callback waits for Python's lock), so the messages logged in between
+        reach the client uncounted: a share may fall a few short of what was handed."""
         clients = self._subscribers.handed
         per_client = (
             " (" + ", ".join(f"client {c}: {n}" for c, n in clients.items()) + ")"
