@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+DEVICE_SKIPS = "never delivered by the device, 0 lost by the recorder"
+
 
 def device_skips_only(reasons: Sequence[str]) -> bool:
     """Whether every reason of a FAIL is camera frames the device never delivered, the
-    recorder itself having lost none."""
-    return bool(reasons) and all(
-        r.startswith("camera dropped ")
-        and r.endswith("never delivered by the device, 0 lost by the recorder")
-        for r in reasons
+    recorder itself having lost none, or the offset's interval they widened (a tap whose
+    frames were skipped is fitted on fewer: 7.7 ms half-width with 43 % skipped, load 4.5)."""
+    skipped = [r for r in reasons if r.startswith("camera dropped ") and r.endswith(DEVICE_SKIPS)]
+    return bool(skipped) and all(
+        r in skipped or r.startswith("offset uncertain: ") for r in reasons
     )
