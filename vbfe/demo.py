@@ -435,6 +435,7 @@ def protocol_stage(config: RigConfig, out: Path, plan: DemoPlan, stage: StageFn)
         "verdict_before": before.verdict,
         "reasons_before": before.reasons,
         "verdict_after_apply": after.verdict,
+        "reasons_after_apply": after.reasons,  # a busy machine: frames the bench skipped
         "correction_s": applied.correction_s,
         "residual_after_s": after.estimate.offset_s,
         "plot": str(before.plot_path),

@@ -91,7 +91,7 @@ def checks(numbers: dict[str, Any]) -> list[tuple[str, str, str, bool]]:
         ),
         (
             "sync protocol verdict after --apply",
-            protocol["verdict_after_apply"],
+            " — ".join([protocol["verdict_after_apply"], *protocol.get("reasons_after_apply", [])]),
             "PASS",
             protocol["verdict_after_apply"] == "PASS",
         ),
@@ -299,12 +299,22 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
             ),
         ],
     )
+    after_reasons = protocol.get("reasons_after_apply", [])  # none in earlier results.json
     report.paragraph(
         f"Verdict {protocol['verdict_before']} before the correction "
         f"({'; '.join(protocol['reasons_before']) or 'none'}); after --apply "
         f"({1e3 * protocol['correction_s']:+.2f} ms) the session checks "
         f"{protocol['verdict_after_apply']} with a residual of "
-        f"{1e3 * protocol['residual_after_s']:+.2f} ms."
+        f"{1e3 * protocol['residual_after_s']:+.2f} ms"
+        + (f" ({'; '.join(after_reasons)})" if after_reasons else "")
+        + (
+            ": the simulated camera renders in real time and skips the frames a busy machine "
+            "leaves it no time for, as a real camera would; run the demo again on a quieter "
+            "machine"
+            if any("never delivered by the device" in r for r in after_reasons)
+            else ""
+        )
+        + "."
     )
     _images(report, [protocol["plot"]], "sync protocol", out)
 
