@@ -722,7 +722,7 @@ def select(
         f"selected model: {shipped} (lowest {where} MAE of {len(names)} candidates and "
         f"{len(baselines)} baselines, never worse than the mean predictor on any protocol), "
         f"{scores[shipped]:.3f} N"
-    )
+    ) + _per_protocol_best(shipped, [*names, *baselines], by_protocol)
     if shipped in names:
         return shipped, (
             f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N{why}"
@@ -730,6 +730,28 @@ def select(
     return shipped, (
         f"warning: the best candidate {best} ({scores[best]:.3f} N on {where}) LOSES to "
         f"the baseline {shipped}: {line}{why}; force a candidate with --model to ship it anyway"
+    )
+
+
+def _per_protocol_best(
+    shipped: str, methods: list[str], by_protocol: dict[str, dict[str, float]]
+) -> str:
+    """Where the held-out frames are of several protocols, the best method of each beside the
+    one model that ships for all (a frame does not say its protocol)."""
+    protocols = sorted({p for n in methods for p in by_protocol.get(n, {})})
+    if len(protocols) < 2:
+        return ""
+    best = {
+        p: min((n for n in methods if p in by_protocol.get(n, {})), key=lambda n: by_protocol[n][p])
+        for p in protocols
+    }
+    return (
+        "; one model for every protocol (its frames weighted equally); the best per protocol: "
+        + ", ".join(
+            f"{p} {n} {by_protocol[n][p]:.3f} N"
+            + ("" if n == shipped else f" (shipped {by_protocol[shipped][p]:.3f} N)")
+            for p, n in best.items()
+        )
     )
 
 

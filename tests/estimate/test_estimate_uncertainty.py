@@ -218,6 +218,11 @@ def test_auto_never_ships_a_method_worse_than_the_mean_predictor_on_a_protocol()
     shipped, note = select(candidates, scores, by_protocol, "validation", auto=True)
     assert shipped == "hooke" and "ridge_height_map 0.275 N" in note
     assert "worse than the mean predictor on one protocol" in note
+    # one model ships for both protocols: the line names each protocol's best beside it
+    assert (
+        "the best per protocol: freehand hooke 0.200 N, pull-hold ridge_height_map 0.100 N "
+        "(shipped 0.500 N)" in note
+    )
     # when every method loses to the mean predictor somewhere, the mean predictor ships
     worse = {n: {**v, "freehand": 0.5} for n, v in by_protocol.items() if n != "mean"}
     worse["mean"] = by_protocol["mean"]
