@@ -42,8 +42,9 @@ class DepthChangeImage:
     def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat cell index of every point and whether it lies inside the grid."""
         ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
-        inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
-        return np.where(inside, ij[:, 0] * self.cells + ij[:, 1], 0), inside
+        i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
+        inside = (i >= 0) & (i < self.cells) & (j >= 0) & (j < self.cells)
+        return np.where(inside, i * self.cells + j, 0), inside
 
     def _bin(
         self,

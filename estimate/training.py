@@ -629,6 +629,7 @@ def fit_split(
     )
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
+        fold_times = StageTimes()
         with times.stage("interval folds"):
             refitted = _with_out_of_fold(
                 names,
@@ -636,7 +637,9 @@ def fit_split(
                 len({s.name for s, _ in val_parts}),
                 config,
                 best_epochs(histories),
+                fold_times,
             )
+        times.seconds.update({f"interval folds: {k}": v for k, v in fold_times.seconds.items()})
         residuals.update({n: r for n, r in refitted.items() if n in residuals})
     intervals = {
         name: calibrate(

@@ -112,6 +112,12 @@ def test_every_network_stops_early_and_the_record_times_every_stage(trained):
         assert any(n.startswith(f"{what}: ") and "best epoch" in n for n in result.notes), name
     stages = record["stage_seconds"]
     assert {"preparation", "baselines", "pointnet", "cnn_depth_change"} <= set(stages)
+    # the interval folds' refits are timed per method, as the selection folds' are
+    assert {
+        "interval folds",
+        "interval folds: baselines",
+        "interval folds: cnn_depth_change",
+    } <= set(stages)
     for seconds in stages.values():
         assert seconds["wall_s"] >= 0 and seconds["cpu_s"] >= 0
     assert stages["pointnet"]["cpu_s"] > 0
