@@ -14,6 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from vbfe.common.errors import EstimateError
+from vbfe.estimate.displacement import grid_cells
 
 
 class DepthChangeImage:
@@ -41,10 +42,7 @@ class DepthChangeImage:
 
     def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat cell index of every point and whether it lies inside the grid."""
-        ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
-        i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
-        inside = (i >= 0) & (i < self.cells) & (j >= 0) & (j < self.cells)
-        return np.where(inside, i * self.cells + j, 0), inside
+        return grid_cells(points, self._lo, self._size, self.cells)
 
     def _bin(
         self,

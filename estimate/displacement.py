@@ -20,6 +20,17 @@ MAX_CELLS = 16
 POINTS_PER_CELL = 8
 
 
+def grid_cells(
+    points: np.ndarray, lo: np.ndarray, size: np.ndarray, cells: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flat index (0 outside) of the cell of a ``cells`` × ``cells`` grid over x, y (from
+    ``lo`` in steps of ``size``) each point falls in, and whether it lies inside the grid."""
+    ij = np.floor((points[:, :2] - lo) / size).astype(np.int64)
+    i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
+    inside = (i >= 0) & (i < cells) & (j >= 0) & (j < cells)
+    return np.where(inside, i * cells + j, 0), inside
+
+
 class DisplacementGrid:
     """Depth-change measurement against a reference cloud (the session's first frame)."""
 
@@ -35,10 +46,8 @@ class DisplacementGrid:
 
     def depth_map(self, points: np.ndarray) -> np.ndarray:
         """Per-cell median z (cells × cells, metres); NaN where a cell has too few points."""
-        ij = np.floor((points[:, :2] - self._lo) / self._size).astype(np.int64)
-        i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
-        inside = (i >= 0) & (i < self.cells) & (j >= 0) & (j < self.cells)
-        cell = ij[inside, 0] * self.cells + ij[inside, 1]
+        cell, inside = grid_cells(points, self._lo, self._size, self.cells)
+        cell = cell[inside]
         z = points[inside, 2].astype(np.float64)
         depth = np.full(self.cells * self.cells, np.nan)
         if not len(z):

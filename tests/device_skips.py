@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-DEVICE_SKIPS = "never delivered by the device, 0 lost by the recorder"
+from vbfe.acquire.sync.check import DEVICE_SKIPPED
+
+DEVICE_SKIPS = f"{DEVICE_SKIPPED}, 0 lost by the recorder"
 
 
 def device_skips_only(reasons: Sequence[str]) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from vbfe.acquire.sync.check import DEVICE_SKIPPED
 from vbfe.common.report import HtmlReport
 
 # Acceptance limits the demo is judged by (the issues' "done when" figures).
@@ -311,7 +312,7 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
             ": the simulated camera renders in real time and skips the frames a busy machine "
             "leaves it no time for, as a real camera would; run the demo again on a quieter "
             "machine"
-            if any("never delivered by the device" in r for r in after_reasons)
+            if any(DEVICE_SKIPPED in r for r in after_reasons)
             else ""
         )
         + "."

@@ -398,12 +398,15 @@ def _verdict(
     return (INCONCLUSIVE, doubts) if doubts else (PASS, [])
 
 
+DEVICE_SKIPPED = "never delivered by the device"  # a drop reason's words for device-side drops
+
+
 def _drop_origin(audit: StreamAudit, recorder_lost: dict[str, int] | None, stream: str) -> str:
     """Where a stream's missing samples were lost, when the session says (newer sessions)."""
     if recorder_lost is None or stream not in recorder_lost:
         return ""
     lost = min(recorder_lost[stream], audit.dropped)
-    return f": {audit.dropped - lost} never delivered by the device, {lost} lost by the recorder"
+    return f": {audit.dropped - lost} {DEVICE_SKIPPED}, {lost} lost by the recorder"
 
 
 def _stream_check(reader: SessionReader, name: str, max_lag_s: float) -> OffsetEstimate | str:
