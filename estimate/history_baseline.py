@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.threads import torch_threads
 
 HIDDEN = 64
 STEPS = 2000
@@ -110,16 +111,12 @@ def fit_history(
     inputs = torch.from_numpy(((x - x_mean) / x_scale).astype(np.float32))
     targets = torch.from_numpy((y - y_mean).astype(np.float32))
     optimizer = torch.optim.Adam(network.parameters(), LEARNING_RATE, weight_decay=WEIGHT_DECAY)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # steps of microseconds: a second thread adds only its overhead
-    try:
+    with torch_threads(1):  # steps of microseconds: a second thread adds only its overhead
         for _ in range(steps):
             optimizer.zero_grad()
             loss = nn.functional.smooth_l1_loss(network(inputs), targets)
             loss.backward()
             optimizer.step()
-    finally:
-        torch.set_num_threads(threads)
     layers = tuple(
         (m.weight.detach().double().numpy(), m.bias.detach().double().numpy())
         for m in network

@@ -34,8 +34,7 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,6 +77,7 @@ from vbfe.estimate.splits import (
     split_folds,
 )
 from vbfe.estimate.stage_times import STATUS_SEPARATOR, StageTimes
+from vbfe.estimate.threads import torch_threads
 from vbfe.estimate.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -133,17 +133,6 @@ def use_threads(threads: int) -> None:
     """Set torch's CPU threads (the commands call this for evaluation and live)."""
     if threads > 0:
         torch.set_num_threads(threads)
-
-
-@contextmanager
-def _training_threads(threads: int) -> Iterator[None]:
-    """Torch on ``threads`` CPU threads while training, the caller's count restored after."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def make_split(prepared: Sequence[PreparedSession], config: TrainConfig) -> SessionSplit:
@@ -829,7 +818,7 @@ def train(
     started = time.monotonic()
     times = StageTimes()
     device = resolve_device(config.device)  # a --device torch cannot use: refused before work
-    with _training_threads(config.threads), torch.random.fork_rng(devices=[]):
+    with torch_threads(config.threads), torch.random.fork_rng(devices=[]):
         # tracking the texture triples a frame's preparation: only for the candidate reading it
         texture = CANDIDATES["hooke_texture"] in candidate_names(
             config.model, config.temporal_frames > 0
