@@ -134,6 +134,14 @@ def scored(frames: dict[str, np.ndarray], selected: str, model: ForceModel) -> d
     }
 
 
+def maes(metrics: dict[str, Any]) -> tuple[dict[str, float], str, str]:
+    """Every method's overall MAE in an evaluation's ``metrics``, the best method and a line
+    listing them all."""
+    mae = {m: v["overall"]["mae_n"] for m, v in metrics.items()}
+    every = "every method: " + ", ".join(f"{m} {v:.3f}" for m, v in sorted(mae.items()))
+    return mae, min(mae, key=mae.__getitem__), every
+
+
 def held_out_rows(numbers: dict[str, Any]) -> None:
     """Step 1: the quick demo's own held-out sets."""
     force = numbers["force"]
@@ -142,15 +150,14 @@ def held_out_rows(numbers: dict[str, Any]) -> None:
         ("paper sessions", force["metrics"]),
         ("freehand trial", force["freehand"]["metrics"]),
     ):
-        mae = {m: v["overall"]["mae_n"] for m, v in metrics.items()}
+        mae, best, every = maes(metrics)
         selected = force["selected"]
-        best = min(mae, key=mae.__getitem__)
         print(
             f"  {label:15s} shipped {selected} {mae[selected]:.3f}  mean {mae['mean']:.3f}  "
             f"best {best} {mae[best]:.3f}  shipped/mean {mae[selected] / mae['mean']:.2f}  "
             f"shipped/best {mae[selected] / max(mae[best], 1e-9):.2f}"
         )
-        print("    every method: " + ", ".join(f"{m} {v:.3f}" for m, v in sorted(mae.items())))
+        print(f"    {every}")
 
 
 def retrain(demo: Path) -> None:
@@ -209,12 +216,9 @@ def main(argv: list[str] | None = None) -> None:
         f"{report.selected} MAE {new['mae']:.3f} N, mean predictor {new['mean_mae']:.3f} N, "
         f"90 % interval covers {100 * new['covered']:.1f} %, flagged {100 * new['flagged']:.1f} %"
     )
-    mae = {m: v["overall"]["mae_n"] for m, v in report.metrics.items()}
-    best = min(mae, key=mae.__getitem__)
-    print(
-        f"  shipped/best {mae[report.selected] / max(mae[best], 1e-9):.2f} (best {best}); every "
-        "method: " + ", ".join(f"{m} {v:.3f}" for m, v in sorted(mae.items()))
-    )
+    mae, best, every = maes(report.metrics)
+    ratio = mae[report.selected] / max(mae[best], 1e-9)
+    print(f"  shipped/best {ratio:.2f} (best {best}); {every}")
     if not args.conditions:
         return
     outside, flagged, novel, off_hooke = [], [], [], []
