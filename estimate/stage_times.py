@@ -37,3 +37,15 @@ class StageTimes:
             entry = self.seconds.setdefault(name, {"wall_s": 0.0, "cpu_s": 0.0})
             entry["wall_s"] += time.perf_counter() - wall
             entry["cpu_s"] += cpu_seconds() - cpu
+
+    @contextmanager
+    def parts(self, name: str) -> Iterator[StageTimes]:
+        """Time the body as ``name``; the stages timed on the ``StageTimes`` it yields are
+        kept as ``name: stage``."""
+        inner = StageTimes()
+        with self.stage(name):
+            yield inner
+        for stage, entry in inner.seconds.items():
+            total = self.seconds.setdefault(f"{name}: {stage}", {"wall_s": 0.0, "cpu_s": 0.0})
+            total["wall_s"] += entry["wall_s"]
+            total["cpu_s"] += entry["cpu_s"]

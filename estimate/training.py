@@ -573,14 +573,12 @@ def fit_split(
     if config.select_min_val_frames and (
         n_val < config.select_min_val_frames or len(val_parts) < 2
     ):
-        fold_times = StageTimes()
         fitting = by_session(train_parts + val_parts)  # every session the fit saw
         what = "the training and validation sessions" if val_parts else "the training part"
-        with times.stage("selection folds"):
+        with times.parts("selection folds") as fold_times:
             held, held_parts, where = _out_of_fold(
                 names, fitting, config, best_epochs(histories), fold_times, what
             )
-        times.seconds.update({f"selection folds: {k}": v for k, v in fold_times.seconds.items()})
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
             f"{config.select_min_val_frames} frames or 2 sessions): selection and intervals "
@@ -618,8 +616,7 @@ def fit_split(
     )
     residuals = {name: (p, measured, labels, where) for name, p in held.items()}
     if config.interval_folds and where == "validation" and held:
-        fold_times = StageTimes()
-        with times.stage("interval folds"):
+        with times.parts("interval folds") as fold_times:
             refitted = _with_out_of_fold(
                 names,
                 by_session(train_parts + val_parts),
@@ -628,7 +625,6 @@ def fit_split(
                 best_epochs(histories),
                 fold_times,
             )
-        times.seconds.update({f"interval folds: {k}": v for k, v in fold_times.seconds.items()})
         residuals.update({n: r for n, r in refitted.items() if n in residuals})
     intervals = {
         name: calibrate(
