@@ -27,6 +27,9 @@ from vbfe.estimate.train_config import TrainConfig
 ProgressFn = Callable[[str, int, int], None]  # (stage, done, total)
 
 
+DEFAULT_PROTOCOL = "traction"  # the paper's pull and hold: a session stating no protocol
+
+
 @dataclass
 class PreparedSession:
     """One session's usable frames, ready for training, evaluation and the baselines."""
@@ -51,9 +54,9 @@ class PreparedSession:
 
     @property
     def protocol(self) -> str:
-        """What the operator did: ``"freehand"``, …; ``"traction"`` (the paper's pull and
-        hold) unless the session's conditions state another."""
-        return str(self.conditions.get("protocol", "traction"))
+        """What the operator did: ``"freehand"``, …; :data:`DEFAULT_PROTOCOL` unless the
+        session's conditions state another."""
+        return str(self.conditions.get("protocol", DEFAULT_PROTOCOL))
 
     @property
     def n_used(self) -> int:

@@ -247,6 +247,14 @@ def evaluate(
     prepared = prepare_sessions(
         sessions, model.config, progress, texture=any(map(reads_texture, model.estimators.values()))
     )
+    protocols = sorted({s.protocol for s in prepared})
+    shipped = "one model for every protocol"
+    if model.by_protocol:
+        if len(protocols) == 1:  # the sessions say their protocol: the method shipped for it
+            model = model.for_protocol(protocols[0])
+            shipped = f"the method shipped for {protocols[0]} sessions"
+        else:
+            shipped += f" (sessions of {', '.join(protocols)}: evaluate each protocol apart)"
     methods = [model.selected, *(m for m in model.estimators if m != model.selected)]
     label = target_label(model.config.target)
 
@@ -332,7 +340,7 @@ def evaluate(
     notes = [
         f"model {Path(model_path).name} (vbfe {model.record.get('vbfe_version')}), "
         f"target {model.config.target} ({label})",
-        f"selected model: {model.selected}; validation MAE per method (N): "
+        f"selected model: {model.selected} ({shipped}); validation MAE per method (N): "
         + ", ".join(f"{m} {v:.3f}" for m, v in model.record.get("validation_mae_n", {}).items()),
         *(
             n

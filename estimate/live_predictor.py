@@ -21,6 +21,7 @@ import torch
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
+from vbfe.estimate.dataset import DEFAULT_PROTOCOL
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import (
@@ -45,12 +46,14 @@ class LivePredictor:
 
     :param model: the trained model.
     :param seed: seed of the point draws.
-    :param protocol: what the operator does: the bounds are that protocol's interval
-        (``None``: the pooled one).
+    :param protocol: what the operator does: the method shipped for that protocol and its
+        interval (``None``: the method of a session stating no protocol, as ``vbfe evaluate``
+        and training take one, and the interval pooled over the protocols).
     :raises EstimateError: the model calibrated no interval of ``protocol``.
     """
 
     def __init__(self, model: ForceModel, seed: int = 0, protocol: str | None = None) -> None:
+        model = model.for_protocol(protocol or DEFAULT_PROTOCOL)  # as evaluate takes a session
         self.model = model
         self.protocol = protocol
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window

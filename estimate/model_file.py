@@ -3,15 +3,18 @@
 A model file is ``torch.save`` of a plain dict (loadable with ``weights_only=True``): format
 name and version, the vbfe version, the training config, every fitted estimator (candidates and
 baselines, each as its ``to_dict``: networks as hyper-parameters and weights), the name of the
-selected one, a training record (split as frame ranges, every method's validation MAE, the
-selection and its warnings, every method's prediction interval, histories, skipped-frame
-counts, cross-validation when run), the flag of frames outside the training data and the check
-of the shipped model against Hooke's law (``disagreement.py``). Files written before the
-intervals, the flag or the check load without them.
+selected one (and, where the training held out trials of several protocols, the one selected
+for each protocol with its check against Hooke's law), a training record (split as frame
+ranges, every method's validation MAE, the selection and its warnings, every method's
+prediction interval, histories, skipped-frame counts, cross-validation when run), the flag of
+frames outside the training data and the check of the shipped model against Hooke's law
+(``disagreement.py``). Files written before the intervals, the flag, the check or the
+per-protocol selection load without them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,6 +50,16 @@ class ForceModel:
     record: dict[str, Any] = field(default_factory=dict)
     novelty: NoveltyFlag | None = None  # flags frames outside the training data
     disagreement: DisagreementCheck | None = None  # flags the shipped model off Hooke's law
+    # protocol → the method selected on its held-out trials and that method's check
+    by_protocol: dict[str, tuple[str, DisagreementCheck | None]] = field(default_factory=dict)
+
+    def for_protocol(self, protocol: str | None) -> ForceModel:
+        """The model as it ships for frames of ``protocol``: the method selected on that
+        protocol's held-out trials (itself when it selected none for it, or for ``None``)."""
+        if protocol not in self.by_protocol:
+            return self
+        method, check = self.by_protocol[protocol]
+        return dataclasses.replace(self, selected=method, disagreement=check)
 
     def interval(self, method: str | None = None) -> ConformalInterval | None:
         """The prediction interval of the selected (or the named) method, if calibrated."""
@@ -114,6 +127,11 @@ def save_model(path: str | Path, model: ForceModel) -> Path:
         payload["novelty"] = model.novelty.to_dict()
     if model.disagreement is not None:
         payload["disagreement"] = model.disagreement.to_dict()
+    if model.by_protocol:
+        payload["by_protocol"] = {
+            protocol: {"selected": method, "disagreement": check and check.to_dict()}
+            for protocol, (method, check) in model.by_protocol.items()
+        }
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
@@ -185,18 +203,29 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
     record["vbfe_version"] = payload.get("vbfe_version")
     try:
         novelty = NoveltyFlag.from_dict(payload["novelty"]) if "novelty" in payload else None
-        check = (
-            DisagreementCheck.from_dict(payload["disagreement"])
-            if "disagreement" in payload
-            else None
+        check = _check(payload.get("disagreement"))
+        by_protocol = {
+            str(protocol): (str(entry["selected"]), _check(entry["disagreement"]))
+            for protocol, entry in payload.get("by_protocol", {}).items()
+        }
+        for method, each in [(payload["selected"], check), *by_protocol.values()]:
+            if method not in estimators:
+                raise EstimateError(f"the selected {method!r} is not among the estimators")
+            if each is not None and each.reference not in estimators:
+                raise EstimateError(f"its reference {each.reference!r} is not an estimator")
+        model = ForceModel(
+            config, estimators, payload["selected"], record, novelty, check, by_protocol
         )
-        if check is not None and check.reference not in estimators:
-            raise EstimateError(f"its reference {check.reference!r} is not among the estimators")
-        model = ForceModel(config, estimators, payload["selected"], record, novelty, check)
-        model.interval()
+        for protocol in [None, *by_protocol]:
+            model.for_protocol(protocol).interval()
     except (EstimateError, KeyError, TypeError, ValueError) as exc:
         raise EstimateError(
             f"{path}: the intervals, the novelty flag or the disagreement check are damaged "
             f"({exc}); {retrain}"
         ) from None
     return model
+
+
+def _check(stored: dict[str, Any] | None) -> DisagreementCheck | None:
+    """A stored disagreement check (``None``: none stored)."""
+    return None if stored is None else DisagreementCheck.from_dict(stored)

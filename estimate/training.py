@@ -106,6 +106,8 @@ class SplitFit:
     selection_mae_n: dict[str, float] = field(default_factory=dict)  # what selection read
     intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
     disagreement: DisagreementCheck | None = None  # shipped model against Hooke's law
+    # protocol → the method selected on its held-out trials and that method's check
+    by_protocol: dict[str, tuple[str, DisagreementCheck | None]] = field(default_factory=dict)
 
 
 @dataclass
@@ -127,6 +129,7 @@ class TrainResult:
     notes: list[str] = field(default_factory=list)
     cross_validation: dict[str, Any] | None = None
     intervals: dict[str, dict[str, Any]] = field(default_factory=dict)  # method → interval
+    by_protocol: dict[str, str] = field(default_factory=dict)  # protocol → its method shipped
 
 
 def use_threads(threads: int) -> None:
@@ -589,7 +592,26 @@ def fit_split(
         held_parts = val_parts
     measured = _measured(held_parts) if held_parts else np.zeros((0, config.n_outputs))
     labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
-    by_protocol = held_out_mae(held, measured, labels[0])
+    residuals: Residuals = {name: (p, measured, labels, where) for name, p in held.items()}
+    if config.interval_folds and where == "validation" and held:
+        with times.parts("interval folds") as fold_times:
+            refitted = _with_out_of_fold(
+                names,
+                by_session(train_parts + val_parts),
+                len({s.name for s, _ in val_parts}),
+                config,
+                best_epochs(histories),
+                fold_times,
+            )
+        residuals.update({n: r for n, r in refitted.items() if n in residuals})
+        if refitted:  # each method scored on its largest held-out set
+            where = (
+                f"held-out trials ({next(iter(refitted.values()))[3]} for the methods quick to "
+                "refit, validation for the others)"
+            )
+    by_protocol = {
+        n: held_out_mae({n: p}, m, rows[0])[n] for n, (p, m, rows, _) in residuals.items()
+    }
     scores = {n: float(np.mean(list(v.values()))) for n, v in by_protocol.items()}
     if not any(n in scores for n in names):
         scores, where = val_mae, "validation" if val_parts else "training"
@@ -599,7 +621,13 @@ def fit_split(
             f"selected on {where}, no intervals"
         )
     scored = [n for n in names if n in scores]
-    selected, note = select(scored, scores, by_protocol, where, config.model == "auto")
+    auto = config.model == "auto"
+    selected, note = select(scored, scores, by_protocol, where, auto)
+    per_protocol = select_per_protocol(scored, by_protocol) if auto else {}
+    if per_protocol:
+        note += "; per protocol (its frames say which): " + ", ".join(
+            f"{p} {n} {by_protocol[n][p]:.3f} N" for p, n in per_protocol.items()
+        )
     log.info("%s", note)
     notes.append(note)
     notes.append(
@@ -614,25 +642,20 @@ def fit_split(
             for n in sorted(scores, key=scores.__getitem__)
         )
     )
-    residuals = {name: (p, measured, labels, where) for name, p in held.items()}
-    if config.interval_folds and where == "validation" and held:
-        with times.parts("interval folds") as fold_times:
-            refitted = _with_out_of_fold(
-                names,
-                by_session(train_parts + val_parts),
-                len({s.name for s, _ in val_parts}),
-                config,
-                best_epochs(histories),
-                fold_times,
-            )
-        residuals.update({n: r for n, r in refitted.items() if n in residuals})
     intervals = {
         name: calibrate(
             p, m, config.interval_coverage, config.interval_scale, source, *rows
         ).to_dict()
         for name, (p, m, rows, source) in residuals.items()
     }
-    disagreement = fit_disagreement(selected, held) if selected in intervals else None
+
+    def hooke_check(method: str, protocol: str | None = None) -> DisagreementCheck | None:
+        """The method's check against Hooke's law on the held-out frames (of ``protocol``)."""
+        if method not in intervals:
+            return None
+        rows = labels[0] == protocol if protocol is not None else slice(None)
+        return fit_disagreement(method, {n: p[rows] for n, p in held.items()})
+
     return SplitFit(
         split,
         estimators,
@@ -643,7 +666,8 @@ def fit_split(
         seconds,
         scores,
         intervals,
-        disagreement,
+        hooke_check(selected),
+        {p: (n, hooke_check(n, p)) for p, n in per_protocol.items()},
     )
 
 
@@ -707,10 +731,10 @@ def select(
         else ""
     )
     line = (
-        f"selected model: {shipped} (lowest {where} MAE of {len(names)} candidates and "
+        f"selected model: {shipped} (lowest MAE on {where}, of {len(names)} candidates and "
         f"{len(baselines)} baselines, never worse than the mean predictor on any protocol), "
         f"{scores[shipped]:.3f} N"
-    ) + _per_protocol_best(shipped, [*names, *baselines], by_protocol)
+    )
     if shipped in names:
         return shipped, (
             f"{line}; best baseline {best_baseline} {baselines[best_baseline]:.3f} N{why}"
@@ -721,26 +745,24 @@ def select(
     )
 
 
-def _per_protocol_best(
-    shipped: str, methods: list[str], by_protocol: dict[str, dict[str, float]]
-) -> str:
-    """Where the held-out frames are of several protocols, the best method of each beside the
-    one model that ships for all (a frame does not say its protocol)."""
-    protocols = sorted({p for n in methods for p in by_protocol.get(n, {})})
+def select_per_protocol(
+    names: list[str], by_protocol: dict[str, dict[str, float]]
+) -> dict[str, str]:
+    """Where the held-out frames are of several protocols, the method shipped for each: the
+    lowest MAE on that protocol's held-out frames among the methods (``names`` and the
+    baselines) no worse there than the mean predictor (a live run or an evaluation of one
+    protocol's sessions uses it; a frame of no stated protocol, the one model for all)."""
+    protocols = sorted({p for v in by_protocol.values() for p in v})
     if len(protocols) < 2:
-        return ""
-    best = {
-        p: min((n for n in methods if p in by_protocol.get(n, {})), key=lambda n: by_protocol[n][p])
+        return {}
+    baselines = [n for n in by_protocol if n not in CANDIDATES.values()]
+    methods = [n for n in [*names, *baselines] if n in by_protocol]
+    mean = by_protocol.get("mean", {})
+    eligible = {
+        p: [n for n in methods if by_protocol[n].get(p, np.inf) <= mean.get(p, np.inf)]
         for p in protocols
     }
-    return (
-        "; one model for every protocol (its frames weighted equally); the best per protocol: "
-        + ", ".join(
-            f"{p} {n} {by_protocol[n][p]:.3f} N"
-            + ("" if n == shipped else f" (shipped {by_protocol[shipped][p]:.3f} N)")
-            for p, n in best.items()
-        )
-    )
+    return {p: min(ns, key=lambda n: by_protocol[n][p]) for p, ns in eligible.items() if ns}
 
 
 def cross_validate(
@@ -829,11 +851,13 @@ def train(
                 cv = cross_validate(prepared, config, progress)
         fit = fit_split(prepared, make_split(prepared, config), config, progress, times)
     skipped = skipped_counts(prepared)
+    shipped = {p: n for p, (n, _) in fit.by_protocol.items()}
     pointnet = fit.histories.get("pointnet", {"history": [], "best_epoch": 0})
     record = {
         "split": fit.split.to_dict(),
         "split_description": fit.split.describe(),
         "selected": fit.selected,
+        "selected_by_protocol": shipped,
         "validation_mae_n": fit.val_mae_n,
         "selection_mae_n": fit.selection_mae_n,
         "intervals": fit.intervals,
@@ -856,6 +880,7 @@ def train(
             by_session(fit.split.frames("train", prepared) + fit.split.frames("val", prepared))
         ),
         disagreement=fit.disagreement,
+        by_protocol=fit.by_protocol,
     )
     path = save_model(out, model)
     return TrainResult(
@@ -874,4 +899,5 @@ def train(
         notes=fit.notes,
         cross_validation=cv,
         intervals=fit.intervals,
+        by_protocol=shipped,
     )

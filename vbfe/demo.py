@@ -535,6 +535,8 @@ def estimate_stage(
         "train_sessions": [s.stem for s in training],
         "test_sessions": [s.stem for s in held_out],
         "selected": result.selected,
+        "selected_by_protocol": result.by_protocol,
+        "shipped": report.selected,  # the method shipped for the paper sessions' protocol
         "selection_notes": result.notes,
         "train_seconds": result.duration_s,
         "epochs_run": result.epochs_run,
@@ -543,6 +545,7 @@ def estimate_stage(
         "plots": [str(p) for p in report.files if str(p).endswith(".png")],
         "freehand": {
             "test_sessions": [s.stem for s in held_out_freehand],
+            "shipped": freehand.selected,
             "metrics": freehand.metrics,
             "per_phase": phase_metrics(freehand, held_out_freehand),
             "best": best_method(freehand.metrics),

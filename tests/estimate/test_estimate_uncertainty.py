@@ -22,12 +22,13 @@ from vbfe.estimate.model_file import load_model
 from vbfe.estimate.splits import autocorrelation_frames
 from vbfe.estimate.synthetic import synthetic_session
 from vbfe.estimate.train_config import TrainConfig
-from vbfe.estimate.training import select, train, training_folds
+from vbfe.estimate.training import select, select_per_protocol, train, training_folds
 from vbfe.live.estimator import FrameEstimator
 from vbfe.recon import reconstruct_session
 from vbfe.rig_config import builtin_rig
 from vbfe.truth import calibration_from_rig, true_rig
 
+FOLDS = "3 blocked folds of the training and validation sessions (sessions)"
 FAST = dict(
     val_fraction=0.0,
     history_frames=0,
@@ -218,17 +219,59 @@ def test_auto_never_ships_a_method_worse_than_the_mean_predictor_on_a_protocol()
     shipped, note = select(candidates, scores, by_protocol, "validation", auto=True)
     assert shipped == "hooke" and "ridge_height_map 0.275 N" in note
     assert "worse than the mean predictor on one protocol" in note
-    # one model ships for both protocols: the line names each protocol's best beside it
-    assert (
-        "the best per protocol: freehand hooke 0.200 N, pull-hold ridge_height_map 0.100 N "
-        "(shipped 0.500 N)" in note
-    )
+    # per protocol, its own best among those no worse than the mean predictor there ships
+    assert select_per_protocol(candidates, by_protocol) == {
+        "freehand": "hooke",
+        "pull-hold": "ridge_height_map",
+    }
     # when every method loses to the mean predictor somewhere, the mean predictor ships
     worse = {n: {**v, "freehand": 0.5} for n, v in by_protocol.items() if n != "mean"}
     worse["mean"] = by_protocol["mean"]
     scores = {n: float(np.mean(list(v.values()))) for n, v in worse.items()}
     shipped, _ = select(candidates, scores, worse, "validation", auto=True)
     assert shipped == "mean"
+    assert select_per_protocol(candidates, worse) == {
+        "freehand": "mean",
+        "pull-hold": "ridge_height_map",
+    }
+    assert select_per_protocol(candidates, _one_protocol(scores)) == {}  # one protocol: none
+
+
+def test_a_protocol_s_sessions_are_estimated_by_the_method_shipped_for_it(tmp_path):
+    rng = np.random.default_rng(9)
+    sessions = trials(rng, 6, "hold") + freehand(trials(rng, 6, "free", noise_m=4e-4))
+    result = train(sessions, tmp_path / "m.pt", TrainConfig(model="ridge", **FAST))
+    assert result.by_protocol == {}  # a forced model ships for every protocol
+    payload = torch.load(result.model_path, weights_only=True)
+    # as `--model auto` ships where baselines win each protocol's held-out trials
+    payload["by_protocol"] = {
+        "freehand": {"selected": "linear_displacement", "disagreement": None},
+        "traction": {"selected": "hooke", "disagreement": None},
+    }
+    torch.save(payload, tmp_path / "per.pt")
+    model = load_model(tmp_path / "per.pt")
+    assert model.selected == "ridge_height_map"  # for frames of several protocols at once
+    held_out = [sessions[5], sessions[11]]  # a traction session (it states none), a freehand one
+    shipped = (("traction", "hooke"), ("freehand", "linear_displacement"))
+    for session, (protocol, method) in zip(held_out, shipped, strict=True):
+        report = evaluate(tmp_path / "per.pt", [session], tmp_path / f"eval-{session.name}")
+        assert report.selected == method
+        cloud = session.clouds[-1]
+        expected = FramePredictor(model.for_protocol(protocol))
+        expected.predict(session.clouds[0])  # the rest cloud, as the live run's first
+        # live is told the protocol; told none, it takes the frames as a session stating none
+        for told in (protocol, None) if protocol == "traction" else (protocol,):
+            live = LivePredictor(model, protocol=told)
+            live.model_force(live.prepare(session.clouds[0]))
+            assert live.model.selected == method
+            assert live.model_force(live.prepare(cloud)) == pytest.approx(expected.predict(cloud))
+    mixed = evaluate(tmp_path / "per.pt", held_out, tmp_path / "eval-mixed")
+    assert mixed.selected == "ridge_height_map"
+    assert "evaluate each protocol apart" in (tmp_path / "eval-mixed" / "report.md").read_text()
+    payload["by_protocol"]["freehand"]["selected"] = "gone"
+    torch.save(payload, tmp_path / "bad.pt")
+    with pytest.raises(EstimateError, match=r"bad.pt: .*'gone' is not among the estimators"):
+        load_model(tmp_path / "bad.pt")
 
 
 def test_a_model_shipping_a_baseline_runs_frame_by_frame(tmp_path):
@@ -266,7 +309,7 @@ def test_live_draws_the_band_of_the_protocol_it_is_told_and_refuses_an_unknown_o
         LivePredictor(load_model(plain.model_path), protocol="freehand")
 
 
-def test_a_large_validation_part_selects_and_calibrates_there(tmp_path):
+def test_a_large_validation_part_selects_and_calibrates_on_the_largest_held_out_set(tmp_path):
     rng = np.random.default_rng(7)
     sessions = trials(rng, 9, "val")
     config = TrainConfig(model="ridge", **{**FAST, "val_fraction": 1 / 3}, select_min_val_frames=5)
@@ -274,19 +317,23 @@ def test_a_large_validation_part_selects_and_calibrates_there(tmp_path):
     model = load_model(result.model_path)
     n_val = sum(len(s.clouds) for s in sessions if s.name in model.record["split"]["val"])
     n_train = sum(len(s.clouds) for s in sessions if s.name in model.record["split"]["train"])
-    assert model.record["selection_mae_n"] == model.record["validation_mae_n"]
-    # ridge and the baselines refit in seconds: their intervals take the out-of-fold residuals
-    # of folds of every session the fit saw, each once, each fold holding out as many sessions
-    # as validation does (9 sessions, 3 validating: 3 folds)
+    # ridge and the baselines refit in seconds: their selection and intervals take the
+    # out-of-fold residuals of folds of every session the fit saw, each once, each fold
+    # holding out as many sessions as validation does (9 sessions, 3 validating: 3 folds)
+    folds = "3 blocked folds of the training and validation sessions (sessions)"
+    assert any(
+        f"held-out trials ({folds} for the methods quick to refit" in n for n in result.notes
+    )
+    selection, validation = model.record["selection_mae_n"], model.record["validation_mae_n"]
+    assert all(selection[m] != validation[m] for m in selection)
     for method in ("ridge_height_map", "mean"):
         interval = model.interval(method)
-        assert (
-            interval.source == "3 blocked folds of the training and validation sessions (sessions)"
-        )
+        assert interval.source == FOLDS
         assert interval.n_calibration == n_val + n_train
     config = dataclasses.replace(config, interval_folds=False)
     model = load_model(train(sessions, tmp_path / "v.pt", config).model_path)
     assert model.interval().source == "validation" and model.interval().n_calibration == n_val
+    assert model.record["selection_mae_n"] == model.record["validation_mae_n"]
 
 
 def test_the_shipped_ensembles_interval_covers_new_trials_of_each_protocol(tmp_path):
@@ -310,9 +357,7 @@ def test_the_shipped_ensembles_interval_covers_new_trials_of_each_protocol(tmp_p
         fit = trials(rng, 3, "fit", fps=6) + freehand(trials(rng, 3, "free", **noisy))
         model = load_model(train(fit, tmp_path / f"m{seed}.pt", config).model_path)
         interval = model.interval()
-        assert (
-            interval.source == "3 blocked folds of the training and validation sessions (sessions)"
-        )
+        assert interval.source == FOLDS
         assert interval.n_calibration == sum(len(s.clouds) for s in fit)
         new = trials(rng, 10, "new", fps=6) + freehand(trials(rng, 10, "newfree", **noisy))
         for s in prepare_sessions(new, model.config, texture=False):

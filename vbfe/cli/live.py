@@ -137,7 +137,6 @@ def run(args: argparse.Namespace) -> int:
         },
     )
     server = foxglove_server(args, model.config.target)
-    print(f"model {args.model}: {model.selected} (selected by its training run)")
     estimator = live_estimator(
         rig,
         model,
@@ -146,6 +145,16 @@ def run(args: argparse.Namespace) -> int:
         not args.no_verify,
         args.device,
         args.row_scale,
+    )
+    per_protocol = ", ".join(f"{p} {m}" for p, (m, _) in model.by_protocol.items())
+    print(
+        f"model {args.model}: {estimator.model.selected} (selected by its training run"
+        + (
+            f"; per protocol {per_protocol}: [live] protocol names the one run"
+            if per_protocol
+            else ""
+        )
+        + ")"
     )
     print(estimator.describe())
     outputs: list[EstimateOutput] = []

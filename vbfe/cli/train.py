@@ -187,7 +187,9 @@ def run(args: argparse.Namespace) -> int:
     if result.cross_validation:
         print_cross_validation(result.cross_validation)
     print(
-        f"model written to {result.model_path}: ships {result.selected} "
+        f"model written to {result.model_path}: ships {result.selected}"
+        + "".join(f", for {p} frames {n}" for p, n in result.by_protocol.items())
+        + " "
         f"({result.duration_s:.0f} s, networks on {result.device}, torch on "
         f"{config.threads} CPU thread(s))"
     )

@@ -210,6 +210,7 @@ class LiveRun(Listener):
                 "scale": estimator.scale,
                 "row_scale": estimator.row_scale,
                 "model": model_name,
+                "method": estimator.model.selected,  # the model's method for this protocol
             }
             outputs_n = estimator.model.config.n_outputs
             acquisition.sink.add_stream(estimate_stream_spec(outputs_n, STAGES, settings))

@@ -24,7 +24,7 @@ class LiveSettings:
     status_interval_s: float = setting(1.0, gt=0)
     max_frame_age_s: float = setting(0.25, ge=0)  # later frames are skipped (0: no limit)
     model: str = ""  # the model file loaded when none is given ("": none settled)
-    protocol: str = ""  # the interval of this protocol, when calibrated ("": pooled)
+    protocol: str = ""  # the method and interval of this protocol ("": traction's, pooled)
 
 
 def live_settings(table: dict[str, Any]) -> LiveSettings:
