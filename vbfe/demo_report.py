@@ -137,6 +137,17 @@ def checks(numbers: dict[str, Any]) -> list[tuple[str, str, str, bool]]:
     return rows
 
 
+def _shipped(force: dict[str, Any]) -> str:
+    """Which method the model ships, for each protocol it selected one for."""
+    labels = dict(_methods(force["metrics"]))
+    per_protocol = force.get("selected_by_protocol") or {}
+    if not per_protocol:
+        return labels.get(force["selected"], force["selected"])
+    return ", ".join(f"{labels.get(m, m)} for {p} frames" for p, m in per_protocol.items()) + (
+        f" and {labels.get(force['selected'], force['selected'])} for a mix of protocols"
+    )
+
+
 def _methods(metrics: dict[str, Any]) -> list[tuple[str, str]]:
     """(method, label) of every method evaluated: known ones in the usual order, then any
     other under its own name."""
@@ -370,7 +381,8 @@ def write_report(numbers: dict[str, Any], out: Path) -> Path:
     report.paragraph(
         f"Trained on {len(force['train_sessions'])} sessions "
         f"({force['epochs_run']} epochs, {force['train_seconds']:.0f} s on the CPU), "
-        f"tested on {len(force['test_sessions'])} sessions never seen in training."
+        f"tested on {len(force['test_sessions'])} sessions never seen in training. "
+        f"The model ships {_shipped(force)}."
     )
     _force_tables(
         report,
