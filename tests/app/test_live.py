@@ -15,6 +15,7 @@ from vbfe.common.mailbox import Mailbox
 from vbfe.drivers.sim.render import render_scene
 from vbfe.drivers.sim.rig import default_rig
 from vbfe.drivers.sim.tissue import TissueSurface, tissue_texture
+from vbfe.estimate.dataset import DEFAULT_PROTOCOL
 from vbfe.estimate.model_file import load_model
 from vbfe.estimate.synthetic import synthetic_sessions
 from vbfe.estimate.train_config import TrainConfig
@@ -172,7 +173,7 @@ def test_live_on_the_bench_records_an_estimate_stream_that_evaluate_scores(rig):
     offline = vbfe("evaluate", model, session, "--out", folder / "offline")
     assert offline.returncode == 0, offline.stderr
     with open(folder / "offline" / "predictions.csv") as rows:
-        selected = load_model(model).selected
+        selected = load_model(model).for_protocol(DEFAULT_PROTOCOL).selected  # as live's
         by_frame = {int(r["frame"]): float(r[f"{selected}_n"]) for r in csv.DictReader(rows)}
     frame_of = {int(seq): i for i, seq in enumerate(seqs_in_order)}
     pairs = zip(stream.frame_seq, stream.force_n, strict=True)
