@@ -1,4 +1,4 @@
-"""Training: every candidate fitted on the training part, the best on validation shipped.
+"""Training: every candidate fitted on the training part, the best on held-out trials shipped.
 
 ``train`` prepares the sessions, splits them (``splits.py``: by session, by time, by stated
 frame ranges), fits the baselines and every candidate (``candidates.py``) on the training
@@ -9,13 +9,16 @@ out-of-fold predictions of blocked folds of every session the fit saw, training 
 least the force's autocorrelation time; each frame predicted by models fitted without its
 session, the networks stopping at the epochs validation chose: no frame that selects or
 calibrates a method was fitted, or stopped the fit, of the model predicting it; only the epoch
-count comes from the validation sessions), selects the method with the
-lowest held-out MAE, each protocol's frames weighted equally, among those no worse than the mean
-predictor on any protocol's held-out trials (``[train] model = "auto"``; a baseline that beats
-every candidate ships instead, and says so) or the one forced (with a warning when it loses to
-a baseline), calibrates every method's prediction interval on the same held-out
-residuals (``intervals.py``; with a validation part, the methods quick to refit on the
-out-of-fold residuals of folds of every session the fit saw instead), fits the flag of
+count comes from the validation sessions); with a validation part, the methods quick to refit
+are scored on the out-of-fold predictions of folds of every session the fit saw instead (each
+method on its largest held-out set). It selects the method with the lowest held-out MAE, each
+protocol's frames weighted equally, among those no worse than the mean predictor on any
+protocol's held-out trials (``[train] model = "auto"``; a baseline that beats every candidate
+ships instead, and says so) or the one forced (with a warning when it loses to a baseline);
+with ``auto`` and held-out trials of several protocols, also each protocol's own method (the
+lowest MAE on its trials among those no worse than the mean predictor there), which
+evaluation and ``vbfe live`` use for that protocol's frames. It calibrates every method's
+prediction interval on the residuals it was scored on (``intervals.py``), fits the flag of
 frames outside the training data (``novelty.py``) and writes everything to a model file
 (``model_file.py``). With ``folds`` ≥ 3 it first runs blocked cross-validation in time
 (``splits.split_folds``): the whole procedure, selection included, per fold, every method
@@ -528,9 +531,10 @@ def fit_split(
     progress: ProgressFn | None = None,
     times: StageTimes | None = None,
 ) -> SplitFit:
-    """Fit baselines and candidates on ``split``'s training part, score all on validation (or,
-    when it is small, on blocked folds of the training part), select the shipped model and
-    calibrate every method's prediction interval on the same held-out residuals."""
+    """Fit baselines and candidates on ``split``'s training part, score each on its largest
+    held-out set (validation, or out-of-fold over every session the fit saw: for the methods
+    quick to refit, or for all when validation is small), select the shipped model (and one
+    per protocol) and calibrate every method's prediction interval on the same residuals."""
     train_parts = split.frames("train", prepared)
     if not train_parts:
         raise EstimateError(
@@ -751,7 +755,7 @@ def select_per_protocol(
     """Where the held-out frames are of several protocols, the method shipped for each: the
     lowest MAE on that protocol's held-out frames among the methods (``names`` and the
     baselines) no worse there than the mean predictor (a live run or an evaluation of one
-    protocol's sessions uses it; a frame of no stated protocol, the one model for all)."""
+    protocol's sessions uses it; a mix of protocols, the one model for all)."""
     protocols = sorted({p for v in by_protocol.values() for p in v})
     if len(protocols) < 2:
         return {}
