@@ -36,6 +36,7 @@ from benchmarks import smoke
 from vbfe.acquire import record_session
 from vbfe.calib import load_calibration
 from vbfe.demo import FREEHAND, DemoPlan, demo_config, estimate_stage, run_demo
+from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.recon import reconstruct_session
@@ -160,14 +161,16 @@ def held_out_rows(numbers: dict[str, Any]) -> None:
 
 
 def retrain(demo: Path) -> None:
-    """The quick demo's estimate stage again on its recorded sessions (in the demo's order:
-    paper sessions, then freehand trials)."""
+    """The quick demo's estimate stage again on its recorded sessions, in the order the demo
+    recorded them (each condition's repeats, then the freehand trials): the split deals them
+    in that order, and another order trains on other sessions (sorted by name, the quick
+    demo's ratios to the best were 1.42x / 1.59x against 1.28x / 1.18x)."""
     plan = DemoPlan.quick()
-    recorded = sorted(
-        p for p in (demo / "sessions").glob("*.h5") if p.with_suffix(".clouds.h5").exists()
-    )
-    sessions = [p for p in recorded if not p.stem.startswith(FREEHAND)]
-    sessions += [p for p in recorded if p.stem.startswith(FREEHAND)]
+    names = [
+        f"k{k:g}_v{v:g}_r{r}" for k, v in PAPER_CONDITIONS.items() for r in range(plan.repeats)
+    ]
+    names += [f"{FREEHAND}_r{r}" for r in range(plan.freehand_trials + plan.freehand_test_trials)]
+    sessions = [demo / "sessions" / f"{name}.h5" for name in names]
     numbers = json.loads((demo / "results.json").read_text())
     (demo / "model.pt").unlink(missing_ok=True)
     numbers["force"] = estimate_stage(sessions, demo, plan, demo_config(plan), _quiet)
