@@ -35,8 +35,7 @@ import numpy as np
 from benchmarks import smoke
 from vbfe.acquire import record_session
 from vbfe.calib import load_calibration
-from vbfe.demo import FREEHAND, DemoPlan, demo_config, estimate_stage, run_demo
-from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
+from vbfe.demo import FREEHAND, DemoPlan, demo_config, demo_runs, estimate_stage, run_demo
 from vbfe.estimate.evaluation import evaluate
 from vbfe.estimate.model_file import ForceModel, load_model
 from vbfe.recon import reconstruct_session
@@ -166,11 +165,7 @@ def retrain(demo: Path) -> None:
     in that order, and another order trains on other sessions (sorted by name, the quick
     demo's ratios to the best were 1.42x / 1.59x against 1.28x / 1.18x)."""
     plan = DemoPlan.quick()
-    names = [
-        f"k{k:g}_v{v:g}_r{r}" for k, v in PAPER_CONDITIONS.items() for r in range(plan.repeats)
-    ]
-    names += [f"{FREEHAND}_r{r}" for r in range(plan.freehand_trials + plan.freehand_test_trials)]
-    sessions = [demo / "sessions" / f"{name}.h5" for name in names]
+    sessions = [demo / "sessions" / f"{name}.h5" for _, name, _ in demo_runs(plan)]
     numbers = json.loads((demo / "results.json").read_text())
     (demo / "model.pt").unlink(missing_ok=True)
     numbers["force"] = estimate_stage(sessions, demo, plan, demo_config(plan), _quiet)

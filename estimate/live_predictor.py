@@ -21,7 +21,6 @@ import torch
 from vbfe.common.errors import EstimateError
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
-from vbfe.estimate.dataset import DEFAULT_PROTOCOL
 from vbfe.estimate.inference import FramePredictor, too_few_points
 from vbfe.estimate.model_file import ForceModel
 from vbfe.estimate.preparation import (
@@ -53,7 +52,7 @@ class LivePredictor:
     """
 
     def __init__(self, model: ForceModel, seed: int = 0, protocol: str | None = None) -> None:
-        model = model.for_protocol(protocol or DEFAULT_PROTOCOL)  # as evaluate takes a session
+        model = model.for_protocol(protocol)  # as evaluate takes a session stating none
         self.model = model
         self.protocol = protocol
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window

@@ -28,7 +28,7 @@ from vbfe.common.files import atomic_path
 from vbfe.common.settings import parse_table
 from vbfe.common.version import __version__
 from vbfe.estimate.candidates import CANDIDATES, AnyEstimator, estimator_from_dict
-from vbfe.estimate.dataset import PreparedSession
+from vbfe.estimate.dataset import DEFAULT_PROTOCOL, PreparedSession
 from vbfe.estimate.disagreement import DisagreementCheck
 from vbfe.estimate.intervals import ConformalInterval
 from vbfe.estimate.novelty import NoveltyFlag
@@ -54,11 +54,12 @@ class ForceModel:
     by_protocol: dict[str, tuple[str, DisagreementCheck | None]] = field(default_factory=dict)
 
     def for_protocol(self, protocol: str | None) -> ForceModel:
-        """The model as it ships for frames of ``protocol``: the method selected on that
-        protocol's held-out trials (itself when it selected none for it, or for ``None``)."""
-        if protocol not in self.by_protocol:
-            return self
-        method, check = self.by_protocol[protocol]
+        """The model as it ships for frames of ``protocol`` (``None``: a session stating none,
+        :data:`DEFAULT_PROTOCOL`, as training labels it): the method selected on that
+        protocol's held-out trials (itself when it selected none for it)."""
+        method, check = self.by_protocol.get(
+            protocol or DEFAULT_PROTOCOL, (self.selected, self.disagreement)
+        )
         return dataclasses.replace(self, selected=method, disagreement=check)
 
     def interval(self, method: str | None = None) -> ConformalInterval | None:
@@ -208,16 +209,17 @@ def _model_from_payload(payload: dict[str, Any], path: Path) -> ForceModel:
             str(protocol): (str(entry["selected"]), _check(entry["disagreement"]))
             for protocol, entry in payload.get("by_protocol", {}).items()
         }
-        for method, each in [(payload["selected"], check), *by_protocol.values()]:
+        for method, _ in by_protocol.values():  # the pooled one is checked above
             if method not in estimators:
                 raise EstimateError(f"the selected {method!r} is not among the estimators")
+        for each in [check, *(c for _, c in by_protocol.values())]:
             if each is not None and each.reference not in estimators:
                 raise EstimateError(f"its reference {each.reference!r} is not an estimator")
         model = ForceModel(
             config, estimators, payload["selected"], record, novelty, check, by_protocol
         )
-        for protocol in [None, *by_protocol]:
-            model.for_protocol(protocol).interval()
+        for shipped in [model, *map(model.for_protocol, by_protocol)]:
+            shipped.interval()
     except (EstimateError, KeyError, TypeError, ValueError) as exc:
         raise EstimateError(
             f"{path}: the intervals, the novelty flag or the disagreement check are damaged "

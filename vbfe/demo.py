@@ -261,20 +261,14 @@ FREEHAND = "freehand"  # name prefix of the freehand trials' sessions
 FREEHAND_FIRST_SEED = 101
 
 
-def record_stage(
-    config: RigConfig, out: Path, plan: DemoPlan, calibration_yaml: str, stage: StageFn
-) -> list[Path]:
-    """One session per paper condition and repeat, then the freehand trials; each a new trial
+def demo_runs(plan: DemoPlan) -> list[tuple[dict[str, Any], str, str]]:
+    """The sessions the demo records, in order: (``[bench]`` settings, name, notes) of one
+    session per paper condition and repeat, then of the freehand trials; each a new trial
     (seed). The freehand trials' tissue is textured (vessels, mottling), as real tissue is:
     the texture shows the sideways part of a pull (``hooke_texture_3d``); the paper sessions
     keep the plain silicone of the paper's phantom."""
-    from vbfe.acquire import record_session
     from vbfe.drivers.sim.mechanics import PAPER_CONDITIONS
-    from vbfe.truth import trial_duration_s
 
-    sessions = []
-    folder = out / "sessions"
-    folder.mkdir(parents=True, exist_ok=True)
     runs: list[tuple[dict[str, Any], str, str]] = [
         (
             {"stiffness_n_per_m": k, "pull_speed_m_per_s": v, "seed": seed},
@@ -298,6 +292,20 @@ def record_stage(
         )
         for r in range(plan.freehand_trials + plan.freehand_test_trials)
     ]
+    return runs
+
+
+def record_stage(
+    config: RigConfig, out: Path, plan: DemoPlan, calibration_yaml: str, stage: StageFn
+) -> list[Path]:
+    """Record :func:`demo_runs` into ``out/sessions``."""
+    from vbfe.acquire import record_session
+    from vbfe.truth import trial_duration_s
+
+    sessions = []
+    folder = out / "sessions"
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = demo_runs(plan)
     step = stage("record sessions", len(runs))
     for bench, name, notes in runs:
         run_config = config.updated({"bench": bench}, "the demo")

@@ -23,7 +23,6 @@ from vbfe.calib import Calibration
 from vbfe.common.errors import EstimateError
 from vbfe.drivers import StereoFrame
 from vbfe.estimate import ForceModel, LivePredictor
-from vbfe.estimate.dataset import DEFAULT_PROTOCOL
 from vbfe.estimate.preparation import MIN_FRAME_POINTS, FrameFeatures
 from vbfe.recon import Reconstructor, SgbmParams
 
@@ -116,7 +115,7 @@ class FrameEstimator:
         for name, value in (("scale", scale), ("row scale", row_scale)):
             if not 0.1 <= value <= 1.0:
                 raise EstimateError(f"live {name} must be in 0.1 … 1.0, got {value}")
-        model = model.for_protocol(protocol or DEFAULT_PROTOCOL)  # shipped for what is done
+        model = model.for_protocol(protocol)  # the method shipped for what is done
         self.model, self.scale, self.row_scale = model, scale, row_scale
         self.full_size = calibration.image_size
         params = sgbm_params or SgbmParams()
