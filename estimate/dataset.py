@@ -10,21 +10,35 @@ skipped and counted apart. ``FrameBatches`` serves the pools as torch batches.
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import multiprocessing
 import os
+import time
 import zlib
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from itertools import repeat
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 
 from vbfe.common.errors import EstimateError
+from vbfe.common.signals import stop_pool_on_signals
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer, force_target
 from vbfe.estimate.sources import SessionLike, condition_label, open_source
 from vbfe.estimate.train_config import TrainConfig
 
 ProgressFn = Callable[[str, int, int], None]  # (stage, done, total)
+
+log = logging.getLogger(__name__)
+
+# a worker process's start (spawned, it imports torch): once one session took longer than
+# this, the rest are prepared in processes, one per core
+WORKER_START_S = 3.0
 
 
 DEFAULT_PROTOCOL = "traction"  # the paper's pull and hold: a session stating no protocol
@@ -167,12 +181,15 @@ def prepare_sessions(
     config: TrainConfig,
     progress: ProgressFn | None = None,
     texture: bool = True,
+    workers: int | None = None,
 ) -> list[PreparedSession]:
-    """Prepare several sessions (the texture tracked only with ``texture``); an error names
-    the session that has no usable frame."""
-    prepared = []
-    for k, item in enumerate(items):
-        session = prepare_session(item, config, texture)
+    """Prepare several sessions (the texture tracked only with ``texture``), in order; an
+    error names the session that has no usable frame. Once one session took longer than a
+    worker process takes to start (:data:`WORKER_START_S`), the rest, when they are files,
+    are prepared in ``workers`` processes (default: one per core)."""
+    prepared: list[PreparedSession] = []
+
+    def add(session: PreparedSession) -> None:
         if session.n_used == 0:
             raise EstimateError(
                 f"session {session.name} has no usable frame ({session.n_no_cloud}"
@@ -182,8 +199,43 @@ def prepare_sessions(
             )
         prepared.append(session)
         if progress is not None:
-            progress("sessions", k + 1, len(items))
+            progress("sessions", len(prepared), len(items))
+
+    rest = list(items)
+    while rest:
+        clock = time.perf_counter()
+        add(prepare_session(rest.pop(0), config, texture))
+        n_workers = min(workers or os.cpu_count() or 1, len(rest))
+        files = all(isinstance(item, (str, os.PathLike)) for item in rest)
+        if n_workers >= 2 and files and time.perf_counter() - clock > WORKER_START_S:
+            log.info("preparing %d sessions in %d processes", len(rest), n_workers)
+            with contextlib.closing(_in_processes(rest, config, texture, n_workers)) as sessions:
+                for session in sessions:
+                    add(session)
+            break
     return prepared
+
+
+def _single_threaded() -> None:
+    """A preparation worker: one thread each (the workers share the cores)."""
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def _in_processes(
+    items: list[SessionLike], config: TrainConfig, texture: bool, workers: int
+) -> Generator[PreparedSession, None, None]:
+    """The sessions prepared in ``workers`` spawned processes, in order."""
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_single_threaded,
+    )
+    try:
+        with stop_pool_on_signals(pool):
+            yield from pool.map(prepare_session, items, repeat(config), repeat(texture))
+    finally:  # on Ctrl-C or an error, drop the sessions not started yet
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def skipped_counts(sessions: Sequence[PreparedSession]) -> dict[str, dict[str, int]]:

@@ -113,6 +113,7 @@ def fit_network(
     progress: Callable[[int, int, float], None] | None,
     warm_start: bool = False,
     stop_after: int | None = None,
+    patience: int | None = None,
 ) -> FitOutcome:
     """Train ``network`` in place; it ends with the best (or, without validation, last) weights.
 
@@ -120,8 +121,11 @@ def fit_network(
     from a trained one is never handed back worse on the validation frames than it started.
     ``stop_after``: stop after so many epochs of the ``epochs``-long schedule (a refit without
     validation that stops where a fit with validation found its best epoch; 0 keeps the
-    starting weights). ``progress(epoch, epochs, best validation loss)`` after each epoch.
+    starting weights). ``patience``: epochs without a better validation loss before it stops
+    (default ``config.patience``). ``progress(epoch, epochs, best validation loss)`` after
+    each epoch.
     """
+    patience = config.patience if patience is None else patience
     network.to(device)
     optimizer = torch.optim.NAdam(network.parameters(), lr=config.learning_rate)
     steps_per_epoch = max(
@@ -186,7 +190,7 @@ def fit_network(
             progress(epoch, epochs, best_loss)
         if stopped_by == "time limit":
             break
-        if check_batches is not None and epoch - max(best_epoch, 0) >= config.patience:
+        if check_batches is not None and epoch - max(best_epoch, 0) >= patience:
             stopped_by = "patience"
             break
     if best_state is None:  # no validation (or no finite validation loss): keep the last epoch

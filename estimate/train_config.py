@@ -75,6 +75,9 @@ class TrainConfig:
     temporal_span_frames: int = setting(10, ge=1)  # oldest to newest frame of the window
     temporal_epochs: int = setting(0, ge=0)  # epochs of the temporal model (0: ``epochs``); it
     # starts from the trained PointNet's encoder, so it needs fewer
+    # the temporal model's patience: it starts trained (PointNet's weights), and in the full
+    # demos no epoch after its start beat it (10 epochs, 160 s, bought nothing)
+    temporal_patience: int = setting(3, ge=1)
     image_cells: int = setting(32, ge=2)  # depth-change image: cells × cells over x, y
     ridge_sizes: list[int] = setting([4, 8, 16, 32])  # ridge thumbnails (divide image_cells)
     cnn_channels: list[int] = setting([8, 16, 32])  # small CNN on the depth-change image

@@ -64,7 +64,7 @@ from vbfe.estimate.dataset import (
     skipped_counts,
 )
 from vbfe.estimate.disagreement import DisagreementCheck, fit_disagreement
-from vbfe.estimate.image_models import fit_cnn, fit_ridge_thumbnails
+from vbfe.estimate.image_models import RidgeThumbnail, fit_cnn, fit_ridge_thumbnails
 from vbfe.estimate.intervals import (
     MIN_PROTOCOL_SESSIONS,
     ConformalInterval,
@@ -220,6 +220,7 @@ def _fit_networks(
             network.load_state_dict(fitted["pointnet"].network.state_dict(), strict=False)
             epochs = config.temporal_epochs or config.epochs
         deadline = time.monotonic() + budget if budget > 0 else None
+        patience = config.temporal_patience if window else config.patience
         with times.stage(name):
             outcome = fit_network(
                 network,
@@ -233,6 +234,7 @@ def _fit_networks(
                 _epoch_progress(progress, name, started),
                 warm_start=bool(window),
                 stop_after=stop_after.get(name),
+                patience=patience,
             )
         fitted[name] = NetworkEstimator(network, config.n_points, window, name)
         histories[name] = {
@@ -251,7 +253,7 @@ def _fit_networks(
                     len(outcome.history),
                     outcome.best_epoch,
                     outcome.stopped_by,
-                    config.patience,
+                    patience,
                 )
             )
         if window and outcome.best_epoch == 0:
@@ -285,6 +287,13 @@ def best_epochs(histories: dict[str, Any]) -> dict[str, int]:
     return out
 
 
+def ridge_choice(estimators: dict[str, AnyEstimator]) -> tuple[int, float] | None:
+    """The thumbnail size and penalty the fitted ridge chose (None: no ridge), which its
+    refits on other frames keep, as a network's refit keeps its best epoch."""
+    ridge = estimators.get(CANDIDATES["ridge"])
+    return (ridge.size, ridge.alpha) if isinstance(ridge, RidgeThumbnail) else None
+
+
 def _fit_estimators(
     names: list[str],
     train_parts: Parts,
@@ -295,11 +304,12 @@ def _fit_estimators(
     stop_after: dict[str, int] | None = None,
     times: StageTimes | None = None,
     baselines: bool = True,
+    ridge_choice: tuple[int, float] | None = None,
 ) -> tuple[dict[str, AnyEstimator], dict[str, Any], dict[str, float]]:
     """The baselines (unless not ``baselines``) and the candidates ``names`` fitted on
     ``train_parts`` (``val_parts``: early stopping; ``stop_after``: per network, the epochs of
-    a refit, see :func:`best_epochs`); a candidate that cannot be fitted is taken out of
-    ``names`` with a note."""
+    a refit, see :func:`best_epochs`; ``ridge_choice``: the ridge's thumbnail size and penalty
+    in a refit); a candidate that cannot be fitted is taken out of ``names`` with a note."""
     times = times or StageTimes()
     stop_after = stop_after or {}
     estimators: dict[str, AnyEstimator] = {}
@@ -320,7 +330,7 @@ def _fit_estimators(
         clock = time.perf_counter()
         with times.stage(CANDIDATES["ridge"]):
             estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(
-                train_parts, val_parts, config.ridge_sizes
+                train_parts, val_parts, config.ridge_sizes, ridge_choice
             )
         seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
     if {CANDIDATES["cnn"], CANDIDATES["ensemble"]} & set(names):  # the ensemble needs the CNN
@@ -445,13 +455,15 @@ def _out_of_fold(
     stop_after: dict[str, int] | None = None,
     times: StageTimes | None = None,
     what: str = "the training part",
+    ridge_choice: tuple[int, float] | None = None,
 ) -> tuple[dict[str, np.ndarray], Parts, str]:
     """Every method's out-of-fold predictions over blocked folds of ``train_parts`` (``what``
     they are, for the line), the held-out frames in the same order (by session, then frame)
     and a line saying what was done. The baselines and the candidates quick to refit take
     ``select_folds`` folds; PointNet and the temporal model at most ``NETWORK_FOLDS`` (each
     frame still held out once). ``stop_after``: per network, the epochs each fold trains
-    (:func:`best_epochs` of the fit with validation)."""
+    (:func:`best_epochs` of the fit with validation); ``ridge_choice``: the ridge's size and
+    penalty in every fold (:func:`ridge_choice` of that fit)."""
     networks = [n for n in names if n in NETWORKS]
     groups = [(config.select_folds, [n for n in names if n not in NETWORKS], True)]
     if networks:
@@ -471,7 +483,16 @@ def _out_of_fold(
         for k, (fold_train, held) in enumerate(folds):
             clock = time.perf_counter()
             estimators, _, _ = _fit_estimators(
-                list(group), fold_train, [], config, None, [], stop_after, times, baselines
+                list(group),
+                fold_train,
+                [],
+                config,
+                None,
+                [],
+                stop_after,
+                times,
+                baselines,
+                ridge_choice,
             )
             for name, estimator in estimators.items():
                 fold_predictions.setdefault(name, []).append(_predictions(estimator, held, config))
@@ -511,6 +532,7 @@ def _with_out_of_fold(
     config: TrainConfig,
     stop_after: dict[str, int],
     times: StageTimes | None = None,
+    ridge_choice: tuple[int, float] | None = None,
 ) -> Residuals:
     """The out-of-fold residuals of the methods quick to refit (baselines, ridge, the CNN and
     its ensemble, Hooke on the texture) over folds of whole sessions of every session the fit
@@ -519,12 +541,15 @@ def _with_out_of_fold(
     quick demo one freehand trial: its interval covered 65-86 % of new trials' frames); folds
     holding out about as many sessions as validation does (at least 3 folds) fit each model on
     about as many sessions as the shipped one, so that its errors are those of a new trial.
-    ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs`)."""
+    ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs`);
+    ``ridge_choice``: the ridge's size and penalty (:func:`ridge_choice`)."""
     n_folds = max(3, round(len(fitting) / max(n_val_sessions, 1)))
     folds = dataclasses.replace(config, select_folds=min(config.select_folds, n_folds))
     quick = [n for n in names if n in QUICK_TO_REFIT]
     what = "the training and validation sessions"
-    held, held_parts, where = _out_of_fold(quick, fitting, folds, stop_after, times, what)
+    held, held_parts, where = _out_of_fold(
+        quick, fitting, folds, stop_after, times, what, ridge_choice
+    )
     measured, labels = _measured(held_parts), _frame_labels(held_parts)
     return {name: (predicted, measured, labels, where) for name, predicted in held.items()}
 
@@ -589,7 +614,13 @@ def fit_split(
         what = "the training and validation sessions" if val_parts else "the training part"
         with times.parts("selection folds") as fold_times:
             held, held_parts, where = _out_of_fold(
-                names, fitting, config, best_epochs(histories), fold_times, what
+                names,
+                fitting,
+                config,
+                best_epochs(histories),
+                fold_times,
+                what,
+                ridge_choice(estimators),
             )
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
@@ -611,6 +642,7 @@ def fit_split(
                 config,
                 best_epochs(histories),
                 fold_times,
+                ridge_choice(estimators),
             )
         residuals.update({n: r for n, r in refitted.items() if n in residuals})
         if refitted:  # each method scored on its largest held-out set

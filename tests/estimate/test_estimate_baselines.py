@@ -84,6 +84,13 @@ def test_ridge_picks_the_thumbnail_size_and_penalty_on_validation_and_round_trip
     again = estimator_from_dict(ridge.to_dict())
     assert isinstance(again, RidgeThumbnail)
     np.testing.assert_allclose(again.predict_session(session), ridge.predict_session(session))
+    # a refit (an interval fold) keeps the size and penalty validation chose: on the same
+    # frames it is the same ridge; on others, the same size and penalty, other weights
+    same = fit_ridge_thumbnails([(session, train)], [], [1, 2, 4], (ridge.size, ridge.alpha))
+    np.testing.assert_allclose(same.weights, ridge.weights)
+    other = fit_ridge_thumbnails([(session, test)], [], [1, 2, 4], (ridge.size, ridge.alpha))
+    assert (other.size, other.alpha) == (ridge.size, ridge.alpha)
+    assert not np.allclose(other.weights, ridge.weights)
 
 
 def test_ridge_penalty_is_chosen_on_sessions_it_did_not_see():

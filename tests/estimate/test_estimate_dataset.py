@@ -285,3 +285,37 @@ def test_history_window_is_set_in_the_config_and_checked():
     for bad in (dict(history_frames=1), dict(history_frames=5, history_span_frames=3)):
         with pytest.raises(EstimateError, match="history_frames"):
             TrainConfig(**bad)
+
+
+def test_sessions_prepared_in_worker_processes_equal_those_prepared_here(tmp_path, monkeypatch):
+    """Files are prepared in spawned processes once one session took longer than a worker's
+    start: the same sessions, in the caller's order, and a worker's error is the same line."""
+    import vbfe.estimate.dataset as dataset
+    from vbfe.estimate.importing import write_clouds
+
+    paths = []
+    for k, s in enumerate(synthetic_sessions(repeats=1, seed=4, fps=2, points_per_side=10)):
+        paths.append(
+            write_clouds(
+                tmp_path / f"s{k}.clouds.h5", s.clouds, s.times_ns, s.forces_n, s.conditions, {}
+            )
+        )
+    here = prepare_sessions(paths, small_config())
+    monkeypatch.setattr(dataset, "WORKER_START_S", 0.0)  # every session counts as slow
+    seen = []
+    spawned = prepare_sessions(
+        paths, small_config(), lambda stage, done, total: seen.append(done), workers=2
+    )
+    assert [s.name for s in spawned] == [s.name for s in here] == [str(p) for p in paths]
+    for a, b in zip(here, spawned, strict=True):
+        np.testing.assert_array_equal(a.pools, b.pools)
+        np.testing.assert_array_equal(a.targets_n, b.targets_n)
+        np.testing.assert_array_equal(a.image_sum, b.image_sum)
+    assert seen == [1, 2, 3]
+    broken = tmp_path / "broken.clouds.h5"
+    broken.write_bytes(b"not hdf5")
+    with pytest.raises(EstimateError) as raised:
+        prepare_sessions([paths[0], paths[1], broken], small_config(), workers=2)
+    with pytest.raises(EstimateError) as alone:
+        prepare_session(broken, small_config())
+    assert str(raised.value) == str(alone.value)

@@ -344,7 +344,8 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
             temporal_frames=2,
             temporal_span_frames=2,
             temporal_epochs=40,
-            patience=2,
+            patience=5,
+            temporal_patience=2,  # its own: it starts trained
             model="temporal",
         ),
         progress=lambda stage, done, total: labels.append(stage),
@@ -361,7 +362,7 @@ def test_temporal_model_leaves_its_pointnet_start_only_for_a_validation_gain(tmp
     temporal = model.record["histories"]["temporal"]
     assert len(temporal["history"]) >= 1 and temporal["start_val_loss"] > 0
     best = temporal["best_epoch"]
-    # a model that stops improving stops `patience` epochs later, and says so
+    # a model that stops improving stops `temporal_patience` epochs later, and says so
     assert len(temporal["history"]) == best + 2 and temporal["stopped_by"] == "patience"
     assert f"temporal: stopped after {best + 2} epochs, 2 without a better" in " ".join(
         result.notes
