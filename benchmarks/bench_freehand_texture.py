@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -153,9 +152,9 @@ def main(argv: list[str] | None = None) -> None:
         help="measure again (after a change of the measures), not the kept ones",
     )
     parser.add_argument("--workers", type=int, default=1, help="trials measured at once")
-    args = smoke.parse(
-        parser, argv, trials=4, test="3", sessions=Path(tempfile.mkdtemp(prefix="vbfe-smoke-"))
-    )
+    args = smoke.parse(parser, argv, trials=4, test="3")
+    if args.smoke:
+        args.sessions = smoke.scratch()
     numbers = list(range(args.trials))
     test = [int(r) for r in args.test.split(",")]
     record(args.sessions, numbers, DemoPlan.quick() if args.smoke else DemoPlan.full())

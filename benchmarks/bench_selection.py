@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -189,7 +188,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = smoke.parse(parser, argv, trials=1, seconds=4.0)
     if args.smoke:  # a quick demo of its own and one short new trial
-        scratch = Path(tempfile.mkdtemp(prefix="vbfe-smoke-"))
+        scratch = smoke.scratch()
         args.demo, args.sessions = scratch / "demo", scratch / "new"
     if args.demo is None or args.sessions is None:
         parser.error("--demo and --sessions are needed (or --smoke)")

@@ -5,7 +5,11 @@ Its figures mean nothing; the defaults give the documented ones."""
 from __future__ import annotations
 
 import argparse
+import atexit
+import shutil
+import tempfile
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 
@@ -23,3 +27,11 @@ def parse(
         for name, value in smallest.items():
             setattr(args, name, value)
     return args
+
+
+def scratch() -> Path:
+    """A new folder for a smoke run's recordings, removed when the process exits (a quick
+    demo's sessions take about a gigabyte: left behind, CI's disk fills)."""
+    folder = Path(tempfile.mkdtemp(prefix="vbfe-smoke-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder

@@ -19,8 +19,15 @@ BENCHMARKS = sorted(p.stem for p in (ROOT / "benchmarks").glob("bench_*.py"))
 @pytest.mark.slow
 @pytest.mark.timeout(1800)  # a hang guard: bench_selection's smoke runs a quick demo of its own
 @pytest.mark.parametrize("name", BENCHMARKS)
-def test_benchmark_runs_at_its_smallest_setting(name):
-    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "MPLBACKEND": "Agg"}
+def test_benchmark_runs_at_its_smallest_setting(name, tmp_path):
+    # its temporary files in a folder of its own, where it must leave no smoke recordings (a
+    # quick demo's, left behind by each run, filled CI's disk)
+    env = {
+        **os.environ,
+        "QT_QPA_PLATFORM": "offscreen",
+        "MPLBACKEND": "Agg",
+        "TMPDIR": str(tmp_path),
+    }
     run = subprocess.run(
         [sys.executable, "-m", f"benchmarks.{name}", "--smoke"],
         capture_output=True,
@@ -33,3 +40,5 @@ def test_benchmark_runs_at_its_smallest_setting(name):
     assert "Traceback" not in run.stderr
     printed = run.stdout.splitlines()
     assert printed and any(char.isdigit() for line in printed for char in line), run.stdout
+    left = list(tmp_path.glob("vbfe-smoke-*"))  # torch's caches may stay
+    assert not left, f"smoke recordings left behind: {left}"
