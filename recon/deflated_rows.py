@@ -48,11 +48,12 @@ class DeflatedRows:
         self._ds.resize(self._n_rows, axis=0)
         self._gathered.append(rows)
         self._n_gathered += len(rows)
-        while self._n_gathered >= self._rows:
+        if self._n_gathered >= self._rows:  # one copy of the gathered rows, cut into chunks
             gathered = np.concatenate(self._gathered)
-            self._submit(gathered[: self._rows])
-            self._gathered = [gathered[self._rows :]]
-            self._n_gathered -= self._rows
+            full = len(gathered) - len(gathered) % self._rows
+            for start in range(0, full, self._rows):
+                self._submit(gathered[start : start + self._rows])
+            self._gathered, self._n_gathered = [gathered[full:]], len(gathered) - full
         self._store(wait=False)
 
     def finish(self) -> None:
@@ -65,7 +66,9 @@ class DeflatedRows:
         self._store(wait=True)
 
     def _submit(self, chunk: np.ndarray) -> None:
-        self._pending.append((self._next_chunk, self._pool.submit(_deflate, chunk.copy())))
+        """Compress ``chunk`` (rows of an array of this writer's own, never the caller's) on a
+        thread."""
+        self._pending.append((self._next_chunk, self._pool.submit(_deflate, chunk)))
         self._next_chunk += 1
 
     def _store(self, wait: bool) -> None:
