@@ -51,7 +51,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _break_pool(pool: ProcessPoolExecutor) -> bool:
+def kill_workers(pool: ProcessPoolExecutor) -> bool:
     """Kill ``pool``'s workers and let its manager thread see them gone. A worker killed half
     way through sending a result (clouds are large) leaves a partial message in the result
     pipe, and the manager thread then waits for the rest forever (CPython 3.11): once the
@@ -83,7 +83,7 @@ def stop_pool_on_signals(pool: ProcessPoolExecutor) -> Iterator[None]:
 
     def on_signal(signum: int, frame: object) -> None:
         received.append(signum)
-        if not _break_pool(pool):
+        if not kill_workers(pool):
             raise_for(signum)
 
     previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}

@@ -12,17 +12,14 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing
 import os
 import time
 import zlib
 from collections.abc import Callable, Generator, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from itertools import repeat
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
@@ -31,15 +28,11 @@ from vbfe.common.signals import stop_pool_on_signals
 from vbfe.estimate.preparation import FrameFeatures, FramePreparer, force_target
 from vbfe.estimate.sources import SessionLike, condition_label, open_source
 from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate.workers import WORKER_START_S, spawn_pool
 
 ProgressFn = Callable[[str, int, int], None]  # (stage, done, total)
 
 log = logging.getLogger(__name__)
-
-# a worker process's start (spawned, it imports torch): once one session took longer than
-# this, the rest are prepared in processes, one per core
-WORKER_START_S = 3.0
-
 
 DEFAULT_PROTOCOL = "traction"  # the paper's pull and hold: a session stating no protocol
 
@@ -216,21 +209,11 @@ def prepare_sessions(
     return prepared
 
 
-def _single_threaded() -> None:
-    """A preparation worker: one thread each (the workers share the cores)."""
-    cv2.setNumThreads(1)
-    torch.set_num_threads(1)
-
-
 def _in_processes(
     items: list[SessionLike], config: TrainConfig, texture: bool, workers: int
 ) -> Generator[PreparedSession, None, None]:
     """The sessions prepared in ``workers`` spawned processes, in order."""
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_single_threaded,
-    )
+    pool = spawn_pool(workers)
     try:
         with stop_pool_on_signals(pool):
             yield from pool.map(prepare_session, items, repeat(config), repeat(texture))

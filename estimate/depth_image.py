@@ -5,7 +5,7 @@ its points) and a rest depth per cell (mean z of its points; cells without a res
 the nearest filled cell's, so every point inside the grid has a rest depth). A frame is kept as
 two images: the sum of its points' depth change (z − rest depth of their cell) and their count,
 so a thumbnail of any size that divides ``cells`` is the exact mean change over its larger
-cells (``thumbnails``), computed from one pass over the points (``numpy.bincount``).
+cells (``thumbnails``), computed from one pass over the points (``cell_passes.cell_sums``).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from scipy import ndimage
 
 from vbfe.common.errors import EstimateError
-from vbfe.estimate.displacement import grid_cells
+from vbfe.estimate.cell_passes import cell_sums
 
 
 class DepthChangeImage:
@@ -32,7 +32,7 @@ class DepthChangeImage:
         self._lo = np.percentile(rest[:, :2], 2, axis=0)
         hi = np.percentile(rest[:, :2], 98, axis=0)
         self._size = np.maximum(hi - self._lo, 1e-9) / cells
-        total, count = self._bin(rest, rest[:, 2])
+        total, count = cell_sums(rest, self._lo, self._size, cells, np.zeros(cells * cells))
         filled = count > 0
         mean = np.where(filled, total / np.maximum(count, 1), 0.0).reshape(cells, cells)
         nearest = ndimage.distance_transform_edt(
@@ -40,30 +40,11 @@ class DepthChangeImage:
         )
         self._rest = mean[tuple(nearest)].ravel()
 
-    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat cell index of every point and whether it lies inside the grid."""
-        return grid_cells(points, self._lo, self._size, self.cells)
-
-    def _bin(
-        self,
-        points: np.ndarray,
-        values: np.ndarray,
-        cells: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Per-cell sum of ``values`` and count of the points inside the grid (flat arrays)."""
-        cell, inside = cells or self._cells(points)
-        n = self.cells * self.cells
-        return (
-            np.bincount(cell[inside], values[inside], minlength=n),
-            np.bincount(cell[inside], minlength=n).astype(np.float64),
-        )
-
     def sums_counts(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sum of depth change, point count) per cell (cells × cells each, float32) of a
         cloud's finite points (N×3, metres)."""
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        cells = self._cells(points)
-        total, count = self._bin(points, points[:, 2] - self._rest[cells[0]], cells)
+        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        total, count = cell_sums(points, self._lo, self._size, self.cells, self._rest)
         shape = (self.cells, self.cells)
         return total.reshape(shape).astype(np.float32), count.reshape(shape).astype(np.float32)
 

@@ -15,20 +15,11 @@ import warnings
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from vbfe.estimate.cell_passes import cell_medians
+
 MIN_CELL_POINTS = 3
 MAX_CELLS = 16
 POINTS_PER_CELL = 8
-
-
-def grid_cells(
-    points: np.ndarray, lo: np.ndarray, size: np.ndarray, cells: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Flat index (0 outside) of the cell of a ``cells`` × ``cells`` grid over x, y (from
-    ``lo`` in steps of ``size``) each point falls in, and whether it lies inside the grid."""
-    ij = np.floor((points[:, :2] - lo) / size).astype(np.int64)
-    i, j = ij[:, 0], ij[:, 1]  # by column: np.all over a row of 2 takes 7x the time
-    inside = (i >= 0) & (i < cells) & (j >= 0) & (j < cells)
-    return np.where(inside, i * cells + j, 0), inside
 
 
 class DisplacementGrid:
@@ -46,22 +37,8 @@ class DisplacementGrid:
 
     def depth_map(self, points: np.ndarray) -> np.ndarray:
         """Per-cell median z (cells × cells, metres); NaN where a cell has too few points."""
-        cell, inside = grid_cells(points, self._lo, self._size, self.cells)
-        cell = cell[inside]
-        z = points[inside, 2].astype(np.float64)
-        depth = np.full(self.cells * self.cells, np.nan)
-        if not len(z):
-            return depth.reshape(self.cells, self.cells)
-        # one sort by cell, then depth: z scaled into [0, 0.5) rides on the cell number
-        low, span = z.min(), float(np.ptp(z)) or 1.0
-        order = np.argsort(cell + (z - low) * (0.5 / span))
-        cell, z = cell[order], z[order]
-        start = np.concatenate([[0], np.flatnonzero(np.diff(cell)) + 1])
-        count = np.diff(np.append(start, len(cell)))
-        keep = count >= MIN_CELL_POINTS
-        mid = start[keep] + count[keep] // 2
-        lower = start[keep] + (count[keep] - 1) // 2
-        depth[cell[start[keep]]] = (z[mid] + z[lower]) / 2
+        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        depth = cell_medians(points, self._lo, self._size, self.cells, MIN_CELL_POINTS)
         return depth.reshape(self.cells, self.cells)
 
     def peak_displacement_m(self, points: np.ndarray) -> float:

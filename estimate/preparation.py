@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vbfe.common.errors import EstimateError
+from vbfe.estimate.cell_passes import finite_rows
 from vbfe.estimate.depth_image import DepthChangeImage
 from vbfe.estimate.displacement import DisplacementGrid
 from vbfe.estimate.rest_depth import RestDepth
@@ -27,9 +28,7 @@ MIN_FRAME_POINTS = 8
 
 def crop_roi(points: np.ndarray, config: TrainConfig) -> np.ndarray:
     """The finite points of a cloud inside the configured region of interest."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    finite = np.isfinite(points)  # by column: np.all over a row of 3 takes 7x the time
-    points = points[finite[:, 0] & finite[:, 1] & finite[:, 2]]
+    points = finite_rows(np.ascontiguousarray(points).reshape(-1, 3))
     if config.roi == "radius" and len(points):
         centre = np.median(points, axis=0)
         points = points[np.linalg.norm(points - centre, axis=1) <= config.roi_radius_m]

@@ -38,6 +38,14 @@ class StageTimes:
             entry["wall_s"] += time.perf_counter() - wall
             entry["cpu_s"] += cpu_seconds() - cpu
 
+    def add(self, seconds: dict[str, dict[str, float]], prefix: str = "") -> None:
+        """Add the stages ``seconds`` timed elsewhere (another ``StageTimes``' ``seconds``, a
+        worker process's), each as ``prefix + stage``."""
+        for stage, entry in seconds.items():
+            total = self.seconds.setdefault(prefix + stage, {"wall_s": 0.0, "cpu_s": 0.0})
+            total["wall_s"] += entry["wall_s"]
+            total["cpu_s"] += entry["cpu_s"]
+
     @contextmanager
     def parts(self, name: str) -> Iterator[StageTimes]:
         """Time the body as ``name``; the stages timed on the ``StageTimes`` it yields are
@@ -45,7 +53,4 @@ class StageTimes:
         inner = StageTimes()
         with self.stage(name):
             yield inner
-        for stage, entry in inner.seconds.items():
-            total = self.seconds.setdefault(f"{name}: {stage}", {"wall_s": 0.0, "cpu_s": 0.0})
-            total["wall_s"] += entry["wall_s"]
-            total["cpu_s"] += entry["cpu_s"]
+        self.add(inner.seconds, f"{name}: ")

@@ -87,6 +87,7 @@ from vbfe.estimate.splits import (
 from vbfe.estimate.stage_times import STATUS_SEPARATOR, StageTimes
 from vbfe.estimate.threads import torch_threads
 from vbfe.estimate.train_config import TrainConfig
+from vbfe.estimate.workers import BackgroundPool, Task
 
 log = logging.getLogger(__name__)
 
@@ -294,6 +295,25 @@ def ridge_choice(estimators: dict[str, AnyEstimator]) -> tuple[int, float] | Non
     return (ridge.size, ridge.alpha) if isinstance(ridge, RidgeThumbnail) else None
 
 
+@dataclass(frozen=True)
+class Refit:
+    """What a refit on other frames keeps from the fit with validation, as a network's refit
+    keeps its best epoch: per network the epochs it runs (:func:`best_epochs`; none: all) and
+    the ridge's thumbnail size and penalty (:func:`ridge_choice`; None: its own search)."""
+
+    epochs: dict[str, int] = field(default_factory=dict)
+    ridge: tuple[int, float] | None = None
+
+    @classmethod
+    def of(cls, estimators: dict[str, AnyEstimator], histories: dict[str, Any]) -> Refit:
+        """What refits keep of the fits ``estimators`` with their ``histories``."""
+        return cls(best_epochs(histories), ridge_choice(estimators))
+
+
+# called with the estimators and histories so far once the quick methods are fitted
+QuickFitted = Callable[[dict[str, AnyEstimator], dict[str, Any]], None]
+
+
 def _fit_estimators(
     names: list[str],
     train_parts: Parts,
@@ -301,17 +321,17 @@ def _fit_estimators(
     config: TrainConfig,
     progress: ProgressFn | None,
     notes: list[str],
-    stop_after: dict[str, int] | None = None,
+    refit: Refit | None = None,
     times: StageTimes | None = None,
     baselines: bool = True,
-    ridge_choice: tuple[int, float] | None = None,
+    quick_fitted: QuickFitted | None = None,
 ) -> tuple[dict[str, AnyEstimator], dict[str, Any], dict[str, float]]:
     """The baselines (unless not ``baselines``) and the candidates ``names`` fitted on
-    ``train_parts`` (``val_parts``: early stopping; ``stop_after``: per network, the epochs of
-    a refit, see :func:`best_epochs`; ``ridge_choice``: the ridge's thumbnail size and penalty
-    in a refit); a candidate that cannot be fitted is taken out of ``names`` with a note."""
+    ``train_parts`` (``val_parts``: early stopping; ``refit``: what a refit keeps of the fit
+    with validation): the methods quick to fit first, then (after ``quick_fitted``) the
+    networks; a candidate that cannot be fitted is taken out of ``names`` with a note."""
     times = times or StageTimes()
-    stop_after = stop_after or {}
+    refit = refit or Refit()
     estimators: dict[str, AnyEstimator] = {}
     seconds: dict[str, float] = {}
     if baselines:
@@ -320,17 +340,11 @@ def _fit_estimators(
             estimators.update(fit_baselines(train_parts, config.history_window, config.seed))
         seconds["baselines"] = time.perf_counter() - clock
     histories: dict[str, Any] = {}
-    if {"pointnet", "temporal"} & set(names):
-        networks, histories = _fit_networks(
-            names, train_parts, val_parts, config, progress, notes, stop_after, times
-        )
-        estimators.update(networks)
-        seconds.update({name: h["fit_s"] for name, h in histories.items()})
     if CANDIDATES["ridge"] in names:
         clock = time.perf_counter()
         with times.stage(CANDIDATES["ridge"]):
             estimators[CANDIDATES["ridge"]] = fit_ridge_thumbnails(
-                train_parts, val_parts, config.ridge_sizes, ridge_choice
+                train_parts, val_parts, config.ridge_sizes, refit.ridge
             )
         seconds[CANDIDATES["ridge"]] = time.perf_counter() - clock
     if {CANDIDATES["cnn"], CANDIDATES["ensemble"]} & set(names):  # the ensemble needs the CNN
@@ -341,7 +355,7 @@ def _fit_estimators(
                 val_parts,
                 config.n_outputs,
                 config.cnn_channels,
-                stop_after.get("cnn", config.cnn_epochs),
+                refit.epochs.get("cnn", config.cnn_epochs),
                 config.seed,
                 config.patience,
                 _epoch_progress(progress, "cnn", time.perf_counter()),
@@ -373,6 +387,15 @@ def _fit_estimators(
                 )
         else:
             estimators[texture_hooke.name] = texture_hooke
+    if quick_fitted is not None:
+        quick_fitted(estimators, histories)
+    if {"pointnet", "temporal"} & set(names):
+        networks, network_histories = _fit_networks(
+            names, train_parts, val_parts, config, progress, notes, refit.epochs, times
+        )
+        estimators.update(networks)
+        histories.update(network_histories)
+        seconds.update({name: h["fit_s"] for name, h in network_histories.items()})
     return estimators, histories, seconds
 
 
@@ -448,68 +471,112 @@ def by_session(parts: Parts) -> Parts:
     return [(s, np.unique(np.concatenate(p))) for s, p in merged.values()]
 
 
-def _out_of_fold(
+def _fold_predictions(
     names: list[str],
-    train_parts: Parts,
+    fold_train: Parts,
+    held: Parts,
     config: TrainConfig,
-    stop_after: dict[str, int] | None = None,
-    times: StageTimes | None = None,
-    what: str = "the training part",
-    ridge_choice: tuple[int, float] | None = None,
-) -> tuple[dict[str, np.ndarray], Parts, str]:
-    """Every method's out-of-fold predictions over blocked folds of ``train_parts`` (``what``
-    they are, for the line), the held-out frames in the same order (by session, then frame)
-    and a line saying what was done. The baselines and the candidates quick to refit take
-    ``select_folds`` folds; PointNet and the temporal model at most ``NETWORK_FOLDS`` (each
-    frame still held out once). ``stop_after``: per network, the epochs each fold trains
-    (:func:`best_epochs` of the fit with validation); ``ridge_choice``: the ridge's size and
-    penalty in every fold (:func:`ridge_choice` of that fit)."""
-    networks = [n for n in names if n in NETWORKS]
-    groups = [(config.select_folds, [n for n in names if n not in NETWORKS], True)]
-    if networks:
-        groups.append((min(config.select_folds, NETWORK_FOLDS), networks, False))
-    held_parts: Parts = []
-    order: dict[tuple[str, int], int] = {}
-    predicted: dict[str, np.ndarray] = {}
-    counts = []
-    for n_folds, group, baselines in groups:
-        folds = training_folds(train_parts, n_folds, config.gap_frames)
-        counts.append(len(folds))
-        if not held_parts:  # the frames the first group holds out, by session and frame
-            held_parts = by_session([part for _, held in folds for part in held])
-            order = {key: k for k, key in enumerate(_frame_keys(held_parts))}
-        fold_predictions: dict[str, list[np.ndarray]] = {}
-        keys: list[tuple[str, int]] = []
-        for k, (fold_train, held) in enumerate(folds):
-            clock = time.perf_counter()
-            estimators, _, _ = _fit_estimators(
-                list(group),
-                fold_train,
-                [],
+    refit: Refit,
+    baselines: bool,
+) -> tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]:
+    """One fold: ``names`` (and the baselines, with ``baselines``) refitted on ``fold_train``
+    with torch on one thread wherever it runs (a worker process or the trainer's: the same
+    predictions), their predictions of ``held`` and the refit's stage times."""
+    times = StageTimes()
+    with torch_threads(1):
+        estimators, _, _ = _fit_estimators(
+            list(names), fold_train, [], config, None, [], refit, times, baselines
+        )
+        predicted = {name: _predictions(e, held, config) for name, e in estimators.items()}
+    return predicted, times.seconds
+
+
+def _without_pools(parts: Parts) -> Parts:
+    """``parts`` without the point pools (only the networks read them): a worker is sent the
+    rest, a few kilobytes a frame."""
+    return [(dataclasses.replace(s, pools=s.pools[:, :0]), p) for s, p in parts]
+
+
+@dataclass
+class _Folds:
+    """A group of methods' fold refits under way: per fold, its task and its held-out parts."""
+
+    tasks: list[Task[tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]]]
+    held: list[Parts]
+    group: list[str]
+
+
+def _start_folds(
+    pool: BackgroundPool,
+    names: list[str],
+    parts: Parts,
+    n_folds: int,
+    config: TrainConfig,
+    refit: Refit,
+    baselines: bool,
+    fit_cpu_s: float,
+) -> _Folds:
+    """Start the refits of ``names`` (and the baselines, with ``baselines``) on ``n_folds``
+    blocked folds of ``parts`` (``fit_cpu_s``: the CPU seconds their fit on all of it took;
+    folds expected to cost more than workers' start go to the workers)."""
+    folds = training_folds(parts, n_folds, config.gap_frames)
+    networks = bool(set(names) & set(NETWORKS))
+    in_worker = pool.worth_workers(fit_cpu_s * len(folds))
+    tasks = []
+    for fold_train, held in folds:
+        train_parts, held_parts = (
+            (fold_train, held) if networks else (_without_pools(fold_train), _without_pools(held))
+        )
+        tasks.append(
+            pool.submit(
+                in_worker,
+                _fold_predictions,
+                names,
+                train_parts,
+                held_parts,
                 config,
-                None,
-                [],
-                stop_after,
-                times,
+                refit,
                 baselines,
-                ridge_choice,
             )
-            for name, estimator in estimators.items():
-                fold_predictions.setdefault(name, []).append(_predictions(estimator, held, config))
-            keys += _frame_keys(held)
-            log.debug(
-                "fold %d/%d of %s: %.1f s", k + 1, len(folds), group, time.perf_counter() - clock
-            )
+        )
+    return _Folds(tasks, [held for _, held in folds], names)
+
+
+def _out_of_fold(
+    pool: BackgroundPool,
+    started: list[_Folds],
+    parts: Parts,
+    times: StageTimes,
+    what: str,
+) -> tuple[dict[str, np.ndarray], Parts, str]:
+    """Every method's out-of-fold predictions from the fold refits ``started`` (the first
+    group's folds hold out the frames; a group whose folds held out others is left out) over
+    ``parts`` (``what`` they are, for the line), the held-out frames in the same order (by
+    session, then frame) and a line saying what was done."""
+    held_parts = by_session([part for held in started[0].held for part in held])
+    order = {key: k for k, key in enumerate(_frame_keys(held_parts))}
+    predicted: dict[str, np.ndarray] = {}
+    for folds in started:
+        fold_predictions: dict[str, list[np.ndarray]] = {}
+        for task in folds.tasks:
+            fold, seconds = pool.result(task)
+            times.add(seconds)
+            for name, force in fold.items():
+                fold_predictions.setdefault(name, []).append(force)
+        keys = [key for held in folds.held for key in _frame_keys(held)]
         rows = np.array([order.get(key, -1) for key in keys])
         if len(rows) != len(order) or (rows < 0).any():  # other frames held out: not comparable
-            log.warning("%s: its %d folds held out other frames; left out", group, len(folds))
+            log.warning(
+                "%s: its %d folds held out other frames; left out", folds.group, len(folds.tasks)
+            )
             continue
-        for name, parts in fold_predictions.items():
-            if len(parts) == len(folds):
-                stacked = np.concatenate(parts)
+        for name, values in fold_predictions.items():
+            if len(values) == len(folds.tasks):
+                stacked = np.concatenate(values)
                 predicted[name] = np.empty_like(stacked)
                 predicted[name][rows] = stacked
-    kind = "sessions" if len(train_parts) >= 2 else "blocks in time"
+    counts = [len(folds.tasks) for folds in started]
+    kind = "sessions" if len(parts) >= 2 else "blocks in time"
     where = f"{counts[0]} blocked folds of {what} ({kind})"
     if len(counts) > 1 and counts[1] != counts[0]:
         where += f", {counts[1]} for the networks"
@@ -523,35 +590,6 @@ def _frame_keys(parts: Parts) -> list[tuple[str, int]]:
 
 # per method: predicted, measured, the frames' (protocol, session) rows and where they came from
 Residuals = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]]
-
-
-def _with_out_of_fold(
-    names: list[str],
-    fitting: Parts,
-    n_val_sessions: int,
-    config: TrainConfig,
-    stop_after: dict[str, int],
-    times: StageTimes | None = None,
-    ridge_choice: tuple[int, float] | None = None,
-) -> Residuals:
-    """The out-of-fold residuals of the methods quick to refit (baselines, ridge, the CNN and
-    its ensemble, Hooke on the texture) over folds of whole sessions of every session the fit
-    saw (``fitting``: training and validation), each session once: (predicted, measured,
-    labels, source) per method. A validation part holds few sessions of each protocol (the
-    quick demo one freehand trial: its interval covered 65-86 % of new trials' frames); folds
-    holding out about as many sessions as validation does (at least 3 folds) fit each model on
-    about as many sessions as the shipped one, so that its errors are those of a new trial.
-    ``stop_after``: per network, the epochs each fold trains (:func:`best_epochs`);
-    ``ridge_choice``: the ridge's size and penalty (:func:`ridge_choice`)."""
-    n_folds = max(3, round(len(fitting) / max(n_val_sessions, 1)))
-    folds = dataclasses.replace(config, select_folds=min(config.select_folds, n_folds))
-    quick = [n for n in names if n in QUICK_TO_REFIT]
-    what = "the training and validation sessions"
-    held, held_parts, where = _out_of_fold(
-        quick, fitting, folds, stop_after, times, what, ridge_choice
-    )
-    measured, labels = _measured(held_parts), _frame_labels(held_parts)
-    return {name: (predicted, measured, labels, where) for name, predicted in held.items()}
 
 
 def fit_split(
@@ -588,40 +626,73 @@ def fit_split(
             "no early stopping ([train] early_stopping = false): every network runs its "
             "epochs; the validation sessions only select and calibrate"
         )
-    estimators, histories, seconds = _fit_estimators(
-        names,
-        train_parts,
-        val_parts if config.early_stopping else [],
-        config,
-        progress,
-        notes,
-        times=times,
+    selection_folds = bool(config.select_min_val_frames) and (
+        n_val < config.select_min_val_frames or len(val_parts) < 2
     )
-    check = val_parts or train_parts
-    val_mae = {
-        name: float(
-            np.linalg.norm(_predictions(e, check, config) - _measured(check), axis=1).mean()
+    fitting = by_session(train_parts + val_parts)  # every session the fit saw
+    started: list[_Folds] = []
+    with BackgroundPool(at_least=NETWORK_FOLDS) as pool:
+
+        def start_quick_folds(
+            estimators: dict[str, AnyEstimator], histories: dict[str, Any]
+        ) -> None:
+            """The fold refits of the methods quick to refit, started beside the networks'
+            fits: folds of every session the fit saw, for selection when validation is small,
+            else for the intervals (holding out about as many sessions as validation does)."""
+            if selection_folds:
+                group, n_folds = [n for n in names if n not in NETWORKS], config.select_folds
+            elif config.interval_folds and val_parts:
+                group = [n for n in names if n in QUICK_TO_REFIT]
+                n_val_sessions = len({s.name for s, _ in val_parts})
+                n_folds = min(config.select_folds, max(3, round(len(fitting) / n_val_sessions)))
+            else:
+                return
+            refit = Refit.of(estimators, histories)
+            cpu_s = sum(v["cpu_s"] for k, v in times.seconds.items() if k in ("baselines", *group))
+            started.append(_start_folds(pool, group, fitting, n_folds, config, refit, True, cpu_s))
+
+        estimators, histories, seconds = _fit_estimators(
+            names,
+            train_parts,
+            val_parts if config.early_stopping else [],
+            config,
+            progress,
+            notes,
+            times=times,
+            quick_fitted=start_quick_folds,
         )
-        for name, e in estimators.items()
-    }
+        networks = [n for n in names if n in NETWORKS]
+        if selection_folds and networks:
+            started.append(
+                _start_folds(
+                    pool,
+                    networks,
+                    fitting,
+                    min(config.select_folds, NETWORK_FOLDS),
+                    config,
+                    Refit.of(estimators, histories),
+                    False,
+                    sum(times.seconds[n]["cpu_s"] for n in networks),
+                )
+            )
+        check = val_parts or train_parts
+        val_mae = {
+            name: float(
+                np.linalg.norm(_predictions(e, check, config) - _measured(check), axis=1).mean()
+            )
+            for name, e in estimators.items()
+        }
+        folded: tuple[dict[str, np.ndarray], Parts, str] | None = None
+        if started:
+            what = "the training and validation sessions" if val_parts else "the training part"
+            stage = "selection folds" if selection_folds else "interval folds"
+            with times.parts(stage) as fold_times:
+                folded = _out_of_fold(pool, started, fitting, fold_times, what)
     held: dict[str, np.ndarray] = {}
     held_parts: Parts = []
     where = "validation"
-    if config.select_min_val_frames and (
-        n_val < config.select_min_val_frames or len(val_parts) < 2
-    ):
-        fitting = by_session(train_parts + val_parts)  # every session the fit saw
-        what = "the training and validation sessions" if val_parts else "the training part"
-        with times.parts("selection folds") as fold_times:
-            held, held_parts, where = _out_of_fold(
-                names,
-                fitting,
-                config,
-                best_epochs(histories),
-                fold_times,
-                what,
-                ridge_choice(estimators),
-            )
+    if selection_folds and folded is not None:
+        held, held_parts, where = folded
         notes.append(
             f"validation part small ({n_val} frames from {len(val_parts)} session(s), under "
             f"{config.select_min_val_frames} frames or 2 sessions): selection and intervals "
@@ -633,22 +704,20 @@ def fit_split(
     measured = _measured(held_parts) if held_parts else np.zeros((0, config.n_outputs))
     labels = _frame_labels(held_parts) if held_parts else np.zeros((2, 0), dtype=object)
     residuals: Residuals = {name: (p, measured, labels, where) for name, p in held.items()}
-    if config.interval_folds and where == "validation" and held:
-        with times.parts("interval folds") as fold_times:
-            refitted = _with_out_of_fold(
-                names,
-                by_session(train_parts + val_parts),
-                len({s.name for s, _ in val_parts}),
-                config,
-                best_epochs(histories),
-                fold_times,
-                ridge_choice(estimators),
-            )
-        residuals.update({n: r for n, r in refitted.items() if n in residuals})
-        if refitted:  # each method scored on its largest held-out set
+    if not selection_folds and folded is not None:  # the quick methods' interval folds
+        quick, quick_parts, quick_where = folded
+        quick_measured, quick_labels = _measured(quick_parts), _frame_labels(quick_parts)
+        residuals.update(
+            {
+                n: (p, quick_measured, quick_labels, quick_where)
+                for n, p in quick.items()
+                if n in residuals
+            }
+        )
+        if quick:  # each method scored on its largest held-out set
             where = (
-                f"held-out trials ({next(iter(refitted.values()))[3]} for the methods quick to "
-                "refit, validation for the others)"
+                f"held-out trials ({quick_where} for the methods quick to refit, validation "
+                "for the others)"
             )
     by_protocol = {
         n: held_out_mae({n: p}, m, rows[0])[n] for n, (p, m, rows, _) in residuals.items()

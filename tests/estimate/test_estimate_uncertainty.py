@@ -4,6 +4,7 @@ validation sets: on synthetic trials (fast) and on bench trials recorded and rec
 
 import csv
 import dataclasses
+import logging
 from collections import defaultdict
 
 import numpy as np
@@ -652,3 +653,31 @@ def test_a_network_scored_on_fewer_sessions_of_a_protocol_is_not_ranked(tmp_path
     assert "pointnet" in model.record["selection_mae_n"]  # scored and listed, not ranked
     assert sorted(result.by_protocol) == ["freehand", "traction"]
     assert "pointnet" not in {result.selected, *result.by_protocol.values()}
+
+
+def test_fold_refits_in_worker_processes_score_as_those_run_in_the_trainer(
+    tmp_path, monkeypatch, caplog
+):
+    """Fold refits handed to spawned workers (one torch thread each), the trainer on two
+    threads: every method's out-of-fold score and interval the same as with the refits run in
+    the trainer, and the workers started only when the folds are worth them."""
+    from vbfe.estimate.workers import BackgroundPool
+
+    sessions = trials(np.random.default_rng(7), 6, "fit")
+    config = TrainConfig(model="pointnet", **{**FAST, "threads": 2})
+    records = {}
+    for in_workers in (False, True):
+        monkeypatch.setattr(BackgroundPool, "worth_workers", lambda self, s, w=in_workers: w)
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="vbfe.estimate.workers"):
+            result = train(sessions, tmp_path / f"m{in_workers}.pt", config)
+        started = [r.message for r in caplog.records if "worker processes" in r.message]
+        assert len(started) == in_workers  # one pool for both groups of folds
+        assert all(m.endswith("worker processes for _fold_predictions") for m in started)
+        records[in_workers] = load_model(result.model_path).record
+    here, spawned = records[False], records[True]
+    assert {"pointnet", "hooke", "linear_displacement"} <= set(here["selection_mae_n"])
+    assert spawned["selection_mae_n"] == here["selection_mae_n"]
+    assert spawned["intervals"] == here["intervals"]
+    assert spawned["selected"] == here["selected"]
+    assert "selection folds: pointnet" in spawned["stage_seconds"]
