@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from vbfe.common.errors import EstimateError
+from vbfe.estimate import cell_passes
 from vbfe.estimate.baselines import AffineBaseline
 from vbfe.estimate.candidates import TEXTURE_FEATURE, NetworkEstimator, reads_texture
 from vbfe.estimate.inference import FramePredictor, too_few_points
@@ -53,6 +54,7 @@ class LivePredictor:
 
     def __init__(self, model: ForceModel, seed: int = 0, protocol: str | None = None) -> None:
         model = model.for_protocol(protocol)  # as evaluate takes a session stating none
+        cell_passes.warm_up()  # the first (rest) frame prepared without waiting for them
         self.model = model
         self.protocol = protocol
         self._full = FramePredictor(model, seed)  # its rest cloud, draws and causal window

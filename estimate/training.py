@@ -471,24 +471,30 @@ def by_session(parts: Parts) -> Parts:
     return [(s, np.unique(np.concatenate(p))) for s, p in merged.values()]
 
 
+FoldResult = tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]  # predictions, times
+
+
 def _fold_predictions(
     names: list[str],
-    fold_train: Parts,
-    held: Parts,
+    folds: list[tuple[Parts, Parts]],
     config: TrainConfig,
     refit: Refit,
     baselines: bool,
-) -> tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]:
-    """One fold: ``names`` (and the baselines, with ``baselines``) refitted on ``fold_train``
-    with torch on one thread wherever it runs (a worker process or the trainer's: the same
-    predictions), their predictions of ``held`` and the refit's stage times."""
-    times = StageTimes()
+) -> list[FoldResult]:
+    """Folds one after the other: ``names`` (and the baselines, with ``baselines``) refitted
+    on each fold's training parts with torch on one thread wherever it runs (a worker process
+    or the trainer's: the same predictions), their predictions of its held-out parts and the
+    refit's stage times."""
+    out = []
     with torch_threads(1):
-        estimators, _, _ = _fit_estimators(
-            list(names), fold_train, [], config, None, [], refit, times, baselines
-        )
-        predicted = {name: _predictions(e, held, config) for name, e in estimators.items()}
-    return predicted, times.seconds
+        for fold_train, held in folds:
+            times = StageTimes()
+            estimators, _, _ = _fit_estimators(
+                list(names), fold_train, [], config, None, [], refit, times, baselines
+            )
+            predicted = {name: _predictions(e, held, config) for name, e in estimators.items()}
+            out.append((predicted, times.seconds))
+    return out
 
 
 def _without_pools(parts: Parts) -> Parts:
@@ -499,9 +505,10 @@ def _without_pools(parts: Parts) -> Parts:
 
 @dataclass
 class _Folds:
-    """A group of methods' fold refits under way: per fold, its task and its held-out parts."""
+    """A group of methods' fold refits under way: its tasks (each a run of folds), and per
+    fold its held-out parts."""
 
-    tasks: list[Task[tuple[dict[str, np.ndarray], dict[str, dict[str, float]]]]]
+    tasks: list[Task[list[FoldResult]]]
     held: list[Parts]
     group: list[str]
 
@@ -515,30 +522,23 @@ def _start_folds(
     refit: Refit,
     baselines: bool,
     fit_cpu_s: float,
+    beside_networks: bool = False,
 ) -> _Folds:
     """Start the refits of ``names`` (and the baselines, with ``baselines``) on ``n_folds``
     blocked folds of ``parts`` (``fit_cpu_s``: the CPU seconds their fit on all of it took;
-    folds expected to cost more than workers' start go to the workers)."""
+    folds expected to cost more than workers' start go to the workers). ``beside_networks``:
+    the trainer fits its networks meanwhile, so the folds are one task, one worker beside it
+    (more workers slowed its networks by more than they gained: PointNet 62 → 86 s beside
+    three)."""
     folds = training_folds(parts, n_folds, config.gap_frames)
-    networks = bool(set(names) & set(NETWORKS))
+    if not set(names) & set(NETWORKS):
+        folds = [(_without_pools(train), _without_pools(held)) for train, held in folds]
     in_worker = pool.worth_workers(fit_cpu_s * len(folds))
-    tasks = []
-    for fold_train, held in folds:
-        train_parts, held_parts = (
-            (fold_train, held) if networks else (_without_pools(fold_train), _without_pools(held))
-        )
-        tasks.append(
-            pool.submit(
-                in_worker,
-                _fold_predictions,
-                names,
-                train_parts,
-                held_parts,
-                config,
-                refit,
-                baselines,
-            )
-        )
+    runs = [folds] if beside_networks else [[fold] for fold in folds]
+    tasks = [
+        pool.submit(in_worker, _fold_predictions, names, run, config, refit, baselines)
+        for run in runs
+    ]
     return _Folds(tasks, [held for _, held in folds], names)
 
 
@@ -559,23 +559,23 @@ def _out_of_fold(
     for folds in started:
         fold_predictions: dict[str, list[np.ndarray]] = {}
         for task in folds.tasks:
-            fold, seconds = pool.result(task)
-            times.add(seconds)
-            for name, force in fold.items():
-                fold_predictions.setdefault(name, []).append(force)
+            for fold, seconds in pool.result(task):
+                times.add(seconds)
+                for name, force in fold.items():
+                    fold_predictions.setdefault(name, []).append(force)
         keys = [key for held in folds.held for key in _frame_keys(held)]
         rows = np.array([order.get(key, -1) for key in keys])
         if len(rows) != len(order) or (rows < 0).any():  # other frames held out: not comparable
             log.warning(
-                "%s: its %d folds held out other frames; left out", folds.group, len(folds.tasks)
+                "%s: its %d folds held out other frames; left out", folds.group, len(folds.held)
             )
             continue
         for name, values in fold_predictions.items():
-            if len(values) == len(folds.tasks):
+            if len(values) == len(folds.held):
                 stacked = np.concatenate(values)
                 predicted[name] = np.empty_like(stacked)
                 predicted[name][rows] = stacked
-    counts = [len(folds.tasks) for folds in started]
+    counts = [len(folds.held) for folds in started]
     kind = "sessions" if len(parts) >= 2 else "blocks in time"
     where = f"{counts[0]} blocked folds of {what} ({kind})"
     if len(counts) > 1 and counts[1] != counts[0]:
@@ -631,7 +631,7 @@ def fit_split(
     )
     fitting = by_session(train_parts + val_parts)  # every session the fit saw
     started: list[_Folds] = []
-    with BackgroundPool(at_least=NETWORK_FOLDS) as pool:
+    with BackgroundPool("fold refits", at_least=NETWORK_FOLDS) as pool:
 
         def start_quick_folds(
             estimators: dict[str, AnyEstimator], histories: dict[str, Any]
@@ -649,7 +649,10 @@ def fit_split(
                 return
             refit = Refit.of(estimators, histories)
             cpu_s = sum(v["cpu_s"] for k, v in times.seconds.items() if k in ("baselines", *group))
-            started.append(_start_folds(pool, group, fitting, n_folds, config, refit, True, cpu_s))
+            beside = bool(set(names) & set(NETWORKS))
+            started.append(
+                _start_folds(pool, group, fitting, n_folds, config, refit, True, cpu_s, beside)
+            )
 
         estimators, histories, seconds = _fit_estimators(
             names,

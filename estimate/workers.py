@@ -61,9 +61,11 @@ class BackgroundPool:
     result, Ctrl-C and SIGTERM stop the workers at once; leaving the block on an exception
     kills them."""
 
-    def __init__(self, at_least: int = 1) -> None:
-        """One worker per core, at least ``at_least`` (tasks of equal size that many: three
-        on two workers take two rounds, on three a third less); none on one core."""
+    def __init__(self, what: str, at_least: int = 1) -> None:
+        """``what`` the tasks are, for the log; one worker per core, at least ``at_least``
+        (tasks of equal size that many: three on two workers take two rounds, on three a
+        third less); none on one core."""
+        self._what = what
         cores = os.cpu_count() or 1
         self._workers = max(cores, at_least) if cores >= 2 else 1
         self._pool: ProcessPoolExecutor | None = None
@@ -83,7 +85,7 @@ class BackgroundPool:
         self._waiting.append(task)
         if in_worker:
             if self._pool is None:
-                log.info("starting %d worker processes for %s", self._workers, call.__name__)
+                log.info("%s in %d worker processes", self._what, self._workers)
                 self._pool = spawn_pool(self._workers)
             pool = self._pool
             for waiting in [task, *self._waiting[:-1]]:  # this one first: it is worth them

@@ -673,7 +673,7 @@ def test_fold_refits_in_worker_processes_score_as_those_run_in_the_trainer(
             result = train(sessions, tmp_path / f"m{in_workers}.pt", config)
         started = [r.message for r in caplog.records if "worker processes" in r.message]
         assert len(started) == in_workers  # one pool for both groups of folds
-        assert all(m.endswith("worker processes for _fold_predictions") for m in started)
+        assert all(m.startswith("fold refits in ") for m in started)
         records[in_workers] = load_model(result.model_path).record
     here, spawned = records[False], records[True]
     assert {"pointnet", "hooke", "linear_displacement"} <= set(here["selection_mae_n"])
