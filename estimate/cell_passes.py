@@ -91,20 +91,27 @@ def cell_medians(
     for k in range(points.shape[0]):
         if inside[k]:
             count[cell[k] + 1] += 1
-    start = np.cumsum(count)
+    start = count  # counts → where each cell's depths start, in place
+    for c in range(n_cells):
+        start[c + 1] += start[c]
     fill = start[:-1].copy()
     z = np.empty(start[-1], dtype=np.float64)
     for k in range(points.shape[0]):
         if inside[k]:
             z[fill[cell[k]]] = points[k, 2]
             fill[cell[k]] += 1
-    depth = np.full(n_cells, np.nan)
+    depth = np.empty(n_cells)
     for c in range(n_cells):
         m = start[c + 1] - start[c]
+        depth[c] = np.nan
         if m >= min_points:
             values = z[start[c] : start[c + 1]]
             upper = _select(values, m // 2)
-            lower = upper if m % 2 else values[: m // 2].max()
+            lower = upper
+            if m % 2 == 0:
+                lower = values[0]
+                for v in values[1 : m // 2]:
+                    lower = max(lower, v)
             depth[c] = (upper + lower) / 2
     return depth
 

@@ -66,7 +66,7 @@ class DemoPlan:
     @classmethod
     def full(cls) -> DemoPlan:
         """The full demo: six trials per paper condition and nine freehand trials of 15 s, six
-        trained on and three held out (16 minutes on two quiet cores, 2026-12-06).
+        trained on and three held out (15 minutes on two quiet cores, 2026-12-07).
 
         The camera runs at 10 fps instead of the paper's 30 Hz and PointNet's shared MLP is
         32-64-256 wide instead of 64-128-1024, so that recording, reconstruction and training

@@ -5,6 +5,7 @@ validation sets: on synthetic trials (fast) and on bench trials recorded and rec
 import csv
 import dataclasses
 import logging
+import os
 from collections import defaultdict
 
 import numpy as np
@@ -658,11 +659,12 @@ def test_a_network_scored_on_fewer_sessions_of_a_protocol_is_not_ranked(tmp_path
 def test_fold_refits_in_worker_processes_score_as_those_run_in_the_trainer(
     tmp_path, monkeypatch, caplog
 ):
-    """Fold refits handed to spawned workers (one torch thread each), the trainer on two
-    threads: every method's out-of-fold score and interval the same as with the refits run in
-    the trainer, and the workers started only when the folds are worth them."""
+    """Fold refits handed to a spawned worker (one torch thread), the trainer on two threads:
+    every method's out-of-fold score and interval the same as with the refits run in the
+    trainer; one pool started for both groups of folds (the quick methods' and PointNet's)."""
     from vbfe.estimate.workers import BackgroundPool
 
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)  # one worker: its start is most of the cost
     sessions = trials(np.random.default_rng(7), 6, "fit")
     config = TrainConfig(model="pointnet", **{**FAST, "threads": 2})
     records = {}
