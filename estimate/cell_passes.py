@@ -34,6 +34,16 @@ def finite_rows(points: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _cell(points: np.ndarray, k: int, lo: np.ndarray, size: np.ndarray, cells: int) -> int:
+    """Flat index of the cell of point ``k`` on the grid of :func:`grid_cells`, -1 outside."""
+    i = np.floor((points[k, 0] - lo[0]) / size[0])
+    j = np.floor((points[k, 1] - lo[1]) / size[1])
+    if 0 <= i < cells and 0 <= j < cells:
+        return int(i) * cells + int(j)
+    return -1
+
+
+@njit(cache=True, nogil=True)
 def grid_cells(
     points: np.ndarray, lo: np.ndarray, size: np.ndarray, cells: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -44,10 +54,9 @@ def grid_cells(
     cell = np.zeros(n, dtype=np.int64)
     inside = np.zeros(n, dtype=np.bool_)
     for k in range(n):
-        i = np.floor((points[k, 0] - lo[0]) / size[0])
-        j = np.floor((points[k, 1] - lo[1]) / size[1])
-        if 0 <= i < cells and 0 <= j < cells:
-            cell[k] = int(i) * cells + int(j)
+        c = _cell(points, k, lo, size, cells)
+        if c >= 0:
+            cell[k] = c
             inside[k] = True
     return cell, inside
 
@@ -125,10 +134,8 @@ def cell_sums(
     total = np.zeros(cells * cells)
     count = np.zeros(cells * cells)
     for k in range(points.shape[0]):
-        i = np.floor((points[k, 0] - lo[0]) / size[0])
-        j = np.floor((points[k, 1] - lo[1]) / size[1])
-        if 0 <= i < cells and 0 <= j < cells:
-            c = int(i) * cells + int(j)
+        c = _cell(points, k, lo, size, cells)
+        if c >= 0:
             total[c] += points[k, 2] - rest[c]
             count[c] += 1.0
     return total, count

@@ -631,6 +631,7 @@ def fit_split(
     )
     fitting = by_session(train_parts + val_parts)  # every session the fit saw
     started: list[_Folds] = []
+    networks = [n for n in names if n in NETWORKS]
     with BackgroundPool("fold refits", at_least=NETWORK_FOLDS) as pool:
 
         def start_quick_folds(
@@ -649,7 +650,7 @@ def fit_split(
                 return
             refit = Refit.of(estimators, histories)
             cpu_s = sum(v["cpu_s"] for k, v in times.seconds.items() if k in ("baselines", *group))
-            beside = bool(set(names) & set(NETWORKS))
+            beside = bool(networks)  # the trainer fits them next
             started.append(
                 _start_folds(pool, group, fitting, n_folds, config, refit, True, cpu_s, beside)
             )
@@ -664,7 +665,6 @@ def fit_split(
             times=times,
             quick_fitted=start_quick_folds,
         )
-        networks = [n for n in names if n in NETWORKS]
         if selection_folds and networks:
             started.append(
                 _start_folds(
